@@ -1,0 +1,155 @@
+# Portobello on LCM: top-level build.
+#   make          build everything into build/ (installs missing dependencies first)
+#   make test     build and run every test (pytest; ends with its summary line)
+#   make demo     simulate a drive on the default site, replay it and summarise it
+#   make deps     install what a fresh Debian 12 needs (idempotent)
+# Each directory under common/, tools/ and modules/ may hold a module.mk fragment
+# that adds its programs with the c_program / cxx_program macros below.
+
+SHELL := /bin/bash
+.DEFAULT_GOAL := all
+
+TOP     := $(CURDIR)
+BUILD   := $(TOP)/build
+BIN     := $(BUILD)/bin
+OBJ     := $(BUILD)/obj
+VENV    := $(TOP)/.venv
+VPY     := $(VENV)/bin/python
+DEPS    := $(VENV)/.deps-ok
+
+# LCM: the C library, headers and lcm-gen come from the PyPI lcm 1.5.3 wheel in .venv
+# (one LCM for C, Python and the tools; see docs/architecture.md for why).
+LCM_DIR    := $(VENV)/lcm
+LCM_CFLAGS := -I$(LCM_DIR)/include
+LCM_LIBS   := -L$(LCM_DIR)/lib -Wl,-rpath,$(LCM_DIR)/lib -llcm
+
+CC  ?= cc
+CXX ?= c++
+OPT ?= -O2
+WARN     := -Wall -Wextra -Wno-unused-parameter
+CPPFLAGS := -I$(TOP)/common -I$(BUILD)/gen/c -I$(BUILD)/gen/cpp $(LCM_CFLAGS) -DPB_SOURCE_DIR='"$(TOP)"'
+CFLAGS   := -std=gnu11 $(OPT) -g $(WARN) -MMD -MP
+CXXFLAGS := -std=c++17 $(OPT) -g $(WARN) -MMD -MP
+PCL_CFLAGS := $(shell pkg-config --cflags pcl_common pcl_io pcl_filters eigen3 2>/dev/null)
+PCL_LIBS   := $(shell pkg-config --libs pcl_common pcl_io pcl_filters 2>/dev/null)
+BASE_LIBS  := $(LCM_LIBS) -lyaml -lpthread -lm
+
+PROGRAMS :=
+TEST_PROGRAMS :=
+
+# ---------------------------------------------------------------- dependencies
+.PHONY: deps
+deps:
+	@bash tools/deps.sh
+
+$(DEPS): tools/deps.sh tools/requirements.txt
+	@bash tools/deps.sh
+
+# ---------------------------------------------------------------- lcm types
+LCMTYPES  := $(sort $(wildcard lcmtypes/*.lcm))
+TYPE_SRCS := $(patsubst lcmtypes/%.lcm,$(BUILD)/gen/c/portobello_%.c,$(LCMTYPES))
+TYPE_OBJS := $(patsubst $(BUILD)/gen/c/%.c,$(OBJ)/gen/%.o,$(TYPE_SRCS))
+GEN_STAMP := $(BUILD)/gen/.stamp
+
+$(GEN_STAMP): $(LCMTYPES) | $(DEPS)
+	@rm -rf $(BUILD)/gen $(BUILD)/python/portobello
+	@mkdir -p $(BUILD)/gen/c $(BUILD)/gen/cpp $(BUILD)/python
+	@echo "  LCMGEN  $(words $(LCMTYPES)) types"
+	@$(VENV)/bin/lcm-gen -c --c-cpath $(BUILD)/gen/c --c-hpath $(BUILD)/gen/c \
+	    -x --cpp-hpath $(BUILD)/gen/cpp -p --ppath $(BUILD)/python $(LCMTYPES)
+	@touch $@
+
+$(TYPE_SRCS): $(GEN_STAMP) ;
+
+$(OBJ)/gen/%.o: $(BUILD)/gen/c/%.c
+	@mkdir -p $(@D)
+	@echo "  CC      $(notdir $<)"
+	@$(CC) $(CPPFLAGS) $(CFLAGS) -Wno-unused -c $< -o $@
+
+$(BUILD)/lib/libportobello_types.a: $(TYPE_OBJS)
+	@mkdir -p $(@D)
+	@rm -f $@ && ar rcs $@ $^
+
+# ---------------------------------------------------------------- common library
+COMMON_C    := $(sort $(wildcard common/*.c))
+COMMON_CXX  := $(sort $(wildcard common/*.cpp))
+COMMON_OBJS := $(patsubst %.c,$(OBJ)/%.o,$(COMMON_C))
+COMMON_CXX_OBJS := $(patsubst %.cpp,$(OBJ)/%.o,$(COMMON_CXX))
+LIB_COMMON  := $(BUILD)/lib/libpb_common.a
+LIB_COMMON_CXX := $(BUILD)/lib/libpb_common_cxx.a
+LIB_TYPES   := $(BUILD)/lib/libportobello_types.a
+
+$(LIB_COMMON): $(COMMON_OBJS)
+	@mkdir -p $(@D)
+	@rm -f $@ && ar rcs $@ $^
+
+$(LIB_COMMON_CXX): $(COMMON_CXX_OBJS)
+	@mkdir -p $(@D)
+	@rm -f $@ && ar rcs $@ $^
+
+# Every object waits for the generated headers.
+$(OBJ)/%.o: %.c $(GEN_STAMP)
+	@mkdir -p $(@D)
+	@echo "  CC      $<"
+	@$(CC) $(CPPFLAGS) $(CFLAGS) -c $< -o $@
+
+$(OBJ)/%.o: %.cpp $(GEN_STAMP)
+	@mkdir -p $(@D)
+	@echo "  CXX     $<"
+	@$(CXX) $(CPPFLAGS) $(PCL_CFLAGS) $(CXXFLAGS) -c $< -o $@
+
+# c_program NAME DIR [EXTRA_LIBS]: every .c in DIR is linked into build/bin/NAME.
+define c_program
+PROGRAMS += $(BIN)/$(1)
+$(BIN)/$(1): $(patsubst %.c,$(OBJ)/%.o,$(sort $(wildcard $(2)/*.c))) $(LIB_COMMON) $(LIB_TYPES)
+	@mkdir -p $$(@D)
+	@echo "  LD      $$(notdir $$@)"
+	@$$(CC) $$(CFLAGS) -o $$@ $$(filter %.o,$$^) $(LIB_COMMON) $(LIB_TYPES) $(3) $$(BASE_LIBS)
+endef
+
+# cxx_program NAME DIR [EXTRA_LIBS]: every .c and .cpp in DIR, linked with PCL.
+define cxx_program
+PROGRAMS += $(BIN)/$(1)
+$(BIN)/$(1): $(patsubst %.c,$(OBJ)/%.o,$(sort $(wildcard $(2)/*.c))) $(patsubst %.cpp,$(OBJ)/%.o,$(sort $(wildcard $(2)/*.cpp))) $(LIB_COMMON_CXX) $(LIB_COMMON) $(LIB_TYPES)
+	@mkdir -p $$(@D)
+	@echo "  LD      $$(notdir $$@)"
+	@$$(CXX) $$(CXXFLAGS) -o $$@ $$(filter %.o,$$^) $(LIB_COMMON_CXX) $(LIB_COMMON) $(LIB_TYPES) $(3) $$(PCL_LIBS) $$(BASE_LIBS)
+endef
+
+# c_test NAME FILE: a C unit test, run by tests/test_c_units.py.
+define c_test
+TEST_PROGRAMS += $(BUILD)/tests/$(1)
+$(BUILD)/tests/$(1): $(patsubst %.c,$(OBJ)/%.o,$(2)) $(LIB_COMMON) $(LIB_TYPES)
+	@mkdir -p $$(@D)
+	@echo "  LD      $$(notdir $$@)"
+	@$$(CC) $$(CFLAGS) -o $$@ $$(filter %.o,$$^) $(LIB_COMMON) $(LIB_TYPES) $$(BASE_LIBS)
+endef
+
+# Sites: maps/module.mk adds build rules for generated site data (the default site's prior map).
+.PHONY: maps
+maps:
+
+include $(sort $(wildcard common/module.mk tools/*/module.mk modules/*/module.mk tests/module.mk maps/module.mk))
+
+# ---------------------------------------------------------------- top-level targets
+.PHONY: all programs tests test demo clean bench fuzz test-real
+all: $(LIB_TYPES) $(LIB_COMMON) $(PROGRAMS) $(TEST_PROGRAMS) maps
+
+programs: $(PROGRAMS)
+
+# pytest drives everything: the C unit tests, the tools, the logs.
+test: all
+	@$(VPY) -m pytest -q -p no:cacheprovider tests $(PYTEST_ARGS)
+
+# Optional: tests on ../shared/data that may not be copied into the project.
+test-real: all
+	@$(VPY) -m pytest -q -p no:cacheprovider -m real tests $(PYTEST_ARGS)
+
+DEMO_DIR ?= $(BUILD)/demo
+demo: all
+	@bash tools/demo.sh $(DEMO_DIR)
+
+clean:
+	rm -rf $(BUILD)
+
+-include $(shell find $(OBJ) -name '*.d' 2>/dev/null)

@@ -1,0 +1,243 @@
+/* pb_bus: live LCM or replay of an event log, behind one small interface. */
+#include "pb_bus.h"
+
+#include <errno.h>
+#include <lcm/lcm.h>
+#include <regex.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include "pb_log.h"
+#include "pb_signal.h"
+
+#define PB_MAX_SUBS 64
+#define PB_MAX_TIMERS 16
+#define PB_LIVE_QUEUE 1000
+
+typedef struct {
+    pb_bus_t *bus;
+    char *channel;
+    regex_t re;
+    pb_handler_fn fn;
+    void *user;
+    lcm_subscription_t *live;
+} pb_sub_t;
+
+typedef struct {
+    int64_t period, next;
+    pb_timer_fn fn;
+    void *user;
+} pb_timer_t;
+
+struct pb_bus {
+    int replay;
+    lcm_t *lcm;
+    pb_log_t *in, *out;
+    pb_sub_t subs[PB_MAX_SUBS];
+    int nsubs;
+    pb_timer_t timers[PB_MAX_TIMERS];
+    int ntimers;
+    pb_input_hook_fn hook;
+    void *hook_user;
+    int64_t now;
+    int64_t events;
+    volatile int stop;
+    pb_err_t publish_err;
+    int publish_failed;
+};
+
+const char *pb_lcm_url(const char *cli_url)
+{
+    if (cli_url && *cli_url) return cli_url;
+    const char *env = getenv("LCM_DEFAULT_URL");
+    if (env && *env) return env;
+    return PB_DEFAULT_LCM_URL;
+}
+
+static int64_t wall_utime(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_REALTIME, &ts);
+    return (int64_t)ts.tv_sec * 1000000 + ts.tv_nsec / 1000;
+}
+
+pb_bus_t *pb_bus_create_live(const char *url, pb_err_t *err)
+{
+    url = pb_lcm_url(url);
+    lcm_t *lcm = lcm_create(url);
+    if (!lcm) { pb_err_set(err, "cannot open LCM at '%s' (is there a multicast route? see README)", url); return NULL; }
+    pb_bus_t *bus = calloc(1, sizeof *bus);
+    bus->lcm = lcm;
+    return bus;
+}
+
+pb_bus_t *pb_bus_create_replay(const char *in_path, const char *out_path, pb_err_t *err)
+{
+    if (!in_path || !out_path) { pb_err_set(err, "replay needs both --replay IN.lcm and --out OUT.lcm"); return NULL; }
+    pb_log_t *in = pb_log_open_read(in_path, err);
+    if (!in) return NULL;
+    pb_log_t *out = pb_log_open_write(out_path, err);
+    if (!out) { pb_log_close(in, NULL); return NULL; }
+    pb_bus_t *bus = calloc(1, sizeof *bus);
+    bus->replay = 1;
+    bus->in = in;
+    bus->out = out;
+    return bus;
+}
+
+void pb_bus_destroy(pb_bus_t *bus)
+{
+    if (!bus) return;
+    for (int i = 0; i < bus->nsubs; i++) {
+        if (bus->subs[i].live) lcm_unsubscribe(bus->lcm, bus->subs[i].live);
+        regfree(&bus->subs[i].re);
+        free(bus->subs[i].channel);
+    }
+    if (bus->lcm) lcm_destroy(bus->lcm);
+    pb_log_close(bus->in, NULL);
+    pb_err_t e;
+    if (pb_log_close(bus->out, &e) != 0) fprintf(stderr, "%s\n", e.msg);
+    free(bus);
+}
+
+int pb_bus_is_replay(const pb_bus_t *bus) { return bus->replay; }
+int64_t pb_bus_now(const pb_bus_t *bus) { return bus->replay ? bus->now : wall_utime(); }
+int64_t pb_bus_events_read(const pb_bus_t *bus) { return bus->events; }
+void pb_bus_stop(pb_bus_t *bus) { bus->stop = 1; }
+
+void pb_bus_set_input_hook(pb_bus_t *bus, pb_input_hook_fn fn, void *user)
+{
+    bus->hook = fn;
+    bus->hook_user = user;
+}
+
+static void deliver(pb_sub_t *s, const pb_msg_t *m)
+{
+    if (s->bus->hook) s->bus->hook(m->channel, m->recv_utime, s->bus->hook_user);
+    s->fn(m, s->user);
+}
+
+static void live_trampoline(const lcm_recv_buf_t *rbuf, const char *channel, void *user)
+{
+    pb_sub_t *s = user;
+    pb_msg_t m = { channel, rbuf->data, (int32_t)rbuf->data_size, rbuf->recv_utime };
+    deliver(s, &m);
+}
+
+int pb_bus_subscribe(pb_bus_t *bus, const char *channel, pb_handler_fn fn, void *user)
+{
+    if (bus->nsubs >= PB_MAX_SUBS) return -1;
+    pb_sub_t *s = &bus->subs[bus->nsubs];
+    /* LCM matches channel names as anchored regular expressions; do the same in replay. */
+    char pattern[600];
+    snprintf(pattern, sizeof pattern, "^(%s)$", channel);
+    if (regcomp(&s->re, pattern, REG_EXTENDED | REG_NOSUB) != 0) return -1;
+    s->bus = bus;
+    s->channel = strdup(channel);
+    s->fn = fn;
+    s->user = user;
+    if (!bus->replay) {
+        s->live = lcm_subscribe(bus->lcm, channel, live_trampoline, s);
+        if (!s->live) { regfree(&s->re); free(s->channel); return -1; }
+        /* LCM's default 30-deep queue silently drops bursts. */
+        lcm_subscription_set_queue_capacity(s->live, PB_LIVE_QUEUE);
+    }
+    bus->nsubs++;
+    return 0;
+}
+
+int pb_bus_publish(pb_bus_t *bus, const char *channel, const void *data, int32_t len, pb_err_t *err)
+{
+    if (bus->replay) {
+        pb_err_t e;
+        if (pb_log_write(bus->out, bus->now, channel, data, len, &e) != 0) {
+            if (!bus->publish_failed) { bus->publish_err = e; bus->publish_failed = 1; }
+            bus->stop = 1;
+            if (err) *err = e;
+            return -1;
+        }
+        return 0;
+    }
+    if (lcm_publish(bus->lcm, channel, data, (unsigned)len) != 0)
+        return pb_err_set(err, "%s: lcm_publish of %d bytes failed", channel, len);
+    return 0;
+}
+
+int pb_bus_publish_encoded(pb_bus_t *bus, const char *channel, const void *msg, int (*size_fn)(const void *),
+                           int (*encode_fn)(void *, int, int, const void *), pb_err_t *err)
+{
+    int size = size_fn(msg);
+    if (size < 0) return pb_err_set(err, "%s: cannot size message", channel);
+    uint8_t stackbuf[4096];
+    uint8_t *buf = size <= (int)sizeof stackbuf ? stackbuf : malloc((size_t)size);
+    if (!buf) return pb_err_set(err, "%s: out of memory for %d bytes", channel, size);
+    int rc;
+    if (encode_fn(buf, 0, size, msg) != size)
+        rc = pb_err_set(err, "%s: cannot encode message (an array length does not match its count?)", channel);
+    else
+        rc = pb_bus_publish(bus, channel, buf, size, err);
+    if (buf != stackbuf) free(buf);
+    return rc;
+}
+
+int pb_bus_add_timer(pb_bus_t *bus, int64_t period_us, pb_timer_fn fn, void *user)
+{
+    if (bus->ntimers >= PB_MAX_TIMERS || period_us <= 0) return -1;
+    bus->timers[bus->ntimers++] = (pb_timer_t){ period_us, 0, fn, user };
+    return 0;
+}
+
+/* Fires every timer whose deadline is at or before t, in deadline order. */
+static void fire_timers(pb_bus_t *bus, int64_t t)
+{
+    for (;;) {
+        pb_timer_t *due = NULL;
+        for (int i = 0; i < bus->ntimers; i++) {
+            pb_timer_t *tm = &bus->timers[i];
+            if (tm->next == 0) tm->next = t + tm->period;   /* armed by the first event */
+            if (tm->next <= t && (!due || tm->next < due->next)) due = tm;
+        }
+        if (!due) return;
+        int64_t deadline = due->next;
+        due->next += due->period;
+        if (due->next <= t - 10 * due->period) due->next = t + due->period;  /* skip a long gap */
+        if (bus->replay) bus->now = deadline;
+        due->fn(deadline, due->user);
+    }
+}
+
+static int run_replay(pb_bus_t *bus, pb_err_t *err)
+{
+    pb_event_t ev;
+    for (;;) {
+        if (bus->stop || pb_signal_stop_requested()) break;
+        int r = pb_log_next(bus->in, &ev, err);
+        if (r < 0) return -1;
+        if (r == 0) break;
+        bus->events++;
+        fire_timers(bus, ev.timestamp);
+        bus->now = ev.timestamp;
+        pb_msg_t m = { ev.channel, ev.data, ev.datalen, ev.timestamp };
+        for (int i = 0; i < bus->nsubs; i++)
+            if (regexec(&bus->subs[i].re, ev.channel, 0, NULL, 0) == 0) deliver(&bus->subs[i], &m);
+    }
+    if (bus->publish_failed) { if (err) *err = bus->publish_err; return -1; }
+    return 0;
+}
+
+static int run_live(pb_bus_t *bus, pb_err_t *err)
+{
+    while (!bus->stop && !pb_signal_stop_requested()) {
+        int r = lcm_handle_timeout(bus->lcm, 50);
+        if (r < 0) return pb_err_set(err, "lcm_handle failed");
+        fire_timers(bus, wall_utime());
+    }
+    return 0;
+}
+
+int pb_bus_run(pb_bus_t *bus, pb_err_t *err)
+{
+    return bus->replay ? run_replay(bus, err) : run_live(bus, err);
+}

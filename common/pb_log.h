@@ -1,0 +1,52 @@
+/* pb_log: LCM event logs (the format lcm-logger writes), read strictly.
+ *
+ * lcm's own reader resynchronises silently over garbage; this one stops at the
+ * first damaged byte and says where, so a replay never quietly skips data.
+ * Writing goes through lcm's own lcm_eventlog.
+ *
+ * Ownership: pb_log_t is opaque, created by pb_log_open_read/_write and freed by
+ * pb_log_close. An event returned by pb_log_next points into the reader's buffer
+ * and is valid until the next call. */
+#ifndef PB_LOG_H
+#define PB_LOG_H
+
+#include <stdint.h>
+#include "pb_err.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+typedef struct pb_log pb_log_t;
+
+typedef struct {
+    int64_t eventnum;
+    int64_t timestamp;      /* us since epoch: receive time as logged */
+    const char *channel;    /* NUL-terminated */
+    const uint8_t *data;
+    int32_t datalen;
+    int64_t offset;         /* byte offset of this event's header in the file */
+} pb_event_t;
+
+pb_log_t *pb_log_open_read(const char *path, pb_err_t *err);
+pb_log_t *pb_log_open_write(const char *path, pb_err_t *err);
+
+/* Reads the next event. Returns 1 with *ev filled, 0 at a clean end of file,
+ * -1 on a truncated or corrupt event (err: "PATH: byte N: what"). */
+int pb_log_next(pb_log_t *log, pb_event_t *ev, pb_err_t *err);
+
+/* Appends an event (eventnum is assigned in order). Returns 0 or -1. */
+int pb_log_write(pb_log_t *log, int64_t timestamp, const char *channel,
+                 const void *data, int32_t datalen, pb_err_t *err);
+
+/* Bytes read so far and file size (for progress), or written so far. */
+int64_t pb_log_position(const pb_log_t *log);
+int64_t pb_log_size(const pb_log_t *log);
+
+/* Flushes and closes; returns 0, or -1 if data could not be written. NULL is a no-op. */
+int pb_log_close(pb_log_t *log, pb_err_t *err);
+
+#ifdef __cplusplus
+}
+#endif
+#endif

@@ -1,0 +1,88 @@
+/* LIDAR_SCAN (either form) to points in the lidar frame; the model is documented
+ * in lcmtypes/lidar_scan_t.lcm. */
+#include "pb_scan.h"
+
+#include <math.h>
+#include <stdlib.h>
+
+static int reserve(pb_points_t *p, int n)
+{
+    if (n <= p->cap) return 0;
+    float *x = realloc(p->x, n * sizeof *x); if (x) p->x = x;
+    float *y = realloc(p->y, n * sizeof *y); if (y) p->y = y;
+    float *z = realloc(p->z, n * sizeof *z); if (z) p->z = z;
+    float *in = realloc(p->intensity, n * sizeof *in); if (in) p->intensity = in;
+    int32_t *t = realloc(p->offset_us, n * sizeof *t); if (t) p->offset_us = t;
+    uint8_t *r = realloc(p->ring, n * sizeof *r); if (r) p->ring = r;
+    if (!x || !y || !z || !in || !t || !r) return -1;
+    p->cap = n;
+    return 0;
+}
+
+void pb_points_free(pb_points_t *p)
+{
+    free(p->x); free(p->y); free(p->z); free(p->intensity); free(p->offset_us); free(p->ring);
+    *p = (pb_points_t){ 0 };
+}
+
+static int range_image(const portobello_lidar_scan_t *s, pb_points_t *out, pb_err_t *err)
+{
+    if (s->rows <= 0 || s->cols <= 0 || s->npixels != s->rows * s->cols)
+        return pb_err_set(err, "LIDAR_SCAN: npixels %d != rows %d x cols %d", s->npixels, s->rows, s->cols);
+    if (s->rows > 255) return pb_err_set(err, "LIDAR_SCAN: %d rows (at most 255 beams)", s->rows);
+    if (reserve(out, s->npixels) != 0) return pb_err_set(err, "LIDAR_SCAN: out of memory");
+    const double *M = s->lidar_from_beam;
+    int identity = 1;
+    static const double I[16] = { 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1 };
+    for (int i = 0; i < 16; i++) if (M[i] != I[i]) identity = 0;
+    double n = s->beam_origin_m;
+    int k = 0;
+    for (int c = 0; c < s->cols; c++) {
+        double enc = 2 * M_PI * (1.0 - (double)c / s->cols);
+        double ce = cos(enc), se = sin(enc);
+        for (int r = 0; r < s->rows; r++) {
+            int32_t mm = s->range_mm[r * s->cols + c];
+            if (mm <= 0) continue;
+            double R = mm * 1e-3, th = enc + s->beam_azimuth_rad[r], ph = s->beam_altitude_rad[r];
+            double cp = cos(ph);
+            double x = (R - n) * cos(th) * cp + n * ce;
+            double y = (R - n) * sin(th) * cp + n * se;
+            double z = (R - n) * sin(ph);
+            if (!identity) {
+                double X = M[0] * x + M[1] * y + M[2] * z + M[3];
+                double Y = M[4] * x + M[5] * y + M[6] * z + M[7];
+                double Z = M[8] * x + M[9] * y + M[10] * z + M[11];
+                x = X; y = Y; z = Z;
+            }
+            if (!isfinite(x) || !isfinite(y) || !isfinite(z)) continue;
+            out->x[k] = (float)x; out->y[k] = (float)y; out->z[k] = (float)z;
+            out->intensity[k] = s->reflectivity[r * s->cols + c];
+            out->offset_us[k] = s->col_offset_us[c];
+            out->ring[k] = (uint8_t)r;
+            k++;
+        }
+    }
+    out->n = k;
+    return k;
+}
+
+int pb_scan_points(const portobello_lidar_scan_t *s, pb_points_t *out, pb_err_t *err)
+{
+    out->n = 0;
+    if (s->npixels > 0 && s->npoints > 0)
+        return pb_err_set(err, "LIDAR_SCAN: both a range image (%d pixels) and %d points", s->npixels, s->npoints);
+    if (s->npixels > 0) return range_image(s, out, err);
+    if (s->npoints < 0) return pb_err_set(err, "LIDAR_SCAN: negative point count %d", s->npoints);
+    if (reserve(out, s->npoints > 0 ? s->npoints : 1) != 0) return pb_err_set(err, "LIDAR_SCAN: out of memory");
+    int k = 0;
+    for (int i = 0; i < s->npoints; i++) {
+        if (!isfinite(s->x[i]) || !isfinite(s->y[i]) || !isfinite(s->z[i])) continue;
+        out->x[k] = s->x[i]; out->y[k] = s->y[i]; out->z[k] = s->z[i];
+        out->intensity[k] = s->intensity[i];
+        out->offset_us[k] = s->point_offset_us[i];
+        out->ring[k] = s->ring[i];
+        k++;
+    }
+    out->n = k;
+    return k;
+}

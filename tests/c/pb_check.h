@@ -1,0 +1,25 @@
+/* pb_check: a minimal check harness for the C unit tests. Each failed check
+ * prints file:line and the expression; main returns pb_check_report(). */
+#ifndef PB_CHECK_H
+#define PB_CHECK_H
+
+#include <math.h>
+#include <stdio.h>
+#include <string.h>
+
+static int pb_checks, pb_failures;
+
+#define CHECK(cond) do { pb_checks++; if (!(cond)) { pb_failures++; \
+    fprintf(stderr, "%s:%d: check failed: %s\n", __FILE__, __LINE__, #cond); } } while (0)
+#define CHECK_NEAR(a, b, tol) do { pb_checks++; double _a = (a), _b = (b); if (!(fabs(_a - _b) <= (tol))) { pb_failures++; \
+    fprintf(stderr, "%s:%d: check failed: %s = %.9g, %s = %.9g, tolerance %g\n", __FILE__, __LINE__, #a, _a, #b, _b, (double)(tol)); } } while (0)
+#define CHECK_CONTAINS(s, sub) do { pb_checks++; if (!strstr((s), (sub))) { pb_failures++; \
+    fprintf(stderr, "%s:%d: check failed: \"%s\" does not contain \"%s\"\n", __FILE__, __LINE__, (s), (sub)); } } while (0)
+
+static int pb_check_report(const char *name)
+{
+    printf("%s: %d checks, %d failed\n", name, pb_checks, pb_failures);
+    return pb_failures ? 1 : 0;
+}
+
+#endif

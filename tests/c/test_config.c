@@ -1,0 +1,113 @@
+/* pb_config: schema reading, and refusal of bad files with file:line. */
+#include <stddef.h>
+#include <stdlib.h>
+#include <unistd.h>
+
+#include "pb_check.h"
+#include "pb_config.h"
+
+typedef struct {
+    double length;
+    long count;
+    int enabled;
+    char name[16];
+    double xyz[3];
+    const pb_cfg_node_t *extra;
+} thing_t;
+
+static const pb_cfg_field_t THING[] = {
+    { "length", PB_CFG_DOUBLE, offsetof(thing_t, length), 0, 1 },
+    { "count", PB_CFG_INT, offsetof(thing_t, count), 0, 0 },
+    { "enabled", PB_CFG_BOOL, offsetof(thing_t, enabled), 0, 0 },
+    { "name", PB_CFG_STRING, offsetof(thing_t, name), 16, 0 },
+    { "xyz", PB_CFG_DOUBLES, offsetof(thing_t, xyz), 3, 0 },
+    { "extra", PB_CFG_NODE, offsetof(thing_t, extra), 0, 0 },
+    PB_CFG_END,
+};
+
+static char dir[] = "/tmp/pb_test_config_XXXXXX";
+
+static const char *write_file(const char *name, const char *text)
+{
+    static char path[256];
+    snprintf(path, sizeof path, "%s/%s", dir, name);
+    FILE *f = fopen(path, "w");
+    fputs(text, f);
+    fclose(f);
+    return path;
+}
+
+/* Loads text and reads it through THING; returns rc and leaves the error in err. */
+static int load(const char *text, thing_t *t, pb_err_t *err)
+{
+    const char *path = write_file("c.yaml", text);
+    pb_cfg_t *cfg = pb_cfg_load(path, err);
+    if (!cfg) return -1;
+    int rc = pb_cfg_read(pb_cfg_root(cfg), THING, t, err);
+    pb_cfg_free(cfg);
+    return rc;
+}
+
+int main(void)
+{
+    if (!mkdtemp(dir)) return 2;
+    pb_err_t err;
+    thing_t t = { .count = 7 };
+
+    /* A good file: values land, defaults survive. */
+    CHECK(load("# comment\nlength: 4.5\nenabled: yes\nname: prius\nxyz: [1, 2.5, -3]\nextra: {a: 1}\n", &t, &err) == 0);
+    CHECK_NEAR(t.length, 4.5, 0);
+    CHECK(t.count == 7);
+    CHECK(t.enabled == 1);
+    CHECK(strcmp(t.name, "prius") == 0);
+    CHECK_NEAR(t.xyz[1], 2.5, 0);
+    CHECK(t.extra != NULL);   /* node pointers die with the document; lines are checked below */
+
+    /* Unknown key: named, with its line. */
+    CHECK(load("length: 1\nlenght: 2\n", &t, &err) == -1);
+    CHECK_CONTAINS(err.msg, "c.yaml:2: unknown key 'lenght'");
+    /* Wrong types. */
+    CHECK(load("length: long\n", &t, &err) == -1);
+    CHECK_CONTAINS(err.msg, "c.yaml:1: length: expected a number, got 'long'");
+    CHECK(load("length: 1\ncount: 2.5\n", &t, &err) == -1);
+    CHECK_CONTAINS(err.msg, "c.yaml:2: count: expected an integer");
+    CHECK(load("length: \"3\"\n", &t, &err) == -1);   /* a quoted number is a string */
+    CHECK_CONTAINS(err.msg, "c.yaml:1: length: expected a number");
+    CHECK(load("length: 1\nxyz: [1, 2]\n", &t, &err) == -1);
+    CHECK_CONTAINS(err.msg, "c.yaml:2: xyz: expected a list of 3 numbers");
+    CHECK(load("length: 1\nenabled: maybe\n", &t, &err) == -1);
+    CHECK_CONTAINS(err.msg, "c.yaml:2: enabled: expected true or false");
+    CHECK(load("length: [1]\n", &t, &err) == -1);
+    CHECK_CONTAINS(err.msg, "c.yaml:1: length: expected a number, got a list");
+    /* Missing required key, duplicate key, syntax error, non-mapping top level. */
+    CHECK(load("count: 1\n", &t, &err) == -1);
+    CHECK_CONTAINS(err.msg, "missing required key 'length'");
+    CHECK(load("length: 1\nlength: 2\n", &t, &err) == -1);
+    CHECK_CONTAINS(err.msg, "c.yaml:2: duplicate key 'length'");
+    CHECK(load("length: 1\nxyz: [1, 2\nname: x\n", &t, &err) == -1);
+    CHECK_CONTAINS(err.msg, "YAML syntax error");
+    CHECK(load("- 1\n- 2\n", &t, &err) == -1);
+    CHECK_CONTAINS(err.msg, "c.yaml:1: expected a mapping");
+    CHECK(load("", &t, &err) == -1);
+    CHECK_CONTAINS(err.msg, "empty file");
+    CHECK(pb_cfg_load("/nonexistent/x.yaml", &err) == NULL);
+    CHECK_CONTAINS(err.msg, "/nonexistent/x.yaml: cannot open");
+
+    /* Tree access for lists of maps (routes, scenarios). */
+    const char *path = write_file("l.yaml", "points:\n  - {x: 1, y: 2}\n  - {x: 3, y: 4}\n");
+    pb_cfg_t *cfg = pb_cfg_load(path, &err);
+    CHECK(cfg != NULL);
+    if (cfg) {
+        const pb_cfg_node_t *pts = pb_node_get(pb_cfg_root(cfg), "points");
+        CHECK(pb_node_count(pts) == 2);
+        double y = 0;
+        CHECK(pb_node_double(pb_node_get(pb_node_at(pts, 1), "y"), "y", &y, &err) == 0);
+        CHECK_NEAR(y, 4, 0);
+        CHECK(pb_node_line(pb_node_at(pts, 1)) == 3);
+        pb_cfg_free(cfg);
+    }
+    char cmd[300];
+    snprintf(cmd, sizeof cmd, "rm -rf %s", dir);
+    if (system(cmd) != 0) return 2;
+    return pb_check_report("test_config");
+}

@@ -1,0 +1,49 @@
+"""Shared pytest set-up: paths, the generated `portobello` types, log reading.
+
+Tests marked `real` read ../shared/data (captures whose licence keeps them out of
+the project). They run only with `make test-real` (pytest -m real) or PB_REAL=1,
+and skip with a message when the data is absent.
+"""
+import os
+import pathlib
+import subprocess
+import sys
+
+import pytest
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+BUILD = ROOT / "build"
+BIN = BUILD / "bin"
+SHARED_DATA = ROOT.parent / "shared" / "data"
+sys.path.insert(0, str(BUILD / "python"))
+
+
+def pytest_configure(config):
+    config.addinivalue_line("markers", "real: needs ../shared/data (run with make test-real)")
+
+
+def pytest_collection_modifyitems(config, items):
+    if "real" in (config.getoption("-m") or "") or os.environ.get("PB_REAL") == "1":
+        return
+    skip = pytest.mark.skip(reason="real-data test: run `make test-real`")
+    for item in items:
+        if "real" in item.keywords:
+            item.add_marker(skip)
+
+
+def read_log(path, channels=None):
+    """Yields (channel, timestamp_us, data) for every event of an LCM log."""
+    import lcm
+    log = lcm.EventLog(str(path), "r")
+    for ev in log:
+        if channels is None or ev.channel in channels:
+            yield ev.channel, ev.timestamp, ev.data
+
+
+def run(args, check=True, **kw):
+    """Runs a project binary; returns the CompletedProcess (text output)."""
+    args = [str(a) for a in args]
+    p = subprocess.run(args, capture_output=True, text=True, **kw)
+    if check and p.returncode != 0:
+        raise AssertionError(f"{' '.join(args)} exited {p.returncode}\nstdout:\n{p.stdout}\nstderr:\n{p.stderr}")
+    return p

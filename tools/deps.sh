@@ -1,0 +1,47 @@
+#!/usr/bin/env bash
+# Installs what a fresh Debian 12 needs to build and test the project. Idempotent:
+# installs only what is missing. Called by `make deps` (and by make, make test and
+# make demo when the stamp is missing or older than this script).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+APT_PKGS="build-essential pkg-config python3 python3-venv python3-pip libglib2.0-0 libglib2.0-dev \
+libyaml-dev libeigen3-dev libpcl-dev liboctomap-dev libccd-dev can-utils"
+
+missing=""
+for p in $APT_PKGS; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing="$missing $p"
+done
+if [ -n "$missing" ]; then
+  echo "deps: installing Debian packages:$missing"
+  SUDO=""; [ "$(id -u)" -eq 0 ] || SUDO="sudo"
+  $SUDO apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends $missing
+fi
+
+PY=${PYTHON:-/usr/bin/python3}
+[ -x "$PY" ] || PY=python3
+if [ ! -x .venv/bin/python ]; then
+  echo "deps: creating .venv with $PY"
+  "$PY" -m venv .venv
+fi
+if ! .venv/bin/python -m pip install -q --disable-pip-version-check -r tools/requirements.txt; then
+  echo "deps: pip install failed (PyPI must be reachable)" >&2; exit 1
+fi
+# One stable path to the LCM library, headers and tools shipped in the lcm wheel.
+site=$(.venv/bin/python -c 'import sysconfig; print(sysconfig.get_paths()["platlib"])')
+ln -sfn "$site" .venv/lcm
+[ -f .venv/lcm/include/lcm/lcm.h ] || { echo "deps: lcm wheel has no C headers at $site/include" >&2; exit 1; }
+
+# Large LCM messages (a LiDAR sweep is ~330-600 KB) need a big socket receive buffer:
+# every URL the project uses asks for recv_buf_size=8388608, which the kernel caps at rmem_max.
+want=16777216
+have=$(cat /proc/sys/net/core/rmem_max 2>/dev/null || echo 0)
+if [ "$have" -lt "$want" ]; then
+  if [ "$(id -u)" -eq 0 ] && sysctl -q -w net.core.rmem_max=$want 2>/dev/null; then
+    echo "deps: net.core.rmem_max $have -> $want"
+  else
+    echo "deps: warning: net.core.rmem_max is $have; run 'sysctl -w net.core.rmem_max=$want' as root for large LCM messages" >&2
+  fi
+fi
+touch .venv/.deps-ok
