@@ -1,0 +1,1 @@
+$(eval $(call c_program,log-summary,tools/log-summary))
