@@ -30,8 +30,8 @@ WARN     := -Wall -Wextra -Wno-unused-parameter
 CPPFLAGS := -I$(TOP)/common -I$(BUILD)/gen/c -I$(BUILD)/gen/cpp $(LCM_CFLAGS) -DPB_SOURCE_DIR='"$(TOP)"'
 CFLAGS   := -std=gnu11 $(OPT) -g $(WARN) -MMD -MP
 CXXFLAGS := -std=c++17 $(OPT) -g $(WARN) -MMD -MP
-PCL_CFLAGS := $(shell pkg-config --cflags pcl_common pcl_io pcl_filters eigen3 2>/dev/null)
-PCL_LIBS   := $(shell pkg-config --libs pcl_common pcl_io pcl_filters 2>/dev/null)
+PCL_CFLAGS = $(shell pkg-config --cflags pcl_common pcl_io pcl_filters eigen3 2>/dev/null)
+PCL_LIBS   = $(shell pkg-config --libs pcl_common pcl_io pcl_filters 2>/dev/null)
 BASE_LIBS  := $(LCM_LIBS) -lyaml -lpthread -lm
 
 PROGRAMS :=
