@@ -149,6 +149,10 @@ DEMO_DIR ?= $(BUILD)/demo
 demo: all
 	@bash tools/demo.sh $(DEMO_DIR)
 
+# libFuzzer + ASan/UBSan on every parser, FUZZ_RUNS executions each (default 1,000,000).
+fuzz: $(GEN_STAMP)
+	@bash tests/fuzz/run.sh
+
 clean:
 	rm -rf $(BUILD)
 

@@ -231,6 +231,7 @@ static int run_live(pb_bus_t *bus, pb_err_t *err)
 {
     while (!bus->stop && !pb_signal_stop_requested()) {
         int r = lcm_handle_timeout(bus->lcm, 50);
+        if (r < 0 && pb_signal_stop_requested()) break;   /* a signal interrupted the wait */
         if (r < 0) return pb_err_set(err, "lcm_handle failed");
         fire_timers(bus, wall_utime());
     }

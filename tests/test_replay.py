@@ -125,3 +125,35 @@ def test_bad_arguments(tmp_path):
     assert p.returncode == 2 and "--replay and --out go together" in p.stderr
     p = run([BIN / "log-summary", "--help"])
     assert "usage: log-summary" in p.stdout
+
+
+def test_live_bus_and_clean_stop_on_signal():
+    """log-summary on the live bus (real UDP multicast, private port, ttl=0): it counts
+    what Python publishes and prints the summary after SIGINT."""
+    import lcm
+    import signal
+    import subprocess
+    import time
+    url = "udpm://239.255.76.67:7742?ttl=0&recv_buf_size=8388608"
+    proc = subprocess.Popen([str(BIN / "log-summary"), "--lcm-url", url],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        time.sleep(0.5)  # let it subscribe
+        lc = lcm.LCM(url)
+        for i in range(50):
+            m = portobello.imu_t()
+            m.utime = T0 + i * 5000
+            m.accel = [0.0, 0.0, 9.81]
+            m.gyro = [0.0] * 3
+            lc.publish("IMU", m.encode())
+            time.sleep(0.002)
+        time.sleep(0.5)
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=10)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, err
+    assert "listening on " + url in err
+    line = [l for l in out.splitlines() if l.startswith("IMU")][0].split()
+    assert int(line[1]) == 50

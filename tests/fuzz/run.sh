@@ -1,0 +1,40 @@
+#!/usr/bin/env bash
+# make fuzz: builds each tests/fuzz/fuzz_*.c with libFuzzer, AddressSanitizer and
+# UBSan (clang) and runs it for FUZZ_RUNS executions (default 1,000,000) from its
+# seed corpus. Not part of make test.
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+RUNS=${FUZZ_RUNS:-1000000}
+for p in clang libclang-rt-14-dev; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing="${missing:-} $p"
+done
+if [ -n "${missing:-}" ]; then
+  SUDO=""; [ "$(id -u)" -eq 0 ] || SUDO="sudo"
+  $SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends $missing
+fi
+out=build/fuzz
+mkdir -p $out
+CFLAGS="-g -O1 -fsanitize=fuzzer,address,undefined -fno-sanitize-recover=undefined -Icommon -Ibuild/gen/c -I.venv/lcm/include"
+LCM="-L.venv/lcm/lib -Wl,-rpath,$PWD/.venv/lcm/lib -llcm"
+declare -A SRC=(
+  [fuzz_log]="common/pb_log.c common/pb_err.c"
+  [fuzz_config]="common/pb_config.c common/pb_err.c"
+  [fuzz_candump]="common/pb_candump.c common/pb_err.c"
+)
+summary=()
+for t in "${!SRC[@]}"; do
+  [ -f tests/fuzz/$t.c ] || continue
+  echo "== $t"
+  clang $CFLAGS -o $out/$t tests/fuzz/$t.c ${SRC[$t]} $LCM -lyaml -lm
+  corpus=$out/$t.corpus; mkdir -p $corpus
+  [ -d tests/fuzz/seeds/$t ] && cp -n tests/fuzz/seeds/$t/* $corpus/ 2>/dev/null || true
+  log=$out/$t.log
+  if $out/$t -runs=$RUNS -max_len=4096 -print_final_stats=1 $corpus > $log 2>&1; then
+    execs=$(grep -o 'stat::number_of_executed_units: *[0-9]*' $log | grep -o '[0-9]*$')
+    summary+=("$t: clean, $execs executions")
+  else
+    tail -40 $log; summary+=("$t: FAILED (see $log)")
+  fi
+done
+printf '%s\n' "${summary[@]}"
+! printf '%s\n' "${summary[@]}" | grep -q FAILED
