@@ -1,0 +1,459 @@
+// pb_map_build: see pb_map_build.h.
+#include "pb_map_build.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <new>
+#include <vector>
+
+#include <Eigen/Geometry>
+#include <pcl/io/pcd_io.h>
+#include <pcl/point_cloud.h>
+#include <pcl/point_types.h>
+
+#include "pb_config.h"
+
+namespace {
+
+struct TimedPose {
+    int64_t utime;
+    Eigen::Vector3d t;
+    Eigen::Quaterniond q;
+};
+
+Eigen::Quaterniond to_eigen_q(const double q[4])
+{
+    Eigen::Quaterniond e(q[0], q[1], q[2], q[3]);
+    e.normalize();
+    return e;
+}
+
+// A rigid transform as a 3x4 matrix, what the per-point loop wants.
+struct Rt {
+    Eigen::Matrix3d R;
+    Eigen::Vector3d t;
+};
+
+Rt compose(const Eigen::Quaterniond &q, const Eigen::Vector3d &t, const Rt *right)
+{
+    Rt out;
+    Eigen::Matrix3d R = q.toRotationMatrix();
+    if (right) {
+        out.R = R * right->R;
+        out.t = R * right->t + t;
+    } else {
+        out.R = R;
+        out.t = t;
+    }
+    return out;
+}
+
+Rt from_transform(const pb_transform_t *x)
+{
+    Rt r;
+    r.R = to_eigen_q(x->q).toRotationMatrix();
+    r.t = Eigen::Vector3d(x->t[0], x->t[1], x->t[2]);
+    return r;
+}
+
+} // namespace
+
+// ---------------------------------------------------------------- pose track
+struct pb_pose_track {
+    mutable std::vector<TimedPose> poses;
+    mutable bool sorted = true;
+
+    void sort() const
+    {
+        if (sorted) return;
+        std::stable_sort(poses.begin(), poses.end(),
+                         [](const TimedPose &a, const TimedPose &b) { return a.utime < b.utime; });
+        sorted = true;
+    }
+
+    // Interpolated pose at utime; false outside the track.
+    bool at(int64_t utime, Eigen::Vector3d &t, Eigen::Quaterniond &q) const
+    {
+        sort();
+        auto it = std::upper_bound(poses.begin(), poses.end(), utime,
+                                   [](int64_t u, const TimedPose &p) { return u < p.utime; });
+        if (it == poses.begin()) return false;
+        const TimedPose &a = *(it - 1);
+        if (a.utime == utime) {
+            t = a.t;
+            q = a.q;
+            return true;
+        }
+        if (it == poses.end()) return false;
+        const TimedPose &b = *it;
+        double s = double(utime - a.utime) / double(b.utime - a.utime);
+        t = a.t + s * (b.t - a.t);
+        q = a.q.slerp(s, b.q);
+        return true;
+    }
+};
+
+extern "C" pb_pose_track_t *pb_pose_track_create(void)
+{
+    return new (std::nothrow) pb_pose_track;
+}
+
+extern "C" void pb_pose_track_destroy(pb_pose_track_t *t) { delete t; }
+
+extern "C" void pb_pose_track_add(pb_pose_track_t *t, int64_t utime, const pb_transform_t *pose)
+{
+    if (!t->poses.empty() && utime < t->poses.back().utime) t->sorted = false;
+    t->poses.push_back({utime, Eigen::Vector3d(pose->t[0], pose->t[1], pose->t[2]), to_eigen_q(pose->q)});
+}
+
+extern "C" int pb_pose_track_count(const pb_pose_track_t *t) { return (int)t->poses.size(); }
+
+extern "C" int pb_pose_track_span(const pb_pose_track_t *t, int64_t *first, int64_t *last)
+{
+    if (t->poses.empty()) return -1;
+    t->sort();
+    if (first) *first = t->poses.front().utime;
+    if (last) *last = t->poses.back().utime;
+    return 0;
+}
+
+extern "C" int pb_pose_track_at(const pb_pose_track_t *t, int64_t utime, pb_transform_t *out)
+{
+    Eigen::Vector3d p;
+    Eigen::Quaterniond q;
+    if (!t->at(utime, p, q)) return 0;
+    for (int k = 0; k < 3; k++) out->t[k] = p[k];
+    out->q[0] = q.w(); out->q[1] = q.x(); out->q[2] = q.y(); out->q[3] = q.z();
+    return 1;
+}
+
+// ---------------------------------------------------------------- map builder
+namespace {
+
+constexpr int64_t KEY_HALF = int64_t(1) << 20;   // 21 bits per axis, signed
+
+struct Voxel {
+    uint64_t key;
+    float sx, sy, sz;       // sums of offsets from the voxel's min corner (small: precise in float)
+    float si;               // sum of intensities
+    uint32_t n;
+};
+
+inline uint64_t mix(uint64_t k)
+{
+    k ^= k >> 33; k *= 0xff51afd7ed558ccdULL;
+    k ^= k >> 33; k *= 0xc4ceb9fe1a85ec53ULL;
+    k ^= k >> 33;
+    return k;
+}
+
+} // namespace
+
+struct pb_map_builder {
+    double voxel = 0, inv = 0;
+    int64_t points_in = 0;
+    // voxel mode: open-addressing table of indices (+1, 0 = empty) into voxels
+    std::vector<Voxel> voxels;
+    std::vector<uint32_t> slots;
+    uint64_t mask = 0;
+    int64_t last = -1;          // voxel of the previous point
+    static constexpr int BATCH = 64;
+    // keep-all mode
+    std::vector<float> px, py, pz, pi;
+
+    void grow()
+    {
+        size_t cap = slots.empty() ? (size_t(1) << 16) : slots.size() * 2;
+        slots.assign(cap, 0);
+        mask = cap - 1;
+        for (size_t k = 0; k < voxels.size(); k++) {
+            uint64_t h = mix(voxels[k].key) & mask;
+            while (slots[h]) h = (h + 1) & mask;
+            slots[h] = uint32_t(k + 1);
+        }
+    }
+
+    // Voxel key of a point; false if outside the key range. f* = voxel min corner indices.
+    bool key_of(double x, double y, double z, uint64_t *key, double f[3]) const
+    {
+        f[0] = std::floor(x * inv); f[1] = std::floor(y * inv); f[2] = std::floor(z * inv);
+        if (!(std::fabs(f[0]) < KEY_HALF && std::fabs(f[1]) < KEY_HALF && std::fabs(f[2]) < KEY_HALF)) return false;
+        *key = uint64_t(int64_t(f[0]) + KEY_HALF) << 42 | uint64_t(int64_t(f[1]) + KEY_HALF) << 21 |
+               uint64_t(int64_t(f[2]) + KEY_HALF);
+        return true;
+    }
+
+    // Adds one point to its voxel (voxel > 0).
+    void insert(uint64_t key, const double f[3], double x, double y, double z, float intensity)
+    {
+        float ox = float(x - f[0] * voxel), oy = float(y - f[1] * voxel), oz = float(z - f[2] * voxel);
+        // Neighbouring points of a sweep often share a voxel: skip the hash then.
+        if (last >= 0 && voxels[size_t(last)].key == key) {
+            Voxel &v = voxels[size_t(last)];
+            v.sx += ox; v.sy += oy; v.sz += oz; v.si += intensity; v.n++;
+            return;
+        }
+        if ((voxels.size() + 1) * 10 > slots.size() * 7) grow();     // load <= 0.7
+        uint64_t h = mix(key) & mask;
+        for (;;) {
+            uint32_t s = slots[h];
+            if (!s) {
+                slots[h] = uint32_t(voxels.size() + 1);
+                last = int64_t(voxels.size());
+                voxels.push_back({key, ox, oy, oz, intensity, 1});
+                return;
+            }
+            Voxel &v = voxels[s - 1];
+            if (v.key == key) {
+                v.sx += ox; v.sy += oy; v.sz += oz; v.si += intensity; v.n++;
+                last = int64_t(s - 1);
+                return;
+            }
+            h = (h + 1) & mask;
+        }
+    }
+
+    // Adds n points (xyz interleaved, map frame). The table is far larger than
+    // the caches, so a batch first computes every key and prefetches its slot,
+    // then its voxel record, and only then updates: the misses overlap instead
+    // of being paid one after the other. Returns the index of a point outside
+    // the key range, or -1.
+    int add_batch(const double *xyz, const float *inten, int n)
+    {
+        if (voxel <= 0) {
+            for (int k = 0; k < n; k++) {
+                px.push_back(float(xyz[3 * k])); py.push_back(float(xyz[3 * k + 1]));
+                pz.push_back(float(xyz[3 * k + 2])); pi.push_back(inten[k]);
+            }
+            return -1;
+        }
+        uint64_t keys[BATCH];
+        double f[BATCH][3];
+        for (int k = 0; k < n; k++) {
+            if (!key_of(xyz[3 * k], xyz[3 * k + 1], xyz[3 * k + 2], &keys[k], f[k])) return k;
+            if (!slots.empty()) __builtin_prefetch(&slots[mix(keys[k]) & mask]);
+        }
+        if (!slots.empty())
+            for (int k = 0; k < n; k++) {
+                uint32_t s = slots[mix(keys[k]) & mask];
+                if (s) __builtin_prefetch(&voxels[s - 1], 1);
+            }
+        for (int k = 0; k < n; k++) insert(keys[k], f[k], xyz[3 * k], xyz[3 * k + 1], xyz[3 * k + 2], inten[k]);
+        return -1;
+    }
+
+    int64_t size() const { return voxel > 0 ? int64_t(voxels.size()) : int64_t(px.size()); }
+
+    void point(int64_t k, float out[4]) const
+    {
+        if (voxel <= 0) {
+            out[0] = px[k]; out[1] = py[k]; out[2] = pz[k]; out[3] = pi[k];
+            return;
+        }
+        const Voxel &v = voxels[k];
+        double ix = double(int64_t(v.key >> 42) - KEY_HALF);
+        double iy = double(int64_t((v.key >> 21) & 0x1fffff) - KEY_HALF);
+        double iz = double(int64_t(v.key & 0x1fffff) - KEY_HALF);
+        out[0] = float(ix * voxel + v.sx / v.n);
+        out[1] = float(iy * voxel + v.sy / v.n);
+        out[2] = float(iz * voxel + v.sz / v.n);
+        out[3] = v.si / v.n;
+    }
+
+    int out_of_range(pb_err_t *err, double x, double y, double z) const
+    {
+        return pb_err_set(err, "point (%.1f, %.1f, %.1f) is more than %.0f m from the map origin "
+                          "(2^20 voxels of %.3f m)", x, y, z, double(KEY_HALF) * voxel, voxel);
+    }
+};
+
+namespace {
+// Collects transformed points and hands them to the builder BATCH at a time.
+struct Batch {
+    pb_map_builder *b;
+    double xyz[3 * pb_map_builder::BATCH];
+    float inten[pb_map_builder::BATCH];
+    int n = 0;
+    int bad = -1;
+    explicit Batch(pb_map_builder *b_) : b(b_) {}
+    int push(const Eigen::Vector3d &p, float i)
+    {
+        xyz[3 * n] = p.x(); xyz[3 * n + 1] = p.y(); xyz[3 * n + 2] = p.z();
+        inten[n++] = i;
+        return n == pb_map_builder::BATCH ? flush() : 0;
+    }
+    int flush()
+    {
+        bad = n ? b->add_batch(xyz, inten, n) : -1;
+        n = 0;
+        return bad < 0 ? 0 : -1;
+    }
+    int fail(pb_err_t *err) const
+    {
+        return b->out_of_range(err, xyz[3 * bad], xyz[3 * bad + 1], xyz[3 * bad + 2]);
+    }
+};
+} // namespace
+
+extern "C" pb_map_builder_t *pb_map_builder_create(double voxel_m, pb_err_t *err)
+{
+    if (!std::isfinite(voxel_m)) {
+        pb_err_set(err, "voxel size must be a finite number of metres");
+        return nullptr;
+    }
+    pb_map_builder_t *b = new (std::nothrow) pb_map_builder;
+    if (!b) {
+        pb_err_set(err, "out of memory");
+        return nullptr;
+    }
+    b->voxel = voxel_m > 0 ? voxel_m : 0;
+    b->inv = voxel_m > 0 ? 1.0 / voxel_m : 0;
+    return b;
+}
+
+extern "C" void pb_map_builder_destroy(pb_map_builder_t *b) { delete b; }
+
+extern "C" int pb_map_builder_add(pb_map_builder_t *b, const pb_points_t *pts,
+                                  const pb_transform_t *map_from_lidar, pb_err_t *err)
+{
+    Rt T = from_transform(map_from_lidar);
+    Batch batch(b);
+    try {
+        for (int i = 0; i < pts->n; i++) {
+            Eigen::Vector3d p = T.R * Eigen::Vector3d(pts->x[i], pts->y[i], pts->z[i]) + T.t;
+            if (batch.push(p, pts->intensity ? pts->intensity[i] : 0.f) != 0) return batch.fail(err);
+        }
+        if (batch.flush() != 0) return batch.fail(err);
+    } catch (const std::bad_alloc &) {
+        return pb_err_set(err, "out of memory after %lld map points", (long long)b->size());
+    }
+    b->points_in += pts->n;
+    return 0;
+}
+
+extern "C" int pb_map_builder_add_timed(pb_map_builder_t *b, const pb_points_t *pts, int64_t scan_utime,
+                                        const pb_pose_track_t *track, const pb_transform_t *base_from_lidar,
+                                        pb_err_t *err)
+{
+    if (pts->n == 0) return 1;
+    int32_t omin = 0, omax = 0;
+    if (pts->offset_us) {
+        omin = omax = pts->offset_us[0];
+        for (int i = 1; i < pts->n; i++) {
+            omin = std::min(omin, pts->offset_us[i]);
+            omax = std::max(omax, pts->offset_us[i]);
+        }
+    }
+    Eigen::Vector3d t;
+    Eigen::Quaterniond q;
+    // The track is sorted, so bracketing both ends brackets every point.
+    if (!track->at(scan_utime + omin, t, q) || !track->at(scan_utime + omax, t, q)) return 0;
+
+    Rt bl;
+    if (base_from_lidar) bl = from_transform(base_from_lidar);
+    // Points of one column share an offset: reuse the transform while it repeats.
+    int32_t cached = 0;
+    bool have = false;
+    Rt T;
+    Batch batch(b);
+    try {
+        for (int i = 0; i < pts->n; i++) {
+            int32_t off = pts->offset_us ? pts->offset_us[i] : 0;
+            if (!have || off != cached) {
+                track->at(scan_utime + off, t, q);
+                T = compose(q, t, base_from_lidar ? &bl : nullptr);
+                cached = off;
+                have = true;
+            }
+            Eigen::Vector3d p = T.R * Eigen::Vector3d(pts->x[i], pts->y[i], pts->z[i]) + T.t;
+            if (batch.push(p, pts->intensity ? pts->intensity[i] : 0.f) != 0) return batch.fail(err);
+        }
+        if (batch.flush() != 0) return batch.fail(err);
+    } catch (const std::bad_alloc &) {
+        return pb_err_set(err, "out of memory after %lld map points", (long long)b->size());
+    }
+    b->points_in += pts->n;
+    return 1;
+}
+
+extern "C" int64_t pb_map_builder_points_in(const pb_map_builder_t *b) { return b->points_in; }
+extern "C" int64_t pb_map_builder_size(const pb_map_builder_t *b) { return b->size(); }
+
+extern "C" int pb_map_builder_bounds(const pb_map_builder_t *b, double mn[3], double mx[3])
+{
+    int64_t n = b->size();
+    if (n == 0) return -1;
+    for (int k = 0; k < 3; k++) { mn[k] = INFINITY; mx[k] = -INFINITY; }
+    float p[4];
+    for (int64_t i = 0; i < n; i++) {
+        b->point(i, p);
+        for (int k = 0; k < 3; k++) {
+            mn[k] = std::min(mn[k], double(p[k]));
+            mx[k] = std::max(mx[k], double(p[k]));
+        }
+    }
+    return 0;
+}
+
+extern "C" int pb_map_builder_write_pcd(const pb_map_builder_t *b, const char *path, pb_err_t *err)
+{
+    int64_t n = b->size();
+    if (n == 0) return pb_err_set(err, "%s: the map has no points (no scan had bracketing poses?)", path);
+    if (n > INT32_MAX) return pb_err_set(err, "%s: %lld points do not fit a PCD", path, (long long)n);
+    try {
+        std::filesystem::path parent = std::filesystem::path(path).parent_path();
+        if (!parent.empty()) std::filesystem::create_directories(parent);
+    } catch (const std::exception &e) {
+        return pb_err_set(err, "%s: cannot create the directory: %s", path, e.what());
+    }
+    try {
+        pcl::PointCloud<pcl::PointXYZI> cloud;
+        cloud.resize(size_t(n));
+        cloud.width = uint32_t(n);
+        cloud.height = 1;
+        cloud.is_dense = true;
+        float p[4];
+        for (int64_t i = 0; i < n; i++) {
+            b->point(i, p);
+            pcl::PointXYZI &q = cloud[size_t(i)];
+            q.x = p[0]; q.y = p[1]; q.z = p[2]; q.intensity = p[3];
+        }
+        if (pcl::io::savePCDFileBinary(path, cloud) != 0)
+            return pb_err_set(err, "%s: cannot write the PCD", path);
+    } catch (const std::exception &e) {
+        return pb_err_set(err, "%s: cannot write the PCD: %s", path, e.what());
+    }
+    return 0;
+}
+
+// ---------------------------------------------------------------- vehicle
+extern "C" int pb_vehicle_base_from_lidar(const char *vehicle_path, pb_transform_t *out, pb_err_t *err)
+{
+    pb_cfg_t *cfg = pb_cfg_load(vehicle_path, err);
+    if (!cfg) return -1;
+    int rc = -1;
+    const pb_cfg_node_t *root = pb_cfg_root(cfg);
+    const pb_cfg_node_t *sensors = root && pb_node_kind(root) == PB_NODE_MAP ? pb_node_get(root, "sensors") : nullptr;
+    const pb_cfg_node_t *lidar = sensors && pb_node_kind(sensors) == PB_NODE_MAP ? pb_node_get(sensors, "lidar") : nullptr;
+    if (!lidar || pb_node_kind(lidar) != PB_NODE_MAP) {
+        pb_err_set(err, "%s:%d: no sensors: lidar: mapping", vehicle_path,
+                   sensors ? pb_node_line(sensors) : root ? pb_node_line(root) : 1);
+    } else {
+        double xyz[3] = {0, 0, 0}, rpy[3] = {0, 0, 0};
+        const pb_cfg_node_t *nx = pb_node_get(lidar, "xyz");
+        const pb_cfg_node_t *nr = pb_node_get(lidar, "rpy_deg");
+        if (!nx) {
+            pb_err_set(err, "%s:%d: sensors: lidar: missing xyz", vehicle_path, pb_node_line(lidar));
+        } else if (pb_node_doubles(nx, "xyz", xyz, 3, err) == 0 &&
+                   (!nr || pb_node_doubles(nr, "rpy_deg", rpy, 3, err) == 0)) {
+            const double d2r = M_PI / 180.0;
+            for (int k = 0; k < 3; k++) out->t[k] = xyz[k];
+            pb_quat_from_rpy(rpy[0] * d2r, rpy[1] * d2r, rpy[2] * d2r, out->q);
+            rc = 0;
+        }
+    }
+    pb_cfg_free(cfg);
+    return rc;
+}

@@ -1,0 +1,86 @@
+/* pb_map_build: assembling a prior point-cloud map from scans and poses.
+ *
+ * Used by tools/build-map (scans and poses from an LCM log) and
+ * tools/import-scans (scans and poses from files). C-callable; implemented in
+ * C++ with PCL (link libpb_common_cxx.a and PCL).
+ *
+ *  - pb_pose_track_t: a time-ordered list of poses (map <- frame) that
+ *    interpolates linearly in position and by slerp in orientation.
+ *  - pb_map_builder_t: accumulates points transformed into `map` and reduces
+ *    them on the fly to one point per voxel (the centroid of xyz and the mean
+ *    intensity of every point that fell in it, the same result as
+ *    pcl::VoxelGrid over all points). Streaming keeps memory proportional to
+ *    the occupied voxels, not to the points, and 64-bit voxel keys avoid
+ *    VoxelGrid's int overflow on large extents.
+ *
+ * Ownership: each _create returns an object the caller frees with the matching
+ * _destroy (NULL is a no-op). Inputs are copied; no pointer is kept. */
+#ifndef PB_MAP_BUILD_H
+#define PB_MAP_BUILD_H
+
+#include <stdint.h>
+#include "pb_err.h"
+#include "pb_math.h"
+#include "pb_scan.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/* ---------------------------------------------------------------- pose track */
+typedef struct pb_pose_track pb_pose_track_t;
+
+pb_pose_track_t *pb_pose_track_create(void);
+void pb_pose_track_destroy(pb_pose_track_t *t);
+
+/* Adds a pose valid at utime (any order; kept sorted, stable for equal times). */
+void pb_pose_track_add(pb_pose_track_t *t, int64_t utime, const pb_transform_t *pose);
+int pb_pose_track_count(const pb_pose_track_t *t);
+/* First and last pose time; returns 0, or -1 if the track is empty. */
+int pb_pose_track_span(const pb_pose_track_t *t, int64_t *first, int64_t *last);
+
+/* Pose at utime, interpolated between the two poses that bracket it (an exact
+ * hit needs no neighbour). Returns 1 with *out set, 0 if utime is outside the
+ * track (no extrapolation). */
+int pb_pose_track_at(const pb_pose_track_t *t, int64_t utime, pb_transform_t *out);
+
+/* ---------------------------------------------------------------- map builder */
+typedef struct pb_map_builder pb_map_builder_t;
+
+/* voxel_m > 0: one point per voxel of that edge (metres).
+ * voxel_m <= 0: every point is kept (no reduction). */
+pb_map_builder_t *pb_map_builder_create(double voxel_m, pb_err_t *err);
+void pb_map_builder_destroy(pb_map_builder_t *b);
+
+/* Adds points of one scan, all moved by the same map <- lidar transform.
+ * Returns 0, or -1 if a point falls outside the voxel key range (+-2^20 voxels). */
+int pb_map_builder_add(pb_map_builder_t *b, const pb_points_t *pts,
+                       const pb_transform_t *map_from_lidar, pb_err_t *err);
+
+/* Adds points of one scan, each moved by its own time's pose:
+ *   map <- lidar(t_i) = track(scan_utime + offset_us[i]) * base_from_lidar
+ * (base_from_lidar NULL = identity, i.e. the track holds lidar poses).
+ * The scan is added only if the track brackets every point's time.
+ * Returns 1 if added, 0 if skipped for lack of bracketing poses, -1 on error. */
+int pb_map_builder_add_timed(pb_map_builder_t *b, const pb_points_t *pts, int64_t scan_utime,
+                             const pb_pose_track_t *track, const pb_transform_t *base_from_lidar,
+                             pb_err_t *err);
+
+int64_t pb_map_builder_points_in(const pb_map_builder_t *b);   /* points added */
+int64_t pb_map_builder_size(const pb_map_builder_t *b);        /* points in the map */
+/* Extent of the map's points; returns 0, or -1 if empty. */
+int pb_map_builder_bounds(const pb_map_builder_t *b, double min[3], double max[3]);
+
+/* Writes the map as binary PCD (fields x y z intensity, float32), creating the
+ * parent directory if it is missing. Returns 0, or -1 (empty map, I/O error). */
+int pb_map_builder_write_pcd(const pb_map_builder_t *b, const char *path, pb_err_t *err);
+
+/* ---------------------------------------------------------------- vehicle */
+/* base <- lidar from a vehicle file (sensors: lidar: xyz [m], rpy_deg [deg],
+ * rpy optional). Returns 0, or -1 with "FILE:LINE: what". */
+int pb_vehicle_base_from_lidar(const char *vehicle_path, pb_transform_t *out, pb_err_t *err);
+
+#ifdef __cplusplus
+}
+#endif
+#endif

@@ -1,0 +1,605 @@
+// import-scans: a folder of KITTI .bin / PCD scans plus a poses file -> an LCM
+// log of LIDAR_SCAN (point form) + GROUND_TRUTH (the LiDAR pose in `map`), and
+// optionally the prior map assembled from them.
+//
+// Scan k goes with pose k and time k; when the counts differ the minimum is
+// imported and a warning names both counts (MulRan keyframe folders, e.g., hold
+// one pose fewer than scans).
+#include <algorithm>
+#include <cctype>
+#include <cerrno>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <string>
+#include <vector>
+
+#include <Eigen/Geometry>
+#include <pcl/PCLPointCloud2.h>
+#include <pcl/io/pcd_io.h>
+
+#include "pb_err.h"
+#include "pb_log.h"
+#include "pb_map_build.h"
+#include "pb_progress.h"
+#include "pb_scan.h"
+#include "portobello_lidar_scan_t.h"
+#include "portobello_pose_t.h"
+
+namespace fs = std::filesystem;
+
+// Times without --times or TUM stamps: 10 Hz from 2020-01-01T00:00:00Z.
+static const int64_t DEFAULT_EPOCH_US = 1577836800LL * 1000000LL;
+static const int64_t DEFAULT_PERIOD_US = 100000;
+
+static void usage(FILE *f)
+{
+    std::fprintf(f,
+        "usage: import-scans --scans DIR --poses FILE [--calib FILE] [--times FILE] --out LOG.lcm\n"
+        "                    [--map-out MAP.pcd] [--voxel 0.15] [--every N] [--sensor NAME] [--quiet]\n"
+        "\n"
+        "Imports the scans of DIR (KITTI .bin float32 x y z i, or .pcd with fields x y z and\n"
+        "optionally intensity, t [ns] or time [s], ring) in file-name order. Scan k goes with\n"
+        "pose k (and time k). Writes per scan, at the same utime, GROUND_TRUTH (pose_t, source\n"
+        "GROUND_TRUTH: the LiDAR pose in map) and LIDAR_SCAN (point form; ring 255 and offset 0\n"
+        "when the file has none). Non-finite points are dropped and counted.\n"
+        "  --poses FILE   KITTI (12 numbers a line: 3x4 row-major) or TUM (8: t x y z qx qy qz qw),\n"
+        "                 detected by the column count; '#' lines are comments\n"
+        "  --calib FILE   KITTI calib with a Tr: line (velo -> cam). KITTI poses are camera poses;\n"
+        "                 the LiDAR pose is then Tr^-1 * P * Tr, i.e. the map frame is the LiDAR\n"
+        "                 frame at the first pose (z up), not the camera's (y down)\n"
+        "  --times FILE   one UNIX time in seconds a line (e.g. MulRan times.txt); else the TUM\n"
+        "                 times; else 10 Hz from 2020-01-01T00:00:00Z\n"
+        "  --map-out MAP  also assemble the prior map (binary PCD, x y z intensity) with voxel\n"
+        "                 --voxel metres (default 0.15; 0 keeps every point). A folder holding\n"
+        "                 only this file as map.pcd is a loadable site\n"
+        "  --every N      import every Nth scan only (default 1)\n"
+        "  --sensor NAME  LIDAR_SCAN sensor string (default \"imported\")\n"
+        "If the numbers of scans, poses and times differ, the first min(...) are imported and a\n"
+        "warning names the counts. Errors name FILE:LINE (text files) or FILE: byte N (.bin).\n");
+}
+
+// ---------------------------------------------------------------- text helpers
+
+// Seconds as a decimal string -> microseconds, exact up to 6 fractional
+// digits and rounded half up beyond (MulRan stamps have 7). Falls back to
+// strtod for exponents. Returns 0 or -1.
+static int parse_time_us(const std::string &s, int64_t *out)
+{
+    size_t i = 0;
+    bool neg = false;
+    if (i < s.size() && (s[i] == '-' || s[i] == '+')) neg = s[i++] == '-';
+    int64_t sec = 0, us = 0;
+    int nint = 0, nfrac = 0, round_digit = 0;
+    for (; i < s.size() && std::isdigit((unsigned char)s[i]); i++, nint++) {
+        if (nint >= 12) return -1;
+        sec = sec * 10 + (s[i] - '0');
+    }
+    if (i < s.size() && s[i] == '.') {
+        for (i++; i < s.size() && std::isdigit((unsigned char)s[i]); i++, nfrac++) {
+            if (nfrac < 6) us = us * 10 + (s[i] - '0');
+            else if (nfrac == 6) round_digit = s[i] - '0';
+        }
+    }
+    if (i != s.size() || nint + nfrac == 0) {
+        char *end;
+        double v = std::strtod(s.c_str(), &end);
+        if (*end || end == s.c_str() || !std::isfinite(v) || std::fabs(v) > 1e12) return -1;
+        *out = std::llround(v * 1e6);
+        return 0;
+    }
+    for (int k = nfrac; k < 6; k++) us *= 10;
+    int64_t v = sec * 1000000 + us + (round_digit >= 5 ? 1 : 0);
+    *out = neg ? -v : v;
+    return 0;
+}
+
+static void split_ws(const std::string &line, std::vector<std::string> &tok)
+{
+    tok.clear();
+    size_t i = 0;
+    while (i < line.size()) {
+        while (i < line.size() && std::isspace((unsigned char)line[i])) i++;
+        size_t j = i;
+        while (j < line.size() && !std::isspace((unsigned char)line[j])) j++;
+        if (j > i) tok.push_back(line.substr(i, j - i));
+        i = j;
+    }
+}
+
+static bool to_double(const std::string &s, double *v)
+{
+    char *end;
+    errno = 0;
+    *v = std::strtod(s.c_str(), &end);
+    return end != s.c_str() && *end == '\0' && errno != ERANGE && std::isfinite(*v);
+}
+
+// ---------------------------------------------------------------- poses
+
+struct Pose {
+    Eigen::Vector3d t;
+    Eigen::Quaterniond q;
+};
+
+static int rotation_from_rows(const double *m12, Eigen::Isometry3d *T)
+{
+    Eigen::Matrix3d R;
+    R << m12[0], m12[1], m12[2], m12[4], m12[5], m12[6], m12[8], m12[9], m12[10];
+    if ((R.transpose() * R - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff() > 1e-2 || R.determinant() < 0)
+        return -1;
+    Eigen::Quaterniond q(R);    // KITTI rows carry ~6 digits: re-orthonormalise through the quaternion
+    q.normalize();
+    T->setIdentity();
+    T->linear() = q.toRotationMatrix();
+    T->translation() = Eigen::Vector3d(m12[3], m12[7], m12[11]);
+    return 0;
+}
+
+enum PoseFormat { FMT_NONE, FMT_KITTI, FMT_TUM };
+
+// Reads a KITTI or TUM file into poses (and TUM times). Returns 0 or -1.
+static int read_poses(const char *path, std::vector<Eigen::Isometry3d> &poses, std::vector<int64_t> &times,
+                      PoseFormat *fmt, pb_err_t *err)
+{
+    std::ifstream in(path);
+    if (!in) return pb_err_set(err, "%s: %s", path, std::strerror(errno));
+    std::string line;
+    std::vector<std::string> tok;
+    long lineno = 0;
+    *fmt = FMT_NONE;
+    while (std::getline(in, line)) {
+        lineno++;
+        split_ws(line, tok);
+        if (tok.empty() || tok[0][0] == '#') continue;
+        PoseFormat f = tok.size() == 12 ? FMT_KITTI : tok.size() == 8 ? FMT_TUM : FMT_NONE;
+        if (f == FMT_NONE)
+            return pb_err_set(err, "%s:%ld: expected 12 numbers (KITTI 3x4) or 8 (TUM t x y z qx qy qz qw), got %zu",
+                              path, lineno, tok.size());
+        if (*fmt == FMT_NONE) *fmt = f;
+        if (f != *fmt)
+            return pb_err_set(err, "%s:%ld: %zu numbers, but the file started as %s", path, lineno, tok.size(),
+                              *fmt == FMT_KITTI ? "KITTI (12)" : "TUM (8)");
+        double v[12];
+        for (size_t k = 0; k < tok.size(); k++)
+            if (!to_double(tok[k], &v[k]))
+                return pb_err_set(err, "%s:%ld: column %zu: not a finite number: '%s'", path, lineno, k + 1,
+                                  tok[k].c_str());
+        Eigen::Isometry3d T;
+        if (f == FMT_KITTI) {
+            if (rotation_from_rows(v, &T) != 0)
+                return pb_err_set(err, "%s:%ld: the 3x3 part is not a rotation matrix", path, lineno);
+        } else {
+            int64_t us;
+            if (parse_time_us(tok[0], &us) != 0)
+                return pb_err_set(err, "%s:%ld: column 1: bad time '%s'", path, lineno, tok[0].c_str());
+            Eigen::Quaterniond q(v[7], v[4], v[5], v[6]);
+            if (q.norm() < 1e-6) return pb_err_set(err, "%s:%ld: zero quaternion", path, lineno);
+            q.normalize();
+            T.setIdentity();
+            T.linear() = q.toRotationMatrix();
+            T.translation() = Eigen::Vector3d(v[1], v[2], v[3]);
+            times.push_back(us);
+        }
+        poses.push_back(T);
+    }
+    if (in.bad()) return pb_err_set(err, "%s: read error", path);
+    if (poses.empty()) return pb_err_set(err, "%s: no poses", path);
+    return 0;
+}
+
+static int read_calib_tr(const char *path, Eigen::Isometry3d *Tr, pb_err_t *err)
+{
+    std::ifstream in(path);
+    if (!in) return pb_err_set(err, "%s: %s", path, std::strerror(errno));
+    std::string line;
+    std::vector<std::string> tok;
+    long lineno = 0;
+    while (std::getline(in, line)) {
+        lineno++;
+        split_ws(line, tok);
+        if (tok.empty() || (tok[0] != "Tr:" && tok[0] != "Tr_velo_to_cam:" && tok[0] != "Tr_velo_cam:")) continue;
+        if (tok.size() != 13)
+            return pb_err_set(err, "%s:%ld: %s expects 12 numbers, got %zu", path, lineno, tok[0].c_str(),
+                              tok.size() - 1);
+        double v[12];
+        for (int k = 0; k < 12; k++)
+            if (!to_double(tok[k + 1], &v[k]))
+                return pb_err_set(err, "%s:%ld: column %d: not a finite number: '%s'", path, lineno, k + 2,
+                                  tok[k + 1].c_str());
+        if (rotation_from_rows(v, Tr) != 0)
+            return pb_err_set(err, "%s:%ld: the 3x3 part of Tr is not a rotation matrix", path, lineno);
+        return 0;
+    }
+    return pb_err_set(err, "%s: no 'Tr:' line (velodyne -> camera transform)", path);
+}
+
+static int read_times(const char *path, std::vector<int64_t> &times, pb_err_t *err)
+{
+    std::ifstream in(path);
+    if (!in) return pb_err_set(err, "%s: %s", path, std::strerror(errno));
+    std::string line;
+    std::vector<std::string> tok;
+    long lineno = 0;
+    while (std::getline(in, line)) {
+        lineno++;
+        split_ws(line, tok);
+        if (tok.empty() || tok[0][0] == '#') continue;
+        int64_t us;
+        if (tok.size() != 1 || parse_time_us(tok[0], &us) != 0)
+            return pb_err_set(err, "%s:%ld: expected one time in seconds, got '%s'", path, lineno, line.c_str());
+        times.push_back(us);
+    }
+    if (times.empty()) return pb_err_set(err, "%s: no times", path);
+    return 0;
+}
+
+// ---------------------------------------------------------------- scans
+
+struct Scan {
+    std::vector<float> x, y, z, intensity;
+    std::vector<int32_t> offset_us;
+    std::vector<uint8_t> ring;
+    bool has_time = false, has_ring = false;
+    long dropped = 0;
+    void clear()
+    {
+        x.clear(); y.clear(); z.clear(); intensity.clear(); offset_us.clear(); ring.clear();
+        has_time = has_ring = false;
+        dropped = 0;
+    }
+};
+
+static int read_bin(const std::string &path, Scan &s, pb_err_t *err)
+{
+    FILE *f = std::fopen(path.c_str(), "rb");
+    if (!f) return pb_err_set(err, "%s: %s", path.c_str(), std::strerror(errno));
+    std::fseek(f, 0, SEEK_END);
+    long size = std::ftell(f);
+    std::fseek(f, 0, SEEK_SET);
+    if (size < 0) {
+        std::fclose(f);
+        return pb_err_set(err, "%s: cannot size the file", path.c_str());
+    }
+    if (size % 16) {
+        std::fclose(f);
+        return pb_err_set(err, "%s: byte %ld: truncated point (file size %ld is not a multiple of 16 = 4 float32 "
+                          "x y z i)", path.c_str(), size - size % 16, size);
+    }
+    std::vector<float> buf(size_t(size) / 4);   // KITTI .bin is little-endian float32, as is this host
+    size_t got = buf.empty() ? 0 : std::fread(buf.data(), 16, size_t(size) / 16, f);
+    std::fclose(f);
+    if (got != size_t(size) / 16)
+        return pb_err_set(err, "%s: byte %zu: read error", path.c_str(), got * 16);
+    for (size_t i = 0; i < got; i++) {
+        const float *p = &buf[4 * i];
+        if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2])) { s.dropped++; continue; }
+        s.x.push_back(p[0]); s.y.push_back(p[1]); s.z.push_back(p[2]);
+        s.intensity.push_back(std::isfinite(p[3]) ? p[3] : 0.f);
+    }
+    return 0;
+}
+
+static double field_value(const uint8_t *p, uint8_t datatype)
+{
+    switch (datatype) {
+    case pcl::PCLPointField::INT8:    { int8_t v;   std::memcpy(&v, p, 1); return v; }
+    case pcl::PCLPointField::UINT8:   { uint8_t v;  std::memcpy(&v, p, 1); return v; }
+    case pcl::PCLPointField::INT16:   { int16_t v;  std::memcpy(&v, p, 2); return v; }
+    case pcl::PCLPointField::UINT16:  { uint16_t v; std::memcpy(&v, p, 2); return v; }
+    case pcl::PCLPointField::INT32:   { int32_t v;  std::memcpy(&v, p, 4); return v; }
+    case pcl::PCLPointField::UINT32:  { uint32_t v; std::memcpy(&v, p, 4); return v; }
+    case pcl::PCLPointField::FLOAT32: { float v;    std::memcpy(&v, p, 4); return v; }
+    case pcl::PCLPointField::FLOAT64: { double v;   std::memcpy(&v, p, 8); return v; }
+    default: return NAN;
+    }
+}
+
+static int read_pcd(const std::string &path, Scan &s, pb_err_t *err)
+{
+    pcl::PCLPointCloud2 c;
+    if (pcl::io::loadPCDFile(path, c) < 0) return pb_err_set(err, "%s: not a readable PCD file", path.c_str());
+    const pcl::PCLPointField *fx = nullptr, *fy = nullptr, *fz = nullptr, *fi = nullptr, *ft = nullptr, *fr = nullptr;
+    double tscale = 0;  // field units -> us
+    for (const auto &f : c.fields) {
+        if (f.name == "x") fx = &f;
+        else if (f.name == "y") fy = &f;
+        else if (f.name == "z") fz = &f;
+        else if (f.name == "intensity" || (f.name == "i" && !fi)) fi = &f;
+        else if (f.name == "t") { ft = &f; tscale = 1e-3; }        // Ouster: ns after the sweep start
+        else if (f.name == "time" && !ft) { ft = &f; tscale = 1e6; }  // Velodyne: s after the sweep start
+        else if (f.name == "ring") fr = &f;
+    }
+    if (!fx || !fy || !fz) return pb_err_set(err, "%s: PCD has no x y z fields", path.c_str());
+    s.has_time = ft != nullptr;
+    s.has_ring = fr != nullptr;
+    size_t n = size_t(c.width) * c.height;
+    if (c.data.size() < n * c.point_step) return pb_err_set(err, "%s: PCD data shorter than its header says", path.c_str());
+    for (size_t k = 0; k < n; k++) {
+        size_t row = k / c.width, col = k % c.width;
+        const uint8_t *p = c.data.data() + row * c.row_step + col * c.point_step;
+        double x = field_value(p + fx->offset, fx->datatype), y = field_value(p + fy->offset, fy->datatype),
+               z = field_value(p + fz->offset, fz->datatype);
+        if (!std::isfinite(x) || !std::isfinite(y) || !std::isfinite(z)) { s.dropped++; continue; }
+        s.x.push_back(float(x)); s.y.push_back(float(y)); s.z.push_back(float(z));
+        double i = fi ? field_value(p + fi->offset, fi->datatype) : 0.0;
+        s.intensity.push_back(std::isfinite(i) ? float(i) : 0.f);
+        if (ft) {
+            double t = field_value(p + ft->offset, ft->datatype) * tscale;
+            s.offset_us.push_back(std::isfinite(t) && std::fabs(t) < 2e9 ? int32_t(std::llround(t)) : 0);
+        }
+        if (fr) {
+            double r = field_value(p + fr->offset, fr->datatype);
+            s.ring.push_back(r >= 0 && r < 255 ? uint8_t(r) : 255);
+        }
+    }
+    return 0;
+}
+
+static std::string lower_ext(const fs::path &p)
+{
+    std::string e = p.extension().string();
+    for (auto &ch : e) ch = char(std::tolower((unsigned char)ch));
+    return e;
+}
+
+// ---------------------------------------------------------------- main
+
+int main(int argc, char **argv)
+{
+    const char *scans_dir = nullptr, *poses_path = nullptr, *calib_path = nullptr, *times_path = nullptr;
+    const char *out_path = nullptr, *map_path = nullptr, *sensor = "imported";
+    double voxel = 0.15;
+    long every = 1;
+    int quiet = 0;
+    for (int i = 1; i < argc; i++) {
+        std::string a = argv[i];
+        bool has = i + 1 < argc;
+        if (a == "--help" || a == "-h") { usage(stdout); return 0; }
+        else if (a == "--quiet") quiet = 1;
+        else if (has && a == "--scans") scans_dir = argv[++i];
+        else if (has && a == "--poses") poses_path = argv[++i];
+        else if (has && a == "--calib") calib_path = argv[++i];
+        else if (has && a == "--times") times_path = argv[++i];
+        else if (has && a == "--out") out_path = argv[++i];
+        else if (has && a == "--map-out") map_path = argv[++i];
+        else if (has && a == "--sensor") sensor = argv[++i];
+        else if (has && a == "--voxel") {
+            char *end;
+            voxel = std::strtod(argv[++i], &end);
+            if (*end || end == argv[i] || !(voxel >= 0)) {
+                std::fprintf(stderr, "import-scans: --voxel: expected metres >= 0, got '%s'\n", argv[i]);
+                return 2;
+            }
+        } else if (has && a == "--every") {
+            char *end;
+            every = std::strtol(argv[++i], &end, 10);
+            if (*end || every < 1) {
+                std::fprintf(stderr, "import-scans: --every: expected an integer >= 1, got '%s'\n", argv[i]);
+                return 2;
+            }
+        } else {
+            std::fprintf(stderr, "import-scans: unknown or incomplete option '%s'\n", a.c_str());
+            usage(stderr);
+            return 2;
+        }
+    }
+    if (!scans_dir || !poses_path || !out_path) {
+        std::fprintf(stderr, "import-scans: --scans, --poses and --out are required\n");
+        usage(stderr);
+        return 2;
+    }
+    auto t0 = std::chrono::steady_clock::now();
+    pb_err_t err;
+
+    // Scan files in name order.
+    std::vector<fs::path> files;
+    try {
+        for (const auto &e : fs::directory_iterator(scans_dir)) {
+            std::string ext = lower_ext(e.path());
+            if (e.is_regular_file() && (ext == ".bin" || ext == ".pcd")) files.push_back(e.path());
+        }
+    } catch (const std::exception &e) {
+        std::fprintf(stderr, "import-scans: %s: %s\n", scans_dir, e.what());
+        return 1;
+    }
+    std::sort(files.begin(), files.end(),
+              [](const fs::path &a, const fs::path &b) { return a.filename().string() < b.filename().string(); });
+    if (files.empty()) {
+        std::fprintf(stderr, "import-scans: %s: no .bin or .pcd scans\n", scans_dir);
+        return 1;
+    }
+
+    std::vector<Eigen::Isometry3d> poses;
+    std::vector<int64_t> tum_times, times;
+    PoseFormat fmt = FMT_NONE;
+    if (read_poses(poses_path, poses, tum_times, &fmt, &err) != 0) {
+        std::fprintf(stderr, "import-scans: %s\n", err.msg);
+        return 1;
+    }
+    if (calib_path) {
+        Eigen::Isometry3d Tr;
+        if (read_calib_tr(calib_path, &Tr, &err) != 0) {
+            std::fprintf(stderr, "import-scans: %s\n", err.msg);
+            return 1;
+        }
+        Eigen::Isometry3d Tri = Tr.inverse();
+        for (auto &P : poses) P = Tri * P * Tr;
+    }
+    const char *time_src;
+    if (times_path) {
+        if (read_times(times_path, times, &err) != 0) {
+            std::fprintf(stderr, "import-scans: %s\n", err.msg);
+            return 1;
+        }
+        time_src = times_path;
+    } else if (fmt == FMT_TUM) {
+        times = tum_times;
+        time_src = "the TUM poses";
+    } else {
+        time_src = "10 Hz from 2020-01-01T00:00:00Z";
+    }
+
+    size_t n = std::min(files.size(), poses.size());
+    if (!times.empty()) n = std::min(n, times.size());
+    if (files.size() != poses.size())
+        std::fprintf(stderr, "import-scans: warning: %zu scans in %s but %zu poses in %s: importing the first %zu\n",
+                     files.size(), scans_dir, poses.size(), poses_path, n);
+    if (times_path && times.size() != files.size())
+        std::fprintf(stderr, "import-scans: warning: %zu scans in %s but %zu times in %s: importing the first %zu\n",
+                     files.size(), scans_dir, times.size(), times_path, n);
+    if (times.empty())
+        for (size_t k = 0; k < n; k++) times.push_back(DEFAULT_EPOCH_US + int64_t(k) * DEFAULT_PERIOD_US);
+
+    // The imported subset (every Nth), with its times and poses.
+    std::vector<size_t> pick;
+    for (size_t k = 0; k < n; k += size_t(every)) pick.push_back(k);
+    for (size_t j = 1; j < pick.size(); j++)
+        if (times[pick[j]] <= times[pick[j - 1]]) {
+            std::fprintf(stderr, "import-scans: warning: times from %s do not increase at scan %zu (%s)\n", time_src,
+                         pick[j], files[pick[j]].filename().c_str());
+            break;
+        }
+
+    pb_map_builder_t *map = nullptr;
+    pb_pose_track_t *track = nullptr;
+    if (map_path) {
+        map = pb_map_builder_create(voxel, &err);
+        if (!map) {
+            std::fprintf(stderr, "import-scans: %s\n", err.msg);
+            return 1;
+        }
+        track = pb_pose_track_create();
+        for (size_t k : pick) {
+            Eigen::Quaterniond q(poses[k].linear());
+            pb_transform_t x = {{poses[k].translation().x(), poses[k].translation().y(), poses[k].translation().z()},
+                                {q.w(), q.x(), q.y(), q.z()}};
+            pb_pose_track_add(track, times[k], &x);
+        }
+    }
+    pb_log_t *log = pb_log_open_write(out_path, &err);
+    if (!log) {
+        std::fprintf(stderr, "import-scans: %s\n", err.msg);
+        return 1;
+    }
+
+    pb_progress_t prog;
+    pb_progress_start(&prog, "import-scans", int64_t(pick.size()), quiet);
+    Scan s;
+    std::vector<uint8_t> buf;
+    long total_points = 0, total_dropped = 0, timed_fallback = 0;
+    int status = 0;
+    for (size_t j = 0; j < pick.size() && status == 0; j++) {
+        size_t k = pick[j];
+        pb_progress_update(&prog, int64_t(j));
+        const std::string path = files[k].string();
+        s.clear();
+        int rc = lower_ext(files[k]) == ".bin" ? read_bin(path, s, &err) : read_pcd(path, s, &err);
+        if (rc != 0) {
+            std::fprintf(stderr, "import-scans: %s\n", err.msg);
+            status = 1;
+            break;
+        }
+        int np = int(s.x.size());
+        total_points += np;
+        total_dropped += s.dropped;
+        if (!s.has_time) s.offset_us.assign(size_t(np), 0);
+        if (!s.has_ring) s.ring.assign(size_t(np), 255);
+        int64_t utime = times[k];
+
+        // GROUND_TRUTH: the LiDAR pose; velocities by finite differences over the imported subset.
+        const Eigen::Isometry3d &P = poses[k];
+        Eigen::Quaterniond q(P.linear());
+        q.normalize();
+        portobello_pose_t gt;
+        std::memset(&gt, 0, sizeof gt);
+        gt.utime = utime;
+        for (int a = 0; a < 3; a++) gt.position[a] = P.translation()[a];
+        gt.orientation[0] = q.w(); gt.orientation[1] = q.x(); gt.orientation[2] = q.y(); gt.orientation[3] = q.z();
+        if (pick.size() > 1) {
+            size_t ja = j > 0 ? j - 1 : j, jb = j + 1 < pick.size() ? j + 1 : j;
+            const Eigen::Isometry3d &A = poses[pick[ja]], &B = poses[pick[jb]];
+            double dt = double(times[pick[jb]] - times[pick[ja]]) * 1e-6;
+            if (dt > 0) {
+                Eigen::Vector3d v = (B.translation() - A.translation()) / dt;
+                Eigen::AngleAxisd w(Eigen::Quaterniond(A.linear()).conjugate() * Eigen::Quaterniond(B.linear()));
+                Eigen::Vector3d om = w.axis() * w.angle() / dt;   // in the body frame
+                for (int a = 0; a < 3; a++) { gt.velocity[a] = v[a]; gt.angular_velocity[a] = om[a]; }
+            }
+        }
+        gt.status = PORTOBELLO_POSE_T_STATUS_TRACKING;
+        gt.source = PORTOBELLO_POSE_T_SOURCE_GROUND_TRUTH;
+        gt.match_score = NAN;
+
+        portobello_lidar_scan_t m;
+        std::memset(&m, 0, sizeof m);
+        double ident[16] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
+        m.utime = utime;
+        m.sensor = const_cast<char *>(sensor);
+        m.seq = int32_t(k);
+        std::memcpy(m.lidar_from_beam, ident, sizeof ident);
+        m.npoints = np;
+        m.x = s.x.data(); m.y = s.y.data(); m.z = s.z.data(); m.intensity = s.intensity.data();
+        m.point_offset_us = s.offset_us.data();
+        m.ring = s.ring.data();
+
+        int ngt = portobello_pose_t_encoded_size(&gt);
+        int nsc = portobello_lidar_scan_t_encoded_size(&m);
+        buf.resize(size_t(std::max(ngt, nsc)));
+        if (portobello_pose_t_encode(buf.data(), 0, ngt, &gt) < 0 ||
+            pb_log_write(log, utime, "GROUND_TRUTH", buf.data(), ngt, &err) != 0 ||
+            portobello_lidar_scan_t_encode(buf.data(), 0, nsc, &m) < 0 ||
+            pb_log_write(log, utime, "LIDAR_SCAN", buf.data(), nsc, &err) != 0) {
+            std::fprintf(stderr, "import-scans: %s: %s\n", out_path, err.msg);
+            status = 1;
+            break;
+        }
+
+        if (map && np > 0) {
+            pb_points_t pts = {np, np, s.x.data(), s.y.data(), s.z.data(), s.intensity.data(), s.offset_us.data(),
+                               s.ring.data()};
+            pb_transform_t x = {{P.translation().x(), P.translation().y(), P.translation().z()},
+                                {q.w(), q.x(), q.y(), q.z()}};
+            int r = s.has_time ? pb_map_builder_add_timed(map, &pts, utime, track, nullptr, &err) : 0;
+            if (r == 0) {   // no per-point time, or times beyond the poses: the scan's own pose
+                if (s.has_time) timed_fallback++;
+                r = pb_map_builder_add(map, &pts, &x, &err) == 0 ? 1 : -1;
+            }
+            if (r < 0) {
+                std::fprintf(stderr, "import-scans: %s: %s\n", path.c_str(), err.msg);
+                status = 1;
+            }
+        }
+    }
+    if (status == 0) pb_progress_finish(&prog);
+    else if (prog.tty && !quiet) std::fputc('\n', stderr);
+    if (pb_log_close(log, &err) != 0) {
+        std::fprintf(stderr, "import-scans: %s\n", err.msg);
+        status = 1;
+    }
+    if (status == 0 && map && pb_map_builder_write_pcd(map, map_path, &err) != 0) {
+        std::fprintf(stderr, "import-scans: %s\n", err.msg);
+        status = 1;
+    }
+    if (total_dropped)
+        std::fprintf(stderr, "import-scans: %ld non-finite points dropped\n", total_dropped);
+    if (timed_fallback)
+        std::fprintf(stderr, "import-scans: %ld scans had point times beyond the poses: placed with their scan pose\n",
+                     timed_fallback);
+    if (status == 0 && !quiet) {
+        double dt = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+        std::fprintf(stderr, "import-scans: %zu scans (%s poses, times from %s), %ld points -> %s", pick.size(),
+                     fmt == FMT_KITTI ? "KITTI" : "TUM", time_src, total_points, out_path);
+        if (map)
+            std::fprintf(stderr, "; map %lld points (voxel %.3f m) -> %s", (long long)pb_map_builder_size(map), voxel,
+                         map_path);
+        std::fprintf(stderr, " in %.2f s\n", dt);
+    }
+    pb_map_builder_destroy(map);
+    pb_pose_track_destroy(track);
+    return status;
+}
