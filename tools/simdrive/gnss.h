@@ -1,0 +1,24 @@
+/* Simulated GNSS receiver: the antenna's position through the site's geo-reference,
+ * with a first-order Gauss-Markov horizontal error (correlated over gnss_noise_tau). */
+#ifndef SIM_GNSS_H
+#define SIM_GNSS_H
+
+#include <stdint.h>
+#include "pb_geo.h"
+#include "trajectory.h"
+#include "vehicle.h"
+#include "portobello_gnss_fix_t.h"
+
+typedef struct {
+    double err[3];          /* current error east-ish x, y (map), up; m */
+    double last_heading;
+    int64_t k;              /* fixes so far */
+    double dt;
+} gnss_sim_t;
+
+void gnss_sim_init(gnss_sim_t *g, const vehicle_t *v, uint64_t seed, double dt);
+/* Next fix (call at consecutive dt steps). */
+void gnss_step(gnss_sim_t *g, const vehicle_t *v, const pb_georef_t *geo, double geoid_height_m,
+               const traj_state_t *st, uint64_t seed, int64_t utime, portobello_gnss_fix_t *fix);
+
+#endif

@@ -1,0 +1,315 @@
+/* simdrive: a simulated study site and drive, deterministic for a seed.
+ * The shell: options, file loading, the time-ordered event loop and the log. */
+#include <errno.h>
+#include <getopt.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+
+#include "can.h"
+#include "gnss.h"
+#include "imu.h"
+#include "lidar.h"
+#include "pb_log.h"
+#include "pb_progress.h"
+#include "rng.h"
+#include "route.h"
+#include "site.h"
+#include "trajectory.h"
+#include "vehicle.h"
+#include "world.h"
+#include "portobello_can_frame_t.h"
+#include "portobello_imu_t.h"
+#include "portobello_pose_t.h"
+
+#ifndef PB_SOURCE_DIR
+#define PB_SOURCE_DIR "."
+#endif
+
+/* 2024-05-01T14:00:00Z: a fixed epoch, so a seed gives the same log every time. */
+#define UTIME0 1714572000000000LL
+#define GT_PERIOD_US 10000
+#define GNSS_PERIOD_US 100000
+#define MAPPING_LIDAR_PERIOD_US 500000
+#define CAN_JITTER_US 300
+#define TYRE_CIRCUMFERENCE_M 1.99   /* 195/65 R15 */
+#define GRID_CELL_M 4.0
+
+static void usage(FILE *f)
+{
+    fprintf(f,
+        "usage: simdrive --out DIR [--seed N] [--duration S] [--speed-profile cautious|normal|aggressive]\n"
+        "                [--site SITE_DIR] [--vehicle FILE] [--mapping] [--no-lidar] [--quiet]\n"
+        "\n"
+        "Simulates a drive around a site's route and writes DIR/drive.lcm (LCM log) and\n"
+        "DIR/ground_truth.tum (base pose at 100 Hz: t x y z qx qy qz qw, t in seconds).\n"
+        "The same seed gives the same log; seeds change sensor noise and biases, stop\n"
+        "dwell times and traffic phase.\n"
+        "\n"
+        "Channels: LIDAR_SCAN (OS1-64 range image, 10 Hz), IMU (vehicle rate), CAN_FRAME\n"
+        "(Prius 0x0AA WHEEL_SPEEDS ~83 Hz, 0x0B4 SPEED ~41.7 Hz), GNSS_FIX (10 Hz),\n"
+        "GROUND_TRUTH (base in map, 100 Hz).\n"
+        "\n"
+        "  --out DIR             output folder (created)\n"
+        "  --seed N              random seed (default 1)\n"
+        "  --duration S          seconds to simulate (default 60; laps repeat)\n"
+        "  --speed-profile P     cautious, normal (default) or aggressive (route.yaml)\n"
+        "  --site DIR            site folder (default %s/maps/default)\n"
+        "  --vehicle FILE        vehicle file (default %s/vehicles/prius2017.yaml)\n"
+        "  --mapping             the mapping day: mapping-day objects, no traffic, exactly\n"
+        "                        one lap (ignores --duration), LiDAR keyframes at 2 Hz\n"
+        "  --no-lidar            skip LIDAR_SCAN (fast drives for IMU, CAN and GNSS studies)\n"
+        "  --quiet               no progress bar\n"
+        "  --help                this text\n",
+        PB_SOURCE_DIR, PB_SOURCE_DIR);
+}
+
+static int mkdir_p(const char *path)
+{
+    char buf[1024];
+    snprintf(buf, sizeof buf, "%s", path);
+    for (char *p = buf + 1; *p; p++)
+        if (*p == '/') {
+            *p = 0;
+            if (mkdir(buf, 0777) && errno != EEXIST) return -1;
+            *p = '/';
+        }
+    if (mkdir(buf, 0777) && errno != EEXIST) return -1;
+    return 0;
+}
+
+typedef struct {
+    pb_log_t *log;
+    uint8_t *buf;
+    int cap;
+    pb_err_t err;
+    int failed;
+} out_t;
+
+#define WRITE_MSG(o, channel, type, msgp) do { \
+        int n_ = type##_encoded_size(msgp); \
+        if (n_ > (o)->cap) { (o)->cap = n_; (o)->buf = realloc((o)->buf, n_); } \
+        type##_encode((o)->buf, 0, n_, msgp); \
+        if (!(o)->failed && pb_log_write((o)->log, (msgp)->utime, channel, (o)->buf, n_, &(o)->err)) (o)->failed = 1; \
+    } while (0)
+
+static double st_dist_or_zero(const trajectory_t *tr, double t)
+{
+    traj_state_t st;
+    traj_eval(tr, t, &st);
+    return st.dist;
+}
+
+enum { S_GT, S_IMU, S_LIDAR, S_GNSS, S_CAN_WS, S_CAN_SPD, S_COUNT };
+
+int main(int argc, char **argv)
+{
+    const char *out_dir = NULL, *site_dir = PB_SOURCE_DIR "/maps/default";
+    const char *veh_path = PB_SOURCE_DIR "/vehicles/prius2017.yaml", *profile = "normal";
+    uint64_t seed = 1;
+    double duration = 60;
+    int mapping = 0, quiet = 0, no_lidar = 0;
+    static const struct option opts[] = {
+        { "out", required_argument, 0, 'o' }, { "seed", required_argument, 0, 's' },
+        { "duration", required_argument, 0, 'd' }, { "speed-profile", required_argument, 0, 'p' },
+        { "site", required_argument, 0, 'S' }, { "vehicle", required_argument, 0, 'v' },
+        { "mapping", no_argument, 0, 'm' }, { "no-lidar", no_argument, 0, 'L' }, { "quiet", no_argument, 0, 'q' },
+        { "help", no_argument, 0, 'h' }, { 0, 0, 0, 0 } };
+    int c;
+    while ((c = getopt_long(argc, argv, "h", opts, NULL)) != -1) {
+        char *end;
+        switch (c) {
+        case 'o': out_dir = optarg; break;
+        case 's':
+            seed = strtoull(optarg, &end, 10);
+            if (*end || !*optarg) { fprintf(stderr, "simdrive: --seed: expected an integer, got '%s'\n", optarg); return 2; }
+            break;
+        case 'd':
+            duration = strtod(optarg, &end);
+            if (*end || !(duration > 0) || duration > 24 * 3600) {
+                fprintf(stderr, "simdrive: --duration: expected seconds in (0, 86400], got '%s'\n", optarg);
+                return 2;
+            }
+            break;
+        case 'p': profile = optarg; break;
+        case 'S': site_dir = optarg; break;
+        case 'v': veh_path = optarg; break;
+        case 'm': mapping = 1; break;
+        case 'q': quiet = 1; break;
+        case 'L': no_lidar = 1; break;
+        case 'h': usage(stdout); return 0;
+        default: usage(stderr); return 2;
+        }
+    }
+    if (optind < argc) { fprintf(stderr, "simdrive: unexpected argument '%s'\n", argv[optind]); return 2; }
+    if (!out_dir) { fprintf(stderr, "simdrive: --out DIR is required (see --help)\n"); return 2; }
+    int prof = -1;
+    for (int i = 0; i < PROFILE_COUNT; i++)
+        if (!strcmp(profile, profile_names[i])) prof = i;
+    if (prof < 0) {
+        fprintf(stderr, "simdrive: --speed-profile: expected cautious, normal or aggressive, got '%s'\n", profile);
+        return 2;
+    }
+
+    pb_err_t err = { "" };
+    vehicle_t veh;
+    site_t site;
+    route_t route;
+    world_t world;
+    if (vehicle_load(veh_path, &veh, &err) || site_load(site_dir, &site, &err) ||
+        route_load(site.route_path, &route, &err)) {
+        fprintf(stderr, "simdrive: %s\n", err.msg);
+        return 1;
+    }
+    if (world_load(site.world_path, &route, &world, &err)) {
+        fprintf(stderr, "simdrive: %s\n", err.msg);
+        route_free(&route);
+        return 1;
+    }
+    world_build_grid(&world, mapping ? DAY_MAP : DAY_DRIVE, GRID_CELL_M);
+
+    /* The base origin (rear axle) halts so that the front bumper is 0.5 m behind the line. */
+    double stop_offset = (veh.length - veh.rear_overhang) + 0.5;
+    trajectory_t traj;
+    if (traj_plan(&traj, &route, &route.profiles[prof], mapping ? 0 : duration, stop_offset, seed, &err)) {
+        fprintf(stderr, "simdrive: %s\n", err.msg);
+        return 1;
+    }
+    if (mapping) duration = traj.t_end;
+    int64_t end_us = (int64_t)llround(duration * 1e6);
+
+    if (mkdir_p(out_dir)) { fprintf(stderr, "simdrive: %s: cannot create: %s\n", out_dir, strerror(errno)); return 1; }
+    char path[1200];
+    snprintf(path, sizeof path, "%s/drive.lcm", out_dir);
+    out_t out = { 0 };
+    out.log = pb_log_open_write(path, &err);
+    if (!out.log) { fprintf(stderr, "simdrive: %s\n", err.msg); return 1; }
+    snprintf(path, sizeof path, "%s/ground_truth.tum", out_dir);
+    FILE *tum = fopen(path, "w");
+    if (!tum) { fprintf(stderr, "simdrive: %s: %s\n", path, strerror(errno)); return 1; }
+
+    /* sensors */
+    lidar_model_t lm;
+    lidar_model_os1_64(&lm);
+    lidar_sim_t ls = { .world = &world, .route = &route, .traj = &traj, .veh = &veh, .model = &lm,
+                       .seed = seed, .traffic = !mapping };
+    lidar_sim_init(&ls);
+    imu_sim_t imu;
+    imu_sim_init(&imu, &veh, seed);
+    gnss_sim_t gnss;
+    gnss_sim_init(&gnss, &veh, seed, GNSS_PERIOD_US * 1e-6);
+
+    static int32_t range_mm[LIDAR_ROWS * LIDAR_COLS], col_off[LIDAR_COLS];
+    static uint8_t refl[LIDAR_ROWS * LIDAR_COLS];
+    static float alt[LIDAR_ROWS], az[LIDAR_ROWS];
+    portobello_lidar_scan_t scan = { 0 };
+    scan.sensor = veh.lidar_model;
+    scan.range_mm = range_mm; scan.reflectivity = refl; scan.col_offset_us = col_off;
+    scan.beam_altitude_rad = alt; scan.beam_azimuth_rad = az;
+    int16_t no_sig[1];
+    scan.signal = no_sig; scan.near_ir = no_sig;
+
+    /* Streams: period, phase; CAN frames carry a small receive-time jitter. */
+    const int64_t period[S_COUNT] = { GT_PERIOD_US, (int64_t)llround(1e6 / veh.imu_rate_hz),
+                                      mapping ? MAPPING_LIDAR_PERIOD_US : LIDAR_PERIOD_US, GNSS_PERIOD_US,
+                                      CAN_WHEEL_SPEEDS_PERIOD_US, CAN_SPEED_PERIOD_US };
+    const int64_t phase[S_COUNT] = { 0, 0, 0, 0, 2000, 5000 };
+    int64_t k[S_COUNT] = { 0 };
+    int64_t counts[S_COUNT] = { 0 };
+    pb_progress_t prog;
+    pb_progress_start(&prog, "simdrive", end_us, quiet);
+    for (;;) {
+        int best = -1;
+        int64_t tb = 0;
+        for (int s = 0; s < S_COUNT; s++) {
+            int64_t t = phase[s] + k[s] * period[s];
+            if (s == S_CAN_WS || s == S_CAN_SPD)
+                t += (int64_t)llround((rng_uniform(seed, RNG_CAN_JITTER, (uint64_t)s, (uint64_t)k[s]) - 0.5) * 2 * CAN_JITTER_US);
+            if (s == S_LIDAR && no_lidar) continue;
+            if (t < end_us && (best < 0 || t < tb)) { best = s; tb = t; }
+        }
+        if (best < 0 || out.failed) break;
+        int64_t utime = UTIME0 + tb;
+        double t = tb * 1e-6;
+        traj_state_t st;
+        traj_eval(&traj, t, &st);
+        switch (best) {
+        case S_GT: {
+            portobello_pose_t p = { 0 };
+            p.utime = utime;
+            p.position[0] = st.x; p.position[1] = st.y; p.position[2] = 0;
+            p.orientation[0] = cos(st.yaw / 2); p.orientation[3] = sin(st.yaw / 2);
+            p.velocity[0] = st.v * cos(st.yaw); p.velocity[1] = st.v * sin(st.yaw);
+            p.angular_velocity[2] = st.omega;
+            p.status = PORTOBELLO_POSE_T_STATUS_TRACKING;
+            p.source = PORTOBELLO_POSE_T_SOURCE_GROUND_TRUTH;
+            p.match_score = NAN;
+            WRITE_MSG(&out, "GROUND_TRUTH", portobello_pose_t, &p);
+            if (k[best] % 50 == 0) pb_progress_update(&prog, tb);
+            fprintf(tum, "%.6f %.6f %.6f %.6f %.9f %.9f %.9f %.9f\n", utime * 1e-6, p.position[0], p.position[1],
+                    p.position[2], p.orientation[1], p.orientation[2], p.orientation[3], p.orientation[0]);
+            break;
+        }
+        case S_IMU: {
+            portobello_imu_t m = { 0 };
+            m.utime = utime;
+            m.sensor = "sim";
+            imu_measure(&imu, &veh, &st, seed, (uint64_t)k[best], m.accel, m.gyro);
+            WRITE_MSG(&out, "IMU", portobello_imu_t, &m);
+            break;
+        }
+        case S_LIDAR:
+            lidar_simulate(&ls, (int32_t)k[best], t, utime, &scan);
+            WRITE_MSG(&out, "LIDAR_SCAN", portobello_lidar_scan_t, &scan);
+            break;
+        case S_GNSS: {
+            portobello_gnss_fix_t fix = { 0 };
+            gnss_step(&gnss, &veh, &site.geo, site.geoid_height_m, &st, seed, utime, &fix);
+            WRITE_MSG(&out, "GNSS_FIX", portobello_gnss_fix_t, &fix);
+            break;
+        }
+        case S_CAN_WS:
+        case S_CAN_SPD: {
+            uint8_t data[8];
+            portobello_can_frame_t f = { 0 };
+            f.utime = utime;
+            f.bus = 0;
+            f.len = 8;
+            f.data = data;
+            if (best == S_CAN_WS) {
+                double fl, fr, rl, rr;
+                can_wheel_speeds_kmh(&veh, &st, &fl, &fr, &rl, &rr);
+                can_encode_wheel_speeds(fl, fr, rl, rr, data);
+                f.id = CAN_ID_WHEEL_SPEEDS;
+            } else {
+                uint8_t enc = (uint8_t)((int64_t)floor(st.dist / TYRE_CIRCUMFERENCE_M) & 0xFF);
+                can_encode_speed(st.v * 3.6, enc, data);
+                f.id = CAN_ID_SPEED;
+            }
+            WRITE_MSG(&out, "CAN_FRAME", portobello_can_frame_t, &f);
+            break;
+        }
+        }
+        counts[best]++;
+        k[best]++;
+    }
+    pb_progress_finish(&prog);
+    int rc = 0;
+    if (out.failed) { fprintf(stderr, "simdrive: %s\n", out.err.msg); rc = 1; }
+    if (pb_log_close(out.log, &err)) { fprintf(stderr, "simdrive: %s\n", err.msg); rc = 1; }
+    if (fclose(tum)) { fprintf(stderr, "simdrive: ground_truth.tum: %s\n", strerror(errno)); rc = 1; }
+    if (!quiet && !rc)
+        fprintf(stderr, "simdrive: %s, %.1f s, %.0f m, %d stops planned: %lld scans, %lld imu, %lld can, %lld gnss, %lld gt -> %s\n",
+                site.name, duration, st_dist_or_zero(&traj, duration), traj.stops_made,
+                (long long)counts[S_LIDAR], (long long)counts[S_IMU],
+                (long long)(counts[S_CAN_WS] + counts[S_CAN_SPD]), (long long)counts[S_GNSS],
+                (long long)counts[S_GT], out_dir);
+    lidar_sim_free(&ls);
+    free(out.buf);
+    traj_free(&traj);
+    world_free(&world);
+    route_free(&route);
+    return rc;
+}

@@ -1,0 +1,43 @@
+/* The route (route.yaml): the lane centreline as a closed C2 curve (periodic cubic
+ * spline through the file's points, parametrised by arc length), its stop lines,
+ * crosswalks and speed profiles. */
+#ifndef SIM_ROUTE_H
+#define SIM_ROUTE_H
+
+#include "pb_err.h"
+
+typedef struct { double cruise, accel, decel, lat_accel; } speed_profile_t;
+enum { PROFILE_CAUTIOUS, PROFILE_NORMAL, PROFILE_AGGRESSIVE, PROFILE_COUNT };
+extern const char *const profile_names[PROFILE_COUNT];
+
+typedef struct { char id[32], crosswalk[32]; double xy[2], yaw_deg, s; } stop_line_t;
+typedef struct { char id[32]; double center[2], yaw_deg, length, width; } crosswalk_t;
+
+typedef struct {
+    double x, y;        /* map, m */
+    double yaw;         /* heading of the tangent, rad */
+    double kappa;       /* curvature, 1/m, + left */
+    double dkappa;      /* d kappa / ds, 1/m^2 */
+} route_point_t;
+
+typedef struct {
+    int n;                      /* control points = spline segments (closed) */
+    double *cx, *cy;            /* 4 coefficients per segment: p(t) = c0 + c1 t + c2 t^2 + c3 t^3, t in [0,1] */
+    double *seg_s;              /* arc length at the start of segment i, n+1 entries */
+    double length;              /* one lap, m */
+    double lane_width;
+    double dwell_s[2];          /* stop dwell range, s */
+    int nstops, ncw;
+    stop_line_t *stops;         /* sorted by s */
+    crosswalk_t *cw;
+    speed_profile_t profiles[PROFILE_COUNT];
+} route_t;
+
+int route_load(const char *path, route_t *r, pb_err_t *err);
+void route_free(route_t *r);
+/* Point at arc length s (any real s: wraps around the loop). */
+void route_eval(const route_t *r, double s, route_point_t *out);
+/* Arc length of the route point nearest to (x, y). */
+double route_project(const route_t *r, double x, double y);
+
+#endif

@@ -1,0 +1,18 @@
+/* The site folder's site.yaml: name, geo-reference and the files it points to. */
+#ifndef SIM_SITE_H
+#define SIM_SITE_H
+
+#include "pb_err.h"
+#include "pb_geo.h"
+
+typedef struct {
+    char dir[1024];
+    char name[64];
+    pb_georef_t geo;
+    double geoid_height_m;      /* geoid above the ellipsoid (for heights above sea level) */
+    char route_path[1300], world_path[1300];
+} site_t;
+
+int site_load(const char *dir, site_t *s, pb_err_t *err);
+
+#endif

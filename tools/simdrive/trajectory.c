@@ -1,0 +1,168 @@
+/* Speed planning and time parametrisation of the drive. */
+#include "trajectory.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "rng.h"
+
+#define PLAN_DS 0.25        /* m, grid of the speed plan */
+#define PROFILE_DT 0.002    /* s, grid of the time profile */
+#define BOX_S 0.5           /* s, width of each of the two box filters (a 1 s triangle) */
+
+/* Moving average of width w (odd) with edge values held. */
+static void box_filter(double *x, int n, int w)
+{
+    double *c = malloc((n + 1) * sizeof *c);
+    c[0] = 0;
+    for (int i = 0; i < n; i++) c[i + 1] = c[i] + x[i];
+    int h = w / 2;
+    double *y = malloc(n * sizeof *y);
+    for (int i = 0; i < n; i++) {
+        int lo = i - h, hi = i + h;     /* inclusive */
+        double sum = 0;
+        if (lo < 0) { sum += -lo * x[0]; lo = 0; }
+        if (hi > n - 1) { sum += (hi - (n - 1)) * x[n - 1]; hi = n - 1; }
+        sum += c[hi + 1] - c[lo];
+        y[i] = sum / w;
+    }
+    memcpy(x, y, n * sizeof *x);
+    free(y);
+    free(c);
+}
+
+/* One plan over `laps` laps into tr (v, s, n, t_end). */
+static void plan_laps(trajectory_t *tr, const route_t *r, const speed_profile_t *p, int laps, int end_at_rest,
+                     double stop_offset, uint64_t seed)
+{
+    double S = laps * r->length;
+    int N = (int)ceil(S / PLAN_DS) + 1;
+    double ds = S / (N - 1);
+    double *vmax = malloc(N * sizeof *vmax), *dwell = calloc(N, sizeof *dwell);
+    for (int i = 0; i < N; i++) {
+        route_point_t rp;
+        route_eval(r, i * ds, &rp);
+        double k = fabs(rp.kappa);
+        vmax[i] = k > 1e-9 ? fmin(p->cruise, sqrt(p->lat_accel / k)) : p->cruise;
+    }
+    for (int lap = 0; lap < laps; lap++)
+        for (int k = 0; k < r->nstops; k++) {
+            double s = lap * r->length + r->stops[k].s - stop_offset;
+            if (s < 1.0 || s > S - 1.0) continue;   /* not behind the start, not past the end */
+            int i = (int)lround(s / ds);
+            double u = rng_uniform(seed, RNG_DWELL, (uint64_t)lap, (uint64_t)k);
+            vmax[i] = 0;
+            dwell[i] = r->dwell_s[0] + u * (r->dwell_s[1] - r->dwell_s[0]);
+        }
+    vmax[0] = 0;
+    if (end_at_rest) vmax[N - 1] = 0;
+    /* forward (acceleration) and backward (deceleration) passes */
+    for (int i = 1; i < N; i++) vmax[i] = fmin(vmax[i], sqrt(vmax[i - 1] * vmax[i - 1] + 2 * p->accel * ds));
+    for (int i = N - 2; i >= 0; i--) vmax[i] = fmin(vmax[i], sqrt(vmax[i + 1] * vmax[i + 1] + 2 * p->decel * ds));
+
+    /* Knots (t, v): constant acceleration between grid points, so v is linear in t. */
+    double *kt = malloc((2 * N + 1) * sizeof *kt), *kv = malloc((2 * N + 1) * sizeof *kv);
+    int nk = 0, stops = 0;
+    double t = 0;
+    for (int i = 0; i < N; i++) {
+        if (i > 0) {
+            double vs = vmax[i - 1] + vmax[i];
+            t += vs > 1e-9 ? 2 * ds / vs : 0;
+        }
+        kt[nk] = t; kv[nk++] = vmax[i];
+        if (dwell[i] > 0 || i == 0) {
+            double d = i == 0 ? 1.0 : dwell[i];   /* 1 s at rest before moving off */
+            if (i) stops++;
+            t += d;
+            kt[nk] = t; kv[nk++] = 0;
+        }
+    }
+    if (end_at_rest) {      /* rest beyond the smoothing window: the car ends exactly at the start point */
+        t += 2 * BOX_S + 0.5;
+        kt[nk] = t; kv[nk++] = 0;
+    }
+    int n = (int)(t / PROFILE_DT) + 1;
+    free(tr->v); free(tr->s);
+    tr->v = malloc(n * sizeof *tr->v);
+    tr->s = malloc(n * sizeof *tr->s);
+    tr->n = n;
+    tr->dt = PROFILE_DT;
+    tr->stops_made = stops;
+    int j = 0;
+    for (int k = 0; k < n; k++) {
+        double tk = k * PROFILE_DT;
+        while (j < nk - 2 && kt[j + 1] <= tk) j++;
+        double span = kt[j + 1] - kt[j];
+        double f = span > 0 ? (tk - kt[j]) / span : 1;
+        if (f > 1) f = 1;
+        tr->v[k] = kv[j] + (kv[j + 1] - kv[j]) * f;
+    }
+    /* Two box filters = a triangular window: acceleration becomes continuous and jerk
+     * bounded by (accel + decel) / BOX_S. Dwells (>= 2 s) outlast the 1 s window, so
+     * the car still comes to rest exactly where planned. */
+    int w = (int)(BOX_S / PROFILE_DT) | 1;
+    box_filter(tr->v, n, w);
+    box_filter(tr->v, n, w);
+    tr->s[0] = 0;
+    for (int k = 1; k < n; k++) tr->s[k] = tr->s[k - 1] + 0.5 * (tr->v[k - 1] + tr->v[k]) * PROFILE_DT;
+    tr->t_end = (n - 1) * PROFILE_DT;
+    free(vmax); free(dwell); free(kt); free(kv);
+}
+
+int traj_plan(trajectory_t *tr, const route_t *r, const speed_profile_t *p, double duration,
+              double stop_offset_m, uint64_t seed, pb_err_t *err)
+{
+    memset(tr, 0, sizeof *tr);
+    tr->route = r;
+    if (duration <= 0) {
+        plan_laps(tr, r, p, 1, 1, stop_offset_m, seed);
+        return 0;
+    }
+    /* Enough laps to cover the duration plus the smoothing window at the end. */
+    for (int laps = 1; laps < 10000; laps++) {
+        plan_laps(tr, r, p, laps, 0, stop_offset_m, seed);
+        if (tr->t_end > duration + 2 * BOX_S + 1.0) {
+            tr->t_end = duration + 2 * BOX_S;   /* the tail feels the unconstrained end; keep it out */
+            return 0;
+        }
+        if (tr->t_end < 1.0) break;
+        laps = (int)fmax(laps, ceil(laps * (duration + 10) / tr->t_end) - 1);
+    }
+    traj_free(tr);
+    return pb_err_set(err, "cannot plan a drive of %.0f s", duration);
+}
+
+void traj_free(trajectory_t *tr)
+{
+    free(tr->v); free(tr->s);
+    tr->v = tr->s = NULL;
+}
+
+void traj_eval(const trajectory_t *tr, double t, traj_state_t *st)
+{
+    if (t < 0) t = 0;
+    double kf = t / tr->dt;
+    int k = (int)kf;
+    if (k > tr->n - 2) k = tr->n - 2;
+    double tau = t - k * tr->dt;
+    /* v linear within a step (a constant), s its exact integral: s' = v holds exactly. */
+    double ak = (tr->v[k + 1] - tr->v[k]) / tr->dt;
+    double v = tr->v[k] + ak * tau;
+    double s = tr->s[k] + tr->v[k] * tau + 0.5 * ak * tau * tau;
+    /* Reported acceleration: nodal central differences, interpolated, so it is continuous. */
+    int k0 = k > 0 ? k - 1 : 0, k2 = k + 2 < tr->n ? k + 2 : tr->n - 1;
+    double a0 = (tr->v[k + 1] - tr->v[k0]) / ((k + 1 - k0) * tr->dt);
+    double a1 = (tr->v[k2] - tr->v[k]) / ((k2 - k) * tr->dt);
+    double a = a0 + (a1 - a0) * (tau / tr->dt);
+    route_point_t rp;
+    route_eval(tr->route, s, &rp);
+    st->t = t;
+    st->dist = s;
+    st->v = v;
+    st->a = a;
+    st->x = rp.x; st->y = rp.y; st->yaw = rp.yaw;
+    st->kappa = rp.kappa;
+    st->omega = rp.kappa * v;
+    st->alpha = rp.dkappa * v * v + rp.kappa * a;
+}

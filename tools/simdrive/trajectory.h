@@ -1,0 +1,40 @@
+/* The drive: a speed profile planned along the route (accel / decel / lateral
+ * acceleration limits, a stop with a seed-dependent dwell at every stop line),
+ * then smoothed in time so that acceleration is continuous and jerk bounded.
+ * Evaluated at any time, it gives the base pose and its derivatives. */
+#ifndef SIM_TRAJECTORY_H
+#define SIM_TRAJECTORY_H
+
+#include <stdint.h>
+#include "pb_err.h"
+#include "route.h"
+
+typedef struct {
+    const route_t *route;
+    double dt;          /* sample period of the profile, s */
+    int n;              /* samples */
+    double *v, *s;      /* speed (m/s) and distance travelled (m) at k*dt */
+    double t_end;       /* last time with a valid profile, s */
+    int stops_made;     /* stops planned within t_end */
+} trajectory_t;
+
+typedef struct {
+    double t;           /* s since start */
+    double dist;        /* distance travelled, m */
+    double v, a;        /* speed (m/s) and tangential acceleration (m/s^2) of the base origin */
+    double x, y, yaw;   /* base pose in map (z = 0, level) */
+    double kappa;       /* path curvature, 1/m */
+    double omega;       /* yaw rate, rad/s */
+    double alpha;       /* yaw acceleration, rad/s^2 */
+} traj_state_t;
+
+/* Plans a drive from rest at the start of the route. duration > 0: long enough
+ * for duration seconds (laps repeat). duration <= 0: exactly one lap, ending at
+ * rest at the start point (the mapping drive). stop_offset_m: how far behind a
+ * stop line the base origin halts (front bumper at the line). */
+int traj_plan(trajectory_t *tr, const route_t *r, const speed_profile_t *p, double duration,
+              double stop_offset_m, uint64_t seed, pb_err_t *err);
+void traj_free(trajectory_t *tr);
+void traj_eval(const trajectory_t *tr, double t, traj_state_t *st);
+
+#endif

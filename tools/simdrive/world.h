@@ -1,0 +1,75 @@
+/* The world (world.yaml): ground plane z = 0 with painted crosswalks, static
+ * primitives (oriented boxes, vertical cylinders, spheres) in a 2-D uniform grid
+ * for ray casting, and moving traffic (a few boxes, tested against every ray). */
+#ifndef SIM_WORLD_H
+#define SIM_WORLD_H
+
+#include <stdint.h>
+#include "pb_err.h"
+#include "route.h"
+
+#define WORLD_MAX_CLASSES 32
+#define WORLD_MAX_TRAFFIC 64
+
+enum { PRIM_BOX, PRIM_CYLINDER, PRIM_SPHERE };
+enum { DAY_BOTH, DAY_MAP, DAY_DRIVE };
+
+typedef struct {
+    uint8_t kind, cls, day;
+    double cx, cy, cz;          /* centre (boxes, cylinders: cz unused) */
+    double c, s;                /* cos, sin of yaw (boxes) */
+    double hx, hy;              /* half length, half width (boxes) */
+    double r;                   /* radius (cylinders, spheres) */
+    double z0, z1;              /* bottom, top (boxes, cylinders) */
+} prim_t;
+
+typedef struct {
+    char kind[16];
+    uint8_t cls;
+    double size[3], z0, speed, phase_s, lane_offset;
+} traffic_t;
+
+typedef struct {                /* a mover placed at one instant */
+    double cx, cy, c, s, hx, hy, z0, z1;
+    uint8_t cls;
+} mover_t;
+
+typedef struct {
+    int nclasses;
+    char class_name[WORLD_MAX_CLASSES][24];
+    double albedo[WORLD_MAX_CLASSES];
+    uint8_t ground_cls, paint_cls;
+    int nprims;
+    prim_t *prims;
+    int ntraffic;
+    traffic_t traffic[WORLD_MAX_TRAFFIC];
+    /* crosswalk paint (from the route): centre, axes, half sizes */
+    int ncw;
+    double (*cw)[6];
+    /* grid over the static primitives of one day */
+    double gx0, gy0, cell;
+    int gnx, gny;
+    int32_t *cell_start;        /* gnx*gny+1 offsets into cell_items */
+    int32_t *cell_items;
+    float *cell_maxz;
+    double max_z;
+} world_t;
+
+int world_load(const char *path, const route_t *route, world_t *w, pb_err_t *err);
+/* Builds the grid over the primitives present on `day` (DAY_MAP or DAY_DRIVE). */
+void world_build_grid(world_t *w, int day, double cell_m);
+void world_free(world_t *w);
+
+/* Places traffic at time t (s since start, seed-dependent phase). Returns the count. */
+int world_movers(const world_t *w, const route_t *route, double t, uint64_t seed, mover_t *out);
+
+typedef struct { double t; int cls; } hit_t;
+
+/* Nearest hit of the ray o + t d (d unit) with t in (0, tmax], among ground, static
+ * primitives and movers. mail is per-thread scratch of nprims entries, stamp a
+ * fresh value per ray (mailboxing: each primitive is tested once per ray).
+ * Returns 1 on a hit. */
+int world_raycast(const world_t *w, const double o[3], const double d[3], double tmax,
+                  const mover_t *movers, int nmovers, uint32_t *mail, uint32_t stamp, hit_t *hit);
+
+#endif
