@@ -9,7 +9,6 @@ DEFAULT_MAPPING := $(BUILD)/sites/default-mapping
 
 maps: $(DEFAULT_SITE)/map.pcd
 
-ifneq ($(wildcard tools/build-map/module.mk),)
 $(DEFAULT_SITE)/map.pcd: $(BIN)/simdrive $(BIN)/build-map $(DEFAULT_SITE)/site.yaml $(DEFAULT_SITE)/route.yaml \
                          $(DEFAULT_SITE)/world.yaml vehicles/prius2017.yaml
 	@echo "  SIM     $(DEFAULT_MAPPING) (mapping lap)"
@@ -19,7 +18,3 @@ $(DEFAULT_SITE)/map.pcd: $(BIN)/simdrive $(BIN)/build-map $(DEFAULT_SITE)/site.y
 	  $(BIN)/build-map --log $$tmp/drive.lcm --pose-channel GROUND_TRUTH \
 	    --vehicle vehicles/prius2017.yaml --voxel 0.15 --quiet --out $@.$$$$ && \
 	  mv $@.$$$$ $@ && rm -rf $(DEFAULT_MAPPING) && mv $$tmp $(DEFAULT_MAPPING) || { rm -rf $$tmp $@.$$$$; exit 1; }
-else
-$(DEFAULT_SITE)/map.pcd:
-	@echo "maps: tools/build-map is missing; $@ not built" >&2
-endif
