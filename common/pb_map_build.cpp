@@ -13,7 +13,6 @@
 #include <pcl/point_cloud.h>
 #include <pcl/point_types.h>
 
-#include "pb_config.h"
 
 namespace {
 
@@ -429,31 +428,3 @@ extern "C" int pb_map_builder_write_pcd(const pb_map_builder_t *b, const char *p
 }
 
 // ---------------------------------------------------------------- vehicle
-extern "C" int pb_vehicle_base_from_lidar(const char *vehicle_path, pb_transform_t *out, pb_err_t *err)
-{
-    pb_cfg_t *cfg = pb_cfg_load(vehicle_path, err);
-    if (!cfg) return -1;
-    int rc = -1;
-    const pb_cfg_node_t *root = pb_cfg_root(cfg);
-    const pb_cfg_node_t *sensors = root && pb_node_kind(root) == PB_NODE_MAP ? pb_node_get(root, "sensors") : nullptr;
-    const pb_cfg_node_t *lidar = sensors && pb_node_kind(sensors) == PB_NODE_MAP ? pb_node_get(sensors, "lidar") : nullptr;
-    if (!lidar || pb_node_kind(lidar) != PB_NODE_MAP) {
-        pb_err_set(err, "%s:%d: no sensors: lidar: mapping", vehicle_path,
-                   sensors ? pb_node_line(sensors) : root ? pb_node_line(root) : 1);
-    } else {
-        double xyz[3] = {0, 0, 0}, rpy[3] = {0, 0, 0};
-        const pb_cfg_node_t *nx = pb_node_get(lidar, "xyz");
-        const pb_cfg_node_t *nr = pb_node_get(lidar, "rpy_deg");
-        if (!nx) {
-            pb_err_set(err, "%s:%d: sensors: lidar: missing xyz", vehicle_path, pb_node_line(lidar));
-        } else if (pb_node_doubles(nx, "xyz", xyz, 3, err) == 0 &&
-                   (!nr || pb_node_doubles(nr, "rpy_deg", rpy, 3, err) == 0)) {
-            const double d2r = M_PI / 180.0;
-            for (int k = 0; k < 3; k++) out->t[k] = xyz[k];
-            pb_quat_from_rpy(rpy[0] * d2r, rpy[1] * d2r, rpy[2] * d2r, out->q);
-            rc = 0;
-        }
-    }
-    pb_cfg_free(cfg);
-    return rc;
-}

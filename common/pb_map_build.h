@@ -75,11 +75,6 @@ int pb_map_builder_bounds(const pb_map_builder_t *b, double min[3], double max[3
  * parent directory if it is missing. Returns 0, or -1 (empty map, I/O error). */
 int pb_map_builder_write_pcd(const pb_map_builder_t *b, const char *path, pb_err_t *err);
 
-/* ---------------------------------------------------------------- vehicle */
-/* base <- lidar from a vehicle file (sensors: lidar: xyz [m], rpy_deg [deg],
- * rpy optional). Returns 0, or -1 with "FILE:LINE: what". */
-int pb_vehicle_base_from_lidar(const char *vehicle_path, pb_transform_t *out, pb_err_t *err);
-
 #ifdef __cplusplus
 }
 #endif

@@ -16,6 +16,7 @@
 #include "pb_map_build.h"
 #include "pb_progress.h"
 #include "pb_scan.h"
+#include "pb_vehicle.h"
 #include "portobello_lidar_scan_t.h"
 #include "portobello_pose_t.h"
 
@@ -90,9 +91,13 @@ int main(int argc, char **argv)
     pb_err_t err;
 
     pb_transform_t base_from_lidar = {{0, 0, 0}, {1, 0, 0, 0}};
-    if (vehicle && pb_vehicle_base_from_lidar(vehicle, &base_from_lidar, &err) != 0) {
-        std::fprintf(stderr, "build-map: %s\n", err.msg);
-        return 1;
+    if (vehicle) {
+        pb_vehicle_t veh;
+        if (pb_vehicle_load(vehicle, &veh, &err) != 0) {
+            std::fprintf(stderr, "build-map: %s\n", err.msg);
+            return 1;
+        }
+        base_from_lidar = veh.base_from_lidar;
     }
 
     // Pass 1: poses.

@@ -12,7 +12,7 @@ static void put_be16(uint8_t *p, long raw)
     p[1] = (uint8_t)raw;
 }
 
-void can_wheel_speeds_kmh(const vehicle_t *v, const traj_state_t *st, double *fl, double *fr, double *rl, double *rr)
+void can_wheel_speeds_kmh(const pb_vehicle_t *v, const traj_state_t *st, double *fl, double *fr, double *rl, double *rr)
 {
     /* base frame: origin velocity (v, 0) (no side slip at the rear axle), omega about z */
     const double w = st->omega, L = v->wheelbase, hf = v->track_front / 2, hr = v->track_rear / 2;

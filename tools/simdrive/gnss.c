@@ -7,12 +7,12 @@
 
 #define VERT_FACTOR 1.5     /* vertical error sigma relative to horizontal, typical of GNSS */
 
-static double sigma_axis(const vehicle_t *v, int axis)
+static double sigma_axis(const pb_vehicle_t *v, int axis)
 {
     return axis < 2 ? v->gnss_noise : v->gnss_noise * VERT_FACTOR;
 }
 
-void gnss_sim_init(gnss_sim_t *g, const vehicle_t *v, uint64_t seed, double dt)
+void gnss_sim_init(gnss_sim_t *g, const pb_vehicle_t *v, uint64_t seed, double dt)
 {
     /* start in the stationary distribution, so the first fixes are as wrong as later ones */
     for (int i = 0; i < 3; i++) g->err[i] = sigma_axis(v, i) * rng_gauss(seed, RNG_GNSS, 0, (uint64_t)i);
@@ -21,7 +21,7 @@ void gnss_sim_init(gnss_sim_t *g, const vehicle_t *v, uint64_t seed, double dt)
     g->dt = dt;
 }
 
-void gnss_step(gnss_sim_t *g, const vehicle_t *v, const pb_georef_t *geo, double geoid_height_m,
+void gnss_step(gnss_sim_t *g, const pb_vehicle_t *v, const pb_georef_t *geo, double geoid_height_m,
                const traj_state_t *st, uint64_t seed, int64_t utime, portobello_gnss_fix_t *fix)
 {
     if (g->k > 0) {

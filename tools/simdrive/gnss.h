@@ -6,7 +6,7 @@
 #include <stdint.h>
 #include "pb_geo.h"
 #include "trajectory.h"
-#include "vehicle.h"
+#include "pb_vehicle.h"
 #include "portobello_gnss_fix_t.h"
 
 typedef struct {
@@ -16,9 +16,9 @@ typedef struct {
     double dt;
 } gnss_sim_t;
 
-void gnss_sim_init(gnss_sim_t *g, const vehicle_t *v, uint64_t seed, double dt);
+void gnss_sim_init(gnss_sim_t *g, const pb_vehicle_t *v, uint64_t seed, double dt);
 /* Next fix (call at consecutive dt steps). */
-void gnss_step(gnss_sim_t *g, const vehicle_t *v, const pb_georef_t *geo, double geoid_height_m,
+void gnss_step(gnss_sim_t *g, const pb_vehicle_t *v, const pb_georef_t *geo, double geoid_height_m,
                const traj_state_t *st, uint64_t seed, int64_t utime, portobello_gnss_fix_t *fix);
 
 #endif

@@ -5,7 +5,7 @@
 
 #define GRAVITY 9.80665
 
-void imu_sim_init(imu_sim_t *im, const vehicle_t *v, uint64_t seed)
+void imu_sim_init(imu_sim_t *im, const pb_vehicle_t *v, uint64_t seed)
 {
     for (int i = 0; i < 3; i++) {
         im->accel_bias[i] = v->accel_bias * rng_gauss(seed, RNG_IMU_BIAS, 0, (uint64_t)i);
@@ -13,7 +13,7 @@ void imu_sim_init(imu_sim_t *im, const vehicle_t *v, uint64_t seed)
     }
 }
 
-void imu_ideal(const vehicle_t *v, const traj_state_t *st, double accel[3], double gyro[3])
+void imu_ideal(const pb_vehicle_t *v, const traj_state_t *st, double accel[3], double gyro[3])
 {
     /* In base (level, yaw only): base origin acceleration a_t along x, kappa v^2 along y.
      * The lever arm r adds alpha x r + omega x (omega x r), with omega = (0, 0, w). */
@@ -35,7 +35,7 @@ void imu_ideal(const vehicle_t *v, const traj_state_t *st, double accel[3], doub
     }
 }
 
-void imu_measure(const imu_sim_t *im, const vehicle_t *v, const traj_state_t *st, uint64_t seed, uint64_t k,
+void imu_measure(const imu_sim_t *im, const pb_vehicle_t *v, const traj_state_t *st, uint64_t seed, uint64_t k,
                  double accel[3], double gyro[3])
 {
     imu_ideal(v, st, accel, gyro);

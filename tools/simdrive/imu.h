@@ -5,17 +5,17 @@
 
 #include <stdint.h>
 #include "trajectory.h"
-#include "vehicle.h"
+#include "pb_vehicle.h"
 
 typedef struct {
     double accel_bias[3], gyro_bias[3];     /* imu frame, drawn once per seed */
 } imu_sim_t;
 
-void imu_sim_init(imu_sim_t *im, const vehicle_t *v, uint64_t seed);
+void imu_sim_init(imu_sim_t *im, const pb_vehicle_t *v, uint64_t seed);
 /* Ideal (noise-free, bias-free) measurement for a state: accel (m/s^2) and gyro (rad/s), imu frame. */
-void imu_ideal(const vehicle_t *v, const traj_state_t *st, double accel[3], double gyro[3]);
+void imu_ideal(const pb_vehicle_t *v, const traj_state_t *st, double accel[3], double gyro[3]);
 /* Measurement number k (noise keyed by k). */
-void imu_measure(const imu_sim_t *im, const vehicle_t *v, const traj_state_t *st, uint64_t seed, uint64_t k,
+void imu_measure(const imu_sim_t *im, const pb_vehicle_t *v, const traj_state_t *st, uint64_t seed, uint64_t k,
                  double accel[3], double gyro[3]);
 
 #endif

@@ -52,7 +52,7 @@ static void *worker(void *arg)
     job_t *j = arg;
     lidar_sim_t *ls = j->ls;
     const lidar_model_t *m = ls->model;
-    const vehicle_t *v = ls->veh;
+    const pb_vehicle_t *v = ls->veh;
     double Rl[9];
     pb_quat_to_matrix(v->base_from_lidar.q, Rl);
     const double n = m->origin_m, sigma = v->lidar_range_noise, maxr = v->lidar_max_range;

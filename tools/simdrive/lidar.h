@@ -7,7 +7,7 @@
 
 #include <stdint.h>
 #include "trajectory.h"
-#include "vehicle.h"
+#include "pb_vehicle.h"
 #include "world.h"
 #include "portobello_lidar_scan_t.h"
 
@@ -28,7 +28,7 @@ typedef struct {
     const world_t *world;
     const route_t *route;
     const trajectory_t *traj;
-    const vehicle_t *veh;
+    const pb_vehicle_t *veh;
     const lidar_model_t *model;
     uint64_t seed;
     int traffic;                /* simulate moving traffic */

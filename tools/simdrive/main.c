@@ -18,7 +18,7 @@
 #include "route.h"
 #include "site.h"
 #include "trajectory.h"
-#include "vehicle.h"
+#include "pb_vehicle.h"
 #include "world.h"
 #include "portobello_can_frame_t.h"
 #include "portobello_imu_t.h"
@@ -154,11 +154,11 @@ int main(int argc, char **argv)
     }
 
     pb_err_t err = { "" };
-    vehicle_t veh;
+    pb_vehicle_t veh;
     site_t site;
     route_t route;
     world_t world;
-    if (vehicle_load(veh_path, &veh, &err) || site_load(site_dir, &site, &err) ||
+    if (pb_vehicle_load(veh_path, &veh, &err) || site_load(site_dir, &site, &err) ||
         route_load(site.route_path, &route, &err)) {
         fprintf(stderr, "simdrive: %s\n", err.msg);
         return 1;

@@ -1,12 +1,14 @@
 /* Reads a vehicle file strictly: unknown keys and wrong types fail with file:line. */
-#include "vehicle.h"
+#include "pb_vehicle.h"
 
+#include <libgen.h>
 #include <stddef.h>
+#include <stdio.h>
 #include <string.h>
 
 #include "pb_config.h"
 
-#define F(key, type, field, len, req) { key, type, offsetof(vehicle_t, field), len, req }
+#define F(key, type, field, len, req) { key, type, offsetof(pb_vehicle_t, field), len, req }
 
 static void make_tf(const double xyz[3], const double rpy_deg[3], pb_transform_t *tf)
 {
@@ -15,7 +17,7 @@ static void make_tf(const double xyz[3], const double rpy_deg[3], pb_transform_t
     pb_quat_from_rpy(rpy_deg[0] * d2r, rpy_deg[1] * d2r, rpy_deg[2] * d2r, tf->q);
 }
 
-int vehicle_load(const char *path, vehicle_t *v, pb_err_t *err)
+int pb_vehicle_load(const char *path, pb_vehicle_t *v, pb_err_t *err)
 {
     memset(v, 0, sizeof *v);
     strcpy(v->lidar_model, "OS1-64");
@@ -38,7 +40,13 @@ int vehicle_load(const char *path, vehicle_t *v, pb_err_t *err)
     int rc = -1;
     if (pb_cfg_read(pb_cfg_root(cfg), top_f, &top, err)) goto out;
     memcpy(v->name, top.name, sizeof v->name);
-    memcpy(v->dbc, top.dbc, sizeof v->dbc);
+    if (top.dbc[0] == '/' || !top.dbc[0]) {
+        snprintf(v->dbc, sizeof v->dbc, "%s", top.dbc);
+    } else {    /* relative to the vehicle file */
+        char dir[512];
+        snprintf(dir, sizeof dir, "%s", path);
+        snprintf(v->dbc, sizeof v->dbc, "%s/%s", dirname(dir), top.dbc);
+    }
     dims = top.dims; sensors = top.sensors; sim = top.sim;
     const pb_cfg_field_t dim_f[] = {
         F("length", PB_CFG_DOUBLE, length, 0, 1), F("width", PB_CFG_DOUBLE, width, 0, 1),
@@ -86,6 +94,7 @@ int vehicle_load(const char *path, vehicle_t *v, pb_err_t *err)
     }
     make_tf(v->lidar_xyz, v->lidar_rpy_deg, &v->base_from_lidar);
     make_tf(v->imu_xyz, v->imu_rpy_deg, &v->base_from_imu);
+    make_tf(v->gnss_xyz, v->gnss_rpy_deg, &v->base_from_gnss);
     rc = 0;
 out:
     pb_cfg_free(cfg);
