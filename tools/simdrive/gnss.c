@@ -41,7 +41,7 @@ void gnss_step(gnss_sim_t *g, const pb_vehicle_t *v, const pb_georef_t *geo, dou
     fix->num_sv = (int16_t)(12 + (rng_u64(seed, RNG_GNSS, (uint64_t)(g->k / 600), 99) % 6));
     fix->alt_msl_m = fix->alt_m - geoid_height_m;
     /* 1 sigma per horizontal axis: the reported accuracy is what the error model uses */
-    fix->h_acc_m = v->gnss_noise;
+    fix->h_acc_m = v->gnss_noise * M_SQRT2;   /* horizontal RMS of two axes of sigma gnss_noise */
     fix->v_acc_m = v->gnss_noise * VERT_FACTOR;
     /* velocity of the antenna (lever arm: omega x r), 5 cm/s white noise per axis */
     double vm[3] = { st->v * c - st->omega * (s * a[0] + c * a[1]), st->v * s + st->omega * (c * a[0] - s * a[1]), 0 };
