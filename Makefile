@@ -42,6 +42,10 @@ TEST_PROGRAMS :=
 deps:
 	@bash tools/deps.sh
 
+# Re-run the installer when its inputs changed or anything it installs went missing.
+ifneq ($(shell bash tools/deps.sh --check >/dev/null 2>&1 && echo ok),ok)
+.PHONY: $(DEPS)
+endif
 $(DEPS): tools/deps.sh tools/requirements.txt
 	@bash tools/deps.sh
 

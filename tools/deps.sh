@@ -12,6 +12,13 @@ missing=""
 for p in $APT_PKGS; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing="$missing $p"
 done
+
+# --check: exit 0 if nothing is missing (make runs this on every invocation; it is cheap).
+if [ "${1:-}" = "--check" ]; then
+  [ -z "$missing" ] && [ -f .venv/.deps-ok ] && [ -f .venv/lcm/include/lcm/lcm.h ] &&
+    .venv/bin/python -c 'import importlib.util as u, sys; sys.exit(any(u.find_spec(m) is None for m in ("lcm", "cantools", "numpy", "pytest", "yaml")))' 2>/dev/null
+  exit $?
+fi
 if [ -n "$missing" ]; then
   echo "deps: installing Debian packages:$missing"
   SUDO=""; [ "$(id -u)" -eq 0 ] || SUDO="sudo"
