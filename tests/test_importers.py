@@ -278,6 +278,25 @@ def test_hdl_pair_ground_truth_equals_poses(hdl_import):
         assert p.status == portobello.pose_t.STATUS_TRACKING
 
 
+
+def test_hdl_pair_ground_truth_is_the_base_pose_with_a_vehicle_file(hdl_import, tmp_path):
+    """With --vehicle, GROUND_TRUTH = map <- lidar * lidar <- base; the scans are unchanged."""
+    veh = ROOT / "vehicles" / "prius2017.yaml"
+    d = hdl_import["dir"]
+    out = tmp_path / "base.lcm"
+    run([BIN / "import-scans", "--scans", d / "scans", "--poses", d / "poses.txt", "--out", out,
+         "--vehicle", veh, "--quiet"])
+    scans, truth = scans_and_truth(out)
+    ref_scans, _ = scans_and_truth(hdl_import["out"])
+    assert [s.npoints for s in scans] == [s.npoints for s in ref_scans]
+    lidar_xyz = np.array([1.10, 0.0, 1.95])     # vehicles/prius2017.yaml, rpy 0
+    T = hdl_import["T"]
+    for p, M in zip(truth, (np.eye(4), T)):
+        # base origin = lidar pose applied to (-lidar_xyz) in the lidar frame
+        want = M[:3, :3] @ (-lidar_xyz) + M[:3, 3]
+        assert np.allclose(p.position, want, atol=1e-6)
+        assert np.allclose(matrix_from_quat(p.orientation), M[:3, :3], atol=2e-5)
+
 def test_hdl_pair_map_is_the_aligned_union(hdl_import):
     site = hdl_import["site"]
     assert sorted(os.listdir(site)) == ["map.pcd"]          # loadable as a site

@@ -27,6 +27,7 @@
 #include "pb_map_build.h"
 #include "pb_progress.h"
 #include "pb_scan.h"
+#include "pb_vehicle.h"
 #include "portobello_lidar_scan_t.h"
 #include "portobello_pose_t.h"
 
@@ -40,18 +41,21 @@ static void usage(FILE *f)
 {
     std::fprintf(f,
         "usage: import-scans --scans DIR --poses FILE [--calib FILE] [--times FILE] --out LOG.lcm\n"
-        "                    [--map-out MAP.pcd] [--voxel 0.15] [--every N] [--sensor NAME] [--quiet]\n"
+        "                    [--vehicle FILE] [--map-out MAP.pcd] [--voxel 0.15] [--every N]\n"
+        "                    [--sensor NAME] [--quiet]\n"
         "\n"
         "Imports the scans of DIR (KITTI .bin float32 x y z i, or .pcd with fields x y z and\n"
         "optionally intensity, t [ns] or time [s], ring) in file-name order. Scan k goes with\n"
         "pose k (and time k). Writes per scan, at the same utime, GROUND_TRUTH (pose_t, source\n"
-        "GROUND_TRUTH: the LiDAR pose in map) and LIDAR_SCAN (point form; ring 255 and offset 0\n"
+        "GROUND_TRUTH: the LiDAR pose in map, or the base pose with --vehicle) and LIDAR_SCAN (point form; ring 255 and offset 0\n"
         "when the file has none). Non-finite points are dropped and counted.\n"
         "  --poses FILE   KITTI (12 numbers a line: 3x4 row-major) or TUM (8: t x y z qx qy qz qw),\n"
         "                 detected by the column count; '#' lines are comments\n"
         "  --calib FILE   KITTI calib with a Tr: line (velo -> cam). KITTI poses are camera poses;\n"
         "                 the LiDAR pose is then Tr^-1 * P * Tr, i.e. the map frame is the LiDAR\n"
         "                 frame at the first pose (z up), not the camera's (y down)\n"
+        "  --vehicle FILE the poses are still LiDAR poses, but GROUND_TRUTH then carries the base\n"
+        "                 pose (map <- lidar composed with lidar <- base from the vehicle file)\n"
         "  --times FILE   one UNIX time in seconds a line (e.g. MulRan times.txt); else the TUM\n"
         "                 times; else 10 Hz from 2020-01-01T00:00:00Z\n"
         "  --map-out MAP  also assemble the prior map (binary PCD, x y z intensity) with voxel\n"
@@ -352,7 +356,7 @@ static std::string lower_ext(const fs::path &p)
 int main(int argc, char **argv)
 {
     const char *scans_dir = nullptr, *poses_path = nullptr, *calib_path = nullptr, *times_path = nullptr;
-    const char *out_path = nullptr, *map_path = nullptr, *sensor = "imported";
+    const char *out_path = nullptr, *map_path = nullptr, *sensor = "imported", *vehicle_path = nullptr;
     double voxel = 0.15;
     long every = 1;
     int quiet = 0;
@@ -368,6 +372,7 @@ int main(int argc, char **argv)
         else if (has && a == "--out") out_path = argv[++i];
         else if (has && a == "--map-out") map_path = argv[++i];
         else if (has && a == "--sensor") sensor = argv[++i];
+        else if (has && a == "--vehicle") vehicle_path = argv[++i];
         else if (has && a == "--voxel") {
             char *end;
             voxel = std::strtod(argv[++i], &end);
@@ -455,6 +460,23 @@ int main(int argc, char **argv)
     if (times.empty())
         for (size_t k = 0; k < n; k++) times.push_back(DEFAULT_EPOCH_US + int64_t(k) * DEFAULT_PERIOD_US);
 
+    // GROUND_TRUTH is the LiDAR pose unless a vehicle file gives base <- lidar.
+    Eigen::Isometry3d lidar_from_base = Eigen::Isometry3d::Identity();
+    if (vehicle_path) {
+        pb_vehicle_t veh;
+        if (pb_vehicle_load(vehicle_path, &veh, &err) != 0) {
+            std::fprintf(stderr, "import-scans: %s\n", err.msg);
+            return 1;
+        }
+        const pb_transform_t &b = veh.base_from_lidar;
+        Eigen::Isometry3d base_from_lidar = Eigen::Isometry3d::Identity();
+        base_from_lidar.linear() = Eigen::Quaterniond(b.q[0], b.q[1], b.q[2], b.q[3]).toRotationMatrix();
+        base_from_lidar.translation() = Eigen::Vector3d(b.t[0], b.t[1], b.t[2]);
+        lidar_from_base = base_from_lidar.inverse();
+    }
+    std::vector<Eigen::Isometry3d> gt_poses;
+    for (const auto &P : poses) gt_poses.push_back(P * lidar_from_base);
+
     // The imported subset (every Nth), with its times and poses.
     std::vector<size_t> pick;
     for (size_t k = 0; k < n; k += size_t(every)) pick.push_back(k);
@@ -511,8 +533,8 @@ int main(int argc, char **argv)
         if (!s.has_ring) s.ring.assign(size_t(np), 255);
         int64_t utime = times[k];
 
-        // GROUND_TRUTH: the LiDAR pose; velocities by finite differences over the imported subset.
-        const Eigen::Isometry3d &P = poses[k];
+        // GROUND_TRUTH: the LiDAR (or base) pose; velocities by finite differences over the imported subset.
+        const Eigen::Isometry3d &P = gt_poses[k];
         Eigen::Quaterniond q(P.linear());
         q.normalize();
         portobello_pose_t gt;
@@ -522,7 +544,7 @@ int main(int argc, char **argv)
         gt.orientation[0] = q.w(); gt.orientation[1] = q.x(); gt.orientation[2] = q.y(); gt.orientation[3] = q.z();
         if (pick.size() > 1) {
             size_t ja = j > 0 ? j - 1 : j, jb = j + 1 < pick.size() ? j + 1 : j;
-            const Eigen::Isometry3d &A = poses[pick[ja]], &B = poses[pick[jb]];
+            const Eigen::Isometry3d &A = gt_poses[pick[ja]], &B = gt_poses[pick[jb]];
             double dt = double(times[pick[jb]] - times[pick[ja]]) * 1e-6;
             if (dt > 0) {
                 Eigen::Vector3d v = (B.translation() - A.translation()) / dt;
