@@ -125,10 +125,28 @@ static bool to_double(const std::string &s, double *v)
 
 // ---------------------------------------------------------------- poses
 
-struct Pose {
-    Eigen::Vector3d t;
-    Eigen::Quaterniond q;
-};
+// Calls fn(lineno, tokens, line) for each line of a text file with tokens (blank
+// lines skipped). fn returns 0 to go on, 1 to stop (done), -1 on error (err set).
+// Returns 0 at the end of the file or when fn stopped, -1 on an error.
+template <typename Fn>
+static int for_each_line(const char *path, pb_err_t *err, Fn fn)
+{
+    std::ifstream in(path);
+    if (!in) return pb_err_set(err, "%s: %s", path, std::strerror(errno));
+    std::string line;
+    std::vector<std::string> tok;
+    long lineno = 0;
+    while (std::getline(in, line)) {
+        lineno++;
+        split_ws(line, tok);
+        if (tok.empty()) continue;
+        int r = fn(lineno, tok, line);
+        if (r < 0) return -1;
+        if (r > 0) return 0;
+    }
+    if (in.bad()) return pb_err_set(err, "%s: read error", path);
+    return 0;
+}
 
 static int rotation_from_rows(const double *m12, Eigen::Isometry3d *T)
 {
@@ -150,16 +168,9 @@ enum PoseFormat { FMT_NONE, FMT_KITTI, FMT_TUM };
 static int read_poses(const char *path, std::vector<Eigen::Isometry3d> &poses, std::vector<int64_t> &times,
                       PoseFormat *fmt, pb_err_t *err)
 {
-    std::ifstream in(path);
-    if (!in) return pb_err_set(err, "%s: %s", path, std::strerror(errno));
-    std::string line;
-    std::vector<std::string> tok;
-    long lineno = 0;
     *fmt = FMT_NONE;
-    while (std::getline(in, line)) {
-        lineno++;
-        split_ws(line, tok);
-        if (tok.empty() || tok[0][0] == '#') continue;
+    int rc = for_each_line(path, err, [&](long lineno, const std::vector<std::string> &tok, const std::string &) {
+        if (tok[0][0] == '#') return 0;
         PoseFormat f = tok.size() == 12 ? FMT_KITTI : tok.size() == 8 ? FMT_TUM : FMT_NONE;
         if (f == FMT_NONE)
             return pb_err_set(err, "%s:%ld: expected 12 numbers (KITTI 3x4) or 8 (TUM t x y z qx qy qz qw), got %zu",
@@ -190,23 +201,18 @@ static int read_poses(const char *path, std::vector<Eigen::Isometry3d> &poses, s
             times.push_back(us);
         }
         poses.push_back(T);
-    }
-    if (in.bad()) return pb_err_set(err, "%s: read error", path);
+        return 0;
+    });
+    if (rc != 0) return -1;
     if (poses.empty()) return pb_err_set(err, "%s: no poses", path);
     return 0;
 }
 
 static int read_calib_tr(const char *path, Eigen::Isometry3d *Tr, pb_err_t *err)
 {
-    std::ifstream in(path);
-    if (!in) return pb_err_set(err, "%s: %s", path, std::strerror(errno));
-    std::string line;
-    std::vector<std::string> tok;
-    long lineno = 0;
-    while (std::getline(in, line)) {
-        lineno++;
-        split_ws(line, tok);
-        if (tok.empty() || (tok[0] != "Tr:" && tok[0] != "Tr_velo_to_cam:" && tok[0] != "Tr_velo_cam:")) continue;
+    bool found = false;
+    int rc = for_each_line(path, err, [&](long lineno, const std::vector<std::string> &tok, const std::string &) {
+        if (tok[0] != "Tr:" && tok[0] != "Tr_velo_to_cam:" && tok[0] != "Tr_velo_cam:") return 0;
         if (tok.size() != 13)
             return pb_err_set(err, "%s:%ld: %s expects 12 numbers, got %zu", path, lineno, tok[0].c_str(),
                               tok.size() - 1);
@@ -217,27 +223,25 @@ static int read_calib_tr(const char *path, Eigen::Isometry3d *Tr, pb_err_t *err)
                                   tok[k + 1].c_str());
         if (rotation_from_rows(v, Tr) != 0)
             return pb_err_set(err, "%s:%ld: the 3x3 part of Tr is not a rotation matrix", path, lineno);
-        return 0;
-    }
-    return pb_err_set(err, "%s: no 'Tr:' line (velodyne -> camera transform)", path);
+        found = true;
+        return 1;
+    });
+    if (rc != 0) return -1;
+    if (!found) return pb_err_set(err, "%s: no 'Tr:' line (velodyne -> camera transform)", path);
+    return 0;
 }
 
 static int read_times(const char *path, std::vector<int64_t> &times, pb_err_t *err)
 {
-    std::ifstream in(path);
-    if (!in) return pb_err_set(err, "%s: %s", path, std::strerror(errno));
-    std::string line;
-    std::vector<std::string> tok;
-    long lineno = 0;
-    while (std::getline(in, line)) {
-        lineno++;
-        split_ws(line, tok);
-        if (tok.empty() || tok[0][0] == '#') continue;
+    int rc = for_each_line(path, err, [&](long lineno, const std::vector<std::string> &tok, const std::string &line) {
+        if (tok[0][0] == '#') return 0;
         int64_t us;
         if (tok.size() != 1 || parse_time_us(tok[0], &us) != 0)
             return pb_err_set(err, "%s:%ld: expected one time in seconds, got '%s'", path, lineno, line.c_str());
         times.push_back(us);
-    }
+        return 0;
+    });
+    if (rc != 0) return -1;
     if (times.empty()) return pb_err_set(err, "%s: no times", path);
     return 0;
 }
