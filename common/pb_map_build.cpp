@@ -314,13 +314,14 @@ extern "C" pb_map_builder_t *pb_map_builder_create(double voxel_m, pb_err_t *err
 
 extern "C" void pb_map_builder_destroy(pb_map_builder_t *b) { delete b; }
 
-extern "C" int pb_map_builder_add(pb_map_builder_t *b, const pb_points_t *pts,
-                                  const pb_transform_t *map_from_lidar, pb_err_t *err)
+// Moves every point by transform_of(i) into map and adds it. Returns 0 or -1.
+template <typename TransformOf>
+static int add_points(pb_map_builder_t *b, const pb_points_t *pts, TransformOf transform_of, pb_err_t *err)
 {
-    Rt T = from_transform(map_from_lidar);
     Batch batch(b);
     try {
         for (int i = 0; i < pts->n; i++) {
+            const Rt &T = transform_of(i);
             Eigen::Vector3d p = T.R * Eigen::Vector3d(pts->x[i], pts->y[i], pts->z[i]) + T.t;
             if (batch.push(p, pts->intensity ? pts->intensity[i] : 0.f) != 0) return batch.fail(err);
         }
@@ -330,6 +331,13 @@ extern "C" int pb_map_builder_add(pb_map_builder_t *b, const pb_points_t *pts,
     }
     b->points_in += pts->n;
     return 0;
+}
+
+extern "C" int pb_map_builder_add(pb_map_builder_t *b, const pb_points_t *pts,
+                                  const pb_transform_t *map_from_lidar, pb_err_t *err)
+{
+    Rt T = from_transform(map_from_lidar);
+    return add_points(b, pts, [&](int) -> const Rt & { return T; }, err);
 }
 
 extern "C" int pb_map_builder_add_timed(pb_map_builder_t *b, const pb_points_t *pts, int64_t scan_utime,
@@ -356,25 +364,17 @@ extern "C" int pb_map_builder_add_timed(pb_map_builder_t *b, const pb_points_t *
     int32_t cached = 0;
     bool have = false;
     Rt T;
-    Batch batch(b);
-    try {
-        for (int i = 0; i < pts->n; i++) {
-            int32_t off = pts->offset_us ? pts->offset_us[i] : 0;
-            if (!have || off != cached) {
-                track->at(scan_utime + off, t, q);
-                T = compose(q, t, base_from_lidar ? &bl : nullptr);
-                cached = off;
-                have = true;
-            }
-            Eigen::Vector3d p = T.R * Eigen::Vector3d(pts->x[i], pts->y[i], pts->z[i]) + T.t;
-            if (batch.push(p, pts->intensity ? pts->intensity[i] : 0.f) != 0) return batch.fail(err);
+    auto transform_of = [&](int i) -> const Rt & {
+        int32_t off = pts->offset_us ? pts->offset_us[i] : 0;
+        if (!have || off != cached) {
+            track->at(scan_utime + off, t, q);
+            T = compose(q, t, base_from_lidar ? &bl : nullptr);
+            cached = off;
+            have = true;
         }
-        if (batch.flush() != 0) return batch.fail(err);
-    } catch (const std::bad_alloc &) {
-        return pb_err_set(err, "out of memory after %lld map points", (long long)b->size());
-    }
-    b->points_in += pts->n;
-    return 1;
+        return T;
+    };
+    return add_points(b, pts, transform_of, err) == 0 ? 1 : -1;
 }
 
 extern "C" int64_t pb_map_builder_points_in(const pb_map_builder_t *b) { return b->points_in; }

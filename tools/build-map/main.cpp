@@ -5,12 +5,14 @@
 // logged poses that bracket it. Scans without bracketing poses are skipped and
 // counted. Two passes over the log: poses first (small), then scans.
 #include <cerrno>
+#include <getopt.h>
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <string>
 
+#include "pb_arg.h"
 #include "pb_err.h"
 #include "pb_log.h"
 #include "pb_map_build.h"
@@ -39,14 +41,6 @@ static void usage(FILE *f)
         "Exit 1 on error, or if no scan could be used.\n");
 }
 
-static int parse_double(const char *s, double *out)
-{
-    char *end;
-    errno = 0;
-    *out = std::strtod(s, &end);
-    return (end != s && *end == '\0' && errno == 0) ? 0 : -1;
-}
-
 int main(int argc, char **argv)
 {
     const char *log_path = nullptr, *out_path = nullptr, *vehicle = nullptr;
@@ -54,33 +48,34 @@ int main(int argc, char **argv)
     double voxel = 0.15;
     long every = 1;
     int quiet = 0;
-    for (int i = 1; i < argc; i++) {
-        std::string a = argv[i];
-        bool has = i + 1 < argc;
-        if (a == "--help" || a == "-h") { usage(stdout); return 0; }
-        else if (a == "--quiet") quiet = 1;
-        else if (has && a == "--log") log_path = argv[++i];
-        else if (has && a == "--out") out_path = argv[++i];
-        else if (has && a == "--vehicle") vehicle = argv[++i];
-        else if (has && a == "--pose-channel") pose_ch = argv[++i];
-        else if (has && a == "--scan-channel") scan_ch = argv[++i];
-        else if (has && a == "--voxel") {
-            if (parse_double(argv[++i], &voxel) != 0 || voxel < 0) {
-                std::fprintf(stderr, "build-map: --voxel: expected metres >= 0, got '%s'\n", argv[i]);
-                return 2;
-            }
-        } else if (has && a == "--every") {
-            char *end;
-            every = std::strtol(argv[++i], &end, 10);
-            if (*end || every < 1) {
-                std::fprintf(stderr, "build-map: --every: expected an integer >= 1, got '%s'\n", argv[i]);
-                return 2;
-            }
-        } else {
-            std::fprintf(stderr, "build-map: unknown or incomplete option '%s'\n", a.c_str());
-            usage(stderr);
-            return 2;
+    enum { OPT_LOG = 1000, OPT_OUT, OPT_VEHICLE, OPT_POSE_CHANNEL, OPT_SCAN_CHANNEL, OPT_VOXEL, OPT_EVERY };
+    static const struct option opts[] = {
+        {"log", required_argument, nullptr, OPT_LOG},
+        {"out", required_argument, nullptr, OPT_OUT},
+        {"vehicle", required_argument, nullptr, OPT_VEHICLE},
+        {"pose-channel", required_argument, nullptr, OPT_POSE_CHANNEL},
+        {"scan-channel", required_argument, nullptr, OPT_SCAN_CHANNEL},
+        {"voxel", required_argument, nullptr, OPT_VOXEL}, {"every", required_argument, nullptr, OPT_EVERY},
+        {"quiet", no_argument, nullptr, 'q'}, {"help", no_argument, nullptr, 'h'}, {nullptr, 0, nullptr, 0}};
+    int c;
+    while ((c = getopt_long(argc, argv, "h", opts, nullptr)) != -1) {
+        switch (c) {
+        case OPT_LOG: log_path = optarg; break;
+        case OPT_OUT: out_path = optarg; break;
+        case OPT_VEHICLE: vehicle = optarg; break;
+        case OPT_POSE_CHANNEL: pose_ch = optarg; break;
+        case OPT_SCAN_CHANNEL: scan_ch = optarg; break;
+        case OPT_VOXEL: if (pb_arg_double("build-map", "voxel", optarg, 0, 1000, &voxel)) return 2; break;
+        case OPT_EVERY: if (pb_arg_long("build-map", "every", optarg, 1, 1000000, &every)) return 2; break;
+        case 'q': quiet = 1; break;
+        case 'h': usage(stdout); return 0;
+        default: usage(stderr); return 2;
         }
+    }
+    if (optind < argc) {
+        std::fprintf(stderr, "build-map: unexpected argument '%s'\n", argv[optind]);
+        usage(stderr);
+        return 2;
     }
     if (!log_path || !out_path) {
         std::fprintf(stderr, "build-map: --log and --out are required\n");

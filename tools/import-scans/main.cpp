@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <cctype>
 #include <cerrno>
+#include <getopt.h>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -22,6 +23,7 @@
 #include <pcl/PCLPointCloud2.h>
 #include <pcl/io/pcd_io.h>
 
+#include "pb_arg.h"
 #include "pb_err.h"
 #include "pb_log.h"
 #include "pb_map_build.h"
@@ -364,38 +366,40 @@ int main(int argc, char **argv)
     double voxel = 0.15;
     long every = 1;
     int quiet = 0;
-    for (int i = 1; i < argc; i++) {
-        std::string a = argv[i];
-        bool has = i + 1 < argc;
-        if (a == "--help" || a == "-h") { usage(stdout); return 0; }
-        else if (a == "--quiet") quiet = 1;
-        else if (has && a == "--scans") scans_dir = argv[++i];
-        else if (has && a == "--poses") poses_path = argv[++i];
-        else if (has && a == "--calib") calib_path = argv[++i];
-        else if (has && a == "--times") times_path = argv[++i];
-        else if (has && a == "--out") out_path = argv[++i];
-        else if (has && a == "--map-out") map_path = argv[++i];
-        else if (has && a == "--sensor") sensor = argv[++i];
-        else if (has && a == "--vehicle") vehicle_path = argv[++i];
-        else if (has && a == "--voxel") {
-            char *end;
-            voxel = std::strtod(argv[++i], &end);
-            if (*end || end == argv[i] || !(voxel >= 0)) {
-                std::fprintf(stderr, "import-scans: --voxel: expected metres >= 0, got '%s'\n", argv[i]);
-                return 2;
-            }
-        } else if (has && a == "--every") {
-            char *end;
-            every = std::strtol(argv[++i], &end, 10);
-            if (*end || every < 1) {
-                std::fprintf(stderr, "import-scans: --every: expected an integer >= 1, got '%s'\n", argv[i]);
-                return 2;
-            }
-        } else {
-            std::fprintf(stderr, "import-scans: unknown or incomplete option '%s'\n", a.c_str());
-            usage(stderr);
-            return 2;
+    enum { OPT_SCANS = 1000, OPT_POSES, OPT_CALIB, OPT_TIMES, OPT_OUT, OPT_MAP_OUT, OPT_SENSOR, OPT_VEHICLE, OPT_VOXEL, OPT_EVERY };
+    static const struct option opts[] = {
+        {"scans", required_argument, nullptr, OPT_SCANS},
+        {"poses", required_argument, nullptr, OPT_POSES},
+        {"calib", required_argument, nullptr, OPT_CALIB},
+        {"times", required_argument, nullptr, OPT_TIMES},
+        {"out", required_argument, nullptr, OPT_OUT},
+        {"map-out", required_argument, nullptr, OPT_MAP_OUT},
+        {"sensor", required_argument, nullptr, OPT_SENSOR},
+        {"vehicle", required_argument, nullptr, OPT_VEHICLE},
+        {"voxel", required_argument, nullptr, OPT_VOXEL}, {"every", required_argument, nullptr, OPT_EVERY},
+        {"quiet", no_argument, nullptr, 'q'}, {"help", no_argument, nullptr, 'h'}, {nullptr, 0, nullptr, 0}};
+    int c;
+    while ((c = getopt_long(argc, argv, "h", opts, nullptr)) != -1) {
+        switch (c) {
+        case OPT_SCANS: scans_dir = optarg; break;
+        case OPT_POSES: poses_path = optarg; break;
+        case OPT_CALIB: calib_path = optarg; break;
+        case OPT_TIMES: times_path = optarg; break;
+        case OPT_OUT: out_path = optarg; break;
+        case OPT_MAP_OUT: map_path = optarg; break;
+        case OPT_SENSOR: sensor = optarg; break;
+        case OPT_VEHICLE: vehicle_path = optarg; break;
+        case OPT_VOXEL: if (pb_arg_double("import-scans", "voxel", optarg, 0, 1000, &voxel)) return 2; break;
+        case OPT_EVERY: if (pb_arg_long("import-scans", "every", optarg, 1, 1000000, &every)) return 2; break;
+        case 'q': quiet = 1; break;
+        case 'h': usage(stdout); return 0;
+        default: usage(stderr); return 2;
         }
+    }
+    if (optind < argc) {
+        std::fprintf(stderr, "import-scans: unexpected argument '%s'\n", argv[optind]);
+        usage(stderr);
+        return 2;
     }
     if (!scans_dir || !poses_path || !out_path) {
         std::fprintf(stderr, "import-scans: --scans, --poses and --out are required\n");

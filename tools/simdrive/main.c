@@ -2,12 +2,14 @@
  * The shell: options, file loading, the time-ordered event loop and the log. */
 #include <errno.h>
 #include <getopt.h>
+#include <limits.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
 
+#include "pb_arg.h"
 #include "can.h"
 #include "gnss.h"
 #include "imu.h"
@@ -119,19 +121,16 @@ int main(int argc, char **argv)
         { "help", no_argument, 0, 'h' }, { 0, 0, 0, 0 } };
     int c;
     while ((c = getopt_long(argc, argv, "h", opts, NULL)) != -1) {
-        char *end;
         switch (c) {
         case 'o': out_dir = optarg; break;
-        case 's':
-            seed = strtoull(optarg, &end, 10);
-            if (*end || !*optarg) { fprintf(stderr, "simdrive: --seed: expected an integer, got '%s'\n", optarg); return 2; }
+        case 's': {
+            long v;
+            if (pb_arg_long("simdrive", "seed", optarg, 0, LONG_MAX, &v)) return 2;
+            seed = (uint64_t)v;
             break;
+        }
         case 'd':
-            duration = strtod(optarg, &end);
-            if (*end || !(duration > 0) || duration > 24 * 3600) {
-                fprintf(stderr, "simdrive: --duration: expected seconds in (0, 86400], got '%s'\n", optarg);
-                return 2;
-            }
+            if (pb_arg_double("simdrive", "duration", optarg, 0.001, 24 * 3600, &duration)) return 2;
             break;
         case 'p': profile = optarg; break;
         case 'S': site_dir = optarg; break;
