@@ -36,6 +36,7 @@ BASE_LIBS  := $(LCM_LIBS) -lyaml -lpthread -lm
 
 PROGRAMS :=
 TEST_PROGRAMS :=
+BENCH_TARGETS :=   # a module.mk adds its bench-NAME target here; `make bench` runs them all
 
 # ---------------------------------------------------------------- dependencies
 .PHONY: deps
@@ -102,19 +103,33 @@ $(OBJ)/%.o: %.cpp $(GEN_STAMP)
 	@echo "  CXX     $<"
 	@$(CXX) $(CPPFLAGS) $(PCL_CFLAGS) $(CXXFLAGS) -c $< -o $@
 
-# c_program NAME DIR [EXTRA_LIBS]: every .c in DIR is linked into build/bin/NAME.
+# Sources of one or more directories.
+dir_c   = $(sort $(foreach d,$(1),$(wildcard $(d)/*.c)))
+dir_cxx = $(sort $(foreach d,$(1),$(wildcard $(d)/*.cpp)))
+
+# c_program NAME DIRS [EXTRA_LIBS]: every .c in DIRS is linked into build/bin/NAME.
 define c_program
 PROGRAMS += $(BIN)/$(1)
-$(BIN)/$(1): $(patsubst %.c,$(OBJ)/%.o,$(sort $(wildcard $(2)/*.c))) $(LIB_COMMON) $(LIB_TYPES)
+$(BIN)/$(1): $(patsubst %.c,$(OBJ)/%.o,$(call dir_c,$(2))) $(LIB_COMMON) $(LIB_TYPES)
 	@mkdir -p $$(@D)
 	@echo "  LD      $$(notdir $$@)"
 	@$$(CC) $$(CFLAGS) -o $$@ $$(filter %.o,$$^) $(LIB_COMMON) $(LIB_TYPES) $(3) $$(BASE_LIBS)
 endef
 
-# cxx_program NAME DIR [EXTRA_LIBS]: every .c and .cpp in DIR, linked with PCL.
+# cxx_program NAME DIRS [EXTRA_LIBS]: every .c and .cpp in DIRS, linked with PCL.
 define cxx_program
 PROGRAMS += $(BIN)/$(1)
-$(BIN)/$(1): $(patsubst %.c,$(OBJ)/%.o,$(sort $(wildcard $(2)/*.c))) $(patsubst %.cpp,$(OBJ)/%.o,$(sort $(wildcard $(2)/*.cpp))) $(LIB_COMMON_CXX) $(LIB_COMMON) $(LIB_TYPES)
+$(BIN)/$(1): $(patsubst %.c,$(OBJ)/%.o,$(call dir_c,$(2))) $(patsubst %.cpp,$(OBJ)/%.o,$(call dir_cxx,$(2))) $(LIB_COMMON_CXX) $(LIB_COMMON) $(LIB_TYPES)
+	@mkdir -p $$(@D)
+	@echo "  LD      $$(notdir $$@)"
+	@$$(CXX) $$(CXXFLAGS) -o $$@ $$(filter %.o,$$^) $(LIB_COMMON_CXX) $(LIB_COMMON) $(LIB_TYPES) $(3) $$(PCL_LIBS) $$(BASE_LIBS)
+endef
+
+# cxx_test NAME FILES [EXTRA_LIBS]: a C++ unit test (.c/.cpp files), linked with PCL; run
+# by tests/test_c_units.py like a C one.
+define cxx_test
+TEST_PROGRAMS += $(BUILD)/tests/$(1)
+$(BUILD)/tests/$(1): $(patsubst %.cpp,$(OBJ)/%.o,$(patsubst %.c,$(OBJ)/%.o,$(2))) $(LIB_COMMON_CXX) $(LIB_COMMON) $(LIB_TYPES)
 	@mkdir -p $$(@D)
 	@echo "  LD      $$(notdir $$@)"
 	@$$(CXX) $$(CXXFLAGS) -o $$@ $$(filter %.o,$$^) $(LIB_COMMON_CXX) $(LIB_COMMON) $(LIB_TYPES) $(3) $$(PCL_LIBS) $$(BASE_LIBS)
@@ -156,6 +171,9 @@ demo: all
 # libFuzzer + ASan/UBSan on every parser, FUZZ_RUNS executions each (default 1,000,000).
 fuzz: $(GEN_STAMP)
 	@bash tests/fuzz/run.sh
+
+# Benchmarks (tables with their baselines, measured in the same run); not in make test.
+bench: $(BENCH_TARGETS)
 
 clean:
 	rm -rf $(BUILD)

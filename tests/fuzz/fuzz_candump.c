@@ -1,5 +1,6 @@
 /* libFuzzer target: one candump -l line, arbitrary bytes. A frame it returns must be
- * self-consistent; an error must point at a column inside the line. */
+ * self-consistent; an error must point at a column inside the line.
+ * fuzz-sources: common/pb_candump.c common/pb_err.c */
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>

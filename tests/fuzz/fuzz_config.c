@@ -1,4 +1,5 @@
-/* libFuzzer target: the YAML config loader and schema reader on arbitrary bytes. */
+/* libFuzzer target: the YAML config loader and schema reader on arbitrary bytes.
+ * fuzz-sources: common/pb_config.c common/pb_err.c */
 #include <stddef.h>
 #include <stdint.h>
 #include <stdio.h>

@@ -2,6 +2,9 @@
 # make fuzz: builds each tests/fuzz/fuzz_*.c with libFuzzer, AddressSanitizer and
 # UBSan (clang) and runs it for FUZZ_RUNS executions (default 1,000,000) from its
 # seed corpus. Not part of make test.
+# A target names what it links in its own header, one line each:
+#   fuzz-sources: common/pb_log.c common/pb_err.c   (compiled with it; .c or .cpp)
+#   fuzz-libs: -lcjson                              (optional extra link flags)
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 RUNS=${FUZZ_RUNS:-1000000}
@@ -16,16 +19,17 @@ out=build/fuzz
 mkdir -p $out
 CFLAGS="-g -O1 -fsanitize=fuzzer,address,undefined -fno-sanitize-recover=undefined -Icommon -Ibuild/gen/c -I.venv/lcm/include"
 LCM="-L.venv/lcm/lib -Wl,-rpath,$PWD/.venv/lcm/lib -llcm"
-declare -A SRC=(
-  [fuzz_log]="common/pb_log.c common/pb_err.c"
-  [fuzz_config]="common/pb_config.c common/pb_err.c"
-  [fuzz_candump]="common/pb_candump.c common/pb_err.c"
-)
 summary=()
-for t in "${!SRC[@]}"; do
-  [ -f tests/fuzz/$t.c ] || continue
+for f in tests/fuzz/fuzz_*.c tests/fuzz/fuzz_*.cpp; do
+  [ -f "$f" ] || continue
+  t=$(basename "${f%.*}")
+  [ -z "${FUZZ_ONLY:-}" ] || [ "$t" = "$FUZZ_ONLY" ] || continue
+  srcs=$(sed -n 's/.*fuzz-sources:\([^*]*\).*/\1/p' "$f" | head -1)
+  libs=$(sed -n 's/.*fuzz-libs:\([^*]*\).*/\1/p' "$f" | head -1)
+  [ -n "$srcs" ] || { summary+=("$t: FAILED (no fuzz-sources line)"); continue; }
   echo "== $t"
-  clang $CFLAGS -o $out/$t tests/fuzz/$t.c ${SRC[$t]} $LCM -lyaml -lm
+  cc=clang; case "$f" in *.cpp) cc="clang++ -std=c++17";; esac
+  $cc $CFLAGS -o $out/$t "$f" $srcs $LCM $libs -lyaml -lm
   corpus=$out/$t.corpus; mkdir -p $corpus
   [ -d tests/fuzz/seeds/$t ] && cp -n tests/fuzz/seeds/$t/* $corpus/ 2>/dev/null || true
   log=$out/$t.log

@@ -26,7 +26,7 @@ void lidar_model_os1_64(lidar_model_t *m);
 
 typedef struct {
     const world_t *world;
-    const route_t *route;
+    const pb_route_t *route;
     const trajectory_t *traj;
     const pb_vehicle_t *veh;
     const lidar_model_t *model;

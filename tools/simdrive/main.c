@@ -17,8 +17,8 @@
 #include "pb_log.h"
 #include "pb_progress.h"
 #include "rng.h"
-#include "route.h"
-#include "site.h"
+#include "pb_route.h"
+#include "pb_site.h"
 #include "trajectory.h"
 #include "pb_vehicle.h"
 #include "world.h"
@@ -145,8 +145,8 @@ int main(int argc, char **argv)
     if (optind < argc) { fprintf(stderr, "simdrive: unexpected argument '%s'\n", argv[optind]); return 2; }
     if (!out_dir) { fprintf(stderr, "simdrive: --out DIR is required (see --help)\n"); return 2; }
     int prof = -1;
-    for (int i = 0; i < PROFILE_COUNT; i++)
-        if (!strcmp(profile, profile_names[i])) prof = i;
+    for (int i = 0; i < PB_PROFILE_COUNT; i++)
+        if (!strcmp(profile, pb_profile_names[i])) prof = i;
     if (prof < 0) {
         fprintf(stderr, "simdrive: --speed-profile: expected cautious, normal or aggressive, got '%s'\n", profile);
         return 2;
@@ -154,17 +154,17 @@ int main(int argc, char **argv)
 
     pb_err_t err = { "" };
     pb_vehicle_t veh;
-    site_t site;
-    route_t route;
+    pb_site_t site;
+    pb_route_t route;
     world_t world;
-    if (pb_vehicle_load(veh_path, &veh, &err) || site_load(site_dir, &site, &err) ||
-        route_load(site.route_path, &route, &err)) {
+    if (pb_vehicle_load(veh_path, &veh, &err) || pb_site_load(site_dir, &site, &err) ||
+        pb_route_load(site.route_path, &route, &err)) {
         fprintf(stderr, "simdrive: %s\n", err.msg);
         return 1;
     }
     if (world_load(site.world_path, &route, &world, &err)) {
         fprintf(stderr, "simdrive: %s\n", err.msg);
-        route_free(&route);
+        pb_route_free(&route);
         return 1;
     }
     world_build_grid(&world, mapping ? DAY_MAP : DAY_DRIVE, GRID_CELL_M);
@@ -309,6 +309,6 @@ int main(int argc, char **argv)
     free(out.buf);
     traj_free(&traj);
     world_free(&world);
-    route_free(&route);
+    pb_route_free(&route);
     return rc;
 }

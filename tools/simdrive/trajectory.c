@@ -33,7 +33,7 @@ static void box_filter(double *x, int n, int w)
 }
 
 /* One plan over `laps` laps into tr (v, s, n, t_end). */
-static void plan_laps(trajectory_t *tr, const route_t *r, const speed_profile_t *p, int laps, int end_at_rest,
+static void plan_laps(trajectory_t *tr, const pb_route_t *r, const pb_speed_profile_t *p, int laps, int end_at_rest,
                      double stop_offset, uint64_t seed)
 {
     double S = laps * r->length;
@@ -41,8 +41,8 @@ static void plan_laps(trajectory_t *tr, const route_t *r, const speed_profile_t 
     double ds = S / (N - 1);
     double *vmax = malloc(N * sizeof *vmax), *dwell = calloc(N, sizeof *dwell);
     for (int i = 0; i < N; i++) {
-        route_point_t rp;
-        route_eval(r, i * ds, &rp);
+        pb_route_point_t rp;
+        pb_route_eval(r, i * ds, &rp);
         double k = fabs(rp.kappa);
         vmax[i] = k > 1e-9 ? fmin(p->cruise, sqrt(p->lat_accel / k)) : p->cruise;
     }
@@ -110,7 +110,7 @@ static void plan_laps(trajectory_t *tr, const route_t *r, const speed_profile_t 
     free(vmax); free(dwell); free(kt); free(kv);
 }
 
-int traj_plan(trajectory_t *tr, const route_t *r, const speed_profile_t *p, double duration,
+int traj_plan(trajectory_t *tr, const pb_route_t *r, const pb_speed_profile_t *p, double duration,
               double stop_offset_m, uint64_t seed, pb_err_t *err)
 {
     memset(tr, 0, sizeof *tr);
@@ -155,8 +155,8 @@ void traj_eval(const trajectory_t *tr, double t, traj_state_t *st)
     double a0 = (tr->v[k + 1] - tr->v[k0]) / ((k + 1 - k0) * tr->dt);
     double a1 = (tr->v[k2] - tr->v[k]) / ((k2 - k) * tr->dt);
     double a = a0 + (a1 - a0) * (tau / tr->dt);
-    route_point_t rp;
-    route_eval(tr->route, s, &rp);
+    pb_route_point_t rp;
+    pb_route_eval(tr->route, s, &rp);
     st->t = t;
     st->dist = s;
     st->v = v;

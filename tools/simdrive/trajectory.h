@@ -7,10 +7,10 @@
 
 #include <stdint.h>
 #include "pb_err.h"
-#include "route.h"
+#include "pb_route.h"
 
 typedef struct {
-    const route_t *route;
+    const pb_route_t *route;
     double dt;          /* sample period of the profile, s */
     int n;              /* samples */
     double *v, *s;      /* speed (m/s) and distance travelled (m) at k*dt */
@@ -32,7 +32,7 @@ typedef struct {
  * for duration seconds (laps repeat). duration <= 0: exactly one lap, ending at
  * rest at the start point (the mapping drive). stop_offset_m: how far behind a
  * stop line the base origin halts (front bumper at the line). */
-int traj_plan(trajectory_t *tr, const route_t *r, const speed_profile_t *p, double duration,
+int traj_plan(trajectory_t *tr, const pb_route_t *r, const pb_speed_profile_t *p, double duration,
               double stop_offset_m, uint64_t seed, pb_err_t *err);
 void traj_free(trajectory_t *tr);
 void traj_eval(const trajectory_t *tr, double t, traj_state_t *st);

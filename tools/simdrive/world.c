@@ -92,7 +92,7 @@ static int read_traffic(world_t *w, const pb_cfg_node_t *node, traffic_t *t, pb_
     return 0;
 }
 
-int world_load(const char *path, const route_t *route, world_t *w, pb_err_t *err)
+int world_load(const char *path, const pb_route_t *route, world_t *w, pb_err_t *err)
 {
     memset(w, 0, sizeof *w);
     pb_cfg_t *cfg = pb_cfg_load(path, err);
@@ -146,7 +146,7 @@ int world_load(const char *path, const route_t *route, world_t *w, pb_err_t *err
     w->ncw = route->ncw;
     w->cw = calloc(w->ncw ? w->ncw : 1, sizeof *w->cw);
     for (int i = 0; i < w->ncw; i++) {
-        const crosswalk_t *c = &route->cw[i];
+        const pb_crosswalk_t *c = &route->cw[i];
         double y = c->yaw_deg * M_PI / 180;
         w->cw[i][0] = c->center[0]; w->cw[i][1] = c->center[1];
         w->cw[i][2] = cos(y); w->cw[i][3] = sin(y);
@@ -220,14 +220,14 @@ void world_build_grid(world_t *w, int day, double cell)
     }
 }
 
-int world_movers(const world_t *w, const route_t *route, double t, uint64_t seed, mover_t *out)
+int world_movers(const world_t *w, const pb_route_t *route, double t, uint64_t seed, mover_t *out)
 {
     for (int i = 0; i < w->ntraffic; i++) {
         const traffic_t *tr = &w->traffic[i];
         /* seed shifts each vehicle by up to +-50 m; they drive against the route direction */
         double shift = (rng_uniform(seed, RNG_TRAFFIC, (uint64_t)i, 0) - 0.5) * 100.0;
-        route_point_t rp;
-        route_eval(route, tr->phase_s + shift - tr->speed * t, &rp);
+        pb_route_point_t rp;
+        pb_route_eval(route, tr->phase_s + shift - tr->speed * t, &rp);
         double c = cos(rp.yaw), s = sin(rp.yaw);
         mover_t *m = &out[i];
         m->cx = rp.x - s * tr->lane_offset;

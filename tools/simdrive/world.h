@@ -6,7 +6,7 @@
 
 #include <stdint.h>
 #include "pb_err.h"
-#include "route.h"
+#include "pb_route.h"
 
 #define WORLD_MAX_CLASSES 32
 #define WORLD_MAX_TRAFFIC 64
@@ -55,13 +55,13 @@ typedef struct {
     double max_z;
 } world_t;
 
-int world_load(const char *path, const route_t *route, world_t *w, pb_err_t *err);
+int world_load(const char *path, const pb_route_t *route, world_t *w, pb_err_t *err);
 /* Builds the grid over the primitives present on `day` (DAY_MAP or DAY_DRIVE). */
 void world_build_grid(world_t *w, int day, double cell_m);
 void world_free(world_t *w);
 
 /* Places traffic at time t (s since start, seed-dependent phase). Returns the count. */
-int world_movers(const world_t *w, const route_t *route, double t, uint64_t seed, mover_t *out);
+int world_movers(const world_t *w, const pb_route_t *route, double t, uint64_t seed, mover_t *out);
 
 typedef struct { double t; int cls; } hit_t;
 

@@ -1,5 +1,5 @@
 /* Route: reading route.yaml and the arc-length parametrised periodic cubic spline. */
-#include "route.h"
+#include "pb_route.h"
 
 #include <math.h>
 #include <stddef.h>
@@ -8,7 +8,7 @@
 
 #include "pb_config.h"
 
-const char *const profile_names[PROFILE_COUNT] = { "cautious", "normal", "aggressive" };
+const char *const pb_profile_names[PB_PROFILE_COUNT] = { "cautious", "normal", "aggressive" };
 
 /* 8-point Gauss-Legendre on [0,1]: arc length of a 4 m segment to ~1e-12 m. */
 static const double GL_X[8] = { 0.019855071751231856, 0.10166676129318664, 0.2372337950418355, 0.4082826787521751,
@@ -16,7 +16,7 @@ static const double GL_X[8] = { 0.019855071751231856, 0.10166676129318664, 0.237
 static const double GL_W[8] = { 0.05061426814518813, 0.11119051722668724, 0.15685332293894363, 0.18134189168918100,
                                 0.18134189168918100, 0.15685332293894363, 0.11119051722668724, 0.05061426814518813 };
 
-static double speed_at(const route_t *r, int i, double t)
+static double speed_at(const pb_route_t *r, int i, double t)
 {
     const double *a = r->cx + 4 * i, *b = r->cy + 4 * i;
     double dx = a[1] + t * (2 * a[2] + 3 * t * a[3]);
@@ -24,7 +24,7 @@ static double speed_at(const route_t *r, int i, double t)
     return sqrt(dx * dx + dy * dy);
 }
 
-static double seg_len(const route_t *r, int i, double t)
+static double seg_len(const pb_route_t *r, int i, double t)
 {   /* arc length of segment i from 0 to t */
     double L = 0;
     for (int k = 0; k < 8; k++) L += GL_W[k] * speed_at(r, i, t * GL_X[k]);
@@ -59,40 +59,40 @@ static void fit_axis(int n, const double *p, const double *h, double *coef)
 
 static int cmp_stop(const void *a, const void *b)
 {
-    double d = ((const stop_line_t *)a)->s - ((const stop_line_t *)b)->s;
+    double d = ((const pb_stop_line_t *)a)->s - ((const pb_stop_line_t *)b)->s;
     return (d > 0) - (d < 0);
 }
 
-void route_free(route_t *r)
+void pb_route_free(pb_route_t *r)
 {
     free(r->cx); free(r->cy); free(r->seg_s); free(r->stops); free(r->cw);
     memset(r, 0, sizeof *r);
 }
 
-static int read_profiles(const pb_cfg_node_t *node, route_t *r, pb_err_t *err)
+static int read_profiles(const pb_cfg_node_t *node, pb_route_t *r, pb_err_t *err)
 {
-    struct { const pb_cfg_node_t *p[PROFILE_COUNT]; } pn = { { 0 } };
-    pb_cfg_field_t f[PROFILE_COUNT + 1];
-    for (int i = 0; i < PROFILE_COUNT; i++)
-        f[i] = (pb_cfg_field_t){ profile_names[i], PB_CFG_NODE, offsetof(typeof(pn), p) + i * sizeof(void *), 0, 1 };
-    f[PROFILE_COUNT] = (pb_cfg_field_t)PB_CFG_END;
+    struct { const pb_cfg_node_t *p[PB_PROFILE_COUNT]; } pn = { { 0 } };
+    pb_cfg_field_t f[PB_PROFILE_COUNT + 1];
+    for (int i = 0; i < PB_PROFILE_COUNT; i++)
+        f[i] = (pb_cfg_field_t){ pb_profile_names[i], PB_CFG_NODE, offsetof(typeof(pn), p) + i * sizeof(void *), 0, 1 };
+    f[PB_PROFILE_COUNT] = (pb_cfg_field_t)PB_CFG_END;
     if (pb_cfg_read(node, f, &pn, err)) return -1;
-    for (int i = 0; i < PROFILE_COUNT; i++) {
-        speed_profile_t *sp = &r->profiles[i];
+    for (int i = 0; i < PB_PROFILE_COUNT; i++) {
+        pb_speed_profile_t *sp = &r->profiles[i];
         const pb_cfg_field_t pf[] = {
-            { "cruise", PB_CFG_DOUBLE, offsetof(speed_profile_t, cruise), 0, 1 },
-            { "accel", PB_CFG_DOUBLE, offsetof(speed_profile_t, accel), 0, 1 },
-            { "decel", PB_CFG_DOUBLE, offsetof(speed_profile_t, decel), 0, 1 },
-            { "lat_accel", PB_CFG_DOUBLE, offsetof(speed_profile_t, lat_accel), 0, 1 }, PB_CFG_END };
+            { "cruise", PB_CFG_DOUBLE, offsetof(pb_speed_profile_t, cruise), 0, 1 },
+            { "accel", PB_CFG_DOUBLE, offsetof(pb_speed_profile_t, accel), 0, 1 },
+            { "decel", PB_CFG_DOUBLE, offsetof(pb_speed_profile_t, decel), 0, 1 },
+            { "lat_accel", PB_CFG_DOUBLE, offsetof(pb_speed_profile_t, lat_accel), 0, 1 }, PB_CFG_END };
         if (pb_cfg_read(pn.p[i], pf, sp, err)) return -1;
         if (sp->cruise <= 0.5 || sp->cruise > 40 || sp->accel <= 0.05 || sp->decel <= 0.05 || sp->lat_accel <= 0.05)
             return pb_err_set(err, "%s:%d: %s: cruise in 0.5..40 m/s, accel, decel, lat_accel > 0.05 m/s^2",
-                              pb_node_file(pn.p[i]), pb_node_line(pn.p[i]), profile_names[i]);
+                              pb_node_file(pn.p[i]), pb_node_line(pn.p[i]), pb_profile_names[i]);
     }
     return 0;
 }
 
-int route_load(const char *path, route_t *r, pb_err_t *err)
+int pb_route_load(const char *path, pb_route_t *r, pb_err_t *err)
 {
     memset(r, 0, sizeof *r);
     pb_cfg_t *cfg = pb_cfg_load(path, err);
@@ -157,11 +157,11 @@ int route_load(const char *path, route_t *r, pb_err_t *err)
         r->cw = calloc(r->ncw ? r->ncw : 1, sizeof *r->cw);
         for (int i = 0; i < r->ncw; i++) {
             const pb_cfg_field_t f[] = {
-                { "id", PB_CFG_STRING, offsetof(crosswalk_t, id), sizeof r->cw->id, 1 },
-                { "center", PB_CFG_DOUBLES, offsetof(crosswalk_t, center), 2, 1 },
-                { "yaw_deg", PB_CFG_DOUBLE, offsetof(crosswalk_t, yaw_deg), 0, 1 },
-                { "length", PB_CFG_DOUBLE, offsetof(crosswalk_t, length), 0, 1 },
-                { "width", PB_CFG_DOUBLE, offsetof(crosswalk_t, width), 0, 1 }, PB_CFG_END };
+                { "id", PB_CFG_STRING, offsetof(pb_crosswalk_t, id), sizeof r->cw->id, 1 },
+                { "center", PB_CFG_DOUBLES, offsetof(pb_crosswalk_t, center), 2, 1 },
+                { "yaw_deg", PB_CFG_DOUBLE, offsetof(pb_crosswalk_t, yaw_deg), 0, 1 },
+                { "length", PB_CFG_DOUBLE, offsetof(pb_crosswalk_t, length), 0, 1 },
+                { "width", PB_CFG_DOUBLE, offsetof(pb_crosswalk_t, width), 0, 1 }, PB_CFG_END };
             if (pb_cfg_read(pb_node_at(top.crosswalks, i), f, &r->cw[i], err)) goto out;
         }
     }
@@ -169,18 +169,18 @@ int route_load(const char *path, route_t *r, pb_err_t *err)
         r->nstops = pb_node_count(top.stop_lines);
         r->stops = calloc(r->nstops ? r->nstops : 1, sizeof *r->stops);
         for (int i = 0; i < r->nstops; i++) {
-            stop_line_t *sl = &r->stops[i];
+            pb_stop_line_t *sl = &r->stops[i];
             const pb_cfg_node_t *node = pb_node_at(top.stop_lines, i);
             const pb_cfg_field_t f[] = {
-                { "id", PB_CFG_STRING, offsetof(stop_line_t, id), sizeof sl->id, 1 },
-                { "xy", PB_CFG_DOUBLES, offsetof(stop_line_t, xy), 2, 1 },
-                { "yaw_deg", PB_CFG_DOUBLE, offsetof(stop_line_t, yaw_deg), 0, 0 },
-                { "crosswalk", PB_CFG_STRING, offsetof(stop_line_t, crosswalk), sizeof sl->crosswalk, 0 },
+                { "id", PB_CFG_STRING, offsetof(pb_stop_line_t, id), sizeof sl->id, 1 },
+                { "xy", PB_CFG_DOUBLES, offsetof(pb_stop_line_t, xy), 2, 1 },
+                { "yaw_deg", PB_CFG_DOUBLE, offsetof(pb_stop_line_t, yaw_deg), 0, 0 },
+                { "crosswalk", PB_CFG_STRING, offsetof(pb_stop_line_t, crosswalk), sizeof sl->crosswalk, 0 },
                 PB_CFG_END };
             if (pb_cfg_read(node, f, sl, err)) goto out;
-            sl->s = route_project(r, sl->xy[0], sl->xy[1]);
-            route_point_t rp;
-            route_eval(r, sl->s, &rp);
+            sl->s = pb_route_project(r, sl->xy[0], sl->xy[1]);
+            pb_route_point_t rp;
+            pb_route_eval(r, sl->s, &rp);
             if (hypot(rp.x - sl->xy[0], rp.y - sl->xy[1]) > r->lane_width) {
                 pb_err_set(err, "%s:%d: stop line %s is %.1f m from the route (more than lane_width)",
                            path, pb_node_line(node), sl->id, hypot(rp.x - sl->xy[0], rp.y - sl->xy[1]));
@@ -191,14 +191,14 @@ int route_load(const char *path, route_t *r, pb_err_t *err)
     }
     rc = 0;
 out:
-    if (rc) route_free(r);
+    if (rc) pb_route_free(r);
     pb_cfg_free(cfg);
     return rc;
 }
 
 /* Segment and spline parameter of arc length s: Newton on the quadrature, so the
  * map s -> t is smooth (no table interpolation kinks in speed or yaw rate). */
-static void locate(const route_t *r, double s, int *seg, double *tp)
+static void locate(const pb_route_t *r, double s, int *seg, double *tp)
 {
     s = fmod(s, r->length);
     if (s < 0) s += r->length;
@@ -218,7 +218,7 @@ static void locate(const route_t *r, double s, int *seg, double *tp)
     *tp = t;
 }
 
-void route_eval(const route_t *r, double s, route_point_t *o)
+void pb_route_eval(const pb_route_t *r, double s, pb_route_point_t *o)
 {
     int i;
     double t;
@@ -238,18 +238,18 @@ void route_eval(const route_t *r, double s, route_point_t *o)
     o->dkappa = dk_dt / sp;
 }
 
-double route_project(const route_t *r, double x, double y)
+double pb_route_project(const pb_route_t *r, double x, double y)
 {
     double best = 0, bd = INFINITY;
     for (double s = 0; s < r->length; s += 1.0) {       /* coarse scan, then refine */
-        route_point_t p;
-        route_eval(r, s, &p);
+        pb_route_point_t p;
+        pb_route_eval(r, s, &p);
         double d = hypot(p.x - x, p.y - y);
         if (d < bd) { bd = d; best = s; }
     }
     for (int it = 0; it < 20; it++) {   /* Newton on the tangential offset */
-        route_point_t p;
-        route_eval(r, best, &p);
+        pb_route_point_t p;
+        pb_route_eval(r, best, &p);
         double along = (x - p.x) * cos(p.yaw) + (y - p.y) * sin(p.yaw);
         best += along;
         if (fabs(along) < 1e-9) break;

@@ -1,5 +1,5 @@
 /* Site: reads DIR/site.yaml strictly and resolves its file names against DIR. */
-#include "site.h"
+#include "pb_site.h"
 
 #include <math.h>
 #include <stddef.h>
@@ -9,7 +9,7 @@
 
 #include "pb_config.h"
 
-int site_load(const char *dir, site_t *s, pb_err_t *err)
+int pb_site_load(const char *dir, pb_site_t *s, pb_err_t *err)
 {
     memset(s, 0, sizeof *s);
     struct stat sb;

@@ -1,24 +1,24 @@
 /* The route (route.yaml): the lane centreline as a closed C2 curve (periodic cubic
  * spline through the file's points, parametrised by arc length), its stop lines,
  * crosswalks and speed profiles. */
-#ifndef SIM_ROUTE_H
-#define SIM_ROUTE_H
+#ifndef PB_ROUTE_H
+#define PB_ROUTE_H
 
 #include "pb_err.h"
 
-typedef struct { double cruise, accel, decel, lat_accel; } speed_profile_t;
-enum { PROFILE_CAUTIOUS, PROFILE_NORMAL, PROFILE_AGGRESSIVE, PROFILE_COUNT };
-extern const char *const profile_names[PROFILE_COUNT];
+typedef struct { double cruise, accel, decel, lat_accel; } pb_speed_profile_t;
+enum { PB_PROFILE_CAUTIOUS, PB_PROFILE_NORMAL, PB_PROFILE_AGGRESSIVE, PB_PROFILE_COUNT };
+extern const char *const pb_profile_names[PB_PROFILE_COUNT];
 
-typedef struct { char id[32], crosswalk[32]; double xy[2], yaw_deg, s; } stop_line_t;
-typedef struct { char id[32]; double center[2], yaw_deg, length, width; } crosswalk_t;
+typedef struct { char id[32], crosswalk[32]; double xy[2], yaw_deg, s; } pb_stop_line_t;
+typedef struct { char id[32]; double center[2], yaw_deg, length, width; } pb_crosswalk_t;
 
 typedef struct {
     double x, y;        /* map, m */
     double yaw;         /* heading of the tangent, rad */
     double kappa;       /* curvature, 1/m, + left */
     double dkappa;      /* d kappa / ds, 1/m^2 */
-} route_point_t;
+} pb_route_point_t;
 
 typedef struct {
     int n;                      /* control points = spline segments (closed) */
@@ -28,16 +28,16 @@ typedef struct {
     double lane_width;
     double dwell_s[2];          /* stop dwell range, s */
     int nstops, ncw;
-    stop_line_t *stops;         /* sorted by s */
-    crosswalk_t *cw;
-    speed_profile_t profiles[PROFILE_COUNT];
-} route_t;
+    pb_stop_line_t *stops;         /* sorted by s */
+    pb_crosswalk_t *cw;
+    pb_speed_profile_t profiles[PB_PROFILE_COUNT];
+} pb_route_t;
 
-int route_load(const char *path, route_t *r, pb_err_t *err);
-void route_free(route_t *r);
+int pb_route_load(const char *path, pb_route_t *r, pb_err_t *err);
+void pb_route_free(pb_route_t *r);
 /* Point at arc length s (any real s: wraps around the loop). */
-void route_eval(const route_t *r, double s, route_point_t *out);
+void pb_route_eval(const pb_route_t *r, double s, pb_route_point_t *out);
 /* Arc length of the route point nearest to (x, y). */
-double route_project(const route_t *r, double x, double y);
+double pb_route_project(const pb_route_t *r, double x, double y);
 
 #endif

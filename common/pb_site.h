@@ -1,6 +1,6 @@
 /* The site folder's site.yaml: name, geo-reference and the files it points to. */
-#ifndef SIM_SITE_H
-#define SIM_SITE_H
+#ifndef PB_SITE_H
+#define PB_SITE_H
 
 #include "pb_err.h"
 #include "pb_geo.h"
@@ -11,8 +11,8 @@ typedef struct {
     pb_georef_t geo;
     double geoid_height_m;      /* geoid above the ellipsoid (for heights above sea level) */
     char route_path[1300], world_path[1300];
-} site_t;
+} pb_site_t;
 
-int site_load(const char *dir, site_t *s, pb_err_t *err);
+int pb_site_load(const char *dir, pb_site_t *s, pb_err_t *err);
 
 #endif
