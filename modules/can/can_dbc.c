@@ -284,7 +284,7 @@ can_dbc_t *can_dbc_parse(const char *text, size_t len, pb_err_t *err)
         }
         p = next;
     }
-    qsort(db->msgs, (size_t)db->nmsgs, sizeof *db->msgs, cmp_msg);
+    if (db->nmsgs) qsort(db->msgs, (size_t)db->nmsgs, sizeof *db->msgs, cmp_msg);
     return db;
 bad:
     can_dbc_destroy(db);
@@ -328,6 +328,7 @@ const can_message_t *can_dbc_message_at(const can_dbc_t *dbc, int index)
 
 const can_message_t *can_dbc_find(const can_dbc_t *dbc, uint32_t id, int extended)
 {
+    if (!dbc->nmsgs) return NULL;
     can_message_t key;
     key.id = id;
     key.extended = extended ? 1 : 0;

@@ -12,6 +12,13 @@ static int fd_length_ok(unsigned len)
     return len <= 8 || len == 12 || len == 16 || len == 20 || len == 24 || len == 32 || len == 48 || len == 64;
 }
 
+/* A kernel timestamp in us, or -1 if it is no valid CLOCK_REALTIME time. */
+static int64_t ts_utime(struct timespec ts)
+{
+    if (ts.tv_sec < 0 || ts.tv_sec > 100000000000LL || ts.tv_nsec < 0 || ts.tv_nsec > 999999999) return -1;
+    return (int64_t)ts.tv_sec * 1000000 + ts.tv_nsec / 1000;
+}
+
 /* Walks the cmsgs by hand with bounds checks on every header: the glibc macros
  * trust cmsg_len more than a fuzzer's bytes deserve. */
 static int parse_control(const uint8_t *c, size_t n, int64_t *utime, can_kernel_extra_t *extra)
@@ -28,13 +35,13 @@ static int parse_control(const uint8_t *c, size_t n, int64_t *utime, can_kernel_
             if (h.cmsg_type == SCM_TIMESTAMPNS && plen >= sizeof(struct timespec) && have < 2) {
                 struct timespec ts;
                 memcpy(&ts, payload, sizeof ts);
-                *utime = (int64_t)ts.tv_sec * 1000000 + ts.tv_nsec / 1000;
+                if ((*utime = ts_utime(ts)) < 0) return CAN_K_E_CONTROL;
                 have = 2;
             } else if (h.cmsg_type == SCM_TIMESTAMPING && plen >= sizeof(struct scm_timestamping) && have < 1) {
                 struct scm_timestamping t;
                 memcpy(&t, payload, sizeof t);
                 if (t.ts[0].tv_sec || t.ts[0].tv_nsec) {
-                    *utime = (int64_t)t.ts[0].tv_sec * 1000000 + t.ts[0].tv_nsec / 1000;
+                    if ((*utime = ts_utime(t.ts[0])) < 0) return CAN_K_E_CONTROL;
                     have = 1;
                 }
             } else if (h.cmsg_type == SO_RXQ_OVFL && plen >= sizeof(uint32_t)) {
@@ -95,7 +102,7 @@ const char *can_kernel_strerror(int code)
     case CAN_K_NO_TIMESTAMP: return "no kernel timestamp";
     case CAN_K_E_SIZE: return "frame size is neither CAN_MTU (16) nor CANFD_MTU (72)";
     case CAN_K_E_LEN: return "payload length invalid for the frame type";
-    case CAN_K_E_CONTROL: return "malformed control message buffer";
+    case CAN_K_E_CONTROL: return "malformed control message buffer or timestamp";
     default: return "unknown error";
     }
 }

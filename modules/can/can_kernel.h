@@ -27,7 +27,7 @@ enum {
     CAN_K_NO_TIMESTAMP  =  1,   /* frame good, no kernel timestamp cmsg: out->utime = 0 */
     CAN_K_E_SIZE        = -1,   /* frame bytes are neither CAN_MTU nor CANFD_MTU */
     CAN_K_E_LEN         = -2,   /* payload length over 8 (classic) or not a CAN FD length */
-    CAN_K_E_CONTROL     = -3,   /* malformed control buffer */
+    CAN_K_E_CONTROL     = -3,   /* malformed control buffer, or a timestamp out of range */
 };
 
 typedef struct {
