@@ -307,7 +307,11 @@ can_dbc_t *can_dbc_load(const char *path, pb_err_t *err)
     if (!buf || rerr) { free(buf); pb_err_set(err, "%s: %s", path, buf ? "read error" : "out of memory"); return NULL; }
     can_dbc_t *db = can_dbc_parse(buf, n, err);
     free(buf);
-    if (!db) pb_err_prefix(err, "%s", path);
+    if (!db && err) {
+        char msg[sizeof err->msg];
+        memcpy(msg, err->msg, sizeof msg);
+        pb_err_set(err, "%s:%s", path, msg);    /* "FILE:LINE:COL: what" */
+    }
     return db;
 }
 

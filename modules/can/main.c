@@ -37,6 +37,7 @@ typedef struct {
     pb_bus_t *bus;
     pb_status_t *status;
     can_speed_dec_t *dec;
+    const can_dbc_t *dbc;
     const char *frame_channel, *speed_channel;
     int publish_frames;                 /* candump and live: CAN_FRAME out as well */
     int64_t problems, frames, speeds;
@@ -134,11 +135,15 @@ static void handle_frame(app_t *a, const can_rx_t *f, const char *where)
     case CAN_V_DECODED: pb_status_count(a->status, "decoded", 1); break;
     case CAN_V_OTHER_BUS: pb_status_count(a->status, "other_bus", 1); break;
     case CAN_V_UNKNOWN_ID: pb_status_count(a->status, "unknown_id", 1); break;   /* normal on a real bus */
-    case CAN_V_BAD_LENGTH:
-        problem(a, "bad_length", "%s: id 0x%03X: %u bytes, the DBC says otherwise", where, (unsigned)f->id, f->len);
+    case CAN_V_BAD_LENGTH: {
+        const can_message_t *m = can_dbc_find(a->dbc, f->id, f->extended);
+        problem(a, "bad_length", "%s: id 0x%03X %s: %u bytes, the DBC says %u", where, (unsigned)f->id,
+                m ? m->name : "?", f->len, m ? m->length : 0);
         break;
+    }
     case CAN_V_BAD_CHECKSUM:
-        problem(a, "bad_checksum", "%s: id 0x%03X: checksum byte does not match", where, (unsigned)f->id);
+        problem(a, "bad_checksum", "%s: id 0x%03X: checksum byte 0x%02X does not match (Toyota checksum 0x%02X)", where,
+                (unsigned)f->id, f->data[f->len - 1], can_checksum_toyota(f->id, f->data, f->len));
         break;
     case CAN_V_ERROR_FRAME:
         problem(a, "error_frame", "%s: bus error frame, class 0x%08X", where, (unsigned)f->id);
@@ -332,6 +337,7 @@ int main(int argc, char **argv)
         snprintf(tmp, sizeof tmp, "%s", dbc_path);
         cfg.checksum = strncmp(basename(tmp), "toyota_", 7) == 0 ? CAN_CHECKSUM_TOYOTA : CAN_CHECKSUM_NONE;
     }
+    a.dbc = dbc;
     a.dec = can_speed_create(dbc, &cfg, &err);
     if (!a.dec) { fprintf(stderr, "can: %s: %s\n", dbc_path, err.msg); can_dbc_destroy(dbc); return 1; }
 
