@@ -314,6 +314,10 @@ static void test_kernel_frames(void)
     CHECK(can_kernel_frame(bytes, CAN_MTU, NULL, 0, 0, &f, NULL) == CAN_K_NO_TIMESTAMP && f.utime == 0);
     CHECK(can_kernel_frame(bytes, 8, c.buf, c.len, 0, &f, NULL) == CAN_K_E_SIZE);
     CHECK(can_kernel_frame(bytes, 17, c.buf, c.len, 0, &f, NULL) == CAN_K_E_SIZE);
+    control_t c3 = { .len = 0 };
+    struct timespec bad_ts = { 1533226488, 1000000000 };    /* tv_nsec out of range */
+    add_cmsg(&c3, SOL_SOCKET, SCM_TIMESTAMPNS, &bad_ts, sizeof bad_ts);
+    CHECK(can_kernel_frame(bytes, CAN_MTU, c3.buf, c3.len, 0, &f, NULL) == CAN_K_E_CONTROL);
     ((struct cmsghdr *)c.buf)->cmsg_len = 4096;
     CHECK(can_kernel_frame(bytes, CAN_MTU, c.buf, c.len, 0, &f, NULL) == CAN_K_E_CONTROL);
     CHECK(strlen(can_kernel_strerror(CAN_K_E_CONTROL)) > 0);
