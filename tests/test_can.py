@@ -256,12 +256,42 @@ def test_bad_dbc_and_options(tmp_path):
     assert p.returncode == 1 and f"{dbc}:3:30: ')' expected after the offset" in p.stderr
     p = run([BIN / "can", "--help"])
     assert "--candump" in p.stdout and "listen-only" in p.stdout
-    assert run([BIN / "can", "--candump", SAMPLE], check=False).returncode == 2          # no --out
+    assert run([BIN / "can", "--replay", SAMPLE], check=False).returncode == 2           # no --out
     assert run([BIN / "can", "--replay", "x", "--candump", "y", "--out", "z"], check=False).returncode == 2
     p = run([BIN / "can", "--candump", SAMPLE, "--out", tmp_path / "o.lcm", "--bus", "x"], check=False)
     assert p.returncode == 2 and "--bus" in p.stderr
     p = run([BIN / "can", "--candump", tmp_path / "missing.log", "--out", tmp_path / "o.lcm"], check=False)
     assert p.returncode == 1 and "missing.log" in p.stderr
+
+
+def test_live_bus_from_stdin():
+    """`candump -L can0 | can --candump - --realtime` in miniature: the sample on stdin,
+    published on the live bus (real UDP multicast, private port, ttl=0) at its own pace
+    and counted by log-summary listening on the bus. (lcm-logger is not used: LCM's
+    default 30-deep subscription queue drops bursts; pb_bus subscribes 1000 deep.)"""
+    import signal
+    import subprocess
+    import time
+    url = "udpm://239.255.76.67:7791?ttl=0&recv_buf_size=8388608"
+    listener = subprocess.Popen([str(BIN / "log-summary"), "--lcm-url", url],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        time.sleep(0.5)  # let it subscribe
+        with open(SAMPLE, "rb") as f:
+            p = run([BIN / "can", "--candump", "-", "--realtime", "--lcm-url", url, "--vehicle", RAV4],
+                    stdin=f, timeout=60)
+        time.sleep(0.5)
+        listener.send_signal(signal.SIGINT)
+        out, err = listener.communicate(timeout=10)
+    finally:
+        if listener.poll() is None:
+            listener.kill()
+    assert "4516 frames, 249 VEHICLE_SPEED" in p.stderr
+    counts = {l.split()[0]: l.split() for l in out.splitlines() if l.split()}
+    assert int(counts["CAN_FRAME"][1]) == 4516 and int(counts["VEHICLE_SPEED"][1]) == 249
+    assert float(counts["CAN_FRAME"][4]) == pytest.approx(2.0, abs=0.01)      # the capture's span
+    assert int(counts["STATUS"][1]) >= 1
+    assert "can: 4516 frames" in out                                        # its CAN section
 
 
 def test_socketcan_unavailable_is_a_clear_error():

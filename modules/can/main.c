@@ -1,6 +1,6 @@
 /* can: the vehicle's CAN bus -> CAN_FRAME and VEHICLE_SPEED.
  *   can --iface can0 [--lcm-url URL]           live SocketCAN (raw socket, listen-only)
- *   can --candump FILE.log --out OUT.lcm       a `candump -l` capture
+ *   can --candump FILE.log [--out OUT.lcm]     a `candump -l` capture (- stdin), to a log or live
  *   can --replay IN.lcm --out OUT.lcm          CAN_FRAME events of a log (simdrive, import-candump)
  * The shell: options, input, publishing, STATUS. Decoding is can_speed.c, frame
  * layout can_kernel.c, the DBC can_dbc.c. */
@@ -46,12 +46,14 @@ typedef struct {
     char names[MAX_NAMED][PB_CANDUMP_IFACE_MAX];
     int nnames;
     uint32_t last_dropped;
+    int realtime;                       /* live --candump: pace frames by their times */
+    int64_t rt_frame0, rt_wall0;
 } app_t;
 
 static void usage(FILE *f)
 {
     fprintf(f,
-        "usage: can (--iface IFACE | --candump FILE.log --out OUT.lcm | --replay IN.lcm --out OUT.lcm)\n"
+        "usage: can (--iface IFACE | --candump FILE.log [--out OUT.lcm] | --replay IN.lcm --out OUT.lcm)\n"
         "           [--vehicle FILE.yaml] [--dbc FILE.dbc] [--bus N] [--checksum auto|toyota|none]\n"
         "           [--yaw-max-age-ms MS] [--lcm-url URL]\n"
         "\n"
@@ -64,7 +66,11 @@ static void usage(FILE *f)
         "  --iface IFACE        live: a SocketCAN interface (raw socket, kernel receive\n"
         "                       timestamps; never writes: put the interface in listen-only\n"
         "                       mode with `ip link set IFACE type can ... listen-only on`)\n"
-        "  --candump FILE       offline: a `candump -l` log; CAN_FRAME + VEHICLE_SPEED to --out\n"
+        "  --candump FILE       a `candump -l` log (- for stdin, e.g. `candump -L can0 | can\n"
+        "                       --candump -`): CAN_FRAME + VEHICLE_SPEED to --out, or to the\n"
+        "                       live bus without --out (times from the lines)\n"
+        "  --realtime           live --candump: publish each frame at its time after the first\n"
+        "                       (gaps capped at 1 s) instead of as fast as possible\n"
         "  --replay IN.lcm      offline: decode the CAN_FRAME events of IN; VEHICLE_SPEED to --out\n"
         "  --out OUT.lcm        the log --candump / --replay write (with STATUS)\n"
         "  --vehicle FILE       vehicle file whose dbc: is used (default vehicles/prius2017.yaml)\n"
@@ -191,10 +197,30 @@ static int bus_of(app_t *a, const char *iface)
     return NAMED_BUS_BASE + a->nnames++;
 }
 
+static int64_t wall_utime(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_REALTIME, &ts);
+    return (int64_t)ts.tv_sec * 1000000 + ts.tv_nsec / 1000;
+}
+
+/* --realtime: waits until the frame's time, counted from the first frame. */
+static void pace(app_t *a, int64_t frame_utime)
+{
+    if (!a->rt_wall0) { a->rt_wall0 = wall_utime(); a->rt_frame0 = frame_utime; return; }
+    int64_t due = a->rt_wall0 + (frame_utime - a->rt_frame0), now = wall_utime();
+    if (due > now + 1000000) due = now + 1000000;     /* a gap in the capture: at most 1 s */
+    if (due > now) {
+        struct timespec ts = { (time_t)((due - now) / 1000000), (long)((due - now) % 1000000) * 1000 };
+        nanosleep(&ts, NULL);
+    }
+}
+
 /* --candump: every line; a bad line is counted and skipped. */
 static int run_candump(app_t *a, const char *path, pb_err_t *err)
 {
-    FILE *in = fopen(path, "rb");
+    int is_stdin = strcmp(path, "-") == 0;
+    FILE *in = is_stdin ? stdin : fopen(path, "rb");
     if (!in) return pb_err_set(err, "%s: %s", path, strerror(errno));
     char *line = NULL;
     size_t cap = 0;
@@ -221,8 +247,15 @@ static int run_candump(app_t *a, const char *path, pb_err_t *err)
         can_rx_t f = { .utime = c.utime, .bus = bus, .id = c.id, .extended = c.extended, .rtr = c.rtr,
                        .error = c.error, .fd = c.fd, .len = c.len };
         memcpy(f.data, c.data, sizeof f.data);
-        /* Bus time never goes backwards; a late frame is stamped at the newest time. */
-        if (pb_bus_advance(a->bus, f.utime > pb_bus_now(a->bus) ? f.utime : pb_bus_now(a->bus), err) != 0) { rc = -1; break; }
+        /* Log time never goes backwards: a late frame is stamped at the newest time.
+         * On a live bus this only fires due timers (wall clock). */
+        if (pb_bus_is_replay(a->bus)) {
+            int64_t now = pb_bus_now(a->bus);
+            if (pb_bus_advance(a->bus, f.utime > now ? f.utime : now, err) != 0) { rc = -1; break; }
+        } else {
+            if (a->realtime) pace(a, f.utime);
+            pb_bus_advance(a->bus, 0, NULL);
+        }
         pb_status_input_time(a->status, "candump", f.utime);
         char where[PATH_MAX_WHERE];
         snprintf(where, sizeof where, "%s:%ld", path, lineno);
@@ -230,15 +263,8 @@ static int run_candump(app_t *a, const char *path, pb_err_t *err)
     }
     if (rc == 0 && ferror(in)) rc = pb_err_set(err, "%s: read error: %s", path, strerror(errno));
     free(line);
-    fclose(in);
+    if (!is_stdin) fclose(in);
     return rc;
-}
-
-static int64_t wall_utime(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_REALTIME, &ts);
-    return (int64_t)ts.tv_sec * 1000000 + ts.tv_nsec / 1000;
 }
 
 /* --iface: live SocketCAN. */
@@ -288,7 +314,7 @@ int main(int argc, char **argv)
         { "vehicle", required_argument, 0, 'v' }, { "dbc", required_argument, 0, 'd' },
         { "bus", required_argument, 0, 'b' }, { "checksum", required_argument, 0, 'k' },
         { "yaw-max-age-ms", required_argument, 0, 'y' }, { "lcm-url", required_argument, 0, 'u' },
-        { "frame-channel", required_argument, 0, 'F' }, { "speed-channel", required_argument, 0, 'S' },
+        { "realtime", no_argument, 0, 'R' }, { "frame-channel", required_argument, 0, 'F' }, { "speed-channel", required_argument, 0, 'S' },
         { "help", no_argument, 0, 'h' }, { 0, 0, 0, 0 },
     };
     int c;
@@ -307,6 +333,7 @@ int main(int argc, char **argv)
         case 'y': if (pb_arg_double("can", "--yaw-max-age-ms", optarg, 0, 1e6, &dv)) return 2;
                   cfg.yaw_max_age_us = (int64_t)(dv * 1000); break;
         case 'u': url = optarg; break;
+        case 'R': a.realtime = 1; break;
         case 'F': a.frame_channel = optarg; break;
         case 'S': a.speed_channel = optarg; break;
         case 'h': usage(stdout); return 0;
@@ -315,7 +342,8 @@ int main(int argc, char **argv)
     }
     if (optind < argc) { fprintf(stderr, "can: unexpected argument '%s'\n", argv[optind]); usage(stderr); return 2; }
     if (!!in + !!candump + !!iface != 1) { fprintf(stderr, "can: give exactly one of --iface, --candump, --replay\n"); usage(stderr); return 2; }
-    if (!iface && !out) { fprintf(stderr, "can: --candump and --replay need --out OUT.lcm\n"); return 2; }
+    if (a.realtime && (!candump || out)) { fprintf(stderr, "can: --realtime goes with --candump to the live bus (no --out)\n"); return 2; }
+    if (in && !out) { fprintf(stderr, "can: --replay needs --out OUT.lcm\n"); return 2; }
     if (iface && out) { fprintf(stderr, "can: --out goes with --candump or --replay, not --iface\n"); return 2; }
     if (strcmp(checksum, "auto") && strcmp(checksum, "toyota") && strcmp(checksum, "none")) {
         fprintf(stderr, "can: --checksum: expected auto, toyota or none, got '%s'\n", checksum);
@@ -342,7 +370,7 @@ int main(int argc, char **argv)
     if (!a.dec) { fprintf(stderr, "can: %s: %s\n", dbc_path, err.msg); can_dbc_destroy(dbc); return 1; }
 
     if (in) a.bus = pb_bus_create_replay(in, out, &err);
-    else if (candump) a.bus = pb_bus_create_source(out, &err);
+    else if (candump && out) a.bus = pb_bus_create_source(out, &err);
     else a.bus = pb_bus_create_live(url, &err);
     if (!a.bus) { fprintf(stderr, "can: %s\n", err.msg); can_speed_destroy(a.dec); can_dbc_destroy(dbc); return 1; }
     a.publish_frames = !in;
