@@ -56,7 +56,8 @@ int lv_leg_plan(lv_leg_t *leg, const pb_route_t *r, const pb_speed_profile_t *p,
             }
             if (kj > k) k = kj;
         }
-        vmax[i] = k > 1e-9 ? fmin(p->cruise, sqrt(p->lat_accel / k)) : p->cruise;
+        /* 0.2 % below the limit: curvature peaks between grid points */
+        vmax[i] = k > 1e-9 ? fmin(p->cruise, sqrt(0.998 * p->lat_accel / k)) : p->cruise;
     }
     vmax[0] = vmax[N - 1] = 0;
     for (int i = 1; i < N; i++) vmax[i] = fmin(vmax[i], sqrt(vmax[i - 1] * vmax[i - 1] + 2 * p->accel * ds));

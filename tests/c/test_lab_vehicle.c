@@ -40,7 +40,7 @@ static void test_legs(const pb_route_t *r)
             CHECK(vmax <= sp->cruise * (1 + 1e-5));      /* the end-point rescale is within 3e-6 */
             CHECK(amax <= sp->accel * 1.001);
             CHECK(amin >= -sp->decel * 1.001);
-            CHECK(lat <= sp->lat_accel * 1.01);
+            CHECK(lat <= sp->lat_accel);
             /* rest at t <= 0 and t >= t_end; s' = v inside */
             lv_leg_eval(&leg, -1, &s, &v, &a);
             CHECK(s == 0 && v == 0);
