@@ -251,6 +251,7 @@ def test_start_s_and_laps(tmp):
     (["--out", "X.lcm", "--agents-timeout", "0"], 2, "--agents-timeout"),
     (["--out", "X.lcm", "--proceed-input", ""], 2, "--proceed-input"),
     (["--out", "X.lcm", "stray"], 2, "unexpected argument 'stray'"),
+    (["--out", "X.lcm", "--keyboard"], 2, "--keyboard"),
     (["--out", "X.lcm", "--bogus"], 2, "bogus"),
     (["--out", "X.lcm", "--site", "/nonexistent/site"], 1, "/nonexistent/site"),
     (["--out", "X.lcm", "--vehicle", "/nonexistent.yaml"], 1, "/nonexistent.yaml"),
@@ -465,3 +466,24 @@ def test_live_waits_for_proceed_and_holds_for_a_pedestrian():
         proc.terminate()
         out, err = proc.communicate(timeout=10)
     assert proc.returncode == 0, err
+
+
+def test_live_keyboard_enter_is_a_proceed_press():
+    lis = Listener()
+    inputs = []
+    lis.lc.subscribe("PARTICIPANT_INPUT", lambda c, d: inputs.append(portobello.participant_input_t.decode(d)))
+    proc = subprocess.Popen([str(LV), "--lcm-url", URL, "--start-s", "58", "--depart-delay", "0", "--keyboard",
+                             "--no-ground-truth"],
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert lis.spin(15, lambda: lis.has("awaiting_proceed"))
+        proc.stdin.write("\n")
+        proc.stdin.flush()
+        assert lis.spin(3, lambda: lis.has("departed") and [e.event_id for e in lis.events].count("departed") == 2)
+        assert [(i.input, i.device, i.value) for i in inputs] == [("proceed", "keyboard", 1)]
+        assert [e.event_id for e in lis.events] == ["departed", "awaiting_proceed", "proceed", "departed"]
+    finally:
+        proc.terminate()
+        out, err = proc.communicate(timeout=10)
+    assert proc.returncode == 0, err
+    assert "Enter = proceed" in err

@@ -3,9 +3,11 @@
 #include <getopt.h>
 #include <limits.h>
 #include <math.h>
+#include <poll.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 #include "lab_vehicle.h"
 #include "pb_arg.h"
@@ -66,6 +68,8 @@ static void usage(FILE *f)
         "  --agents-timeout S    AGENTS older than S are stale: hold at a crossing (default 1.0)\n"
         "  --require-agents      hold at a crossing until AGENTS have been received\n"
         "  --no-ground-truth     do not publish GROUND_TRUTH\n"
+        "  --keyboard            live: Enter on stdin publishes PARTICIPANT_INPUT proceed\n"
+        "                        (device keyboard), for an operator or a demo\n"
         "  --replay IN.lcm       replay a log (needs --out)\n"
         "  --lcm-url URL         live bus (default $LCM_DEFAULT_URL or %s)\n"
         "  --quiet               offline: no summary line\n"
@@ -89,26 +93,29 @@ static void fill_pose(const lv_pose_t *p, portobello_pose_t *m)
     m->match_score = NAN;
 }
 
+/* LAB_EVENT message of a core event; the strings live in *buf (the caller's). */
+typedef struct { char id[32], agent[64], detail[400]; } event_strings_t;
+
 static void fill_event(const lv_event_t *e, const portobello_pose_t *vehicle, const char *scenario,
-                       portobello_scenario_event_t *m, char *id_buf, char *agent_buf, char *detail_buf)
+                       portobello_scenario_event_t *m, event_strings_t *buf)
 {
     memset(m, 0, sizeof *m);
+    snprintf(buf->id, sizeof buf->id, "%s", e->id);
+    snprintf(buf->agent, sizeof buf->agent, "%s", e->agent_id);
+    /* detail: "stop_line=sl03 crosswalk=cw03: what happened" (ids only where known) */
+    int n = 0;
+    if (e->stop_line[0]) n += snprintf(buf->detail + n, sizeof buf->detail - n, "stop_line=%s", e->stop_line);
+    if (e->crosswalk[0]) n += snprintf(buf->detail + n, sizeof buf->detail - n, " crosswalk=%s", e->crosswalk);
+    snprintf(buf->detail + n, sizeof buf->detail - n, "%s%s", n && e->detail[0] ? ": " : "", e->detail);
     m->utime = e->utime;
     m->scenario = (char *)scenario;
     m->kind = "lab";
-    /* event_id: what happened and where, e.g. "awaiting_proceed" with the stop line in detail */
-    strcpy(id_buf, e->id);
-    m->event_id = id_buf;
-    strcpy(agent_buf, e->agent_id);
-    m->agent_id = agent_buf;
+    m->event_id = buf->id;
+    m->agent_id = buf->agent;
     m->vehicle = *vehicle;
     m->agent_position[0] = e->agent_xy[0];
     m->agent_position[1] = e->agent_xy[1];
-    snprintf(detail_buf, 400, "%s%s%s%s%s", e->stop_line[0] ? "stop_line=" : "", e->stop_line,
-             e->crosswalk[0] ? " crosswalk=" : "", e->crosswalk, "");
-    size_t n = strlen(detail_buf);
-    snprintf(detail_buf + n, 400 - n, "%s%s", n && e->detail[0] ? ": " : "", e->detail);
-    m->detail = detail_buf;
+    m->detail = buf->detail;
 }
 
 /* ---------------------------------------------------------------- live / replay */
@@ -122,6 +129,8 @@ typedef struct {
     double duration;
     char scenario[64];
     int failed;
+    int keyboard;               /* 1: Enter on stdin publishes a proceed press */
+    const char *proceed_input;
     portobello_pose_t last_pose;
 } app_t;
 
@@ -130,8 +139,8 @@ static void publish_events(app_t *a)
     lv_event_t e;
     while (lv_next_event(a->lv, &e)) {
         portobello_scenario_event_t m;
-        char id[32], agent[64], detail[400];
-        fill_event(&e, &a->last_pose, a->scenario, &m, id, agent, detail);
+        event_strings_t strs;
+        fill_event(&e, &a->last_pose, a->scenario, &m, &strs);
         pb_err_t err;
         if (PB_PUBLISH(a->bus, "LAB_EVENT", portobello_scenario_event_t, &m, &err))
             pb_status_error(a->status, "LAB_EVENT: %s", err.msg);
@@ -155,10 +164,30 @@ static void publish_events(app_t *a)
     }
 }
 
+/* --keyboard: every line on stdin is a proceed press, published on the bus like a
+ * wheel button's (the director sees it too; this module gets it back from LCM). */
+static void poll_keyboard(app_t *a, int64_t now)
+{
+    struct pollfd pfd = { .fd = 0, .events = POLLIN };
+    if (poll(&pfd, 1, 0) <= 0) return;
+    char buf[256];
+    ssize_t n = read(0, buf, sizeof buf);
+    if (n <= 0) { a->keyboard = 0; return; }      /* end of input: stop polling */
+    for (ssize_t i = 0; i < n; i++) {
+        if (buf[i] != '\n') continue;
+        portobello_participant_input_t in = { .utime = now, .input = (char *)a->proceed_input,
+                                              .device = "keyboard", .value = 1 };
+        pb_err_t err;
+        if (PB_PUBLISH(a->bus, "PARTICIPANT_INPUT", portobello_participant_input_t, &in, &err))
+            pb_status_error(a->status, "PARTICIPANT_INPUT: %s", err.msg);
+    }
+}
+
 static void on_tick(int64_t now, void *user)
 {
     app_t *a = user;
     if (a->failed) return;
+    if (a->keyboard) poll_keyboard(a, now);
     if (a->duration > 0 && !a->end_utime) a->end_utime = now + (int64_t)llround(a->duration * 1e6);
     lv_pose_t p;
     pb_err_t err;
@@ -230,19 +259,22 @@ static void on_agents(const pb_msg_t *msg, void *user)
     portobello_agents_t_decode_cleanup(&m);
 }
 
-static int run_bus(lab_vehicle_t *lv, const char *url, const char *in, const char *out, int ground_truth, double duration)
+static int run_bus(lab_vehicle_t *lv, const char *url, const char *in, const char *out, int ground_truth, double duration,
+                   int keyboard, const char *proceed_input)
 {
     pb_err_t err;
     pb_bus_t *bus = in ? pb_bus_create_replay(in, out, &err) : pb_bus_create_live(url, &err);
     if (!bus) { fprintf(stderr, PROG ": %s\n", err.msg); return 1; }
     pb_signal_install();
-    app_t a = { .lv = lv, .bus = bus, .ground_truth = ground_truth, .duration = duration };
+    app_t a = { .lv = lv, .bus = bus, .ground_truth = ground_truth, .duration = duration,
+                .keyboard = keyboard, .proceed_input = proceed_input };
     a.status = pb_status_create(bus, PROG, 1000000);
     pb_status_set_state(a.status, PORTOBELLO_STATUS_T_STATE_OK);
     pb_bus_subscribe(bus, "PARTICIPANT_INPUT", on_input, &a);
     pb_bus_subscribe(bus, "AGENTS", on_agents, &a);
     pb_bus_add_timer(bus, TICK_US, on_tick, &a);
-    if (!in) fprintf(stderr, PROG ": driving on %s; POSE at 100 Hz; Ctrl-C stops\n", pb_lcm_url(url));
+    if (!in) fprintf(stderr, PROG ": driving on %s; POSE at 100 Hz;%s Ctrl-C stops\n", pb_lcm_url(url),
+                     keyboard ? " Enter = proceed;" : "");
     int rc = pb_bus_run(bus, &err);
     if (rc) {
         fprintf(stderr, PROG ": %s\n", err.msg);
@@ -306,8 +338,8 @@ static int run_offline(lab_vehicle_t *lv, const char *path, int64_t start_utime,
         lv_event_t e;
         while (lv_next_event(lv, &e)) {
             portobello_scenario_event_t m;
-            char id[32], agent[64], detail[400];
-            fill_event(&e, &pm, "", &m, id, agent, detail);
+            event_strings_t strs;
+            fill_event(&e, &pm, "", &m, &strs);
             WRITE_MSG(&o, "LAB_EVENT", portobello_scenario_event_t, &m);
             if (!strcmp(e.id, "awaiting_proceed")) {
                 press = e.utime + (int64_t)llround(auto_proceed * 1e6);
@@ -332,12 +364,12 @@ int main(int argc, char **argv)
     const char *profile = "normal", *out = NULL, *in = NULL, *url = NULL;
     double auto_proceed = 2.0, duration = 0;
     long laps = -1, start_utime = DEFAULT_START_UTIME;
-    int ground_truth = 1, quiet = 0;
+    int ground_truth = 1, quiet = 0, keyboard = 0;
     lv_config_t cfg;
     lv_config_default(&cfg);
     double stop_gap = cfg.stop_gap_m;
     enum { O_SITE = 256, O_VEH, O_PROF, O_OUT, O_AUTO, O_DUR, O_LAPS, O_UTIME, O_START_S, O_DELAY, O_GAP,
-           O_PROCEED, O_MARGIN, O_ATIMEOUT, O_REQ, O_NOGT, O_REPLAY, O_URL, O_QUIET };
+           O_PROCEED, O_MARGIN, O_ATIMEOUT, O_REQ, O_NOGT, O_REPLAY, O_URL, O_QUIET, O_KEYBOARD };
     static const struct option opts[] = {
         { "site", required_argument, 0, O_SITE }, { "vehicle", required_argument, 0, O_VEH },
         { "speed-profile", required_argument, 0, O_PROF }, { "out", required_argument, 0, O_OUT },
@@ -348,7 +380,7 @@ int main(int argc, char **argv)
         { "crossing-margin", required_argument, 0, O_MARGIN }, { "agents-timeout", required_argument, 0, O_ATIMEOUT },
         { "require-agents", no_argument, 0, O_REQ }, { "no-ground-truth", no_argument, 0, O_NOGT },
         { "replay", required_argument, 0, O_REPLAY }, { "lcm-url", required_argument, 0, O_URL },
-        { "quiet", no_argument, 0, O_QUIET }, { "help", no_argument, 0, 'h' }, { 0, 0, 0, 0 } };
+        { "quiet", no_argument, 0, O_QUIET }, { "keyboard", no_argument, 0, O_KEYBOARD }, { "help", no_argument, 0, 'h' }, { 0, 0, 0, 0 } };
     int c, auto_given = 0;
     while ((c = getopt_long(argc, argv, "h", opts, NULL)) != -1) {
         switch (c) {
@@ -380,6 +412,7 @@ int main(int argc, char **argv)
         case O_REPLAY: in = optarg; break;
         case O_URL: url = optarg; break;
         case O_QUIET: quiet = 1; break;
+        case O_KEYBOARD: keyboard = 1; break;
         case 'h': usage(stdout); return 0;
         default: usage(stderr); return 2;
         }
@@ -388,6 +421,7 @@ int main(int argc, char **argv)
     if (in && !out) { fprintf(stderr, PROG ": --replay needs --out OUT.lcm\n"); return 2; }
     int offline = out && !in;
     if (auto_given && !offline) { fprintf(stderr, PROG ": --auto-proceed is for the offline drive (--out LOG without --replay)\n"); return 2; }
+    if (keyboard && (offline || in)) { fprintf(stderr, PROG ": --keyboard is for the live bus\n"); return 2; }
     if (offline && url) { fprintf(stderr, PROG ": --lcm-url has no effect offline (--out without --replay)\n"); return 2; }
     if (offline && duration > 0 && laps >= 0) { fprintf(stderr, PROG ": --duration and --laps exclude each other offline\n"); return 2; }
     cfg.profile = -1;
@@ -413,7 +447,7 @@ int main(int argc, char **argv)
     lab_vehicle_t *lv = lv_create(&route, &cfg, &err);
     if (!lv) { fprintf(stderr, PROG ": %s\n", err.msg); pb_route_free(&route); return 1; }
     int rc = offline ? run_offline(lv, out, start_utime, auto_proceed, duration, ground_truth, quiet)
-                     : run_bus(lv, url, in, out, ground_truth, duration);
+                     : run_bus(lv, url, in, out, ground_truth, duration, keyboard, cfg.proceed_input);
     lv_destroy(lv);
     pb_route_free(&route);
     return rc;
