@@ -19,7 +19,7 @@ enum { HOLD_NONE, HOLD_OCCUPIED, HOLD_STALE, HOLD_MISSING };
 typedef struct {
     char *id;
     int is_object;
-    double x, y;
+    double x, y, vx, vy;
 } agent_t;
 
 struct lab_vehicle {
@@ -42,6 +42,7 @@ struct lab_vehicle {
     int proceed_pending;
     int hold;                   /* HOLD_*: why the car is held after a proceed */
     char hold_agent[64];
+    const char *hold_why;       /* how the blocker holds it (a static string) */
 
     agent_t *agents;
     int nagents;
@@ -63,6 +64,7 @@ void lv_config_default(lv_config_t *cfg)
     cfg->laps = 1;
     snprintf(cfg->proceed_input, sizeof cfg->proceed_input, "proceed");
     cfg->crossing_margin_m = 1.0;
+    cfg->crossing_horizon_s = 2.0;
     cfg->agents_timeout_s = 1.0;
     cfg->require_agents = 0;
     cfg->ignore_objects = 1;
@@ -79,6 +81,7 @@ lab_vehicle_t *lv_create(const pb_route_t *route, const lv_config_t *cfg, pb_err
     if (out_of(cfg->depart_delay_s, 0, 86400)) { pb_err_set(err, "depart_delay_s %g outside [0, 86400]", cfg->depart_delay_s); return NULL; }
     if (cfg->laps < 0) { pb_err_set(err, "laps %d is negative", cfg->laps); return NULL; }
     if (out_of(cfg->crossing_margin_m, 0, 100)) { pb_err_set(err, "crossing_margin_m %g outside [0, 100]", cfg->crossing_margin_m); return NULL; }
+    if (out_of(cfg->crossing_horizon_s, 0, 60)) { pb_err_set(err, "crossing_horizon_s %g outside [0, 60]", cfg->crossing_horizon_s); return NULL; }
     if (out_of(cfg->agents_timeout_s, 0.001, 86400)) { pb_err_set(err, "agents_timeout_s %g outside [0.001, 86400]", cfg->agents_timeout_s); return NULL; }
     if (!cfg->proceed_input[0]) { pb_err_set(err, "proceed_input is empty"); return NULL; }
     const pb_speed_profile_t *p = &route->profiles[cfg->profile];
@@ -229,17 +232,45 @@ static void arrive(lab_vehicle_t *lv)
         snprintf(ev->detail, sizeof ev->detail, "at rest at the start point; waiting for PARTICIPANT_INPUT \"%s\"", lv->cfg.proceed_input);
 }
 
-static int inside_crosswalk(const pb_crosswalk_t *cw, double margin, double x, double y)
+#define LV_STANDING_MPS 0.3      /* slower than this at the kerb: waiting to cross */
+#define LV_PATH_STEP_S 0.05
+
+/* Crosswalk coordinates of a map point: along the road and across it (kerb to kerb). */
+static void cw_coords(const pb_crosswalk_t *cw, double x, double y, double *along, double *across)
 {
     double yaw = cw->yaw_deg * M_PI / 180, dx = x - cw->center[0], dy = y - cw->center[1];
-    double along = dx * cos(yaw) + dy * sin(yaw), across = -dx * sin(yaw) + dy * cos(yaw);
-    return fabs(along) <= cw->width / 2 + margin && fabs(across) <= cw->length / 2 + margin;
+    *along = dx * cos(yaw) + dy * sin(yaw);
+    *across = -dx * sin(yaw) + dy * cos(yaw);
 }
 
-/* Why the car may not cross now (HOLD_NONE: clear); *blocker: the agent inside. */
-static int crossing_hold(const lab_vehicle_t *lv, const agent_t **blocker)
+static int on_crosswalk(const pb_crosswalk_t *cw, double margin, double x, double y)
+{
+    double along, across;
+    cw_coords(cw, x, y, &along, &across);
+    return fabs(along) <= cw->width / 2 + margin && fabs(across) <= cw->length / 2;
+}
+
+/* Why agent a holds the crossing: NULL if it does not. *in_s: when its path enters. */
+static const char *agent_blocks(const pb_crosswalk_t *cw, const lv_config_t *cfg, const agent_t *a, double *in_s)
+{
+    *in_s = 0;
+    if (on_crosswalk(cw, cfg->crossing_margin_m, a->x, a->y)) return "is on";
+    double along, across, speed = hypot(a->vx, a->vy);
+    cw_coords(cw, a->x, a->y, &along, &across);
+    if (speed < LV_STANDING_MPS && fabs(along) <= cw->width / 2 + cfg->crossing_margin_m &&
+        fabs(across) <= cw->length / 2 + cfg->crossing_margin_m)
+        return "waits at the kerb of";
+    for (double t = LV_PATH_STEP_S; t <= cfg->crossing_horizon_s + 1e-9; t += LV_PATH_STEP_S)
+        if (on_crosswalk(cw, cfg->crossing_margin_m, a->x + a->vx * t, a->y + a->vy * t)) { *in_s = t; return "is heading onto"; }
+    return NULL;
+}
+
+/* Why the car may not cross now (HOLD_NONE: clear); *blocker: the agent, *why: how. */
+static int crossing_hold(const lab_vehicle_t *lv, const agent_t **blocker, const char **why, double *in_s)
 {
     *blocker = NULL;
+    *why = "";
+    *in_s = 0;
     if (lv->at_stop < 0 || lv->stop_cw[lv->at_stop] < 0) return HOLD_NONE;   /* no crosswalk to check */
     if (!lv->agents_seen) return lv->cfg.require_agents ? HOLD_MISSING : HOLD_NONE;
     if (lv->now - lv->agents_recv > (int64_t)llround(lv->cfg.agents_timeout_s * 1e6)) return HOLD_STALE;
@@ -247,7 +278,8 @@ static int crossing_hold(const lab_vehicle_t *lv, const agent_t **blocker)
     for (int i = 0; i < lv->nagents; i++) {
         const agent_t *a = &lv->agents[i];
         if (a->is_object && lv->cfg.ignore_objects) continue;
-        if (inside_crosswalk(cw, lv->cfg.crossing_margin_m, a->x, a->y)) { *blocker = a; return HOLD_OCCUPIED; }
+        const char *w = agent_blocks(cw, &lv->cfg, a, in_s);
+        if (w) { *blocker = a; *why = w; return HOLD_OCCUPIED; }
     }
     return HOLD_NONE;
 }
@@ -255,23 +287,28 @@ static int crossing_hold(const lab_vehicle_t *lv, const agent_t **blocker)
 static void check_and_go(lab_vehicle_t *lv, pb_err_t *err, int *rc)
 {
     const agent_t *blocker;
-    int hold = crossing_hold(lv, &blocker);
+    const char *why;
+    double in_s;
+    int hold = crossing_hold(lv, &blocker, &why, &in_s);
     if (hold == HOLD_NONE) {
         if (lv->hold != HOLD_NONE) push_event(lv, "crossing_clear", lv->at_stop);
         if (depart(lv, lv->now, err)) *rc = -1;
         return;
     }
     const char *bid = blocker ? blocker->id : "";
-    if (hold == lv->hold && strcmp(bid, lv->hold_agent) == 0) return;  /* already reported */
+    if (hold == lv->hold && strcmp(bid, lv->hold_agent) == 0 && why == lv->hold_why) return;  /* already reported */
     lv->hold = hold;
+    lv->hold_why = why;
     snprintf(lv->hold_agent, sizeof lv->hold_agent, "%s", bid);
     static const char *const ids[] = { "", "crossing_occupied", "agents_stale", "agents_missing" };
     lv_event_t *ev = push_event(lv, ids[hold], lv->at_stop);
     if (blocker) {
         snprintf(ev->agent_id, sizeof ev->agent_id, "%s", blocker->id);
         ev->agent_xy[0] = blocker->x; ev->agent_xy[1] = blocker->y;
-        snprintf(ev->detail, sizeof ev->detail, "agent %s is on crosswalk %s (margin %.1f m); holding",
-                 blocker->id, ev->crosswalk, lv->cfg.crossing_margin_m);
+        char when[48] = "";
+        if (in_s > 0) snprintf(when, sizeof when, " (in %.2f s)", in_s);
+        snprintf(ev->detail, sizeof ev->detail, "agent %s %s crosswalk %s%s; holding",
+                 blocker->id, why, ev->crosswalk, when);
     } else if (hold == HOLD_STALE) {
         snprintf(ev->detail, sizeof ev->detail, "last AGENTS %.2f s ago (timeout %.2f s): cannot tell the crossing is clear; holding",
                  (lv->now - lv->agents_recv) * 1e-6, lv->cfg.agents_timeout_s);
@@ -353,6 +390,8 @@ int lv_on_agents(lab_vehicle_t *lv, int64_t recv_utime, const lv_agent_t *agents
         lv->agents[i].is_object = agents[i].kind && strcmp(agents[i].kind, "object") == 0;
         lv->agents[i].x = agents[i].x;
         lv->agents[i].y = agents[i].y;
+        lv->agents[i].vx = isfinite(agents[i].vx) ? agents[i].vx : 0;
+        lv->agents[i].vy = isfinite(agents[i].vy) ? agents[i].vy : 0;
     }
     lv->nagents = n;
     lv->agents_seen = 1;

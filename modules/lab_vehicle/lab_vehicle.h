@@ -26,7 +26,9 @@ typedef struct {
     double depart_delay_s;      /* rest at the start before moving off (default 1.0, as simdrive) */
     int laps;                   /* > 0: end at rest at the start point after this many laps; 0: drive on */
     char proceed_input[32];     /* PARTICIPANT_INPUT.input that releases the car (default "proceed") */
-    double crossing_margin_m;   /* the crosswalk area grows by this on every side (default 1.0) */
+    double crossing_margin_m;   /* the crosswalk area grows by this along the road, both sides; also the
+                                   depth of the kerb zone beyond each end (default 1.0) */
+    double crossing_horizon_s;  /* agents whose straight path enters the crossing within this hold the car (default 2.0) */
     double agents_timeout_s;    /* AGENTS older than this are stale: hold (default 1.0) */
     int require_agents;         /* 1: hold at a crossing until AGENTS have been received (default 0) */
     int ignore_objects;         /* 1: agents of kind "object" never block a crossing (default 1) */
@@ -62,10 +64,11 @@ typedef struct {
     char detail[256];
 } lv_event_t;
 
-/* One agent of AGENTS as the crossing check needs it. */
+/* One agent of AGENTS as the crossing check needs it (map frame). */
 typedef struct {
     const char *id, *kind;
     double x, y;
+    double vx, vy;              /* m/s */
 } lv_agent_t;
 
 /* Result of lv_on_input. */
@@ -82,6 +85,13 @@ void lv_destroy(lab_vehicle_t *lv);
 /* Advances to utime (not before the previous one) and fills *pose. The first call
  * sets the start time. 0, or -1 (err) if utime goes back or a leg cannot be planned. */
 int lv_step(lab_vehicle_t *lv, int64_t utime, lv_pose_t *pose, pb_err_t *err);
+
+/* The crossing is held by an agent (not of kind "object" when ignore_objects) that is
+ * on the crosswalk (widened along the road by crossing_margin_m), that stands (under
+ * 0.3 m/s) in the kerb zone within crossing_margin_m beyond either end (about to
+ * cross), or whose straight-line path at its current velocity enters the crosswalk
+ * within crossing_horizon_s. Someone walking along the sidewalk past the end holds
+ * nothing. */
 
 /* A PARTICIPANT_INPUT (press time utime). A proceed press (value != 0) is accepted
  * only while the car waits at a stop line and not stamped before it came to rest. */

@@ -64,7 +64,11 @@ static void usage(FILE *f)
         "  --depart-delay S      rest at the start before moving off (default 1.0)\n"
         "  --stop-gap M          front bumper behind the stop line at rest (default 0.5)\n"
         "  --proceed-input NAME  PARTICIPANT_INPUT.input that releases the car (default proceed)\n"
-        "  --crossing-margin M   the crosswalk area grows by M on every side (default 1.0)\n"
+        "  --crossing-margin M   the crosswalk area grows by M along the road on both sides\n"
+        "                        (default 1.0), and the depth of the kerb zone where a\n"
+        "                        standing agent is about to cross\n"
+        "  --crossing-horizon S  an agent whose straight path enters the crosswalk within\n"
+        "                        S s holds the car too (default 2.0)\n"
         "  --agents-timeout S    AGENTS older than S are stale: hold at a crossing (default 1.0)\n"
         "  --require-agents      hold at a crossing until AGENTS have been received\n"
         "  --no-ground-truth     do not publish GROUND_TRUTH\n"
@@ -246,6 +250,8 @@ static void on_agents(const pb_msg_t *msg, void *user)
         ag[i].kind = m.agents[i].kind;
         ag[i].x = m.agents[i].position[0];
         ag[i].y = m.agents[i].position[1];
+        ag[i].vx = m.agents[i].velocity[0];
+        ag[i].vy = m.agents[i].velocity[1];
     }
     pb_err_t err;
     /* Staleness runs on the bus clock (receive time live, log time in replay). */
@@ -369,7 +375,7 @@ int main(int argc, char **argv)
     lv_config_default(&cfg);
     double stop_gap = cfg.stop_gap_m;
     enum { O_SITE = 256, O_VEH, O_PROF, O_OUT, O_AUTO, O_DUR, O_LAPS, O_UTIME, O_START_S, O_DELAY, O_GAP,
-           O_PROCEED, O_MARGIN, O_ATIMEOUT, O_REQ, O_NOGT, O_REPLAY, O_URL, O_QUIET, O_KEYBOARD };
+           O_PROCEED, O_MARGIN, O_ATIMEOUT, O_REQ, O_NOGT, O_REPLAY, O_URL, O_QUIET, O_KEYBOARD, O_HORIZON };
     static const struct option opts[] = {
         { "site", required_argument, 0, O_SITE }, { "vehicle", required_argument, 0, O_VEH },
         { "speed-profile", required_argument, 0, O_PROF }, { "out", required_argument, 0, O_OUT },
@@ -380,7 +386,8 @@ int main(int argc, char **argv)
         { "crossing-margin", required_argument, 0, O_MARGIN }, { "agents-timeout", required_argument, 0, O_ATIMEOUT },
         { "require-agents", no_argument, 0, O_REQ }, { "no-ground-truth", no_argument, 0, O_NOGT },
         { "replay", required_argument, 0, O_REPLAY }, { "lcm-url", required_argument, 0, O_URL },
-        { "quiet", no_argument, 0, O_QUIET }, { "keyboard", no_argument, 0, O_KEYBOARD }, { "help", no_argument, 0, 'h' }, { 0, 0, 0, 0 } };
+        { "quiet", no_argument, 0, O_QUIET }, { "keyboard", no_argument, 0, O_KEYBOARD },
+        { "crossing-horizon", required_argument, 0, O_HORIZON }, { "help", no_argument, 0, 'h' }, { 0, 0, 0, 0 } };
     int c, auto_given = 0;
     while ((c = getopt_long(argc, argv, "h", opts, NULL)) != -1) {
         switch (c) {
@@ -413,6 +420,7 @@ int main(int argc, char **argv)
         case O_URL: url = optarg; break;
         case O_QUIET: quiet = 1; break;
         case O_KEYBOARD: keyboard = 1; break;
+        case O_HORIZON: if (pb_arg_double(PROG, "crossing-horizon", optarg, 0, 60, &cfg.crossing_horizon_s)) return 2; break;
         case 'h': usage(stdout); return 0;
         default: usage(stderr); return 2;
         }

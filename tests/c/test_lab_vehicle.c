@@ -111,8 +111,8 @@ static void test_state_machine(const pb_route_t *r)
     for (int i = 0; i < 100; i++) { t += 10000; lv_step(lv, t, &p, NULL); }
     CHECK(p.state == LV_STATE_AWAIT_PROCEED && p.dist == r->stops[0].s - 4.0);
     /* a pedestrian on cw01 holds the car after proceed; an object does not */
-    lv_agent_t ped = { "ped1", "pedestrian", r->cw[0].center[0] + 1.0, r->cw[0].center[1] - 2.0 };
-    lv_agent_t box = { "box", "object", r->cw[0].center[0], r->cw[0].center[1] };
+    lv_agent_t ped = { .id = "ped1", .kind = "pedestrian", .x = r->cw[0].center[0] + 1.0, .y = r->cw[0].center[1] - 2.0 };
+    lv_agent_t box = { .id = "box", .kind = "object", .x = r->cw[0].center[0], .y = r->cw[0].center[1] };
     lv_agent_t both[2] = { box, ped };
     CHECK(lv_on_agents(lv, t, both, 2, &err) == 0);
     CHECK(lv_on_input(lv, t, "proceed", 1) == LV_INPUT_ACCEPTED);
@@ -130,18 +130,61 @@ static void test_state_machine(const pb_route_t *r)
     CHECK(p.state == LV_STATE_AWAIT_CLEAR && p.v == 0);
     CHECK(count_events(lv, "crossing_occupied", NULL) == 0);   /* reported once */
     /* a non-finite agent is refused and the previous AGENTS stay */
-    lv_agent_t bad = { "nan", "pedestrian", NAN, 0 };
+    lv_agent_t bad = { .id = "nan", .kind = "pedestrian", .x = NAN };
     CHECK(lv_on_agents(lv, t, &bad, 1, &err) == -1);
     CHECK_CONTAINS(err.msg, "not finite");
     t += 10000;
     lv_step(lv, t, &p, NULL);
     CHECK(p.state == LV_STATE_AWAIT_CLEAR);
-    /* the pedestrian steps just outside the margin: the car departs */
-    ped.y = r->cw[0].center[1] + r->cw[0].length / 2 + cfg.crossing_margin_m + 0.2;
-    lv_agent_t moved[2] = { box, ped };
-    CHECK(lv_on_agents(lv, t, moved, 2, &err) == 0);
+    /* beside the stripes, within the margin along the road: still held */
+    const pb_crosswalk_t *cw = &r->cw[0];
+    double cy = cos(cw->yaw_deg * M_PI / 180), sy = sin(cw->yaw_deg * M_PI / 180);
+    double along = cw->width / 2 + cfg.crossing_margin_m - 0.2;
+    ped.x = cw->center[0] + along * cy;
+    ped.y = cw->center[1] + along * sy;
+    lv_agent_t beside[2] = { box, ped };
+    CHECK(lv_on_agents(lv, t, beside, 2, &err) == 0);
     t += 10000;
     lv_step(lv, t, &p, NULL);
+    CHECK(p.state == LV_STATE_AWAIT_CLEAR);
+    /* agent at (along, across) in cw01's frame with velocity (v_along, v_across): held? */
+#define PLACE(a_, c_, va_, vc_) do { \
+        ped.x = cw->center[0] + (a_) * cy - (c_) * sy; ped.y = cw->center[1] + (a_) * sy + (c_) * cy; \
+        ped.vx = (va_) * cy - (vc_) * sy; ped.vy = (va_) * sy + (vc_) * cy; \
+        lv_agent_t two_[2] = { box, ped }; \
+        CHECK(lv_on_agents(lv, t, two_, 2, &err) == 0); \
+        t += 10000; \
+        lv_step(lv, t, &p, NULL); \
+    } while (0)
+    double kerb = cw->length / 2;
+    PLACE(0.0, kerb + 0.5, 0.0, 0.0);           /* standing at the kerb: about to cross */
+    CHECK(p.state == LV_STATE_AWAIT_CLEAR);
+    PLACE(0.0, -(kerb + 2.0), 0.0, 1.4);        /* walking onto it, there in 1.4 s */
+    CHECK(p.state == LV_STATE_AWAIT_CLEAR);
+    lv_next_event(lv, &e);
+    while (lv_next_event(lv, &e)) {}
+    CHECK_CONTAINS(e.detail, "heading onto");
+    PLACE(0.0, -(kerb + 4.0), 0.0, 1.4);        /* 4 m off at 1.4 m/s: not within 2 s */
+    CHECK(p.state == LV_STATE_DRIVING);
+    lv_destroy(lv);
+    /* again to the first stop, for the sidewalk stroller */
+    lv = lv_create(r, &cfg, &err);
+    t = 2000000000000LL;
+    CHECK(run_until(lv, &t, LV_STATE_AWAIT_PROCEED, 30, &p) > 0);
+    CHECK(lv_on_agents(lv, t, NULL, 0, &err) == 0);
+    CHECK(lv_on_input(lv, t, "proceed", 1) == LV_INPUT_ACCEPTED);
+    PLACE(3.0, kerb + 0.5, -1.2, 0.0);          /* strolling along the sidewalk past the end: clear */
+    CHECK(p.state == LV_STATE_DRIVING);
+    CHECK(count_events(lv, "crossing_occupied", NULL) == 0);
+    lv_destroy(lv);
+    /* and to the first stop once more, held by the pedestrian, for the stale test */
+    lv = lv_create(r, &cfg, &err);
+    t = 3000000000000LL;
+    CHECK(run_until(lv, &t, LV_STATE_AWAIT_PROCEED, 30, &p) > 0);
+    CHECK(lv_on_input(lv, t, "proceed", 1) == LV_INPUT_ACCEPTED);
+    PLACE(0.0, 0.0, 0.0, 0.0);
+    CHECK(p.state == LV_STATE_AWAIT_CLEAR);
+    PLACE(0.0, kerb + 5.0, 0.0, 1.0);           /* it has crossed and walks away */
     CHECK(p.state == LV_STATE_DRIVING);
     CHECK(count_events(lv, "crossing_clear", NULL) == 1);
     /* next stop: AGENTS went silent, so the car holds (stale) until they are back */
