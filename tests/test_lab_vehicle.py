@@ -247,6 +247,7 @@ def test_start_s_and_laps(tmp):
     (["--replay", "IN.lcm"], 2, "--replay needs --out"),
     (["--out", "X.lcm", "--duration", "5", "--laps", "1"], 2, "exclude"),
     (["--out", "X.lcm", "--laps", "-1"], 2, "--laps"),
+    (["--out", "X.lcm", "--laps", "0"], 2, "never ends"),
     (["--out", "X.lcm", "--stop-gap", "nan"], 2, "--stop-gap"),
     (["--out", "X.lcm", "--agents-timeout", "0"], 2, "--agents-timeout"),
     (["--out", "X.lcm", "--proceed-input", ""], 2, "--proceed-input"),

@@ -432,6 +432,7 @@ int main(int argc, char **argv)
     if (keyboard && (offline || in)) { fprintf(stderr, PROG ": --keyboard is for the live bus\n"); return 2; }
     if (offline && url) { fprintf(stderr, PROG ": --lcm-url has no effect offline (--out without --replay)\n"); return 2; }
     if (offline && duration > 0 && laps >= 0) { fprintf(stderr, PROG ": --duration and --laps exclude each other offline\n"); return 2; }
+    if (offline && laps == 0 && duration <= 0) { fprintf(stderr, PROG ": --laps 0 offline never ends; give --duration S\n"); return 2; }
     cfg.profile = -1;
     for (int i = 0; i < PB_PROFILE_COUNT; i++)
         if (!strcmp(profile, pb_profile_names[i])) cfg.profile = i;
