@@ -488,3 +488,40 @@ def test_live_keyboard_enter_is_a_proceed_press():
         out, err = proc.communicate(timeout=10)
     assert proc.returncode == 0, err
     assert "Enter = proceed" in err
+
+
+# ---------------------------------------------------------------- both platforms (needs the director)
+
+SCENARIOS = sorted((SITE / "scenarios").glob("*.yaml")) if (SITE / "scenarios").is_dir() else []
+
+
+@pytest.fixture(scope="module")
+def platforms(tmp):
+    """One lab lap and one simdrive road drive of the same route."""
+    if not (BIN / "director").exists() or not SCENARIOS:
+        pytest.skip("needs build/bin/director and maps/default/scenarios (modules/director)")
+    lab("--out", tmp / "plat_lab.lcm", "--auto-proceed", 2.0, "--quiet")
+    run([BIN / "simdrive", "--out", tmp / "plat_road", "--duration", 300, "--no-lidar", "--quiet"], timeout=120)
+    return tmp / "plat_lab.lcm", tmp / "plat_road" / "drive.lcm"
+
+
+def director_events(tmp, log, pose_channel, scenario, name):
+    out = tmp / f"{name}_{scenario.stem}.lcm"
+    run([BIN / "director", "--site", SITE, "--scenario", scenario, "--pose-channel", pose_channel,
+         "--replay", log, "--out", out], timeout=120)
+    return [portobello.scenario_event_t.decode(d) for _, _, d in read_log(out, {"SCENARIO_EVENT"})]
+
+
+@pytest.mark.parametrize("scenario", SCENARIOS, ids=[s.stem for s in SCENARIOS])
+def test_same_scenario_same_events_in_the_lab_and_on_the_road(tmp, platforms, scenario):
+    lab_log, road_log = platforms
+    lab_ev = director_events(tmp, lab_log, "POSE", scenario, "lab")
+    road_ev = director_events(tmp, road_log, "GROUND_TRUTH", scenario, "road")
+    key = lambda evs: [(e.kind, e.event_id, e.agent_id) for e in evs]
+    assert key(lab_ev) and key(lab_ev) == key(road_ev)
+    # 100 Hz POSE: a volume trigger is at most one pose period past the first touch
+    for e in lab_ev:
+        if e.kind == "trigger":
+            speed = math.hypot(e.vehicle.velocity[0], e.vehicle.velocity[1])
+            assert speed * 0.010 <= 0.2
+            assert (e.utime - UTIME0) % 10000 == 0      # stamped with one of the twin's poses
