@@ -17,7 +17,7 @@ gnss_nmea_result_t gnss_nmea_sentence_check(const char *buf, size_t avail, size_
                                             int at_end, gnss_nmea_sentence_t *s)
 {
     memset(s, 0, sizeof *s);
-    if (avail < 1) return GNSS_NMEA_NEED_MORE;
+    if (avail < 1) return at_end ? GNSS_NMEA_NOT_START : GNSS_NMEA_NEED_MORE;
     if (buf[0] != '$') return GNSS_NMEA_NOT_START;
     /* Address: 2..15 of [A-Z0-9], then ','. Anything else means this '$' is not a
      * sentence start (e.g. a '$' byte inside binary data): no error is counted. */
