@@ -9,4 +9,4 @@ $(OBJ)/modules/gnss/%.o: CPPFLAGS += -I$(TOP)/$(GNSS_CORE)
 BENCH_TARGETS += bench-gnss
 .PHONY: bench-gnss
 bench-gnss: $(BIN)/gnss-bench
-	@$(VPY) tests/bench_gnss.py --bin $(BIN)/gnss-bench --data tests/data/ublox
+	@$(VPY) modules/gnss/bench/bench_gnss.py --bin $(BIN)/gnss-bench --data tests/data/ublox

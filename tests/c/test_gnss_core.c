@@ -137,6 +137,7 @@ static void test_resync_and_chunking(void)
     put(&in, "$GPGGA,080249.00,5327.0", 23);                           /* cut by a new sentence */
     put_nmea(&in, "GNRMC,080249.00,A,5327.04300,N,00214.41385,W,0.025,,180122,,,A,V");
     put(&in, "$GPGGA,1*00\r\n", 13);                                    /* wrong checksum */
+    put(&in, "$GPGSA333333333333,A,3*00\r\n", 27);                      /* address too long: not a sentence */
     put(&in, "$GPGGA,123\xB5\x62", 12);                                 /* binary inside a sentence */
     put_pvt(&in, 8, 2, 50, 534507207, -22402319, 1);
     put(&in, (const uint8_t[]){ 0xB5, 0x62, 0x01, 0x07, 92, 0, 1, 2 }, 8);   /* cut at the end */

@@ -22,10 +22,11 @@ gnss_nmea_result_t gnss_nmea_sentence_check(const char *buf, size_t avail, size_
     /* Address: 2..15 of [A-Z0-9], then ','. Anything else means this '$' is not a
      * sentence start (e.g. a '$' byte inside binary data): no error is counted. */
     size_t i = 1;
-    while (i < avail && i <= 15 && is_addr_char(buf[i])) i++;
-    if (i == avail && i <= 15) return at_end ? GNSS_NMEA_NOT_START : GNSS_NMEA_NEED_MORE;
+    while (i < avail && i <= 16 && is_addr_char(buf[i])) i++;
     size_t alen = i - 1;
-    if (alen < 2 || alen > 15 || buf[i] != ',') return GNSS_NMEA_NOT_START;
+    if (alen > 15) return GNSS_NMEA_NOT_START;   /* decided without reading past avail */
+    if (i == avail) return at_end ? GNSS_NMEA_NOT_START : GNSS_NMEA_NEED_MORE;
+    if (alen < 2 || buf[i] != ',') return GNSS_NMEA_NOT_START;
     memcpy(s->address, buf + 1, alen);
     s->address[alen] = 0;
     s->type = alen >= 3 ? s->address + alen - 3 : s->address;
