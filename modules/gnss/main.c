@@ -44,6 +44,7 @@ typedef struct {
     int64_t printed_errors, write_errors;
     int64_t counters_sent[GNSS_C_COUNT];
     char last_error[512];
+    int error_pending;             /* live: an error not yet given to pb_status */
     int quiet;
 } app_t;
 
@@ -85,8 +86,12 @@ static void note_error(app_t *a, const char *fmt, ...)
     va_start(ap, fmt);
     vsnprintf(a->last_error, sizeof a->last_error, fmt, ap);
     va_end(ap);
-    if (a->status) {
-        pb_status_error(a->status, "%s", a->last_error);   /* prints once per distinct text */
+    if (a->status && a->printed_errors < MAX_PRINTED_ERRORS) {
+        pb_status_error(a->status, "%s", a->last_error);   /* sets last_error and prints it */
+        if (++a->printed_errors == MAX_PRINTED_ERRORS)
+            fprintf(stderr, PROG ": further errors are printed at most once per STATUS period\n");
+    } else if (a->status) {
+        a->error_pending = 1;   /* a noisy line must not flood stderr: see sync_status */
     } else if (a->printed_errors < MAX_PRINTED_ERRORS) {
         fprintf(stderr, PROG ": %s\n", a->last_error);
         if (++a->printed_errors == MAX_PRINTED_ERRORS)
@@ -130,6 +135,10 @@ static void sync_status(app_t *a)
             pb_status_count(a->status, gnss_counter_name((gnss_counter_t)c), v - a->counters_sent[c]);
             a->counters_sent[c] = v;
         }
+    }
+    if (a->error_pending) {
+        pb_status_error(a->status, "%s", a->last_error);
+        a->error_pending = 0;
     }
     int64_t dropped = pb_status_counter(a->status, "fix_host_time");
     pb_status_count(a->status, "fix_host_time", a->fixes_no_time - dropped);
