@@ -374,7 +374,8 @@ int main(int argc, char **argv)
 
     int rc = run_fd(&a, fd, is_tty);
     if (fd > 0) close(fd);
-    gnss_driver_finish(a.drv);   /* a frame cut short at the end is reported now */
+    if (is_tty) gnss_driver_stop(a.drv);
+    else gnss_driver_finish(a.drv);   /* a frame cut short at the end of a file is reported now */
 
     int8_t state = rc == 0 ? PORTOBELLO_STATUS_T_STATE_STOPPING : PORTOBELLO_STATUS_T_STATE_ERROR;
     int status = rc == 0 ? 0 : 1;

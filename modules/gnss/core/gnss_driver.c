@@ -383,6 +383,8 @@ void gnss_driver_finish(gnss_driver_t *d)
     decide_epoch(d);
 }
 
+void gnss_driver_stop(gnss_driver_t *d) { decide_epoch(d); }
+
 int64_t gnss_driver_counter(const gnss_driver_t *d, gnss_counter_t c)
 {
     return (unsigned)c < GNSS_C_COUNT ? d->counters[c] : 0;

@@ -80,6 +80,9 @@ void gnss_driver_destroy(gnss_driver_t *d);
 void gnss_driver_feed(gnss_driver_t *d, const uint8_t *data, size_t n);
 /* End of input: unfinished frames are reported, the pending NMEA epoch decided. */
 void gnss_driver_finish(gnss_driver_t *d);
+/* Stop of a live stream: the pending NMEA epoch is decided; bytes of a frame still
+ * arriving are left unreported (the stop cut them, not the receiver). */
+void gnss_driver_stop(gnss_driver_t *d);
 
 int64_t gnss_driver_counter(const gnss_driver_t *d, gnss_counter_t c);
 int64_t gnss_driver_offset(const gnss_driver_t *d);
