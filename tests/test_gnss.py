@@ -88,7 +88,7 @@ def test_counts_and_errors_match_oracle(tmp_path, name):
 def test_every_nav_pvt_matches_oracle(tmp_path, name):
     rows = pvt_rows(name)
     fixes, c, _, _ = convert(DATA / name, tmp_path / "o.lcm")
-    ubx = [f for f in fixes if not math.isnan(f.h_acc_m)]   # NMEA fixes carry no accuracy
+    ubx = [f for f in fixes if not math.isnan(f.heading_acc_deg)]   # NaN in NMEA fixes only
     assert len(ubx) == len(rows) > 0
     for f, r in zip(ubx, rows):
         assert f.utime == pvt_utime(r)
@@ -127,7 +127,7 @@ def test_nav_pvt_matches_pyubx2(tmp_path, name):
 
 
 def test_nmea_log_fixes_match_pynmeagps(tmp_path):
-    """A pure-NMEA ZED-F9P log: one fix per epoch (GGA + RMC merged), every value
+    """A pure-NMEA ZED-F9P log: one fix per epoch (GGA + RMC + GST merged), every value
     against pynmeagps's decode of the same sentences."""
     pynmeagps = pytest.importorskip("pynmeagps")
     summary = json.loads((ORACLE / f"{NMEA_LOG}.nmea_summary.json").read_text())
@@ -136,15 +136,18 @@ def test_nmea_log_fixes_match_pynmeagps(tmp_path):
     assert c["nmea_gga"] == summary["counts"]["GNGGA"] and c["nmea_rmc"] == summary["counts"]["GNRMC"]
     assert c["nmea_bad_checksum"] == summary["bad_checksum"] == 0
     assert c["skipped_bytes"] == 0
-    ggas, rmcs = [], []
+    ggas, rmcs, gsts = [], [], []
     with open(DATA / NMEA_LOG, "rb") as f:
         for _, m in pynmeagps.NMEAReader(f, quitonerror=0):
             if m is not None and m.msgID == "GGA":
                 ggas.append(m)
             elif m is not None and m.msgID == "RMC":
                 rmcs.append(m)
+            elif m is not None and m.msgID == "GST":
+                gsts.append(m)
+    assert c["nmea_gst"] == len(gsts) == 29
     assert len(fixes) == len(ggas) == len(rmcs) == 29
-    for f, g, r in zip(fixes, ggas, rmcs):
+    for i, (f, g, r, e) in enumerate(zip(fixes, ggas, rmcs, gsts)):
         assert g.time == r.time
         day = calendar.timegm((r.date.year, r.date.month, r.date.day, 0, 0, 0))
         t = g.time
@@ -156,7 +159,12 @@ def test_nmea_log_fixes_match_pynmeagps(tmp_path):
         assert f.num_sv == g.numSV
         assert f.fix_type == portobello.gnss_fix_t.FIX_3D and g.quality == 1
         assert f.speed_mps == pytest.approx(r.spd * 1852 / 3600, abs=1e-9)
-        assert math.isnan(f.h_acc_m)    # NMEA GGA/RMC carry no accuracy estimate
+        assert e.time == g.time
+        if i == 0:   # GST comes last in the epoch: known to be sent only after the first one
+            assert math.isnan(f.h_acc_m) and math.isnan(f.v_acc_m)
+        else:        # horizontal RMS from GST's per-axis sigmas
+            assert f.h_acc_m == pytest.approx(math.hypot(e.stdLat, e.stdLong), abs=1e-12)
+            assert f.v_acc_m == pytest.approx(e.stdAlt, abs=1e-12)
     first = summary["first_GNGGA"]
     assert fixes[0].lat_deg == pytest.approx(-45.8775671667, abs=1e-9)
     assert fixes[0].lon_deg == pytest.approx(170.5001113333, abs=1e-9)
@@ -316,7 +324,7 @@ def test_live_serial_pty_to_bus():
         os.close(slave)
     assert proc.returncode == 0, err
     rows = pvt_rows("pygpsdata-MIXED.log") + pvt_rows("pygpsdata-MIXED3BADCK.log")
-    ubx = [f for f in got if not math.isnan(f.h_acc_m)]
+    ubx = [f for f in got if not math.isnan(f.heading_acc_deg)]   # NaN in NMEA fixes only
     assert len(ubx) == 40 and len(got) == 41
     assert got[-1].utime == calendar.timegm((2022, 1, 18, 8, 2, 48)) * 1_000_000   # GGA of the lost NAV-PVT
     assert [f.utime for f in ubx] == [pvt_utime(r) for r in rows]

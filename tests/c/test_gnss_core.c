@@ -214,6 +214,11 @@ static void test_nmea_fields(void)
         CHECK(check_sentence((const char *)b.b, &s) == GNSS_NMEA_SENTENCE);
         CHECK(gnss_nmea_parse_gga(&s, &g, &bad) == -1 && bad > 0);
     }
+    CHECK(check_sentence("$GNGST,003956.00,235111,,,,2.3,3.5,4.0*46", &s) == GNSS_NMEA_SENTENCE);
+    gnss_nmea_gst_t t;
+    CHECK(gnss_nmea_parse_gst(&s, &t, &bad) == 0 && t.tod_ms == (39 * 60 + 56) * 1000);
+    CHECK(isnan(t.std_major_m) && t.std_lat_m == 2.3 && t.std_lon_m == 3.5 && t.std_alt_m == 4.0);
+    CHECK(gnss_nmea_parse_gst(&s, &t, &bad) == 0);
     CHECK(check_sentence("$GPGGA,1,2", &s) == GNSS_NMEA_TRUNCATED);
     CHECK(gnss_nmea_sentence_check("$GPGGA,1,2", 10, 200, 0, &s) == GNSS_NMEA_NEED_MORE);
     CHECK(check_sentence("$GPGGA,1,2\r\n", &s) == GNSS_NMEA_NO_CHECKSUM);
@@ -265,6 +270,12 @@ static void on_fix(void *u, const gnss_fix_out_t *f)
 {
     fixes_t *x = u;
     if (x->n < 64) { x->src[x->n] = f->source; x->utime[x->n] = f->utime; x->n++; }
+}
+
+static int n_acc;
+static void on_fix_acc(void *u, const gnss_fix_out_t *f)
+{
+    if (n_acc < 8) ((double *)u)[n_acc++] = f->h_acc_m;
 }
 
 static gnss_driver_t *run_driver(const bytes_t *in, fixes_t *out)
@@ -343,6 +354,26 @@ static void test_fallback(void)
     CHECK(x.src[2] == GNSS_SRC_NMEA && x.utime[2] == t0 + 13 * 1000000LL);
     CHECK(gnss_driver_counter(d, GNSS_C_NMEA_FILLS) == 0);
     gnss_driver_destroy(d);
+
+    /* GST after GGA and RMC: once seen, epochs wait for it and take its sigmas. */
+    b.n = 0;
+    for (int ss = 10; ss < 13; ss++) {
+        char gst[96];
+        epoch_nmea(&b, ss);
+        snprintf(gst, sizeof gst, "GNGST,0802%02d.00,43,,,,3.0,4.0,5.0", ss);
+        put_nmea(&b, gst);
+    }
+    memset(&x, 0, sizeof x);
+    static double hacc[8];
+    {
+        gnss_driver_handlers_t h = { .on_fix = on_fix_acc, .user = hacc };
+        d = gnss_driver_create(NULL, &h);
+        gnss_driver_feed(d, b.b, b.n);
+        gnss_driver_finish(d);
+        CHECK(gnss_driver_counter(d, GNSS_C_FIXES_NMEA) == 3 && gnss_driver_counter(d, GNSS_C_NMEA_GST) == 3);
+        CHECK(isnan(hacc[0]) && hacc[1] == 5.0 && hacc[2] == 5.0);   /* sqrt(3^2 + 4^2) */
+        gnss_driver_destroy(d);
+    }
 
     /* Midnight: the date moves on for a GGA-only epoch after the RMC's day. */
     b.n = 0;

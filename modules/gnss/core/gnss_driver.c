@@ -11,7 +11,7 @@
 #define KNOT_MPS (1852.0 / 3600.0)
 
 static const char *const COUNTER_NAMES[GNSS_C_COUNT] = {
-    "ubx_frames", "ubx_nav_pvt", "nmea_sentences", "nmea_gga", "nmea_rmc",
+    "ubx_frames", "ubx_nav_pvt", "nmea_sentences", "nmea_gga", "nmea_rmc", "nmea_gst",
     "rtcm3_frames", "fixes_ubx", "fixes_nmea", "nmea_fills", "nmea_suppressed",
     "skipped_bytes",
     "ubx_bad_checksum", "ubx_too_long", "ubx_truncated", "nav_pvt_bad_length",
@@ -28,9 +28,10 @@ typedef struct {
     int active;
     int32_t tod_ms;
     int64_t offset;
-    int have_gga, have_rmc;
+    int have_gga, have_rmc, have_gst;
     gnss_nmea_gga_t gga;
     gnss_nmea_rmc_t rmc;
+    gnss_nmea_gst_t gst;
 } nmea_epoch_t;
 
 struct gnss_driver {
@@ -40,6 +41,7 @@ struct gnss_driver {
     int64_t counters[GNSS_C_COUNT];
     int32_t last_pvt_tod;      /* -1: no timed NAV-PVT yet */
     int pvt_leads;             /* learned: NAV-PVT comes before the NMEA of its epoch */
+    int gst_seen;              /* learned: this stream sends GST (epochs wait for it) */
     int64_t date_days;         /* latest known UTC date (days since 1970), -1 none */
     int32_t date_tod;          /* time of day it was known at */
     nmea_epoch_t pending;
@@ -200,6 +202,11 @@ static void fix_from_epoch(gnss_driver_t *d, const nmea_epoch_t *e, gnss_fix_out
         }
     }
     if (!has_pos) f->fix_type = GNSS_FIX_NONE;
+    if (e->have_gst) {
+        /* Horizontal RMS from the per-axis sigmas: the definition of h_acc_m. */
+        f->h_acc_m = sqrt(e->gst.std_lat_m * e->gst.std_lat_m + e->gst.std_lon_m * e->gst.std_lon_m);
+        f->v_acc_m = e->gst.std_alt_m;
+    }
 
     /* Date: RMC of this epoch, else the latest date seen (RMC or NAV-PVT), moved on a
      * day when the time of day wrapped past midnight since. */
@@ -223,6 +230,7 @@ static void decide_epoch(gnss_driver_t *d)
     nmea_epoch_t *e = &d->pending;
     if (!e->active) return;
     e->active = 0;
+    if (!e->have_gga && !e->have_rmc) return;   /* GST alone (e.g. after its epoch was decided) */
     int publish;
     int fill = 0;
     if (d->last_pvt_tod < 0) {
@@ -284,8 +292,10 @@ static void on_ubx(void *user, int64_t offset, const gnss_ubx_frame_t *fr)
         /* NMEA of this same epoch already waiting: NMEA leads on this stream. */
         if (d->pending.active && abs(tod_diff(d->pending.tod_ms, tod)) < SAME_EPOCH_MS) {
             d->pending.active = 0;
-            d->counters[GNSS_C_NMEA_SUPPRESSED]++;
-            d->pvt_leads = 0;
+            if (d->pending.have_gga || d->pending.have_rmc) {
+                d->counters[GNSS_C_NMEA_SUPPRESSED]++;
+                d->pvt_leads = 0;
+            }
         } else {
             decide_epoch(d);
         }
@@ -304,19 +314,23 @@ static void on_nmea(void *user, int64_t offset, const gnss_nmea_sentence_t *s)
     gnss_driver_t *d = user;
     d->counters[GNSS_C_NMEA_SENTENCES]++;
     int gga = strcmp(s->type, "GGA") == 0, rmc = strcmp(s->type, "RMC") == 0;
-    if (!gga && !rmc) return;
-    d->counters[gga ? GNSS_C_NMEA_GGA : GNSS_C_NMEA_RMC]++;
+    int gst = strcmp(s->type, "GST") == 0;
+    if (!gga && !rmc && !gst) return;
+    d->counters[gga ? GNSS_C_NMEA_GGA : rmc ? GNSS_C_NMEA_RMC : GNSS_C_NMEA_GST]++;
     gnss_nmea_gga_t g;
     gnss_nmea_rmc_t r;
+    gnss_nmea_gst_t t;
     int bad = 0;
-    int rc = gga ? gnss_nmea_parse_gga(s, &g, &bad) : gnss_nmea_parse_rmc(s, &r, &bad);
+    int rc = gga ? gnss_nmea_parse_gga(s, &g, &bad) : rmc ? gnss_nmea_parse_rmc(s, &r, &bad)
+                                                         : gnss_nmea_parse_gst(s, &t, &bad);
     if (rc != 0) {
         char msg[96];
         snprintf(msg, sizeof msg, "%s: field %d malformed", s->address, bad);
         count_error(d, GNSS_C_NMEA_BAD_FIELD, offset, msg);
         return;
     }
-    int32_t tod = gga ? g.tod_ms : r.tod_ms;
+    int32_t tod = gga ? g.tod_ms : rmc ? r.tod_ms : t.tod_ms;
+    if (tod < 0 && gst) return;   /* accuracy without a time: nothing to attach it to */
     if (tod < 0) {
         char msg[96];
         snprintf(msg, sizeof msg, "%s without a UTC time: not a fix", s->address);
@@ -327,7 +341,8 @@ static void on_nmea(void *user, int64_t offset, const gnss_nmea_sentence_t *s)
     nmea_epoch_t *e = &d->pending;
     if (gga && !e->have_gga) { e->gga = g; e->have_gga = 1; }
     if (rmc && !e->have_rmc) { e->rmc = r; e->have_rmc = 1; }
-    if (e->have_gga && e->have_rmc) decide_epoch(d);
+    if (gst && !e->have_gst) { e->gst = t; e->have_gst = 1; d->gst_seen = 1; }
+    if (e->have_gga && e->have_rmc && (e->have_gst || !d->gst_seen)) decide_epoch(d);
 }
 
 static void on_rtcm3(void *user, int64_t offset, int type, size_t total)

@@ -6,7 +6,8 @@
  * receiver's UTC time of day (see docs/gnss.md):
  *  - every NAV-PVT is a fix;
  *  - NMEA sentences of one epoch (same time of day) are merged into one candidate
- *    fix (GGA position/height/satellites, RMC date/speed/course), decided when both
+ *    fix (GGA position/height/satellites, RMC date/speed/course, GST accuracy),
+ *    decided when GGA and RMC (and GST, once the stream has shown it sends GST)
  *    arrived, the time of day changes, a NAV-PVT arrives, or the input ends;
  *  - a candidate is published when no timed NAV-PVT was seen within
  *    nmea_holdoff_ms of its time (fallback), or when NAV-PVT normally precedes the
@@ -51,7 +52,7 @@ void gnss_driver_config_default(gnss_driver_config_t *c);
 
 /* Named counters, in a fixed order (STATUS counter names). */
 typedef enum {
-    GNSS_C_UBX_FRAMES = 0, GNSS_C_UBX_NAV_PVT, GNSS_C_NMEA_SENTENCES, GNSS_C_NMEA_GGA, GNSS_C_NMEA_RMC,
+    GNSS_C_UBX_FRAMES = 0, GNSS_C_UBX_NAV_PVT, GNSS_C_NMEA_SENTENCES, GNSS_C_NMEA_GGA, GNSS_C_NMEA_RMC, GNSS_C_NMEA_GST,
     GNSS_C_RTCM3_FRAMES, GNSS_C_FIXES_UBX, GNSS_C_FIXES_NMEA, GNSS_C_NMEA_FILLS, GNSS_C_NMEA_SUPPRESSED,
     GNSS_C_SKIPPED_BYTES,
     /* errors */

@@ -252,3 +252,19 @@ int gnss_nmea_parse_rmc(const gnss_nmea_sentence_t *s, gnss_nmea_rmc_t *r, int *
     }
     return 0;
 }
+
+int gnss_nmea_parse_gst(const gnss_nmea_sentence_t *s, gnss_nmea_gst_t *g, int *bad_field)
+{
+    field_t f[GNSS_NMEA_MAX_FIELDS];
+    int n = split(s, f, GNSS_NMEA_MAX_FIELDS);
+    memset(g, 0, sizeof *g);
+    *bad_field = 0;
+    /* address,time,rangeRms,stdMajor,stdMinor,orient,stdLat,stdLong,stdAlt */
+    if (n < 9) { *bad_field = n; return -1; }
+    if (parse_tod(f[1], &g->tod_ms)) { *bad_field = 1; return -1; }
+    double *v[7] = { &g->rms_range_m, &g->std_major_m, &g->std_minor_m, &g->orient_deg,
+                     &g->std_lat_m, &g->std_lon_m, &g->std_alt_m };
+    for (int i = 0; i < 7; i++)
+        if (parse_num(f[2 + i], v[i]) || *v[i] < 0) { *bad_field = 2 + i; return -1; }
+    return 0;
+}

@@ -1,4 +1,4 @@
-/* gnss_nmea: NMEA 0183 sentences ($..GGA, $..RMC) with their *hh checksum. Pure
+/* gnss_nmea: NMEA 0183 sentences ($..GGA, $..RMC, $..GST) with their *hh checksum. Pure
  * functions, no I/O, no locale (numbers are parsed here, not by strtod).
  *
  * Sentence: '$', address (talker + type, e.g. GNGGA), ',' fields, '*', two hex digits
@@ -58,9 +58,17 @@ typedef struct {
     char mode;                 /* posMode (NMEA 2.3+): A, D, E, F, R, N, ...; 0 if absent */
 } gnss_nmea_rmc_t;
 
+typedef struct {
+    int32_t tod_ms;            /* -1 if empty */
+    double rms_range_m;        /* RMS of the pseudorange residuals */
+    double std_major_m, std_minor_m, orient_deg;   /* error ellipse (1 sigma) */
+    double std_lat_m, std_lon_m, std_alt_m;        /* 1 sigma per axis; NaN if empty */
+} gnss_nmea_gst_t;
+
 /* Parse the body of a sentence already checked. Return 0, or -1 with *bad_field the
  * 1-based index of the first malformed field. */
 int gnss_nmea_parse_gga(const gnss_nmea_sentence_t *s, gnss_nmea_gga_t *gga, int *bad_field);
 int gnss_nmea_parse_rmc(const gnss_nmea_sentence_t *s, gnss_nmea_rmc_t *rmc, int *bad_field);
+int gnss_nmea_parse_gst(const gnss_nmea_sentence_t *s, gnss_nmea_gst_t *gst, int *bad_field);
 
 #endif
