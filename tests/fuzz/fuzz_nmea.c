@@ -1,4 +1,4 @@
-/* libFuzzer target: arbitrary bytes as one NMEA sentence (framing, GGA and RMC fields)
+/* libFuzzer target: arbitrary bytes as one NMEA sentence (framing, GGA, RMC, GST fields)
  * and as an NMEA stream through the driver. Checks: consumed length inside the input,
  * checksum really matches, decoded values in range.
  * fuzz-sources: modules/gnss/core/gnss_ubx.c modules/gnss/core/gnss_nmea.c modules/gnss/core/gnss_stream.c modules/gnss/core/gnss_driver.c */
@@ -14,6 +14,7 @@ static void on_fix(void *u, const gnss_fix_out_t *f)
     if (!isnan(f->lat_deg) && (fabs(f->lat_deg) > 90 || fabs(f->lon_deg) > 180)) abort();
     if (f->has_utime && f->utime < 0) abort();
     if (!isnan(f->heading_deg) && (f->heading_deg < 0 || f->heading_deg >= 360.0001)) abort();
+    if (f->h_acc_m < 0 || f->v_acc_m < 0) abort();   /* NaN compares false */
 }
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
@@ -36,6 +37,8 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
             if (g.has_pos && (fabs(g.lat_deg) > 90 || fabs(g.lon_deg) > 180)) abort();
             if (g.tod_ms >= 86401000) abort();
         } else if (bad < 0) abort();
+        gnss_nmea_gst_t t;
+        if (gnss_nmea_parse_gst(&s, &t, &bad) == 0 && (t.std_lat_m < 0 || t.std_lon_m < 0 || t.std_alt_m < 0)) abort();
         gnss_nmea_rmc_t m;
         if (gnss_nmea_parse_rmc(&s, &m, &bad) == 0) {
             if (m.has_pos && (fabs(m.lat_deg) > 90 || fabs(m.lon_deg) > 180)) abort();
