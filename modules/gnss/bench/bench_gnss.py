@@ -6,7 +6,7 @@ buffer in the same run. Baselines (PyPI pyubx2 1.4.0, the maintained Python UBX/
 parser):
   pyubx2 same work : UBXReader(parsing=False) framing, then pyubx2.isvalid_checksum on
                      every UBX frame, UBXReader.parse of NAV-PVT, pynmeagps parse of
-                     GGA/RMC and an XOR check of other NMEA: the work the C core does
+                     GGA/RMC/GST and an XOR check of other NMEA: the work the C core does
   pyubx2 parse all : UBXReader(parsing=True): checksums and every field of every message
 The gnss core frames every message and checksums it, decodes NAV-PVT, GGA and RMC and
 builds fixes (it skips the fields of other message types). Medians over --runs runs of
@@ -39,7 +39,7 @@ def pyubx2_pass(buf, parse_all):
             if pyubx2.isvalid_checksum(raw) and raw[2] == 0x01 and raw[3] == 0x07:
                 pyubx2.UBXReader.parse(raw)
         elif raw[0] == 0x24:
-            if raw[3:6] in (b"GGA", b"RMC"):
+            if raw[3:6] in (b"GGA", b"RMC", b"GST"):
                 pynmeagps.NMEAReader.parse(raw)
             else:
                 star = raw.rfind(b"*")
