@@ -214,12 +214,12 @@ static void clock_observe(ouster_driver_t *d, uint64_t ts_ns, int64_t recv_utime
         return;
     }
     if (delta < d->window_min_us) d->window_min_us = delta;
+    /* The offset changes only at window ends, so within a window utime differences are
+     * exactly sensor time differences. */
     if (recv_utime - d->window_start >= CLOCK_WINDOW_US) {
         d->offset_us = d->window_min_us;
         d->window_min_us = delta;
         d->window_start = recv_utime;
-    } else if (d->window_min_us < d->offset_us) {
-        d->offset_us = d->window_min_us;
     }
 }
 
@@ -410,7 +410,15 @@ void ouster_driver_lidar_packet(ouster_driver_t *d, const uint8_t *buf, size_t l
                    (long long)n, k, c.measurement_id, d->cols);
             continue;
         }
-        if (d->active && c.frame_id != d->frame_id) publish_frame(d, recv_utime);
+        if (d->active && c.frame_id != d->frame_id) {
+            /* a column of a frame just before this one arrived late: it must not close this one */
+            if ((uint16_t)(d->frame_id - c.frame_id) <= 3) {
+                reject(d, C_COLUMN_LATE, "lidar packet %lld column %d: frame %u arrived during frame %u",
+                       (long long)n, k, c.frame_id, d->frame_id);
+                continue;
+            }
+            publish_frame(d, recv_utime);
+        }
         if (!d->active) {
             if (is_late(d, c.frame_id)) {
                 reject(d, C_COLUMN_LATE, "lidar packet %lld column %d: frame %u already published", (long long)n, k,

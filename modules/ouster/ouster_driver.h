@@ -11,8 +11,9 @@
  * Time: sensor timestamps are ns on the sensor's clock. Values >= 1e18 ns are taken as
  * UNIX time (PTP or GPS synced sensor). Otherwise (TIME_FROM_INTERNAL_OSC: ns since
  * boot) utime = sensor time + offset, offset = the smallest (receive time - sensor time)
- * seen over the previous 10 s window of receive time (the least-delayed packet), reset
- * when the sensor clock jumps by more than 1 s (reboot). Lidar and IMU share the offset,
+ * seen over the previous 10 s window of receive time (the least-delayed packet; in the
+ * first window the first packet's), reset when the sensor clock jumps by more than 1 s
+ * (reboot). The offset changes only at window ends. Lidar and IMU share the offset,
  * so their relative timing is the sensor's own.
  *
  * Bad input is never fatal: each rejected packet or column is counted under a reason
