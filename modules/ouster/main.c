@@ -15,9 +15,9 @@
 #include <time.h>
 #include <unistd.h>
 
-#include "ouster_driver.h"
-#include "ouster_meta.h"
-#include "ouster_pcap.h"
+#include "core/ouster_driver.h"
+#include "core/ouster_meta.h"
+#include "core/ouster_pcap.h"
 #include "pb_arg.h"
 #include "pb_bus.h"
 #include "pb_log.h"

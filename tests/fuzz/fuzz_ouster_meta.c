@@ -1,13 +1,13 @@
 /* libFuzzer target: Ouster metadata JSON, arbitrary bytes. Accepted metadata must be
  * self-consistent and give a driver; refused metadata must say why.
- * fuzz-sources: modules/ouster/ouster_meta.c modules/ouster/ouster_driver.c modules/ouster/ouster_packet.c common/pb_err.c
+ * fuzz-sources: modules/ouster/core/ouster_meta.c modules/ouster/core/ouster_driver.c modules/ouster/core/ouster_packet.c common/pb_err.c
  * fuzz-libs: -lcjson */
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
 
-#include "../../modules/ouster/ouster_driver.h"
-#include "../../modules/ouster/ouster_meta.h"
+#include "../../modules/ouster/core/ouster_driver.h"
+#include "../../modules/ouster/core/ouster_meta.h"
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 {

@@ -3,14 +3,14 @@
  * published scan must be consistent (pb_scan accepts it) and every IMU sample finite.
  * Input: byte 0 = profile (low 2 bits) and return (bit 2); then records of
  * [u16 length (bit 15: IMU)][bytes].
- * fuzz-sources: modules/ouster/ouster_driver.c modules/ouster/ouster_packet.c modules/ouster/ouster_meta.c common/pb_scan.c common/pb_err.c
+ * fuzz-sources: modules/ouster/core/ouster_driver.c modules/ouster/core/ouster_packet.c modules/ouster/core/ouster_meta.c common/pb_scan.c common/pb_err.c
  * fuzz-libs: -lcjson */
 #include <math.h>
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
 
-#include "../../modules/ouster/ouster_driver.h"
+#include "../../modules/ouster/core/ouster_driver.h"
 #include "pb_scan.h"
 
 static pb_points_t pts;

@@ -1,13 +1,13 @@
 /* libFuzzer target: a pcap file, arbitrary bytes (Ethernet/SLL/loopback/raw framing,
  * IPv4 fragments). Returned datagrams must lie inside the reader's buffers (ASan) and
  * be at most 65535 bytes; a damaged file must be reported with a message.
- * fuzz-sources: modules/ouster/ouster_pcap.c common/pb_err.c */
+ * fuzz-sources: modules/ouster/core/ouster_pcap.c common/pb_err.c */
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
-#include "../../modules/ouster/ouster_pcap.h"
+#include "../../modules/ouster/core/ouster_pcap.h"
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 {

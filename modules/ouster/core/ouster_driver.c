@@ -44,7 +44,10 @@ struct ouster_driver {
     /* frame being assembled */
     int active;
     uint16_t frame_id;
-    int ncols_in_window;
+    int ncols_in_window, ncols_total;
+    int npending;                   /* columns of the current packet not yet written */
+    const uint8_t *pending_px[OUSTER_MAX_PACKET_COLS];
+    uint16_t pending_mid[OUSTER_MAX_PACKET_COLS];
     uint8_t *seen;
     uint64_t *ts_ns;
     int64_t last_col_recv;
@@ -85,7 +88,8 @@ ouster_driver_t *ouster_driver_create(const ouster_meta_t *meta, const ouster_co
                                       ouster_scan_fn on_scan, ouster_imu_fn on_imu, void *user, pb_err_t *err)
 {
     if (meta->rows < 1 || meta->rows > OUSTER_MAX_ROWS || meta->cols_per_frame < 1 ||
-        meta->cols_per_frame > OUSTER_MAX_COLS || meta->cols_per_packet < 1 || meta->cols_per_packet > meta->cols_per_frame) {
+        meta->cols_per_frame > OUSTER_MAX_COLS || meta->cols_per_packet < 1 || meta->cols_per_packet > meta->cols_per_frame ||
+        meta->cols_per_packet > OUSTER_MAX_PACKET_COLS) {
         pb_err_set(err, "metadata: %d rows x %d columns (%d per packet) not supported", meta->rows,
                    meta->cols_per_frame, meta->cols_per_packet);
         return NULL;
@@ -238,8 +242,11 @@ static int in_window(const ouster_driver_t *d, int mid)
     return k < d->wcount;
 }
 
+static void fill_pending(ouster_driver_t *d);
+
 static void publish_frame(ouster_driver_t *d, int64_t recv_utime)
 {
+    fill_pending(d);
     if (!d->active) return;
     portobello_lidar_scan_t *s = &d->scan;
     /* first received column in window order gives the time of column w0 */
@@ -259,6 +266,15 @@ static void publish_frame(ouster_driver_t *d, int64_t recv_utime)
                                : ((c - d->w0 + d->cols) % d->cols) * d->col_period_ns;
         s->col_offset_us[c] = (int32_t)llround(dt / 1000.0);
     }
+    /* Pixels of columns that did not arrive still hold an older frame: no return. */
+    if (d->ncols_total < d->cols)
+        for (int c = 0; c < d->cols; c++) {
+            if (d->seen[c]) continue;
+            for (int r = 0; r < d->rows; r++) {
+                size_t i = (size_t)r * d->cols + c;
+                s->range_mm[i] = 0; s->reflectivity[i] = 0; s->signal[i] = 0; s->near_ir[i] = 0;
+            }
+        }
     s->utime = clock_utime(d, t0_ns);
     s->seq = d->frame_id;
     int missing = d->wcount - d->ncols_in_window;
@@ -269,63 +285,78 @@ static void publish_frame(ouster_driver_t *d, int64_t recv_utime)
     d->counters[C_FRAMES]++;
     if (d->on_scan) d->on_scan(s, recv_utime, d->user);
 
-    size_t np = (size_t)d->rows * d->cols;
-    memset(s->range_mm, 0, np * sizeof *s->range_mm);
-    memset(s->reflectivity, 0, np);
-    memset(s->signal, 0, np * sizeof *s->signal);
-    memset(s->near_ir, 0, np * sizeof *s->near_ir);
     memset(d->seen, 0, d->cols);
     d->active = 0;
     d->ncols_in_window = 0;
+    d->ncols_total = 0;
     d->have_published = 1;
     d->last_published = d->frame_id;
 }
 
-/* Writes the rows of one column into pixel column mid. One loop per profile: this is
+/* Writes the pending columns of a packet into the frame, row by row: a packet's columns
+ * are neighbours in the row-major image, so each row's writes share cache lines. This is
  * the hot path (65536 pixels per 64 x 1024 frame). */
-static void fill_column(ouster_driver_t *d, const uint8_t *px, int mid)
+static void fill_pending(ouster_driver_t *d)
 {
+    const int n = d->npending;
+    if (n == 0) return;
+    d->npending = 0;
     portobello_lidar_scan_t *s = &d->scan;
     const int cols = d->cols, rows = d->rows;
-    int32_t *range = s->range_mm + mid;
-    uint8_t *refl = s->reflectivity + mid;
-    uint16_t *sig = (uint16_t *)s->signal + mid, *nir = (uint16_t *)s->near_ir + mid;
-    switch (d->L.profile) {
-    case OUSTER_PROFILE_LEGACY:
-        for (int r = 0; r < rows; r++, px += 12) {
-            range[r * cols] = (int32_t)(ouster_rd32(px) & 0xFFFFF);
-            refl[r * cols] = px[4];
-            sig[r * cols] = ouster_rd16(px + 6);
-            nir[r * cols] = ouster_rd16(px + 8);
+    const size_t ps = d->L.pixel_size;
+    const uint8_t *const *pp = d->pending_px;
+    const uint16_t *mid = d->pending_mid;
+    uint16_t *sig = (uint16_t *)s->signal, *nir = (uint16_t *)s->near_ir;
+    const int second = d->cfg.which_return == 2;
+    for (int r = 0; r < rows; r++) {
+        int32_t *range = s->range_mm + (size_t)r * cols;
+        uint8_t *refl = s->reflectivity + (size_t)r * cols;
+        uint16_t *sg = sig + (size_t)r * cols, *ni = nir + (size_t)r * cols;
+        const size_t o = (size_t)r * ps;
+        switch (d->L.profile) {
+        case OUSTER_PROFILE_LEGACY:
+            for (int j = 0; j < n; j++) {
+                const uint8_t *px = pp[j] + o;
+                int c = mid[j];
+                range[c] = (int32_t)(ouster_rd32(px) & 0xFFFFF);
+                refl[c] = px[4];
+                sg[c] = ouster_rd16(px + 6);
+                ni[c] = ouster_rd16(px + 8);
+            }
+            break;
+        case OUSTER_PROFILE_RNG19_RFL8_SIG16_NIR16:
+            for (int j = 0; j < n; j++) {
+                const uint8_t *px = pp[j] + o;
+                int c = mid[j];
+                range[c] = (int32_t)(ouster_rd32(px) & 0x7FFFF);
+                refl[c] = px[4];
+                sg[c] = ouster_rd16(px + 6);
+                ni[c] = ouster_rd16(px + 8);
+            }
+            break;
+        case OUSTER_PROFILE_RNG19_RFL8_SIG16_NIR16_DUAL:
+            for (int j = 0; j < n; j++) {
+                const uint8_t *px = pp[j] + o;
+                int c = mid[j];
+                range[c] = (int32_t)(ouster_rd32(px + 4 * second) & 0x7FFFF);
+                refl[c] = px[3 + 4 * second];
+                sg[c] = ouster_rd16(px + 8 + 2 * second);
+                ni[c] = ouster_rd16(px + 12);
+            }
+            break;
+        case OUSTER_PROFILE_RNG15_RFL8_NIR8:
+            for (int j = 0; j < n; j++) {
+                const uint8_t *px = pp[j] + o;
+                int c = mid[j];
+                range[c] = (int32_t)(ouster_rd16(px) & 0x7FFF) * 8;
+                refl[c] = px[2];
+                sg[c] = 0;
+                ni[c] = (uint16_t)(px[3] * 16);
+            }
+            break;
+        default:
+            break;
         }
-        break;
-    case OUSTER_PROFILE_RNG19_RFL8_SIG16_NIR16:
-        for (int r = 0; r < rows; r++, px += 12) {
-            range[r * cols] = (int32_t)(ouster_rd32(px) & 0x7FFFF);
-            refl[r * cols] = px[4];
-            sig[r * cols] = ouster_rd16(px + 6);
-            nir[r * cols] = ouster_rd16(px + 8);
-        }
-        break;
-    case OUSTER_PROFILE_RNG19_RFL8_SIG16_NIR16_DUAL: {
-        const int second = d->cfg.which_return == 2;
-        for (int r = 0; r < rows; r++, px += 16) {
-            range[r * cols] = (int32_t)(ouster_rd32(px + 4 * second) & 0x7FFFF);
-            refl[r * cols] = px[3 + 4 * second];
-            sig[r * cols] = ouster_rd16(px + 8 + 2 * second);
-            nir[r * cols] = ouster_rd16(px + 12);
-        }
-        break;
-    }
-    case OUSTER_PROFILE_RNG15_RFL8_NIR8:
-        for (int r = 0; r < rows; r++, px += 4) {
-            range[r * cols] = (int32_t)(ouster_rd16(px) & 0x7FFF) * 8;
-            refl[r * cols] = px[2];
-            nir[r * cols] = (uint16_t)(px[3] * 16);
-        }
-        break;
-    default:
-        break;
     }
 }
 
@@ -433,8 +464,10 @@ void ouster_driver_lidar_packet(ouster_driver_t *d, const uint8_t *buf, size_t l
                    (long long)n, k, c.measurement_id, c.frame_id);
             continue;
         }
-        fill_column(d, c.pixels, c.measurement_id);
+        d->pending_px[d->npending] = c.pixels;
+        d->pending_mid[d->npending++] = c.measurement_id;
         d->seen[c.measurement_id] = 1;
+        d->ncols_total++;
         d->ts_ns[c.measurement_id] = c.timestamp_ns;
         d->last_col_recv = recv_utime;
         last_ts = c.timestamp_ns;
@@ -444,6 +477,7 @@ void ouster_driver_lidar_packet(ouster_driver_t *d, const uint8_t *buf, size_t l
             publish_frame(d, recv_utime);
         }
     }
+    fill_pending(d);
     if (last_ts) clock_observe(d, last_ts, recv_utime);
 }
 

@@ -23,6 +23,7 @@ extern "C" {
 
 #define OUSTER_MAX_ROWS 256
 #define OUSTER_MAX_COLS 4096
+#define OUSTER_MAX_PACKET_COLS 64   /* columns per packet (sensors send 16) */
 
 typedef enum {
     OUSTER_PROFILE_UNKNOWN = 0,
