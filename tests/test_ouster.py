@@ -424,7 +424,6 @@ def test_metadata_that_does_not_match_the_packets(tmp_path):
     c = counters(status[-1])
     assert scans == [] and c["rejected_lidar_wrong_size"] == 64
     assert "the size of LEGACY with 64 rows" in status[-1].last_error
-    assert status[-1].state == portobello.status_t.STATE_DEGRADED or c["rejected_lidar_wrong_size"] == 64
     # right size, other sensor: init_id and prod_sn in the RNG19 header are checked
     meta = json.loads(OS2_128_META.read_text())
     meta["initialization_id"] = 1234
