@@ -291,7 +291,6 @@ static int run_live(app_t *a, const char *url, int lidar_port, int imu_port, int
                 int64_t now = wall_utime();
                 if (i == 0) ouster_driver_lidar_packet(a->drv, buf, len > sizeof buf ? sizeof buf : len, now);
                 else ouster_driver_imu_packet(a->drv, buf, len > sizeof buf ? sizeof buf : len, now);
-                pb_status_input_time(a->status, i == 0 ? "udp_lidar" : "udp_imu", now);
             }
         }
         int64_t now = wall_utime();
