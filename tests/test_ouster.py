@@ -635,12 +635,17 @@ def test_live_udp_replay_on_loopback(tmp_path):
     try:
         time.sleep(0.5)
         tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        for s, u, port, pl in datagrams(OS1):
+        dg = datagrams(OS1)
+        for s, u, port, pl in dg:
             tx.sendto(pl, ("127.0.0.1", lidar_port if port == 7502 else imu_port))
-            tx.sendto(b"\x01" * 5, ("127.0.0.1", lidar_port)) if port == 7503 else None
+            if port == 7503:
+                tx.sendto(b"\x01" * 5, ("127.0.0.1", lidar_port))
             time.sleep(0.001)
+        # half of frame 190, then silence: published after 1.5 frame periods
+        for s, u, port, pl in [d for d in dg if d[2] == 7502][:32]:
+            tx.sendto(renumber(pl, 190, 100_000_000), ("127.0.0.1", lidar_port))
         deadline = time.time() + 5
-        while time.time() < deadline and (not got["LIDAR_SCAN"] or len(got["IMU"]) < 11 or not got["STATUS"]):
+        while time.time() < deadline and (len(got["LIDAR_SCAN"]) < 2 or len(got["IMU"]) < 11 or not got["STATUS"]):
             time.sleep(0.05)
         time.sleep(1.2)     # one more heartbeat, with the counts
     finally:
@@ -649,7 +654,10 @@ def test_live_udp_replay_on_loopback(tmp_path):
         stop.set()
         th.join()
     assert proc.returncode == 0, err
-    assert len(got["LIDAR_SCAN"]) == 1 and len(got["IMU"]) == 11
+    assert len(got["LIDAR_SCAN"]) == 2 and len(got["IMU"]) == 11
+    s2 = portobello.lidar_scan_t.decode(got["LIDAR_SCAN"][1])
+    r2 = image(s2, "range_mm", np.int64)
+    assert s2.seq == 190 and r2[:, :512].any() and not r2[:, 512:].any()
     s = portobello.lidar_scan_t.decode(got["LIDAR_SCAN"][0])
     f = oracle_summary("OS-1-64_1024x10_fw20")["frames"][0]["fields"]
     assert s.seq == 189 and md5(image(s, "range_mm", np.uint32)) == f["RANGE"]["md5_staggered_rowmajor"]
@@ -658,7 +666,8 @@ def test_live_udp_replay_on_loopback(tmp_path):
     st = [portobello.status_t.decode(d) for d in got["STATUS"]]
     assert all(x.module == "ouster" for x in st)
     c = counters(st[-1])
-    assert c["lidar_packets"] == 64 + 11 and c["rejected_lidar_wrong_size"] == 11
+    assert c["lidar_packets"] == 64 + 11 + 32 and c["rejected_lidar_wrong_size"] == 11
+    assert c["frames"] == 2 and c["frames_incomplete"] == 1
     assert "5 bytes" in st[-1].last_error
 
 
