@@ -2,6 +2,7 @@
 #include "ouster_driver.h"
 
 #include <math.h>
+#include <stdint.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -255,16 +256,14 @@ static void publish_frame(ouster_driver_t *d, int64_t recv_utime)
         int c = (d->w0 + k) % d->cols;
         if (d->seen[c]) first = k;
     }
-    if (first < 0) {   /* only columns outside the window: none in window order above */
-        for (int c = 0; c < d->cols; c++) if (d->seen[c]) { first = (c - d->w0 + d->cols) % d->cols; break; }
-    }
     int cfirst = (d->w0 + first) % d->cols;
     double t0 = (double)d->ts_ns[cfirst] - first * d->col_period_ns;
     uint64_t t0_ns = t0 > 0 ? (uint64_t)llround(t0) : 0;
     for (int c = 0; c < d->cols; c++) {
         double dt = d->seen[c] ? (double)d->ts_ns[c] - (double)t0_ns
                                : ((c - d->w0 + d->cols) % d->cols) * d->col_period_ns;
-        s->col_offset_us[c] = (int32_t)llround(dt / 1000.0);
+        double us = dt / 1000.0;   /* a damaged timestamp must not overflow the int32 */
+        s->col_offset_us[c] = us > INT32_MAX ? INT32_MAX : us < INT32_MIN ? INT32_MIN : (int32_t)llround(us);
     }
     /* Pixels of columns that did not arrive still hold an older frame: no return. */
     if (d->ncols_total < d->cols)
