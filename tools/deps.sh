@@ -6,7 +6,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 APT_PKGS="build-essential pkg-config python3 python3-venv python3-pip libglib2.0-0 libglib2.0-dev \
-libyaml-dev libeigen3-dev libpcl-dev liboctomap-dev libccd-dev can-utils"
+libyaml-dev libeigen3-dev libpcl-dev liboctomap-dev libccd-dev can-utils libcjson-dev"
 
 missing=""
 for p in $APT_PKGS; do
