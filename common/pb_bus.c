@@ -230,7 +230,17 @@ static int run_replay(pb_bus_t *bus, pb_err_t *err)
 static int run_live(pb_bus_t *bus, pb_err_t *err)
 {
     while (!bus->stop && !pb_signal_stop_requested()) {
-        int r = lcm_handle_timeout(bus->lcm, 50);
+        /* Wait for a message at most until the next timer deadline (and 50 ms), so a
+         * 100 Hz timer fires on time instead of in bursts after each 50 ms wait. */
+        int wait_ms = 50;
+        int64_t now = wall_utime();
+        for (int i = 0; i < bus->ntimers; i++) {
+            int64_t next = bus->timers[i].next;
+            if (next == 0) continue;
+            int64_t ms = next <= now ? 0 : (next - now + 999) / 1000;
+            if (ms < wait_ms) wait_ms = (int)ms;
+        }
+        int r = wait_ms > 0 ? lcm_handle_timeout(bus->lcm, wait_ms) : 0;
         if (r < 0 && pb_signal_stop_requested()) break;   /* a signal interrupted the wait */
         if (r < 0) return pb_err_set(err, "lcm_handle failed");
         fire_timers(bus, wall_utime());

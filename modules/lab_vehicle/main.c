@@ -1,0 +1,420 @@
+/* lab_vehicle: the in-lab twin of the study car. The shell: options, site and
+ * vehicle files, the live / replay bus or the offline log writer. */
+#include <getopt.h>
+#include <limits.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "lab_vehicle.h"
+#include "pb_arg.h"
+#include "pb_bus.h"
+#include "pb_log.h"
+#include "pb_route.h"
+#include "pb_signal.h"
+#include "pb_site.h"
+#include "pb_status.h"
+#include "pb_vehicle.h"
+#include "portobello_agents_t.h"
+#include "portobello_participant_input_t.h"
+#include "portobello_pose_t.h"
+#include "portobello_scenario_event_t.h"
+#include "portobello_status_t.h"
+
+#ifndef PB_SOURCE_DIR
+#define PB_SOURCE_DIR "."
+#endif
+
+#define PROG "lab_vehicle"
+#define TICK_US 10000                       /* POSE at 100 Hz */
+#define DEFAULT_START_UTIME 1714572000000000LL  /* 2024-05-01T14:00:00Z, simdrive's epoch */
+
+static void usage(FILE *f)
+{
+    fprintf(f,
+        "usage: lab_vehicle [--site DIR] [--vehicle FILE] [--speed-profile P] [options]\n"
+        "         live: publishes on the bus (default)\n"
+        "       lab_vehicle --out LOG [--auto-proceed S] [--duration S | --laps N] [options]\n"
+        "         offline: writes a whole lab drive to LOG, no bus\n"
+        "       lab_vehicle --replay IN.lcm --out OUT.lcm [options]\n"
+        "         replay: PARTICIPANT_INPUT and AGENTS from IN, time from IN\n"
+        "\n"
+        "The in-lab twin vehicle: drives the site's route with a speed profile, comes to\n"
+        "rest at every stop line with the front bumper --stop-gap behind it (where\n"
+        "simdrive's road car rests), announces LAB_EVENT awaiting_proceed, and departs\n"
+        "once PARTICIPANT_INPUT \"proceed\" was pressed and the crosswalk ahead is clear\n"
+        "of AGENTS. Publishes POSE (source LAB, status TRACKING) and GROUND_TRUTH (the\n"
+        "same pose) at 100 Hz, LAB_EVENT (scenario_event_t, kind \"lab\") and STATUS.\n"
+        "\n"
+        "  --site DIR            site folder (default %s/maps/default)\n"
+        "  --vehicle FILE        vehicle file (default %s/vehicles/prius2017.yaml)\n"
+        "  --speed-profile P     cautious, normal (default) or aggressive (route.yaml)\n"
+        "  --out LOG             offline: write the drive to LOG (with --replay: replay output)\n"
+        "  --auto-proceed S      offline: the participant presses proceed S s after each\n"
+        "                        stop (default 2.0)\n"
+        "  --duration S          end after S s (offline: instead of one lap; live: exit)\n"
+        "  --laps N              end at rest at the start point after N laps (offline\n"
+        "                        default 1; live default 0 = drive on)\n"
+        "  --start-utime US      offline: time of the first pose, us since epoch\n"
+        "                        (default %lld, so runs are byte-identical)\n"
+        "  --start-s M           start at rest at arc length M of the route (default 0)\n"
+        "  --depart-delay S      rest at the start before moving off (default 1.0)\n"
+        "  --stop-gap M          front bumper behind the stop line at rest (default 0.5)\n"
+        "  --proceed-input NAME  PARTICIPANT_INPUT.input that releases the car (default proceed)\n"
+        "  --crossing-margin M   the crosswalk area grows by M on every side (default 1.0)\n"
+        "  --agents-timeout S    AGENTS older than S are stale: hold at a crossing (default 1.0)\n"
+        "  --require-agents      hold at a crossing until AGENTS have been received\n"
+        "  --no-ground-truth     do not publish GROUND_TRUTH\n"
+        "  --replay IN.lcm       replay a log (needs --out)\n"
+        "  --lcm-url URL         live bus (default $LCM_DEFAULT_URL or %s)\n"
+        "  --quiet               offline: no summary line\n"
+        "  -h, --help            this text\n",
+        PB_SOURCE_DIR, PB_SOURCE_DIR, (long long)DEFAULT_START_UTIME, PB_DEFAULT_LCM_URL);
+}
+
+static void fill_pose(const lv_pose_t *p, portobello_pose_t *m)
+{
+    memset(m, 0, sizeof *m);
+    m->utime = p->utime;
+    m->position[0] = p->x; m->position[1] = p->y; m->position[2] = 0;
+    m->orientation[0] = cos(p->yaw / 2); m->orientation[3] = sin(p->yaw / 2);
+    m->velocity[0] = p->v * cos(p->yaw); m->velocity[1] = p->v * sin(p->yaw);
+    m->angular_velocity[2] = p->omega;
+    /* The twin's pose is exact by construction: 1 mm / 1 mrad standard deviations
+     * (not zero, which pose_t reserves for "unknown"). */
+    for (int i = 0; i < 6; i++) m->covariance[i * 7] = 1e-6;
+    m->status = PORTOBELLO_POSE_T_STATUS_TRACKING;
+    m->source = PORTOBELLO_POSE_T_SOURCE_LAB;
+    m->match_score = NAN;
+}
+
+static void fill_event(const lv_event_t *e, const portobello_pose_t *vehicle, const char *scenario,
+                       portobello_scenario_event_t *m, char *id_buf, char *agent_buf, char *detail_buf)
+{
+    memset(m, 0, sizeof *m);
+    m->utime = e->utime;
+    m->scenario = (char *)scenario;
+    m->kind = "lab";
+    /* event_id: what happened and where, e.g. "awaiting_proceed" with the stop line in detail */
+    strcpy(id_buf, e->id);
+    m->event_id = id_buf;
+    strcpy(agent_buf, e->agent_id);
+    m->agent_id = agent_buf;
+    m->vehicle = *vehicle;
+    m->agent_position[0] = e->agent_xy[0];
+    m->agent_position[1] = e->agent_xy[1];
+    snprintf(detail_buf, 400, "%s%s%s%s%s", e->stop_line[0] ? "stop_line=" : "", e->stop_line,
+             e->crosswalk[0] ? " crosswalk=" : "", e->crosswalk, "");
+    size_t n = strlen(detail_buf);
+    snprintf(detail_buf + n, 400 - n, "%s%s", n && e->detail[0] ? ": " : "", e->detail);
+    m->detail = detail_buf;
+}
+
+/* ---------------------------------------------------------------- live / replay */
+
+typedef struct {
+    lab_vehicle_t *lv;
+    pb_bus_t *bus;
+    pb_status_t *status;
+    int ground_truth;
+    int64_t end_utime;          /* 0: none (set from the first tick and --duration) */
+    double duration;
+    char scenario[64];
+    int failed;
+    portobello_pose_t last_pose;
+} app_t;
+
+static void publish_events(app_t *a)
+{
+    lv_event_t e;
+    while (lv_next_event(a->lv, &e)) {
+        portobello_scenario_event_t m;
+        char id[32], agent[64], detail[400];
+        fill_event(&e, &a->last_pose, a->scenario, &m, id, agent, detail);
+        pb_err_t err;
+        if (PB_PUBLISH(a->bus, "LAB_EVENT", portobello_scenario_event_t, &m, &err))
+            pb_status_error(a->status, "LAB_EVENT: %s", err.msg);
+        if (!strcmp(e.id, "awaiting_proceed")) {
+            pb_status_count(a->status, "stops", 1);
+            pb_status_count(a->status, "awaiting_proceed", 1);   /* a gauge: 1 while waiting */
+        } else if (!strcmp(e.id, "proceed")) {
+            pb_status_count(a->status, "awaiting_proceed", -1);
+            pb_status_count(a->status, "proceeds_accepted", 1);
+        } else if (!strcmp(e.id, "crossing_occupied")) {
+            pb_status_count(a->status, "holds_crossing_occupied", 1);
+        } else if (!strcmp(e.id, "agents_stale") || !strcmp(e.id, "agents_missing")) {
+            pb_status_count(a->status, !strcmp(e.id, "agents_stale") ? "holds_agents_stale" : "holds_agents_missing", 1);
+            pb_status_set_state(a->status, PORTOBELLO_STATUS_T_STATE_DEGRADED);
+            pb_status_error(a->status, "%s at %s: %s", e.id, e.stop_line, e.detail);
+        } else if (!strcmp(e.id, "crossing_clear") || !strcmp(e.id, "departed")) {
+            pb_status_set_state(a->status, PORTOBELLO_STATUS_T_STATE_OK);
+        }
+        if (!pb_bus_is_replay(a->bus))
+            fprintf(stderr, PROG ": %s %s%s%s\n", e.id, e.stop_line, e.detail[0] ? ": " : "", e.detail);
+    }
+}
+
+static void on_tick(int64_t now, void *user)
+{
+    app_t *a = user;
+    if (a->failed) return;
+    if (a->duration > 0 && !a->end_utime) a->end_utime = now + (int64_t)llround(a->duration * 1e6);
+    lv_pose_t p;
+    pb_err_t err;
+    if (lv_step(a->lv, now, &p, &err)) {
+        a->failed = 1;
+        pb_status_set_state(a->status, PORTOBELLO_STATUS_T_STATE_ERROR);
+        pb_status_error(a->status, "%s", err.msg);
+        pb_bus_stop(a->bus);
+        return;
+    }
+    fill_pose(&p, &a->last_pose);
+    if (PB_PUBLISH(a->bus, "POSE", portobello_pose_t, &a->last_pose, &err))
+        pb_status_error(a->status, "POSE: %s", err.msg);
+    if (a->ground_truth && PB_PUBLISH(a->bus, "GROUND_TRUTH", portobello_pose_t, &a->last_pose, &err))
+        pb_status_error(a->status, "GROUND_TRUTH: %s", err.msg);
+    publish_events(a);
+    if (a->end_utime && now >= a->end_utime) pb_bus_stop(a->bus);
+}
+
+static void on_input(const pb_msg_t *msg, void *user)
+{
+    app_t *a = user;
+    portobello_participant_input_t in;
+    if (portobello_participant_input_t_decode(msg->data, 0, msg->len, &in) < 0) {
+        pb_status_count(a->status, "undecodable_PARTICIPANT_INPUT", 1);
+        pb_status_error(a->status, "PARTICIPANT_INPUT: message of %d bytes does not decode", msg->len);
+        return;
+    }
+    pb_status_input_time(a->status, msg->channel, in.utime);
+    int r = lv_on_input(a->lv, in.utime, in.input, in.value);
+    if (r != LV_INPUT_ACCEPTED) {
+        char name[64];
+        snprintf(name, sizeof name, "inputs_ignored_%s", lv_input_results[r]);
+        pb_status_count(a->status, name, 1);
+        if (r == LV_INPUT_NOT_WAITING || r == LV_INPUT_EARLY)
+            pb_status_error(a->status, "PARTICIPANT_INPUT \"%s\" ignored: %s", in.input,
+                            r == LV_INPUT_EARLY ? "stamped before the car came to rest" : "the car is not waiting for it");
+    }
+    portobello_participant_input_t_decode_cleanup(&in);
+    publish_events(a);
+}
+
+static void on_agents(const pb_msg_t *msg, void *user)
+{
+    app_t *a = user;
+    portobello_agents_t m;
+    if (portobello_agents_t_decode(msg->data, 0, msg->len, &m) < 0) {
+        pb_status_count(a->status, "undecodable_AGENTS", 1);
+        pb_status_error(a->status, "AGENTS: message of %d bytes does not decode", msg->len);
+        return;
+    }
+    pb_status_input_time(a->status, msg->channel, m.utime);
+    lv_agent_t *ag = calloc(m.nagents + 1, sizeof *ag);
+    for (int i = 0; i < m.nagents; i++) {
+        ag[i].id = m.agents[i].id;
+        ag[i].kind = m.agents[i].kind;
+        ag[i].x = m.agents[i].position[0];
+        ag[i].y = m.agents[i].position[1];
+    }
+    pb_err_t err;
+    /* Staleness runs on the bus clock (receive time live, log time in replay). */
+    if (lv_on_agents(a->lv, pb_bus_now(a->bus), ag, m.nagents, &err)) {
+        pb_status_count(a->status, "rejected_agents_nonfinite", 1);
+        pb_status_error(a->status, "AGENTS at %lld: %s", (long long)m.utime, err.msg);
+    } else {
+        snprintf(a->scenario, sizeof a->scenario, "%s", m.scenario);
+    }
+    free(ag);
+    portobello_agents_t_decode_cleanup(&m);
+}
+
+static int run_bus(lab_vehicle_t *lv, const char *url, const char *in, const char *out, int ground_truth, double duration)
+{
+    pb_err_t err;
+    pb_bus_t *bus = in ? pb_bus_create_replay(in, out, &err) : pb_bus_create_live(url, &err);
+    if (!bus) { fprintf(stderr, PROG ": %s\n", err.msg); return 1; }
+    pb_signal_install();
+    app_t a = { .lv = lv, .bus = bus, .ground_truth = ground_truth, .duration = duration };
+    a.status = pb_status_create(bus, PROG, 1000000);
+    pb_status_set_state(a.status, PORTOBELLO_STATUS_T_STATE_OK);
+    pb_bus_subscribe(bus, "PARTICIPANT_INPUT", on_input, &a);
+    pb_bus_subscribe(bus, "AGENTS", on_agents, &a);
+    pb_bus_add_timer(bus, TICK_US, on_tick, &a);
+    if (!in) fprintf(stderr, PROG ": driving on %s; POSE at 100 Hz; Ctrl-C stops\n", pb_lcm_url(url));
+    int rc = pb_bus_run(bus, &err);
+    if (rc) {
+        fprintf(stderr, PROG ": %s\n", err.msg);
+        pb_status_set_state(a.status, PORTOBELLO_STATUS_T_STATE_ERROR);
+        pb_status_error(a.status, "%s", err.msg);
+    } else if (!a.failed) {
+        pb_status_set_state(a.status, PORTOBELLO_STATUS_T_STATE_STOPPING);
+    }
+    pb_status_publish(a.status);
+    pb_status_destroy(a.status);
+    pb_bus_destroy(bus);
+    return rc || a.failed ? 1 : 0;
+}
+
+/* ---------------------------------------------------------------- offline */
+
+typedef struct {
+    pb_log_t *log;
+    uint8_t *buf;
+    int cap;
+    pb_err_t err;
+    int failed;
+} out_t;
+
+#define WRITE_MSG(o, channel, type, msgp) do { \
+        int n_ = type##_encoded_size(msgp); \
+        if (n_ > (o)->cap) { (o)->cap = n_; (o)->buf = realloc((o)->buf, n_); } \
+        type##_encode((o)->buf, 0, n_, msgp); \
+        if (!(o)->failed && pb_log_write((o)->log, (msgp)->utime, channel, (o)->buf, n_, &(o)->err)) (o)->failed = 1; \
+    } while (0)
+
+static int run_offline(lab_vehicle_t *lv, const char *path, int64_t start_utime, double auto_proceed,
+                       double duration, int ground_truth, int quiet)
+{
+    pb_err_t err;
+    out_t o = { 0 };
+    o.log = pb_log_open_write(path, &err);
+    if (!o.log) { fprintf(stderr, PROG ": %s\n", err.msg); return 1; }
+    int64_t end = duration > 0 ? start_utime + (int64_t)llround(duration * 1e6) : INT64_MAX;
+    int64_t press = INT64_MAX;      /* next simulated proceed press */
+    int64_t nposes = 0, nstops = 0;
+    double d_start = 0;
+    portobello_pose_t pm;
+    lv_pose_t p = { 0 };
+    int rc = 0;
+    for (int64_t k = 0;; k++) {
+        int64_t t = start_utime + k * TICK_US;
+        if (t > end) break;
+        if (press <= t) {
+            portobello_participant_input_t in = { .utime = press, .input = "proceed", .device = "auto_proceed", .value = 1 };
+            WRITE_MSG(&o, "PARTICIPANT_INPUT", portobello_participant_input_t, &in);
+            lv_on_input(lv, press, in.input, in.value);
+            press = INT64_MAX;
+        }
+        if (lv_step(lv, t, &p, &err)) { fprintf(stderr, PROG ": %s\n", err.msg); rc = 1; break; }
+        if (k == 0) d_start = p.dist;
+        fill_pose(&p, &pm);
+        WRITE_MSG(&o, "POSE", portobello_pose_t, &pm);
+        if (ground_truth) WRITE_MSG(&o, "GROUND_TRUTH", portobello_pose_t, &pm);
+        nposes++;
+        lv_event_t e;
+        while (lv_next_event(lv, &e)) {
+            portobello_scenario_event_t m;
+            char id[32], agent[64], detail[400];
+            fill_event(&e, &pm, "", &m, id, agent, detail);
+            WRITE_MSG(&o, "LAB_EVENT", portobello_scenario_event_t, &m);
+            if (!strcmp(e.id, "awaiting_proceed")) {
+                press = e.utime + (int64_t)llround(auto_proceed * 1e6);
+                nstops++;
+            }
+        }
+        if (o.failed || p.state == LV_STATE_FINISHED) break;
+    }
+    if (o.failed) { fprintf(stderr, PROG ": %s\n", o.err.msg); rc = 1; }
+    if (pb_log_close(o.log, &err)) { fprintf(stderr, PROG ": %s\n", err.msg); rc = 1; }
+    free(o.buf);
+    if (!rc && !quiet)
+        fprintf(stderr, PROG ": %.2f s, %.1f m, %lld stops, %lld poses, %s -> %s\n",
+                (p.utime - start_utime) * 1e-6, p.dist - d_start, (long long)nstops, (long long)nposes,
+                p.state == LV_STATE_FINISHED ? "finished at rest" : "ended at --duration", path);
+    return rc;
+}
+
+int main(int argc, char **argv)
+{
+    const char *site_dir = PB_SOURCE_DIR "/maps/default", *veh_path = PB_SOURCE_DIR "/vehicles/prius2017.yaml";
+    const char *profile = "normal", *out = NULL, *in = NULL, *url = NULL;
+    double auto_proceed = 2.0, duration = 0;
+    long laps = -1, start_utime = DEFAULT_START_UTIME;
+    int ground_truth = 1, quiet = 0;
+    lv_config_t cfg;
+    lv_config_default(&cfg);
+    double stop_gap = cfg.stop_gap_m;
+    enum { O_SITE = 256, O_VEH, O_PROF, O_OUT, O_AUTO, O_DUR, O_LAPS, O_UTIME, O_START_S, O_DELAY, O_GAP,
+           O_PROCEED, O_MARGIN, O_ATIMEOUT, O_REQ, O_NOGT, O_REPLAY, O_URL, O_QUIET };
+    static const struct option opts[] = {
+        { "site", required_argument, 0, O_SITE }, { "vehicle", required_argument, 0, O_VEH },
+        { "speed-profile", required_argument, 0, O_PROF }, { "out", required_argument, 0, O_OUT },
+        { "auto-proceed", required_argument, 0, O_AUTO }, { "duration", required_argument, 0, O_DUR },
+        { "laps", required_argument, 0, O_LAPS }, { "start-utime", required_argument, 0, O_UTIME },
+        { "start-s", required_argument, 0, O_START_S }, { "depart-delay", required_argument, 0, O_DELAY },
+        { "stop-gap", required_argument, 0, O_GAP }, { "proceed-input", required_argument, 0, O_PROCEED },
+        { "crossing-margin", required_argument, 0, O_MARGIN }, { "agents-timeout", required_argument, 0, O_ATIMEOUT },
+        { "require-agents", no_argument, 0, O_REQ }, { "no-ground-truth", no_argument, 0, O_NOGT },
+        { "replay", required_argument, 0, O_REPLAY }, { "lcm-url", required_argument, 0, O_URL },
+        { "quiet", no_argument, 0, O_QUIET }, { "help", no_argument, 0, 'h' }, { 0, 0, 0, 0 } };
+    int c, auto_given = 0;
+    while ((c = getopt_long(argc, argv, "h", opts, NULL)) != -1) {
+        switch (c) {
+        case O_SITE: site_dir = optarg; break;
+        case O_VEH: veh_path = optarg; break;
+        case O_PROF: profile = optarg; break;
+        case O_OUT: out = optarg; break;
+        case O_AUTO:
+            if (pb_arg_double(PROG, "auto-proceed", optarg, 0, 86400, &auto_proceed)) return 2;
+            auto_given = 1;
+            break;
+        case O_DUR: if (pb_arg_double(PROG, "duration", optarg, 0.01, 7 * 86400, &duration)) return 2; break;
+        case O_LAPS: if (pb_arg_long(PROG, "laps", optarg, 0, 100000, &laps)) return 2; break;
+        case O_UTIME: if (pb_arg_long(PROG, "start-utime", optarg, 0, LONG_MAX / 2, &start_utime)) return 2; break;
+        case O_START_S: if (pb_arg_double(PROG, "start-s", optarg, -1e7, 1e7, &cfg.start_s)) return 2; break;
+        case O_DELAY: if (pb_arg_double(PROG, "depart-delay", optarg, 0, 86400, &cfg.depart_delay_s)) return 2; break;
+        case O_GAP: if (pb_arg_double(PROG, "stop-gap", optarg, -2, 20, &stop_gap)) return 2; break;
+        case O_PROCEED:
+            if (!*optarg || strlen(optarg) >= sizeof cfg.proceed_input) {
+                fprintf(stderr, PROG ": --proceed-input: expected 1 to %zu characters, got '%s'\n", sizeof cfg.proceed_input - 1, optarg);
+                return 2;
+            }
+            snprintf(cfg.proceed_input, sizeof cfg.proceed_input, "%s", optarg);
+            break;
+        case O_MARGIN: if (pb_arg_double(PROG, "crossing-margin", optarg, 0, 100, &cfg.crossing_margin_m)) return 2; break;
+        case O_ATIMEOUT: if (pb_arg_double(PROG, "agents-timeout", optarg, 0.001, 86400, &cfg.agents_timeout_s)) return 2; break;
+        case O_REQ: cfg.require_agents = 1; break;
+        case O_NOGT: ground_truth = 0; break;
+        case O_REPLAY: in = optarg; break;
+        case O_URL: url = optarg; break;
+        case O_QUIET: quiet = 1; break;
+        case 'h': usage(stdout); return 0;
+        default: usage(stderr); return 2;
+        }
+    }
+    if (optind < argc) { fprintf(stderr, PROG ": unexpected argument '%s' (see --help)\n", argv[optind]); return 2; }
+    if (in && !out) { fprintf(stderr, PROG ": --replay needs --out OUT.lcm\n"); return 2; }
+    int offline = out && !in;
+    if (auto_given && !offline) { fprintf(stderr, PROG ": --auto-proceed is for the offline drive (--out LOG without --replay)\n"); return 2; }
+    if (offline && url) { fprintf(stderr, PROG ": --lcm-url has no effect offline (--out without --replay)\n"); return 2; }
+    if (offline && duration > 0 && laps >= 0) { fprintf(stderr, PROG ": --duration and --laps exclude each other offline\n"); return 2; }
+    cfg.profile = -1;
+    for (int i = 0; i < PB_PROFILE_COUNT; i++)
+        if (!strcmp(profile, pb_profile_names[i])) cfg.profile = i;
+    if (cfg.profile < 0) {
+        fprintf(stderr, PROG ": --speed-profile: expected cautious, normal or aggressive, got '%s'\n", profile);
+        return 2;
+    }
+    cfg.stop_gap_m = stop_gap;
+    cfg.laps = laps >= 0 ? (int)laps : offline && duration <= 0 ? 1 : 0;
+
+    pb_err_t err;
+    pb_vehicle_t veh;
+    pb_site_t site;
+    pb_route_t route;
+    if (pb_vehicle_load(veh_path, &veh, &err) || pb_site_load(site_dir, &site, &err)) {
+        fprintf(stderr, PROG ": %s\n", err.msg);
+        return 1;
+    }
+    if (pb_route_load(site.route_path, &route, &err)) { fprintf(stderr, PROG ": %s\n", err.msg); return 1; }
+    cfg.base_to_front_m = veh.length - veh.rear_overhang;
+    lab_vehicle_t *lv = lv_create(&route, &cfg, &err);
+    if (!lv) { fprintf(stderr, PROG ": %s\n", err.msg); pb_route_free(&route); return 1; }
+    int rc = offline ? run_offline(lv, out, start_utime, auto_proceed, duration, ground_truth, quiet)
+                     : run_bus(lv, url, in, out, ground_truth, duration);
+    lv_destroy(lv);
+    pb_route_free(&route);
+    return rc;
+}
