@@ -98,7 +98,7 @@ def main():
     front = veh["length"] - veh["rear_overhang"]
 
     scen = []
-    for f in sorted((SITE / "scenarios").glob("*.yaml")):
+    for f in sorted((SITE / "scenarios").glob("cw*.yaml")):     # the four encounters (not the whole-study file)
         doc = yaml.safe_load(open(f))
         for b in doc.get("behaviours", []):
             if "sync" in b:

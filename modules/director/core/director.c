@@ -456,7 +456,8 @@ static int raw_value(director_t *d, int ti, const sc_cond_t *c, int64_t t)
     switch (c->type) {
     case SC_COND_ENTER: return foot_touches_volume(d, &d->foot, &d->sc->volumes[c->volume]);
     case SC_COND_DISTANCE: {
-        double dist = c->stop_line >= 0 ? stop_distance(d, c->stop_line) : foot_distance(&d->foot, c->point);
+        /* unsigned, like a distance to a point: "below 3" must not hold half a lap past the line */
+        double dist = c->stop_line >= 0 ? fabs(stop_distance(d, c->stop_line)) : foot_distance(&d->foot, c->point);
         return c->has_below ? dist < c->below : dist > c->above;
     }
     case SC_COND_TTA: {
