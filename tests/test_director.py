@@ -432,3 +432,39 @@ def test_help_and_bad_options():
     assert p.returncode == 2 and "--rate" in p.stderr
     p = run([BIN / "director", "--site", SITE], check=False)
     assert p.returncode == 2
+
+
+def test_live_closed_loop_with_the_lab_twin_yields_to_the_crossing_pedestrian():
+    """director and lab_vehicle live on one bus: the twin waits at sl01 until the
+    synchronised pedestrian has crossed (AGENTS), so no virtual collision happens."""
+    if not (BIN / "lab_vehicle").exists():
+        pytest.skip("build/bin/lab_vehicle not built (modules/lab_vehicle)")
+    url = "udpm://239.255.76.67:7772?ttl=0&recv_buf_size=8388608"
+    lc = lcm.LCM(url)
+    evs = []
+    for ch in ("SCENARIO_EVENT", "LAB_EVENT"):
+        lc.subscribe(ch, lambda c, d: evs.append(portobello.scenario_event_t.decode(d)))
+    d = subprocess.Popen([str(BIN / "director"), "--site", str(SITE), "--scenario", "cw01_look_and_cross", "--lcm-url", url],
+                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    v = subprocess.Popen([str(BIN / "lab_vehicle"), "--site", str(SITE), "--lcm-url", url, "--duration", "34"],
+                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        t0, last = time.time(), 0.0
+        while time.time() - t0 < 35 and v.poll() is None:
+            lc.handle_timeout(50)
+            if time.time() - last > 1.0:       # the participant keeps pressing proceed
+                m = portobello.participant_input_t()
+                m.utime, m.input, m.device, m.value = int(time.time() * 1e6), "proceed", "test", 1
+                lc.publish("PARTICIPANT_INPUT", m.encode())
+                last = time.time()
+    finally:
+        v.send_signal(signal.SIGINT)
+        d.send_signal(signal.SIGINT)
+        v.wait(timeout=10)
+        d.wait(timeout=10)
+    seq = [(e.kind, e.event_id, e.agent_id) for e in sorted(evs, key=lambda e: e.utime)]
+    ids = [s[1] for s in seq]
+    assert ("lab", "crossing_occupied", "ped_a_main") in seq, seq
+    assert "crossing_clear" in ids and "car_on_crosswalk" in ids, seq
+    assert ids.index("crossing_clear") < ids.index("car_on_crosswalk")
+    assert not any(k == "collision" for k, _, _ in seq), seq
