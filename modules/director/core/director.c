@@ -62,7 +62,6 @@ struct director {
     /* pending participant inputs */
     int ninputs;
     struct { int64_t utime; char input[32]; } inputs[MAX_INPUTS];
-    int input_hit[MAX_INPUTS];
 };
 
 /* ---------------------------------------------------------------- helpers */
@@ -289,9 +288,7 @@ static double car_arrival(const director_t *d, const sc_behaviour_t *b, int64_t 
 static void sync_speed(director_t *d, int i, const sc_behaviour_t *b, int64_t t)
 {
     agent_rt_t *a = &d->ag[i];
-    double p0[2] = { a->x, a->y };
     double D = 0, W = a->wait_left, x = a->x, y = a->y;
-    (void)p0;
     for (int k = a->wp; k <= b->sync_mark; k++) {
         D += hypot(b->pts[k].xy[0] - x, b->pts[k].xy[1] - y);
         x = b->pts[k].xy[0]; y = b->pts[k].xy[1];
@@ -451,7 +448,7 @@ static double stop_distance(const director_t *d, int stop)
     return route_delta(d->route, d->s_base + d->front, d->sc->stops[stop].s);
 }
 
-static int raw_value(director_t *d, int ti, const sc_cond_t *c, int64_t t)
+static int raw_value(director_t *d, const sc_cond_t *c, int64_t t)
 {
     switch (c->type) {
     case SC_COND_ENTER: return foot_touches_volume(d, &d->foot, &d->sc->volumes[c->volume]);
@@ -474,11 +471,10 @@ static int raw_value(director_t *d, int ti, const sc_cond_t *c, int64_t t)
     }
     case SC_COND_INPUT:
         for (int k = 0; k < d->ninputs; k++)
-            if (d->inputs[k].utime <= t && strcmp(d->inputs[k].input, c->input) == 0) { d->input_hit[k] = 1; return 1; }
+            if (d->inputs[k].utime <= t && strcmp(d->inputs[k].input, c->input) == 0) return 1;
         return 0;
     case SC_COND_TIME: return (t - d->t0) * 1e-6 > c->above;
     }
-    (void)ti;
     return 0;
 }
 
@@ -580,7 +576,7 @@ static void eval_triggers(director_t *d, int64_t t, int jumped, double jump)
         for (int k = 0; k < st->nconds; k++) {
             const sc_cond_t *c = &st->conds[k];
             cond_rt_t *cr = &tr->conds[k];
-            int raw = raw_value(d, ti, c, t);
+            int raw = raw_value(d, c, t);
             if (c->type == SC_COND_ENTER && jumped && !raw && cr->prev == 0 && swept_through(d, &sc->volumes[c->volume], jump)) {
                 char id[SC_ID_LEN * 2 + 8];
                 snprintf(id, sizeof id, "pose_jump:%s", st->id);
@@ -665,7 +661,6 @@ int dir_pose(director_t *d, const dir_pose_t *p, pb_err_t *err)
     d->t_pose = t;
     d->have_pose = 1;
     if (jumped) emit(d, "warning", "pose_jump", -1, "vehicle pose jumped %.2f m in %.3f s", step, (t - d->prev_pose.utime) * 1e-6);
-    memset(d->input_hit, 0, sizeof d->input_hit);
     eval_triggers(d, t, jumped, step);
     /* inputs are consumed at the pose that evaluated them */
     int keep = 0;

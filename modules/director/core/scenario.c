@@ -345,7 +345,8 @@ static int count_conds(const pb_cfg_node_t *when, int *ngroups, pb_err_t *err)
         return pb_node_count(all);
     }
     if (any) {
-        if (pb_node_kind(any) != PB_NODE_LIST || pb_node_count(any) < 1) return fail(err, any, "any: a list of at least one condition or {all: [...]}", 0, 0);
+        if (pb_node_kind(any) != PB_NODE_LIST || pb_node_count(any) < 1 || pb_node_count(any) > 64)
+            return fail(err, any, "any: a list of 1 to 64 conditions or {all: [...]}", 0, 0);
         int total = 0;
         *ngroups = pb_node_count(any);
         for (int i = 0; i < pb_node_count(any); i++) {
