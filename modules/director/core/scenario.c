@@ -34,6 +34,16 @@ static int check_id(const pb_cfg_node_t *n, const char *id, pb_err_t *err)
     return 0;
 }
 
+/* Asset and animation names travel in AGENTS and the state file: one word, id characters. */
+static int check_name(const pb_cfg_node_t *n, const char *key, const char *name, pb_err_t *err)
+{
+    if (!name[0]) return fail(err, at_key(n, key), "%s: empty", key, 0);
+    for (const char *p = name; *p; p++)
+        if (!((*p >= 'a' && *p <= 'z') || (*p >= 'A' && *p <= 'Z') || (*p >= '0' && *p <= '9') || *p == '_' || *p == '-' || *p == '.'))
+            return fail(err, at_key(n, key), "%s '%s': one word of letters, digits, '_', '-' and '.'", key, name);
+    return 0;
+}
+
 static int finite_all(const double *v, int n)
 {
     for (int i = 0; i < n; i++) if (!isfinite(v[i])) return 0;
@@ -136,7 +146,7 @@ static int read_agent(const pb_cfg_node_t *n, sc_agent_t *a, pb_err_t *err)
         F("yaw_deg", PB_CFG_DOUBLE, yaw_deg, 0, 0), F("radius", PB_CFG_DOUBLE, radius, 0, 0),
         F("height", PB_CFG_DOUBLE, height, 0, 0), F("size", PB_CFG_DOUBLES, size, 3, 0), PB_CFG_END };
 #undef F
-    if (pb_cfg_read(n, fields, &f, err) || check_id(n, f.id, err)) return -1;
+    if (pb_cfg_read(n, fields, &f, err) || check_id(n, f.id, err) || check_name(n, "model", f.model, err)) return -1;
     static const char *kinds[] = { "pedestrian", "cyclist", "vehicle", "object" };
     int k = -1;
     for (int i = 0; i < 4; i++) if (!strcmp(f.kind, kinds[i])) k = i;
@@ -205,7 +215,7 @@ static int read_behaviour(const pb_cfg_node_t *n, sc_scenario_t *sc, sc_behaviou
             { "speed", PB_CFG_DOUBLE, offsetof(sc_waypoint_t, speed), 0, 0 },
             { "wait_s", PB_CFG_DOUBLE, offsetof(sc_waypoint_t, wait_s), 0, 0 },
             { "gesture", PB_CFG_STRING, offsetof(sc_waypoint_t, gesture), SC_ID_LEN, 0 }, PB_CFG_END };
-        if (pb_cfg_read(wn, wf, w, err)) return -1;
+        if (pb_cfg_read(wn, wf, w, err) || check_name(wn, "gesture", w->gesture, err)) return -1;
         w->line = pb_node_line(wn);
         if (!finite_all(w->xy, 2)) return fail(err, wn, "waypoint: 'to' is not finite", 0, 0);
         if (!(w->speed > 0.05 && w->speed <= 30)) return fail(err, at_key(wn, "speed"), "waypoint speed: expected 0.05 to 30 m/s", 0, 0);
@@ -437,6 +447,7 @@ static int read_action(const pb_cfg_node_t *n, sc_scenario_t *sc, sc_action_t *a
         if (a->agent < 0) return unknown_id(err, at_key(n, "agent"), "agent", f.agent);
         if (a->type == SC_ACT_ANIMATE) {
             if (!f.animation[0]) return fail(err, n, "animate action: missing required key 'animation'", 0, 0);
+            if (check_name(n, "animation", f.animation, err)) return -1;
             strcpy(a->name, f.animation);
         } else {
             if (!pb_node_get(n, "xy") || !finite_all(f.xy, 2) || !isfinite(f.yaw_deg)) return fail(err, n, "place action: needs a finite xy", 0, 0);
@@ -446,6 +457,7 @@ static int read_action(const pb_cfg_node_t *n, sc_scenario_t *sc, sc_action_t *a
         break;
     case SC_ACT_EMIT:
         if (!f.event[0]) return fail(err, n, "emit action: missing required key 'event'", 0, 0);
+        if (check_name(n, "event", f.event, err)) return -1;
         strcpy(a->name, f.event);
         break;
     }
