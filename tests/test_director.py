@@ -169,7 +169,7 @@ BAD = [
     ("bad edge", "scenario: x\ntriggers:\n  - id: t\n    when: {type: speed, above: 1, edge: up}\n    actions: [{type: emit, event: e}]\n", 4, "edge 'up'"),
     ("sync mark out of range", "scenario: x\nagents:\n  - {id: p, kind: pedestrian, model: m, start: [0, 0]}\nbehaviours:\n  - id: b\n    agent: p\n    path: [{to: [1, 0]}]\n    sync: {mark: 3, stop_line: sl01}\ntriggers:\n  - id: t\n    when: {type: time, above: 1}\n    actions: [{type: start, behaviour: b}]\n", 8, "mark"),
     ("speed out of range", "scenario: x\nagents:\n  - {id: p, kind: pedestrian, model: m, start: [0, 0]}\nbehaviours:\n  - id: b\n    agent: p\n    path: [{to: [1, 0], speed: 90}]\ntriggers:\n  - id: t\n    when: {type: time, above: 1}\n    actions: [{type: start, behaviour: b}]\n", 7, "speed"),
-    ("animation of two words", "scenario: x\nagents:\n  - {id: p, kind: pedestrian, model: m, start: [0, 0]}\ntriggers:\n  - id: t\n    when: {type: time, above: 1}\n    actions:\n      - {type: animate, agent: p, animation: look left}\n", 7, "one word"),
+    ("animation of two words", "scenario: x\nagents:\n  - {id: p, kind: pedestrian, model: m, start: [0, 0]}\ntriggers:\n  - id: t\n    when: {type: time, above: 1}\n    actions:\n      - {type: animate, agent: p, animation: look left}\n", 8, "one word"),
     ("quoted number", "scenario: x\nrender_distance_m: \"45\"\ntriggers:\n  - id: t\n    when: {type: time, above: 1}\n    actions: [{type: emit, event: e}]\n", 2, "render_distance_m"),
 ]
 
