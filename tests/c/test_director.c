@@ -1,0 +1,260 @@
+/* Unit tests of the director core: geometry (libccd), trigger semantics
+ * (AND/OR groups, edges, delay, after, input, standstill), actions and agents,
+ * state recovery, pose jumps, the arrival predictor. No route: scenarios here
+ * use points and volumes only. */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include "../../modules/director/core/director.h"
+#include "../../modules/director/core/geom.h"
+#include "pb_check.h"
+
+static const dir_vehicle_t CAR = { 4.54, 1.76, 1.47, 1.04 };
+
+typedef struct { int n; char kind[64][16]; char id[64][112]; char detail[64][320]; } log_t;
+
+static void on_event(const dir_event_t *ev, void *user)
+{
+    log_t *l = user;
+    if (l->n < 64) {
+        snprintf(l->kind[l->n], 16, "%s", ev->kind);
+        snprintf(l->id[l->n], 112, "%s", ev->event_id);
+        snprintf(l->detail[l->n], 320, "%s", ev->detail);
+        l->n++;
+    }
+}
+
+static int count(const log_t *l, const char *kind, const char *id)
+{
+    int c = 0;
+    for (int i = 0; i < l->n; i++) c += !strcmp(l->kind[i], kind) && (!id || !strcmp(l->id[i], id));
+    return c;
+}
+
+static int load_text(const char *text, sc_scenario_t *sc, pb_err_t *err)
+{
+    char path[] = "/tmp/test_director_XXXXXX.yaml";
+    int fd = mkstemps(path, 5);
+    if (fd < 0) return -1;
+    FILE *f = fdopen(fd, "w");
+    fputs(text, f);
+    fclose(f);
+    int rc = sc_load(path, NULL, sc, err);
+    unlink(path);
+    return rc;
+}
+
+/* Car driving along +x at speed v (base origin at x), 100 Hz from t = 0. */
+static dir_pose_t pose_x(double t, double x, double v)
+{
+    dir_pose_t p = { .utime = 1000000000000LL + (int64_t)llround(t * 1e6), .pos = { x, 0, 0 }, .q = { 1, 0, 0, 0 }, .vel = { v, 0, 0 } };
+    return p;
+}
+
+static void test_geometry(void)
+{
+    geom_shape_t a, b;
+    double c0[3] = { 0, 0, 0.5 }, s1[3] = { 2, 2, 1 };
+    geom_box_yaw(&a, c0, 0, s1);
+    double c1[3] = { 1.9, 0, 0.5 };
+    geom_box_yaw(&b, c1, 0, s1);
+    CHECK(geom_intersect(&a, &b));
+    double c2[3] = { 2.1, 0, 0.5 };
+    geom_box_yaw(&b, c2, 0, s1);
+    CHECK(!geom_intersect(&a, &b));
+    /* rotated 45 degrees: the corner reaches 1 + sqrt(2) */
+    double c3[3] = { 2.3, 0, 0.5 };
+    geom_box_yaw(&b, c3, M_PI / 4, s1);
+    CHECK(geom_intersect(&a, &b));
+    geom_cylinder(&b, 1.45, 0, 0, 0.5, 2);
+    CHECK(geom_intersect(&a, &b));
+    geom_cylinder(&b, 1.55, 0, 0, 0.5, 2);
+    CHECK(!geom_intersect(&a, &b));
+    geom_cylinder(&b, 1.3, 1.3, 0, 0.5, 2);     /* corner (1, 1) is 0.42 m from (1.3, 1.3) */
+    CHECK(geom_intersect(&a, &b));
+    geom_cylinder(&b, 1.4, 1.4, 0, 0.5, 2);     /* 0.57 m */
+    CHECK(!geom_intersect(&a, &b));
+    static const double tri[3][2] = { { 1.2, -1 }, { 3, -1 }, { 3, 1 } };
+    geom_prism(&b, tri, 3, 0, 2);
+    CHECK(!geom_intersect(&a, &b));
+    static const double tri2[3][2] = { { 0.9, -1 }, { 3, -1 }, { 3, 1 } };
+    geom_prism(&b, tri2, 3, 0, 2);
+    CHECK(geom_intersect(&a, &b));
+    geom_prism(&b, tri2, 3, 1.5, 2);            /* above the box */
+    CHECK(!geom_intersect(&a, &b));
+}
+
+/* Footprint entering a box: fires at the first pose whose box touches it. */
+static void test_enter_contact(void)
+{
+    sc_scenario_t sc;
+    pb_err_t err;
+    int rc = load_text("scenario: t\nvolumes:\n  - {id: v, type: box, center: [20, 0], size: [1, 4, 3]}\n"
+                       "triggers:\n  - id: in\n    when: {type: enter, volume: v}\n    actions: [{type: emit, event: e}]\n",
+                       &sc, &err);
+    CHECK(rc == 0);
+    if (rc) { fprintf(stderr, "%s\n", err.msg); return; }
+    log_t l = { 0 };
+    director_t *d = dir_create(&sc, NULL, &CAR, on_event, &l, &err);
+    /* front bumper at x + 3.5; volume starts at 19.5: contact at x = 16.0 */
+    double fired_x = -1;
+    for (int i = 0; i < 400 && fired_x < 0; i++) {
+        double x = i * 0.1;
+        dir_pose_t p = pose_x(i * 0.01, x, 10);
+        dir_pose(d, &p, &err);
+        if (count(&l, "trigger", "in")) fired_x = x;
+    }
+    CHECK_NEAR(fired_x, 16.0, 0.1 + 1e-9);
+    CHECK(strstr(l.detail[0], "entered v") != NULL);
+    CHECK(count(&l, "action", "emit:e") == 1);
+    dir_destroy(d);
+    sc_free(&sc);
+}
+
+static void test_groups_edges_delay(void)
+{
+    sc_scenario_t sc;
+    pb_err_t err;
+    int rc = load_text(
+        "scenario: t\n"
+        "triggers:\n"
+        "  - id: fast_and_late\n    when: {all: [{type: speed, above: 5}, {type: time, above: 2}]}\n    actions: [{type: emit, event: a}]\n"
+        "  - id: slow_or_button\n    when:\n      any:\n        - {type: speed, below: 1}\n        - {type: input, input: proceed}\n    actions: [{type: emit, event: b}]\n"
+        "  - id: rising_fast\n    when: {type: speed, above: 8, edge: rising, delay_s: 0.5}\n    actions: [{type: emit, event: c}]\n"
+        "  - id: after_it\n    when: {type: after, trigger: rising_fast, elapsed_s: 1.0}\n    actions: [{type: emit, event: d}]\n"
+        "  - id: stood\n    when: {type: standstill, duration_s: 1.0}\n    actions: [{type: emit, event: s}]\n",
+        &sc, &err);
+    CHECK(rc == 0);
+    if (rc) { fprintf(stderr, "%s\n", err.msg); return; }
+    log_t l = { 0 };
+    director_t *d = dir_create(&sc, NULL, &CAR, on_event, &l, &err);
+    /* speed profile: 10 m/s (above 8 from the start: no rising edge) for 1 s, 6 m/s to 3 s, 9 m/s to 5 s, 0 after */
+    double x = 0, t_c = -1, t_a = -1, t_d = -1, t_s = -1;
+    for (int i = 0; i <= 800; i++) {
+        double t = i * 0.01, v = t < 1 ? 10 : t < 3 ? 6 : t < 5 ? 9 : 0;
+        x += v * 0.01;
+        dir_pose_t p = pose_x(t, x, v);
+        dir_pose(d, &p, &err);
+        if (t_a < 0 && count(&l, "trigger", "fast_and_late")) t_a = t;
+        if (t_c < 0 && count(&l, "trigger", "rising_fast")) t_c = t;
+        if (t_d < 0 && count(&l, "trigger", "after_it")) t_d = t;
+        if (t_s < 0 && count(&l, "trigger", "stood")) t_s = t;
+        if (i == 100) CHECK(count(&l, "trigger", NULL) == 0);   /* none of them yet */
+    }
+    CHECK_NEAR(t_a, 2.01, 1e-6);        /* first pose with time > 2 while v = 6 > 5 */
+    CHECK_NEAR(t_c, 3.5, 1e-6);         /* the edge at 3.00 s (not at 0: unknown previous), 0.5 s delay */
+    CHECK_NEAR(t_d, 4.5, 1e-6);
+    CHECK_NEAR(t_s, 6.0, 1e-6);         /* at rest from 5.00 s */
+    CHECK(count(&l, "trigger", "slow_or_button") == 1);   /* v < 1 from 5 s */
+    CHECK(count(&l, "trigger", "fast_and_late") == 1);   /* once only */
+    dir_destroy(d);
+    sc_free(&sc);
+
+    /* the input group alone */
+    rc = load_text("scenario: t\ntriggers:\n  - id: b\n    when: {type: input, input: proceed}\n    actions: [{type: emit, event: b}]\n", &sc, &err);
+    CHECK(rc == 0);
+    memset(&l, 0, sizeof l);
+    d = dir_create(&sc, NULL, &CAR, on_event, &l, &err);
+    dir_pose_t p = pose_x(0, 0, 5);
+    dir_pose(d, &p, &err);
+    dir_input(d, p.utime + 5000, "proceed", 0);     /* a release: ignored */
+    dir_input(d, p.utime + 5000, "honk", 1);        /* another input: ignored */
+    p = pose_x(0.01, 0.05, 5);
+    dir_pose(d, &p, &err);
+    CHECK(count(&l, "trigger", "b") == 0);
+    dir_input(d, p.utime + 15000, "proceed", 1);    /* counts at the first pose at or after it */
+    p = pose_x(0.02, 0.1, 5);
+    dir_pose(d, &p, &err);
+    CHECK(count(&l, "trigger", "b") == 0);
+    p = pose_x(0.03, 0.15, 5);
+    dir_pose(d, &p, &err);
+    CHECK(count(&l, "trigger", "b") == 1);
+    /* an older pose is refused */
+    p = pose_x(0.02, 0.2, 5);
+    CHECK(dir_pose(d, &p, &err) == -1);
+    CHECK_CONTAINS(err.msg, "not newer");
+    dir_destroy(d);
+    sc_free(&sc);
+}
+
+static void test_agents_state_and_jump(void)
+{
+    sc_scenario_t sc;
+    pb_err_t err;
+    int rc = load_text(
+        "scenario: t\non_pose_jump: skip\npose_jump_m: 3\n"
+        "volumes:\n  - {id: v, type: cylinder, center: [50, 0], radius: 1}\n  - {id: w, type: box, center: [100, 0], size: [1, 4, 2]}\n"
+        "agents:\n  - {id: p, kind: pedestrian, model: m, start: [10, 5], yaw_deg: 0}\n"
+        "behaviours:\n  - id: walk\n    agent: p\n    path:\n      - {to: [12, 5], speed: 1.0, wait_s: 1.0, gesture: look_left}\n      - {to: [12, 0], speed: 2.0}\n"
+        "triggers:\n  - id: go\n    when: {type: time, above: 0.5}\n    actions: [{type: start, behaviour: walk}]\n"
+        "  - id: jumped_over\n    when: {type: enter, volume: v}\n    actions: [{type: emit, event: j}]\n"
+        "  - id: later\n    when: {type: enter, volume: w}\n    actions: [{type: emit, event: k}]\n",
+        &sc, &err);
+    CHECK(rc == 0);
+    if (rc) { fprintf(stderr, "%s\n", err.msg); return; }
+    log_t l = { 0 };
+    director_t *d = dir_create(&sc, NULL, &CAR, on_event, &l, &err);
+    dir_agent_out_t out[1];
+    double t = 0, x = 0;
+    for (; t < 2.0; t += 0.01) { dir_pose_t p = pose_x(t, x, 0); dir_pose(d, &p, &err); }
+    dir_agents(d, out);
+    CHECK_NEAR(out[0].pos[0], 11.48, 1e-6);     /* started at 0.51 s, 1 m/s, last pose at 1.99 s */
+    CHECK(!strcmp(out[0].animation, "walk"));
+    for (; t < 3.0; t += 0.01) { dir_pose_t p = pose_x(t, x, 0); dir_pose(d, &p, &err); }
+    dir_agents(d, out);
+    CHECK(!strcmp(out[0].animation, "look_left"));
+    CHECK(out[0].in_range);
+    /* state round trip: a second director resumes, the fired trigger does not fire again */
+    char buf[4096];
+    int n = dir_state_write(d, buf, sizeof buf);
+    CHECK(n > 0);
+    log_t l2 = { 0 };
+    director_t *d2 = dir_create(&sc, NULL, &CAR, on_event, &l2, &err);
+    CHECK(dir_state_read(d2, buf, &err) == 0);
+    double t2 = t;
+    for (; t2 < 7.0; t2 += 0.01) { dir_pose_t p = pose_x(t2, x, 0); dir_pose(d2, &p, &err); }
+    CHECK(count(&l2, "trigger", "go") == 0);
+    dir_agents(d2, out);
+    CHECK_NEAR(out[0].pos[0], 12.0, 1e-9);
+    CHECK_NEAR(out[0].pos[1], 0.0, 1e-9);       /* walked on after the restore */
+    /* a jump from x = 40 to x = 60 sweeps the footprint through v: reported, not fired (skip) */
+    dir_pose_t p = pose_x(t2 + 0.01, 40, 10);
+    dir_pose(d2, &p, &err);
+    p = pose_x(t2 + 0.02, 60, 10);
+    dir_pose(d2, &p, &err);
+    CHECK(count(&l2, "warning", "pose_jump") == 2);   /* 0 -> 40 and 40 -> 60 */
+    CHECK(count(&l2, "warning", "pose_jump:jumped_over") == 1);
+    CHECK(count(&l2, "trigger", "jumped_over") == 0);
+    CHECK(count(&l2, "trigger", "later") == 0);
+    /* the wrong scenario's state is refused */
+    CHECK(dir_state_read(d2, "portobello-director-state 1\nscenario other\n", &err) == -1);
+    CHECK_CONTAINS(err.msg, "other");
+    CHECK(dir_state_read(d2, "portobello-director-state 1\nscenario t\nfired nope 1\n", &err) == -1);
+    dir_destroy(d);
+    dir_destroy(d2);
+    sc_free(&sc);
+}
+
+static void test_predictor(void)
+{
+    /* constant deceleration b from v over d = v^2 / 2b takes v / b (+ ease) */
+    CHECK_NEAR(dir_predict_arrival(25.0, 10.0, -2.0, 2.0, 0.0), 5.0, 1e-9);
+    CHECK_NEAR(dir_predict_arrival(25.0, 10.0, -2.0, 2.0, 0.2), 5.2, 1e-9);
+    /* cruising: d / v + v / 2b */
+    CHECK_NEAR(dir_predict_arrival(100.0, 10.0, 0.0, 2.0, 0.0), 12.5, 1e-9);
+    CHECK(isinf(dir_predict_arrival(50.0, 0.0, 0.0, 2.0, 0.2)));
+    CHECK(dir_predict_arrival(0.1, 0.0, 0.0, 2.0, 0.2) == 0);
+}
+
+int main(void)
+{
+    test_geometry();
+    test_enter_contact();
+    test_groups_edges_delay();
+    test_agents_state_and_jump();
+    test_predictor();
+    return pb_check_report("test_director");
+}
