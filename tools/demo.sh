@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
-# make demo: the main job as far as it exists. Simulates a 60 s drive on the
-# default site (LiDAR, IMU, CAN, GNSS, ground truth), replays it through the
-# replay driver and summarises it.
+# make demo: the main job on the default site. Simulates a 60 s drive (LiDAR, IMU,
+# CAN, GNSS, ground truth), replays it through the replay driver and summarises it,
+# then runs the crosswalk study on the lab twin and on the road car and prints the
+# two SCENARIO_EVENT sequences side by side.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 out=${1:-build/demo}
@@ -14,6 +15,9 @@ build/bin/log-summary --replay "$out/drive.lcm" --out "$out/summary.lcm"
 echo
 echo "== 3. what was written"
 ls -l "$out/drive.lcm" "$out/ground_truth.tum" "$out/summary.lcm"
+echo
+echo "== 4. the crosswalk study on both platforms (lab twin and road car, same scenario files)"
+bash tools/demo-study.sh "$out/study"
 echo
 echo "Replay it on the live bus:   .venv/bin/lcm-logplayer --lcm-url='udpm://239.255.76.67:7667?ttl=0&recv_buf_size=8388608' $out/drive.lcm"
 echo "and watch it:                build/bin/log-summary   (Ctrl-C prints the summary)"
