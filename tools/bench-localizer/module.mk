@@ -4,3 +4,8 @@ $(OBJ)/tools/bench-localizer/%.o: CPPFLAGS += -I$(TOP)/modules/localizer/core
 
 .PHONY: bench-localizer bench-localizer-real
 BENCH_TARGETS += bench-localizer
+
+# Unit tests of the registration core (run by make test through tests/test_c_units.py).
+LOCREG_CORE := modules/localizer/core/registration.cpp modules/localizer/core/regmap.cpp modules/localizer/core/deskew.cpp
+$(eval $(call cxx_test,test_registration,tests/c/test_registration.cpp $(LOCREG_CORE)))
+$(OBJ)/tests/c/test_registration.o: CPPFLAGS += -I$(TOP)/modules/localizer/core

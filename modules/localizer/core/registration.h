@@ -47,7 +47,7 @@ typedef struct {
     double step_eps_rad;      /* ... and rotation step < this (default 1e-5) */
     double inlier_m;          /* |point-to-plane| for the inlier fraction (default 0.1) */
     int planar_only;          /* 1 = never use line (pole) cells (default 0) */
-    int coarse_iterations;    /* Gauss-Newton steps on the coarse map level first, 0 = none (default 8);
+    int coarse_iterations;    /* Gauss-Newton steps on the coarse map level first, 0 = none (default 16);
                                * added after the first API commit (appended, defaults unchanged) */
 } pb_reg_config_t;
 
@@ -84,6 +84,13 @@ typedef struct {
     double median_abs_m;         /* median |residual| of matched points */
     double score;                /* mean Geman-McClure similarity (1 = perfect), NDT-like */
     double time_ms;              /* wall time of the call (diagnostic only, not deterministic) */
+    /* Appended after the first API commit. The ground is often half the points
+     * and fixes only z, roll and pitch, so inlier_fraction stays near 0.5 at a
+     * pose 0.5 m off sideways. This one counts only points whose target is
+     * upright (walls, poles: |normal z| < 0.7), i.e. those that see horizontal
+     * errors: inliers among them / all of them (any distance). NaN if none. */
+    double upright_inlier_fraction;
+    int upright_points;          /* its denominator */
 } pb_reg_result_t;
 
 /* Aligns n points (xyz interleaved, base frame, deskewed) to the map starting

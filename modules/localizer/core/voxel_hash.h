@@ -52,7 +52,7 @@ public:
         while (cap < expected * 2) cap <<= 1;
         keys_.assign(cap, kEmpty);
         vals_.assign(cap, -1);
-        mask_ = cap - 1;
+        set_capacity(cap);
         size_ = 0;
     }
 
@@ -83,7 +83,15 @@ public:
     }
 
 private:
-    size_t slot(uint64_t key) const { return (size_t)((key * 0x9E3779B97F4A7C15ull) >> 20) & mask_; }
+    /* Fibonacci hashing: the top bits of the product mix every bit of the key */
+    size_t slot(uint64_t key) const { return (size_t)((key * 0x9E3779B97F4A7C15ull) >> shift_); }
+
+    void set_capacity(size_t cap)
+    {
+        mask_ = cap - 1;
+        shift_ = 64;
+        while (cap > 1) { cap >>= 1; shift_--; }
+    }
 
     void grow()
     {
@@ -91,7 +99,7 @@ private:
         k.swap(keys_); v.swap(vals_);
         keys_.assign(k.size() * 2, kEmpty);
         vals_.assign(k.size() * 2, -1);
-        mask_ = keys_.size() - 1;
+        set_capacity(keys_.size());
         for (size_t j = 0; j < k.size(); j++) {
             if (k[j] == kEmpty) continue;
             size_t i = slot(k[j]);
@@ -103,6 +111,7 @@ private:
     std::vector<uint64_t> keys_;
     std::vector<int32_t> vals_;
     size_t mask_ = 0, size_ = 0;
+    int shift_ = 60;
 };
 
 }  // namespace pb_loc
