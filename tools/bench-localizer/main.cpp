@@ -60,6 +60,7 @@ static void usage(FILE *f)
         "                   map points near them as FILE.map (float32 xyz)\n"
         "  --json FILE      write the per-method results as JSON\n"
         "  --seed N         starts RNG seed (default 1)\n"
+        "  --verbose        one line per scan (ours, tracking start)\n"
         "  --target-points N, --coarse-iterations N   override the registration defaults\n");
 }
 
@@ -126,12 +127,12 @@ int main(int argc, char **argv)
     const char *log_path = nullptr, *map_path = nullptr, *vehicle_path = nullptr, *dump = nullptr, *json = nullptr;
     double voxel = 0.5, g_radius = 0, g_yaw_deg = 0;
     long every = 1, base_every = 10, max_scans = 1000000, seed = 1;
-    bool odd = false, global = false;
+    bool odd = false, global = false, verbose = false;
     static const struct option opts[] = {
         {"log", 1, 0, 'l'}, {"map", 1, 0, 'm'}, {"vehicle", 1, 0, 'v'}, {"voxel", 1, 0, 'x'},
         {"every", 1, 0, 'e'}, {"baseline-every", 1, 0, 'b'}, {"max-scans", 1, 0, 'n'}, {"odd", 0, 0, 'o'},
         {"global", 1, 0, 'g'}, {"dump", 1, 0, 'd'}, {"json", 1, 0, 'j'}, {"seed", 1, 0, 's'},
-        {"target-points", 1, 0, 'T'}, {"coarse-iterations", 1, 0, 'C'}, {"help", 0, 0, 'h'}, {0, 0, 0, 0}};
+        {"verbose", 0, 0, 'V'}, {"target-points", 1, 0, 'T'}, {"coarse-iterations", 1, 0, 'C'}, {"help", 0, 0, 'h'}, {0, 0, 0, 0}};
     long target_points = -1, coarse_iterations = -1;
     int c;
     while ((c = getopt_long(argc, argv, "", opts, nullptr)) != -1) {
@@ -145,6 +146,7 @@ int main(int argc, char **argv)
         case 'n': if (pb_arg_long("bench-localizer", "--max-scans", optarg, 1, 100000000, &max_scans)) return 2; break;
         case 's': if (pb_arg_long("bench-localizer", "--seed", optarg, 0, 1L << 40, &seed)) return 2; break;
         case 'o': odd = true; break;
+        case 'V': verbose = true; break;
         case 'T': if (pb_arg_long("bench-localizer", "--target-points", optarg, 0, 1000000, &target_points)) return 2; break;
         case 'C': if (pb_arg_long("bench-localizer", "--coarse-iterations", optarg, 0, 100, &coarse_iterations)) return 2; break;
         case 'g':
@@ -286,6 +288,12 @@ int main(int argc, char **argv)
             pb_reg_align(map, sc.pts.data(), sc.pts.size() / 3, sc.track_start, &rcfg, &r, &err);
             double ms = now_ms() - c0;
             ours_track.add(ms, r.pose, sc.gt);
+            if (verbose)
+                std::printf("scan %d tracking: err %.3f m, status %d, it %d, pts %d, inl %.3f, upright %.3f (%d), "
+                            "rmse %.3f, cond %.3g, sd x %.3f y %.3f yaw %.3f deg\n", sc.index, ours_track.terr.back(),
+                            r.status, r.iterations, r.points_used, r.inlier_fraction, r.upright_inlier_fraction,
+                            r.upright_points, r.rmse_m, r.condition, std::sqrt(r.covariance(0, 0)),
+                            std::sqrt(r.covariance(1, 1)), std::sqrt(r.covariance(5, 5)) / deg);
             if (sub) ours_track_sub.add(ms, r.pose, sc.gt);
             c0 = now_ms();
             pb_reg_align(map, sc.pts.data(), sc.pts.size() / 3, sc.off_start, &rcfg, &r, &err);

@@ -37,9 +37,8 @@ struct Level {
      * neighbours (a point just across a cell face from its surface); n of them. */
     int lookup_near(double x, double y, double z, const Cell *out[7]) const
     {
-        double fx = std::floor(x * inv_voxel), fy = std::floor(y * inv_voxel), fz = std::floor(z * inv_voxel);
-        if (!(std::fabs(fx) < 1e6 && std::fabs(fy) < 1e6 && std::fabs(fz) < 1e6)) return 0;
-        int64_t ix = (int64_t)fx, iy = (int64_t)fy, iz = (int64_t)fz;
+        int64_t ix, iy, iz;
+        if (!voxel_index_of(x, y, z, inv_voxel, &ix, &iy, &iz)) return 0;
         uint64_t key;
         if (!voxel_key(ix, iy, iz, &key)) return 0;
         int32_t i = index.find(key);
