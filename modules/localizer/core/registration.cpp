@@ -351,23 +351,39 @@ int pb_reg_align(const pb_regmap_t *map, const float *xyz, size_t n, const Eigen
     pb_reg_downsample(xyz, n, cfg, &pts);
     size_t m = pts.size() / 3;
     Params pa = params_of(cfg);
+    /* 2. fine level from the guess: robust point-to-plane Gauss-Newton, gate
+     *    shrinking; enough when tracking */
     Eigen::Isometry3d T = guess;
     bool converged = false;
-    res->iterations = 0;
-    /* 2. coarse level on every 4th point: planes fitted over ~3 coarse cells and a
-     *    wide gate pull in starts a metre or degrees off; from a good prediction
-     *    it stops after a step or two */
-    if (cfg->coarse_iterations > 0 && !map->coarse.cells.empty()) {
+    res->iterations = gauss_newton(map->fine, pts.data(), m, pa, &T, &converged);
+    fill_result(map->fine, pts.data(), m, T, pa, res);
+    /* 3. if that did not settle, or had to move far (a poor guess), retry
+     *    coarse-to-fine: a few steps on the coarse level (every 4th point, planes
+     *    over ~3 coarse cells, wide gate) pull in starts a metre or degrees off;
+     *    keep whichever result has more inliers */
+    Eigen::Isometry3d D = guess.inverse() * T;
+    bool moved_far = D.translation().norm() > pa.min_corr || Eigen::AngleAxisd(D.linear()).angle() > 1.0 * M_PI / 180;
+    if (cfg->coarse_iterations > 0 && !map->coarse.cells.empty() && (!converged || moved_far)) {
         std::vector<float> sub;
         sub.reserve(pts.size() / 4 + 3);
         for (size_t i = 0; i < m; i += 4) sub.insert(sub.end(), &pts[3 * i], &pts[3 * i] + 3);
         Params pc = coarse_params(pa, map->coarse.voxel, cfg->coarse_iterations);
-        res->iterations += gauss_newton(map->coarse, sub.data(), sub.size() / 3, pc, &T, &converged);
+        Eigen::Isometry3d T2 = guess;
+        bool conv2 = false;
+        int it2 = gauss_newton(map->coarse, sub.data(), sub.size() / 3, pc, &T2, &conv2);
+        it2 += gauss_newton(map->fine, pts.data(), m, pa, &T2, &conv2);
+        pb_reg_result_t r2 = *res;
+        fill_result(map->fine, pts.data(), m, T2, pa, &r2);
+        res->iterations += it2;
+        if (r2.inlier_fraction > res->inlier_fraction) {
+            int its = res->iterations;
+            *res = r2;
+            res->iterations = its;
+            T = T2;
+            converged = conv2;
+        }
     }
-    /* 3. fine level: robust point-to-plane Gauss-Newton, gate shrinking */
-    res->iterations += gauss_newton(map->fine, pts.data(), m, pa, &T, &converged);
-    /* 4. scores, covariance and divergence evidence at the result */
-    fill_result(map->fine, pts.data(), m, T, pa, res);
+    /* 4. the result: pose, or the guess if too few points matched */
     if (res->points_matched < 30) {
         res->status = PB_REG_FEW_POINTS;
         res->pose = guess;
@@ -420,9 +436,10 @@ int pb_reg_align_global(const pb_regmap_t *map, const float *xyz, size_t n, cons
                 T.translation() = seed_t + Eigen::Vector3d(dx, dy, 0);
                 bool conv;
                 gauss_newton(coarse, pts.data(), m, pc, &T, &conv);
+                /* ranked by the fine level: coarse planes are blurred on sparse real maps */
                 Accum acc;
-                linearise(coarse, pts.data(), m, T, pc.min_corr, pc.kernel, pc.inlier, pc.planar_only, &acc,
-                          nullptr);
+                linearise(map->fine, pts.data(), m, T, 3 * cfg->inlier_m, cfg->kernel_m, cfg->inlier_m,
+                          cfg->planar_only != 0, &acc, nullptr);
                 hyps.push_back({acc.wsum, T});
             }
         }
