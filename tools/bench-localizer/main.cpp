@@ -288,12 +288,20 @@ int main(int argc, char **argv)
             pb_reg_align(map, sc.pts.data(), sc.pts.size() / 3, sc.track_start, &rcfg, &r, &err);
             double ms = now_ms() - c0;
             ours_track.add(ms, r.pose, sc.gt);
-            if (verbose)
-                std::printf("scan %d tracking: err %.3f m, status %d, it %d, pts %d, inl %.3f, upright %.3f (%d), "
-                            "rmse %.3f, cond %.3g, sd x %.3f y %.3f yaw %.3f deg\n", sc.index, ours_track.terr.back(),
-                            r.status, r.iterations, r.points_used, r.inlier_fraction, r.upright_inlier_fraction,
+            if (verbose) {
+                // the same scores at the reference pose itself: which pose fits the map better?
+                pb_reg_config_t ev = rcfg;
+                ev.max_iterations = 0;
+                ev.coarse_iterations = 0;
+                pb_reg_result_t at_gt;
+                pb_reg_align(map, sc.pts.data(), sc.pts.size() / 3, sc.gt, &ev, &at_gt, &err);
+                std::printf("scan %d tracking: err %.3f m, status %d, it %d, pts %d, inl %.3f (at reference %.3f), "
+                            "upright %.3f (at reference %.3f, %d pts), rmse %.3f, cond %.3g, sd x %.3f y %.3f yaw %.3f deg\n",
+                            sc.index, ours_track.terr.back(), r.status, r.iterations, r.points_used, r.inlier_fraction,
+                            at_gt.inlier_fraction, r.upright_inlier_fraction, at_gt.upright_inlier_fraction,
                             r.upright_points, r.rmse_m, r.condition, std::sqrt(r.covariance(0, 0)),
                             std::sqrt(r.covariance(1, 1)), std::sqrt(r.covariance(5, 5)) / deg);
+            }
             if (sub) ours_track_sub.add(ms, r.pose, sc.gt);
             c0 = now_ms();
             pb_reg_align(map, sc.pts.data(), sc.pts.size() / 3, sc.off_start, &rcfg, &r, &err);

@@ -151,8 +151,10 @@ Eigen::Matrix3d exp_so3(const Eigen::Vector3d &w)
 /* Gauss-Newton on one level from T (updated in place). Returns iterations and
  * whether the step became small. */
 int gauss_newton(const Level &lv, const float *pts, size_t n, const Params &pa, Eigen::Isometry3d *T,
-                 bool *converged)
+                 bool *converged, double abort_far_m = 0, bool *aborted = nullptr)
 {
+    const Eigen::Isometry3d T_start = *T;
+    if (aborted) *aborted = false;
     double gate = pa.max_corr;
     *converged = false;
     int it = 0;
@@ -174,6 +176,13 @@ int gauss_newton(const Level &lv, const float *pts, size_t n, const Params &pa, 
         T->linear() = exp_so3(dx.tail<3>()) * T->linear();
         double step_t = dx.head<3>().norm(), step_r = dx.tail<3>().norm();
         bool small = step_t < pa.eps_m && step_r < pa.eps_rad;
+        /* a guess this poor is better served by the coarse level */
+        if (abort_far_m > 0 && it <= 3 &&
+            ((T->translation() - T_start.translation()).norm() > abort_far_m ||
+             Eigen::AngleAxisd(T_start.linear().transpose() * T->linear()).angle() > M_PI / 180)) {
+            if (aborted) *aborted = true;
+            break;
+        }
         if (small && gate <= pa.min_corr) { *converged = true; break; }
         /* the gate follows the step: shrink towards min_corr as we settle */
         gate = std::max(pa.min_corr, std::min(gate, 0.5 * gate + 5.0 * step_t + 10.0 * step_r));
@@ -354,16 +363,19 @@ int pb_reg_align(const pb_regmap_t *map, const float *xyz, size_t n, const Eigen
     /* 2. fine level from the guess: robust point-to-plane Gauss-Newton, gate
      *    shrinking; enough when tracking */
     Eigen::Isometry3d T = guess;
-    bool converged = false;
-    res->iterations = gauss_newton(map->fine, pts.data(), m, pa, &T, &converged);
+    bool converged = false, aborted = false;
+    bool can_coarse = cfg->coarse_iterations > 0 && !map->coarse.cells.empty();
+    res->iterations = gauss_newton(map->fine, pts.data(), m, pa, &T, &converged, can_coarse ? pa.min_corr : 0,
+                                   &aborted);
     fill_result(map->fine, pts.data(), m, T, pa, res);
     /* 3. if that did not settle, or had to move far (a poor guess), retry
      *    coarse-to-fine: a few steps on the coarse level (every 4th point, planes
      *    over ~3 coarse cells, wide gate) pull in starts a metre or degrees off;
-     *    keep whichever result has more inliers */
+     *    keep whichever result has more inliers (the fine run stops early when
+     *    it moves more than min_corr in its first 3 steps) */
     Eigen::Isometry3d D = guess.inverse() * T;
     bool moved_far = D.translation().norm() > pa.min_corr || Eigen::AngleAxisd(D.linear()).angle() > 1.0 * M_PI / 180;
-    if (cfg->coarse_iterations > 0 && !map->coarse.cells.empty() && (!converged || moved_far)) {
+    if (can_coarse && (aborted || !converged || moved_far)) {
         std::vector<float> sub;
         sub.reserve(pts.size() / 4 + 3);
         for (size_t i = 0; i < m; i += 4) sub.insert(sub.end(), &pts[3 * i], &pts[3 * i] + 3);
