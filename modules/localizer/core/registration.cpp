@@ -367,7 +367,6 @@ int pb_reg_align(const pb_regmap_t *map, const float *xyz, size_t n, const Eigen
     bool can_coarse = cfg->coarse_iterations > 0 && !map->coarse.cells.empty();
     res->iterations = gauss_newton(map->fine, pts.data(), m, pa, &T, &converged, can_coarse ? pa.min_corr : 0,
                                    &aborted);
-    fill_result(map->fine, pts.data(), m, T, pa, res);
     /* 3. if that did not settle, or had to move far (a poor guess), retry
      *    coarse-to-fine: a few steps on the coarse level (every 4th point, planes
      *    over ~3 coarse cells, wide gate) pull in starts a metre or degrees off;
@@ -382,20 +381,21 @@ int pb_reg_align(const pb_regmap_t *map, const float *xyz, size_t n, const Eigen
         Params pc = coarse_params(pa, map->coarse.voxel, cfg->coarse_iterations);
         Eigen::Isometry3d T2 = guess;
         bool conv2 = false;
-        int it2 = gauss_newton(map->coarse, sub.data(), sub.size() / 3, pc, &T2, &conv2);
-        it2 += gauss_newton(map->fine, pts.data(), m, pa, &T2, &conv2);
-        pb_reg_result_t r2 = *res;
-        fill_result(map->fine, pts.data(), m, T2, pa, &r2);
-        res->iterations += it2;
-        if (r2.inlier_fraction > res->inlier_fraction) {
-            int its = res->iterations;
-            *res = r2;
-            res->iterations = its;
+        res->iterations += gauss_newton(map->coarse, sub.data(), sub.size() / 3, pc, &T2, &conv2);
+        res->iterations += gauss_newton(map->fine, pts.data(), m, pa, &T2, &conv2);
+        Accum a1, a2;
+        linearise(map->fine, pts.data(), m, T, pa.min_corr, pa.kernel, pa.inlier, pa.planar_only, &a1, nullptr);
+        linearise(map->fine, pts.data(), m, T2, pa.min_corr, pa.kernel, pa.inlier, pa.planar_only, &a2, nullptr);
+        if (a2.inliers > a1.inliers) {
             T = T2;
             converged = conv2;
         }
     }
-    /* 4. the result: pose, or the guess if too few points matched */
+    /* 4. scores, covariance and divergence evidence at the result */
+    int its = res->iterations;
+    fill_result(map->fine, pts.data(), m, T, pa, res);
+    res->iterations = its;
+    /* the pose, or the guess if too few points matched */
     if (res->points_matched < 30) {
         res->status = PB_REG_FEW_POINTS;
         res->pose = guess;
