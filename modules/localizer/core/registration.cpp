@@ -179,7 +179,8 @@ int gauss_newton(const Level &lv, const float *pts, size_t n, const Params &pa, 
         /* a guess this poor is better served by the coarse level */
         if (abort_far_m > 0 && it <= 3 &&
             ((T->translation() - T_start.translation()).norm() > abort_far_m ||
-             Eigen::AngleAxisd(T_start.linear().transpose() * T->linear()).angle() > M_PI / 180)) {
+             Eigen::AngleAxisd(T_start.linear().transpose() * T->linear()).angle() > M_PI / 180 ||
+             (it == 3 && (step_t > 0.05 * abort_far_m || step_r > 0.05 * M_PI / 180)))) {
             if (aborted) *aborted = true;
             break;
         }
@@ -371,7 +372,8 @@ int pb_reg_align(const pb_regmap_t *map, const float *xyz, size_t n, const Eigen
      *    coarse-to-fine: a few steps on the coarse level (every 4th point, planes
      *    over ~3 coarse cells, wide gate) pull in starts a metre or degrees off;
      *    keep whichever result has more inliers (the fine run stops early when
-     *    it moves more than min_corr in its first 3 steps) */
+     *    it moves more than min_corr or 1 deg in its first 3 steps, or is still
+     *    taking large steps at the 3rd) */
     Eigen::Isometry3d D = guess.inverse() * T;
     bool moved_far = D.translation().norm() > pa.min_corr || Eigen::AngleAxisd(D.linear()).angle() > 1.0 * M_PI / 180;
     if (can_coarse && (aborted || !converged || moved_far)) {
