@@ -1,0 +1,131 @@
+/* registration: aligns one LiDAR sweep to the prior map (pb_regmap_t).
+ *
+ * Frames and units: the scan is given in `base` (metres), already deskewed to
+ * the time the pose refers to (see deskew.h). Poses are map <- base as
+ * Eigen::Isometry3d (the same as pb_transform_t: rotation base -> map, then
+ * translation; convert with pb_reg_to_transform / pb_reg_from_transform).
+ *
+ * Method (chosen on docs/localizer-registration.md's benchmark): the scan is
+ * voxel-downsampled (adaptively, to about cfg.target_points), then Gauss-Newton
+ * on SE(3) minimises a robust (Geman-McClure) point-to-plane distance to the
+ * plane stored in the map cell each point falls into (O(1) hash lookup, no
+ * k-d tree), tightening the correspondence gate as it converges.
+ *
+ * Pipeline of pb_reg_align:
+ *   1. downsample the scan (range filter + adaptive voxel grid);
+ *   2. Gauss-Newton on the fine level from the guess: transform, look up
+ *      cells, accumulate J^T W J and J^T W r, solve the damped 6x6 system,
+ *      update, shrink the gate, stop on a small step;
+ *   3. only if that did not converge or moved more than min_corr_m / 1 deg
+ *      (a poor guess): again from the guess, first a few steps on the coarse
+ *      map level (every 4th point, wide gate), then the fine level; the
+ *      result with the larger inlier_fraction wins;
+ *   4. at the result: covariance, scores and divergence evidence.
+ *
+ * Ownership: a pb_reg_result_t is a plain value. pb_reg_align does not keep any
+ * pointer; it allocates scratch internally per call (no state between calls).
+ * Thread-safe for different results against one (read-only) map. */
+#ifndef PB_LOC_REGISTRATION_H
+#define PB_LOC_REGISTRATION_H
+
+#include <stddef.h>
+#include <vector>
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+#include "pb_err.h"
+#include "pb_math.h"
+#include "regmap.h"
+
+/* max_iterations 0 (and coarse_iterations 0) only evaluates the guess: the
+ * result's scores then describe the given pose (e.g. the filter's), for a
+ * divergence test. */
+typedef struct {
+    double scan_voxel_m;      /* first downsampling cell, metres (default 0.5) */
+    int target_points;        /* adaptive downsampling aims for this many points (default 2000; 0 = fixed voxel) */
+    double min_range_m;       /* drop points nearer than this to base (the car itself) (default 2.0) */
+    double max_range_m;       /* and farther than this (default 80) */
+    int max_iterations;       /* Gauss-Newton iterations (default 12) */
+    double max_corr_m;        /* initial correspondence gate, metres (default 1.0) */
+    double min_corr_m;        /* the gate shrinks to this as steps get small (default 0.3) */
+    double kernel_m;          /* Geman-McClure scale, metres (default 0.1) */
+    double step_eps_m;        /* stop when translation step < this (default 1e-4) ... */
+    double step_eps_rad;      /* ... and rotation step < this (default 1e-5) */
+    double inlier_m;          /* |point-to-plane| for the inlier fraction (default 0.1) */
+    int planar_only;          /* 1 = never use line (pole) cells (default 0) */
+    int coarse_iterations;    /* Gauss-Newton steps on the coarse level in step 3, 0 = never (default 16);
+                               * added after the first API commit (appended, defaults unchanged) */
+} pb_reg_config_t;
+
+void pb_reg_config_default(pb_reg_config_t *cfg);
+
+/* Return codes of pb_reg_align / pb_reg_align_global (result.status). */
+enum {
+    PB_REG_OK = 0,            /* converged (step below eps) */
+    PB_REG_MAX_ITER = 1,      /* ran out of iterations; pose is the last iterate (often fine) */
+    PB_REG_FEW_POINTS = 2,    /* fewer than 30 scan points matched the map: pose = guess */
+    PB_REG_BAD_INPUT = -1     /* n == 0, NULL map, non-finite guess: err set, pose = guess */
+};
+
+typedef struct {
+    int status;                  /* PB_REG_* */
+    Eigen::Isometry3d pose;      /* map <- base at the scan's reference time */
+    /* Covariance of the pose, 6x6, of the error state [dt (m); dtheta (rad)]
+     * with both parts in the map frame: t' = t + dt, R' = Exp(dtheta) R (a
+     * rotation about the vehicle, not about the map origin). For a level car
+     * dtheta is approximately (roll, pitch, yaw) errors.
+     * From the inverse Gauss-Newton Hessian scaled by the residual variance
+     * (sigma^2 = robust mean square residual). Degenerate directions show as
+     * large variances (the Hessian is damped by 1e-6 before inversion). */
+    Eigen::Matrix<double, 6, 6> covariance;
+    Eigen::Matrix<double, 6, 1> hessian_eigenvalues;  /* of J^T W J / matched points, ascending */
+    double condition;            /* largest / smallest eigenvalue of the translation block */
+    int iterations;
+    int points_used;             /* scan points after downsampling */
+    int points_matched;          /* with a map cell within the gate at the result */
+    /* Divergence evidence, all at the result pose: */
+    double overlap;              /* points_matched / points_used (0..1) */
+    double inlier_fraction;      /* share of points_used with |residual| < inlier_m */
+    double rmse_m;               /* RMS residual of matched points */
+    double median_abs_m;         /* median |residual| of matched points */
+    double score;                /* mean Geman-McClure similarity (1 = perfect), NDT-like */
+    double time_ms;              /* wall time of the call (diagnostic only, not deterministic) */
+    /* Appended after the first API commit. The ground is often half the points
+     * and fixes only z, roll and pitch, so inlier_fraction stays near 0.5 at a
+     * pose 0.5 m off sideways. This one counts only points whose target is
+     * upright (walls, poles: |normal z| < 0.7), i.e. those that see horizontal
+     * errors: inliers among them / all of them (any distance). NaN if none. */
+    double upright_inlier_fraction;
+    int upright_points;          /* its denominator */
+} pb_reg_result_t;
+
+/* Aligns n points (xyz interleaved, base frame, deskewed) to the map starting
+ * at guess (map <- base). cfg NULL = defaults. Returns result->status (>= 0 is a
+ * usable pose, see enum); on -1 err is set. */
+int pb_reg_align(const pb_regmap_t *map, const float *xyz, size_t n,
+                 const Eigen::Isometry3d &guess, const pb_reg_config_t *cfg,
+                 pb_reg_result_t *result, pb_err_t *err);
+
+/* Global / coarse alignment for initialisation and relocalisation: the true pose
+ * is within `radius_m` (horizontal) of seed's position and within +-yaw_range_rad
+ * of seed's yaw (roll, pitch and z taken from seed). Tries a grid of hypotheses
+ * (yaw every yaw_step_rad, positions every pos_step_m) on the coarse map level,
+ * refines the best few with pb_reg_align on the fine level, and returns the
+ * best by inlier fraction. result->inlier_fraction and ->overlap tell whether to
+ * trust it. yaw_step_rad / pos_step_m <= 0 choose defaults (5 deg, 1 m).
+ * Cost grows with (2 radius/pos_step)^2 * (2 yaw_range/yaw_step). */
+int pb_reg_align_global(const pb_regmap_t *map, const float *xyz, size_t n,
+                        const Eigen::Isometry3d &seed, double radius_m, double yaw_range_rad,
+                        double pos_step_m, double yaw_step_rad, const pb_reg_config_t *cfg,
+                        pb_reg_result_t *result, pb_err_t *err);
+
+/* Downsamples n points to about cfg->target_points (one centroid per voxel,
+ * voxel grown geometrically from scan_voxel_m), after the range filter; out is
+ * resized. Deterministic. pb_reg_align calls this itself; exposed for benches. */
+void pb_reg_downsample(const float *xyz, size_t n, const pb_reg_config_t *cfg,
+                       std::vector<float> *out);
+
+/* Conversions between the project's C transform and Eigen. */
+Eigen::Isometry3d pb_reg_from_transform(const pb_transform_t *t);
+void pb_reg_to_transform(const Eigen::Isometry3d &T, pb_transform_t *out);
+
+#endif

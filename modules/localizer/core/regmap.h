@@ -1,0 +1,71 @@
+/* regmap: the prior map, prepared once for scan-to-map registration.
+ *
+ * The map's points (map frame, metres) are reduced to a voxel hash of local
+ * planes: each occupied cell of edge `voxel_m` stores the centroid and normal of
+ * the map points in its 3x3x3 neighbourhood (so a scan point finds its plane in
+ * O(1), in its own cell, and the plane is supported by ~3x the cell size). Cells
+ * whose neighbourhood is not planar (e.g. foliage, poles) keep their centroid
+ * and are flagged; registration then uses them as point-to-point targets.
+ * A second, coarser level (`coarse_voxel_m`) serves pb_reg_align_global.
+ *
+ * Loading: whole map, or only the points within `load_radius_m` (horizontal) of
+ * a centre, for maps too large for memory; the caller reloads around the car
+ * when pb_regmap_covers() says the car is leaving the loaded disc.
+ *
+ * Ownership: pb_regmap_load / pb_regmap_from_points return a map the caller
+ * frees with pb_regmap_destroy (NULL is a no-op). No pointer into the inputs is
+ * kept. A loaded map is read-only: several threads may align against it.
+ *
+ * Errors: functions that can fail return NULL or -1 and fill pb_err_t with one
+ * line naming the file (missing file, unreadable/corrupt PCD, no x/y/z fields,
+ * no points within the load radius). */
+#ifndef PB_LOC_REGMAP_H
+#define PB_LOC_REGMAP_H
+
+#include <stddef.h>
+#include <stdint.h>
+#include <Eigen/Core>
+#include "pb_err.h"
+
+typedef struct {
+    double voxel_m;          /* fine cell edge, metres (default 0.5) */
+    double coarse_voxel_m;   /* coarse level for global alignment; 0 = none (default 2.0) */
+    int min_points;          /* map points a neighbourhood needs for a plane (default 6) */
+    double planarity_max;    /* smallest/middle eigenvalue ratio up to which a cell is a plane (default 0.1) */
+    double load_radius_m;    /* 0 = load every point (default); else only within this horizontal radius */
+} pb_regmap_config_t;
+
+/* Fills *cfg with the defaults above. */
+void pb_regmap_config_default(pb_regmap_config_t *cfg);
+
+typedef struct pb_regmap pb_regmap_t;
+
+/* Loads a PCD (ascii or binary, fields x y z [...]) in the map frame.
+ * center_xy: map x, y the load disc is centred on; ignored (may be NULL) when
+ * cfg->load_radius_m == 0. cfg NULL = defaults. */
+pb_regmap_t *pb_regmap_load(const char *pcd_path, const pb_regmap_config_t *cfg,
+                            const double center_xy[2], pb_err_t *err);
+
+/* Builds from n points (xyz interleaved, map frame, metres). load_radius_m is
+ * ignored. Returns NULL (err set) if n == 0 or no cell gets a target. */
+pb_regmap_t *pb_regmap_from_points(const float *xyz, size_t n, const pb_regmap_config_t *cfg,
+                                   pb_err_t *err);
+
+void pb_regmap_destroy(pb_regmap_t *m);
+
+/* Information about the loaded map. */
+typedef struct {
+    int64_t points;          /* map points used */
+    int64_t cells;           /* fine cells with a target */
+    int64_t planar_cells;    /* of which planes */
+    int64_t coarse_cells;
+    double min[3], max[3];   /* extent of the points used, map frame */
+    double center_xy[2], load_radius_m;  /* the load disc (radius 0 = everything) */
+} pb_regmap_info_t;
+void pb_regmap_info(const pb_regmap_t *m, pb_regmap_info_t *info);
+
+/* 1 if the horizontal disc of radius r around (x, y) lies inside the loaded
+ * disc (always 1 for a whole map), else 0: reload around the car when 0. */
+int pb_regmap_covers(const pb_regmap_t *m, double x, double y, double r);
+
+#endif

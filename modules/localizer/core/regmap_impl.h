@@ -1,0 +1,65 @@
+/* regmap_impl: the inside of pb_regmap_t, shared by regmap.cpp and
+ * registration.cpp only (not part of the API). */
+#ifndef PB_LOC_REGMAP_IMPL_H
+#define PB_LOC_REGMAP_IMPL_H
+
+#include <vector>
+#include "regmap.h"
+#include "voxel_hash.h"
+
+namespace pb_loc {
+
+enum { CELL_PLANE = 1, CELL_LINE = 2 };
+
+/* One target around the neighbourhood centroid: a plane (normal u1; residual
+ * u1 . (q - mean)) or a line (u1, u2 orthonormal and perpendicular to it; two
+ * residuals). */
+struct Cell {
+    float mean[3];
+    float u1[3], u2[3];
+    uint8_t kind;    /* CELL_* */
+};
+
+struct Level {
+    double voxel = 0, inv_voxel = 0;
+    VoxelHash index;
+    std::vector<Cell> cells;
+
+    const Cell *lookup(double x, double y, double z) const
+    {
+        uint64_t key;
+        if (!voxel_key_of(x, y, z, inv_voxel, &key)) return nullptr;
+        int32_t i = index.find(key);
+        return i < 0 ? nullptr : &cells[(size_t)i];
+    }
+
+    /* The cell of (x, y, z), or when it holds no target, those of its 6 face
+     * neighbours (a point just across a cell face from its surface); n of them. */
+    int lookup_near(double x, double y, double z, const Cell *out[7]) const
+    {
+        int64_t ix, iy, iz;
+        if (!voxel_index_of(x, y, z, inv_voxel, &ix, &iy, &iz)) return 0;
+        uint64_t key;
+        if (!voxel_key(ix, iy, iz, &key)) return 0;
+        int32_t i = index.find(key);
+        if (i >= 0) { out[0] = &cells[(size_t)i]; return 1; }
+        static const int d[6][3] = {{1, 0, 0}, {-1, 0, 0}, {0, 1, 0}, {0, -1, 0}, {0, 0, 1}, {0, 0, -1}};
+        int n = 0;
+        for (int k = 0; k < 6; k++) {
+            if (!voxel_key(ix + d[k][0], iy + d[k][1], iz + d[k][2], &key)) continue;
+            i = index.find(key);
+            if (i >= 0) out[n++] = &cells[(size_t)i];
+        }
+        return n;
+    }
+};
+
+}  // namespace pb_loc
+
+struct pb_regmap {
+    pb_regmap_config_t cfg;
+    pb_loc::Level fine, coarse;
+    pb_regmap_info_t info;
+};
+
+#endif
