@@ -87,6 +87,17 @@ pb_bus_t *pb_bus_create_replay(const char *in_path, const char *out_path, pb_err
     return bus;
 }
 
+pb_bus_t *pb_bus_create_source(const char *out_path, pb_err_t *err)
+{
+    if (!out_path) { pb_err_set(err, "a source bus needs an output log (--out OUT.lcm)"); return NULL; }
+    pb_log_t *out = pb_log_open_write(out_path, err);
+    if (!out) return NULL;
+    pb_bus_t *bus = calloc(1, sizeof *bus);
+    bus->replay = 1;
+    bus->out = out;
+    return bus;
+}
+
 void pb_bus_destroy(pb_bus_t *bus)
 {
     if (!bus) return;
@@ -208,9 +219,22 @@ static void fire_timers(pb_bus_t *bus, int64_t t)
     }
 }
 
+int pb_bus_advance(pb_bus_t *bus, int64_t t, pb_err_t *err)
+{
+    if (bus->replay) {
+        fire_timers(bus, t);
+        bus->now = t;
+        if (bus->publish_failed) { if (err) *err = bus->publish_err; return -1; }
+    } else {
+        fire_timers(bus, wall_utime());
+    }
+    return 0;
+}
+
 static int run_replay(pb_bus_t *bus, pb_err_t *err)
 {
     pb_event_t ev;
+    if (!bus->in) return pb_err_set(err, "pb_bus_run: this bus has no input log (pb_bus_advance drives it)");
     for (;;) {
         if (bus->stop || pb_signal_stop_requested()) break;
         int r = pb_log_next(bus->in, &ev, err);

@@ -44,6 +44,10 @@ typedef void (*pb_input_hook_fn)(const char *channel, int64_t recv_utime, void *
 
 pb_bus_t *pb_bus_create_live(const char *url, pb_err_t *err);
 pb_bus_t *pb_bus_create_replay(const char *in_path, const char *out_path, pb_err_t *err);
+/* A replay bus whose input is not an LCM log but read by the shell itself (a
+ * candump file, say): publishes go to out_path stamped with the time given to
+ * pb_bus_advance. pb_bus_run is not used with it (it returns -1). */
+pb_bus_t *pb_bus_create_source(const char *out_path, pb_err_t *err);
 void pb_bus_destroy(pb_bus_t *bus);
 
 int pb_bus_is_replay(const pb_bus_t *bus);
@@ -78,6 +82,13 @@ int64_t pb_bus_now(const pb_bus_t *bus);
  * offset; everything published before it is already in OUT). */
 int pb_bus_run(pb_bus_t *bus, pb_err_t *err);
 void pb_bus_stop(pb_bus_t *bus);
+
+/* For shells with an input of their own (pb_bus_create_source, or a device read
+ * beside a live bus): replay fires the timers due at or before t, then makes t
+ * the bus time (call it with each input's time, in order); live fires the timers
+ * due on the wall clock and ignores t. Returns -1 once a replay publish failed
+ * (err set), else 0. */
+int pb_bus_advance(pb_bus_t *bus, int64_t t, pb_err_t *err);
 
 /* Replay only: events read and delivered so far. */
 int64_t pb_bus_events_read(const pb_bus_t *bus);
