@@ -18,7 +18,9 @@
 #include "pb_arg.h"
 #include "pb_bus.h"
 #include "pb_signal.h"
-#include "pb_site.h"
+extern "C" {
+#include "pb_site.h"   /* a C header without its own extern "C" */
+}
 #include "pb_status.h"
 #include "pb_vehicle.h"
 #include "portobello_gnss_fix_t.h"
