@@ -41,13 +41,15 @@ void filter_create(filter_t *f, const filter_config_t &cfg, const Eigen::Isometr
 }
 
 void filter_reset(filter_t *f, int64_t utime, const Eigen::Isometry3d &map_from_base, const Vec3 &v_base_map,
-                  double pos_sigma, double yaw_sigma, double vel_sigma)
+                  const Vec3 &omega_imu, double pos_sigma, double yaw_sigma, double vel_sigma)
 {
     Eigen::Isometry3d mi = map_from_base * f->base_from_imu;
     f->utime = utime;
     f->p = mi.translation();
     f->q = Eigen::Quaterniond(mi.rotation()).normalized();
-    f->v = v_base_map;
+    f->omega = omega_imu;
+    /* v_imu = v_base + omega x lever (both in map) */
+    f->v = v_base_map + (mi.rotation() * omega_imu).cross(map_from_base.rotation() * f->base_from_imu.translation());
     f->P.setZero();
     f->P.block<3, 3>(IP, IP).diagonal() << pos_sigma * pos_sigma, pos_sigma * pos_sigma, pos_sigma * pos_sigma;
     f->P.block<3, 3>(IV, IV).diagonal().setConstant(vel_sigma * vel_sigma);

@@ -61,9 +61,10 @@ struct filter_t {
 /* Sets up a filter with config and extrinsics (not yet initialized). */
 void filter_create(filter_t *f, const filter_config_t &cfg, const Eigen::Isometry3d &base_from_imu);
 
-/* Starts at a base pose with velocity (map) and diagonal sigmas. */
+/* Starts at a base pose with the base origin's velocity (map), the angular rate
+ * (imu frame; moves the velocity to the IMU on its lever arm) and diagonal sigmas. */
 void filter_reset(filter_t *f, int64_t utime, const Eigen::Isometry3d &map_from_base, const Vec3 &v_base_map,
-                  double pos_sigma, double yaw_sigma, double vel_sigma);
+                  const Vec3 &omega_imu, double pos_sigma, double yaw_sigma, double vel_sigma);
 
 /* IMU predict to utime with the sample (imu frame). dt is taken from f->utime; a
  * non-positive dt only records the sample. */

@@ -450,8 +450,8 @@ static bool try_initialize(localizer_t *L, int64_t t_ref, outputs_t *out)
     }
     Eigen::Isometry3d pose = res.pose;
     if (L->pred.initialized && vel.isZero()) vel = filter_base_velocity(&L->pred);
-    filter_reset(&L->kf, t_ref, pose, vel, 0.3, 2 * M_PI / 180, 1.0);
-    L->kf.omega = omega;   /* the rates of the newest IMU sample (or the LiDAR-only estimate) */
+    /* omega: the rates of the newest IMU sample (or the LiDAR-only estimate) */
+    filter_reset(&L->kf, t_ref, pose, vel, omega, 0.3, 2 * M_PI / 180, 1.0);
     while (!L->buf.empty() && L->buf.front().t <= t_ref) L->buf.pop_front();
     rebuild_pred(L);
     L->candidate = true;
