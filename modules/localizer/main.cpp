@@ -167,8 +167,9 @@ static void on_scan(const pb_msg_t *m, void *user)
     if (diag) {
         a->latency_ms.push_back(ms);
         if (a->stats)
-            fprintf(a->stats, "%lld,%.3f,%d,%d,%d,%.4f,%.4f,%.2f,%.2f\n", (long long)d.utime, ms, d.status, d.matched,
-                    d.accepted, d.inlier_fraction, d.score, d.innovation_chi2, d.gnss_residual_m);
+            fprintf(a->stats, "%lld,%.3f,%.3f,%d,%d,%d,%.4f,%.4f,%.4f,%.2f,%.2f\n", (long long)d.utime, ms, d.reg_ms, d.status,
+                    d.matched, d.accepted, d.inlier_fraction, d.structure_inliers, d.score, d.innovation_chi2,
+                    d.gnss_residual_m);
     }
 }
 
@@ -366,7 +367,7 @@ int main(int argc, char **argv)
     if (stats) {
         a.stats = fopen(stats, "w");
         if (!a.stats) { fprintf(stderr, "localizer: %s: cannot write\n", stats); pb_regmap_destroy(map); pb_bus_destroy(bus); return 1; }
-        fprintf(a.stats, "utime,wall_ms,status,matched,accepted,inlier_fraction,score,innovation_chi2,gnss_residual_m\n");
+        fprintf(a.stats, "utime,wall_ms,reg_ms,status,matched,accepted,inlier_fraction,structure_inliers,score,innovation_chi2,gnss_residual_m\n");
     }
     a.L = localizer_create(cfg, ex, map, has_geo && a.use_gnss ? &st.geo : nullptr);
     a.status = pb_status_create(bus, "localizer", 1000000);

@@ -62,7 +62,7 @@ struct localizer {
     Eigen::Isometry3d prev_pose;
     int64_t prev_pose_t = 0;
 
-    std::vector<float> xyz;
+    std::vector<float> xyz, above;
     std::vector<pose_sample_t> samples;
 };
 
@@ -365,6 +365,28 @@ static double candidate_gnss_residual(const localizer_t *L, const Eigen::Isometr
     return std::hypot(L->fix_map.x() - a.x(), L->fix_map.y() - a.y());
 }
 
+/* Structure test (see localizer.h): share of above-ground points on the map's surfaces
+ * at pose, or NaN when the sweep has too little structure to judge. */
+static double structure_inliers(localizer_t *L, const Eigen::Isometry3d &pose)
+{
+    L->above.clear();
+    size_t n = L->xyz.size() / 3, stride = n > 24000 ? n / 12000 : 1;   /* a sample is enough to judge */
+    for (size_t i = 0; i + 2 < L->xyz.size(); i += 3 * stride)
+        if (L->xyz[i + 2] > L->cfg.structure_min_z_m) {
+            L->above.push_back(L->xyz[i]);
+            L->above.push_back(L->xyz[i + 1]);
+            L->above.push_back(L->xyz[i + 2]);
+        }
+    if (L->above.size() / 3 < size_t(L->cfg.structure_min_points)) return NAN;
+    pb_reg_config_t c = L->cfg.reg;
+    c.max_iterations = 0;   /* evaluate at the pose, do not move it */
+    pb_reg_result_t r;
+    pb_err_t err;
+    if (pb_reg_align(L->map, L->above.data(), L->above.size() / 3, pose, &c, &r, &err) < 0) return NAN;
+    if (r.points_used < L->cfg.structure_min_points / 3) return NAN;
+    return r.inlier_fraction;
+}
+
 static Mat6 floored(const localizer_t *L, const Mat6 &c)
 {
     Mat6 m = c;
@@ -442,10 +464,20 @@ static bool try_initialize(localizer_t *L, int64_t t_ref, outputs_t *out)
               100 * res.inlier_fraction, 100 * L->cfg.min_inlier_fraction);
         return false;
     }
+    double si = structure_inliers(L, res.pose);
+    if (std::isfinite(si) && si < L->cfg.min_structure_inliers) {
+        event(out, "init_rejected_structure", "%s: only %.0f%% of the structure above the ground fits the map (need %.0f%%)",
+              how, 100 * si, 100 * L->cfg.min_structure_inliers);
+        if (L->status != ST_LOST && (L->kf.initialized || how[0] == 'i'))
+            set_status(L, ST_LOST, out, "pose does not fit the map's structure");
+        return false;
+    }
     double gr = candidate_gnss_residual(L, res.pose, vel, t_ref);
     if (std::isfinite(gr) && gr > gnss_gate(L, L->fix.h_acc_m)) {
         event(out, "init_rejected_gnss", "%s: candidate is %.1f m from the GNSS fix", how, gr);
-        if (L->status != ST_LOST && L->kf.initialized) set_status(L, ST_LOST, out, "candidate disagrees with GNSS");
+        /* a pose we were given (INITIAL_POSE) or had is contradicted: say so, then relocalise from GNSS */
+        if (L->status != ST_LOST && (L->kf.initialized || how[0] == 'i'))
+            set_status(L, ST_LOST, out, "pose disagrees with GNSS");
         return false;
     }
     Eigen::Isometry3d pose = res.pose;
@@ -477,9 +509,9 @@ void localizer_initial_pose(localizer_t *L, int64_t utime, const Eigen::Isometry
     L->hint_t = utime;
     L->hint_body_vel = L->pred.initialized ? Vec3(filter_base_pose(&L->pred).linear().transpose() * filter_base_velocity(&L->pred))
                                            : Vec3::Zero();
+    /* the current track (if any) keeps running on prediction until the hint is verified,
+     * so a wrong hint can fall back on it */
     L->candidate = false;
-    L->kf.initialized = false;
-    L->pred.initialized = false;
     set_status(L, ST_INITIALIZING, out, "INITIAL_POSE received");
 }
 
@@ -520,7 +552,7 @@ void localizer_scan(localizer_t *L, int64_t utime, const pb_points_t *pts, outpu
     L->lidar_gap_reported = false;
     out->has_scan_diag = true;
     scan_diag_t &d = out->scan_diag;
-    d = scan_diag_t{ t_ref, L->status, false, false, NAN, NAN, NAN, NAN };
+    d = scan_diag_t{ t_ref, L->status, false, false, NAN, NAN, NAN, NAN, NAN, NAN };
 
     if (pts->n < L->cfg.min_scan_points) {
         event(out, pts->n == 0 ? "scan_empty" : "scan_few_points", "LIDAR_SCAN: %d valid points (need %d); not matched",
@@ -539,7 +571,7 @@ void localizer_scan(localizer_t *L, int64_t utime, const pb_points_t *pts, outpu
         return;
     }
 
-    if (!L->kf.initialized || (L->status == ST_LOST && !L->candidate)) {
+    if (!L->kf.initialized || (L->status == ST_LOST && !L->candidate) || L->has_hint) {
         if (L->kf.initialized) {
             L->kf = predict_to(L, t_ref);   /* dead reckoning goes on while lost */
             while (!L->buf.empty() && L->buf.front().t <= t_ref) L->buf.pop_front();
@@ -582,6 +614,7 @@ void localizer_scan(localizer_t *L, int64_t utime, const pb_points_t *pts, outpu
     } else {
         d.matched = true;
         d.inlier_fraction = res.inlier_fraction;
+        d.reg_ms = res.time_ms;
         d.score = res.score;
         Mat6 cov = floored(L, res.covariance);
         Eigen::Matrix<double, 6, 1> r;
@@ -599,8 +632,17 @@ void localizer_scan(localizer_t *L, int64_t utime, const pb_points_t *pts, outpu
             why = whybuf;
             event(out, "match_inconsistent", "%s", whybuf);
         } else {
-            accept = true;
-            filter_update_pose(&prior, res.pose, cov);
+            double si = structure_inliers(L, res.pose);
+            d.structure_inliers = si;
+            if (std::isfinite(si) && si < L->cfg.min_structure_inliers) {
+                snprintf(whybuf, sizeof whybuf, "only %.0f%% of the structure above the ground fits the map (need %.0f%%)",
+                         100 * si, 100 * L->cfg.min_structure_inliers);
+                why = whybuf;
+                event(out, "match_structure_mismatch", "%s", whybuf);
+            } else {
+                accept = true;
+                filter_update_pose(&prior, res.pose, cov);
+            }
         }
         if (accept && L->candidate) {
             double gr = candidate_gnss_residual(L, filter_base_pose(&prior), filter_base_velocity(&prior), t_ref);

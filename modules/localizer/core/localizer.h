@@ -61,6 +61,13 @@ struct localizer_config_t {
     int min_scan_points = 500;             /* fewer valid points: the sweep is not matched */
     /* match acceptance */
     double min_inlier_fraction = 0.25;     /* of downsampled points within reg.inlier_m of a plane */
+    /* structure test: the share of points above the ground (base z > structure_min_z_m)
+     * that lie on the map's surfaces at the pose. The ground fits almost any pose on a
+     * road, so the overall score stays high when the pose is wrong; walls, poles and
+     * parked cars do not. Applied when at least structure_min_points such points exist. */
+    double structure_min_z_m = 0.7;
+    int structure_min_points = 300;
+    double min_structure_inliers = 0.45;
     double gate_chi2 = 40.0;               /* innovation Mahalanobis^2 (6 dof) above which a match is rejected */
     double gate_min_m = 0.5;               /* ... but never reject a step smaller than this */
     double pose_sigma_floor_m = 0.01;      /* floor on the match covariance (sd, m) */
@@ -100,7 +107,7 @@ struct scan_diag_t {
     int64_t utime;
     int status;
     bool matched, accepted;
-    double inlier_fraction, score, innovation_chi2, gnss_residual_m;
+    double inlier_fraction, score, innovation_chi2, gnss_residual_m, structure_inliers, reg_ms;
 };
 
 struct outputs_t {
