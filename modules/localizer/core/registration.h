@@ -12,9 +12,12 @@
  * k-d tree), tightening the correspondence gate as it converges.
  *
  * Pipeline of pb_reg_align:
- *   1. downsample the scan (skipped if the caller passes already reduced points);
- *   2. iterate: transform, look up cells, accumulate J^T W J and J^T W r;
- *   3. solve the 6x6 system (damped), update the pose, stop on a small step;
+ *   1. downsample the scan (range filter + adaptive voxel grid);
+ *   2. a few Gauss-Newton steps on the coarse map level (every 4th point, wide
+ *      gate) to pull in starts that are a metre or a few degrees off;
+ *   3. Gauss-Newton on the fine level: transform, look up cells, accumulate
+ *      J^T W J and J^T W r, solve the damped 6x6 system, update, shrink the
+ *      gate, stop on a small step;
  *   4. at the result: covariance, scores and divergence evidence.
  *
  * Ownership: a pb_reg_result_t is a plain value. pb_reg_align does not keep any
@@ -43,7 +46,9 @@ typedef struct {
     double step_eps_m;        /* stop when translation step < this (default 1e-4) ... */
     double step_eps_rad;      /* ... and rotation step < this (default 1e-5) */
     double inlier_m;          /* |point-to-plane| for the inlier fraction (default 0.1) */
-    int planar_only;          /* 1 = never use non-planar cells (default 0) */
+    int planar_only;          /* 1 = never use line (pole) cells (default 0) */
+    int coarse_iterations;    /* Gauss-Newton steps on the coarse map level first, 0 = none (default 8);
+                               * added after the first API commit (appended, defaults unchanged) */
 } pb_reg_config_t;
 
 void pb_reg_config_default(pb_reg_config_t *cfg);

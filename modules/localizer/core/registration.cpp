@@ -1,0 +1,425 @@
+/* registration: robust point-to-plane Gauss-Newton against the voxel-hashed
+ * map (see registration.h). */
+#pragma GCC diagnostic ignored "-Wmaybe-uninitialized"   /* Eigen 3.4 6x6 eigen solver false positive */
+#include "registration.h"
+#include "regmap_impl.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
+
+using namespace pb_loc;
+
+void pb_reg_config_default(pb_reg_config_t *cfg)
+{
+    cfg->scan_voxel_m = 0.5;
+    cfg->target_points = 2000;
+    cfg->min_range_m = 2.0;
+    cfg->max_range_m = 80.0;
+    cfg->max_iterations = 12;
+    cfg->max_corr_m = 1.0;
+    cfg->min_corr_m = 0.3;
+    cfg->kernel_m = 0.1;
+    cfg->step_eps_m = 1e-4;
+    cfg->step_eps_rad = 1e-5;
+    cfg->inlier_m = 0.1;
+    cfg->planar_only = 0;
+    cfg->coarse_iterations = 8;
+}
+
+Eigen::Isometry3d pb_reg_from_transform(const pb_transform_t *t)
+{
+    Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+    T.linear() = Eigen::Quaterniond(t->q[0], t->q[1], t->q[2], t->q[3]).normalized().toRotationMatrix();
+    T.translation() = Eigen::Vector3d(t->t[0], t->t[1], t->t[2]);
+    return T;
+}
+
+void pb_reg_to_transform(const Eigen::Isometry3d &T, pb_transform_t *out)
+{
+    Eigen::Quaterniond q(T.rotation());
+    q.normalize();
+    if (q.w() < 0) q.coeffs() *= -1;   /* one sign, for byte-identical output */
+    out->q[0] = q.w(); out->q[1] = q.x(); out->q[2] = q.y(); out->q[3] = q.z();
+    for (int a = 0; a < 3; a++) out->t[a] = T.translation()(a);
+}
+
+namespace {
+
+/* One voxel-grid pass: centroid per voxel, in first-seen order (deterministic). */
+void voxel_centroids(const float *xyz, size_t n, double voxel, VoxelHash *hash,
+                     std::vector<float> *sums, std::vector<int> *counts)
+{
+    double inv = 1.0 / voxel;
+    hash->reset(std::min<size_t>(n, 1 << 16));
+    sums->clear();
+    counts->clear();
+    for (size_t i = 0; i < n; i++) {
+        const float *p = xyz + 3 * i;
+        uint64_t key;
+        if (!voxel_key_of(p[0], p[1], p[2], inv, &key)) continue;
+        bool inserted;
+        int32_t k = hash->insert(key, (int32_t)counts->size(), &inserted);
+        if (inserted) { sums->insert(sums->end(), {0.f, 0.f, 0.f}); counts->push_back(0); }
+        float *s = sums->data() + 3 * (size_t)k;
+        s[0] += p[0]; s[1] += p[1]; s[2] += p[2];
+        (*counts)[(size_t)k]++;
+    }
+    for (size_t k = 0; k < counts->size(); k++)
+        for (int a = 0; a < 3; a++) (*sums)[3 * k + a] /= (float)(*counts)[k];
+}
+
+struct Params {
+    int max_iterations;
+    double max_corr, min_corr, kernel, eps_m, eps_rad, inlier;
+    bool planar_only;
+};
+
+struct Accum {
+    Eigen::Matrix<double, 6, 6> H;
+    Eigen::Matrix<double, 6, 1> g;
+    double cost, wsum;
+    int matched, inliers;
+};
+
+/* Linearises every point at pose T: J^T W J and J^T W r over the points whose
+ * cell residual is within gate, with Geman-McClure weights of scale kernel. */
+void linearise(const Level &lv, const float *pts, size_t n, const Eigen::Isometry3d &T, double gate,
+               double kernel, double inlier, bool planar_only, Accum *acc,
+               std::vector<float> *abs_residuals)
+{
+    acc->H.setZero();
+    acc->g.setZero();
+    acc->cost = acc->wsum = 0;
+    acc->matched = acc->inliers = 0;
+    const Eigen::Matrix3d R = T.linear();
+    const Eigen::Vector3d t = T.translation();
+    const double k2 = kernel * kernel, gate2 = gate * gate;
+    for (size_t i = 0; i < n; i++) {
+        Eigen::Vector3d p(pts[3 * i], pts[3 * i + 1], pts[3 * i + 2]);
+        Eigen::Vector3d s = R * p;          /* point about the vehicle, map axes */
+        Eigen::Vector3d q = s + t;
+        const Cell *c = lv.lookup(q(0), q(1), q(2));
+        if (!c || (planar_only && c->kind != CELL_PLANE)) continue;
+        Eigen::Vector3d d(q(0) - c->mean[0], q(1) - c->mean[1], q(2) - c->mean[2]);
+        Eigen::Vector3d u1(c->u1[0], c->u1[1], c->u1[2]);
+        double r1 = u1.dot(d), r2 = 0;
+        Eigen::Vector3d u2;
+        if (c->kind == CELL_LINE) {
+            u2 = Eigen::Vector3d(c->u2[0], c->u2[1], c->u2[2]);
+            r2 = u2.dot(d);
+        }
+        double e2 = r1 * r1 + r2 * r2;
+        if (e2 > gate2) continue;
+        acc->matched++;
+        if (e2 < inlier * inlier) acc->inliers++;
+        if (abs_residuals) abs_residuals->push_back((float)std::sqrt(e2));
+        double w = k2 / (k2 + e2);
+        acc->cost += 1.0 - w;               /* Geman-McClure rho / k^2 */
+        acc->wsum += w;
+        w *= w;                             /* IRLS weight of Geman-McClure */
+        /* d r / d(dt, dθ) for t += dt, R = Exp(dθ) R:  [u, s x u] */
+        Eigen::Matrix<double, 6, 1> j;
+        j.head<3>() = u1;
+        j.tail<3>() = s.cross(u1);
+        acc->H.selfadjointView<Eigen::Upper>().rankUpdate(j, w);
+        acc->g.noalias() += (w * r1) * j;
+        if (c->kind == CELL_LINE) {
+            j.head<3>() = u2;
+            j.tail<3>() = s.cross(u2);
+            acc->H.selfadjointView<Eigen::Upper>().rankUpdate(j, w);
+            acc->g.noalias() += (w * r2) * j;
+        }
+    }
+    acc->H.triangularView<Eigen::StrictlyLower>() = acc->H.transpose();
+}
+
+Eigen::Matrix3d exp_so3(const Eigen::Vector3d &w)
+{
+    double a = w.norm();
+    if (a < 1e-12) return Eigen::Matrix3d::Identity();
+    return Eigen::AngleAxisd(a, w / a).toRotationMatrix();
+}
+
+/* Gauss-Newton on one level from T (updated in place). Returns iterations and
+ * whether the step became small. */
+int gauss_newton(const Level &lv, const float *pts, size_t n, const Params &pa, Eigen::Isometry3d *T,
+                 bool *converged)
+{
+    double gate = pa.max_corr;
+    *converged = false;
+    int it = 0;
+    Accum acc;
+    while (it < pa.max_iterations) {
+        it++;
+        /* the kernel widens with the gate so that far-off starts still pull */
+        double kernel = std::max(pa.kernel, gate / 3.0);
+        linearise(lv, pts, n, *T, gate, kernel, pa.inlier, pa.planar_only, &acc, nullptr);
+        if (acc.matched < 30) break;
+        Eigen::Matrix<double, 6, 6> H = acc.H;
+        /* light damping keeps unobservable directions (e.g. along a straight
+         * corridor) at the guess instead of drifting */
+        double lam = 1e-6 * H.trace() / 6.0 + 1e-9;
+        H.diagonal().array() += lam;
+        Eigen::Matrix<double, 6, 1> dx = H.ldlt().solve(-acc.g);
+        if (!dx.allFinite()) break;
+        T->translation() += dx.head<3>();
+        T->linear() = exp_so3(dx.tail<3>()) * T->linear();
+        double step_t = dx.head<3>().norm(), step_r = dx.tail<3>().norm();
+        bool small = step_t < pa.eps_m && step_r < pa.eps_rad;
+        if (small && gate <= pa.min_corr) { *converged = true; break; }
+        /* the gate follows the step: shrink towards min_corr as we settle */
+        gate = std::max(pa.min_corr, std::min(gate, 0.5 * gate + 5.0 * step_t + 10.0 * step_r));
+    }
+    /* re-orthonormalise the rotation after the updates */
+    Eigen::Quaterniond q(T->linear());
+    T->linear() = q.normalized().toRotationMatrix();
+    return it;
+}
+
+void fill_result(const Level &lv, const float *pts, size_t n, const Eigen::Isometry3d &T, const Params &pa,
+                 pb_reg_result_t *res)
+{
+    std::vector<float> absr;
+    absr.reserve(n);
+    Accum acc;
+    linearise(lv, pts, n, T, pa.min_corr, pa.kernel, pa.inlier, pa.planar_only, &acc, &absr);
+    res->points_used = (int)n;
+    res->points_matched = acc.matched;
+    res->overlap = n ? (double)acc.matched / (double)n : 0;
+    res->inlier_fraction = n ? (double)acc.inliers / (double)n : 0;
+    res->score = n ? acc.wsum / (double)n : 0;
+    double ss = 0;
+    for (float a : absr) ss += (double)a * a;
+    res->rmse_m = absr.empty() ? 0 : std::sqrt(ss / absr.size());
+    if (!absr.empty()) {
+        std::nth_element(absr.begin(), absr.begin() + absr.size() / 2, absr.end());
+        res->median_abs_m = absr[absr.size() / 2];
+    } else {
+        res->median_abs_m = 0;
+    }
+    /* covariance: sigma^2 H^-1, sigma^2 from the robust residuals */
+    Eigen::Matrix<double, 6, 6> H = acc.H;
+    if (acc.matched > 6) {
+        Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 6, 6>> es(H / acc.matched);
+        res->hessian_eigenvalues = es.eigenvalues();
+        Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> et(H.topLeftCorner<3, 3>());
+        double lo = std::max(et.eigenvalues()(0), 1e-12);
+        res->condition = et.eigenvalues()(2) / lo;
+        double sigma2 = std::max(ss / std::max(acc.matched - 6, 1), 1e-6);
+        double wmean = acc.wsum / acc.matched;   /* IRLS weights shrink H; undo their mean */
+        (void)wmean;
+        H.diagonal().array() += 1e-6 * H.trace() / 6.0 + 1e-9;
+        res->covariance = sigma2 * H.inverse();
+    } else {
+        res->hessian_eigenvalues.setZero();
+        res->condition = HUGE_VAL;
+        res->covariance = Eigen::Matrix<double, 6, 6>::Identity() * 1e6;
+    }
+}
+
+Params params_of(const pb_reg_config_t *cfg)
+{
+    Params pa;
+    pa.max_iterations = cfg->max_iterations;
+    pa.max_corr = cfg->max_corr_m;
+    pa.min_corr = std::min(cfg->min_corr_m, cfg->max_corr_m);
+    pa.kernel = cfg->kernel_m;
+    pa.eps_m = cfg->step_eps_m;
+    pa.eps_rad = cfg->step_eps_rad;
+    pa.inlier = cfg->inlier_m;
+    pa.planar_only = cfg->planar_only != 0;
+    return pa;
+}
+
+/* Coarse-level parameters: gate and kernel in proportion to the coarse cell,
+ * stopping at centimetre steps (the fine level finishes). */
+Params coarse_params(const Params &fine, double coarse_voxel, int iterations)
+{
+    Params pc = fine;
+    pc.max_iterations = iterations;
+    pc.max_corr = 2.0 * coarse_voxel;
+    pc.min_corr = coarse_voxel;
+    pc.kernel = 0.25 * coarse_voxel;
+    pc.inlier = 0.25 * coarse_voxel;
+    pc.eps_m = 0.01;
+    pc.eps_rad = 0.1 * M_PI / 180.0;
+    return pc;
+}
+
+void reset_result(pb_reg_result_t *res, const Eigen::Isometry3d &guess)
+{
+    res->status = PB_REG_BAD_INPUT;
+    res->pose = guess;
+    res->covariance = Eigen::Matrix<double, 6, 6>::Identity() * 1e6;
+    res->hessian_eigenvalues.setZero();
+    res->condition = HUGE_VAL;
+    res->iterations = res->points_used = res->points_matched = 0;
+    res->overlap = res->inlier_fraction = res->rmse_m = res->median_abs_m = res->score = 0;
+    res->time_ms = 0;
+}
+
+bool check_inputs(const pb_regmap_t *map, const float *xyz, size_t n, const Eigen::Isometry3d &guess,
+                  pb_err_t *err)
+{
+    if (!map || !xyz) return pb_err_set(err, "registration: no map or no points"), false;
+    if (n == 0) return pb_err_set(err, "registration: empty scan"), false;
+    if (!guess.matrix().allFinite()) return pb_err_set(err, "registration: non-finite initial guess"), false;
+    return true;
+}
+
+double ms_since(std::chrono::steady_clock::time_point t0)
+{
+    return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+}
+
+}  // namespace
+
+void pb_reg_downsample(const float *xyz, size_t n, const pb_reg_config_t *cfg, std::vector<float> *out)
+{
+    /* range filter: drop the car's own body and far, sparse returns */
+    std::vector<float> kept;
+    kept.reserve(3 * n);
+    double r2min = cfg->min_range_m * cfg->min_range_m, r2max = cfg->max_range_m * cfg->max_range_m;
+    for (size_t i = 0; i < n; i++) {
+        const float *p = xyz + 3 * i;
+        double r2 = (double)p[0] * p[0] + (double)p[1] * p[1] + (double)p[2] * p[2];
+        if (r2 >= r2min && r2 <= r2max && std::isfinite(r2)) kept.insert(kept.end(), p, p + 3);
+    }
+    VoxelHash hash;
+    std::vector<int> counts;
+    double voxel = cfg->scan_voxel_m;
+    voxel_centroids(kept.data(), kept.size() / 3, voxel, &hash, out, &counts);
+    /* adaptive: coarsen the already reduced cloud until near the target count */
+    size_t target = cfg->target_points > 0 ? (size_t)cfg->target_points : 0;
+    std::vector<float> tmp;
+    while (target && counts.size() > target + target / 4 && voxel < 8.0) {
+        voxel *= std::sqrt((double)counts.size() / (double)target) > 1.3 ? 1.3 : 1.1;
+        tmp.swap(*out);
+        voxel_centroids(tmp.data(), tmp.size() / 3, voxel, &hash, out, &counts);
+    }
+}
+
+int pb_reg_align(const pb_regmap_t *map, const float *xyz, size_t n, const Eigen::Isometry3d &guess,
+                 const pb_reg_config_t *cfg, pb_reg_result_t *res, pb_err_t *err)
+{
+    auto t0 = std::chrono::steady_clock::now();
+    pb_reg_config_t def;
+    pb_reg_config_default(&def);
+    if (!cfg) cfg = &def;
+    reset_result(res, guess);
+    if (!check_inputs(map, xyz, n, guess, err)) return res->status;
+    /* 1. downsample the scan (range filter + adaptive voxel grid) */
+    std::vector<float> pts;
+    pb_reg_downsample(xyz, n, cfg, &pts);
+    size_t m = pts.size() / 3;
+    Params pa = params_of(cfg);
+    Eigen::Isometry3d T = guess;
+    bool converged = false;
+    res->iterations = 0;
+    /* 2. coarse level on every 4th point: planes fitted over ~3 coarse cells and a
+     *    wide gate pull in starts a metre or degrees off; from a good prediction
+     *    it stops after a step or two */
+    if (cfg->coarse_iterations > 0 && !map->coarse.cells.empty()) {
+        std::vector<float> sub;
+        sub.reserve(pts.size() / 4 + 3);
+        for (size_t i = 0; i < m; i += 4) sub.insert(sub.end(), &pts[3 * i], &pts[3 * i] + 3);
+        Params pc = coarse_params(pa, map->coarse.voxel, cfg->coarse_iterations);
+        res->iterations += gauss_newton(map->coarse, sub.data(), sub.size() / 3, pc, &T, &converged);
+    }
+    /* 3. fine level: robust point-to-plane Gauss-Newton, gate shrinking */
+    res->iterations += gauss_newton(map->fine, pts.data(), m, pa, &T, &converged);
+    /* 4. scores, covariance and divergence evidence at the result */
+    fill_result(map->fine, pts.data(), m, T, pa, res);
+    if (res->points_matched < 30) {
+        res->status = PB_REG_FEW_POINTS;
+        res->pose = guess;
+    } else {
+        res->status = converged ? PB_REG_OK : PB_REG_MAX_ITER;
+        res->pose = T;
+    }
+    res->time_ms = ms_since(t0);
+    return res->status;
+}
+
+int pb_reg_align_global(const pb_regmap_t *map, const float *xyz, size_t n, const Eigen::Isometry3d &seed,
+                        double radius_m, double yaw_range_rad, double pos_step_m, double yaw_step_rad,
+                        const pb_reg_config_t *cfg, pb_reg_result_t *res, pb_err_t *err)
+{
+    auto t0 = std::chrono::steady_clock::now();
+    pb_reg_config_t def;
+    pb_reg_config_default(&def);
+    if (!cfg) cfg = &def;
+    reset_result(res, seed);
+    if (!check_inputs(map, xyz, n, seed, err)) return res->status;
+    if (pos_step_m <= 0) pos_step_m = 1.0;
+    if (yaw_step_rad <= 0) yaw_step_rad = 5.0 * M_PI / 180.0;
+    radius_m = std::max(radius_m, 0.0);
+    yaw_range_rad = std::min(std::max(yaw_range_rad, 0.0), M_PI);
+    const Level &coarse = map->coarse.cells.empty() ? map->fine : map->coarse;
+    /* 1. a small subsample for the many coarse hypotheses */
+    pb_reg_config_t small = *cfg;
+    small.target_points = 400;
+    small.scan_voxel_m = std::max(cfg->scan_voxel_m, 1.0);
+    std::vector<float> pts;
+    pb_reg_downsample(xyz, n, &small, &pts);
+    size_t m = pts.size() / 3;
+    /* 2. hypotheses: a yaw fan at every grid position in the disc, each pulled
+     *    in by a few coarse Gauss-Newton steps with a wide gate, then scored by
+     *    the share of points near a coarse plane */
+    Params pc = coarse_params(params_of(cfg), coarse.voxel, 6);
+    struct Hyp { double score; Eigen::Isometry3d T; };
+    std::vector<Hyp> hyps;
+    const Eigen::Vector3d seed_t = seed.translation();
+    int nr = (int)std::floor(radius_m / pos_step_m + 1e-9);
+    int ny = (int)std::floor(yaw_range_rad / yaw_step_rad + 1e-9);
+    for (int ix = -nr; ix <= nr; ix++)
+        for (int iy = -nr; iy <= nr; iy++) {
+            double dx = ix * pos_step_m, dy = iy * pos_step_m;
+            if (dx * dx + dy * dy > radius_m * radius_m + 1e-9) continue;
+            for (int iw = -ny; iw <= ny; iw++) {
+                Eigen::Isometry3d T = seed;
+                T.linear() = Eigen::AngleAxisd(iw * yaw_step_rad, Eigen::Vector3d::UnitZ()) * seed.linear();
+                T.translation() = seed_t + Eigen::Vector3d(dx, dy, 0);
+                bool conv;
+                gauss_newton(coarse, pts.data(), m, pc, &T, &conv);
+                Accum acc;
+                linearise(coarse, pts.data(), m, T, pc.min_corr, pc.kernel, pc.inlier, pc.planar_only, &acc,
+                          nullptr);
+                hyps.push_back({acc.wsum, T});
+            }
+        }
+    /* 3. refine the best few distinct ones on the fine level; keep the one
+     *    with the most inliers */
+    std::stable_sort(hyps.begin(), hyps.end(), [](const Hyp &a, const Hyp &b) { return a.score > b.score; });
+    std::vector<Eigen::Isometry3d> picked;
+    for (const Hyp &h : hyps) {
+        bool distinct = true;
+        for (const auto &P : picked) {
+            Eigen::Isometry3d D = P.inverse() * h.T;
+            if (D.translation().norm() < 0.5 && Eigen::AngleAxisd(D.linear()).angle() < 0.03) distinct = false;
+        }
+        if (distinct) picked.push_back(h.T);
+        if (picked.size() >= 4) break;
+    }
+    pb_reg_result_t best;
+    bool have = false;
+    int total_it = 0;
+    for (const auto &P : picked) {
+        pb_reg_result_t r;
+        pb_reg_align(map, xyz, n, P, cfg, &r, err);
+        total_it += r.iterations;
+        if (r.status >= 0 && (!have || r.inlier_fraction > best.inlier_fraction)) { best = r; have = true; }
+    }
+    if (!have) {
+        res->status = PB_REG_FEW_POINTS;
+        res->time_ms = ms_since(t0);
+        return res->status;
+    }
+    *res = best;
+    res->iterations = total_it;
+    res->time_ms = ms_since(t0);
+    return res->status;
+}

@@ -1,0 +1,258 @@
+/* regmap: prior map -> voxel hash of local planes (see regmap.h). */
+#include "regmap.h"
+#include "regmap_impl.h"
+
+#include <sys/stat.h>
+#include <cerrno>
+#include <cstring>
+#include <limits>
+#include <new>
+#include <Eigen/Eigenvalues>
+#include <pcl/io/pcd_io.h>
+#include <pcl/point_types.h>
+
+using namespace pb_loc;
+
+void pb_regmap_config_default(pb_regmap_config_t *cfg)
+{
+    cfg->voxel_m = 0.5;
+    cfg->coarse_voxel_m = 2.0;
+    cfg->min_points = 6;
+    cfg->planarity_max = 0.1;
+    cfg->load_radius_m = 0;
+}
+
+namespace {
+
+/* Moments of the points of one voxel, relative to the voxel's corner (keeps
+ * the sums small so float-sized scatter stays exact in double). */
+struct Moments {
+    double n = 0, s[3] = {0, 0, 0}, ss[6] = {0, 0, 0, 0, 0, 0};
+};
+
+/* Builds one level: moments per voxel, then per voxel a target fitted to the
+ * points of its 3x3x3 neighbourhood. Returns the number of targets. */
+size_t build_level(const float *xyz, size_t n, double voxel, const pb_regmap_config_t *cfg, Level *lv)
+{
+    lv->voxel = voxel;
+    lv->inv_voxel = 1.0 / voxel;
+    /* 1. moments per occupied voxel */
+    VoxelHash moment_index(n / 8 + 16);
+    std::vector<Moments> moments;
+    std::vector<uint64_t> keys;
+    for (size_t i = 0; i < n; i++) {
+        const float *p = xyz + 3 * i;
+        uint64_t key;
+        if (!voxel_key_of(p[0], p[1], p[2], lv->inv_voxel, &key)) continue;
+        bool inserted;
+        int32_t k = moment_index.insert(key, (int32_t)moments.size(), &inserted);
+        if (inserted) { moments.emplace_back(); keys.push_back(key); }
+        int64_t ix, iy, iz;
+        voxel_unkey(key, &ix, &iy, &iz);
+        double d[3] = {p[0] - ix * voxel, p[1] - iy * voxel, p[2] - iz * voxel};
+        Moments &m = moments[(size_t)k];
+        m.n += 1;
+        for (int a = 0; a < 3; a++) m.s[a] += d[a];
+        m.ss[0] += d[0] * d[0]; m.ss[1] += d[0] * d[1]; m.ss[2] += d[0] * d[2];
+        m.ss[3] += d[1] * d[1]; m.ss[4] += d[1] * d[2]; m.ss[5] += d[2] * d[2];
+    }
+    /* 2. per voxel: gather the neighbourhood's moments (shifted to this voxel's
+     *    corner), fit mean and covariance, classify by eigenvalues */
+    lv->index.reset(keys.size());
+    lv->cells.clear();
+    lv->cells.reserve(keys.size());
+    for (size_t c = 0; c < keys.size(); c++) {
+        int64_t ix, iy, iz;
+        voxel_unkey(keys[c], &ix, &iy, &iz);
+        double N = 0, S[3] = {0, 0, 0}, SS[6] = {0, 0, 0, 0, 0, 0};
+        for (int dx = -1; dx <= 1; dx++)
+            for (int dy = -1; dy <= 1; dy++)
+                for (int dz = -1; dz <= 1; dz++) {
+                    uint64_t key;
+                    if (!voxel_key(ix + dx, iy + dy, iz + dz, &key)) continue;
+                    int32_t k = moment_index.find(key);
+                    if (k < 0) continue;
+                    const Moments &m = moments[(size_t)k];
+                    /* shift sums from the neighbour's corner by o = (dx,dy,dz)*voxel */
+                    double o[3] = {dx * voxel, dy * voxel, dz * voxel};
+                    double s[3] = {m.s[0] + m.n * o[0], m.s[1] + m.n * o[1], m.s[2] + m.n * o[2]};
+                    SS[0] += m.ss[0] + 2 * o[0] * m.s[0] + m.n * o[0] * o[0];
+                    SS[1] += m.ss[1] + o[0] * m.s[1] + o[1] * m.s[0] + m.n * o[0] * o[1];
+                    SS[2] += m.ss[2] + o[0] * m.s[2] + o[2] * m.s[0] + m.n * o[0] * o[2];
+                    SS[3] += m.ss[3] + 2 * o[1] * m.s[1] + m.n * o[1] * o[1];
+                    SS[4] += m.ss[4] + o[1] * m.s[2] + o[2] * m.s[1] + m.n * o[1] * o[2];
+                    SS[5] += m.ss[5] + 2 * o[2] * m.s[2] + m.n * o[2] * o[2];
+                    N += m.n;
+                    for (int a = 0; a < 3; a++) S[a] += s[a];
+                }
+        if (N < cfg->min_points) continue;
+        Eigen::Vector3d mu(S[0] / N, S[1] / N, S[2] / N);
+        Eigen::Matrix3d C;
+        C << SS[0] / N, SS[1] / N, SS[2] / N, SS[1] / N, SS[3] / N, SS[4] / N, SS[2] / N, SS[4] / N, SS[5] / N;
+        C -= mu * mu.transpose();
+        Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
+        es.computeDirect(C);
+        Eigen::Vector3d ev = es.eigenvalues();   /* ascending */
+        Eigen::Vector3d u1 = es.eigenvectors().col(0), u2 = es.eigenvectors().col(1);
+        uint8_t kind;
+        if (ev(0) <= cfg->planarity_max * ev(1)) {
+            kind = CELL_PLANE;
+            u2.setZero();
+        } else if (ev(1) <= cfg->planarity_max * ev(2)) {
+            kind = CELL_LINE;    /* u1, u2 span the plane perpendicular to the line */
+        } else {
+            continue;   /* scattered (foliage): no reliable target */
+        }
+        Cell cell;
+        cell.mean[0] = (float)(mu(0) + ix * voxel);
+        cell.mean[1] = (float)(mu(1) + iy * voxel);
+        cell.mean[2] = (float)(mu(2) + iz * voxel);
+        for (int a = 0; a < 3; a++) { cell.u1[a] = (float)u1(a); cell.u2[a] = (float)u2(a); }
+        cell.kind = kind;
+        bool inserted;
+        lv->index.insert(keys[c], (int32_t)lv->cells.size(), &inserted);
+        lv->cells.push_back(cell);
+    }
+    return lv->cells.size();
+}
+
+pb_regmap_t *build(const float *xyz, size_t n, const pb_regmap_config_t *cfg, const char *what,
+                   pb_err_t *err)
+{
+    if (!(cfg->voxel_m > 0.01) || cfg->coarse_voxel_m < 0 || cfg->min_points < 3 ||
+        !(cfg->planarity_max > 0 && cfg->planarity_max < 1)) {
+        pb_err_set(err, "%s: bad regmap config (voxel %g, coarse %g, min_points %d, planarity %g)",
+                   what, cfg->voxel_m, cfg->coarse_voxel_m, cfg->min_points, cfg->planarity_max);
+        return nullptr;
+    }
+    if (n == 0) {
+        pb_err_set(err, "%s: no map points", what);
+        return nullptr;
+    }
+    pb_regmap_t *m = new (std::nothrow) pb_regmap_t();
+    if (!m) { pb_err_set(err, "%s: out of memory", what); return nullptr; }
+    m->cfg = *cfg;
+    pb_regmap_info_t &info = m->info;
+    info.points = (int64_t)n;
+    for (int a = 0; a < 3; a++) { info.min[a] = HUGE_VAL; info.max[a] = -HUGE_VAL; }
+    for (size_t i = 0; i < n; i++)
+        for (int a = 0; a < 3; a++) {
+            double v = xyz[3 * i + a];
+            if (v < info.min[a]) info.min[a] = v;
+            if (v > info.max[a]) info.max[a] = v;
+        }
+    try {
+        info.cells = (int64_t)build_level(xyz, n, cfg->voxel_m, cfg, &m->fine);
+        if (cfg->coarse_voxel_m > 0)
+            info.coarse_cells = (int64_t)build_level(xyz, n, cfg->coarse_voxel_m, cfg, &m->coarse);
+    } catch (const std::bad_alloc &) {
+        delete m;
+        pb_err_set(err, "%s: out of memory preparing %zu map points", what, n);
+        return nullptr;
+    }
+    for (const Cell &c : m->fine.cells) info.planar_cells += c.kind == CELL_PLANE;
+    if (info.cells == 0) {
+        delete m;
+        pb_err_set(err, "%s: no voxel of %g m holds %d points with a plane or line", what,
+                   cfg->voxel_m, cfg->min_points);
+        return nullptr;
+    }
+    return m;
+}
+
+}  // namespace
+
+pb_regmap_t *pb_regmap_from_points(const float *xyz, size_t n, const pb_regmap_config_t *cfg,
+                                   pb_err_t *err)
+{
+    pb_regmap_config_t def;
+    pb_regmap_config_default(&def);
+    if (!cfg) cfg = &def;
+    return build(xyz, n, cfg, "points", err);
+}
+
+pb_regmap_t *pb_regmap_load(const char *pcd_path, const pb_regmap_config_t *cfg,
+                            const double center_xy[2], pb_err_t *err)
+{
+    pb_regmap_config_t def;
+    pb_regmap_config_default(&def);
+    if (!cfg) cfg = &def;
+    struct stat st;
+    if (stat(pcd_path, &st) != 0) {
+        pb_err_set(err, "%s: %s", pcd_path, strerror(errno));
+        return nullptr;
+    }
+    if (!S_ISREG(st.st_mode)) {
+        pb_err_set(err, "%s: not a regular file", pcd_path);
+        return nullptr;
+    }
+    if (cfg->load_radius_m > 0 && !center_xy) {
+        pb_err_set(err, "%s: load radius %g m needs a centre", pcd_path, cfg->load_radius_m);
+        return nullptr;
+    }
+    /* PCL parses the header and every data form (ascii, binary, binary_compressed) */
+    pcl::PCLPointCloud2 blob;
+    int rc;
+    try {
+        pcl::PCDReader reader;
+        rc = reader.read(pcd_path, blob);
+    } catch (const std::exception &e) {
+        pb_err_set(err, "%s: corrupt PCD: %s", pcd_path, e.what());
+        return nullptr;
+    }
+    if (rc < 0) {
+        pb_err_set(err, "%s: corrupt or unreadable PCD (PCL reader code %d)", pcd_path, rc);
+        return nullptr;
+    }
+    bool has[3] = {false, false, false};
+    for (const auto &f : blob.fields)
+        for (int a = 0; a < 3; a++)
+            if (f.name == std::string(1, (char)('x' + a))) has[a] = true;
+    if (!has[0] || !has[1] || !has[2]) {
+        pb_err_set(err, "%s: PCD has no x, y, z fields", pcd_path);
+        return nullptr;
+    }
+    pcl::PointCloud<pcl::PointXYZ> cloud;
+    pcl::fromPCLPointCloud2(blob, cloud);
+    blob = pcl::PCLPointCloud2();
+    /* keep finite points, within the load disc if one is asked for */
+    std::vector<float> xyz;
+    xyz.reserve(cloud.size() * 3);
+    double r2 = cfg->load_radius_m * cfg->load_radius_m;
+    for (const auto &p : cloud.points) {
+        if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z)) continue;
+        if (r2 > 0) {
+            double dx = p.x - center_xy[0], dy = p.y - center_xy[1];
+            if (dx * dx + dy * dy > r2) continue;
+        }
+        xyz.push_back(p.x); xyz.push_back(p.y); xyz.push_back(p.z);
+    }
+    size_t total = cloud.size();
+    cloud = pcl::PointCloud<pcl::PointXYZ>();
+    if (xyz.empty()) {
+        if (r2 > 0)
+            pb_err_set(err, "%s: none of %zu points within %g m of (%.1f, %.1f)", pcd_path, total,
+                       cfg->load_radius_m, center_xy[0], center_xy[1]);
+        else
+            pb_err_set(err, "%s: no finite points", pcd_path);
+        return nullptr;
+    }
+    pb_regmap_t *m = build(xyz.data(), xyz.size() / 3, cfg, pcd_path, err);
+    if (m && r2 > 0) {
+        m->info.center_xy[0] = center_xy[0];
+        m->info.center_xy[1] = center_xy[1];
+        m->info.load_radius_m = cfg->load_radius_m;
+    }
+    return m;
+}
+
+void pb_regmap_destroy(pb_regmap_t *m) { delete m; }
+
+void pb_regmap_info(const pb_regmap_t *m, pb_regmap_info_t *info) { *info = m->info; }
+
+int pb_regmap_covers(const pb_regmap_t *m, double x, double y, double r)
+{
+    if (m->info.load_radius_m <= 0) return 1;
+    double dx = x - m->info.center_xy[0], dy = y - m->info.center_xy[1];
+    return std::sqrt(dx * dx + dy * dy) + r <= m->info.load_radius_m ? 1 : 0;
+}

@@ -1,0 +1,109 @@
+/* voxel_hash: open-addressing hash from an integer voxel (ix, iy, iz) to an
+ * int32 index, for the map cells and the scan downsampling. Internal to the
+ * localizer core. Keys pack 21 bits per axis, so |i| < 2^20 voxels per axis. */
+#ifndef PB_LOC_VOXEL_HASH_H
+#define PB_LOC_VOXEL_HASH_H
+
+#include <cmath>
+#include <cstdint>
+#include <vector>
+
+namespace pb_loc {
+
+static constexpr int64_t kVoxelLimit = (int64_t)1 << 20;
+
+/* Packs a voxel index; returns false when it is outside the key range. */
+inline bool voxel_key(int64_t ix, int64_t iy, int64_t iz, uint64_t *key)
+{
+    if (ix <= -kVoxelLimit || ix >= kVoxelLimit || iy <= -kVoxelLimit || iy >= kVoxelLimit ||
+        iz <= -kVoxelLimit || iz >= kVoxelLimit)
+        return false;
+    *key = ((uint64_t)(ix + kVoxelLimit) << 42) | ((uint64_t)(iy + kVoxelLimit) << 21) |
+           (uint64_t)(iz + kVoxelLimit);
+    return true;
+}
+
+inline bool voxel_key_of(double x, double y, double z, double inv_voxel, uint64_t *key)
+{
+    double fx = std::floor(x * inv_voxel), fy = std::floor(y * inv_voxel), fz = std::floor(z * inv_voxel);
+    if (!(std::fabs(fx) < 1e6 && std::fabs(fy) < 1e6 && std::fabs(fz) < 1e6))   /* also NaN */
+        return false;
+    return voxel_key((int64_t)fx, (int64_t)fy, (int64_t)fz, key);
+}
+
+inline void voxel_unkey(uint64_t key, int64_t *ix, int64_t *iy, int64_t *iz)
+{
+    const uint64_t m = ((uint64_t)1 << 21) - 1;
+    *ix = (int64_t)((key >> 42) & m) - kVoxelLimit;
+    *iy = (int64_t)((key >> 21) & m) - kVoxelLimit;
+    *iz = (int64_t)(key & m) - kVoxelLimit;
+}
+
+class VoxelHash {
+public:
+    static constexpr uint64_t kEmpty = ~(uint64_t)0;
+
+    explicit VoxelHash(size_t expected = 16) { reset(expected); }
+
+    /* Empties the table, sized for about `expected` keys without growing. */
+    void reset(size_t expected)
+    {
+        size_t cap = 16;
+        while (cap < expected * 2) cap <<= 1;
+        keys_.assign(cap, kEmpty);
+        vals_.assign(cap, -1);
+        mask_ = cap - 1;
+        size_ = 0;
+    }
+
+    size_t size() const { return size_; }
+
+    /* Index stored for key, or -1. */
+    int32_t find(uint64_t key) const
+    {
+        for (size_t i = slot(key);; i = (i + 1) & mask_) {
+            if (keys_[i] == key) return vals_[i];
+            if (keys_[i] == kEmpty) return -1;
+        }
+    }
+
+    /* Returns the index stored for key; inserts value_if_new when absent
+     * (*inserted tells which). */
+    int32_t insert(uint64_t key, int32_t value_if_new, bool *inserted)
+    {
+        if ((size_ + 1) * 2 > keys_.size()) grow();
+        for (size_t i = slot(key);; i = (i + 1) & mask_) {
+            if (keys_[i] == key) { *inserted = false; return vals_[i]; }
+            if (keys_[i] == kEmpty) {
+                keys_[i] = key; vals_[i] = value_if_new; size_++;
+                *inserted = true;
+                return value_if_new;
+            }
+        }
+    }
+
+private:
+    size_t slot(uint64_t key) const { return (size_t)((key * 0x9E3779B97F4A7C15ull) >> 20) & mask_; }
+
+    void grow()
+    {
+        std::vector<uint64_t> k; std::vector<int32_t> v;
+        k.swap(keys_); v.swap(vals_);
+        keys_.assign(k.size() * 2, kEmpty);
+        vals_.assign(k.size() * 2, -1);
+        mask_ = keys_.size() - 1;
+        for (size_t j = 0; j < k.size(); j++) {
+            if (k[j] == kEmpty) continue;
+            size_t i = slot(k[j]);
+            while (keys_[i] != kEmpty) i = (i + 1) & mask_;
+            keys_[i] = k[j]; vals_[i] = v[j];
+        }
+    }
+
+    std::vector<uint64_t> keys_;
+    std::vector<int32_t> vals_;
+    size_t mask_ = 0, size_ = 0;
+};
+
+}  // namespace pb_loc
+#endif

@@ -1,0 +1,406 @@
+// bench-localizer: time and accuracy of the localizer's scan-to-map registration
+// (modules/localizer/core) against PCL's NDT on the same scans and starts.
+// small_gicp GICP / VGICP run in bench.py on the scans this program dumps.
+//
+// Input: an LCM log with LIDAR_SCAN and GROUND_TRUTH (simdrive, or import-scans of
+// real scans), the site's prior map, the vehicle file (base <- lidar).
+// Each scan is moved to `base`, deskewed with the ground truth's velocities, and
+// aligned from starts made from the ground truth at the scan time (seeded RNG):
+//   tracking: N(0, 5 cm) in x, y, N(0, 2 cm) z, N(0, 0.2 deg) yaw, N(0, 0.05 deg) roll/pitch
+//   offset:   1 m in a random horizontal direction and +-3 deg yaw
+//   global:   (--global R,DEG) uniform within R metres and +-DEG yaw, aligned with
+//             pb_reg_align_global (the relocalisation path)
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <getopt.h>
+#include <random>
+#include <time.h>
+#include <string>
+#include <vector>
+
+#include <Eigen/Geometry>
+#include <pcl/io/pcd_io.h>
+#include <pcl/point_types.h>
+#include <pcl/registration/ndt.h>
+
+#include "deskew.h"
+#include "pb_arg.h"
+#include "pb_err.h"
+#include "pb_log.h"
+#include "pb_map_build.h"
+#include "pb_scan.h"
+#include "pb_vehicle.h"
+#include "portobello_lidar_scan_t.h"
+#include "portobello_pose_t.h"
+#include "registration.h"
+#include "regmap.h"
+
+static void usage(FILE *f)
+{
+    std::fprintf(f,
+        "usage: bench-localizer --log LOG.lcm --map MAP.pcd [--vehicle FILE] [--voxel 0.5]\n"
+        "                       [--every N] [--baseline-every K] [--max-scans N] [--odd]\n"
+        "                       [--global R,DEG] [--dump FILE] [--json FILE] [--seed N]\n"
+        "\n"
+        "Aligns every Nth LIDAR_SCAN of LOG (in base, deskewed with GROUND_TRUTH velocities)\n"
+        "to MAP from tracking starts and from starts 1 m / 3 deg off, with the localizer's\n"
+        "registration, and every Kth of those also with PCL NDT (same voxel, epsilon 1e-4).\n"
+        "Prints a table of time per scan and error against GROUND_TRUTH interpolated at\n"
+        "the scan time.\n"
+        "  --vehicle FILE   base <- lidar (default: the scans are already in base)\n"
+        "  --voxel M        map cell / NDT resolution (default 0.5)\n"
+        "  --baseline-every K  PCL NDT on every Kth benchmarked scan; 0 = none (default 10)\n"
+        "  --odd            only scans with odd index (maps built from the even ones)\n"
+        "  --global R,DEG   instead: starts uniform within R m and +-DEG yaw, global align\n"
+        "  --dump FILE      write the baseline scans, starts and truth for bench.py, and the\n"
+        "                   map points near them as FILE.map (float32 xyz)\n"
+        "  --json FILE      write the per-method results as JSON\n"
+        "  --seed N         starts RNG seed (default 1)\n");
+}
+
+struct Scan {
+    int index;
+    int64_t utime;
+    std::vector<float> pts;         // base frame, deskewed
+    Eigen::Isometry3d gt, track_start, off_start;
+};
+
+struct Run {
+    std::vector<double> ms, terr, yerr;
+    void add(double m, const Eigen::Isometry3d &T, const Eigen::Isometry3d &gt)
+    {
+        ms.push_back(m);
+        terr.push_back((T.translation() - gt.translation()).norm());
+        Eigen::Matrix3d D = gt.linear().transpose() * T.linear();
+        yerr.push_back(std::fabs(std::atan2(D(1, 0), D(0, 0))) * 180.0 / M_PI);
+    }
+};
+
+static double pct(std::vector<double> v, double p)
+{
+    if (v.empty()) return NAN;
+    std::sort(v.begin(), v.end());
+    double idx = p / 100.0 * (v.size() - 1);
+    size_t lo = (size_t)std::floor(idx), hi = std::min(lo + 1, v.size() - 1);
+    return v[lo] + (idx - lo) * (v[hi] - v[lo]);
+}
+
+static double share_below(const std::vector<double> &v, double x)
+{
+    if (v.empty()) return NAN;
+    size_t k = 0;
+    for (double a : v) k += a < x;
+    return (double)k / v.size();
+}
+
+static void print_row(const char *method, const char *start, int nscans, const Run &r)
+{
+    std::printf("| %-22s | %-9s | %5d | %8.2f | %8.2f | %8.3f | %8.3f | %7.3f | %6.1f%% |\n", method, start, nscans,
+                pct(r.ms, 50), pct(r.ms, 99), pct(r.terr, 50), pct(r.terr, 99), pct(r.yerr, 99),
+                100.0 * share_below(r.terr, 0.3));
+}
+
+static void json_run(FILE *f, const char *name, const Run &r, bool last)
+{
+    std::fprintf(f, "  \"%s\": {\"n\": %zu, \"ms_median\": %.4f, \"ms_p99\": %.4f, \"t_median\": %.5f, "
+                 "\"t_p99\": %.5f, \"yaw_p99\": %.5f, \"within_0.3\": %.4f}%s\n", name, r.ms.size(),
+                 pct(r.ms, 50), pct(r.ms, 99), pct(r.terr, 50), pct(r.terr, 99), pct(r.yerr, 99),
+                 share_below(r.terr, 0.3), last ? "" : ",");
+}
+
+// CPU time of this thread: the machine is shared, and the target is cost on one core.
+static double now_ms()
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+    return ts.tv_sec * 1e3 + ts.tv_nsec * 1e-6;
+}
+
+int main(int argc, char **argv)
+{
+    const char *log_path = nullptr, *map_path = nullptr, *vehicle_path = nullptr, *dump = nullptr, *json = nullptr;
+    double voxel = 0.5, g_radius = 0, g_yaw_deg = 0;
+    long every = 1, base_every = 10, max_scans = 1000000, seed = 1;
+    bool odd = false, global = false;
+    static const struct option opts[] = {
+        {"log", 1, 0, 'l'}, {"map", 1, 0, 'm'}, {"vehicle", 1, 0, 'v'}, {"voxel", 1, 0, 'x'},
+        {"every", 1, 0, 'e'}, {"baseline-every", 1, 0, 'b'}, {"max-scans", 1, 0, 'n'}, {"odd", 0, 0, 'o'},
+        {"global", 1, 0, 'g'}, {"dump", 1, 0, 'd'}, {"json", 1, 0, 'j'}, {"seed", 1, 0, 's'},
+        {"help", 0, 0, 'h'}, {0, 0, 0, 0}};
+    int c;
+    while ((c = getopt_long(argc, argv, "", opts, nullptr)) != -1) {
+        switch (c) {
+        case 'l': log_path = optarg; break;
+        case 'm': map_path = optarg; break;
+        case 'v': vehicle_path = optarg; break;
+        case 'x': if (pb_arg_double("bench-localizer", "--voxel", optarg, 0.05, 10, &voxel)) return 2; break;
+        case 'e': if (pb_arg_long("bench-localizer", "--every", optarg, 1, 100000, &every)) return 2; break;
+        case 'b': if (pb_arg_long("bench-localizer", "--baseline-every", optarg, 0, 100000, &base_every)) return 2; break;
+        case 'n': if (pb_arg_long("bench-localizer", "--max-scans", optarg, 1, 100000000, &max_scans)) return 2; break;
+        case 's': if (pb_arg_long("bench-localizer", "--seed", optarg, 0, 1L << 40, &seed)) return 2; break;
+        case 'o': odd = true; break;
+        case 'g':
+            if (std::sscanf(optarg, "%lf,%lf", &g_radius, &g_yaw_deg) != 2 || g_radius < 0 || g_yaw_deg < 0) {
+                std::fprintf(stderr, "bench-localizer: --global wants R,DEG, got '%s'\n", optarg);
+                return 2;
+            }
+            global = true;
+            break;
+        case 'd': dump = optarg; break;
+        case 'j': json = optarg; break;
+        case 'h': usage(stdout); return 0;
+        default: usage(stderr); return 2;
+        }
+    }
+    if (!log_path || !map_path) { usage(stderr); return 2; }
+    pb_err_t err;
+    pb_transform_t base_from_lidar = {{0, 0, 0}, {1, 0, 0, 0}};
+    if (vehicle_path) {
+        pb_vehicle_t veh;
+        if (pb_vehicle_load(vehicle_path, &veh, &err)) { std::fprintf(stderr, "bench-localizer: %s\n", err.msg); return 1; }
+        base_from_lidar = veh.base_from_lidar;
+    }
+    const Eigen::Isometry3d B = pb_reg_from_transform(&base_from_lidar);
+
+    // ---- read the log: ground truth track (+ velocities), then scans
+    pb_log_t *log = pb_log_open_read(log_path, &err);
+    if (!log) { std::fprintf(stderr, "bench-localizer: %s\n", err.msg); return 1; }
+    pb_pose_track_t *track = pb_pose_track_create();
+    std::vector<portobello_pose_t> gts;
+    std::vector<std::vector<uint8_t>> raw_scans;
+    pb_event_t ev;
+    int rc;
+    while ((rc = pb_log_next(log, &ev, &err)) == 1) {
+        if (!std::strcmp(ev.channel, "GROUND_TRUTH")) {
+            portobello_pose_t p;
+            if (portobello_pose_t_decode(ev.data, 0, ev.datalen, &p) < 0) continue;
+            pb_transform_t T;
+            std::memcpy(T.t, p.position, sizeof T.t);
+            std::memcpy(T.q, p.orientation, sizeof T.q);
+            pb_pose_track_add(track, p.utime, &T);
+            gts.push_back(p);
+        } else if (!std::strcmp(ev.channel, "LIDAR_SCAN")) {
+            raw_scans.emplace_back(ev.data, ev.data + ev.datalen);
+        }
+    }
+    if (rc < 0) { std::fprintf(stderr, "bench-localizer: %s\n", err.msg); return 1; }
+    pb_log_close(log, nullptr);
+    std::sort(gts.begin(), gts.end(), [](const portobello_pose_t &a, const portobello_pose_t &b) { return a.utime < b.utime; });
+
+    std::mt19937_64 rng((uint64_t)seed);
+    std::normal_distribution<double> nrm(0.0, 1.0);
+    std::uniform_real_distribution<double> uni(0.0, 1.0);
+    auto perturb = [](const Eigen::Isometry3d &T, double dx, double dy, double dz, double rr, double rp, double ry) {
+        Eigen::Isometry3d P = T;
+        P.translation() += Eigen::Vector3d(dx, dy, dz);
+        P.linear() = (Eigen::AngleAxisd(ry, Eigen::Vector3d::UnitZ()) * Eigen::AngleAxisd(rp, Eigen::Vector3d::UnitY()) *
+                      Eigen::AngleAxisd(rr, Eigen::Vector3d::UnitX())).toRotationMatrix() * T.linear();
+        return P;
+    };
+    const double deg = M_PI / 180.0;
+    std::vector<Scan> scans;
+    pb_points_t pts = {};
+    double ms_prep = 0;
+    int raw_points_max = 0;
+    for (size_t k = 0; k < raw_scans.size() && (long)scans.size() < max_scans; k++) {
+        if (odd && k % 2 == 0) continue;
+        if ((long)((odd ? k / 2 : k) % every) != 0) continue;
+        portobello_lidar_scan_t s;
+        if (portobello_lidar_scan_t_decode(raw_scans[k].data(), 0, (int)raw_scans[k].size(), &s) < 0) continue;
+        int64_t ut = s.utime;
+        int np = pb_scan_points(&s, &pts, &err);
+        portobello_lidar_scan_t_decode_cleanup(&s);
+        if (np <= 0) continue;
+        pb_transform_t gt_t;
+        if (!pb_pose_track_at(track, ut, &gt_t)) continue;   // outside the truth
+        // nearest truth sample for the velocities (100 Hz; constant over a sweep)
+        auto it = std::lower_bound(gts.begin(), gts.end(), ut, [](const portobello_pose_t &p, int64_t t) { return p.utime < t; });
+        if (it == gts.end()) continue;
+        Scan sc;
+        sc.index = (int)k;
+        sc.utime = ut;
+        sc.gt = pb_reg_from_transform(&gt_t);
+        double t0 = now_ms();
+        sc.pts.resize(3 * (size_t)np);
+        for (int i = 0; i < np; i++) {
+            Eigen::Vector3d p = B * Eigen::Vector3d(pts.x[i], pts.y[i], pts.z[i]);
+            for (int a = 0; a < 3; a++) sc.pts[3 * i + a] = (float)p(a);
+        }
+        Eigen::Vector3d v_base = sc.gt.linear().transpose() * Eigen::Vector3d(it->velocity[0], it->velocity[1], it->velocity[2]);
+        pb_deskew(sc.pts.data(), pts.offset_us, (size_t)np, 0, v_base.data(), it->angular_velocity);
+        ms_prep += now_ms() - t0;
+        raw_points_max = std::max(raw_points_max, np);
+        if (global) {
+            double r = g_radius * std::sqrt(uni(rng)), a = 2 * M_PI * uni(rng), y = (2 * uni(rng) - 1) * g_yaw_deg * deg;
+            sc.off_start = perturb(sc.gt, r * std::cos(a), r * std::sin(a), 0, 0, 0, y);
+            sc.track_start = sc.off_start;
+        } else {
+            sc.track_start = perturb(sc.gt, 0.05 * nrm(rng), 0.05 * nrm(rng), 0.02 * nrm(rng), 0.05 * deg * nrm(rng),
+                                     0.05 * deg * nrm(rng), 0.2 * deg * nrm(rng));
+            double a = 2 * M_PI * uni(rng);
+            sc.off_start = perturb(sc.gt, std::cos(a), std::sin(a), 0, 0, 0, (uni(rng) < 0.5 ? -3 : 3) * deg);
+        }
+        scans.push_back(std::move(sc));
+    }
+    pb_points_free(&pts);
+    raw_scans.clear();
+    if (scans.empty()) { std::fprintf(stderr, "bench-localizer: %s: no LIDAR_SCAN within GROUND_TRUTH\n", log_path); return 1; }
+
+    // ---- our registration: map prepared once, then every scan
+    pb_regmap_config_t mcfg;
+    pb_regmap_config_default(&mcfg);
+    mcfg.voxel_m = voxel;
+    double t0 = now_ms();
+    pb_regmap_t *map = pb_regmap_load(map_path, &mcfg, nullptr, &err);
+    if (!map) { std::fprintf(stderr, "bench-localizer: %s\n", err.msg); return 1; }
+    double ms_load = now_ms() - t0;
+    pb_regmap_info_t info;
+    pb_regmap_info(map, &info);
+    pb_reg_config_t rcfg;
+    pb_reg_config_default(&rcfg);
+    Run ours_track, ours_off, ours_track_sub, ours_off_sub;
+    std::vector<std::vector<float>> reduced(scans.size());
+    for (size_t k = 0; k < scans.size(); k++) {
+        const Scan &sc = scans[k];
+        bool sub = base_every > 0 && k % (size_t)base_every == 0;
+        pb_reg_result_t r;
+        if (global) {
+            double c0 = now_ms();
+            pb_reg_align_global(map, sc.pts.data(), sc.pts.size() / 3, sc.off_start, g_radius, g_yaw_deg * deg, 0, 0,
+                                &rcfg, &r, &err);
+            double ms = now_ms() - c0;
+            ours_off.add(ms, r.pose, sc.gt);
+            if (sub) ours_off_sub.add(ms, r.pose, sc.gt);
+        } else {
+            double c0 = now_ms();
+            pb_reg_align(map, sc.pts.data(), sc.pts.size() / 3, sc.track_start, &rcfg, &r, &err);
+            double ms = now_ms() - c0;
+            ours_track.add(ms, r.pose, sc.gt);
+            if (sub) ours_track_sub.add(ms, r.pose, sc.gt);
+            c0 = now_ms();
+            pb_reg_align(map, sc.pts.data(), sc.pts.size() / 3, sc.off_start, &rcfg, &r, &err);
+            ms = now_ms() - c0;
+            ours_off.add(ms, r.pose, sc.gt);
+            if (sub) ours_off_sub.add(ms, r.pose, sc.gt);
+        }
+        if (sub) pb_reg_downsample(sc.pts.data(), sc.pts.size() / 3, &rcfg, &reduced[k]);
+    }
+    pb_regmap_destroy(map);
+
+    // ---- baselines on the subsample: the same reduced points (our downsampling,
+    // range filter included) and the same starts; the map cropped to 120 m of them
+    Run ndt_track, ndt_off;
+    size_t nsub = 0, map_crop = 0;
+    double ms_ndt_target = 0;
+    if (base_every > 0) {
+        pcl::PointCloud<pcl::PointXYZ>::Ptr full(new pcl::PointCloud<pcl::PointXYZ>), crop(new pcl::PointCloud<pcl::PointXYZ>);
+        if (pcl::io::loadPCDFile(map_path, *full) < 0) { std::fprintf(stderr, "bench-localizer: %s: cannot read\n", map_path); return 1; }
+        std::vector<Eigen::Vector2d> centres;
+        for (size_t k = 0; k < scans.size(); k += (size_t)base_every) centres.push_back(scans[k].gt.translation().head<2>());
+        for (const auto &p : full->points) {
+            for (const auto &c2 : centres)
+                if ((Eigen::Vector2d(p.x, p.y) - c2).squaredNorm() < 120.0 * 120.0) { crop->push_back(p); break; }
+        }
+        full.reset();
+        map_crop = crop->size();
+        pcl::NormalDistributionsTransform<pcl::PointXYZ, pcl::PointXYZ> ndt;
+        ndt.setResolution((float)voxel);
+        ndt.setTransformationEpsilon(1e-4);   // PCL 1.13 compares it with the squared step
+        ndt.setStepSize(0.1);
+        ndt.setMaximumIterations(35);
+        t0 = now_ms();
+        ndt.setInputTarget(crop);
+        ms_ndt_target = now_ms() - t0;
+        FILE *df = nullptr;
+        if (dump) {
+            df = std::fopen(dump, "wb");
+            std::string mp = std::string(dump) + ".map";
+            FILE *mf = std::fopen(mp.c_str(), "wb");
+            if (!df || !mf) { std::fprintf(stderr, "bench-localizer: %s: cannot write\n", dump); return 1; }
+            for (const auto &p : crop->points) { float v[3] = {p.x, p.y, p.z}; std::fwrite(v, 4, 3, mf); }
+            std::fclose(mf);
+        }
+        for (size_t k = 0; k < scans.size(); k += (size_t)base_every) {
+            const Scan &sc = scans[k];
+            pcl::PointCloud<pcl::PointXYZ>::Ptr src(new pcl::PointCloud<pcl::PointXYZ>);
+            for (size_t i = 0; i + 2 < reduced[k].size(); i += 3)
+                src->push_back(pcl::PointXYZ(reduced[k][i], reduced[k][i + 1], reduced[k][i + 2]));
+            ndt.setInputSource(src);
+            pcl::PointCloud<pcl::PointXYZ> out;
+            const Eigen::Isometry3d *starts[2] = {&sc.track_start, &sc.off_start};
+            Run *runs[2] = {&ndt_track, &ndt_off};
+            for (int s = global ? 1 : 0; s < 2; s++) {
+                t0 = now_ms();
+                ndt.align(out, starts[s]->matrix().cast<float>());
+                double ms = now_ms() - t0;
+                Eigen::Isometry3d T(ndt.getFinalTransformation().cast<double>());
+                runs[s]->add(ms, T, sc.gt);
+            }
+            if (df) {
+                int32_t n = (int32_t)(reduced[k].size() / 3);
+                std::fwrite(&n, 4, 1, df);
+                std::fwrite(reduced[k].data(), 4, reduced[k].size(), df);
+                const Eigen::Isometry3d *mats[3] = {&sc.gt, &sc.track_start, &sc.off_start};
+                for (auto *m : mats) {
+                    Eigen::Matrix<double, 4, 4, Eigen::RowMajor> M = m->matrix();
+                    std::fwrite(M.data(), 8, 16, df);
+                }
+            }
+            nsub++;
+        }
+        if (df) std::fclose(df);
+    }
+
+    // ---- table
+    std::printf("bench-localizer: %s, %zu scans (every %ld%s, up to %d points each, %.2f ms/scan to base + deskew)\n",
+                log_path, scans.size(), every, odd ? ", odd only" : "", raw_points_max, ms_prep / scans.size());
+    std::printf("map %s: %lld points -> %lld cells of %.2f m (%lld planes), prepared in %.0f ms\n", map_path,
+                (long long)info.points, (long long)info.cells, voxel, (long long)info.planar_cells, ms_load);
+    std::printf("ms: CPU time of the aligning thread per scan (one core); err: |translation - truth| m; "
+                "yaw p99: deg; < 0.3 m: share of scans\n");
+    if (base_every > 0)
+        std::printf("baselines on every %ld-th benchmarked scan (%zu scans), map cropped to 120 m of them "
+                    "(%zu points; NDT target built in %.0f ms)\n", base_every, nsub, map_crop, ms_ndt_target);
+    std::printf("\n| %-22s | %-9s | %5s | %8s | %8s | %8s | %8s | %7s | %7s |\n", "method", "start", "scans",
+                "ms med", "ms p99", "err med", "err p99", "yaw p99", "< 0.3 m");
+    std::printf("|%s|%s|%s|%s|%s|%s|%s|%s|%s|\n", std::string(24, '-').c_str(), std::string(11, '-').c_str(),
+                std::string(7, '-').c_str(), std::string(10, '-').c_str(), std::string(10, '-').c_str(),
+                std::string(10, '-').c_str(), std::string(10, '-').c_str(), std::string(9, '-').c_str(),
+                std::string(9, '-').c_str());
+    if (global) {
+        char start[32];
+        std::snprintf(start, sizeof start, "%.0fm/%.0fdeg", g_radius, g_yaw_deg);
+        print_row("ours (global align)", start, (int)ours_off.ms.size(), ours_off);
+        if (nsub) print_row("ours, subsample", start, (int)ours_off_sub.ms.size(), ours_off_sub);
+        if (nsub) print_row("PCL NDT, subsample", start, (int)ndt_off.ms.size(), ndt_off);
+    } else {
+        print_row("ours", "tracking", (int)ours_track.ms.size(), ours_track);
+        print_row("ours", "1m/3deg", (int)ours_off.ms.size(), ours_off);
+        if (nsub) {
+            print_row("ours, subsample", "tracking", (int)ours_track_sub.ms.size(), ours_track_sub);
+            print_row("ours, subsample", "1m/3deg", (int)ours_off_sub.ms.size(), ours_off_sub);
+            print_row("PCL NDT, subsample", "tracking", (int)ndt_track.ms.size(), ndt_track);
+            print_row("PCL NDT, subsample", "1m/3deg", (int)ndt_off.ms.size(), ndt_off);
+        }
+    }
+    if (json) {
+        FILE *f = std::fopen(json, "w");
+        if (!f) { std::fprintf(stderr, "bench-localizer: %s: cannot write\n", json); return 1; }
+        std::fprintf(f, "{\n  \"scans\": %zu, \"baseline_scans\": %zu, \"baseline_every\": %ld, \"global\": %s,\n",
+                     scans.size(), nsub, base_every, global ? "true" : "false");
+        json_run(f, "ours_track", ours_track, false);
+        json_run(f, "ours_off", ours_off, false);
+        json_run(f, "ours_track_sub", ours_track_sub, false);
+        json_run(f, "ours_off_sub", ours_off_sub, false);
+        json_run(f, "ndt_track", ndt_track, false);
+        json_run(f, "ndt_off", ndt_off, true);
+        std::fprintf(f, "}\n");
+        std::fclose(f);
+    }
+    pb_pose_track_destroy(track);
+    return 0;
+}
