@@ -380,6 +380,7 @@ static double structure_inliers(localizer_t *L, const Eigen::Isometry3d &pose)
     if (L->above.size() / 3 < size_t(L->cfg.structure_min_points)) return NAN;
     pb_reg_config_t c = L->cfg.reg;
     c.max_iterations = 0;   /* evaluate at the pose, do not move it */
+    c.coarse_iterations = 0;
     pb_reg_result_t r;
     pb_err_t err;
     if (pb_reg_align(L->map, L->above.data(), L->above.size() / 3, pose, &c, &r, &err) < 0) return NAN;
