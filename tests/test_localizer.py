@@ -206,3 +206,62 @@ def test_pose_to_tum(drive, tmp_path):
     bad.write_bytes(drive["drive"].read_bytes()[:100000] + b"garbage" * 10)
     p = run([BIN / "pose-to-tum", "--log", bad, "--channel", "GROUND_TRUTH", "--out", tmp_path / "b.tum"], check=False)
     assert p.returncode == 1 and "byte" in p.stderr
+
+
+LIVE_URL = "udpm://239.255.76.67:7760?ttl=0&recv_buf_size=8388608"
+
+
+def test_live_bus(drive, tmp_path):
+    """Live: the first 3 s of the drive published on a private bus; POSE, POSE_PREDICTED and
+    STATUS come back, and SIGINT stops the localizer cleanly. Counts are loose (UDP)."""
+    import signal
+    import threading
+    import time
+
+    import lcm
+    from portobello import pose_t, status_t
+    lc = lcm.LCM(LIVE_URL)
+    got = {"POSE": [], "POSE_PREDICTED": [], "STATUS": []}
+
+    def handler(ch, data):
+        got[ch].append(status_t.decode(data) if ch == "STATUS" else pose_t.decode(data))
+
+    for ch in got:
+        lc.subscribe(ch, handler)
+    stop = threading.Event()
+
+    def spin():
+        while not stop.is_set():
+            lc.handle_timeout(50)
+
+    th = threading.Thread(target=spin, daemon=True)
+    th.start()
+    proc = subprocess.Popen([str(BIN / "localizer"), "--site", str(drive["site"]), "--lcm-url", LIVE_URL],
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.time() + 60
+        while not got["STATUS"] and time.time() < deadline:   # map loaded, heartbeat running
+            time.sleep(0.1)
+        assert got["STATUS"], "no STATUS heartbeat"
+        events = [e for e in read_log(drive["log"], {"IMU", "LIDAR_SCAN", "GNSS_FIX", "VEHICLE_SPEED"})]
+        t_first = events[0][1]
+        start = time.time()
+        for ch, ts, data in events:
+            if ts - t_first > 3e6:
+                break
+            delay = (ts - t_first) * 1e-6 - (time.time() - start)
+            if delay > 0:
+                time.sleep(delay)
+            lc.publish(ch, data)
+        time.sleep(1.0)
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=10) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        stop.set()
+        th.join()
+    assert len(got["POSE"]) >= 10
+    assert len(got["POSE_PREDICTED"]) >= 200
+    assert any(p.status == pose_t.STATUS_TRACKING for p in got["POSE"]), [p.status for p in got["POSE"]]
+    assert got["STATUS"][-1].module == "localizer"

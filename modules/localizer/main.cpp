@@ -42,7 +42,20 @@ struct app_t {
     std::vector<double> latency_ms;
     FILE *stats = nullptr;
     int64_t poses = 0, predicted = 0;
+    /* message time of the newest input and the bus time it arrived at: the timer's
+     * "now" in message time is input_utime + (bus now - input_bus_time), so a log played
+     * live (old utimes) and a replay behave the same */
+    int64_t input_utime = 0, input_bus_time = 0;
 };
+
+static void input_time(app_t *a, const char *channel, int64_t utime)
+{
+    pb_status_input_time(a->status, channel, utime);
+    if (utime > a->input_utime) {
+        a->input_utime = utime;
+        a->input_bus_time = pb_bus_now(a->bus);
+    }
+}
 
 static double wall_ms()
 {
@@ -141,7 +154,11 @@ static void on_scan(const pb_msg_t *m, void *user)
     double t0 = wall_ms();
     portobello_lidar_scan_t s;
     if (portobello_lidar_scan_t_decode(m->data, 0, m->len, &s) < 0) { undecodable(a, m); return; }
-    pb_status_input_time(a->status, m->channel, s.utime);
+    /* the sweep's time is its end: the newest measurement in it */
+    int32_t last_off = 0;
+    for (int i = 0; i < s.cols; i++) last_off = std::max(last_off, s.col_offset_us[i]);
+    for (int i = 0; i < s.npoints; i++) last_off = std::max(last_off, s.point_offset_us[i]);
+    if (last_off < 1000000) input_time(a, m->channel, s.utime + last_off);
     pb_err_t err;
     int n = pb_scan_points(&s, &a->pts, &err);
     if (n < 0) {
@@ -178,7 +195,7 @@ static void on_imu(const pb_msg_t *m, void *user)
     app_t *a = (app_t *)user;
     portobello_imu_t s;
     if (portobello_imu_t_decode(m->data, 0, m->len, &s) < 0) { undecodable(a, m); return; }
-    pb_status_input_time(a->status, m->channel, s.utime);
+    input_time(a, m->channel, s.utime);
     if (a->use_imu)
         localizer_imu(a->L, s.utime, Vec3(s.accel[0], s.accel[1], s.accel[2]), Vec3(s.gyro[0], s.gyro[1], s.gyro[2]), &a->out);
     portobello_imu_t_decode_cleanup(&s);
@@ -190,7 +207,7 @@ static void on_speed(const pb_msg_t *m, void *user)
     app_t *a = (app_t *)user;
     portobello_vehicle_speed_t s;
     if (portobello_vehicle_speed_t_decode(m->data, 0, m->len, &s) < 0) { undecodable(a, m); return; }
-    pb_status_input_time(a->status, m->channel, s.utime);
+    input_time(a, m->channel, s.utime);
     if (a->use_speed) localizer_speed(a->L, s.utime, s.speed_mps, &a->out);
     portobello_vehicle_speed_t_decode_cleanup(&s);
     flush(a);
@@ -201,7 +218,7 @@ static void on_gnss(const pb_msg_t *m, void *user)
     app_t *a = (app_t *)user;
     portobello_gnss_fix_t s;
     if (portobello_gnss_fix_t_decode(m->data, 0, m->len, &s) < 0) { undecodable(a, m); return; }
-    pb_status_input_time(a->status, m->channel, s.utime);
+    input_time(a, m->channel, s.utime);
     if (a->use_gnss) {
         gnss_in_t g;
         g.utime = s.utime; g.fix_type = s.fix_type; g.lat_deg = s.lat_deg; g.lon_deg = s.lon_deg; g.alt_m = s.alt_m;
@@ -217,7 +234,7 @@ static void on_initial_pose(const pb_msg_t *m, void *user)
     app_t *a = (app_t *)user;
     portobello_pose_t s;
     if (portobello_pose_t_decode(m->data, 0, m->len, &s) < 0) { undecodable(a, m); return; }
-    pb_status_input_time(a->status, m->channel, s.utime);
+    input_time(a, m->channel, s.utime);
     Eigen::Quaterniond q(s.orientation[0], s.orientation[1], s.orientation[2], s.orientation[3]);
     if (!(q.norm() > 0.5 && q.norm() < 1.5)) {
         pb_status_count(a->status, "initial_pose_invalid", 1);
@@ -235,7 +252,8 @@ static void on_initial_pose(const pb_msg_t *m, void *user)
 static void on_tick(int64_t now, void *user)
 {
     app_t *a = (app_t *)user;
-    localizer_tick(a->L, now, &a->out);
+    if (a->input_utime == 0) return;
+    localizer_tick(a->L, a->input_utime + (now - a->input_bus_time), &a->out);
     flush(a);
 }
 

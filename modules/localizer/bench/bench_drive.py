@@ -46,12 +46,13 @@ def run_case(name, drive_dir, log, extra=(), tag="full"):
 def row(r, mode):
     print(f"{r['name']:<24} {mode:<11} {fmt(r.get('t_median'))} {fmt(r.get('t_p99')):>7} {fmt(r.get('t_max')):>7} "
           f"{fmt(r.get('yaw_p99')):>7} {r.get('lost_after_tracking', '-'):>5} {fmt(r.get('first_tracking_s'), '{:.1f}'):>6} "
-          f"{fmt(r.get('lat_p50'), '{:.1f}'):>7} {fmt(r.get('lat_p99'), '{:.1f}'):>7} {fmt(r.get('pred_rate_hz'), '{:.0f}'):>6}")
+          f"{fmt(r.get('lat_p50'), '{:.1f}'):>7} {fmt(r.get('lat_p99'), '{:.1f}'):>7} {fmt(r.get('pred_rate_hz'), '{:.0f}'):>6} "
+          f"{fmt(r.get('pred_t_p99')):>7}")
 
 
 def header():
     print(f"{'drive':<24} {'mode':<11} {'med m':>5} {'p99 m':>7} {'max m':>7} {'yaw99°':>7} {'LOST':>5} {'init s':>6} "
-          f"{'lat50ms':>7} {'lat99ms':>7} {'pred Hz':>6}")
+          f"{'lat50ms':>7} {'lat99ms':>7} {'pred Hz':>6} {'pred p99':>7}")
 
 
 def fault_gap(d, log):

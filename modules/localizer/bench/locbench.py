@@ -108,6 +108,9 @@ def score_run(drive_log, out_log, stats_path=None):
     if len(pred) > 1:
         span = (pred[-1, 0] - pred[0, 0]) * 1e-6
         r["pred_rate_hz"] = (len(pred) - 1) / span if span > 0 else float("nan")
+        _, ept, _ = errors_vs_truth(pred[pred[:, 5] == 1], gt)
+        if len(ept):
+            r["pred_t_p99"] = float(np.percentile(ept, 99))
     if stats_path and os.path.exists(stats_path):
         st = read_stats(stats_path)
         lat = np.array([float(s["wall_ms"]) for s in st if s["status"] == "1"])

@@ -370,7 +370,7 @@ static double candidate_gnss_residual(const localizer_t *L, const Eigen::Isometr
 static double structure_inliers(localizer_t *L, const Eigen::Isometry3d &pose)
 {
     L->above.clear();
-    size_t n = L->xyz.size() / 3, stride = n > 24000 ? n / 12000 : 1;   /* a sample is enough to judge */
+    size_t n = L->xyz.size() / 3, stride = n > 8000 ? n / 4000 : 1;   /* a sample is enough to judge */
     for (size_t i = 0; i + 2 < L->xyz.size(); i += 3 * stride)
         if (L->xyz[i + 2] > L->cfg.structure_min_z_m) {
             L->above.push_back(L->xyz[i]);
@@ -446,7 +446,8 @@ static bool try_initialize(localizer_t *L, int64_t t_ref, outputs_t *out)
         /* height: GNSS altitude is the least accurate axis; the map's ground decides in the match */
         seed.translation() = base;
         radius = std::max(L->cfg.gnss_search_radius_m, 2 * (std::isfinite(fx.h_acc_m) ? fx.h_acc_m : 2.0));
-        int rc = pb_reg_align_global(L->map, L->xyz.data(), L->xyz.size() / 3, seed, radius, yaw_range, 0, 0,
+        int rc = pb_reg_align_global(L->map, L->xyz.data(), L->xyz.size() / 3, seed, radius, yaw_range,
+                                     L->cfg.search_pos_step_m, L->cfg.search_yaw_step_deg * M_PI / 180,
                                      &L->cfg.reg, &res, &err);
         if (rc < 0) { event(out, "init_failed", "GNSS start: %s", err.msg); return false; }
     } else if (L->status == ST_LOST && L->pred.initialized) {
@@ -454,7 +455,8 @@ static bool try_initialize(localizer_t *L, int64_t t_ref, outputs_t *out)
         seed = filter_base_pose(&L->pred);
         vel = filter_base_velocity(&L->pred);
         how = "dead-reckoned pose search";
-        int rc = pb_reg_align_global(L->map, L->xyz.data(), L->xyz.size() / 3, seed, 3.0, 20 * M_PI / 180, 0, 0,
+        int rc = pb_reg_align_global(L->map, L->xyz.data(), L->xyz.size() / 3, seed, 3.0, 20 * M_PI / 180,
+                                     L->cfg.search_pos_step_m, L->cfg.search_yaw_step_deg * M_PI / 180,
                                      &L->cfg.reg, &res, &err);
         if (rc < 0) { event(out, "init_failed", "relocalisation: %s", err.msg); return false; }
     } else {
@@ -538,6 +540,10 @@ void localizer_scan(localizer_t *L, int64_t utime, const pb_points_t *pts, outpu
     int32_t max_off = 0;
     for (int i = 0; i < pts->n; i++) if (pts->offset_us[i] > max_off) max_off = pts->offset_us[i];
     int64_t t_ref = utime + max_off;
+    if (max_off > 1000000) {
+        event(out, "scan_invalid", "LIDAR_SCAN: point times span %.1f s (more than a sweep); dropped", max_off * 1e-6);
+        return;
+    }
     if (L->last_scan_t != 0 && t_ref <= L->last_scan_t) {
         if (t_ref == L->last_scan_t) event(out, "scan_duplicate", "LIDAR_SCAN: sweep at %lld repeated, dropped", (long long)utime);
         else event(out, "scan_out_of_order", "LIDAR_SCAN: sweep %.0f ms older than the last one dropped",
@@ -737,7 +743,7 @@ void localizer_gnss(localizer_t *L, const gnss_in_t &fx, outputs_t *out)
 
 void localizer_tick(localizer_t *L, int64_t now, outputs_t *out)
 {
-    if (!L->pred.initialized || imu_fresh(L, now)) return;
+    if (!L->pred.initialized || imu_fresh(L, now) || now <= L->pred.utime) return;
     if (now - L->last_pred_out_t < L->cfg.predict_period_us) return;
     filter_t f = L->pred;
     if (now > f.utime) filter_predict_cv(&f, now);

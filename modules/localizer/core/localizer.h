@@ -81,6 +81,8 @@ struct localizer_config_t {
     double gnss_init_speed_mps = 3.0;      /* GNSS course used as heading above this speed */
     double gnss_init_heading_acc_deg = 10.0;
     double gnss_search_radius_m = 4.0;     /* relocalisation search around the GNSS position */
+    double search_pos_step_m = 2.0;        /* grid of the start-up / relocalisation search */
+    double search_yaw_step_deg = 10.0;
     /* --initial-pose, applied to the first sweep if nothing better came */
     bool has_initial_pose = false;
     double initial_pose[6] = { 0 };        /* x, y, z, roll, pitch, yaw (m, rad) */
