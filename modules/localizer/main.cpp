@@ -46,6 +46,12 @@ struct app_t {
      * "now" in message time is input_utime + (bus now - input_bus_time), so a log played
      * live (old utimes) and a replay behave the same */
     int64_t input_utime = 0, input_bus_time = 0;
+    int column_stride = 2;
+    scan_diag_t diag;
+    int64_t pending_utime = -1;
+    double pending_prep_ms = 0;
+    std::vector<int32_t> red_range, red_off;
+    std::vector<uint8_t> red_refl;
 };
 
 static void input_time(app_t *a, const char *channel, int64_t utime)
@@ -87,6 +93,7 @@ static void usage(FILE *f)
             "                       first sweep when no INITIAL_POSE / GNSS start came first\n"
             "  --no-imu, --no-speed, --no-gnss   ignore that input (tests, benchmarks)\n"
             "  --stats FILE.csv     one line per sweep: utime, wall ms, status, match figures\n"
+            "  --column-stride N    use every Nth column of a range-image sweep (default 2; 1 = all)\n"
             "  --verbose            print state changes to stderr\n"
             "  -h, --help           this text\n",
             PB_SOURCE_DIR, PB_SOURCE_DIR, PB_DEFAULT_LCM_URL);
@@ -116,8 +123,14 @@ static bool is_info(const std::string &c)
     return c.rfind("to_", 0) == 0 || c == "init_candidate" || c == "initial_pose";
 }
 
-static void flush(app_t *a)
+/* Publishes what the core produced. t0: wall time at the start of the handler; a sweep's
+ * latency is its own handler time, plus the decode time of its LIDAR_SCAN when it waited
+ * for the IMU (the core matches a sweep once the IMU has reached its end). */
+static void record_sweep(app_t *a, double ms);
+static void flush(app_t *a, double t0 = -1)
 {
+    bool diag = a->out.has_scan_diag;
+    scan_diag_t d = a->out.scan_diag;
     pb_err_t err;
     for (const pose_out_t &p : a->out.poses) {
         portobello_pose_t m;
@@ -140,6 +153,21 @@ static void flush(app_t *a)
                                    : s == ST_INITIALIZING ? PORTOBELLO_STATUS_T_STATE_STARTING
                                                           : PORTOBELLO_STATUS_T_STATE_DEGRADED);
     a->out.clear();
+    if (diag && t0 >= 0) {
+        a->diag = d;
+        record_sweep(a, wall_ms() - t0);
+    }
+}
+
+static void record_sweep(app_t *a, double ms)
+{
+    const scan_diag_t &d = a->diag;
+    if (d.utime == a->pending_utime) ms += a->pending_prep_ms;
+    a->latency_ms.push_back(ms);
+    if (a->stats)
+        fprintf(a->stats, "%lld,%.3f,%.3f,%d,%d,%d,%.4f,%.4f,%.4f,%.2f,%.2f\n", (long long)d.utime, ms, d.reg_ms, d.status,
+                d.matched, d.accepted, d.inlier_fraction, d.structure_inliers, d.score, d.innovation_chi2,
+                d.gnss_residual_m);
 }
 
 static void undecodable(app_t *a, const pb_msg_t *m)
@@ -160,7 +188,30 @@ static void on_scan(const pb_msg_t *m, void *user)
     for (int i = 0; i < s.npoints; i++) last_off = std::max(last_off, s.point_offset_us[i]);
     if (last_off < 1000000) input_time(a, m->channel, s.utime + last_off);
     pb_err_t err;
-    int n = pb_scan_points(&s, &a->pts, &err);
+    /* every column_stride-th column of a range image: the beam model is exact for the
+     * reduced image (encoder angle c/cols is unchanged), and registration keeps only
+     * ~2000 voxel centroids of a sweep anyway */
+    int k = a->column_stride;
+    portobello_lidar_scan_t red = s;
+    if (k > 1 && s.npixels > 0 && s.cols % k == 0 && s.npixels == s.rows * s.cols) {
+        int cols = s.cols / k;
+        a->red_range.resize((size_t)s.rows * cols);
+        a->red_refl.resize((size_t)s.rows * cols);
+        a->red_off.resize(cols);
+        for (int r = 0; r < s.rows; r++)
+            for (int c = 0; c < cols; c++) {
+                a->red_range[(size_t)r * cols + c] = s.range_mm[(size_t)r * s.cols + (size_t)c * k];
+                a->red_refl[(size_t)r * cols + c] = s.reflectivity[(size_t)r * s.cols + (size_t)c * k];
+            }
+        for (int c = 0; c < cols; c++) a->red_off[c] = s.col_offset_us[c * k];
+        red.cols = cols;
+        red.npixels = s.rows * cols;
+        red.range_mm = a->red_range.data();
+        red.reflectivity = a->red_refl.data();
+        red.col_offset_us = a->red_off.data();
+        red.nsignal = 0;
+    }
+    int n = pb_scan_points(&red, &a->pts, &err);
     if (n < 0) {
         pb_status_count(a->status, "scan_invalid", 1);
         pb_status_error(a->status, "%s (seq %d)", err.msg, s.seq);
@@ -177,45 +228,45 @@ static void on_scan(const pb_msg_t *m, void *user)
     int64_t utime = s.utime;
     portobello_lidar_scan_t_decode_cleanup(&s);
     localizer_scan(a->L, utime, &a->pts, &a->out);
-    bool diag = a->out.has_scan_diag;
-    scan_diag_t d = a->out.scan_diag;
-    flush(a);
-    double ms = wall_ms() - t0;
-    if (diag) {
-        a->latency_ms.push_back(ms);
-        if (a->stats)
-            fprintf(a->stats, "%lld,%.3f,%.3f,%d,%d,%d,%.4f,%.4f,%.4f,%.2f,%.2f\n", (long long)d.utime, ms, d.reg_ms, d.status,
-                    d.matched, d.accepted, d.inlier_fraction, d.structure_inliers, d.score, d.innovation_chi2,
-                    d.gnss_residual_m);
+    if (!a->out.has_scan_diag) {
+        /* waiting for the IMU: remember what this sweep cost so far */
+        int32_t last = 0;
+        for (int i = 0; i < a->pts.n; i++) last = std::max(last, a->pts.offset_us[i]);
+        a->pending_utime = utime + last;
+        a->pending_prep_ms = wall_ms() - t0;
     }
+    flush(a, t0);
 }
 
 static void on_imu(const pb_msg_t *m, void *user)
 {
     app_t *a = (app_t *)user;
+    double t0 = wall_ms();
     portobello_imu_t s;
     if (portobello_imu_t_decode(m->data, 0, m->len, &s) < 0) { undecodable(a, m); return; }
     input_time(a, m->channel, s.utime);
     if (a->use_imu)
         localizer_imu(a->L, s.utime, Vec3(s.accel[0], s.accel[1], s.accel[2]), Vec3(s.gyro[0], s.gyro[1], s.gyro[2]), &a->out);
     portobello_imu_t_decode_cleanup(&s);
-    flush(a);
+    flush(a, t0);
 }
 
 static void on_speed(const pb_msg_t *m, void *user)
 {
     app_t *a = (app_t *)user;
+    double t0 = wall_ms();
     portobello_vehicle_speed_t s;
     if (portobello_vehicle_speed_t_decode(m->data, 0, m->len, &s) < 0) { undecodable(a, m); return; }
     input_time(a, m->channel, s.utime);
     if (a->use_speed) localizer_speed(a->L, s.utime, s.speed_mps, &a->out);
     portobello_vehicle_speed_t_decode_cleanup(&s);
-    flush(a);
+    flush(a, t0);
 }
 
 static void on_gnss(const pb_msg_t *m, void *user)
 {
     app_t *a = (app_t *)user;
+    double t0 = wall_ms();
     portobello_gnss_fix_t s;
     if (portobello_gnss_fix_t_decode(m->data, 0, m->len, &s) < 0) { undecodable(a, m); return; }
     input_time(a, m->channel, s.utime);
@@ -226,12 +277,13 @@ static void on_gnss(const pb_msg_t *m, void *user)
         localizer_gnss(a->L, g, &a->out);
     }
     portobello_gnss_fix_t_decode_cleanup(&s);
-    flush(a);
+    flush(a, t0);
 }
 
 static void on_initial_pose(const pb_msg_t *m, void *user)
 {
     app_t *a = (app_t *)user;
+    double t0 = wall_ms();
     portobello_pose_t s;
     if (portobello_pose_t_decode(m->data, 0, m->len, &s) < 0) { undecodable(a, m); return; }
     input_time(a, m->channel, s.utime);
@@ -246,15 +298,16 @@ static void on_initial_pose(const pb_msg_t *m, void *user)
         localizer_initial_pose(a->L, s.utime, T, &a->out);
     }
     portobello_pose_t_decode_cleanup(&s);
-    flush(a);
+    flush(a, t0);
 }
 
 static void on_tick(int64_t now, void *user)
 {
     app_t *a = (app_t *)user;
     if (a->input_utime == 0) return;
+    double t0 = wall_ms();
     localizer_tick(a->L, a->input_utime + (now - a->input_bus_time), &a->out);
-    flush(a);
+    flush(a, t0);
 }
 
 static Eigen::Isometry3d to_iso(const pb_transform_t &t)
@@ -315,7 +368,7 @@ int main(int argc, char **argv)
         { "replay", required_argument, 0, 'r' }, { "out", required_argument, 0, 'o' },
         { "lcm-url", required_argument, 0, 'u' }, { "initial-pose", required_argument, 0, 'i' },
         { "no-imu", no_argument, 0, 'I' }, { "no-speed", no_argument, 0, 'S' }, { "no-gnss", no_argument, 0, 'G' },
-        { "stats", required_argument, 0, 't' }, { "verbose", no_argument, 0, 'V' },
+        { "stats", required_argument, 0, 't' }, { "column-stride", required_argument, 0, 'k' }, { "verbose", no_argument, 0, 'V' },
         { "help", no_argument, 0, 'h' }, { 0, 0, 0, 0 },
     };
     int c;
@@ -338,6 +391,12 @@ int main(int argc, char **argv)
         case 'S': a.use_speed = false; break;
         case 'G': a.use_gnss = false; break;
         case 't': stats = optarg; break;
+        case 'k': {
+            long v;
+            if (pb_arg_long("localizer", "--column-stride", optarg, 1, 16, &v) != 0) return 2;
+            a.column_stride = (int)v;
+            break;
+        }
         case 'V': a.verbose = true; break;
         case 'h': usage(stdout); return 0;
         default: usage(stderr); return 2;
@@ -399,6 +458,9 @@ int main(int argc, char **argv)
     if (!in) fprintf(stderr, "localizer: listening on %s\n", pb_lcm_url(url));
 
     int rc = pb_bus_run(bus, &err);
+    double tf = wall_ms();
+    localizer_finish(a.L, &a.out);
+    flush(&a, tf);
     if (rc != 0) {
         fprintf(stderr, "localizer: %s\n", err.msg);
         pb_status_set_state(a.status, PORTOBELLO_STATUS_T_STATE_ERROR);

@@ -63,6 +63,11 @@ struct localizer {
     int64_t prev_pose_t = 0;
 
     std::vector<float> xyz, above;
+    /* a sweep waiting for the IMU to reach its end */
+    bool has_pending = false;
+    int64_t pend_utime = 0, pend_t_ref = 0;
+    std::vector<float> pend_x, pend_y, pend_z;
+    std::vector<int32_t> pend_off;
     std::vector<pose_sample_t> samples;
 };
 
@@ -216,6 +221,8 @@ static void maybe_gap_pose(localizer_t *L, int64_t t, outputs_t *out)
     }
 }
 
+static void process_pending(localizer_t *L, outputs_t *out);
+
 void localizer_imu(localizer_t *L, int64_t utime, const Vec3 &accel, const Vec3 &gyro, outputs_t *out)
 {
     if (!accel.allFinite() || !gyro.allFinite()) {
@@ -240,10 +247,13 @@ void localizer_imu(localizer_t *L, int64_t utime, const Vec3 &accel, const Vec3 
         /* keep only a short history before the first pose */
         while (!L->buf.empty() && L->buf.front().t < utime - 1000000) L->buf.pop_front();
         filter_predict_imu(&L->kf, utime, accel, gyro);   /* records the rates */
+        if (L->has_pending && utime >= L->pend_t_ref) process_pending(L, out);
         return;
     }
     if (utime - L->kf.utime > 2000000) { commit_until(L, utime - 1000000); rebuild_pred(L); }
     else apply_input(L, &L->pred, e);
+    if (L->has_pending && utime >= L->pend_t_ref) process_pending(L, out);
+    if (!L->pred.initialized) return;
     out->poses.push_back(make_pose(L, L->pred, utime, true, NAN));
     L->last_pred_out_t = utime;
     maybe_gap_pose(L, utime, out);
@@ -535,27 +545,14 @@ static void update_lidar_only_motion(localizer_t *L, int64_t t)
     L->prev_pose_t = t;
 }
 
-void localizer_scan(localizer_t *L, int64_t utime, const pb_points_t *pts, outputs_t *out)
+/* Matches one complete sweep (t_ref: its end) and updates the state machine. */
+static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_points_t *pts, outputs_t *out)
 {
-    int32_t max_off = 0;
-    for (int i = 0; i < pts->n; i++) if (pts->offset_us[i] > max_off) max_off = pts->offset_us[i];
-    int64_t t_ref = utime + max_off;
-    if (max_off > 1000000) {
-        event(out, "scan_invalid", "LIDAR_SCAN: point times span %.1f s (more than a sweep); dropped", max_off * 1e-6);
-        return;
-    }
-    if (L->last_scan_t != 0 && t_ref <= L->last_scan_t) {
-        if (t_ref == L->last_scan_t) event(out, "scan_duplicate", "LIDAR_SCAN: sweep at %lld repeated, dropped", (long long)utime);
-        else event(out, "scan_out_of_order", "LIDAR_SCAN: sweep %.0f ms older than the last one dropped",
-                   (L->last_scan_t - t_ref) * 1e-3);
-        return;
-    }
     if (L->kf.initialized && t_ref <= L->kf.utime) {
         event(out, "scan_out_of_order", "LIDAR_SCAN: sweep older than the filter state dropped");
         return;
     }
     bool was_gap = L->lidar_gap_reported;
-    L->last_scan_t = t_ref;
     L->lidar_gap_reported = false;
     out->has_scan_diag = true;
     scan_diag_t &d = out->scan_diag;
@@ -703,6 +700,50 @@ void localizer_scan(localizer_t *L, int64_t utime, const pb_points_t *pts, outpu
     d.status = L->status;
 }
 
+static void process_pending(localizer_t *L, outputs_t *out)
+{
+    if (!L->has_pending) return;
+    L->has_pending = false;
+    pb_points_t v = {};
+    v.n = v.cap = int(L->pend_off.size());
+    v.x = L->pend_x.data(); v.y = L->pend_y.data(); v.z = L->pend_z.data();
+    v.offset_us = L->pend_off.data();
+    process_scan(L, L->pend_utime, L->pend_t_ref, &v, out);
+}
+
+void localizer_scan(localizer_t *L, int64_t utime, const pb_points_t *pts, outputs_t *out)
+{
+    int32_t max_off = 0;
+    for (int i = 0; i < pts->n; i++) if (pts->offset_us[i] > max_off) max_off = pts->offset_us[i];
+    int64_t t_ref = utime + max_off;
+    if (max_off > 1000000) {
+        event(out, "scan_invalid", "LIDAR_SCAN: point times span %.1f s (more than a sweep); dropped", max_off * 1e-6);
+        return;
+    }
+    if (L->last_scan_t != 0 && t_ref <= L->last_scan_t) {
+        if (t_ref == L->last_scan_t) event(out, "scan_duplicate", "LIDAR_SCAN: sweep at %lld repeated, dropped", (long long)utime);
+        else event(out, "scan_out_of_order", "LIDAR_SCAN: sweep %.0f ms older than the last one dropped",
+                   (L->last_scan_t - t_ref) * 1e-3);
+        return;
+    }
+    L->last_scan_t = t_ref;
+    process_pending(L, out);
+    /* A sweep published before its last point was measured (simdrive stamps the log
+     * event at the sweep start) waits for the IMU to cover it, so that deskewing and
+     * the prediction use measured motion, not an extrapolation. */
+    if (L->last_imu_t != 0 && L->last_imu_t < t_ref && utime - L->last_imu_t < L->cfg.imu_timeout_us) {
+        L->has_pending = true;
+        L->pend_utime = utime;
+        L->pend_t_ref = t_ref;
+        L->pend_x.assign(pts->x, pts->x + pts->n);
+        L->pend_y.assign(pts->y, pts->y + pts->n);
+        L->pend_z.assign(pts->z, pts->z + pts->n);
+        L->pend_off.assign(pts->offset_us, pts->offset_us + pts->n);
+        return;
+    }
+    process_scan(L, utime, t_ref, pts, out);
+}
+
 void localizer_gnss(localizer_t *L, const gnss_in_t &fx, outputs_t *out)
 {
     if (!L->has_geo) return;
@@ -741,8 +782,12 @@ void localizer_gnss(localizer_t *L, const gnss_in_t &fx, outputs_t *out)
     }
 }
 
+void localizer_finish(localizer_t *L, outputs_t *out) { process_pending(L, out); }
+
 void localizer_tick(localizer_t *L, int64_t now, outputs_t *out)
 {
+    /* the IMU stopped before the sweep's end: match it with what there is */
+    if (L->has_pending && now > L->pend_t_ref && now - L->last_imu_t > L->cfg.imu_timeout_us) process_pending(L, out);
     if (!L->pred.initialized || imu_fresh(L, now) || now <= L->pred.utime) return;
     if (now - L->last_pred_out_t < L->cfg.predict_period_us) return;
     filter_t f = L->pred;

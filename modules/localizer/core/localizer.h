@@ -145,6 +145,9 @@ void localizer_scan(localizer_t *L, int64_t utime, const pb_points_t *pts, outpu
 /* Called on a timer: publishes POSE_PREDICTED when there is no IMU to drive it. */
 void localizer_tick(localizer_t *L, int64_t now_utime, outputs_t *out);
 
+/* End of input (end of a replayed log): matches a sweep still waiting for the IMU. */
+void localizer_finish(localizer_t *L, outputs_t *out);
+
 int localizer_status(const localizer_t *L);
 const char *localizer_status_name(int status);
 
