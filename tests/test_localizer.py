@@ -154,6 +154,17 @@ def test_wrong_initial_pose_is_reported_lost_and_relocalized(drive, tmp_path):
     assert et.max() < 0.5, "never tracking at the wrong pose"
 
 
+def test_gnss_jump_is_not_followed(drive, tmp_path):
+    """GNSS moved 20 m (multipath, spoofing) while the map fits: the pose stays, the fixes are counted as outliers."""
+    flog, out = tmp_path / "gj.lcm", tmp_path / "o.lcm"
+    run([sys.executable, FAULT, "gnss-jump", "--in", drive["log"], "--out", flog, "--at", "4", "--for", "4"])
+    localize(drive, flog, out)
+    r = lb.score_run(drive["drive"], out)
+    assert r["lost_after_tracking"] == 0 and r["not_tracking_after"] == 0
+    assert r["t_p99"] < 0.3, r
+    assert counters(last_status_msg(out)).get("gnss_outlier", 0) > 0
+
+
 def test_bad_input_is_counted_not_fatal(drive, tmp_path):
     steps = [("nan-points", ["--at", "2", "--count", "2"]), ("empty-scans", ["--at", "3", "--count", "2"]),
              ("duplicate", ["--at", "4", "--for", "0.5"]), ("reorder", ["--at", "5", "--for", "0.5"]),

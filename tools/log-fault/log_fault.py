@@ -16,6 +16,8 @@ and benchmarks. Times (--at, --for) are seconds after the first event of the log
   reorder       swap each pair of successive IMU events, and each pair of LIDAR_SCAN
                 events, in [at, at+for) (out-of-order delivery)
   garbage       replace --count LIDAR_SCAN payloads after `at` by bytes that do not decode
+  gnss-jump     move every GNSS_FIX in [at, at+for) --metres to the east (multipath or
+                spoofing: the localizer must not follow it)
 The log stays ordered by event timestamp except for `reorder`. Prints what it did.
 """
 import argparse
@@ -100,7 +102,7 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
     ap.add_argument("fault", choices=["lidar-gap", "jump", "imu-gap", "drop-channel", "nan-points", "empty-scans",
-                                      "duplicate", "reorder", "garbage"])
+                                      "duplicate", "reorder", "garbage", "gnss-jump"])
     ap.add_argument("--in", dest="inp", required=True, help="input log")
     ap.add_argument("--out", required=True, help="output log")
     ap.add_argument("--at", type=float, default=10.0, help="seconds after the log's first event (default 10)")
@@ -169,6 +171,18 @@ def main():
             else:
                 out.append(e)
         note = f"{a.fault}: {n} sweeps from {t_at}"
+    elif a.fault == "gnss-jump":
+        from portobello import gnss_fix_t
+        n = 0
+        for e in ev:
+            if e[1] == "GNSS_FIX" and t_at <= msg_utime(e[2]) < t_end:
+                f = gnss_fix_t.decode(e[2])
+                f.lon_deg += a.metres / (111320.0 * math.cos(math.radians(f.lat_deg)))
+                out.append((e[0], e[1], f.encode()))
+                n += 1
+            else:
+                out.append(e)
+        note = f"moved {n} GNSS fixes {a.metres:.0f} m east"
     elif a.fault == "duplicate":
         n = 0
         for e in ev:

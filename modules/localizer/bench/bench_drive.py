@@ -181,6 +181,14 @@ def main():
               f"(error then {fmt(j.get('error_at_relocalization_m'))} m); worst error while reporting tracking "
               f"after the jump {fmt(j.get('max_tracking_error_after_jump_m'))} m")
     print(f"{'':<34} (targets: lost within 1 s, relocalized within 5 s)")
+    import subprocess
+    flog = d / "fault_gnss_jump.lcm"
+    subprocess.run([sys.executable, lb.ROOT / "tools/log-fault/log_fault.py", "gnss-jump", "--in", log, "--out", flog,
+                    "--at", "15", "--for", "5", "--metres", "20"], check=True, capture_output=True)
+    r = run_case("GNSS jump", d, flog, tag="gnss_jump")
+    if r:
+        print(f"{'GNSS 20 m off for 5 s':<34} LOST {r.get('lost_after_tracking')}, not tracking {r.get('not_tracking_after')} "
+              f"sweeps; median {fmt(r.get('t_median'))} m, p99 {fmt(r.get('t_p99'))} m   (the pose must not follow GNSS)")
     r = run_case("GNSS-only start", d, log, tag="gnss")
     if r:
         st = lb.read_stats(d / "stats_gnss.csv")

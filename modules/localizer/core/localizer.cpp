@@ -62,6 +62,8 @@ struct localizer {
     Eigen::Isometry3d prev_pose;
     int64_t prev_pose_t = 0;
 
+    double last_structure = NAN;       /* the last structure fit >= cfg.structure_trust, and its time */
+    int64_t last_structure_t = 0;
     std::vector<float> xyz, above;
     /* a sweep waiting for the IMU to reach its end */
     bool has_pending = false;
@@ -646,6 +648,10 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
             } else {
                 accept = true;
                 filter_update_pose(&prior, res.pose, cov);
+                if (std::isfinite(si) && si >= L->cfg.structure_trust) {
+                    L->last_structure = si;
+                    L->last_structure_t = t_ref;
+                }
             }
         }
         if (accept && L->candidate) {
@@ -773,6 +779,13 @@ void localizer_gnss(localizer_t *L, const gnss_in_t &fx, outputs_t *out)
     m /= double(L->gnss_res.size());
     hacc /= double(L->gnss_res.size());
     double gate = gnss_gate(L, hacc);
+    if (m.norm() > gate && L->status == ST_TRACKING && L->last_structure_t != 0 &&
+        fx.utime - L->last_structure_t < 1000000) {
+        event(out, "gnss_outlier", "GNSS_FIX: %.1f m from the pose over %zu fixes while the map fits (%.0f%% of the "
+              "structure); GNSS not trusted", m.norm(), L->gnss_res.size(), 100 * L->last_structure);
+        L->gnss_res.clear();
+        return;
+    }
     if (m.norm() > gate) {
         char why[160];
         snprintf(why, sizeof why, "pose is %.1f m from GNSS over %zu fixes (gate %.1f m)", m.norm(), L->gnss_res.size(), gate);

@@ -68,6 +68,10 @@ struct localizer_config_t {
     double structure_min_z_m = 0.7;
     int structure_min_points = 300;
     double min_structure_inliers = 0.45;
+    /* GNSS that disagrees while the structure fitted this well within the last second is
+     * taken to be the faulty one (multipath, spoofing): counted, the pose is kept.
+     * Measured: 0.6-0.9 at the right pose, 0-0.15 at a pose 20 m off. */
+    double structure_trust = 0.6;
     double gate_chi2 = 40.0;               /* innovation Mahalanobis^2 (6 dof) above which a match is rejected */
     double gate_min_m = 0.5;               /* ... but never reject a step smaller than this */
     double pose_sigma_floor_m = 0.01;      /* floor on the match covariance (sd, m) */
