@@ -59,7 +59,9 @@ static void usage(FILE *f)
         "  --dump FILE      write the baseline scans, starts and truth for bench.py, and the\n"
         "                   map points near them as FILE.map (float32 xyz)\n"
         "  --json FILE      write the per-method results as JSON\n"
-        "  --seed N         starts RNG seed (default 1)\n");
+        "  --seed N         starts RNG seed (default 1)\n"
+        "  --verbose        one line per scan (ours, tracking start)\n"
+        "  --target-points N, --coarse-iterations N   override the registration defaults\n");
 }
 
 struct Scan {
@@ -125,12 +127,13 @@ int main(int argc, char **argv)
     const char *log_path = nullptr, *map_path = nullptr, *vehicle_path = nullptr, *dump = nullptr, *json = nullptr;
     double voxel = 0.5, g_radius = 0, g_yaw_deg = 0;
     long every = 1, base_every = 10, max_scans = 1000000, seed = 1;
-    bool odd = false, global = false;
+    bool odd = false, global = false, verbose = false;
     static const struct option opts[] = {
         {"log", 1, 0, 'l'}, {"map", 1, 0, 'm'}, {"vehicle", 1, 0, 'v'}, {"voxel", 1, 0, 'x'},
         {"every", 1, 0, 'e'}, {"baseline-every", 1, 0, 'b'}, {"max-scans", 1, 0, 'n'}, {"odd", 0, 0, 'o'},
         {"global", 1, 0, 'g'}, {"dump", 1, 0, 'd'}, {"json", 1, 0, 'j'}, {"seed", 1, 0, 's'},
-        {"help", 0, 0, 'h'}, {0, 0, 0, 0}};
+        {"verbose", 0, 0, 'V'}, {"target-points", 1, 0, 'T'}, {"coarse-iterations", 1, 0, 'C'}, {"help", 0, 0, 'h'}, {0, 0, 0, 0}};
+    long target_points = -1, coarse_iterations = -1;
     int c;
     while ((c = getopt_long(argc, argv, "", opts, nullptr)) != -1) {
         switch (c) {
@@ -143,6 +146,9 @@ int main(int argc, char **argv)
         case 'n': if (pb_arg_long("bench-localizer", "--max-scans", optarg, 1, 100000000, &max_scans)) return 2; break;
         case 's': if (pb_arg_long("bench-localizer", "--seed", optarg, 0, 1L << 40, &seed)) return 2; break;
         case 'o': odd = true; break;
+        case 'V': verbose = true; break;
+        case 'T': if (pb_arg_long("bench-localizer", "--target-points", optarg, 0, 1000000, &target_points)) return 2; break;
+        case 'C': if (pb_arg_long("bench-localizer", "--coarse-iterations", optarg, 0, 100, &coarse_iterations)) return 2; break;
         case 'g':
             if (std::sscanf(optarg, "%lf,%lf", &g_radius, &g_yaw_deg) != 2 || g_radius < 0 || g_yaw_deg < 0) {
                 std::fprintf(stderr, "bench-localizer: --global wants R,DEG, got '%s'\n", optarg);
@@ -262,7 +268,9 @@ int main(int argc, char **argv)
     pb_regmap_info(map, &info);
     pb_reg_config_t rcfg;
     pb_reg_config_default(&rcfg);
-    Run ours_track, ours_off, ours_track_sub, ours_off_sub;
+    if (target_points >= 0) rcfg.target_points = (int)target_points;
+    if (coarse_iterations >= 0) rcfg.coarse_iterations = (int)coarse_iterations;
+    Run ours_track, ours_off, ours_track_sub, ours_off_sub, ours_track_red, ours_off_red;
     std::vector<std::vector<float>> reduced(scans.size());
     for (size_t k = 0; k < scans.size(); k++) {
         const Scan &sc = scans[k];
@@ -280,6 +288,20 @@ int main(int argc, char **argv)
             pb_reg_align(map, sc.pts.data(), sc.pts.size() / 3, sc.track_start, &rcfg, &r, &err);
             double ms = now_ms() - c0;
             ours_track.add(ms, r.pose, sc.gt);
+            if (verbose) {
+                // the same scores at the reference pose itself: which pose fits the map better?
+                pb_reg_config_t ev = rcfg;
+                ev.max_iterations = 0;
+                ev.coarse_iterations = 0;
+                pb_reg_result_t at_gt;
+                pb_reg_align(map, sc.pts.data(), sc.pts.size() / 3, sc.gt, &ev, &at_gt, &err);
+                std::printf("scan %d tracking: err %.3f m, status %d, it %d, pts %d, inl %.3f (at reference %.3f), "
+                            "upright %.3f (at reference %.3f, %d pts), rmse %.3f, cond %.3g, sd x %.3f y %.3f yaw %.3f deg\n",
+                            sc.index, ours_track.terr.back(), r.status, r.iterations, r.points_used, r.inlier_fraction,
+                            at_gt.inlier_fraction, r.upright_inlier_fraction, at_gt.upright_inlier_fraction,
+                            r.upright_points, r.rmse_m, r.condition, std::sqrt(r.covariance(0, 0)),
+                            std::sqrt(r.covariance(1, 1)), std::sqrt(r.covariance(5, 5)) / deg);
+            }
             if (sub) ours_track_sub.add(ms, r.pose, sc.gt);
             c0 = now_ms();
             pb_reg_align(map, sc.pts.data(), sc.pts.size() / 3, sc.off_start, &rcfg, &r, &err);
@@ -287,7 +309,22 @@ int main(int argc, char **argv)
             ours_off.add(ms, r.pose, sc.gt);
             if (sub) ours_off_sub.add(ms, r.pose, sc.gt);
         }
-        if (sub) pb_reg_downsample(sc.pts.data(), sc.pts.size() / 3, &rcfg, &reduced[k]);
+        if (sub) {
+            // the same reduced points the baselines get, through our whole call again
+            pb_reg_downsample(sc.pts.data(), sc.pts.size() / 3, &rcfg, &reduced[k]);
+            const std::vector<float> &rp = reduced[k];
+            double c0 = now_ms();
+            if (global)
+                pb_reg_align_global(map, rp.data(), rp.size() / 3, sc.off_start, g_radius, g_yaw_deg * deg, 0, 0, &rcfg, &r, &err);
+            else
+                pb_reg_align(map, rp.data(), rp.size() / 3, sc.off_start, &rcfg, &r, &err);
+            ours_off_red.add(now_ms() - c0, r.pose, sc.gt);
+            if (!global) {
+                c0 = now_ms();
+                pb_reg_align(map, rp.data(), rp.size() / 3, sc.track_start, &rcfg, &r, &err);
+                ours_track_red.add(now_ms() - c0, r.pose, sc.gt);
+            }
+        }
     }
     pb_regmap_destroy(map);
 
@@ -360,6 +397,10 @@ int main(int argc, char **argv)
                 log_path, scans.size(), every, odd ? ", odd only" : "", raw_points_max, ms_prep / scans.size());
     std::printf("map %s: %lld points -> %lld cells of %.2f m (%lld planes), prepared in %.0f ms\n", map_path,
                 (long long)info.points, (long long)info.cells, voxel, (long long)info.planar_cells, ms_load);
+    if (base_every > 0)
+        std::printf("'subsample' rows: the scans the baselines run on, raw scan in (our downsampling timed); 'reduced\n"
+                    "input' rows: every method gets the same already reduced points (%d target points) and starts\n",
+                    rcfg.target_points);
     std::printf("ms: CPU time of the aligning thread per scan (one core); err: |translation - truth| m; "
                 "yaw p99: deg; < 0.3 m: share of scans\n");
     if (base_every > 0)
@@ -376,15 +417,18 @@ int main(int argc, char **argv)
         std::snprintf(start, sizeof start, "%.0fm/%.0fdeg", g_radius, g_yaw_deg);
         print_row("ours (global align)", start, (int)ours_off.ms.size(), ours_off);
         if (nsub) print_row("ours, subsample", start, (int)ours_off_sub.ms.size(), ours_off_sub);
-        if (nsub) print_row("PCL NDT, subsample", start, (int)ndt_off.ms.size(), ndt_off);
+        if (nsub) print_row("ours, reduced input", start, (int)ours_off_red.ms.size(), ours_off_red);
+        if (nsub) print_row("PCL NDT, reduced input", start, (int)ndt_off.ms.size(), ndt_off);
     } else {
         print_row("ours", "tracking", (int)ours_track.ms.size(), ours_track);
         print_row("ours", "1m/3deg", (int)ours_off.ms.size(), ours_off);
         if (nsub) {
             print_row("ours, subsample", "tracking", (int)ours_track_sub.ms.size(), ours_track_sub);
             print_row("ours, subsample", "1m/3deg", (int)ours_off_sub.ms.size(), ours_off_sub);
-            print_row("PCL NDT, subsample", "tracking", (int)ndt_track.ms.size(), ndt_track);
-            print_row("PCL NDT, subsample", "1m/3deg", (int)ndt_off.ms.size(), ndt_off);
+            print_row("ours, reduced input", "tracking", (int)ours_track_red.ms.size(), ours_track_red);
+            print_row("ours, reduced input", "1m/3deg", (int)ours_off_red.ms.size(), ours_off_red);
+            print_row("PCL NDT, reduced input", "tracking", (int)ndt_track.ms.size(), ndt_track);
+            print_row("PCL NDT, reduced input", "1m/3deg", (int)ndt_off.ms.size(), ndt_off);
         }
     }
     if (json) {
@@ -396,6 +440,8 @@ int main(int argc, char **argv)
         json_run(f, "ours_off", ours_off, false);
         json_run(f, "ours_track_sub", ours_track_sub, false);
         json_run(f, "ours_off_sub", ours_off_sub, false);
+        json_run(f, "ours_track_red", ours_track_red, false);
+        json_run(f, "ours_off_red", ours_off_red, false);
         json_run(f, "ndt_track", ndt_track, false);
         json_run(f, "ndt_off", ndt_off, true);
         std::fprintf(f, "}\n");

@@ -26,7 +26,7 @@ void pb_reg_config_default(pb_reg_config_t *cfg)
     cfg->step_eps_rad = 1e-5;
     cfg->inlier_m = 0.1;
     cfg->planar_only = 0;
-    cfg->coarse_iterations = 8;
+    cfg->coarse_iterations = 16;
 }
 
 Eigen::Isometry3d pb_reg_from_transform(const pb_transform_t *t)
@@ -53,7 +53,7 @@ void voxel_centroids(const float *xyz, size_t n, double voxel, VoxelHash *hash,
                      std::vector<float> *sums, std::vector<int> *counts)
 {
     double inv = 1.0 / voxel;
-    hash->reset(std::min<size_t>(n, 1 << 16));
+    hash->reset(std::min<size_t>(n / 2 + 16, 1 << 15));
     sums->clear();
     counts->clear();
     for (size_t i = 0; i < n; i++) {
@@ -101,16 +101,21 @@ void linearise(const Level &lv, const float *pts, size_t n, const Eigen::Isometr
         Eigen::Vector3d p(pts[3 * i], pts[3 * i + 1], pts[3 * i + 2]);
         Eigen::Vector3d s = R * p;          /* point about the vehicle, map axes */
         Eigen::Vector3d q = s + t;
-        const Cell *c = lv.lookup(q(0), q(1), q(2));
-        if (!c || (planar_only && c->kind != CELL_PLANE)) continue;
-        Eigen::Vector3d d(q(0) - c->mean[0], q(1) - c->mean[1], q(2) - c->mean[2]);
-        Eigen::Vector3d u1(c->u1[0], c->u1[1], c->u1[2]);
-        double r1 = u1.dot(d), r2 = 0;
-        Eigen::Vector3d u2;
-        if (c->kind == CELL_LINE) {
-            u2 = Eigen::Vector3d(c->u2[0], c->u2[1], c->u2[2]);
-            r2 = u2.dot(d);
+        /* the own cell's target, else the nearest of the face neighbours' */
+        const Cell *near[7];
+        int nn = lv.lookup_near(q(0), q(1), q(2), near);
+        const Cell *c = nullptr;
+        double r1 = 0, r2 = 0, best = HUGE_VAL;
+        Eigen::Vector3d u1, u2;
+        for (int k = 0; k < nn; k++) {
+            const Cell *ck = near[k];
+            if (planar_only && ck->kind != CELL_PLANE) continue;
+            Eigen::Vector3d d(q(0) - ck->mean[0], q(1) - ck->mean[1], q(2) - ck->mean[2]);
+            Eigen::Vector3d a(ck->u1[0], ck->u1[1], ck->u1[2]), b(ck->u2[0], ck->u2[1], ck->u2[2]);
+            double ra = a.dot(d), rb = ck->kind == CELL_LINE ? b.dot(d) : 0.0;
+            if (ra * ra + rb * rb < best) { best = ra * ra + rb * rb; c = ck; r1 = ra; r2 = rb; u1 = a; u2 = b; }
         }
+        if (!c) continue;
         double e2 = r1 * r1 + r2 * r2;
         if (e2 > gate2) continue;
         acc->matched++;
@@ -146,8 +151,10 @@ Eigen::Matrix3d exp_so3(const Eigen::Vector3d &w)
 /* Gauss-Newton on one level from T (updated in place). Returns iterations and
  * whether the step became small. */
 int gauss_newton(const Level &lv, const float *pts, size_t n, const Params &pa, Eigen::Isometry3d *T,
-                 bool *converged)
+                 bool *converged, double abort_far_m = 0, bool *aborted = nullptr)
 {
+    const Eigen::Isometry3d T_start = *T;
+    if (aborted) *aborted = false;
     double gate = pa.max_corr;
     *converged = false;
     int it = 0;
@@ -169,6 +176,14 @@ int gauss_newton(const Level &lv, const float *pts, size_t n, const Params &pa, 
         T->linear() = exp_so3(dx.tail<3>()) * T->linear();
         double step_t = dx.head<3>().norm(), step_r = dx.tail<3>().norm();
         bool small = step_t < pa.eps_m && step_r < pa.eps_rad;
+        /* a guess this poor is better served by the coarse level */
+        if (abort_far_m > 0 && it <= 3 &&
+            ((T->translation() - T_start.translation()).norm() > abort_far_m ||
+             Eigen::AngleAxisd(T_start.linear().transpose() * T->linear()).angle() > M_PI / 180 ||
+             (it == 3 && (step_t > 0.05 * abort_far_m || step_r > 0.05 * M_PI / 180)))) {
+            if (aborted) *aborted = true;
+            break;
+        }
         if (small && gate <= pa.min_corr) { *converged = true; break; }
         /* the gate follows the step: shrink towards min_corr as we settle */
         gate = std::max(pa.min_corr, std::min(gate, 0.5 * gate + 5.0 * step_t + 10.0 * step_r));
@@ -200,6 +215,30 @@ void fill_result(const Level &lv, const float *pts, size_t n, const Eigen::Isome
     } else {
         res->median_abs_m = 0;
     }
+    /* inliers among points on upright targets, found at any distance */
+    int up = 0, up_in = 0;
+    const Eigen::Matrix3d R = T.linear();
+    const Eigen::Vector3d t = T.translation();
+    for (size_t i = 0; i < n; i++) {
+        Eigen::Vector3d q = R * Eigen::Vector3d(pts[3 * i], pts[3 * i + 1], pts[3 * i + 2]) + t;
+        const Cell *near[7];
+        int nn = lv.lookup_near(q(0), q(1), q(2), near);
+        const Cell *c = nullptr;
+        double best = HUGE_VAL;
+        for (int k = 0; k < nn; k++) {
+            Eigen::Vector3d d(q(0) - near[k]->mean[0], q(1) - near[k]->mean[1], q(2) - near[k]->mean[2]);
+            double ra = d.dot(Eigen::Vector3d(near[k]->u1[0], near[k]->u1[1], near[k]->u1[2]));
+            double rb = near[k]->kind == CELL_LINE ? d.dot(Eigen::Vector3d(near[k]->u2[0], near[k]->u2[1], near[k]->u2[2])) : 0;
+            if (ra * ra + rb * rb < best) { best = ra * ra + rb * rb; c = near[k]; }
+        }
+        bool upright = c && (c->kind == CELL_LINE ? std::fabs(c->u1[2]) + std::fabs(c->u2[2]) > 0.7
+                                                  : std::fabs(c->u1[2]) < 0.7);
+        if (!upright) continue;
+        up++;
+        if (best < pa.inlier * pa.inlier) up_in++;
+    }
+    res->upright_points = up;
+    res->upright_inlier_fraction = up ? (double)up_in / up : NAN;
     /* covariance: sigma^2 H^-1, sigma^2 from the robust residuals */
     Eigen::Matrix<double, 6, 6> H = acc.H;
     if (acc.matched > 6) {
@@ -259,6 +298,8 @@ void reset_result(pb_reg_result_t *res, const Eigen::Isometry3d &guess)
     res->iterations = res->points_used = res->points_matched = 0;
     res->overlap = res->inlier_fraction = res->rmse_m = res->median_abs_m = res->score = 0;
     res->time_ms = 0;
+    res->upright_inlier_fraction = NAN;
+    res->upright_points = 0;
 }
 
 bool check_inputs(const pb_regmap_t *map, const float *xyz, size_t n, const Eigen::Isometry3d &guess,
@@ -280,14 +321,18 @@ double ms_since(std::chrono::steady_clock::time_point t0)
 void pb_reg_downsample(const float *xyz, size_t n, const pb_reg_config_t *cfg, std::vector<float> *out)
 {
     /* range filter: drop the car's own body and far, sparse returns */
-    std::vector<float> kept;
-    kept.reserve(3 * n);
-    double r2min = cfg->min_range_m * cfg->min_range_m, r2max = cfg->max_range_m * cfg->max_range_m;
+    std::vector<float> kept(3 * n);
+    size_t nk = 0;
+    const float r2min = (float)(cfg->min_range_m * cfg->min_range_m), r2max = (float)(cfg->max_range_m * cfg->max_range_m);
     for (size_t i = 0; i < n; i++) {
         const float *p = xyz + 3 * i;
-        double r2 = (double)p[0] * p[0] + (double)p[1] * p[1] + (double)p[2] * p[2];
-        if (r2 >= r2min && r2 <= r2max && std::isfinite(r2)) kept.insert(kept.end(), p, p + 3);
+        float r2 = p[0] * p[0] + p[1] * p[1] + p[2] * p[2];
+        if (r2 >= r2min && r2 <= r2max) {   /* false for NaN */
+            kept[3 * nk] = p[0]; kept[3 * nk + 1] = p[1]; kept[3 * nk + 2] = p[2];
+            nk++;
+        }
     }
+    kept.resize(3 * nk);
     VoxelHash hash;
     std::vector<int> counts;
     double voxel = cfg->scan_voxel_m;
@@ -316,23 +361,43 @@ int pb_reg_align(const pb_regmap_t *map, const float *xyz, size_t n, const Eigen
     pb_reg_downsample(xyz, n, cfg, &pts);
     size_t m = pts.size() / 3;
     Params pa = params_of(cfg);
+    /* 2. fine level from the guess: robust point-to-plane Gauss-Newton, gate
+     *    shrinking; enough when tracking */
     Eigen::Isometry3d T = guess;
-    bool converged = false;
-    res->iterations = 0;
-    /* 2. coarse level on every 4th point: planes fitted over ~3 coarse cells and a
-     *    wide gate pull in starts a metre or degrees off; from a good prediction
-     *    it stops after a step or two */
-    if (cfg->coarse_iterations > 0 && !map->coarse.cells.empty()) {
+    bool converged = false, aborted = false;
+    bool can_coarse = cfg->coarse_iterations > 0 && !map->coarse.cells.empty();
+    res->iterations = gauss_newton(map->fine, pts.data(), m, pa, &T, &converged, can_coarse ? pa.min_corr : 0,
+                                   &aborted);
+    /* 3. if that did not settle, or had to move far (a poor guess), retry
+     *    coarse-to-fine: a few steps on the coarse level (every 4th point, planes
+     *    over ~3 coarse cells, wide gate) pull in starts a metre or degrees off;
+     *    keep whichever result has more inliers (the fine run stops early when
+     *    it moves more than min_corr or 1 deg in its first 3 steps, or is still
+     *    taking large steps at the 3rd) */
+    Eigen::Isometry3d D = guess.inverse() * T;
+    bool moved_far = D.translation().norm() > pa.min_corr || Eigen::AngleAxisd(D.linear()).angle() > 1.0 * M_PI / 180;
+    if (can_coarse && (aborted || !converged || moved_far)) {
         std::vector<float> sub;
         sub.reserve(pts.size() / 4 + 3);
         for (size_t i = 0; i < m; i += 4) sub.insert(sub.end(), &pts[3 * i], &pts[3 * i] + 3);
         Params pc = coarse_params(pa, map->coarse.voxel, cfg->coarse_iterations);
-        res->iterations += gauss_newton(map->coarse, sub.data(), sub.size() / 3, pc, &T, &converged);
+        Eigen::Isometry3d T2 = guess;
+        bool conv2 = false;
+        res->iterations += gauss_newton(map->coarse, sub.data(), sub.size() / 3, pc, &T2, &conv2);
+        res->iterations += gauss_newton(map->fine, pts.data(), m, pa, &T2, &conv2);
+        Accum a1, a2;
+        linearise(map->fine, pts.data(), m, T, pa.min_corr, pa.kernel, pa.inlier, pa.planar_only, &a1, nullptr);
+        linearise(map->fine, pts.data(), m, T2, pa.min_corr, pa.kernel, pa.inlier, pa.planar_only, &a2, nullptr);
+        if (a2.inliers > a1.inliers) {
+            T = T2;
+            converged = conv2;
+        }
     }
-    /* 3. fine level: robust point-to-plane Gauss-Newton, gate shrinking */
-    res->iterations += gauss_newton(map->fine, pts.data(), m, pa, &T, &converged);
     /* 4. scores, covariance and divergence evidence at the result */
+    int its = res->iterations;
     fill_result(map->fine, pts.data(), m, T, pa, res);
+    res->iterations = its;
+    /* the pose, or the guess if too few points matched */
     if (res->points_matched < 30) {
         res->status = PB_REG_FEW_POINTS;
         res->pose = guess;
@@ -385,9 +450,10 @@ int pb_reg_align_global(const pb_regmap_t *map, const float *xyz, size_t n, cons
                 T.translation() = seed_t + Eigen::Vector3d(dx, dy, 0);
                 bool conv;
                 gauss_newton(coarse, pts.data(), m, pc, &T, &conv);
+                /* ranked by the fine level: coarse planes are blurred on sparse real maps */
                 Accum acc;
-                linearise(coarse, pts.data(), m, T, pc.min_corr, pc.kernel, pc.inlier, pc.planar_only, &acc,
-                          nullptr);
+                linearise(map->fine, pts.data(), m, T, 3 * cfg->inlier_m, cfg->kernel_m, cfg->inlier_m,
+                          cfg->planar_only != 0, &acc, nullptr);
                 hyps.push_back({acc.wsum, T});
             }
         }

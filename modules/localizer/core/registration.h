@@ -13,11 +13,13 @@
  *
  * Pipeline of pb_reg_align:
  *   1. downsample the scan (range filter + adaptive voxel grid);
- *   2. a few Gauss-Newton steps on the coarse map level (every 4th point, wide
- *      gate) to pull in starts that are a metre or a few degrees off;
- *   3. Gauss-Newton on the fine level: transform, look up cells, accumulate
- *      J^T W J and J^T W r, solve the damped 6x6 system, update, shrink the
- *      gate, stop on a small step;
+ *   2. Gauss-Newton on the fine level from the guess: transform, look up
+ *      cells, accumulate J^T W J and J^T W r, solve the damped 6x6 system,
+ *      update, shrink the gate, stop on a small step;
+ *   3. only if that did not converge or moved more than min_corr_m / 1 deg
+ *      (a poor guess): again from the guess, first a few steps on the coarse
+ *      map level (every 4th point, wide gate), then the fine level; the
+ *      result with the larger inlier_fraction wins;
  *   4. at the result: covariance, scores and divergence evidence.
  *
  * Ownership: a pb_reg_result_t is a plain value. pb_reg_align does not keep any
@@ -34,6 +36,9 @@
 #include "pb_math.h"
 #include "regmap.h"
 
+/* max_iterations 0 (and coarse_iterations 0) only evaluates the guess: the
+ * result's scores then describe the given pose (e.g. the filter's), for a
+ * divergence test. */
 typedef struct {
     double scan_voxel_m;      /* first downsampling cell, metres (default 0.5) */
     int target_points;        /* adaptive downsampling aims for this many points (default 2000; 0 = fixed voxel) */
@@ -47,7 +52,7 @@ typedef struct {
     double step_eps_rad;      /* ... and rotation step < this (default 1e-5) */
     double inlier_m;          /* |point-to-plane| for the inlier fraction (default 0.1) */
     int planar_only;          /* 1 = never use line (pole) cells (default 0) */
-    int coarse_iterations;    /* Gauss-Newton steps on the coarse map level first, 0 = none (default 8);
+    int coarse_iterations;    /* Gauss-Newton steps on the coarse level in step 3, 0 = never (default 16);
                                * added after the first API commit (appended, defaults unchanged) */
 } pb_reg_config_t;
 
@@ -84,6 +89,13 @@ typedef struct {
     double median_abs_m;         /* median |residual| of matched points */
     double score;                /* mean Geman-McClure similarity (1 = perfect), NDT-like */
     double time_ms;              /* wall time of the call (diagnostic only, not deterministic) */
+    /* Appended after the first API commit. The ground is often half the points
+     * and fixes only z, roll and pitch, so inlier_fraction stays near 0.5 at a
+     * pose 0.5 m off sideways. This one counts only points whose target is
+     * upright (walls, poles: |normal z| < 0.7), i.e. those that see horizontal
+     * errors: inliers among them / all of them (any distance). NaN if none. */
+    double upright_inlier_fraction;
+    int upright_points;          /* its denominator */
 } pb_reg_result_t;
 
 /* Aligns n points (xyz interleaved, base frame, deskewed) to the map starting

@@ -30,6 +30,30 @@ struct Moments {
     double n = 0, s[3] = {0, 0, 0}, ss[6] = {0, 0, 0, 0, 0, 0};
 };
 
+/* Fits a plane (or a line) to n points given by their sums s and scatter ss
+ * (relative to one corner). Returns CELL_PLANE, CELL_LINE or 0 (too few points,
+ * or neither planar nor linear). */
+int fit_target(double n, const double s[3], const double ss[6], const pb_regmap_config_t *cfg,
+               Eigen::Vector3d *mu, Eigen::Vector3d *u1, Eigen::Vector3d *u2)
+{
+    if (n < cfg->min_points) return 0;
+    *mu = Eigen::Vector3d(s[0] / n, s[1] / n, s[2] / n);
+    Eigen::Matrix3d C;
+    C << ss[0] / n, ss[1] / n, ss[2] / n, ss[1] / n, ss[3] / n, ss[4] / n, ss[2] / n, ss[4] / n, ss[5] / n;
+    C -= *mu * mu->transpose();
+    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
+    es.computeDirect(C);
+    Eigen::Vector3d ev = es.eigenvalues();   /* ascending */
+    *u1 = es.eigenvectors().col(0);
+    *u2 = es.eigenvectors().col(1);
+    if (ev(0) <= cfg->planarity_max * ev(1)) {
+        u2->setZero();
+        return CELL_PLANE;
+    }
+    if (ev(1) <= cfg->planarity_max * ev(2)) return CELL_LINE;   /* u1, u2 span the normal plane of the line */
+    return 0;
+}
+
 /* Builds one level: moments per voxel, then per voxel a target fitted to the
  * points of its 3x3x3 neighbourhood. Returns the number of targets. */
 size_t build_level(const float *xyz, size_t n, double voxel, const pb_regmap_config_t *cfg, Level *lv)
@@ -85,30 +109,19 @@ size_t build_level(const float *xyz, size_t n, double voxel, const pb_regmap_con
                     N += m.n;
                     for (int a = 0; a < 3; a++) S[a] += s[a];
                 }
-        if (N < cfg->min_points) continue;
-        Eigen::Vector3d mu(S[0] / N, S[1] / N, S[2] / N);
-        Eigen::Matrix3d C;
-        C << SS[0] / N, SS[1] / N, SS[2] / N, SS[1] / N, SS[3] / N, SS[4] / N, SS[2] / N, SS[4] / N, SS[5] / N;
-        C -= mu * mu.transpose();
-        Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
-        es.computeDirect(C);
-        Eigen::Vector3d ev = es.eigenvalues();   /* ascending */
-        Eigen::Vector3d u1 = es.eigenvectors().col(0), u2 = es.eigenvectors().col(1);
-        uint8_t kind;
-        if (ev(0) <= cfg->planarity_max * ev(1)) {
-            kind = CELL_PLANE;
-            u2.setZero();
-        } else if (ev(1) <= cfg->planarity_max * ev(2)) {
-            kind = CELL_LINE;    /* u1, u2 span the plane perpendicular to the line */
-        } else {
-            continue;   /* scattered (foliage): no reliable target */
-        }
+        /* the neighbourhood's plane, else (at a junction such as a wall's foot)
+         * the cell's own points alone */
+        const Moments &own = moments[c];
+        Eigen::Vector3d mu, u1, u2;
+        int kind = fit_target(N, S, SS, cfg, &mu, &u1, &u2);
+        if (!kind) kind = fit_target(own.n, own.s, own.ss, cfg, &mu, &u1, &u2);
+        if (!kind) continue;   /* scattered (foliage) or too few points: no reliable target */
         Cell cell;
+        cell.kind = (uint8_t)kind;
         cell.mean[0] = (float)(mu(0) + ix * voxel);
         cell.mean[1] = (float)(mu(1) + iy * voxel);
         cell.mean[2] = (float)(mu(2) + iz * voxel);
         for (int a = 0; a < 3; a++) { cell.u1[a] = (float)u1(a); cell.u2[a] = (float)u2(a); }
-        cell.kind = kind;
         bool inserted;
         lv->index.insert(keys[c], (int32_t)lv->cells.size(), &inserted);
         lv->cells.push_back(cell);

@@ -32,6 +32,26 @@ struct Level {
         int32_t i = index.find(key);
         return i < 0 ? nullptr : &cells[(size_t)i];
     }
+
+    /* The cell of (x, y, z), or when it holds no target, those of its 6 face
+     * neighbours (a point just across a cell face from its surface); n of them. */
+    int lookup_near(double x, double y, double z, const Cell *out[7]) const
+    {
+        int64_t ix, iy, iz;
+        if (!voxel_index_of(x, y, z, inv_voxel, &ix, &iy, &iz)) return 0;
+        uint64_t key;
+        if (!voxel_key(ix, iy, iz, &key)) return 0;
+        int32_t i = index.find(key);
+        if (i >= 0) { out[0] = &cells[(size_t)i]; return 1; }
+        static const int d[6][3] = {{1, 0, 0}, {-1, 0, 0}, {0, 1, 0}, {0, -1, 0}, {0, 0, 1}, {0, 0, -1}};
+        int n = 0;
+        for (int k = 0; k < 6; k++) {
+            if (!voxel_key(ix + d[k][0], iy + d[k][1], iz + d[k][2], &key)) continue;
+            i = index.find(key);
+            if (i >= 0) out[n++] = &cells[(size_t)i];
+        }
+        return n;
+    }
 };
 
 }  // namespace pb_loc

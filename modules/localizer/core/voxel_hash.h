@@ -23,12 +23,28 @@ inline bool voxel_key(int64_t ix, int64_t iy, int64_t iz, uint64_t *key)
     return true;
 }
 
+/* floor() without a libm call (x86-64 without SSE4.1 has no floor instruction);
+ * |v| < 1e6 is checked by the caller. */
+inline int64_t fast_floor(double v)
+{
+    int64_t i = (int64_t)v;
+    return i - (v < (double)i);
+}
+
+/* Voxel of a point; false for non-finite or far-out coordinates. */
+inline bool voxel_index_of(double x, double y, double z, double inv_voxel, int64_t *ix, int64_t *iy, int64_t *iz)
+{
+    double vx = x * inv_voxel, vy = y * inv_voxel, vz = z * inv_voxel;
+    if (!(std::fabs(vx) < 1e6 && std::fabs(vy) < 1e6 && std::fabs(vz) < 1e6))   /* also NaN */
+        return false;
+    *ix = fast_floor(vx); *iy = fast_floor(vy); *iz = fast_floor(vz);
+    return true;
+}
+
 inline bool voxel_key_of(double x, double y, double z, double inv_voxel, uint64_t *key)
 {
-    double fx = std::floor(x * inv_voxel), fy = std::floor(y * inv_voxel), fz = std::floor(z * inv_voxel);
-    if (!(std::fabs(fx) < 1e6 && std::fabs(fy) < 1e6 && std::fabs(fz) < 1e6))   /* also NaN */
-        return false;
-    return voxel_key((int64_t)fx, (int64_t)fy, (int64_t)fz, key);
+    int64_t ix, iy, iz;
+    return voxel_index_of(x, y, z, inv_voxel, &ix, &iy, &iz) && voxel_key(ix, iy, iz, key);
 }
 
 inline void voxel_unkey(uint64_t key, int64_t *ix, int64_t *iy, int64_t *iz)
@@ -52,7 +68,7 @@ public:
         while (cap < expected * 2) cap <<= 1;
         keys_.assign(cap, kEmpty);
         vals_.assign(cap, -1);
-        mask_ = cap - 1;
+        set_capacity(cap);
         size_ = 0;
     }
 
@@ -83,7 +99,15 @@ public:
     }
 
 private:
-    size_t slot(uint64_t key) const { return (size_t)((key * 0x9E3779B97F4A7C15ull) >> 20) & mask_; }
+    /* Fibonacci hashing: the top bits of the product mix every bit of the key */
+    size_t slot(uint64_t key) const { return (size_t)((key * 0x9E3779B97F4A7C15ull) >> shift_); }
+
+    void set_capacity(size_t cap)
+    {
+        mask_ = cap - 1;
+        shift_ = 64;
+        while (cap > 1) { cap >>= 1; shift_--; }
+    }
 
     void grow()
     {
@@ -91,7 +115,7 @@ private:
         k.swap(keys_); v.swap(vals_);
         keys_.assign(k.size() * 2, kEmpty);
         vals_.assign(k.size() * 2, -1);
-        mask_ = keys_.size() - 1;
+        set_capacity(keys_.size());
         for (size_t j = 0; j < k.size(); j++) {
             if (k[j] == kEmpty) continue;
             size_t i = slot(k[j]);
@@ -103,6 +127,7 @@ private:
     std::vector<uint64_t> keys_;
     std::vector<int32_t> vals_;
     size_t mask_ = 0, size_ = 0;
+    int shift_ = 60;
 };
 
 }  // namespace pb_loc
