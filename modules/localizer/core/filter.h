@@ -11,8 +11,8 @@
  *   update_pose     a base pose in map from scan matching, 6x6 covariance
  *   update_speed    CAN speed as forward speed of the base origin plus the
  *                   non-holonomic constraint (no lateral, no vertical speed)
- *   update_position a position of a point fixed on the vehicle (GNSS antenna), for
- *                   start-up only
+ *   update_position a position of a point fixed on the vehicle (GNSS antenna); the
+ *                   pipeline does not fuse GNSS yet (it uses it to start and to check)
  *
  * Time is the caller's (message utimes). No I/O, no allocation after create.
  * Ownership: plain value type; copy it to predict ahead without touching the original. */

@@ -428,6 +428,9 @@ static bool try_initialize(localizer_t *L, int64_t t_ref, outputs_t *out)
             double yaw = yaw_enu - L->geo.yaw_deg * M_PI / 180;
             vel = Vec3(std::cos(yaw), std::sin(yaw), 0) * L->fix.speed_mps;
         }
+        /* the hint is for its own time; the car moved on since */
+        if (L->hint_t != 0 && t_ref > L->hint_t && t_ref - L->hint_t < 2000000)
+            seed.translation() += vel * ((t_ref - L->hint_t) * 1e-6);
         L->has_hint = false;
         how = "initial pose";
         int rc = pb_reg_align(L->map, L->xyz.data(), L->xyz.size() / 3, seed, &L->cfg.reg, &res, &err);
