@@ -1,0 +1,120 @@
+"""Helpers shared by the localizer benchmark (bench_drive.py) and tests/test_localizer.py:
+simulate a drive, add VEHICLE_SPEED (can --replay + log-merge), run the localizer on it,
+and score its POSE against GROUND_TRUTH."""
+import csv
+import math
+import os
+import pathlib
+import subprocess
+import sys
+
+import numpy as np
+
+ROOT = pathlib.Path(__file__).resolve().parents[3]
+BIN = ROOT / "build" / "bin"
+sys.path.insert(0, str(ROOT / "build" / "python"))
+
+import lcm  # noqa: E402
+from portobello import pose_t  # noqa: E402
+
+STATUS = {0: "initializing", 1: "tracking", 2: "degraded", 3: "lost"}
+
+
+def sh(args, **kw):
+    p = subprocess.run([str(a) for a in args], capture_output=True, text=True, **kw)
+    if p.returncode != 0:
+        raise RuntimeError(f"{' '.join(map(str, args))} exited {p.returncode}\n{p.stdout}\n{p.stderr}")
+    return p
+
+
+def make_drive(out_dir, seed, profile, duration):
+    """simdrive drive + VEHICLE_SPEED merged in: returns the path of the merged log (cached)."""
+    out_dir = pathlib.Path(out_dir)
+    merged = out_dir / "input.lcm"
+    if merged.exists():
+        return merged
+    sh([BIN / "simdrive", "--out", out_dir, "--seed", seed, "--speed-profile", profile, "--duration", duration, "--quiet"])
+    sh([BIN / "can", "--replay", out_dir / "drive.lcm", "--out", out_dir / "speed.lcm"])
+    sh([BIN / "log-merge", "--quiet", "--out", merged, out_dir / "drive.lcm", out_dir / "speed.lcm"])
+    return merged
+
+
+def run_localizer(inp, out, extra=(), stats=None, timeout=1800):
+    args = [BIN / "localizer", "--replay", inp, "--out", out]
+    if stats:
+        args += ["--stats", stats]
+    args += list(extra)
+    return subprocess.run([str(a) for a in args], capture_output=True, text=True, timeout=timeout)
+
+
+def read_poses(path, channel):
+    """(utime, x, y, z, yaw, status) rows of a pose channel, log order."""
+    rows = []
+    for ev in lcm.EventLog(str(path), "r"):
+        if ev.channel == channel:
+            p = pose_t.decode(ev.data)
+            w, x, y, z = p.orientation
+            yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+            rows.append((p.utime, p.position[0], p.position[1], p.position[2], yaw, p.status))
+    return np.array(rows, dtype=float).reshape(-1, 6)
+
+
+def read_channel_times(path, channel):
+    return np.array([ev.timestamp for ev in lcm.EventLog(str(path), "r") if ev.channel == channel], dtype=float)
+
+
+def read_events(path, channels):
+    return [(ev.timestamp, ev.channel, ev.data) for ev in lcm.EventLog(str(path), "r") if ev.channel in channels]
+
+
+def errors_vs_truth(poses, gt):
+    """Translation (3-D, m) and |yaw| (deg) errors of poses against GROUND_TRUTH interpolated at their utime."""
+    t = gt[:, 0]
+    ok = (poses[:, 0] >= t[0]) & (poses[:, 0] <= t[-1])
+    p = poses[ok]
+    gx = np.interp(p[:, 0], t, gt[:, 1])
+    gy = np.interp(p[:, 0], t, gt[:, 2])
+    gz = np.interp(p[:, 0], t, gt[:, 3])
+    gyaw = np.interp(p[:, 0], t, np.unwrap(gt[:, 4]))
+    et = np.sqrt((p[:, 1] - gx) ** 2 + (p[:, 2] - gy) ** 2 + (p[:, 3] - gz) ** 2)
+    ey = np.abs((p[:, 4] - gyaw + np.pi) % (2 * np.pi) - np.pi) * 180 / np.pi
+    return p, et, ey
+
+
+def read_stats(path):
+    with open(path) as f:
+        return list(csv.DictReader(f))
+
+
+def score_run(drive_log, out_log, stats_path=None):
+    """Accuracy of POSE while tracking, time to tracking, LOST count, latency, POSE_PREDICTED rate."""
+    gt = read_poses(drive_log, "GROUND_TRUTH")
+    poses = read_poses(out_log, "POSE")
+    pred = read_poses(out_log, "POSE_PREDICTED")
+    r = {"poses": len(poses)}
+    if len(poses) == 0:
+        return r
+    tracking = np.nonzero(poses[:, 5] == 1)[0]
+    r["first_tracking_s"] = (poses[tracking[0], 0] - poses[0, 0]) * 1e-6 if len(tracking) else float("nan")
+    after = poses[tracking[0]:] if len(tracking) else poses[:0]
+    r["lost_after_tracking"] = int(np.sum(after[:, 5] == 3))
+    r["not_tracking_after"] = int(np.sum(after[:, 5] != 1))
+    p, et, ey = errors_vs_truth(poses[poses[:, 5] == 1], gt)
+    if len(et):
+        r["t_median"] = float(np.median(et))
+        r["t_p99"] = float(np.percentile(et, 99))
+        r["t_max"] = float(np.max(et))
+        r["yaw_p99"] = float(np.percentile(ey, 99))
+    if len(pred) > 1:
+        span = (pred[-1, 0] - pred[0, 0]) * 1e-6
+        r["pred_rate_hz"] = (len(pred) - 1) / span if span > 0 else float("nan")
+        _, ept, _ = errors_vs_truth(pred[pred[:, 5] == 1], gt)
+        if len(ept):
+            r["pred_t_p99"] = float(np.percentile(ept, 99))
+    if stats_path and os.path.exists(stats_path):
+        st = read_stats(stats_path)
+        lat = np.array([float(s["wall_ms"]) for s in st if s["status"] == "1"])
+        if len(lat):
+            r["lat_p50"] = float(np.percentile(lat, 50))
+            r["lat_p99"] = float(np.percentile(lat, 99))
+    return r

@@ -1,0 +1,243 @@
+/* ESKF of the localizer (see filter.h). Error-state formulation after J. Sola,
+ * "Quaternion kinematics for the error-state Kalman filter" (2017): local
+ * (right-multiplied) attitude error, Joseph-form covariance update. */
+#include "filter.h"
+
+#include <cmath>
+
+namespace loc {
+
+enum { IP = 0, IV = 3, ITH = 6, IBA = 9, IBG = 12 };
+
+static Eigen::Matrix3d skew(const Vec3 &v)
+{
+    Eigen::Matrix3d m;
+    m << 0, -v.z(), v.y(), v.z(), 0, -v.x(), -v.y(), v.x(), 0;
+    return m;
+}
+
+static Eigen::Quaterniond so3_exp(const Vec3 &w)
+{
+    double a = w.norm();
+    if (a < 1e-12) return Eigen::Quaterniond(1, 0.5 * w.x(), 0.5 * w.y(), 0.5 * w.z()).normalized();
+    return Eigen::Quaterniond(Eigen::AngleAxisd(a, w / a));
+}
+
+static Vec3 so3_log(const Eigen::Quaterniond &q_in)
+{
+    Eigen::Quaterniond q = q_in.w() < 0 ? Eigen::Quaterniond(-q_in.w(), -q_in.x(), -q_in.y(), -q_in.z()) : q_in;
+    Vec3 v(q.x(), q.y(), q.z());
+    double s = v.norm();
+    if (s < 1e-12) return 2.0 * v;
+    double a = 2.0 * std::atan2(s, q.w());
+    return v * (a / s);
+}
+
+void filter_create(filter_t *f, const filter_config_t &cfg, const Eigen::Isometry3d &base_from_imu)
+{
+    *f = filter_t();
+    f->cfg = cfg;
+    f->base_from_imu = base_from_imu;
+}
+
+void filter_reset(filter_t *f, int64_t utime, const Eigen::Isometry3d &map_from_base, const Vec3 &v_base_map,
+                  const Vec3 &omega_imu, double pos_sigma, double yaw_sigma, double vel_sigma)
+{
+    Eigen::Isometry3d mi = map_from_base * f->base_from_imu;
+    f->utime = utime;
+    f->p = mi.translation();
+    f->q = Eigen::Quaterniond(mi.rotation()).normalized();
+    f->omega = omega_imu;
+    /* v_imu = v_base + omega x lever (both in map) */
+    f->v = v_base_map + (mi.rotation() * omega_imu).cross(map_from_base.rotation() * f->base_from_imu.translation());
+    f->P.setZero();
+    f->P.block<3, 3>(IP, IP).diagonal() << pos_sigma * pos_sigma, pos_sigma * pos_sigma, pos_sigma * pos_sigma;
+    f->P.block<3, 3>(IV, IV).diagonal().setConstant(vel_sigma * vel_sigma);
+    /* roll and pitch from a level start are good to a degree; yaw as told */
+    double rp = 0.02;
+    f->P.block<3, 3>(ITH, ITH).diagonal() << rp * rp, rp * rp, yaw_sigma * yaw_sigma;
+    f->P.block<3, 3>(IBA, IBA).diagonal().setConstant(0.05 * 0.05);
+    f->P.block<3, 3>(IBG, IBG).diagonal().setConstant(0.002 * 0.002);
+    f->initialized = true;
+}
+
+void filter_predict_imu(filter_t *f, int64_t utime, const Vec3 &accel, const Vec3 &gyro)
+{
+    Vec3 am = accel - f->ba, wm = gyro - f->bg;
+    f->omega = wm;
+    f->accel = am;
+    if (!f->initialized) { f->utime = utime; return; }
+    double dt = (utime - f->utime) * 1e-6;
+    if (dt <= 0) return;
+    Eigen::Matrix3d R = f->q.toRotationMatrix();
+    Vec3 g(0, 0, -f->cfg.gravity);
+    Vec3 a = R * am + g;
+    f->p += f->v * dt + 0.5 * a * dt * dt;
+    f->v += a * dt;
+    Eigen::Quaterniond dq = so3_exp(wm * dt);
+    f->q = (f->q * dq).normalized();
+
+    Mat15 F = Mat15::Identity();
+    F.block<3, 3>(IP, IV) = Eigen::Matrix3d::Identity() * dt;
+    F.block<3, 3>(IV, ITH) = -R * skew(am) * dt;
+    F.block<3, 3>(IV, IBA) = -R * dt;
+    F.block<3, 3>(ITH, ITH) = dq.toRotationMatrix().transpose();
+    F.block<3, 3>(ITH, IBG) = -Eigen::Matrix3d::Identity() * dt;
+    Mat15 Q = Mat15::Zero();
+    const filter_config_t &c = f->cfg;
+    Q.block<3, 3>(IV, IV).diagonal().setConstant(c.accel_noise * c.accel_noise * dt);
+    Q.block<3, 3>(ITH, ITH).diagonal().setConstant(c.gyro_noise * c.gyro_noise * dt);
+    Q.block<3, 3>(IBA, IBA).diagonal().setConstant(c.accel_bias_walk * c.accel_bias_walk * dt);
+    Q.block<3, 3>(IBG, IBG).diagonal().setConstant(c.gyro_bias_walk * c.gyro_bias_walk * dt);
+    f->P = F * f->P * F.transpose() + Q;
+    f->utime = utime;
+}
+
+void filter_predict_cv(filter_t *f, int64_t utime)
+{
+    if (!f->initialized) { f->utime = utime; return; }
+    double dt = (utime - f->utime) * 1e-6;
+    if (dt <= 0) return;
+    f->p += f->v * dt;
+    f->q = (f->q * so3_exp(f->omega * dt)).normalized();
+    Mat15 F = Mat15::Identity();
+    F.block<3, 3>(IP, IV) = Eigen::Matrix3d::Identity() * dt;
+    Mat15 Q = Mat15::Zero();
+    const filter_config_t &c = f->cfg;
+    Q.block<3, 3>(IV, IV).diagonal().setConstant(c.cv_accel_noise * c.cv_accel_noise * dt);
+    Q.block<3, 3>(ITH, ITH).diagonal().setConstant(c.cv_yaw_accel_noise * c.cv_yaw_accel_noise * dt * dt * dt);
+    f->P = F * f->P * F.transpose() + Q;
+    f->utime = utime;
+}
+
+/* Generic update: residual r (m), H (m x 15), noise Rn. Returns r' S^-1 r or -1. */
+template <int M>
+static double kf_update(filter_t *f, const Eigen::Matrix<double, M, 1> &r, const Eigen::Matrix<double, M, 15> &H,
+                        const Eigen::Matrix<double, M, M> &Rn, bool apply)
+{
+    if (!r.allFinite() || !Rn.allFinite()) return -1;
+    Eigen::Matrix<double, M, M> S = H * f->P * H.transpose() + Rn;
+    Eigen::LDLT<Eigen::Matrix<double, M, M>> ldlt(S);
+    if (ldlt.info() != Eigen::Success) return -1;
+    double d2 = r.dot(ldlt.solve(r));
+    if (!apply) return d2;
+    Eigen::Matrix<double, 15, M> K = ldlt.solve(H * f->P).transpose();
+    Eigen::Matrix<double, 15, 1> dx = K * r;
+    Mat15 IKH = Mat15::Identity() - K * H;
+    f->P = IKH * f->P * IKH.transpose() + K * Rn * K.transpose();
+    f->P = 0.5 * (f->P + f->P.transpose());
+    f->p += dx.segment<3>(IP);
+    f->v += dx.segment<3>(IV);
+    f->q = (f->q * so3_exp(dx.segment<3>(ITH))).normalized();
+    f->ba += dx.segment<3>(IBA);
+    f->bg += dx.segment<3>(IBG);
+    return d2;
+}
+
+static void pose_residual(const filter_t *f, const Eigen::Isometry3d &map_from_base, const Mat6 &cov,
+                          Eigen::Matrix<double, 6, 1> *r, Eigen::Matrix<double, 6, 15> *H, Mat6 *Rn)
+{
+    Eigen::Isometry3d mi = map_from_base * f->base_from_imu;
+    Eigen::Quaterniond qm(mi.rotation());
+    r->segment<3>(0) = mi.translation() - f->p;
+    r->segment<3>(3) = so3_log(f->q.conjugate() * qm);
+    H->setZero();
+    H->block<3, 3>(0, IP).setIdentity();
+    H->block<3, 3>(3, ITH).setIdentity();
+    /* covariance: map-frame angles into the filter's local attitude error */
+    Eigen::Matrix3d Rt = f->q.toRotationMatrix().transpose();
+    *Rn = cov;
+    Rn->block<3, 3>(3, 3) = Rt * cov.block<3, 3>(3, 3) * Rt.transpose();
+    Rn->block<3, 3>(0, 3) = cov.block<3, 3>(0, 3) * Rt.transpose();
+    Rn->block<3, 3>(3, 0) = Rn->block<3, 3>(0, 3).transpose();
+}
+
+double filter_update_pose(filter_t *f, const Eigen::Isometry3d &map_from_base, const Mat6 &cov)
+{
+    Eigen::Matrix<double, 6, 1> r;
+    Eigen::Matrix<double, 6, 15> H;
+    Mat6 Rn;
+    pose_residual(f, map_from_base, cov, &r, &H, &Rn);
+    return kf_update<6>(f, r, H, Rn, true);
+}
+
+double filter_pose_innovation(const filter_t *f, const Eigen::Isometry3d &map_from_base, const Mat6 &cov,
+                              Eigen::Matrix<double, 6, 1> *residual)
+{
+    Eigen::Matrix<double, 6, 1> r;
+    Eigen::Matrix<double, 6, 15> H;
+    Mat6 Rn;
+    pose_residual(f, map_from_base, cov, &r, &H, &Rn);
+    if (residual) *residual = r;
+    return kf_update<6>(const_cast<filter_t *>(f), r, H, Rn, false);
+}
+
+double filter_update_speed(filter_t *f, double speed_mps)
+{
+    if (!f->initialized || !std::isfinite(speed_mps)) return -1;
+    Eigen::Matrix3d R = f->q.toRotationMatrix();
+    Eigen::Matrix3d Rbi = f->base_from_imu.rotation();
+    Vec3 r_bi = f->base_from_imu.translation();
+    Vec3 u = R.transpose() * f->v;                       /* IMU velocity, imu frame */
+    Vec3 vb = Rbi * u - (Rbi * f->omega).cross(r_bi);    /* base origin velocity, base frame */
+    Eigen::Matrix<double, 3, 1> r(speed_mps / f->cfg.speed_scale - vb.x(), -vb.y(), -vb.z());
+    Eigen::Matrix<double, 3, 15> H = Eigen::Matrix<double, 3, 15>::Zero();
+    H.block<3, 3>(0, IV) = Rbi * R.transpose();
+    H.block<3, 3>(0, ITH) = Rbi * skew(u);
+    Eigen::Matrix3d Rn = Eigen::Matrix3d::Zero();
+    Rn.diagonal() << f->cfg.speed_sigma * f->cfg.speed_sigma, f->cfg.nhc_sigma * f->cfg.nhc_sigma,
+        f->cfg.nhc_sigma * f->cfg.nhc_sigma;
+    return kf_update<3>(f, r, H, Rn, true);
+}
+
+double filter_update_position_xy(filter_t *f, const Vec3 &base_point, double x, double y, double sigma)
+{
+    if (!f->initialized) return -1;
+    Eigen::Matrix3d R = f->q.toRotationMatrix();
+    Vec3 l = f->base_from_imu.inverse() * base_point;    /* the point in the imu frame */
+    Vec3 pm = f->p + R * l;
+    Eigen::Matrix<double, 2, 1> r(x - pm.x(), y - pm.y());
+    Eigen::Matrix<double, 3, 15> H3 = Eigen::Matrix<double, 3, 15>::Zero();
+    H3.block<3, 3>(0, IP).setIdentity();
+    H3.block<3, 3>(0, ITH) = -R * skew(l);
+    Eigen::Matrix<double, 2, 15> H = H3.topRows<2>();
+    Eigen::Matrix2d Rn = Eigen::Matrix2d::Identity() * sigma * sigma;
+    return kf_update<2>(f, r, H, Rn, true);
+}
+
+Eigen::Isometry3d filter_base_pose(const filter_t *f)
+{
+    Eigen::Isometry3d mi = Eigen::Isometry3d::Identity();
+    mi.linear() = f->q.toRotationMatrix();
+    mi.translation() = f->p;
+    return mi * f->base_from_imu.inverse();
+}
+
+Vec3 filter_base_velocity(const filter_t *f)
+{
+    Eigen::Matrix3d R = f->q.toRotationMatrix();
+    Eigen::Isometry3d mb = filter_base_pose(f);
+    Vec3 lever = mb.rotation() * f->base_from_imu.translation();   /* base -> imu, map frame */
+    return f->v - (R * f->omega).cross(lever);
+}
+
+Vec3 filter_base_rate(const filter_t *f) { return f->base_from_imu.rotation() * f->omega; }
+
+Mat6 filter_base_covariance(const filter_t *f)
+{
+    Mat6 c = Mat6::Zero();
+    Eigen::Matrix3d R = f->q.toRotationMatrix();
+    c.block<3, 3>(0, 0) = f->P.block<3, 3>(IP, IP);
+    c.block<3, 3>(3, 3) = R * f->P.block<3, 3>(ITH, ITH) * R.transpose();
+    c.block<3, 3>(0, 3) = f->P.block<3, 3>(IP, ITH) * R.transpose();
+    c.block<3, 3>(3, 0) = c.block<3, 3>(0, 3).transpose();
+    return c;
+}
+
+void filter_set_motion(filter_t *f, const Vec3 &v_map, const Vec3 &omega_imu)
+{
+    f->v = v_map;
+    f->omega = omega_imu;
+}
+
+} // namespace loc

@@ -1,0 +1,482 @@
+/* localizer: LiDAR localization in a site's prior map, fused with IMU and CAN speed.
+ *   localizer --site SITE_DIR [--replay IN.lcm --out OUT.lcm] [--initial-pose x,y,z,r,p,y]
+ * Thin shell around core/localizer (the pipeline): options, map and vehicle files,
+ * subscribe, decode, publish POSE / POSE_PREDICTED, STATUS heartbeat, signals. */
+#include <getopt.h>
+#include <sys/stat.h>
+#include <time.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <string>
+#include <vector>
+
+#include "core/localizer.h"
+#include "pb_arg.h"
+#include "pb_bus.h"
+#include "pb_signal.h"
+extern "C" {
+#include "pb_site.h"   /* a C header without its own extern "C" */
+}
+#include "pb_status.h"
+#include "pb_vehicle.h"
+#include "portobello_gnss_fix_t.h"
+#include "portobello_imu_t.h"
+#include "portobello_lidar_scan_t.h"
+#include "portobello_pose_t.h"
+#include "portobello_status_t.h"
+#include "portobello_vehicle_speed_t.h"
+
+using namespace loc;
+
+struct app_t {
+    pb_bus_t *bus = nullptr;
+    pb_status_t *status = nullptr;
+    localizer_t *L = nullptr;
+    outputs_t out;
+    pb_points_t pts = {};
+    bool use_imu = true, use_speed = true, use_gnss = true, verbose = false;
+    std::vector<double> latency_ms;
+    FILE *stats = nullptr;
+    int64_t poses = 0, predicted = 0;
+    /* message time of the newest input and the bus time it arrived at: the timer's
+     * "now" in message time is input_utime + (bus now - input_bus_time), so a log played
+     * live (old utimes) and a replay behave the same */
+    int64_t input_utime = 0, input_bus_time = 0;
+    int column_stride = 2;
+    scan_diag_t diag;
+    int64_t pending_utime = -1;
+    double pending_prep_ms = 0;
+    std::vector<int32_t> red_range, red_off;
+    std::vector<uint8_t> red_refl;
+};
+
+static void input_time(app_t *a, const char *channel, int64_t utime)
+{
+    pb_status_input_time(a->status, channel, utime);
+    if (utime > a->input_utime) {
+        a->input_utime = utime;
+        a->input_bus_time = pb_bus_now(a->bus);
+    }
+}
+
+static double wall_ms()
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return ts.tv_sec * 1e3 + ts.tv_nsec * 1e-6;
+}
+
+static void usage(FILE *f)
+{
+    fprintf(f,
+            "usage: localizer [--site SITE_DIR] [--replay IN.lcm --out OUT.lcm] [--lcm-url URL]\n"
+            "                 [--initial-pose x,y,z,roll,pitch,yaw] [--vehicle FILE] [--no-imu]\n"
+            "                 [--no-speed] [--no-gnss] [--stats FILE.csv] [--verbose]\n"
+            "Localizes the vehicle in a site's prior map (SITE_DIR/map.pcd) by matching each\n"
+            "LIDAR_SCAN to the map, fused in an error-state Kalman filter with IMU and\n"
+            "VEHICLE_SPEED (either may be absent: LiDAR alone works). Publishes POSE per sweep\n"
+            "(status initializing / tracking / degraded / lost, covariance, match score) and\n"
+            "POSE_PREDICTED at every IMU sample (200 Hz from a timer without IMU). Starts from\n"
+            "INITIAL_POSE, --initial-pose, or GNSS_FIX (position, heading from course or a yaw\n"
+            "search); detects a wrong pose (GNSS and match consistency) and relocalizes.\n"
+            "  --site DIR           site folder: map.pcd, optional site.yaml (geo-reference for\n"
+            "                       GNSS); default %s/maps/default\n"
+            "  --vehicle FILE       extrinsics (default %s/vehicles/prius2017.yaml)\n"
+            "  --replay IN.lcm      run on a log as fast as the CPU allows (with --out)\n"
+            "  --out OUT.lcm        where the replay writes POSE, POSE_PREDICTED and STATUS\n"
+            "  --lcm-url URL        live bus (default $LCM_DEFAULT_URL or %s)\n"
+            "  --initial-pose P     x,y,z (m),roll,pitch,yaw (degrees) of base in map, used at the\n"
+            "                       first sweep when no INITIAL_POSE / GNSS start came first\n"
+            "  --no-imu, --no-speed, --no-gnss   ignore that input (tests, benchmarks)\n"
+            "  --stats FILE.csv     one line per sweep: utime, wall ms, status, match figures\n"
+            "  --column-stride N    use every Nth column of a range-image sweep (default 2; 1 = all)\n"
+            "  --verbose            print state changes to stderr\n"
+            "  -h, --help           this text\n",
+            PB_SOURCE_DIR, PB_SOURCE_DIR, PB_DEFAULT_LCM_URL);
+}
+
+static void to_pose_msg(const pose_out_t &p, portobello_pose_t *m)
+{
+    memset(m, 0, sizeof *m);
+    m->utime = p.utime;
+    Eigen::Quaterniond q(p.map_from_base.rotation());
+    q.normalize();
+    for (int i = 0; i < 3; i++) {
+        m->position[i] = p.map_from_base.translation()[i];
+        m->velocity[i] = p.velocity[i];
+        m->angular_velocity[i] = p.angular_velocity[i];
+    }
+    m->orientation[0] = q.w(); m->orientation[1] = q.x(); m->orientation[2] = q.y(); m->orientation[3] = q.z();
+    for (int r = 0; r < 6; r++)
+        for (int c = 0; c < 6; c++) m->covariance[r * 6 + c] = p.covariance(r, c);
+    m->status = (int8_t)p.status;
+    m->source = (int8_t)p.source;
+    m->match_score = (float)p.match_score;
+}
+
+static bool is_info(const std::string &c)
+{
+    return c.rfind("to_", 0) == 0 || c == "init_candidate" || c == "initial_pose";
+}
+
+/* Publishes what the core produced. t0: wall time at the start of the handler; a sweep's
+ * latency is its own handler time, plus the decode time of its LIDAR_SCAN when it waited
+ * for the IMU (the core matches a sweep once the IMU has reached its end). */
+static void record_sweep(app_t *a, double ms);
+static void flush(app_t *a, double t0 = -1)
+{
+    bool diag = a->out.has_scan_diag;
+    scan_diag_t d = a->out.scan_diag;
+    pb_err_t err;
+    for (const pose_out_t &p : a->out.poses) {
+        portobello_pose_t m;
+        to_pose_msg(p, &m);
+        const char *ch = p.predicted ? "POSE_PREDICTED" : "POSE";
+        if (PB_PUBLISH(a->bus, ch, portobello_pose_t, &m, &err) != 0) {
+            pb_status_count(a->status, "publish_failed", 1);
+            pb_status_error(a->status, "%s: %s", ch, err.msg);
+        }
+        (p.predicted ? a->predicted : a->poses)++;
+    }
+    for (const event_t &e : a->out.events) {
+        pb_status_count(a->status, e.counter.c_str(), 1);
+        if (e.message.empty()) continue;
+        if (is_info(e.counter)) { if (a->verbose) fprintf(stderr, "localizer: %s\n", e.message.c_str()); }
+        else pb_status_error(a->status, "%s", e.message.c_str());
+    }
+    int s = localizer_status(a->L);
+    pb_status_set_state(a->status, s == ST_TRACKING ? PORTOBELLO_STATUS_T_STATE_OK
+                                   : s == ST_INITIALIZING ? PORTOBELLO_STATUS_T_STATE_STARTING
+                                                          : PORTOBELLO_STATUS_T_STATE_DEGRADED);
+    a->out.clear();
+    if (diag && t0 >= 0) {
+        a->diag = d;
+        record_sweep(a, wall_ms() - t0);
+    }
+}
+
+static void record_sweep(app_t *a, double ms)
+{
+    const scan_diag_t &d = a->diag;
+    if (d.utime == a->pending_utime) ms += a->pending_prep_ms;
+    a->latency_ms.push_back(ms);
+    if (a->stats)
+        fprintf(a->stats, "%lld,%.3f,%.3f,%d,%d,%d,%.4f,%.4f,%.4f,%.2f,%.2f\n", (long long)d.utime, ms, d.reg_ms, d.status,
+                d.matched, d.accepted, d.inlier_fraction, d.structure_inliers, d.score, d.innovation_chi2,
+                d.gnss_residual_m);
+}
+
+static void undecodable(app_t *a, const pb_msg_t *m)
+{
+    pb_status_count(a->status, "undecodable", 1);
+    pb_status_error(a->status, "%s: message of %d bytes does not decode", m->channel, m->len);
+}
+
+static void on_scan(const pb_msg_t *m, void *user)
+{
+    app_t *a = (app_t *)user;
+    double t0 = wall_ms();
+    portobello_lidar_scan_t s;
+    if (portobello_lidar_scan_t_decode(m->data, 0, m->len, &s) < 0) { undecodable(a, m); return; }
+    /* the sweep's time is its end: the newest measurement in it */
+    int32_t last_off = 0;
+    for (int i = 0; i < s.cols; i++) last_off = std::max(last_off, s.col_offset_us[i]);
+    for (int i = 0; i < s.npoints; i++) last_off = std::max(last_off, s.point_offset_us[i]);
+    if (last_off < 1000000) input_time(a, m->channel, s.utime + last_off);
+    pb_err_t err;
+    /* every column_stride-th column of a range image: the beam model is exact for the
+     * reduced image (encoder angle c/cols is unchanged), and registration keeps only
+     * ~2000 voxel centroids of a sweep anyway */
+    int k = a->column_stride;
+    portobello_lidar_scan_t red = s;
+    if (k > 1 && s.npixels > 0 && s.cols % k == 0 && s.npixels == s.rows * s.cols) {
+        int cols = s.cols / k;
+        a->red_range.resize((size_t)s.rows * cols);
+        a->red_refl.resize((size_t)s.rows * cols);
+        a->red_off.resize(cols);
+        for (int r = 0; r < s.rows; r++)
+            for (int c = 0; c < cols; c++) {
+                a->red_range[(size_t)r * cols + c] = s.range_mm[(size_t)r * s.cols + (size_t)c * k];
+                a->red_refl[(size_t)r * cols + c] = s.reflectivity[(size_t)r * s.cols + (size_t)c * k];
+            }
+        for (int c = 0; c < cols; c++) a->red_off[c] = s.col_offset_us[c * k];
+        red.cols = cols;
+        red.npixels = s.rows * cols;
+        red.range_mm = a->red_range.data();
+        red.reflectivity = a->red_refl.data();
+        red.col_offset_us = a->red_off.data();
+        red.nsignal = 0;
+    }
+    int n = pb_scan_points(&red, &a->pts, &err);
+    if (n < 0) {
+        pb_status_count(a->status, "scan_invalid", 1);
+        pb_status_error(a->status, "%s (seq %d)", err.msg, s.seq);
+        a->pts.n = 0;
+    } else if (s.npoints > 0 && n < s.npoints) {
+        int bad = 0;
+        for (int i = 0; i < s.npoints; i++)
+            if (!std::isfinite(s.x[i]) || !std::isfinite(s.y[i]) || !std::isfinite(s.z[i])) bad++;
+        if (bad) {
+            pb_status_count(a->status, "scan_nonfinite_points", bad);
+            pb_status_error(a->status, "LIDAR_SCAN seq %d: %d NaN/inf points dropped", s.seq, bad);
+        }
+    }
+    int64_t utime = s.utime;
+    portobello_lidar_scan_t_decode_cleanup(&s);
+    localizer_scan(a->L, utime, &a->pts, &a->out);
+    if (!a->out.has_scan_diag) {
+        /* waiting for the IMU: remember what this sweep cost so far */
+        int32_t last = 0;
+        for (int i = 0; i < a->pts.n; i++) last = std::max(last, a->pts.offset_us[i]);
+        a->pending_utime = utime + last;
+        a->pending_prep_ms = wall_ms() - t0;
+    }
+    flush(a, t0);
+}
+
+static void on_imu(const pb_msg_t *m, void *user)
+{
+    app_t *a = (app_t *)user;
+    double t0 = wall_ms();
+    portobello_imu_t s;
+    if (portobello_imu_t_decode(m->data, 0, m->len, &s) < 0) { undecodable(a, m); return; }
+    input_time(a, m->channel, s.utime);
+    if (a->use_imu)
+        localizer_imu(a->L, s.utime, Vec3(s.accel[0], s.accel[1], s.accel[2]), Vec3(s.gyro[0], s.gyro[1], s.gyro[2]), &a->out);
+    portobello_imu_t_decode_cleanup(&s);
+    flush(a, t0);
+}
+
+static void on_speed(const pb_msg_t *m, void *user)
+{
+    app_t *a = (app_t *)user;
+    double t0 = wall_ms();
+    portobello_vehicle_speed_t s;
+    if (portobello_vehicle_speed_t_decode(m->data, 0, m->len, &s) < 0) { undecodable(a, m); return; }
+    input_time(a, m->channel, s.utime);
+    if (a->use_speed) localizer_speed(a->L, s.utime, s.speed_mps, &a->out);
+    portobello_vehicle_speed_t_decode_cleanup(&s);
+    flush(a, t0);
+}
+
+static void on_gnss(const pb_msg_t *m, void *user)
+{
+    app_t *a = (app_t *)user;
+    double t0 = wall_ms();
+    portobello_gnss_fix_t s;
+    if (portobello_gnss_fix_t_decode(m->data, 0, m->len, &s) < 0) { undecodable(a, m); return; }
+    input_time(a, m->channel, s.utime);
+    if (a->use_gnss) {
+        gnss_in_t g;
+        g.utime = s.utime; g.fix_type = s.fix_type; g.lat_deg = s.lat_deg; g.lon_deg = s.lon_deg; g.alt_m = s.alt_m;
+        g.h_acc_m = s.h_acc_m; g.speed_mps = s.speed_mps; g.heading_deg = s.heading_deg; g.heading_acc_deg = s.heading_acc_deg;
+        localizer_gnss(a->L, g, &a->out);
+    }
+    portobello_gnss_fix_t_decode_cleanup(&s);
+    flush(a, t0);
+}
+
+static void on_initial_pose(const pb_msg_t *m, void *user)
+{
+    app_t *a = (app_t *)user;
+    double t0 = wall_ms();
+    portobello_pose_t s;
+    if (portobello_pose_t_decode(m->data, 0, m->len, &s) < 0) { undecodable(a, m); return; }
+    input_time(a, m->channel, s.utime);
+    Eigen::Quaterniond q(s.orientation[0], s.orientation[1], s.orientation[2], s.orientation[3]);
+    if (!(q.norm() > 0.5 && q.norm() < 1.5)) {
+        pb_status_count(a->status, "initial_pose_invalid", 1);
+        pb_status_error(a->status, "INITIAL_POSE: orientation is not a unit quaternion; ignored");
+    } else {
+        Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+        T.linear() = q.normalized().toRotationMatrix();
+        T.translation() = Vec3(s.position[0], s.position[1], s.position[2]);
+        localizer_initial_pose(a->L, s.utime, T, &a->out);
+    }
+    portobello_pose_t_decode_cleanup(&s);
+    flush(a, t0);
+}
+
+static void on_tick(int64_t now, void *user)
+{
+    app_t *a = (app_t *)user;
+    if (a->input_utime == 0) return;
+    double t0 = wall_ms();
+    localizer_tick(a->L, a->input_utime + (now - a->input_bus_time), &a->out);
+    flush(a, t0);
+}
+
+static Eigen::Isometry3d to_iso(const pb_transform_t &t)
+{
+    Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+    T.linear() = Eigen::Quaterniond(t.q[0], t.q[1], t.q[2], t.q[3]).normalized().toRotationMatrix();
+    T.translation() = Vec3(t.t[0], t.t[1], t.t[2]);
+    return T;
+}
+
+static int parse_pose(const char *s, double out[6])
+{
+    char *end;
+    const char *p = s;
+    for (int i = 0; i < 6; i++) {
+        out[i] = strtod(p, &end);
+        if (end == p || !std::isfinite(out[i])) return -1;
+        p = end;
+        if (i < 5) { if (*p != ',') return -1; p++; }
+    }
+    return *p == '\0' ? 0 : -1;
+}
+
+static double percentile(std::vector<double> v, double q)
+{
+    if (v.empty()) return NAN;
+    std::sort(v.begin(), v.end());
+    size_t i = (size_t)std::min<double>(v.size() - 1, std::ceil(q * v.size()) - 1);
+    return v[i];
+}
+
+/* Fails before anything runs: publish one STATUS naming the cause (to OUT in replay). */
+static int fail_start(pb_bus_t *bus, const char *msg)
+{
+    fprintf(stderr, "localizer: %s\n", msg);
+    if (bus) {
+        pb_status_t *st = pb_status_create(bus, "localizer", 1000000);
+        pb_status_set_state(st, PORTOBELLO_STATUS_T_STATE_ERROR);
+        pb_status_count(st, "start_failed", 1);
+        pb_status_error(st, "%s", msg);
+        pb_status_publish(st);
+        pb_status_destroy(st);
+        pb_bus_destroy(bus);
+    }
+    return 1;
+}
+
+int main(int argc, char **argv)
+{
+    const char *url = nullptr, *in = nullptr, *outp = nullptr, *stats = nullptr;
+    std::string site = std::string(PB_SOURCE_DIR) + "/maps/default";
+    std::string vehicle = std::string(PB_SOURCE_DIR) + "/vehicles/prius2017.yaml";
+    localizer_config_t cfg;
+    pb_reg_config_default(&cfg.reg);
+    app_t a;
+    static const struct option opts[] = {
+        { "site", required_argument, 0, 's' }, { "vehicle", required_argument, 0, 'v' },
+        { "replay", required_argument, 0, 'r' }, { "out", required_argument, 0, 'o' },
+        { "lcm-url", required_argument, 0, 'u' }, { "initial-pose", required_argument, 0, 'i' },
+        { "no-imu", no_argument, 0, 'I' }, { "no-speed", no_argument, 0, 'S' }, { "no-gnss", no_argument, 0, 'G' },
+        { "stats", required_argument, 0, 't' }, { "column-stride", required_argument, 0, 'k' }, { "verbose", no_argument, 0, 'V' },
+        { "help", no_argument, 0, 'h' }, { 0, 0, 0, 0 },
+    };
+    int c;
+    while ((c = getopt_long(argc, argv, "h", opts, nullptr)) != -1) {
+        switch (c) {
+        case 's': site = optarg; break;
+        case 'v': vehicle = optarg; break;
+        case 'r': in = optarg; break;
+        case 'o': outp = optarg; break;
+        case 'u': url = optarg; break;
+        case 'i':
+            if (parse_pose(optarg, cfg.initial_pose) != 0) {
+                fprintf(stderr, "localizer: --initial-pose: expected x,y,z,roll,pitch,yaw (6 numbers), got '%s'\n", optarg);
+                return 2;
+            }
+            for (int i = 3; i < 6; i++) cfg.initial_pose[i] *= M_PI / 180;
+            cfg.has_initial_pose = true;
+            break;
+        case 'I': a.use_imu = false; break;
+        case 'S': a.use_speed = false; break;
+        case 'G': a.use_gnss = false; break;
+        case 't': stats = optarg; break;
+        case 'k': {
+            long v;
+            if (pb_arg_long("localizer", "--column-stride", optarg, 1, 16, &v) != 0) return 2;
+            a.column_stride = (int)v;
+            break;
+        }
+        case 'V': a.verbose = true; break;
+        case 'h': usage(stdout); return 0;
+        default: usage(stderr); return 2;
+        }
+    }
+    if (optind < argc) { fprintf(stderr, "localizer: unexpected argument '%s'\n", argv[optind]); usage(stderr); return 2; }
+    if ((in != nullptr) != (outp != nullptr)) { fprintf(stderr, "localizer: --replay and --out go together\n"); return 2; }
+
+    pb_err_t err;
+    pb_bus_t *bus = in ? pb_bus_create_replay(in, outp, &err) : pb_bus_create_live(url, &err);
+    if (!bus) { fprintf(stderr, "localizer: %s\n", err.msg); return 1; }
+    a.bus = bus;
+
+    pb_vehicle_t veh;
+    if (pb_vehicle_load(vehicle.c_str(), &veh, &err) != 0) return fail_start(bus, err.msg);
+    extrinsics_t ex;
+    ex.base_from_lidar = to_iso(veh.base_from_lidar);
+    ex.base_from_imu = to_iso(veh.base_from_imu);
+    ex.base_from_gnss = to_iso(veh.base_from_gnss);
+
+    /* A site folder holding only map.pcd is enough; site.yaml adds the geo-reference. */
+    struct stat sb;
+    if (stat(site.c_str(), &sb) != 0 || !S_ISDIR(sb.st_mode)) {
+        std::string m = site + ": site folder not found";
+        return fail_start(bus, m.c_str());
+    }
+    pb_site_t st;
+    bool has_geo = false;
+    std::string site_yaml = site + "/site.yaml";
+    if (stat(site_yaml.c_str(), &sb) == 0) {
+        if (pb_site_load(site.c_str(), &st, &err) != 0) return fail_start(bus, err.msg);
+        has_geo = true;
+    } else {
+        fprintf(stderr, "localizer: %s: no site.yaml, so no geo-reference: GNSS_FIX is not used\n", site.c_str());
+    }
+    std::string map_path = site + "/map.pcd";
+    double t0 = wall_ms();
+    pb_regmap_t *map = pb_regmap_load(map_path.c_str(), nullptr, nullptr, &err);
+    if (!map) return fail_start(bus, err.msg);
+    pb_regmap_info_t info;
+    pb_regmap_info(map, &info);
+    fprintf(stderr, "localizer: map %s: %lld points, %lld cells, loaded in %.1f s\n", map_path.c_str(),
+            (long long)info.points, (long long)info.cells, (wall_ms() - t0) * 1e-3);
+
+    if (stats) {
+        a.stats = fopen(stats, "w");
+        if (!a.stats) { fprintf(stderr, "localizer: %s: cannot write\n", stats); pb_regmap_destroy(map); pb_bus_destroy(bus); return 1; }
+        fprintf(a.stats, "utime,wall_ms,reg_ms,status,matched,accepted,inlier_fraction,structure_inliers,score,innovation_chi2,gnss_residual_m\n");
+    }
+    a.L = localizer_create(cfg, ex, map, has_geo && a.use_gnss ? &st.geo : nullptr);
+    a.status = pb_status_create(bus, "localizer", 1000000);
+    pb_signal_install();
+    pb_bus_subscribe(bus, "LIDAR_SCAN", on_scan, &a);
+    pb_bus_subscribe(bus, "IMU", on_imu, &a);
+    pb_bus_subscribe(bus, "VEHICLE_SPEED", on_speed, &a);
+    pb_bus_subscribe(bus, "GNSS_FIX", on_gnss, &a);
+    pb_bus_subscribe(bus, "INITIAL_POSE", on_initial_pose, &a);
+    pb_bus_add_timer(bus, cfg.predict_period_us, on_tick, &a);
+    if (!in) fprintf(stderr, "localizer: listening on %s\n", pb_lcm_url(url));
+
+    int rc = pb_bus_run(bus, &err);
+    double tf = wall_ms();
+    localizer_finish(a.L, &a.out);
+    flush(&a, tf);
+    if (rc != 0) {
+        fprintf(stderr, "localizer: %s\n", err.msg);
+        pb_status_set_state(a.status, PORTOBELLO_STATUS_T_STATE_ERROR);
+        pb_status_error(a.status, "%s", err.msg);
+    } else {
+        pb_status_set_state(a.status, PORTOBELLO_STATUS_T_STATE_STOPPING);
+    }
+    pb_status_publish(a.status);
+    fprintf(stderr, "localizer: %zu sweeps, %lld POSE, %lld POSE_PREDICTED, sweep latency p50 %.1f ms p99 %.1f ms, final status %s\n",
+            a.latency_ms.size(), (long long)a.poses, (long long)a.predicted, percentile(a.latency_ms, 0.5),
+            percentile(a.latency_ms, 0.99), localizer_status_name(localizer_status(a.L)));
+    if (a.stats) fclose(a.stats);
+    pb_status_destroy(a.status);
+    localizer_destroy(a.L);
+    pb_points_free(&a.pts);
+    pb_regmap_destroy(map);
+    pb_bus_destroy(bus);
+    return rc == 0 ? 0 : 1;
+}

@@ -1,0 +1,278 @@
+"""Localizer integration tests on a short simulated drive (loose bounds; the figures
+are measured by `make bench-localizer-drive`).
+
+The site is the default site with its prior map cropped to the drive's surroundings
+(so each run loads in about a second); the drive is simdrive (12 s, normal profile)
+with VEHICLE_SPEED added by `can --replay` and `log-merge`."""
+import math
+import shutil
+import struct
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from conftest import BIN, ROOT, read_log, run
+
+sys.path.insert(0, str(ROOT / "modules" / "localizer" / "bench"))
+import locbench as lb  # noqa: E402
+
+FAULT = ROOT / "tools" / "log-fault" / "log_fault.py"
+
+
+def write_pcd(path, pts):
+    with open(path, "wb") as f:
+        f.write(("# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\nFIELDS x y z intensity\nSIZE 4 4 4 4\n"
+                 "TYPE F F F F\nCOUNT 1 1 1 1\nWIDTH %d\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS %d\nDATA binary\n"
+                 % (len(pts), len(pts))).encode())
+        f.write(pts.astype("<f4").tobytes())
+
+
+def read_pcd_binary(path):
+    with open(path, "rb") as f:
+        n = 0
+        while True:
+            line = f.readline()
+            if line.startswith(b"POINTS"):
+                n = int(line.split()[1])
+            if line.startswith(b"DATA"):
+                assert b"binary" in line
+                break
+        return np.frombuffer(f.read(n * 16), dtype="<f4").reshape(n, 4)
+
+
+@pytest.fixture(scope="module")
+def drive(tmp_path_factory):
+    d = tmp_path_factory.mktemp("locdrive")
+    log = lb.make_drive(d, 7, "normal", 12)
+    gt = lb.read_poses(d / "drive.lcm", "GROUND_TRUTH")
+    site = d / "site"
+    site.mkdir()
+    for name in ("site.yaml", "route.yaml", "world.yaml"):
+        shutil.copy(ROOT / "maps" / "default" / name, site / name)
+    pts = read_pcd_binary(ROOT / "maps" / "default" / "map.pcd")
+    lo, hi = gt[:, 1:3].min(0) - 70, gt[:, 1:3].max(0) + 70
+    keep = (pts[:, 0] > lo[0]) & (pts[:, 0] < hi[0]) & (pts[:, 1] > lo[1]) & (pts[:, 1] < hi[1])
+    write_pcd(site / "map.pcd", pts[keep])
+    only_map = d / "only_map"
+    only_map.mkdir()
+    shutil.copy(site / "map.pcd", only_map / "map.pcd")
+    return {"dir": d, "log": log, "drive": d / "drive.lcm", "gt": gt, "site": site, "only_map": only_map}
+
+
+def localize(drive, inp, out, *extra, site=None):
+    p = run([BIN / "localizer", "--site", site or drive["site"], "--replay", inp, "--out", out, *extra],
+            check=False, timeout=300)
+    assert p.returncode == 0, p.stderr
+    return p
+
+
+def statuses(path):
+    return [int(s) for s in lb.read_poses(path, "POSE")[:, 5]]
+
+
+def last_status_msg(path):
+    from portobello import status_t
+    msgs = [status_t.decode(d) for ch, _, d in read_log(path, {"STATUS"})]
+    assert msgs, "no STATUS in the output"
+    return msgs[-1]
+
+
+def counters(msg):
+    return dict(zip(msg.counter_names, msg.counter_values))
+
+
+def test_help_and_bad_options():
+    p = run([BIN / "localizer", "--help"])
+    assert "--replay" in p.stdout and "--initial-pose" in p.stdout
+    p = run([BIN / "localizer", "--initial-pose", "1,2,3"], check=False)
+    assert p.returncode == 2 and "--initial-pose" in p.stderr
+    p = run([BIN / "localizer", "--replay", "x.lcm"], check=False)
+    assert p.returncode == 2
+
+
+def test_gnss_start_tracks_accurately_and_deterministically(drive, tmp_path):
+    out1, out2 = tmp_path / "a.lcm", tmp_path / "b.lcm"
+    localize(drive, drive["log"], out1)
+    r = lb.score_run(drive["drive"], out1)
+    n_scans = sum(1 for _ in read_log(drive["drive"], {"LIDAR_SCAN"}))
+    assert r["poses"] == n_scans, "one POSE per sweep"
+    assert r["first_tracking_s"] <= 3.0
+    assert r["lost_after_tracking"] == 0 and r["not_tracking_after"] == 0
+    assert r["t_median"] < 0.05 and r["t_p99"] < 0.3 and r["yaw_p99"] < 1.0, r
+    assert r["pred_rate_hz"] >= 190, r
+    st = last_status_msg(out1)
+    assert st.module == "localizer"
+    assert {i.channel for i in st.inputs} >= {"LIDAR_SCAN", "IMU", "GNSS_FIX", "VEHICLE_SPEED"}
+    # replay is deterministic: the same input gives the same bytes
+    localize(drive, drive["log"], out2)
+    assert out1.read_bytes() == out2.read_bytes()
+
+
+def test_site_with_only_a_map_and_lidar_alone(drive, tmp_path):
+    out = tmp_path / "o.lcm"
+    x, y, z, yaw = drive["gt"][0, 1:5]
+    p = localize(drive, drive["log"], out, "--no-imu", "--no-speed",
+                 f"--initial-pose={x},{y},{z},0,0,{math.degrees(yaw)}", site=drive["only_map"])
+    assert "no site.yaml" in p.stderr
+    r = lb.score_run(drive["drive"], out)
+    assert r["first_tracking_s"] <= 1.0 and r["lost_after_tracking"] == 0
+    assert r["t_median"] < 0.1 and r["t_p99"] < 0.5, r
+    # without IMU, POSE_PREDICTED still comes at 200 Hz from the timer
+    assert r["pred_rate_hz"] >= 190
+
+
+def test_lidar_gap_runs_on_prediction(drive, tmp_path):
+    flog, out = tmp_path / "gap.lcm", tmp_path / "o.lcm"
+    run([sys.executable, FAULT, "lidar-gap", "--in", drive["log"], "--out", flog, "--at", "4", "--for", "3"])
+    localize(drive, flog, out)
+    poses = lb.read_poses(out, "POSE")
+    t0 = lb.read_channel_times(flog, "IMU")[0]
+    gap = poses[(poses[:, 0] > t0 + 4.3e6) & (poses[:, 0] < t0 + 7e6)]
+    assert len(gap) >= 20, "POSE goes on during the gap"
+    assert set(gap[:, 5]) == {2}, "degraded while the LiDAR is missing"
+    _, et, _ = lb.errors_vs_truth(gap, drive["gt"])
+    assert et[-1] < 1.0
+    after = poses[poses[:, 0] >= t0 + 7e6]
+    assert after[1, 5] == 1 or after[0, 5] == 1, "tracking again within 2 sweeps"
+    assert counters(last_status_msg(out)).get("lidar_gap") == 1
+
+
+def test_wrong_initial_pose_is_reported_lost_and_relocalized(drive, tmp_path):
+    flog, out = tmp_path / "jump.lcm", tmp_path / "o.lcm"
+    run([sys.executable, FAULT, "jump", "--in", drive["log"], "--out", flog, "--at", "4", "--metres", "20"])
+    localize(drive, flog, out)
+    tj = lb.read_events(flog, ["INITIAL_POSE"])[0][0]
+    poses = lb.read_poses(out, "POSE")
+    after = poses[poses[:, 0] >= tj]
+    lost = np.nonzero(after[:, 5] == 3)[0]
+    assert len(lost) and (after[lost[0], 0] - tj) <= 1e6, "lost within 1 s"
+    back = np.nonzero(after[lost[0]:, 5] == 1)[0]
+    assert len(back) and (after[lost[0] + back[0], 0] - tj) <= 5e6, "relocalized within 5 s"
+    _, et, _ = lb.errors_vs_truth(after[after[:, 5] == 1], drive["gt"])
+    assert et.max() < 0.5, "never tracking at the wrong pose"
+
+
+def test_gnss_jump_is_not_followed(drive, tmp_path):
+    """GNSS moved 20 m (multipath, spoofing) while the map fits: the pose stays, the fixes are counted as outliers."""
+    flog, out = tmp_path / "gj.lcm", tmp_path / "o.lcm"
+    run([sys.executable, FAULT, "gnss-jump", "--in", drive["log"], "--out", flog, "--at", "4", "--for", "4"])
+    localize(drive, flog, out)
+    r = lb.score_run(drive["drive"], out)
+    assert r["lost_after_tracking"] == 0 and r["not_tracking_after"] == 0
+    assert r["t_p99"] < 0.3, r
+    assert counters(last_status_msg(out)).get("gnss_outlier", 0) > 0
+
+
+def test_bad_input_is_counted_not_fatal(drive, tmp_path):
+    steps = [("nan-points", ["--at", "2", "--count", "2"]), ("empty-scans", ["--at", "3", "--count", "2"]),
+             ("duplicate", ["--at", "4", "--for", "0.5"]), ("reorder", ["--at", "5", "--for", "0.5"]),
+             ("imu-gap", ["--at", "6", "--for", "0.3"]), ("garbage", ["--at", "7", "--count", "1"])]
+    cur = drive["log"]
+    for i, (fault, args) in enumerate(steps):
+        nxt = tmp_path / f"f{i}.lcm"
+        run([sys.executable, FAULT, fault, "--in", cur, "--out", nxt, *args])
+        cur = nxt
+    out = tmp_path / "o.lcm"
+    p = localize(drive, cur, out)
+    c = counters(last_status_msg(out))
+    for name in ("scan_nonfinite_points", "scan_empty", "imu_duplicate", "scan_duplicate", "imu_out_of_order",
+                 "imu_gap", "undecodable"):
+        assert c.get(name, 0) > 0, (name, c)
+    assert "NaN/inf points" in p.stderr and "IMU: gap" in p.stderr and "does not decode" in p.stderr
+    s = statuses(out)
+    assert s[-1] == 1 and 3 not in s, "keeps tracking through bad input"
+    r = lb.score_run(drive["drive"], out)
+    assert r["t_p99"] < 0.3, r
+
+
+@pytest.mark.parametrize("what", ["missing", "corrupt", "no-site"])
+def test_map_missing_or_corrupt(drive, tmp_path, what):
+    site = tmp_path / "site"
+    if what != "no-site":
+        site.mkdir()
+    if what == "corrupt":
+        (site / "map.pcd").write_bytes(b"# .PCD v0.7\nVERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\n"
+                                      b"WIDTH 100\nHEIGHT 1\nPOINTS 100\nDATA binary\n" + b"\x00" * 40)
+    out = tmp_path / "o.lcm"
+    p = run([BIN / "localizer", "--site", site, "--replay", drive["log"], "--out", out], check=False, timeout=60)
+    assert p.returncode == 1
+    assert str(site) in p.stderr
+    st = last_status_msg(out)
+    assert st.state == st.STATE_ERROR and str(site) in st.last_error
+
+
+def test_pose_to_tum(drive, tmp_path):
+    tum = tmp_path / "gt.tum"
+    p = run([BIN / "pose-to-tum", "--log", drive["drive"], "--channel", "GROUND_TRUTH", "--out", tum])
+    lines = tum.read_text().splitlines()
+    assert len(lines) == len(drive["gt"]) and "poses of GROUND_TRUTH" in p.stderr
+    # the same numbers simdrive wrote to its own TUM file
+    ref = np.loadtxt(drive["dir"] / "ground_truth.tum")
+    got = np.loadtxt(tum)
+    assert np.allclose(got, ref, atol=1e-5)
+    assert run([BIN / "pose-to-tum", "--help"]).stdout.startswith("usage")
+    bad = tmp_path / "bad.lcm"
+    bad.write_bytes(drive["drive"].read_bytes()[:100000] + b"garbage" * 10)
+    p = run([BIN / "pose-to-tum", "--log", bad, "--channel", "GROUND_TRUTH", "--out", tmp_path / "b.tum"], check=False)
+    assert p.returncode == 1 and "byte" in p.stderr
+
+
+LIVE_URL = "udpm://239.255.76.67:7760?ttl=0&recv_buf_size=8388608"
+
+
+def test_live_bus(drive, tmp_path):
+    """Live: the first 3 s of the drive published on a private bus; POSE, POSE_PREDICTED and
+    STATUS come back, and SIGINT stops the localizer cleanly. Counts are loose (UDP)."""
+    import signal
+    import threading
+    import time
+
+    import lcm
+    from portobello import pose_t, status_t
+    lc = lcm.LCM(LIVE_URL)
+    got = {"POSE": [], "POSE_PREDICTED": [], "STATUS": []}
+
+    def handler(ch, data):
+        got[ch].append(status_t.decode(data) if ch == "STATUS" else pose_t.decode(data))
+
+    for ch in got:
+        lc.subscribe(ch, handler)
+    stop = threading.Event()
+
+    def spin():
+        while not stop.is_set():
+            lc.handle_timeout(50)
+
+    th = threading.Thread(target=spin, daemon=True)
+    th.start()
+    proc = subprocess.Popen([str(BIN / "localizer"), "--site", str(drive["site"]), "--lcm-url", LIVE_URL],
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.time() + 60
+        while not got["STATUS"] and time.time() < deadline:   # map loaded, heartbeat running
+            time.sleep(0.1)
+        assert got["STATUS"], "no STATUS heartbeat"
+        events = [e for e in read_log(drive["log"], {"IMU", "LIDAR_SCAN", "GNSS_FIX", "VEHICLE_SPEED"})]
+        t_first = events[0][1]
+        start = time.time()
+        for ch, ts, data in events:
+            if ts - t_first > 3e6:
+                break
+            delay = (ts - t_first) * 1e-6 - (time.time() - start)
+            if delay > 0:
+                time.sleep(delay)
+            lc.publish(ch, data)
+        time.sleep(1.0)
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=10) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        stop.set()
+        th.join()
+    assert len(got["POSE"]) >= 10
+    assert len(got["POSE_PREDICTED"]) >= 200
+    assert any(p.status == pose_t.STATUS_TRACKING for p in got["POSE"]), [p.status for p in got["POSE"]]
+    assert got["STATUS"][-1].module == "localizer"

@@ -1,0 +1,1 @@
+$(eval $(call c_program,pose-to-tum,tools/pose-to-tum))
