@@ -6,6 +6,10 @@
 
 #include "pb_err.h"
 
+#ifdef __cplusplus
+extern "C" {
+#endif
+
 typedef struct { double cruise, accel, decel, lat_accel; } pb_speed_profile_t;
 enum { PB_PROFILE_CAUTIOUS, PB_PROFILE_NORMAL, PB_PROFILE_AGGRESSIVE, PB_PROFILE_COUNT };
 extern const char *const pb_profile_names[PB_PROFILE_COUNT];
@@ -40,4 +44,7 @@ void pb_route_eval(const pb_route_t *r, double s, pb_route_point_t *out);
 /* Arc length of the route point nearest to (x, y). */
 double pb_route_project(const pb_route_t *r, double x, double y);
 
+#ifdef __cplusplus
+}
+#endif
 #endif

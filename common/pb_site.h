@@ -5,6 +5,10 @@
 #include "pb_err.h"
 #include "pb_geo.h"
 
+#ifdef __cplusplus
+extern "C" {
+#endif
+
 typedef struct {
     char dir[1024];
     char name[64];
@@ -15,4 +19,7 @@ typedef struct {
 
 int pb_site_load(const char *dir, pb_site_t *s, pb_err_t *err);
 
+#ifdef __cplusplus
+}
+#endif
 #endif

@@ -18,9 +18,7 @@
 #include "pb_arg.h"
 #include "pb_bus.h"
 #include "pb_signal.h"
-extern "C" {
-#include "pb_site.h"   /* a C header without its own extern "C" */
-}
+#include "pb_site.h"
 #include "pb_status.h"
 #include "pb_vehicle.h"
 #include "portobello_gnss_fix_t.h"
