@@ -1,9 +1,12 @@
 #!/usr/bin/env bash
-# The default site's crosswalk study on both platforms: the lab twin (lab_vehicle,
-# offline, proceed pressed 2 s after each stop) and the road car (simdrive ground
-# truth) each drive past the four crosswalks; the director runs every scenario of
-# maps/default/scenarios/ on both drives, unchanged, and the two SCENARIO_EVENT
-# sequences are printed side by side. Exit 1 if any pair differs.
+# The default site's crosswalk study on both platforms, as each runs in practice:
+#   lab:  the twin (lab_vehicle, offline, proceed pressed 2 s after each stop);
+#   road: a simulated drive (simdrive: LiDAR, IMU, CAN, GNSS) through the road
+#         pipeline: can (CAN_FRAME -> VEHICLE_SPEED), log-merge, localizer (POSE in
+#         the prior map, started from GNSS alone).
+# The director runs every scenario of maps/default/scenarios/ on both drives,
+# unchanged, and the two SCENARIO_EVENT sequences are printed side by side.
+# Exit 1 if any pair differs.
 #   tools/demo-study.sh [OUT_DIR]     (default build/demo-study; SITE=... for another site)
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -12,18 +15,47 @@ site=${SITE:-maps/default}
 mkdir -p "$out"
 echo "== lab: lab_vehicle drives 90 s of $site (normal profile), proceed 2.0 s after each stop"
 build/bin/lab_vehicle --site "$site" --out "$out/lab.lcm" --auto-proceed 2.0 --duration 90
-echo "== road: simdrive drives 90 s of $site (seed 7, normal profile, no LiDAR)"
-build/bin/simdrive --site "$site" --seed 7 --duration 90 --no-lidar --quiet --out "$out/road"
+echo "== road: simdrive drives 90 s of $site (seed 7, normal profile)"
+build/bin/simdrive --site "$site" --seed 7 --duration 90 --quiet --out "$out/road"
+echo "== road: can decodes CAN_FRAME to VEHICLE_SPEED; the localizer places the car in $site/map.pcd"
+build/bin/can --replay "$out/road/drive.lcm" --out "$out/road/speed.lcm" 2>/dev/null
+build/bin/log-merge --quiet --out "$out/road/sensors.lcm" "$out/road/drive.lcm" "$out/road/speed.lcm"
+build/bin/localizer --site "$site" --replay "$out/road/sensors.lcm" --out "$out/road/localizer.lcm"
+.venv/bin/python - "$out/road/drive.lcm" "$out/road/localizer.lcm" <<'PY'
+import sys, bisect, math
+sys.path.insert(0, "build/python")
+import lcm
+import portobello
+gt, est = [], []
+for ev in lcm.EventLog(sys.argv[1], "r"):
+    if ev.channel == "GROUND_TRUTH":
+        p = portobello.pose_t.decode(ev.data); gt.append((p.utime, p.position[0], p.position[1]))
+for ev in lcm.EventLog(sys.argv[2], "r"):
+    if ev.channel == "POSE":
+        p = portobello.pose_t.decode(ev.data)
+        if p.status == portobello.pose_t.STATUS_TRACKING: est.append((p.utime, p.position[0], p.position[1]))
+ts = [g[0] for g in gt]
+err = []
+for t, x, y in est:
+    i = bisect.bisect_left(ts, t)
+    if 0 < i < len(gt):
+        (t0, x0, y0), (t1, x1, y1) = gt[i - 1], gt[i]
+        a = (t - t0) / (t1 - t0)
+        err.append(math.hypot(x - (x0 + a * (x1 - x0)), y - (y0 + a * (y1 - y0))))
+err.sort()
+print(f"   localizer vs ground truth: {len(err)} tracking poses, horizontal error median "
+      f"{err[len(err) // 2]:.3f} m, p99 {err[int(0.99 * (len(err) - 1))]:.3f} m")
+PY
 echo "== check: build/bin/scenario-check --site $site"
 build/bin/scenario-check --site "$site"
 status=0
 for f in "$site"/scenarios/*.yaml; do
     name=$(basename "$f" .yaml)
     build/bin/director --site "$site" --scenario "$f" --replay "$out/lab.lcm" --out "$out/lab_$name.lcm" 2>/dev/null
-    build/bin/director --site "$site" --scenario "$f" --pose-channel GROUND_TRUTH \
-        --replay "$out/road/drive.lcm" --out "$out/road_$name.lcm" 2>/dev/null
+    build/bin/director --site "$site" --scenario "$f" \
+        --replay "$out/road/localizer.lcm" --out "$out/road_$name.lcm" 2>/dev/null
     echo
-    echo "== $name: SCENARIO_EVENT, lab (POSE from lab_vehicle) | road (GROUND_TRUTH from simdrive); s since the drive's start"
+    echo "== $name: SCENARIO_EVENT, lab (POSE from lab_vehicle) | road (POSE from the localizer); s since the drive's start"
     .venv/bin/python - "$out/lab_$name.lcm" "$out/road_$name.lcm" <<'PY' || status=1
 import sys
 sys.path.insert(0, "build/python")
