@@ -22,8 +22,8 @@ void pb_reg_config_default(pb_reg_config_t *cfg)
     cfg->max_corr_m = 1.0;
     cfg->min_corr_m = 0.3;
     cfg->kernel_m = 0.1;
-    cfg->step_eps_m = 1e-4;
-    cfg->step_eps_rad = 1e-5;
+    cfg->step_eps_m = 5e-4;
+    cfg->step_eps_rad = 5e-5;
     cfg->inlier_m = 0.1;
     cfg->planar_only = 0;
     cfg->coarse_iterations = 16;

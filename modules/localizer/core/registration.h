@@ -48,8 +48,8 @@ typedef struct {
     double max_corr_m;        /* initial correspondence gate, metres (default 1.0) */
     double min_corr_m;        /* the gate shrinks to this as steps get small (default 0.3) */
     double kernel_m;          /* Geman-McClure scale, metres (default 0.1) */
-    double step_eps_m;        /* stop when translation step < this (default 1e-4) ... */
-    double step_eps_rad;      /* ... and rotation step < this (default 1e-5) */
+    double step_eps_m;        /* stop when translation step < this (default 5e-4: 0.5 mm, a tenth of the error) ... */
+    double step_eps_rad;      /* ... and rotation step < this (default 5e-5) */
     double inlier_m;          /* |point-to-plane| for the inlier fraction (default 0.1) */
     int planar_only;          /* 1 = never use line (pole) cells (default 0) */
     int coarse_iterations;    /* Gauss-Newton steps on the coarse level in step 3, 0 = never (default 16);
