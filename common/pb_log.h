@@ -11,6 +11,7 @@
 #define PB_LOG_H
 
 #include <stdint.h>
+#include <stdlib.h>
 #include "pb_err.h"
 
 #ifdef __cplusplus
@@ -45,6 +46,27 @@ int64_t pb_log_size(const pb_log_t *log);
 
 /* Flushes and closes; returns 0, or -1 if data could not be written. NULL is a no-op. */
 int pb_log_close(pb_log_t *log, pb_err_t *err);
+
+/* Writing lcm-gen'd messages straight to a log, for programs that write a drive
+ * without a bus (simdrive, lab_vehicle offline): one growing encode buffer, and the
+ * first write error sticks (later writes are skipped; check `failed`, report `err`).
+ *   pb_log_out_t o = { .log = log };
+ *   PB_LOG_WRITE_MSG(&o, "POSE", portobello_pose_t, &pose);   (stamped with pose.utime)
+ *   free(o.buf); */
+typedef struct {
+    pb_log_t *log;
+    uint8_t *buf;
+    int cap;
+    pb_err_t err;
+    int failed;
+} pb_log_out_t;
+
+#define PB_LOG_WRITE_MSG(o, channel, type, msgp) do { \
+        int n_ = type##_encoded_size(msgp); \
+        if (n_ > (o)->cap) { (o)->cap = n_; (o)->buf = realloc((o)->buf, n_); } \
+        type##_encode((o)->buf, 0, n_, msgp); \
+        if (!(o)->failed && pb_log_write((o)->log, (msgp)->utime, channel, (o)->buf, n_, &(o)->err)) (o)->failed = 1; \
+    } while (0)
 
 #ifdef __cplusplus
 }

@@ -297,26 +297,11 @@ static int run_bus(lab_vehicle_t *lv, const char *url, const char *in, const cha
 
 /* ---------------------------------------------------------------- offline */
 
-typedef struct {
-    pb_log_t *log;
-    uint8_t *buf;
-    int cap;
-    pb_err_t err;
-    int failed;
-} out_t;
-
-#define WRITE_MSG(o, channel, type, msgp) do { \
-        int n_ = type##_encoded_size(msgp); \
-        if (n_ > (o)->cap) { (o)->cap = n_; (o)->buf = realloc((o)->buf, n_); } \
-        type##_encode((o)->buf, 0, n_, msgp); \
-        if (!(o)->failed && pb_log_write((o)->log, (msgp)->utime, channel, (o)->buf, n_, &(o)->err)) (o)->failed = 1; \
-    } while (0)
-
 static int run_offline(lab_vehicle_t *lv, const char *path, int64_t start_utime, double auto_proceed,
                        double duration, int ground_truth, int quiet)
 {
     pb_err_t err;
-    out_t o = { 0 };
+    pb_log_out_t o = { 0 };
     o.log = pb_log_open_write(path, &err);
     if (!o.log) { fprintf(stderr, PROG ": %s\n", err.msg); return 1; }
     int64_t end = duration > 0 ? start_utime + (int64_t)llround(duration * 1e6) : INT64_MAX;
@@ -331,22 +316,22 @@ static int run_offline(lab_vehicle_t *lv, const char *path, int64_t start_utime,
         if (t > end) break;
         if (press <= t) {
             portobello_participant_input_t in = { .utime = press, .input = "proceed", .device = "auto_proceed", .value = 1 };
-            WRITE_MSG(&o, "PARTICIPANT_INPUT", portobello_participant_input_t, &in);
+            PB_LOG_WRITE_MSG(&o, "PARTICIPANT_INPUT", portobello_participant_input_t, &in);
             lv_on_input(lv, press, in.input, in.value);
             press = INT64_MAX;
         }
         if (lv_step(lv, t, &p, &err)) { fprintf(stderr, PROG ": %s\n", err.msg); rc = 1; break; }
         if (k == 0) d_start = p.dist;
         fill_pose(&p, &pm);
-        WRITE_MSG(&o, "POSE", portobello_pose_t, &pm);
-        if (ground_truth) WRITE_MSG(&o, "GROUND_TRUTH", portobello_pose_t, &pm);
+        PB_LOG_WRITE_MSG(&o, "POSE", portobello_pose_t, &pm);
+        if (ground_truth) PB_LOG_WRITE_MSG(&o, "GROUND_TRUTH", portobello_pose_t, &pm);
         nposes++;
         lv_event_t e;
         while (lv_next_event(lv, &e)) {
             portobello_scenario_event_t m;
             event_strings_t strs;
             fill_event(&e, &pm, "", &m, &strs);
-            WRITE_MSG(&o, "LAB_EVENT", portobello_scenario_event_t, &m);
+            PB_LOG_WRITE_MSG(&o, "LAB_EVENT", portobello_scenario_event_t, &m);
             if (!strcmp(e.id, "awaiting_proceed")) {
                 press = e.utime + (int64_t)llround(auto_proceed * 1e6);
                 nstops++;

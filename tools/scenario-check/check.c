@@ -22,18 +22,6 @@ static void report(check_report_fn fn, void *user, int is_error, const char *fil
     fn(is_error, file, line, msg, user);
 }
 
-static void volume_shape(const sc_volume_t *v, geom_shape_t *g)
-{
-    if (v->type == SC_VOL_BOX) {
-        double c[3] = { v->center[0], v->center[1], (v->z[0] + v->z[1]) / 2 };
-        geom_box_yaw(g, c, v->yaw, v->size);
-    } else if (v->type == SC_VOL_CYLINDER) {
-        geom_cylinder(g, v->center[0], v->center[1], v->z[0], v->radius, v->z[1] - v->z[0]);
-    } else {
-        geom_prism(g, (const double(*)[2])v->pts, v->npts, v->z[0], v->z[1]);
-    }
-}
-
 /* The car's footprint with its base origin on the route at s. */
 static void foot_at(const pb_route_t *r, const check_vehicle_t *veh, double s, geom_shape_t *g)
 {
@@ -49,7 +37,7 @@ static void foot_at(const pb_route_t *r, const check_vehicle_t *veh, double s, g
 static double first_touch(const pb_route_t *r, const check_vehicle_t *veh, const sc_volume_t *v, double *nearest)
 {
     geom_shape_t gv, gf;
-    volume_shape(v, &gv);
+    geom_volume(&gv, v);
     *nearest = INFINITY;
     for (double s = 0; s < r->length; s += 0.25) {
         pb_route_point_t p;

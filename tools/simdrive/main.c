@@ -82,21 +82,6 @@ static int mkdir_p(const char *path)
     return 0;
 }
 
-typedef struct {
-    pb_log_t *log;
-    uint8_t *buf;
-    int cap;
-    pb_err_t err;
-    int failed;
-} out_t;
-
-#define WRITE_MSG(o, channel, type, msgp) do { \
-        int n_ = type##_encoded_size(msgp); \
-        if (n_ > (o)->cap) { (o)->cap = n_; (o)->buf = realloc((o)->buf, n_); } \
-        type##_encode((o)->buf, 0, n_, msgp); \
-        if (!(o)->failed && pb_log_write((o)->log, (msgp)->utime, channel, (o)->buf, n_, &(o)->err)) (o)->failed = 1; \
-    } while (0)
-
 static double st_dist_or_zero(const trajectory_t *tr, double t)
 {
     traj_state_t st;
@@ -182,7 +167,7 @@ int main(int argc, char **argv)
     if (mkdir_p(out_dir)) { fprintf(stderr, "simdrive: %s: cannot create: %s\n", out_dir, strerror(errno)); return 1; }
     char path[1200];
     snprintf(path, sizeof path, "%s/drive.lcm", out_dir);
-    out_t out = { 0 };
+    pb_log_out_t out = { 0 };
     out.log = pb_log_open_write(path, &err);
     if (!out.log) { fprintf(stderr, "simdrive: %s\n", err.msg); return 1; }
     snprintf(path, sizeof path, "%s/ground_truth.tum", out_dir);
@@ -245,7 +230,7 @@ int main(int argc, char **argv)
             p.status = PORTOBELLO_POSE_T_STATUS_TRACKING;
             p.source = PORTOBELLO_POSE_T_SOURCE_GROUND_TRUTH;
             p.match_score = NAN;
-            WRITE_MSG(&out, "GROUND_TRUTH", portobello_pose_t, &p);
+            PB_LOG_WRITE_MSG(&out, "GROUND_TRUTH", portobello_pose_t, &p);
             if (k[best] % 50 == 0) pb_progress_update(&prog, tb);
             fprintf(tum, "%.6f %.6f %.6f %.6f %.9f %.9f %.9f %.9f\n", utime * 1e-6, p.position[0], p.position[1],
                     p.position[2], p.orientation[1], p.orientation[2], p.orientation[3], p.orientation[0]);
@@ -256,17 +241,17 @@ int main(int argc, char **argv)
             m.utime = utime;
             m.sensor = "sim";
             imu_measure(&imu, &veh, &st, seed, (uint64_t)k[best], m.accel, m.gyro);
-            WRITE_MSG(&out, "IMU", portobello_imu_t, &m);
+            PB_LOG_WRITE_MSG(&out, "IMU", portobello_imu_t, &m);
             break;
         }
         case S_LIDAR:
             lidar_simulate(&ls, (int32_t)k[best], t, utime, &scan);
-            WRITE_MSG(&out, "LIDAR_SCAN", portobello_lidar_scan_t, &scan);
+            PB_LOG_WRITE_MSG(&out, "LIDAR_SCAN", portobello_lidar_scan_t, &scan);
             break;
         case S_GNSS: {
             portobello_gnss_fix_t fix = { 0 };
             gnss_step(&gnss, &veh, &site.geo, site.geoid_height_m, &st, seed, utime, &fix);
-            WRITE_MSG(&out, "GNSS_FIX", portobello_gnss_fix_t, &fix);
+            PB_LOG_WRITE_MSG(&out, "GNSS_FIX", portobello_gnss_fix_t, &fix);
             break;
         }
         case S_CAN_WS:
@@ -287,7 +272,7 @@ int main(int argc, char **argv)
                 can_encode_speed(st.v * 3.6, enc, data);
                 f.id = CAN_ID_SPEED;
             }
-            WRITE_MSG(&out, "CAN_FRAME", portobello_can_frame_t, &f);
+            PB_LOG_WRITE_MSG(&out, "CAN_FRAME", portobello_can_frame_t, &f);
             break;
         }
         }

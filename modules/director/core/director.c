@@ -103,25 +103,13 @@ static void footprint(const director_t *d, const double pos[3], const double q[4
     g->half[0] = d->veh.length / 2; g->half[1] = d->veh.width / 2; g->half[2] = d->veh.height / 2;
 }
 
-static void volume_shape(const sc_volume_t *v, geom_shape_t *g)
-{
-    if (v->type == SC_VOL_BOX) {
-        double c[3] = { v->center[0], v->center[1], (v->z[0] + v->z[1]) / 2 };
-        geom_box_yaw(g, c, v->yaw, v->size);
-    } else if (v->type == SC_VOL_CYLINDER) {
-        geom_cylinder(g, v->center[0], v->center[1], v->z[0], v->radius, v->z[1] - v->z[0]);
-    } else {
-        geom_prism(g, (const double(*)[2])v->pts, v->npts, v->z[0], v->z[1]);
-    }
-}
-
 static int foot_touches_volume(const director_t *d, const geom_shape_t *foot, const sc_volume_t *v)
 {
     double dx = foot->c[0] - v->bound_c[0], dy = foot->c[1] - v->bound_c[1];
     double r = d->car_r + v->bound_r;
     if (dx * dx + dy * dy > r * r) return 0;
     geom_shape_t g;
-    volume_shape(v, &g);
+    geom_volume(&g, v);
     return geom_intersect(foot, &g);
 }
 

@@ -86,3 +86,15 @@ int geom_intersect(const geom_shape_t *a, const geom_shape_t *b)
     ccd.max_iterations = 100;
     return ccdGJKIntersect(a, b, &ccd) ? 1 : 0;
 }
+
+void geom_volume(geom_shape_t *g, const sc_volume_t *v)
+{
+    if (v->type == SC_VOL_BOX) {
+        double c[3] = { v->center[0], v->center[1], (v->z[0] + v->z[1]) / 2 };
+        geom_box_yaw(g, c, v->yaw, v->size);
+    } else if (v->type == SC_VOL_CYLINDER) {
+        geom_cylinder(g, v->center[0], v->center[1], v->z[0], v->radius, v->z[1] - v->z[0]);
+    } else {
+        geom_prism(g, (const double(*)[2])v->pts, v->npts, v->z[0], v->z[1]);
+    }
+}

@@ -6,6 +6,8 @@
 #ifndef DIR_GEOM_H
 #define DIR_GEOM_H
 
+#include "scenario.h"
+
 typedef enum { GEOM_BOX, GEOM_CYLINDER, GEOM_PRISM } geom_kind_t;
 
 typedef struct {
@@ -30,5 +32,8 @@ int geom_intersect(const geom_shape_t *a, const geom_shape_t *b);
 
 /* Quaternion (w, x, y, z) to a row-major rotation matrix. */
 void geom_quat_to_R(const double q[4], double R[9]);
+
+/* The shape of a scenario's trigger volume. */
+void geom_volume(geom_shape_t *g, const sc_volume_t *v);
 
 #endif
