@@ -5,24 +5,9 @@
 #include <stdlib.h>
 #include <string.h>
 
-#define PLAN_DS 0.25        /* m, grid of the speed plan */
+#include "pb_profile.h"
 
-/* Moving average of width w (odd) with edge values held (the edges are rest). */
-static void box_filter(double *x, double *tmp, double *csum, int n, int w)
-{
-    csum[0] = 0;
-    for (int i = 0; i < n; i++) csum[i + 1] = csum[i] + x[i];
-    int h = w / 2;
-    for (int i = 0; i < n; i++) {
-        int lo = i - h, hi = i + h;
-        double sum = 0;
-        if (lo < 0) { sum += -lo * x[0]; lo = 0; }
-        if (hi > n - 1) { sum += (hi - (n - 1)) * x[n - 1]; hi = n - 1; }
-        sum += csum[hi + 1] - csum[lo];
-        tmp[i] = sum / w;
-    }
-    memcpy(x, tmp, n * sizeof *x);
-}
+#define PLAN_DS 0.25        /* m, grid of the speed plan */
 
 int lv_leg_plan(lv_leg_t *leg, const pb_route_t *r, const pb_speed_profile_t *p, double d0, double length,
                 pb_err_t *err)
@@ -83,18 +68,9 @@ int lv_leg_plan(lv_leg_t *leg, const pb_route_t *r, const pb_speed_profile_t *p,
     int n = (int)ceil(t / LV_PLAN_DT - 1e-9) + 1;
     leg->v = malloc(n * sizeof *leg->v);
     leg->s = malloc(n * sizeof *leg->s);
-    double *tmp = malloc(n * sizeof *tmp), *csum = malloc((n + 1) * sizeof *csum);
-    int j = 0;
-    for (int k = 0; k < n; k++) {
-        double tk = k * LV_PLAN_DT;
-        while (j < nk - 2 && kt[j + 1] <= tk) j++;
-        double span = kt[j + 1] - kt[j];
-        double f = span > 0 ? (tk - kt[j]) / span : 1;
-        if (f > 1) f = 1;
-        leg->v[k] = kv[j] + (kv[j + 1] - kv[j]) * f;
-    }
-    box_filter(leg->v, tmp, csum, n, w);
-    box_filter(leg->v, tmp, csum, n, w);
+    pb_profile_sample(kt, kv, nk, LV_PLAN_DT, n, leg->v);
+    pb_profile_smooth(leg->v, n, w);
+    pb_profile_smooth(leg->v, n, w);
     leg->v[0] = leg->v[n - 1] = 0;      /* rest by construction; drop rounding dust */
     leg->s[0] = 0;
     for (int k = 1; k < n; k++) leg->s[k] = leg->s[k - 1] + 0.5 * (leg->v[k - 1] + leg->v[k]) * LV_PLAN_DT;
@@ -107,7 +83,7 @@ int lv_leg_plan(lv_leg_t *leg, const pb_route_t *r, const pb_speed_profile_t *p,
     leg->dt = LV_PLAN_DT;
     leg->n = n;
     leg->t_end = (n - 1) * LV_PLAN_DT;
-    free(kap); free(vmax); free(kt); free(kv); free(tmp); free(csum);
+    free(kap); free(vmax); free(kt); free(kv);
     return 0;
 }
 

@@ -5,32 +5,12 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "pb_profile.h"
 #include "rng.h"
 
 #define PLAN_DS 0.25        /* m, grid of the speed plan */
 #define PROFILE_DT 0.002    /* s, grid of the time profile */
 #define BOX_S 0.5           /* s, width of each of the two box filters (a 1 s triangle) */
-
-/* Moving average of width w (odd) with edge values held. */
-static void box_filter(double *x, int n, int w)
-{
-    double *c = malloc((n + 1) * sizeof *c);
-    c[0] = 0;
-    for (int i = 0; i < n; i++) c[i + 1] = c[i] + x[i];
-    int h = w / 2;
-    double *y = malloc(n * sizeof *y);
-    for (int i = 0; i < n; i++) {
-        int lo = i - h, hi = i + h;     /* inclusive */
-        double sum = 0;
-        if (lo < 0) { sum += -lo * x[0]; lo = 0; }
-        if (hi > n - 1) { sum += (hi - (n - 1)) * x[n - 1]; hi = n - 1; }
-        sum += c[hi + 1] - c[lo];
-        y[i] = sum / w;
-    }
-    memcpy(x, y, n * sizeof *x);
-    free(y);
-    free(c);
-}
 
 /* One plan over `laps` laps into tr (v, s, n, t_end). */
 static void plan_laps(trajectory_t *tr, const pb_route_t *r, const pb_speed_profile_t *p, int laps, int end_at_rest,
@@ -89,21 +69,13 @@ static void plan_laps(trajectory_t *tr, const pb_route_t *r, const pb_speed_prof
     tr->n = n;
     tr->dt = PROFILE_DT;
     tr->stops_made = stops;
-    int j = 0;
-    for (int k = 0; k < n; k++) {
-        double tk = k * PROFILE_DT;
-        while (j < nk - 2 && kt[j + 1] <= tk) j++;
-        double span = kt[j + 1] - kt[j];
-        double f = span > 0 ? (tk - kt[j]) / span : 1;
-        if (f > 1) f = 1;
-        tr->v[k] = kv[j] + (kv[j + 1] - kv[j]) * f;
-    }
+    pb_profile_sample(kt, kv, nk, PROFILE_DT, n, tr->v);
     /* Two box filters = a triangular window: acceleration becomes continuous and jerk
      * bounded by (accel + decel) / BOX_S. Dwells (>= 2 s) outlast the 1 s window, so
      * the car still comes to rest exactly where planned. */
     int w = (int)(BOX_S / PROFILE_DT) | 1;
-    box_filter(tr->v, n, w);
-    box_filter(tr->v, n, w);
+    pb_profile_smooth(tr->v, n, w);
+    pb_profile_smooth(tr->v, n, w);
     tr->s[0] = 0;
     for (int k = 1; k < n; k++) tr->s[k] = tr->s[k - 1] + 0.5 * (tr->v[k - 1] + tr->v[k]) * PROFILE_DT;
     tr->t_end = (n - 1) * PROFILE_DT;
