@@ -291,7 +291,10 @@ def test_live_serial_pty_to_bus():
     master side in small chunks; gnss reads the raw tty and publishes on the bus."""
     import lcm
     import tty
-    master, slave = os.openpty()
+    try:
+        master, slave = os.openpty()
+    except OSError as e:   # e.g. a chroot without /dev/pts: no pseudo-terminals at all
+        pytest.skip(f"this machine has no pseudo-terminals ({e})")
     tty.setraw(master)
     path = os.ttyname(slave)
     lc = lcm.LCM(LIVE_URL)
