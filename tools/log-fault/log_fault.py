@@ -23,6 +23,7 @@ The log stays ordered by event timestamp except for `reorder`. Prints what it di
 import argparse
 import math
 import pathlib
+import subprocess
 import sys
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
@@ -76,25 +77,15 @@ def point_sweep(scan, with_nan, seed_pts):
     return s
 
 
-def range_image_points(scan):
-    """The sweep's points (lidar frame) from the range image, as in lidar_scan_t.lcm."""
+def range_image_points(log_path, scan_index):
+    """The sweep's points (lidar frame), computed by common/pb_scan through
+    build/bin/ouster-points, so the sensor model is implemented once."""
+    out = subprocess.run([str(ROOT / "build" / "bin" / "ouster-points"), "--in", str(log_path),
+                          "--scan", str(scan_index)], capture_output=True, text=True, check=True).stdout
     pts = []
-    n = scan.beam_origin_m
-    for c in range(scan.cols):
-        enc = 2 * math.pi * (1.0 - c / scan.cols)
-        for r in range(scan.rows):
-            mm = scan.range_mm[r * scan.cols + c]
-            if mm <= 0:
-                continue
-            R = mm * 1e-3
-            th = enc + scan.beam_azimuth_rad[r]
-            ph = scan.beam_altitude_rad[r]
-            x = (R - n) * math.cos(th) * math.cos(ph) + n * math.cos(enc)
-            y = (R - n) * math.sin(th) * math.cos(ph) + n * math.sin(enc)
-            z = (R - n) * math.sin(ph)
-            M = scan.lidar_from_beam
-            pts.append((M[0] * x + M[1] * y + M[2] * z + M[3], M[4] * x + M[5] * y + M[6] * z + M[7],
-                        M[8] * x + M[9] * y + M[10] * z + M[11], scan.col_offset_us[c]))
+    for line in out.splitlines()[1:]:
+        f = line.split(",")
+        pts.append((float(f[4]), float(f[5]), float(f[6]), int(f[8])))
     return pts
 
 
@@ -155,7 +146,9 @@ def main():
                 f"{a.metres:.0f} m ahead of the true ({gt.position[0]:.2f}, {gt.position[1]:.2f})")
     elif a.fault in ("nan-points", "empty-scans", "garbage"):
         n = 0
+        k = -1      # index of the sweep among the log's LIDAR_SCAN events
         for e in ev:
+            k += e[1] == "LIDAR_SCAN"
             if e[1] == "LIDAR_SCAN" and msg_utime(e[2]) >= t_at and n < a.count:
                 n += 1
                 if a.fault == "garbage":
@@ -163,7 +156,7 @@ def main():
                     continue
                 s = lidar_scan_t.decode(e[2])
                 if a.fault == "nan-points":
-                    pts = range_image_points(s) if s.npixels else list(zip(s.x, s.y, s.z, s.point_offset_us))
+                    pts = range_image_points(a.inp, k) if s.npixels else list(zip(s.x, s.y, s.z, s.point_offset_us))
                     s2 = point_sweep(s, True, pts)
                 else:
                     s2 = point_sweep(s, False, [])
