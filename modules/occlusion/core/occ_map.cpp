@@ -40,8 +40,12 @@ struct key_set_t {
     size_t mask;
     explicit key_set_t(int log2) : key((size_t)1 << log2), gen((size_t)1 << log2, 0), mask(((size_t)1 << log2) - 1) {}
     void clear() { if (++g == 0) { std::fill(gen.begin(), gen.end(), 0); g = 1; } }
+    static size_t mix(uint64_t k) {     /* murmur3's finalizer: keys differ in few bits */
+        k ^= k >> 33; k *= 0xff51afd7ed558ccdull; k ^= k >> 33; k *= 0xc4ceb9fe1a85ec53ull; k ^= k >> 33;
+        return (size_t)k;
+    }
     bool insert(uint64_t k) {   /* true if new; silently full (never here: sized for a sweep) */
-        size_t h = (size_t)((k * 0x9E3779B97F4A7C15ull) >> 40) & mask;
+        size_t h = mix(k) & mask;
         for (size_t i = 0; i <= mask; i++, h = (h + 1) & mask) {
             if (gen[h] != g) { gen[h] = g; key[h] = k; return true; }
             if (key[h] == k) return false;
@@ -49,7 +53,7 @@ struct key_set_t {
         return false;
     }
     bool has(uint64_t k) const {
-        size_t h = (size_t)((k * 0x9E3779B97F4A7C15ull) >> 40) & mask;
+        size_t h = mix(k) & mask;
         for (size_t i = 0; i <= mask; i++, h = (h + 1) & mask) {
             if (gen[h] != g) return false;
             if (key[h] == k) return true;
@@ -70,10 +74,12 @@ struct occ_map_t {
     std::vector<ground_cell_t> ground;
     int32_t sweep = 0;
     key_set_t hits{17};
+    std::vector<uint64_t> listed_bits;      /* fine voxels in `occupied` (same ring as fine_bits) */
     std::vector<float> bin_min;             /* NEL x NAZ, +inf = no return in the bin */
     std::unordered_map<uint64_t, char> blocks;   /* live 6.4 m blocks (packed block keys) */
     octomap::KeyRay ray;
     std::vector<uint64_t> to_clear;
+    std::vector<uint64_t> occupied;         /* keys whose bit went 0 -> 1 (stale ones dropped lazily) */
 
     explicit occ_map_t(const occ_config_t &c) : cfg(c), fine(c.resolution), observed(c.observed_resolution) {}
 };
@@ -98,6 +104,7 @@ occ_map_t *occ_map_create(const occ_config_t *cfg)
     m->cshift = (int)std::lround(std::log2(cfg->observed_resolution / cfg->resolution));
     m->coff = KEY_ORIGIN - (KEY_ORIGIN >> m->cshift);
     m->fine_bits.assign((size_t)FX * FX * FZ / 64, 0);
+    m->listed_bits.assign((size_t)FX * FX * FZ / 64, 0);
     m->obs_bits.assign((size_t)CX * CX * CZ / 64, 0);
     m->ground.assign((size_t)GN * GN, ground_cell_t{ 0, 0, -1000000, 0 });
     m->bin_min.assign((size_t)NAZ * NEL, INFINITY);
@@ -111,9 +118,11 @@ void occ_map_clear(occ_map_t *m)
     m->fine.clear();
     m->observed.clear();
     std::fill(m->fine_bits.begin(), m->fine_bits.end(), 0);
+    std::fill(m->listed_bits.begin(), m->listed_bits.end(), 0);
     std::fill(m->obs_bits.begin(), m->obs_bits.end(), 0);
     for (ground_cell_t &g : m->ground) g.sweep = -1000000;
     m->blocks.clear();
+    m->occupied.clear();
 }
 
 void occ_map_size(const occ_map_t *m, int64_t *leaves, int64_t *bytes)
@@ -151,6 +160,20 @@ static float ground_z(occ_map_t *m, float x, float y)
     return z;
 }
 
+/* atan2 to 4e-6 rad (the bins are 6 mm rad wide): a minimax polynomial of atan on
+ * [0, 1] and the octant symmetries. */
+static inline double fast_atan2(double y, double x)
+{
+    double ax = std::fabs(x), ay = std::fabs(y);
+    double mx = std::max(ax, ay), mn = std::min(ax, ay);
+    if (mx == 0) return 0;
+    double a = mn / mx, s = a * a;
+    double r = ((((-0.0134804 * s + 0.0574773) * s - 0.1212390) * s + 0.1956359) * s - 0.3329946) * s * a + 0.9999956 * a;
+    if (ay > ax) r = M_PI_2 - r;
+    if (x < 0) r = M_PI - r;
+    return y < 0 ? -r : r;
+}
+
 /* Direction bin of a map point seen from the sweep's mid pose: -1 outside the bins. */
 static inline int bin_of(const occ_sweep_t *sw, double px, double py, double pz, double *range)
 {
@@ -161,10 +184,10 @@ static inline int bin_of(const occ_sweep_t *sw, double px, double py, double pz,
     double lz = R[2] * d[0] + R[5] * d[1] + R[8] * d[2];
     double h = std::sqrt(lx * lx + ly * ly);
     *range = std::sqrt(h * h + lz * lz);
-    double el = std::atan2(lz, h);
+    double el = fast_atan2(lz, h);
     if (el < EL_MIN || el >= EL_MAX) return -1;
     int e = (int)((el - EL_MIN) / (EL_MAX - EL_MIN) * NEL);
-    int a = (int)((std::atan2(ly, lx) + M_PI) / (2 * M_PI) * NAZ) & (NAZ - 1);
+    int a = (int)((fast_atan2(ly, lx) + M_PI) / (2 * M_PI) * NAZ) & (NAZ - 1);
     return e * NAZ + a;
 }
 
@@ -239,8 +262,11 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
     const double r2max = c.range_m * c.range_m;
     std::fill(m->bin_min.begin(), m->bin_min.end(), INFINITY);
 
-    /* 1. ground: lowest return per 1 m cell; the sweep binned by direction (nearest return) */
-    for (int i = 0; i < sw->n; i++) {
+    /* 1. ground: lowest return per 1 m cell; the sweep binned by direction (nearest return).
+     * Every point_stride-th return (the others on the next sweeps): neighbouring returns of
+     * a 0.35-degree sweep mostly fall in the same 0.2 m voxel anyway */
+    const int ps = std::max(1, c.point_stride), p0 = m->sweep % ps;
+    for (int i = p0; i < sw->n; i += ps) {
         float x = sw->x[i], y = sw->y[i], z = sw->z[i];
         if (!std::isfinite(x) || !std::isfinite(y) || !std::isfinite(z)) continue;
         double r;
@@ -255,7 +281,7 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
 
     /* 2. hits: returns above the ground, one update per voxel */
     m->hits.clear();
-    for (int i = 0; i < sw->n; i++) {
+    for (int i = p0; i < sw->n; i += ps) {
         float x = sw->x[i], y = sw->y[i], z = sw->z[i];
         if (!std::isfinite(x) || !std::isfinite(y) || !std::isfinite(z)) continue;
         const double *o = sw->origins[sw->origin_index[i]];
@@ -267,20 +293,32 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
         if (!key_of(m->inv_res, x, y, z, k) || !m->hits.insert(pack(k))) continue;
         octomap::OcTreeNode *nd = m->fine.updateNode(k, true, true);
         s.hit_voxels++;
-        if (nd && m->fine.isNodeOccupied(nd)) set_bit(m->fine_bits, fine_bit(k));
+        size_t bi = fine_bit(k);
+        if (nd && m->fine.isNodeOccupied(nd)) {
+            set_bit(m->fine_bits, bi);
+            if (!get_bit(m->listed_bits, bi)) { set_bit(m->listed_bits, bi); m->occupied.push_back(pack(k)); }
+        }
         m->blocks.emplace(block_of(k), 1);
     }
 
     /* 3. misses: occupied voxels in view whose surrounding beams all went on past them */
     m->to_clear.clear();
-    octomap::point3d lo((float)(sw->mid_origin[0] - c.range_m), (float)(sw->mid_origin[1] - c.range_m), (float)(sw->mid_origin[2] - 6.0));
-    octomap::point3d hi((float)(sw->mid_origin[0] + c.range_m), (float)(sw->mid_origin[1] + c.range_m), (float)(sw->mid_origin[2] + 6.0));
-    for (auto it = m->fine.begin_leafs_bbx(lo, hi), end = m->fine.end_leafs_bbx(); it != end; ++it) {
-        if (!m->fine.isNodeOccupied(*it)) continue;
-        OcTreeKey k = it.getKey();
-        if (m->hits.has(pack(k))) continue;
+    /* the occupied voxels come from a list kept beside the tree (iterating the tree's
+     * leaves costs more than the rest of the sweep); entries whose bit went are dropped */
+    for (size_t j = 0; j < m->occupied.size();) {
+        uint64_t pk = m->occupied[j];
+        OcTreeKey k = unpack(pk);
+        size_t bi = fine_bit(k);
+        if (!get_bit(m->fine_bits, bi)) {
+            clr_bit(m->listed_bits, bi);
+            m->occupied[j] = m->occupied.back();
+            m->occupied.pop_back();
+            continue;
+        }
+        j++;
+        if (m->hits.has(pk)) continue;
         s.occupied_checked++;
-        octomap::point3d p = it.getCoordinate();
+        octomap::point3d p = m->fine.keyToCoord(k);
         double r;
         int b = bin_of(sw, p.x(), p.y(), p.z(), &r);
         if (b < 0 || r > c.range_m) continue;
@@ -304,7 +342,7 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
 
     /* 4. observed space: every Nth beam traced through the coarse tree (new voxels only) */
     int stride = std::max(1, c.observed_ray_stride);
-    for (int i = 0; i < sw->n; i += stride) {
+    for (int i = m->sweep % stride; i < sw->n; i += stride) {     /* other beams next sweep */
         float x = sw->x[i], y = sw->y[i], z = sw->z[i];
         if (!std::isfinite(x) || !std::isfinite(y) || !std::isfinite(z)) continue;
         const double *o = sw->origins[sw->origin_index[i]];
@@ -401,6 +439,11 @@ static int8_t query_one(const occ_map_t *m, const double e[3], const double bp[3
         tmax[a] += tdelta[a];
     }
     return unknown ? OCC_UNKNOWN : OCC_VISIBLE;
+}
+
+double occ_map_ego_exit(const occ_map_t *m, const double eye[3], const double d[3], const double base_pos[3], double base_yaw)
+{
+    return ego_exit(m->cfg, eye, d, base_pos, base_yaw);
 }
 
 void occ_map_query(const occ_map_t *m, const double eye[3], const double base_pos[3], double base_yaw, const float *x,

@@ -33,7 +33,8 @@ struct occ_config_t {
     double window_m = 46.0;           /* rolling window: blocks whose centre is farther from the car go */
     double ground_clearance_m = 0.25; /* returns this close to the local ground are ground */
     double clear_margin_m = 0.4;      /* a beam that ends this far past a voxel clears it */
-    int observed_ray_stride = 4;      /* every Nth return's beam marks observed space */
+    int point_stride = 2;             /* every Nth return per sweep for hits and ground (alternating) */
+    int observed_ray_stride = 8;      /* every Nth return's beam marks observed space (the next N-1 sweeps trace the others) */
     double prob_hit = 0.7, prob_miss = 0.12, clamp_min = 0.12, clamp_max = 0.88;  /* one clear miss frees any voxel */
     double stop_short_m = 0.3;        /* eye rays stop this far before the sample (the agent's own spot) */
     /* the car's own box in base (the eye looks out through it): x from, x to, half width, height */
@@ -70,6 +71,9 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
  * occluder_m: distance from the eye to the first occupied voxel (hidden), else NaN. */
 void occ_map_query(const occ_map_t *m, const double eye[3], const double base_pos[3], double base_yaw,
                    const float *x, const float *y, const float *z, int n, int8_t *state, float *occluder_m);
+
+/* Distance along the eye ray (d unit) at which it leaves the car's own box; 0 if the eye is outside it. */
+double occ_map_ego_exit(const occ_map_t *m, const double eye[3], const double d[3], const double base_pos[3], double base_yaw);
 
 /* Forgets everything (e.g. after the pose jumped). */
 void occ_map_clear(occ_map_t *m);

@@ -41,6 +41,9 @@ struct occlusion_t {
     /* scratch */
     std::vector<float> mx, my, mz;
     std::vector<uint16_t> oi;
+    occ_sweep_t last = {};
+    double last_origins[64][3];
+    bool has_last = false;
 };
 
 occlusion_t *occlusion_create(const occ_config_t *cfg, const occlusion_vehicle_t *veh)
@@ -65,6 +68,12 @@ void occlusion_destroy(occlusion_t *o)
 }
 
 occ_map_t *occlusion_map(occlusion_t *o) { return o->map; }
+
+bool occlusion_last_sweep(const occlusion_t *o, occ_sweep_t *sw)
+{
+    if (o->has_last) *sw = o->last;
+    return o->has_last;
+}
 void occlusion_set_clock(occlusion_t *o, occ_clock_fn fn) { o->clock = fn; }
 
 /* The base pose at t, interpolated (or carried on with its velocity a little); false if
@@ -122,6 +131,7 @@ static void agents_at(const occlusion_t *o, int64_t t, occ_output_t *r)
         g.n = finite ? pb_body_samples(a.kind.c_str(), p, a.yaw, g.x, g.y, g.z) : 0;
         for (int k = 0; k < g.n; k++) { g.state[k] = OCC_UNKNOWN; g.occluder_m[k] = NAN; }
         g.visible_fraction = 0;
+        g.evaluated = false;
     }
 }
 
@@ -176,6 +186,10 @@ static void process(occlusion_t *o, sweep_t &s, std::vector<occ_output_t> *out, 
     memcpy(sw.car, bpos, sizeof sw.car);
     /* 3. integrate */
     occ_map_integrate(o->map, &sw, &r.integrate);
+    memcpy(o->last_origins, origins, sizeof origins);
+    o->last = sw;
+    o->last.origins = o->last_origins;
+    o->has_last = true;
     double t1 = o->clock ? o->clock() : 0;
     /* 4. the eye: HEAD_POSE when fresh and tracking, else the seat, else the LiDAR */
     double eye_b[3];
@@ -202,6 +216,7 @@ static void process(occlusion_t *o, sweep_t &s, std::vector<occ_output_t> *out, 
         occ_agent_out_t &g = r.agents[i];
         if (!o->agents[i].in_render_range || g.n == 0) continue;
         occ_map_query(o->map, r.viewer, bpos, yaw, g.x, g.y, g.z, g.n, g.state, g.occluder_m);
+        g.evaluated = true;
         int vis = 0;
         for (int k = 0; k < g.n; k++) vis += g.state[k] == OCC_VISIBLE;
         g.visible_fraction = (float)vis / g.n;

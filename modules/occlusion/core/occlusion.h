@@ -51,6 +51,7 @@ struct occ_agent_out_t {
     int8_t state[PB_BODY_MAX_SAMPLES];
     float occluder_m[PB_BODY_MAX_SAMPLES];
     float visible_fraction;
+    bool evaluated;             /* queried (in render range, posed); else every sample unknown */
 };
 
 enum { OCC_EYE_HEAD = 0, OCC_EYE_SEAT = 1, OCC_EYE_LIDAR = 2 };
@@ -85,6 +86,9 @@ void occlusion_scan(occlusion_t *o, int64_t utime, const pb_points_t *pts, std::
 /* End of input: pending sweeps go out (without a pose if none covers them). */
 void occlusion_finish(occlusion_t *o, std::vector<occ_output_t> *out, std::vector<occ_event_t> *ev);
 
+/* The sweep last integrated, in the map frame (pointers into the pipeline, valid until
+ * its next call), and the map: for benchmarks and tests. false if none yet. */
+bool occlusion_last_sweep(const occlusion_t *o, occ_sweep_t *sw);
 /* The map, for benchmarks and tests. */
 occ_map_t *occlusion_map(occlusion_t *o);
 /* Wall time spent in the last sweep's integration and query, measured by a callback the
