@@ -38,6 +38,15 @@ static double cpu_ms()
     return ts.tv_sec * 1e3 + ts.tv_nsec * 1e-6;
 }
 
+/* Resident memory of this process, kB (Linux /proc/self/statm). */
+static long rss_kb()
+{
+    FILE *f = fopen("/proc/self/statm", "r");
+    long pages = 0, res = 0;
+    if (f) { if (fscanf(f, "%ld %ld", &pages, &res) != 2) res = 0; fclose(f); }
+    return res * 4;
+}
+
 static double pct(std::vector<double> v, double q)
 {
     if (v.empty()) return NAN;
@@ -148,6 +157,7 @@ int main(int argc, char **argv)
 
     std::vector<double> integ, query100, stock_insert, stock_query100, ours_rays_us, stock_rays_us;
     std::vector<occ_output_t> res;
+    std::string mem_rows;   /* sweep, map leaves, map bytes, RSS kB; ... */
     std::vector<occ_event_t> ev;
     pb_points_t pts = {};
     long sweep = 0;
@@ -195,6 +205,12 @@ int main(int argc, char **argv)
             write_occ(&out, "OCCLUSION", o);
             if (!o.pose_ok) { sweep++; continue; }
             integ.push_back(o.integrate_ms);
+            if (sweep % 600 == 0) {     /* memory once a minute of drive */
+                int64_t lv, by;
+                occ_map_size(occlusion_map(occ), &lv, &by);
+                mem_rows += (mem_rows.empty() ? "" : ", ") + std::to_string(sweep) + ", " + std::to_string(lv) + ", " +
+                            std::to_string(by) + ", " + std::to_string(rss_kb());
+            }
             /* 100 agents: the in-range agents' samples, repeated */
             std::vector<const occ_agent_out_t *> inr;
             for (const occ_agent_out_t &g : o.agents)
@@ -270,10 +286,10 @@ int main(int argc, char **argv)
     printf("{\"sweeps\": %zu, \"integrate_ms_p50\": %.3f, \"integrate_ms_p99\": %.3f, \"query100_ms_p50\": %.4f, "
            "\"query100_ms_p99\": %.4f, \"ours_us_per_ray_p50\": %.4f, \"stock_sweeps\": %zu, \"stock_insert_ms_p50\": %.1f, "
            "\"stock_insert_ms_p99\": %.1f, \"stock_query100_ms_p50\": %.3f, \"stock_us_per_ray_p50\": %.3f, "
-           "\"map_leaves_end\": %lld, \"map_bytes_end\": %lld}\n",
+           "\"map_leaves_end\": %lld, \"map_bytes_end\": %lld, \"memory_per_minute\": [%s]}\n",
            integ.size(), pct(integ, 0.5), pct(integ, 0.99), pct(query100, 0.5), pct(query100, 0.99), pct(ours_rays_us, 0.5),
            stock_insert.size(), pct(stock_insert, 0.5), pct(stock_insert, 0.99), pct(stock_query100, 0.5),
-           pct(stock_rays_us, 0.5), (long long)leaves, (long long)bytes);
+           pct(stock_rays_us, 0.5), (long long)leaves, (long long)bytes, mem_rows.c_str());
     pb_log_close(out.log, &err);
     pb_log_close(in, &err);
     occlusion_destroy(occ);

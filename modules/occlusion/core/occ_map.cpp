@@ -71,6 +71,7 @@ struct occ_map_t {
     int cshift;                             /* observed voxel = 2^cshift fine voxels */
     int coff;                               /* observed key = (fine key >> cshift) + coff */
     std::vector<uint64_t> fine_bits, obs_bits;
+    std::vector<uint64_t> any_bits;         /* observed-size cells that may hold an occupied fine voxel (queries skip the rest) */
     std::vector<ground_cell_t> ground;
     int32_t sweep = 0;
     key_set_t hits{17};
@@ -106,6 +107,7 @@ occ_map_t *occ_map_create(const occ_config_t *cfg)
     m->fine_bits.assign((size_t)FX * FX * FZ / 64, 0);
     m->listed_bits.assign((size_t)FX * FX * FZ / 64, 0);
     m->obs_bits.assign((size_t)CX * CX * CZ / 64, 0);
+    m->any_bits.assign((size_t)CX * CX * CZ / 64, 0);
     m->ground.assign((size_t)GN * GN, ground_cell_t{ 0, 0, -1000000, 0 });
     m->bin_min.assign((size_t)NAZ * NEL, INFINITY);
     return m;
@@ -120,6 +122,7 @@ void occ_map_clear(occ_map_t *m)
     std::fill(m->fine_bits.begin(), m->fine_bits.end(), 0);
     std::fill(m->listed_bits.begin(), m->listed_bits.end(), 0);
     std::fill(m->obs_bits.begin(), m->obs_bits.end(), 0);
+    std::fill(m->any_bits.begin(), m->any_bits.end(), 0);
     for (ground_cell_t &g : m->ground) g.sweep = -1000000;
     m->blocks.clear();
     m->occupied.clear();
@@ -247,7 +250,7 @@ static int roll_window(occ_map_t *m, const double car[3])
         for (int z = 0; z < nc; z++)
             for (int y = 0; y < nc; y++)
                 for (int x = 0; x < nc; x++)
-                    clr_bit(m->obs_bits, obs_bit(OcTreeKey(c0[0] + x, c0[1] + y, c0[2] + z)));
+                    { clr_bit(m->obs_bits, obs_bit(OcTreeKey(c0[0] + x, c0[1] + y, c0[2] + z))); clr_bit(m->any_bits, obs_bit(OcTreeKey(c0[0] + x, c0[1] + y, c0[2] + z))); }
         it = m->blocks.erase(it);
         n++;
     }
@@ -296,6 +299,7 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
         size_t bi = fine_bit(k);
         if (nd && m->fine.isNodeOccupied(nd)) {
             set_bit(m->fine_bits, bi);
+            set_bit(m->any_bits, obs_bit(OcTreeKey((k[0] >> m->cshift) + m->coff, (k[1] >> m->cshift) + m->coff, (k[2] >> m->cshift) + m->coff)));
             if (!get_bit(m->listed_bits, bi)) { set_bit(m->listed_bits, bi); m->occupied.push_back(pack(k)); }
         }
         m->blocks.emplace(block_of(k), 1);
@@ -416,22 +420,19 @@ static int8_t query_one(const occ_map_t *m, const double e[3], const double bp[3
         else { step[i] = 0; tmax[i] = INFINITY; tdelta[i] = INFINITY; }
     }
     bool unknown = false;
-    int last_obs[3] = { -1, -1, -1 };
     const int sh = m->cshift, co = m->coff;
     for (;;) {
         if (key[0] < 0 || key[1] < 0 || key[2] < 0 || key[0] >= 2 * KEY_ORIGIN || key[1] >= 2 * KEY_ORIGIN ||
             key[2] >= 2 * KEY_ORIGIN)
             return OCC_UNKNOWN;
         OcTreeKey k((uint16_t)key[0], (uint16_t)key[1], (uint16_t)key[2]);
-        if (get_bit(m->fine_bits, fine_bit(k))) {
+        OcTreeKey ck((uint16_t)((key[0] >> sh) + co), (uint16_t)((key[1] >> sh) + co), (uint16_t)((key[2] >> sh) + co));
+        size_t cb = obs_bit(ck);
+        if (get_bit(m->any_bits, cb) && get_bit(m->fine_bits, fine_bit(k))) {
             const octomap::OcTreeNode *nd = m->fine.search(k);
             if (nd && m->fine.isNodeOccupied(nd)) { *occ = (float)t; return OCC_HIDDEN; }
         }
-        if (!unknown && ((key[0] >> sh) + co != last_obs[0] || (key[1] >> sh) + co != last_obs[1] || (key[2] >> sh) + co != last_obs[2])) {
-            OcTreeKey ck((uint16_t)((key[0] >> sh) + co), (uint16_t)((key[1] >> sh) + co), (uint16_t)((key[2] >> sh) + co));
-            if (!get_bit(m->obs_bits, obs_bit(ck))) unknown = true;
-            last_obs[0] = ck[0]; last_obs[1] = ck[1]; last_obs[2] = ck[2];
-        }
+        if (!unknown && !get_bit(m->obs_bits, cb)) unknown = true;
         int a = tmax[0] < tmax[1] ? (tmax[0] < tmax[2] ? 0 : 2) : (tmax[1] < tmax[2] ? 1 : 2);
         t = tmax[a];
         if (t >= tend) break;
