@@ -273,7 +273,9 @@ def fault_live_clock_step(d, log, url="udpm://239.255.76.67:7901?ttl=0&recv_buf_
     flog = d / "fault_time_step.lcm"
     subprocess.run([sys.executable, lb.ROOT / "tools/log-fault/log_fault.py", "time-step", "--in", log, "--out", flog,
                     "--at", "9", "--seconds", "10"], check=True, capture_output=True)
-    events = [e for e in lb.read_events(flog, ["IMU", "LIDAR_SCAN", "GNSS_FIX", "VEHICLE_SPEED"])]
+    chans = ["IMU", "LIDAR_SCAN", "GNSS_FIX", "VEHICLE_SPEED"]
+    # paced by the original event times (the wall clock runs on); the data carry the stepped times
+    events = [(o[0], o[1], f[2]) for o, f in zip(lb.read_events(log, chans), lb.read_events(flog, chans))]
     lc = lcm.LCM(url)
     got = []
     lc.subscribe("POSE_PREDICTED", lambda ch, data: got.append((time.monotonic(), pose_t.decode(data).status)))
