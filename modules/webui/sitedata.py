@@ -1,0 +1,99 @@
+"""The site as the pages draw it: route, stop lines, crosswalks, scenario names, and the
+prior map thinned to a point cloud a browser renders smoothly, with a ground-height grid
+that editor drags snap to."""
+import pathlib
+import struct
+import threading
+
+import numpy as np
+import yaml
+
+CLOUD_VOXEL_M = 0.5        # thinning of the prior map for browsers (6.6 M -> ~0.3 M points on the default site)
+GROUND_CELL_M = 1.0        # ground-height grid for snapping
+
+
+class SiteError(Exception):
+    pass
+
+
+def read_pcd(path):
+    """x, y, z (float32 arrays) of an ascii or binary PCD file; errors name the file."""
+    with open(path, "rb") as f:
+        header = {}
+        while True:
+            line = f.readline()
+            if not line:
+                raise SiteError(f"{path}: header ends before DATA")
+            words = line.decode("ascii", "replace").split()
+            if not words or words[0].startswith("#"):
+                continue
+            header[words[0].upper()] = words[1:]
+            if words[0].upper() == "DATA":
+                break
+        fields, sizes, types = header.get("FIELDS"), header.get("SIZE"), header.get("TYPE")
+        counts = header.get("COUNT", ["1"] * len(fields or []))
+        n = int(header.get("POINTS", ["0"])[0])
+        if not fields or "x" not in fields or not sizes or not types:
+            raise SiteError(f"{path}: PCD header without FIELDS x y z / SIZE / TYPE")
+        kind = header["DATA"][0]
+        dt = np.dtype([(f"{name}_{i}" if int(c) > 1 else name, {"F": "<f", "I": "<i", "U": "<u"}[t] + s)
+                       for name, s, t, c in zip(fields, sizes, types, counts) for i in range(int(c))])
+        if kind == "binary":
+            data = np.frombuffer(f.read(n * dt.itemsize), dtype=dt, count=n)
+        elif kind == "ascii":
+            data = np.loadtxt(f, dtype=dt, max_rows=n, ndmin=1)
+        else:
+            raise SiteError(f"{path}: PCD DATA {kind} not supported (save it binary or ascii)")
+    return data["x"].astype(np.float32), data["y"].astype(np.float32), data["z"].astype(np.float32)
+
+
+class Site:
+    def __init__(self, folder):
+        self.dir = pathlib.Path(folder).resolve()
+        try:
+            site = yaml.safe_load((self.dir / "site.yaml").read_text())
+            self.route = yaml.safe_load((self.dir / site.get("route", "route.yaml")).read_text())
+        except (OSError, yaml.YAMLError, AttributeError) as e:
+            raise SiteError(f"site {folder}: {e}") from None
+        self.name = site.get("name", self.dir.name)
+        self.map_path = self.dir / ((site.get("map") or {}).get("file", "map.pcd"))
+        self.scenarios_dir = self.dir / "scenarios"
+        self._cloud = None
+        self._cloud_error = None
+        self._lock = threading.Lock()
+
+    def summary(self):
+        r = self.route
+        return {"name": self.name, "route": r.get("points", []), "lane_width": r.get("lane_width", 3.5),
+                "crosswalks": r.get("crosswalks", []), "stop_lines": r.get("stop_lines", []),
+                "scenarios": sorted(p.stem for p in self.scenarios_dir.glob("*.yaml")),
+                "has_map": self.map_path.is_file()}
+
+    def cloud_bytes(self):
+        """u32 n, n x (f32 x, y, z); then the ground grid: u32 nx, ny, f32 x0, y0, cell, nx*ny f32 (NaN: no data)."""
+        with self._lock:
+            if self._cloud is None:
+                self._cloud = self._build_cloud()
+            return self._cloud
+
+    def _build_cloud(self):
+        if not self.map_path.is_file():
+            return struct.pack("<I", 0) + struct.pack("<IIfff", 0, 0, 0, 0, GROUND_CELL_M)
+        x, y, z = read_pcd(self.map_path)
+        ok = np.isfinite(x) & np.isfinite(y) & np.isfinite(z)
+        x, y, z = x[ok], y[ok], z[ok]
+        # one point per voxel (the first), enough to see kerbs, walls and poles
+        k = [np.floor((a - a.min()) / CLOUD_VOXEL_M).astype(np.int64) for a in (x, y, z)]
+        _, first = np.unique(k[0] + (k[1] << 21) + (k[2] << 42), return_index=True)
+        pts = np.stack([x[first], y[first], z[first]], 1).astype(np.float32)
+        # ground: the lowest point of each cell
+        x0, y0 = float(x.min()), float(y.min())
+        nx = int((x.max() - x0) / GROUND_CELL_M) + 1
+        ny = int((y.max() - y0) / GROUND_CELL_M) + 1
+        ix = ((x - x0) / GROUND_CELL_M).astype(np.int64)
+        iy = ((y - y0) / GROUND_CELL_M).astype(np.int64)
+        ground = np.full(nx * ny, np.inf, np.float32)
+        np.minimum.at(ground, iy * nx + ix, z)
+        ground[np.isinf(ground)] = np.nan
+        return (struct.pack("<I", len(pts)) + pts.tobytes() +
+                struct.pack("<IIfff", nx, ny, x0, y0, GROUND_CELL_M) + ground.tobytes())
