@@ -48,7 +48,7 @@ def read_pcd(path):
 
 
 class Site:
-    def __init__(self, folder):
+    def __init__(self, folder, vehicle_file=None):
         self.dir = pathlib.Path(folder).resolve()
         try:
             site = yaml.safe_load((self.dir / "site.yaml").read_text())
@@ -58,13 +58,36 @@ class Site:
         self.name = site.get("name", self.dir.name)
         self.map_path = self.dir / ((site.get("map") or {}).get("file", "map.pcd"))
         self.scenarios_dir = self.dir / "scenarios"
+        vf = pathlib.Path(vehicle_file or pathlib.Path(__file__).resolve().parents[2] / "vehicles" / "prius2017.yaml")
+        try:
+            dims = yaml.safe_load(vf.read_text())["dimensions"]
+            self.vehicle = {k: float(dims[k]) for k in ("length", "width", "height", "rear_overhang")}
+        except (OSError, yaml.YAMLError, KeyError, TypeError, ValueError) as e:
+            raise SiteError(f"vehicle {vf}: {e}") from None
         self._cloud = None
         self._cloud_error = None
         self._lock = threading.Lock()
 
+    def scenario_info(self):
+        """Per scenario id: its volumes, synchronised agents' marks, render distance (for the operator)."""
+        info = {}
+        for p in sorted(self.scenarios_dir.glob("*.yaml")):
+            try:
+                sc = yaml.safe_load(p.read_text())
+                sync = []
+                for b in sc.get("behaviours") or []:
+                    if b.get("sync"):
+                        mark = b["path"][b["sync"]["mark"]]["to"]
+                        sync.append({"agent": b["agent"], "stop_line": b["sync"]["stop_line"], "mark": mark})
+                info[sc["scenario"]] = {"file": p.stem, "volumes": sc.get("volumes") or [], "sync": sync,
+                                        "render_distance_m": sc.get("render_distance_m", 45)}
+            except (OSError, yaml.YAMLError, AttributeError, KeyError, IndexError, TypeError):
+                continue      # a broken file is the editor's and scenario-check's business, not the display's
+        return info
+
     def summary(self):
         r = self.route
-        return {"name": self.name, "route": r.get("points", []), "lane_width": r.get("lane_width", 3.5),
+        return {"vehicle": self.vehicle, "scenario_info": self.scenario_info(),"name": self.name, "route": r.get("points", []), "lane_width": r.get("lane_width", 3.5),
                 "crosswalks": r.get("crosswalks", []), "stop_lines": r.get("stop_lines", []),
                 "scenarios": sorted(p.stem for p in self.scenarios_dir.glob("*.yaml")),
                 "has_map": self.map_path.is_file()}
