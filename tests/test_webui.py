@@ -207,9 +207,14 @@ def test_editor_illegal_edit_shows_error_and_saves_nothing(site):
     try:
         _open_editor(d, b.url, "cw01_look_and_cross")
         canvas = d.find_element("id", "vtop")
+        # select the approach volume in the list: the top-down view centres on it
+        next(e for e in d.find_elements("css selector", "#list .item") if e.text == "approach").click()
+        time.sleep(0.3)
         at = d.execute_script("return window.__editor.handleAt('vol:approach')")
-        # 60 m off the road: the car's footprint never touches the approach volume
-        _drag(d, canvas, at, -300, 0)
+        mpp = d.execute_script("return window.__editor.mpp()")
+        # 200 px (30 m at the initial scale) sideways, off the road: the car's footprint never touches it
+        _drag(d, canvas, at, -200, 0)
+        assert 200 * mpp > 20
         wait_for(lambda: d.find_element("id", "checkstate").text == "scenario-check: errors", what="the error")
         issues = d.find_element("id", "issues").text
         assert "volume approach" in issues and "off the route" in issues, issues

@@ -221,7 +221,8 @@ class WsClient:
 
     def __init__(self, url, **kw):
         from websockets.sync.client import connect
-        self.ws = connect(url, subprotocols=[SUBPROTOCOL], max_size=None, **kw)
+        self._cm = connect(url, subprotocols=[SUBPROTOCOL], max_size=None, **kw)
+        self.ws = self._cm.__enter__()
         self.texts = []
 
     def send_json(self, obj):
@@ -245,7 +246,7 @@ class WsClient:
         self.ws.send(struct.pack("<BI", 1, chan_id) + json.dumps(obj).encode())
 
     def close(self):
-        self.ws.close()
+        self._cm.__exit__(None, None, None)
 
 
 sys.path.insert(0, str(ROOT / "modules" / "webui"))

@@ -8,7 +8,9 @@ import threading
 import numpy as np
 import yaml
 
-CLOUD_VOXEL_M = 0.5        # thinning of the prior map for browsers (6.6 M -> ~0.3 M points on the default site)
+CLOUD_VOXEL_M = 0.7        # thinning of the prior map for browsers, above the ground
+GROUND_VOXEL_M = 1.5       # and on it (the default site: 6.6 M -> about 0.25 M points)
+GROUND_BAND_M = 0.25       # points this close above their cell's lowest point are ground
 GROUND_CELL_M = 1.0        # ground-height grid for snapping
 
 
@@ -105,18 +107,20 @@ class Site:
         x, y, z = read_pcd(self.map_path)
         ok = np.isfinite(x) & np.isfinite(y) & np.isfinite(z)
         x, y, z = x[ok], y[ok], z[ok]
-        # one point per voxel (the first), enough to see kerbs, walls and poles
-        k = [np.floor((a - a.min()) / CLOUD_VOXEL_M).astype(np.int64) for a in (x, y, z)]
-        _, first = np.unique(k[0] + (k[1] << 21) + (k[2] << 42), return_index=True)
-        pts = np.stack([x[first], y[first], z[first]], 1).astype(np.float32)
         # ground: the lowest point of each cell
         x0, y0 = float(x.min()), float(y.min())
         nx = int((x.max() - x0) / GROUND_CELL_M) + 1
         ny = int((y.max() - y0) / GROUND_CELL_M) + 1
-        ix = ((x - x0) / GROUND_CELL_M).astype(np.int64)
-        iy = ((y - y0) / GROUND_CELL_M).astype(np.int64)
+        cell = ((y - y0) / GROUND_CELL_M).astype(np.int64) * nx + ((x - x0) / GROUND_CELL_M).astype(np.int64)
         ground = np.full(nx * ny, np.inf, np.float32)
-        np.minimum.at(ground, iy * nx + ix, z)
+        np.minimum.at(ground, cell, z)
+        # one point per voxel (the first): fine above the ground (kerbs, walls, poles), coarse on it,
+        # which is most of a road map and says little in a picture
+        voxel = np.where(z - ground[cell] < GROUND_BAND_M, GROUND_VOXEL_M, CLOUD_VOXEL_M)
+        k = [np.floor((a - a.min()) / voxel).astype(np.int64) for a in (x, y, z)]
+        _, first = np.unique(k[0] + (k[1] << 21) + (k[2] << 42) + ((voxel > CLOUD_VOXEL_M).astype(np.int64) << 62),
+                             return_index=True)
+        pts = np.stack([x[first], y[first], z[first]], 1).astype(np.float32)
         ground[np.isinf(ground)] = np.nan
         return (struct.pack("<I", len(pts)) + pts.tobytes() +
                 struct.pack("<IIfff", nx, ny, x0, y0, GROUND_CELL_M) + ground.tobytes())

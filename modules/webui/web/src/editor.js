@@ -45,6 +45,7 @@ function handles() {
 function badElements() { return new Set(issues.filter((i) => i.severity === "error").map((i) => i.element)); }
 
 function rebuild() {
+  redraw();
   staging.clear();
   if (!model) return;
   const bad = badElements(), g = cloud.ground;
@@ -77,6 +78,9 @@ function rebuild() {
     let obj;
     if (h.kind) {
       obj = agentFigure(h.kind);
+      const disc = new THREE.Mesh(new THREE.CircleGeometry(0.7, 20), new THREE.MeshBasicMaterial({ color: mark(h.el, 0xffb020), transparent: true, opacity: 0.6 }));
+      disc.position.z = 0.03;
+      obj.add(disc);
       obj.rotation.z = h.yaw * Math.PI / 180;
       const c = mark(h.el, null);
       if (c !== null) obj.userData.material.color.setHex(c);
@@ -116,6 +120,7 @@ $("vtop").addEventListener("pointermove", (ev) => {
   if (drag.pan) {
     const [x0, y0, cx, cy] = drag.pan;
     top.cx = cx - (ev.offsetX - x0) * top.mpp; top.cy = cy + (ev.offsetY - y0) * top.mpp;
+    redraw();
     return;
   }
   const [mx, my] = topToMap(ev.offsetX, ev.offsetY);
@@ -131,6 +136,7 @@ $("vtop").addEventListener("wheel", (ev) => {
   top.mpp = Math.min(2, Math.max(0.02, top.mpp));
   const [nx, ny] = topToMap(ev.offsetX, ev.offsetY);
   top.cx += mx - nx; top.cy += my - ny;
+  redraw();
 }, { passive: false });
 
 // ---------------------------------------------------------------- checking, saving
@@ -175,7 +181,7 @@ $("save").addEventListener("click", async () => {
 // ---------------------------------------------------------------- element list, JSON panel, adding
 function section(key) { return (model[key] ||= []); }
 function findEl(el) {
-  const [kind, id] = el.split(" ");
+  const [kind, id] = (el || "").split(" ");
   const key = { agent: "agents", behaviour: "behaviours", volume: "volumes", trigger: "triggers" }[kind];
   return key ? [key, section(key).findIndex((x) => x.id === id)] : [null, -1];
 }
@@ -198,7 +204,7 @@ function list() {
     }
   }
   $("list").innerHTML = html;
-  for (const d of $("list").querySelectorAll(".item")) d.onclick = () => { select(d.dataset.el); const h = handles().find((h) => h.el === d.dataset.el); if (h) { top.cx = h.xy[0]; top.cy = h.xy[1]; } };
+  for (const d of $("list").querySelectorAll(".item")) d.onclick = () => { select(d.dataset.el); const h = handles().find((h) => h.el === d.dataset.el); if (h) { top.cx = h.xy[0]; top.cy = h.xy[1]; redraw(); } };
 }
 $("apply").addEventListener("click", () => {
   const [key, i] = findEl(selected || "");
@@ -268,6 +274,7 @@ function nearest(arr, t) {
   return arr[lo];
 }
 function showPreview(t) {
+  redraw();
   previewGroup.clear();
   if (!preview || !preview.car.length) return;
   const [, x, y, yaw] = nearest(preview.car, t);
@@ -286,8 +293,14 @@ function showPreview(t) {
 $("slider").addEventListener("input", () => showPreview(Number($("slider").value)));
 
 // ---------------------------------------------------------------- drawing
+let dirty = true;               // redraw only after something changed
+const redraw = () => { dirty = true; };
+orbit.addEventListener("change", redraw);
+window.addEventListener("resize", redraw);
 function frame() {
   requestAnimationFrame(frame);
+  if (!dirty) return;
+  dirty = false;
   for (const [r, c] of [[r3, $("v3d")], [rTop, $("vtop")]]) {
     const w = c.clientWidth, h = c.clientHeight;
     if (c.width !== Math.round(w * devicePixelRatio) || c.height !== Math.round(h * devicePixelRatio)) r.setSize(w, h, false);
@@ -309,10 +322,11 @@ loadSite().then(async (s) => {
   $("scenario").value = want;
   await load(want);
 });
-loadCloud().then((c) => { cloud = c; scene.add(cloudPoints(c.points, 0.2)); rebuild(); });
+loadCloud().then((c) => { cloud = c; scene.add(cloudPoints(c.points, 0.25)); rebuild(); });
 
 // for tests: where a handle is in the top-down canvas (CSS pixels), and the editor's state
 window.__editor = {
   handleAt: (key) => { const h = handles().find((x) => x.key === key); return h ? mapToTop(h.xy[0], h.xy[1]) : null; },
+  dbg: () => JSON.stringify({services: bus.services, connected: bus.connected, site: !!site}),
   mpp: () => top.mpp, model: () => model, issues: () => issues, checking: () => $("checkstate").textContent,
 };

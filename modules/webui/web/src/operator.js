@@ -73,7 +73,7 @@ function draw() {
   const scen = agentsMsg ? site.scenario_info[agentsMsg.scenario] : null;
   if (p) { view.cx = p.position[0]; view.cy = p.position[1]; }
   view.begin();
-  if (cloud) view.cloud(cloud.points, 2);
+  if (cloud) view.cloud(cloud.points);
   view.site(site);
   for (const v of scen ? scen.volumes : []) view.volume(v);
   // agents: filled = visible; hollow = hidden by a real object; faded = beyond render range

@@ -1,5 +1,7 @@
 // Top-down drawing of the site on a 2-D canvas (the operator's 7-inch screen): route,
 // crosswalks, stop lines and trigger volumes, in map metres with y up.
+const CLOUD_PX_PER_M = 4;
+
 export class TopDown {
   constructor(canvas) {
     this.canvas = canvas;
@@ -33,16 +35,30 @@ export class TopDown {
     return [[len / 2, wid / 2], [-len / 2, wid / 2], [-len / 2, -wid / 2], [len / 2, -wid / 2]]
       .map(([a, b]) => [cx + a * c - b * s, cy + a * s + b * c]);
   }
-  cloud(points, stride = 1) {    // the prior map as dots, coloured by height
-    const c = this.ctx;
-    for (let i = 0; i < points.length; i += 3 * stride) {
-      const z = points[i + 2];
-      if (z < 0.3) continue;     // ground adds nothing from above
-      const [u, v] = this.px(points[i], points[i + 1]);
-      if (u < 0 || v < 0 || u > this.canvas.width || v > this.canvas.height) continue;
-      c.fillStyle = z > 3 ? "#4a5568" : "#6b7280";
-      c.fillRect(u, v, 1.5, 1.5);
+  // The prior map from above, drawn once into an image at CLOUD_PX_PER_M (what stands above
+  // the ground: the ground adds nothing from above) and then only copied each frame.
+  cloud(points) {
+    if (points !== this.cloudSrc) {
+      this.cloudSrc = points;
+      let x0 = Infinity, y0 = Infinity, x1 = -Infinity, y1 = -Infinity;
+      for (let i = 0; i < points.length; i += 3) {
+        x0 = Math.min(x0, points[i]); x1 = Math.max(x1, points[i]); y0 = Math.min(y0, points[i + 1]); y1 = Math.max(y1, points[i + 1]);
+      }
+      const k = CLOUD_PX_PER_M, img = document.createElement("canvas");
+      img.width = Math.max(1, Math.ceil((x1 - x0) * k)); img.height = Math.max(1, Math.ceil((y1 - y0) * k));
+      const c = img.getContext("2d");
+      for (let i = 0; i < points.length; i += 3) {
+        const z = points[i + 2];
+        if (z < 0.3) continue;
+        c.fillStyle = z > 3 ? "#4a5568" : "#6b7280";
+        c.fillRect((points[i] - x0) * k, (y1 - points[i + 1]) * k, 1.5, 1.5);
+      }
+      this.cloudImg = { img, x0, y1 };
     }
+    if (!this.cloudImg) return;
+    const { img, x0, y1 } = this.cloudImg;
+    const [u, v] = this.px(x0, y1);
+    this.ctx.drawImage(img, u, v, img.width * this.scale / CLOUD_PX_PER_M, img.height * this.scale / CLOUD_PX_PER_M);
   }
   site(site) {
     const lw = site.lane_width;
