@@ -219,9 +219,9 @@ class Listener(threading.Thread):
 class WsClient:
     """A minimal Foxglove-protocol client (websockets' sync client) for checks from Python."""
 
-    def __init__(self, url, **kw):
+    def __init__(self, url, subprotocol=SUBPROTOCOL, **kw):
         from websockets.sync.client import connect
-        self._cm = connect(url, subprotocols=[SUBPROTOCOL], max_size=None, **kw)
+        self._cm = connect(url, subprotocols=[subprotocol], max_size=None, **kw)
         self.ws = self._cm.__enter__()
         self.texts = []
 

@@ -20,6 +20,7 @@ import math
 import mimetypes
 import os
 import pathlib
+import socket
 import struct
 import sys
 import threading
@@ -49,6 +50,10 @@ ROLES = {
 }
 PROCEED_INPUTS = {"proceed"}
 TIME_PERIOD_S = 0.1        # server time to clients, for the age shown on pages
+# Bytes a slow client may have in flight on our side (websockets' buffer + the kernel's send
+# buffer): beyond it sends wait, and meanwhile the newest-message slots are overwritten.
+WRITE_LIMIT = 16 * 1024
+SNDBUF = 32 * 1024
 
 
 # ---------------------------------------------------------------- LCM <-> JSON
@@ -194,6 +199,9 @@ class Bridge:
     async def handler(self, ws):
         path = ws.request.path.split("?")[0].rstrip("/")
         role = path[len("/ws/"):] if path.startswith("/ws/") else ""
+        sock = ws.transport.get_extra_info("socket")
+        if sock is not None:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, SNDBUF)
         client = Client(ws, role)
         rights = ROLES.get(role, {"publish": set(), "services": False})
         caps = ["time"] + (["clientPublish"] if rights["publish"] else []) + (["services"] if rights["services"] else [])
@@ -332,7 +340,7 @@ async def amain(args):
     bridge.start_lcm()
     host, port = args.listen.rsplit(":", 1)
     async with serve(bridge.handler, host, int(port), process_request=bridge.http, subprotocols=[SUBPROTOCOL],
-                     max_size=4 * 1024 * 1024, compression=None) as server:
+                     max_size=4 * 1024 * 1024, compression=None, write_limit=WRITE_LIMIT) as server:
         print(f"webui: site {site.name}: http://{args.listen}/operator /participant /editor /view; "
               f"bus on ws://{args.listen}/ws (Foxglove protocol)", flush=True)
         stop = asyncio.Event()

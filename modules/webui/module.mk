@@ -31,3 +31,10 @@ $(BIN)/webui: modules/webui/bridge.py modules/webui/module.mk
 	@echo "  GEN     webui"
 	@printf '#!/bin/sh\n# the webui bridge (modules/webui/bridge.py) with the project venv\nexec "%s" "%s" "$$@"\n' \
 	    "$(VPY)" "$(TOP)/modules/webui/bridge.py" > $@ && chmod +x $@
+
+# Latency bus -> browser and Proceed -> bus, memory with a slow client (10 min); baseline:
+# foxglove-sdk's WebSocket server on the same feed. Table + build/bench/webui.json.
+.PHONY: bench-webui
+BENCH_TARGETS += bench-webui
+bench-webui: all
+	@$(VPY) tools/bench-webui/bench.py $(BENCH_WEBUI_ARGS)

@@ -18,8 +18,12 @@ export class Bus {
   }
 
   connect() {
-    const url = `${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws/${this.page}`;
-    const client = new FoxgloveClient({ ws: new WebSocket(url, [FoxgloveClient.SUPPORTED_SUBPROTOCOL]) });
+    // ?ws=HOST:PORT points the page at another Foxglove-protocol server (make bench-webui's baseline)
+    const other = this.page === "operator" ? new URLSearchParams(location.search).get("ws") : null;
+    const url = other ? `ws://${other}/` : `${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws/${this.page}`;
+    // foxglove-sdk's own server names the same protocol foxglove.sdk.v1
+    const protocols = other ? [FoxgloveClient.SUPPORTED_SUBPROTOCOL, "foxglove.sdk.v1"] : [FoxgloveClient.SUPPORTED_SUBPROTOCOL];
+    const client = new FoxgloveClient({ ws: new WebSocket(url, protocols) });
     this.client = client;
     const subs = new Map();    // subscription id -> topic
     const dec = new TextDecoder();
