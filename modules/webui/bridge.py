@@ -106,6 +106,7 @@ class Client:
         self.wake = asyncio.Event()
         self.published = {}       # client channel id -> topic this client may publish
         self.skipped = 0          # messages overwritten before they could be sent
+        self.time_due = True      # the bridge's clock is due to this client
 
     def offer(self, chan_id, ts_ns, payload):
         if chan_id in self.latest:
@@ -116,16 +117,11 @@ class Client:
     async def sender(self):
         """Sends each channel's newest message; while a send waits on a slow socket the
         slots are overwritten, so memory stays one message per channel."""
-        next_time = 0.0
         while True:
-            try:
-                await asyncio.wait_for(self.wake.wait(), TIME_PERIOD_S)
-            except asyncio.TimeoutError:
-                pass
+            await self.wake.wait()
             self.wake.clear()
-            now = time.monotonic()
-            if now >= next_time:
-                next_time = now + TIME_PERIOD_S
+            if self.time_due:
+                self.time_due = False
                 await self.ws.send(struct.pack("<BQ", 2, time.time_ns()))
             while self.latest:
                 chan_id, (ts, payload) = self.latest.popitem()
@@ -149,6 +145,13 @@ class Bridge:
         self.editor = scenario_edit.Editor(site)
 
     # ---- bus side (LCM thread hands every message to the event loop)
+    def tick_time(self):
+        """Every TIME_PERIOD_S: each client is due the bridge's clock (for message ages)."""
+        for c in self.clients:
+            c.time_due = True
+            c.wake.set()
+        self.loop.call_later(TIME_PERIOD_S, self.tick_time)
+
     def start_lcm(self):
         self.lc.subscribe(".*", lambda ch, data: self.loop.call_soon_threadsafe(self.on_lcm, ch, data, time.time_ns()))
         self.lcm_stop = False
@@ -338,6 +341,7 @@ async def amain(args):
     bridge = Bridge(site, args.lcm_url, pathlib.Path(args.www))
     bridge.loop = asyncio.get_running_loop()
     bridge.start_lcm()
+    bridge.tick_time()
     host, port = args.listen.rsplit(":", 1)
     async with serve(bridge.handler, host, int(port), process_request=bridge.http, subprotocols=[SUBPROTOCOL],
                      max_size=4 * 1024 * 1024, compression=None, write_limit=WRITE_LIMIT) as server:

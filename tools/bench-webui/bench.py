@@ -36,23 +36,32 @@ def pct(v, q):
 
 
 def rss_kb(pid):
-    for line in pathlib.Path(f"/proc/{pid}/status").read_text().splitlines():
+    text = pathlib.Path(f"/proc/{pid}/status").read_text()
+    for line in text.splitlines():
         if line.startswith("VmRSS:"):
             return int(line.split()[1])
-    return 0
+    raise RuntimeError(f"/proc/{pid}/status has no VmRSS (process gone?):\n{text[:200]}")
 
 
-def latency(page_url, seconds, label):
-    d = chrome((1024, 600))
-    try:
-        d.get(page_url)
-        wait_for(lambda: d.execute_script("return window.__lat.length") > 100, 60, f"{label}: messages in the page")
-        time.sleep(3)
-        d.execute_script("window.__lat.length = 0")
-        time.sleep(seconds)
-        lat = d.execute_script("return window.__lat.slice()")
-    finally:
-        d.quit()
+def latency_windows(urls, seconds, windows):
+    """Alternating windows (A B A B ...) so the shared machine's load hits both relays alike."""
+    lat = {k: [] for k in urls}
+    for w in range(windows):
+        for label, url in urls.items():
+            d = chrome((1024, 600))
+            try:
+                d.get(url)
+                wait_for(lambda: d.execute_script("return window.__lat.length") > 100, 60, f"{label}: messages in the page")
+                time.sleep(2)
+                d.execute_script("window.__lat.length = 0")
+                time.sleep(seconds / windows)
+                lat[label] += d.execute_script("return window.__lat.slice()")
+            finally:
+                d.quit()
+    return {k: summarise(v, seconds) for k, v in lat.items()}
+
+
+def summarise(lat, seconds):
     out = {}
     for ch, rate in (("POSE_PREDICTED", 200), ("AGENTS", 60)):
         v = [x[1] for x in lat if x[0] == ch]
@@ -121,7 +130,8 @@ class SlowClient(threading.Thread):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--seconds", type=float, default=30, help="latency window per relay (s)")
+    ap.add_argument("--seconds", type=float, default=60, help="latency measured per relay (s), split into windows")
+    ap.add_argument("--windows", type=int, default=4, help="alternating windows per relay")
     ap.add_argument("--presses", type=int, default=60)
     ap.add_argument("--soak-s", type=float, default=600, help="slow-client soak (s), 10 minutes by default")
     ap.add_argument("--out", default=str(ROOT / "build" / "bench" / "webui.json"))
@@ -139,10 +149,10 @@ def main():
     res = {"feed": {"POSE_PREDICTED_hz": 200, "AGENTS_hz": 60, "agents": 12}}
     try:
         time.sleep(3)
-        print("bus -> browser: webui bridge ...", flush=True)
-        res["latency_webui"] = latency(bridge.url + "/operator?probe", args.seconds, "webui")
-        print("bus -> browser: foxglove-sdk server (baseline) ...", flush=True)
-        res["latency_sdk"] = latency(bridge.url + "/operator?probe&ws=127.0.0.1:18011", args.seconds, "sdk")
+        print(f"bus -> browser: webui bridge and foxglove-sdk server (baseline), {args.windows} alternating windows each ...", flush=True)
+        lat = latency_windows({"webui": bridge.url + "/operator?probe", "sdk": bridge.url + "/operator?probe&ws=127.0.0.1:18011"},
+                              args.seconds, args.windows)
+        res["latency_webui"], res["latency_sdk"] = lat["webui"], lat["sdk"]
         print("proceed press -> PARTICIPANT_INPUT ...", flush=True)
         res["proceed"] = proceed(bridge.url, lcm_url, args.presses)
         print(f"slow client soak, {args.soak_s:.0f} s, both relays ...", flush=True)
