@@ -36,6 +36,19 @@ def test_help_and_bad_site(tmp_path):
     assert p.returncode == 1 and "nowhere" in p.stderr
 
 
+def test_bad_or_missing_map_is_named_and_pages_get_no_cloud(tmp_path):
+    import sitedata
+    site = site_copy(tmp_path)
+    (site / "map.pcd").unlink()
+    assert sitedata.Site(site).cloud_bytes() == sitedata.EMPTY_CLOUD          # a site without a map: no cloud
+    (site / "map.pcd").write_text("VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nPOINTS 10\nDATA binary\n" + "x" * 7)
+    s = sitedata.Site(site)
+    assert s.cloud_bytes() == sitedata.EMPTY_CLOUD and "map.pcd" in s._cloud_error   # truncated: named, not a crash
+    with pytest.raises(sitedata.SiteError, match="site.yaml"):
+        (site / "site.yaml").unlink()
+        sitedata.Site(site)
+
+
 def test_every_page_renders_on_the_default_site(site, tmp_path):
     b = start(site, 18001, 8021)
     feed = Feeder(b.lcm_url, pose_hz=50, agents_hz=20)

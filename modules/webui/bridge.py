@@ -302,10 +302,13 @@ class Bridge:
     def http(self, connection, request):
         path = request.path.split("?")[0]
         if path.startswith("/ws"):
+            # pages that write are served only to pages of this bridge (not to a web site the
+            # phone happens to visit); read-only /ws stays open to Foxglove's and Lichtblick's apps
             origin = request.headers.get("Origin")
             host = request.headers.get("Host", "")
-            if origin and origin.split("://", 1)[-1] != host:
-                return self._response(403, b"cross-origin WebSocket refused\n", "text/plain")
+            writes = path.rstrip("/")[len("/ws/"):] in ROLES
+            if writes and origin and origin.split("://", 1)[-1] != host:
+                return self._response(403, b"cross-origin WebSocket refused for a page that writes\n", "text/plain")
             return None
         if path in ("", "/"):
             return self._response(200, self._index(), "text/html")
@@ -315,7 +318,10 @@ class Bridge:
         if name == "api/site":
             return self._response(200, json.dumps(self.site.summary()).encode(), "application/json")
         if name == "api/cloud.bin":
-            return self._response(200, self.site.cloud_bytes(), "application/octet-stream")
+            cloud = self.site.cloud_if_ready()
+            if cloud is None:       # still being thinned (a few seconds after start): the page retries
+                return self._response(503, b"map cloud not ready\n", "text/plain")
+            return self._response(200, cloud, "application/octet-stream")
         if name.startswith("static/") and "/" not in name[7:] and not name[7:].startswith("."):
             return self._file(self.www / name[7:])
         return self._response(404, b"not found\n", "text/plain")
@@ -340,6 +346,7 @@ async def amain(args):
     site = sitedata.Site(args.site)
     bridge = Bridge(site, args.lcm_url, pathlib.Path(args.www))
     bridge.loop = asyncio.get_running_loop()
+    threading.Thread(target=site.cloud_bytes, daemon=True).start()   # thinning the map takes seconds
     bridge.start_lcm()
     bridge.tick_time()
     host, port = args.listen.rsplit(":", 1)

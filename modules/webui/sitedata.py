@@ -3,6 +3,7 @@ prior map thinned to a point cloud a browser renders smoothly, with a ground-hei
 that editor drags snap to."""
 import pathlib
 import struct
+import sys
 import threading
 
 import numpy as np
@@ -12,6 +13,9 @@ CLOUD_VOXEL_M = 0.7        # thinning of the prior map for browsers, above the g
 GROUND_VOXEL_M = 1.5       # and on it (the default site: 6.6 M -> about 0.25 M points)
 GROUND_BAND_M = 0.25       # points this close above their cell's lowest point are ground
 GROUND_CELL_M = 1.0        # ground-height grid for snapping
+
+
+EMPTY_CLOUD = struct.pack("<I", 0) + struct.pack("<IIfff", 0, 0, 0, 0, GROUND_CELL_M)
 
 
 class SiteError(Exception):
@@ -41,9 +45,17 @@ def read_pcd(path):
         dt = np.dtype([(f"{name}_{i}" if int(c) > 1 else name, {"F": "<f", "I": "<i", "U": "<u"}[t] + s)
                        for name, s, t, c in zip(fields, sizes, types, counts) for i in range(int(c))])
         if kind == "binary":
-            data = np.frombuffer(f.read(n * dt.itemsize), dtype=dt, count=n)
+            start = f.tell()
+            raw = f.read(n * dt.itemsize)
+            if len(raw) < n * dt.itemsize:
+                raise SiteError(f"{path}: byte {start + len(raw)}: file ends inside the data "
+                                f"({n} points x {dt.itemsize} bytes from byte {start})")
+            data = np.frombuffer(raw, dtype=dt, count=n)
         elif kind == "ascii":
-            data = np.loadtxt(f, dtype=dt, max_rows=n, ndmin=1)
+            try:
+                data = np.loadtxt(f, dtype=dt, max_rows=n, ndmin=1)
+            except ValueError as e:
+                raise SiteError(f"{path}: ascii data: {e}") from None
         else:
             raise SiteError(f"{path}: PCD DATA {kind} not supported (save it binary or ascii)")
     return data["x"].astype(np.float32), data["y"].astype(np.float32), data["z"].astype(np.float32)
@@ -98,12 +110,26 @@ class Site:
         """u32 n, n x (f32 x, y, z); then the ground grid: u32 nx, ny, f32 x0, y0, cell, nx*ny f32 (NaN: no data)."""
         with self._lock:
             if self._cloud is None:
-                self._cloud = self._build_cloud()
+                try:
+                    self._cloud = self._build_cloud()
+                except (SiteError, OSError, ValueError) as e:   # a bad map: pages show none, and say why here
+                    self._cloud_error = str(e)
+                    print(f"webui: {e}: the pages show no map", file=sys.stderr, flush=True)
+                    self._cloud = EMPTY_CLOUD
             return self._cloud
+
+    def cloud_if_ready(self):
+        """The cloud bytes if built, else None (never blocks the caller)."""
+        if self._lock.acquire(blocking=False):
+            try:
+                return self._cloud
+            finally:
+                self._lock.release()
+        return None
 
     def _build_cloud(self):
         if not self.map_path.is_file():
-            return struct.pack("<I", 0) + struct.pack("<IIfff", 0, 0, 0, 0, GROUND_CELL_M)
+            return EMPTY_CLOUD
         x, y, z = read_pcd(self.map_path)
         ok = np.isfinite(x) & np.isfinite(y) & np.isfinite(z)
         x, y, z = x[ok], y[ok], z[ok]
