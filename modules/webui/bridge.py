@@ -102,16 +102,16 @@ class Client:
         self.ws = ws
         self.role = role
         self.subs = {}            # subscription id -> channel id
-        self.latest = {}          # channel id -> (receive ns, payload); replaced, never queued
+        self.latest = {}          # slot (a channel; STATUS: per module) -> (channel id, receive ns, payload)
         self.wake = asyncio.Event()
         self.published = {}       # client channel id -> topic this client may publish
         self.skipped = 0          # messages overwritten before they could be sent
         self.time_due = True      # the bridge's clock is due to this client
 
-    def offer(self, chan_id, ts_ns, payload):
-        if chan_id in self.latest:
+    def offer(self, slot, chan_id, ts_ns, payload):
+        if slot in self.latest:
             self.skipped += 1
-        self.latest[chan_id] = (ts_ns, payload)
+        self.latest[slot] = (chan_id, ts_ns, payload)
         self.wake.set()
 
     async def sender(self):
@@ -124,7 +124,7 @@ class Client:
                 self.time_due = False
                 await self.ws.send(struct.pack("<BQ", 2, time.time_ns()))
             while self.latest:
-                chan_id, (ts, payload) = self.latest.popitem()
+                _, (chan_id, ts, payload) = self.latest.popitem()
                 for sub_id, cid in list(self.subs.items()):
                     if cid == chan_id:
                         await self.ws.send(struct.pack("<BIQ", 1, sub_id, ts) + payload)
@@ -174,12 +174,16 @@ class Bridge:
         if not subscribers:
             return                # decoded only when someone looks
         try:
-            payload = json.dumps(to_plain(cls.decode(data)), separators=(",", ":")).encode()
+            msg = cls.decode(data)
+            payload = json.dumps(to_plain(msg), separators=(",", ":")).encode()
         except Exception:         # a message that matches a fingerprint but not its layout
             self.undecodable[channel] = self.undecodable.get(channel, 0) + 1
             return
+        # STATUS carries every module's heartbeat on one channel: one slot per module, so a
+        # busy client never loses one module's health to another's
+        slot = (chan["id"], msg.module) if cls is portobello.status_t else chan["id"]
         for c in subscribers:
-            c.offer(chan["id"], rx_ns, payload)
+            c.offer(slot, chan["id"], rx_ns, payload)
 
     def advertise(self, topic, cls):
         chan = {"id": self.next_id, "topic": topic, "encoding": "json", "schemaName": "portobello." + cls.__name__,

@@ -10,8 +10,8 @@ import time
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "tests"))
 sys.path.insert(0, str(ROOT / "build" / "python"))
-from browser import assert_not_blank, screenshot  # noqa: E402
-from webui_util import Bridge, Listener, wait_for  # noqa: E402
+from browser import assert_not_blank  # noqa: E402
+from webui_util import Bridge, Listener, chrome, wait_for  # noqa: E402
 
 BIN = ROOT / "build" / "bin"
 URL = "udpm://239.255.76.67:8027?ttl=0&recv_buf_size=8388608"
@@ -31,8 +31,14 @@ def main():
         wait_for(lambda: any(e.event_id == "awaiting_proceed" for _, e in lab.got), 120, "the twin at its first stop line")
         time.sleep(1.0)
         for page, size in (("operator", (1024, 600)), ("participant", (390, 700)), ("editor", (1280, 720)), ("view", (1024, 600))):
-            png = screenshot(f"{bridge.url}/{page}?scenario=cw01_look_and_cross", out / f"webui-{page}.png", size=size,
-                             wait_ms=8000, timeout=180)
+            d = chrome(size)      # real time (the pages show live ages), not the helper's virtual time
+            try:
+                d.get(f"{bridge.url}/{page}?scenario=cw01_look_and_cross")
+                time.sleep(8)
+                png = out / f"webui-{page}.png"
+                d.save_screenshot(str(png))
+            finally:
+                d.quit()
             assert_not_blank(png)
             print(png)
     finally:

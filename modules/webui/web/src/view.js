@@ -35,15 +35,15 @@ function cutoutOf(v) {
     m.position.set((x0 + x1) / 2, (y0 + y1) / 2, (z0 + z1) / 2);
     g.add(m);
   };
-  box(1.75, front, -v.width / 2, v.width / 2, 0.2, 0.98);        // hood
-  box(1.35, 1.75, -v.width / 2, v.width / 2, 0.2, 1.02);         // dashboard
+  box(1.75, front, -v.width / 2, v.width / 2, 0.2, 0.92);        // hood
+  box(1.45, 1.75, -v.width / 2, v.width / 2, 0.2, 0.95);         // dashboard
   for (const s of [-1, 1]) {                                       // A-pillars, leaning back
-    const p = new THREE.Mesh(new THREE.BoxGeometry(0.09, 0.09, 0.62), mat);
+    const p = new THREE.Mesh(new THREE.BoxGeometry(0.06, 0.06, 0.62), mat);
     p.position.set(1.55, s * (v.width / 2 - 0.08), 1.28);
     p.rotation.y = -0.9;
     g.add(p);
   }
-  box(0.9, 1.6, -v.width / 2, v.width / 2, 1.40, 1.47);          // roof edge
+  box(0.9, 1.45, -v.width / 2, v.width / 2, 1.42, 1.47);         // roof edge
   return g;
 }
 
@@ -95,8 +95,12 @@ function update() {
     `AGENTS ${age === null ? "none" : (age * 1000).toFixed(0) + " ms old"} · pose ${bus.age("POSE_PREDICTED") !== null ? "POSE_PREDICTED" : "POSE"}`;
 }
 
+let dirty = true;        // draw when something new arrived, not 60 times a second for nothing
+for (const t of ["POSE_PREDICTED", "POSE", "AGENTS", "HEAD_POSE"]) bus.on(t, () => { dirty = true; });
 function frame() {
   requestAnimationFrame(frame);
+  if (!dirty) return;
+  dirty = false;
   update();
   const w = canvas.clientWidth, h = canvas.clientHeight;
   renderer.setScissorTest(true);
@@ -127,5 +131,5 @@ loadSite().then((s) => {
   resize();
   frame();
 });
-loadCloud().then((c) => scene.add(cloudPoints(c.points, 0.12)));
-window.addEventListener("resize", resize);
+loadCloud().then((c) => { scene.add(cloudPoints(c.points, 0.12)); dirty = true; });
+window.addEventListener("resize", () => { resize(); dirty = true; });
