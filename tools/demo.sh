@@ -21,3 +21,6 @@ bash tools/demo-study.sh "$out/study"
 echo
 echo "Replay it on the live bus:   .venv/bin/lcm-logplayer --lcm-url='udpm://239.255.76.67:7667?ttl=0&recv_buf_size=8388608' $out/drive.lcm"
 echo "and watch it:                build/bin/log-summary   (Ctrl-C prints the summary)"
+echo
+echo "The pages (webui bridge; docs/webui.md):  build/bin/webui --site maps/default   then open"
+echo "  http://127.0.0.1:8080/operator   http://127.0.0.1:8080/participant   http://127.0.0.1:8080/editor   http://127.0.0.1:8080/view"
