@@ -14,6 +14,7 @@
 #include "gnss.h"
 #include "imu.h"
 #include "lidar.h"
+#include "body.h"
 #include "pb_log.h"
 #include "pb_progress.h"
 #include "rng.h"
@@ -177,7 +178,8 @@ int main(int argc, char **argv)
     /* sensors */
     lidar_model_t lm;
     lidar_model_os1_64(&lm);
-    lidar_sim_t ls = { .world = &world, .route = &route, .traj = &traj, .veh = &veh, .model = &lm,
+    body_model_t body = { .terrain = &world.terrain, .traj = &traj, .veh = &veh };
+    lidar_sim_t ls = { .world = &world, .route = &route, .traj = &traj, .body = &body, .veh = &veh, .model = &lm,
                        .seed = seed, .traffic = !mapping };
     lidar_sim_init(&ls);
     imu_sim_t imu;
@@ -217,16 +219,20 @@ int main(int argc, char **argv)
         if (best < 0 || out.failed) break;
         int64_t utime = UTIME0 + tb;
         double t = tb * 1e-6;
-        traj_state_t st;
-        traj_eval(&traj, t, &st);
+        body_state_t b;
+        if (best == S_LIDAR) traj_eval(&traj, t, &b.st);
+        else body_eval(&body, t, &b);
+        const traj_state_t st = b.st;
         switch (best) {
         case S_GT: {
             portobello_pose_t p = { 0 };
             p.utime = utime;
-            p.position[0] = st.x; p.position[1] = st.y; p.position[2] = 0;
-            p.orientation[0] = cos(st.yaw / 2); p.orientation[3] = sin(st.yaw / 2);
-            p.velocity[0] = st.v * cos(st.yaw); p.velocity[1] = st.v * sin(st.yaw);
-            p.angular_velocity[2] = st.omega;
+            for (int i = 0; i < 3; i++) {
+                p.position[i] = b.p[i];
+                p.velocity[i] = b.v[i];
+                p.angular_velocity[i] = b.w[i];
+            }
+            memcpy(p.orientation, b.q, sizeof b.q);
             p.status = PORTOBELLO_POSE_T_STATUS_TRACKING;
             p.source = PORTOBELLO_POSE_T_SOURCE_GROUND_TRUTH;
             p.match_score = NAN;
@@ -240,7 +246,7 @@ int main(int argc, char **argv)
             portobello_imu_t m = { 0 };
             m.utime = utime;
             m.sensor = "sim";
-            imu_measure(&imu, &veh, &st, seed, (uint64_t)k[best], m.accel, m.gyro);
+            imu_measure(&imu, &body, t, seed, (uint64_t)k[best], m.accel, m.gyro);
             PB_LOG_WRITE_MSG(&out, "IMU", portobello_imu_t, &m);
             break;
         }
@@ -250,7 +256,7 @@ int main(int argc, char **argv)
             break;
         case S_GNSS: {
             portobello_gnss_fix_t fix = { 0 };
-            gnss_step(&gnss, &veh, &site.geo, site.geoid_height_m, &st, seed, utime, &fix);
+            gnss_step(&gnss, &veh, &site.geo, site.geoid_height_m, &b, seed, utime, &fix);
             PB_LOG_WRITE_MSG(&out, "GNSS_FIX", portobello_gnss_fix_t, &fix);
             break;
         }
@@ -262,14 +268,18 @@ int main(int argc, char **argv)
             f.bus = 0;
             f.len = 8;
             f.data = data;
+            /* the wheels roll the 3-D path: on a grade it is longer than the plan's map arc */
+            traj_state_t sw = st;
+            double vh = hypot(b.v[0], b.v[1]);
+            if (vh > 1e-6) { double k3 = hypot(vh, b.v[2]) / vh; sw.v *= k3; sw.omega *= k3; }
             if (best == S_CAN_WS) {
                 double fl, fr, rl, rr;
-                can_wheel_speeds_kmh(&veh, &st, &fl, &fr, &rl, &rr);
+                can_wheel_speeds_kmh(&veh, &sw, &fl, &fr, &rl, &rr);
                 can_encode_wheel_speeds(fl, fr, rl, rr, data);
                 f.id = CAN_ID_WHEEL_SPEEDS;
             } else {
                 uint8_t enc = (uint8_t)((int64_t)floor(st.dist / TYRE_CIRCUMFERENCE_M) & 0xFF);
-                can_encode_speed(st.v * 3.6, enc, data);
+                can_encode_speed(sw.v * 3.6, enc, data);
                 f.id = CAN_ID_SPEED;
             }
             PB_LOG_WRITE_MSG(&out, "CAN_FRAME", portobello_can_frame_t, &f);

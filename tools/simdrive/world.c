@@ -71,6 +71,25 @@ static int read_object(world_t *w, const pb_cfg_node_t *node, prim_t *p, pb_err_
     return 0;
 }
 
+/* Heights in world.yaml count from the ground: a box or cylinder reaches down to the
+ * lowest ground under its footprint (a building on a slope has no gap beneath) and
+ * up to its height above the ground at its centre; a sphere rises with the ground. */
+static void stand_on_terrain(const terrain_t *T, prim_t *p)
+{
+    if (!T->enabled) return;
+    double hc = terrain_height(T, p->cx, p->cy);
+    if (p->kind == PRIM_SPHERE) { p->cz += hc; p->z0 += hc; p->z1 += hc; return; }
+    double lo = hc;
+    for (int k = 0; k < 4; k++) {
+        double u = (k & 1) ? 1 : -1, v = (k & 2) ? 1 : -1, x, y;
+        if (p->kind == PRIM_BOX) { x = p->cx + p->c * u * p->hx - p->s * v * p->hy; y = p->cy + p->s * u * p->hx + p->c * v * p->hy; }
+        else { x = p->cx + u * p->r; y = p->cy + v * p->r; }
+        lo = fmin(lo, terrain_height(T, x, y));
+    }
+    p->z0 += p->z0 == 0 ? lo : hc;
+    p->z1 += hc;
+}
+
 static int read_traffic(world_t *w, const pb_cfg_node_t *node, traffic_t *t, pb_err_t *err)
 {
     struct { char kind[16], cls[24]; double size[3], z0, speed, phase_s, lane_offset; } o =
@@ -98,14 +117,15 @@ int world_load(const char *path, const pb_route_t *route, world_t *w, pb_err_t *
     pb_cfg_t *cfg = pb_cfg_load(path, err);
     if (!cfg) return -1;
     int rc = -1;
-    struct { const pb_cfg_node_t *classes, *traffic, *objects; char ground[24], paint[24]; } top =
-        { 0, 0, 0, "", "" };
+    struct { const pb_cfg_node_t *classes, *traffic, *objects, *terrain; char ground[24], paint[24]; } top =
+        { 0, 0, 0, 0, "", "" };
     const pb_cfg_field_t f[] = {
         { "classes", PB_CFG_NODE, offsetof(typeof(top), classes), 0, 1 },
         { "ground_class", PB_CFG_STRING, offsetof(typeof(top), ground), sizeof top.ground, 1 },
         { "paint_class", PB_CFG_STRING, offsetof(typeof(top), paint), sizeof top.paint, 0 },
         { "traffic", PB_CFG_NODE, offsetof(typeof(top), traffic), 0, 0 },
-        { "objects", PB_CFG_NODE, offsetof(typeof(top), objects), 0, 1 }, PB_CFG_END };
+        { "objects", PB_CFG_NODE, offsetof(typeof(top), objects), 0, 1 },
+        { "terrain", PB_CFG_NODE, offsetof(typeof(top), terrain), 0, 0 }, PB_CFG_END };
     const pb_cfg_node_t *root = pb_cfg_root(cfg);
     if (pb_cfg_read(root, f, &top, err)) goto out;
     if (pb_node_kind(top.classes) != PB_NODE_MAP) {
@@ -138,10 +158,13 @@ int world_load(const char *path, const pb_route_t *route, world_t *w, pb_err_t *
         for (int i = 0; i < w->ntraffic; i++)
             if (read_traffic(w, pb_node_at(top.traffic, i), &w->traffic[i], err)) goto out;
     }
+    if (terrain_load(&w->terrain, top.terrain, route, WORLD_TERRAIN_MARGIN_M, err)) goto out;
     w->nprims = pb_node_count(top.objects);
     w->prims = calloc(w->nprims ? w->nprims : 1, sizeof *w->prims);
-    for (int i = 0; i < w->nprims; i++)
+    for (int i = 0; i < w->nprims; i++) {
         if (read_object(w, pb_node_at(top.objects, i), &w->prims[i], err)) goto out;
+        stand_on_terrain(&w->terrain, &w->prims[i]);
+    }
     /* Crosswalk paint from the route: centre, unit axes along / across the road, half sizes. */
     w->ncw = route->ncw;
     w->cw = calloc(w->ncw ? w->ncw : 1, sizeof *w->cw);
@@ -161,6 +184,7 @@ out:
 
 void world_free(world_t *w)
 {
+    terrain_free(&w->terrain);
     free(w->prims); free(w->cw); free(w->cell_start); free(w->cell_items); free(w->cell_maxz);
     memset(w, 0, sizeof *w);
 }
@@ -234,7 +258,8 @@ int world_movers(const world_t *w, const pb_route_t *route, double t, uint64_t s
         m->cy = rp.y + c * tr->lane_offset;
         m->c = -c; m->s = -s;
         m->hx = tr->size[0] / 2; m->hy = tr->size[1] / 2;
-        m->z0 = tr->z0; m->z1 = tr->z0 + tr->size[2];
+        double hg = terrain_height(&w->terrain, m->cx, m->cy);
+        m->z0 = hg + tr->z0; m->z1 = hg + tr->z0 + tr->size[2];
         m->cls = tr->cls;
     }
     return w->ntraffic;
@@ -330,10 +355,8 @@ int world_raycast(const world_t *w, const double o[3], const double d[3], double
 {
     double best = tmax;
     int cls = -1, ground = 0;
-    if (d[2] < -1e-12) {
-        double tg = -o[2] / d[2];
-        if (tg > EPS && tg < best) { best = tg; ground = 1; }
-    }
+    double tg = terrain_raycast(&w->terrain, o, d, best);
+    if (tg < best) { best = tg; ground = 1; }
     for (int i = 0; i < nmovers; i++) {
         const mover_t *m = &movers[i];
         double t = ray_box(m->cx, m->cy, m->c, m->s, m->hx, m->hy, m->z0, m->z1, o, d);

@@ -1,4 +1,5 @@
-/* The world (world.yaml): ground plane z = 0 with painted crosswalks, static
+/* The world (world.yaml): the ground (the plane z = 0, or the terrain height field
+ * of terrain.h) with painted crosswalks, static
  * primitives (oriented boxes, vertical cylinders, spheres) in a 2-D uniform grid
  * for ray casting, and moving traffic (a few boxes, tested against every ray). */
 #ifndef SIM_WORLD_H
@@ -7,6 +8,7 @@
 #include <stdint.h>
 #include "pb_err.h"
 #include "pb_route.h"
+#include "terrain.h"
 
 #define WORLD_MAX_CLASSES 32
 #define WORLD_MAX_TRAFFIC 64
@@ -39,6 +41,7 @@ typedef struct {
     char class_name[WORLD_MAX_CLASSES][24];
     double albedo[WORLD_MAX_CLASSES];
     uint8_t ground_cls, paint_cls;
+    terrain_t terrain;          /* the ground; objects' z0 and traffic stand on it */
     int nprims;
     prim_t *prims;
     int ntraffic;
@@ -55,6 +58,8 @@ typedef struct {
     double max_z;
 } world_t;
 
+/* Terrain rasters reach this far beyond the route (the LiDAR's range and more). */
+#define WORLD_TERRAIN_MARGIN_M 140.0
 int world_load(const char *path, const pb_route_t *route, world_t *w, pb_err_t *err);
 /* Builds the grid over the primitives present on `day` (DAY_MAP or DAY_DRIVE). */
 void world_build_grid(world_t *w, int day, double cell_m);
