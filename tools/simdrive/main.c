@@ -10,6 +10,7 @@
 #include <sys/stat.h>
 
 #include "pb_arg.h"
+#include "pb_ground.h"
 #include "can.h"
 #include "gnss.h"
 #include "imu.h"
@@ -45,6 +46,7 @@ static void usage(FILE *f)
     fprintf(f,
         "usage: simdrive --out DIR [--seed N] [--duration S] [--speed-profile cautious|normal|aggressive]\n"
         "                [--site SITE_DIR] [--vehicle FILE] [--mapping] [--no-lidar] [--quiet]\n"
+        "       simdrive --terrain-out GROUND.yaml [--site SITE_DIR]\n"
         "\n"
         "Simulates a drive around a site's route and writes DIR/drive.lcm (LCM log) and\n"
         "DIR/ground_truth.tum (base pose at 100 Hz: t x y z qx qy qz qw, t in seconds).\n"
@@ -65,6 +67,8 @@ static void usage(FILE *f)
         "                        one lap (ignores --duration), LiDAR keyframes at 2 Hz\n"
         "  --no-lidar            skip LIDAR_SCAN (fast drives for IMU, CAN and GNSS studies)\n"
         "  --quiet               no progress bar\n"
+        "  --terrain-out FILE    write the site's true ground (the terrain's drivable and\n"
+        "                        walkable cells; others unknown) as a ground model and exit\n"
         "  --help                this text\n",
         PB_SOURCE_DIR, PB_SOURCE_DIR);
 }
@@ -90,6 +94,19 @@ static double st_dist_or_zero(const trajectory_t *tr, double t)
     return st.dist;
 }
 
+/* The true ground as a ground model (pb_ground): what tools/build-ground is measured against. */
+static int write_terrain(const terrain_t *T, const char *path, pb_err_t *err)
+{
+    if (!T->enabled) return pb_err_set(err, "--terrain-out: the site has no terrain (its ground is the plane z = 0)");
+    pb_ground_t *g = pb_ground_create(T->x0, T->y0, T->cell, T->nx, T->ny);
+    for (int j = 0; j < T->ny; j++)
+        for (int i = 0; i < T->nx; i++)
+            if (T->walk[(size_t)j * T->nx + i]) pb_ground_set(g, i, j, T->h[(size_t)j * T->nx + i]);
+    int rc = pb_ground_save(g, path, err);
+    pb_ground_destroy(g);
+    return rc;
+}
+
 enum { S_GT, S_IMU, S_LIDAR, S_GNSS, S_CAN_WS, S_CAN_SPD, S_COUNT };
 
 int main(int argc, char **argv)
@@ -99,11 +116,12 @@ int main(int argc, char **argv)
     uint64_t seed = 1;
     double duration = 60;
     int mapping = 0, quiet = 0, no_lidar = 0;
+    const char *terrain_out = NULL;
     static const struct option opts[] = {
         { "out", required_argument, 0, 'o' }, { "seed", required_argument, 0, 's' },
         { "duration", required_argument, 0, 'd' }, { "speed-profile", required_argument, 0, 'p' },
         { "site", required_argument, 0, 'S' }, { "vehicle", required_argument, 0, 'v' },
-        { "mapping", no_argument, 0, 'm' }, { "no-lidar", no_argument, 0, 'L' }, { "quiet", no_argument, 0, 'q' },
+        { "mapping", no_argument, 0, 'm' }, { "terrain-out", required_argument, 0, 'T' }, { "no-lidar", no_argument, 0, 'L' }, { "quiet", no_argument, 0, 'q' },
         { "help", no_argument, 0, 'h' }, { 0, 0, 0, 0 } };
     int c;
     while ((c = getopt_long(argc, argv, "h", opts, NULL)) != -1) {
@@ -122,6 +140,7 @@ int main(int argc, char **argv)
         case 'S': site_dir = optarg; break;
         case 'v': veh_path = optarg; break;
         case 'm': mapping = 1; break;
+        case 'T': terrain_out = optarg; break;
         case 'q': quiet = 1; break;
         case 'L': no_lidar = 1; break;
         case 'h': usage(stdout); return 0;
@@ -129,7 +148,7 @@ int main(int argc, char **argv)
         }
     }
     if (optind < argc) { fprintf(stderr, "simdrive: unexpected argument '%s'\n", argv[optind]); return 2; }
-    if (!out_dir) { fprintf(stderr, "simdrive: --out DIR is required (see --help)\n"); return 2; }
+    if (!out_dir && !terrain_out) { fprintf(stderr, "simdrive: --out DIR is required (see --help)\n"); return 2; }
     int prof = -1;
     for (int i = 0; i < PB_PROFILE_COUNT; i++)
         if (!strcmp(profile, pb_profile_names[i])) prof = i;
@@ -152,6 +171,13 @@ int main(int argc, char **argv)
         fprintf(stderr, "simdrive: %s\n", err.msg);
         pb_route_free(&route);
         return 1;
+    }
+    if (terrain_out) {
+        int rc = write_terrain(&world.terrain, terrain_out, &err);
+        if (rc) fprintf(stderr, "simdrive: %s\n", err.msg);
+        world_free(&world);
+        pb_route_free(&route);
+        return rc ? 1 : 0;
     }
     world_build_grid(&world, mapping ? DAY_MAP : DAY_DRIVE, GRID_CELL_M);
 
