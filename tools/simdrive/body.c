@@ -2,12 +2,57 @@
 #include "body.h"
 
 #include <math.h>
+#include <stdlib.h>
 #include <string.h>
 
 #include "pb_math.h"
 
-#define BODY_DT 0.004       /* s, central-difference step (two steps of the speed profile) */
+#define BODY_DT 0.010       /* s, central-difference step (smooth motion: the O(dt^2) error is < 1 mm/s^2) */
 #define GRAVITY 9.80665
+
+void body_model_init(body_model_t *m)
+{
+    const trajectory_t *tr = m->traj;
+    m->n = tr->n;
+    m->ang = malloc((size_t)m->n * 4 * sizeof *m->ang);
+    const double wn = 2 * M_PI * BODY_FREQ_HZ, z = BODY_DAMPING, dt = tr->dt;
+    double x[2] = { 0, 0 }, v[2] = { 0, 0 };   /* roll, pitch and their rates */
+    for (int k = 0; k < m->n; k++) {
+        traj_state_t st;
+        traj_eval(tr, k * dt, &st);
+        double target[2] = { BODY_ROLL_GAIN * st.kappa * st.v * st.v, -BODY_PITCH_GAIN * st.a };
+        if (k == 0) { x[0] = target[0]; x[1] = target[1]; }
+        for (int i = 0; i < 2; i++) {
+            m->ang[4 * k + 2 * i] = x[i];
+            m->ang[4 * k + 2 * i + 1] = v[i];
+            /* semi-implicit Euler: stable and accurate at wn dt = 0.02 */
+            v[i] += dt * (wn * wn * (target[i] - x[i]) - 2 * z * wn * v[i]);
+            x[i] += dt * v[i];
+        }
+    }
+}
+
+void body_model_free(body_model_t *m)
+{
+    free(m->ang);
+    m->ang = NULL;
+}
+
+/* Body roll and pitch at t: cubic Hermite through the samples' angles and rates. */
+static void body_angles(const body_model_t *m, double t, double *roll, double *pitch)
+{
+    double dt = m->traj->dt, f = t / dt;
+    if (f < 0) f = 0;
+    int k = (int)f;
+    if (k > m->n - 2) k = m->n - 2;
+    double u = f - k;
+    if (u > 1) u = 1;
+    double h00 = 2 * u * u * u - 3 * u * u + 1, h10 = u * u * u - 2 * u * u + u;
+    double h01 = -2 * u * u * u + 3 * u * u, h11 = u * u * u - u * u;
+    const double *a = m->ang + 4 * k, *b = a + 4;
+    *roll = h00 * a[0] + h10 * dt * a[1] + h01 * b[0] + h11 * dt * b[1];
+    *pitch = h00 * a[2] + h10 * dt * a[3] + h01 * b[2] + h11 * dt * b[3];
+}
 
 void body_pose(const body_model_t *m, double t, body_state_t *out)
 {
@@ -26,8 +71,10 @@ void body_pose(const body_model_t *m, double t, body_state_t *out)
     }
     double grade_pitch = -atan2(0.5 * (zf[0] + zf[1]) - 0.5 * (zr[0] + zr[1]), v->wheelbase);
     double bank_roll = atan2(0.5 * (zr[0] + zf[0]) - 0.5 * (zr[1] + zf[1]), 0.5 * (v->track_rear + v->track_front));
-    out->pitch = grade_pitch - BODY_PITCH_GAIN * st->a;
-    out->roll = bank_roll + BODY_ROLL_GAIN * st->kappa * st->v * st->v;
+    double body_roll, body_pitch;
+    body_angles(m, t, &body_roll, &body_pitch);
+    out->pitch = grade_pitch + body_pitch;
+    out->roll = bank_roll + body_roll;
     out->p[0] = st->x; out->p[1] = st->y; out->p[2] = 0.5 * (zr[0] + zr[1]);
     pb_quat_from_rpy(out->roll, out->pitch, st->yaw, out->q);
     pb_quat_to_matrix(out->q, out->R);

@@ -4,9 +4,11 @@
  * The four tyre contacts (wheelbase, tracks from the vehicle file) sit on the
  * terrain; their heights give the base origin's height (mean of the rear contacts)
  * and the chassis pitch and roll. The sprung body then pitches under braking and
- * acceleration and rolls out of curves, quasi-statically (pitch = -pitch_gain * a,
- * roll = roll_gain * kappa v^2: a passenger car's 1.5 deg/g and 4.5 deg/g). The
- * drive's acceleration is continuous (smoothed profile), so these rates are finite.
+ * acceleration and rolls out of curves: a damped second-order response (1.5 Hz,
+ * damping 0.5, a passenger car's suspension) to the steady-state angles
+ * pitch = -pitch_gain * a and roll = roll_gain * kappa v^2 (1.5 deg/g, 4.5 deg/g),
+ * integrated once over the whole drive (body_model_init) and read back with cubic
+ * Hermite interpolation, so attitude, rate and angular acceleration stay continuous.
  * Derivatives are central differences over BODY_DT: exact to O(dt^2), far below
  * sensor noise, and they stay true to whatever the pose function does. */
 #ifndef SIM_BODY_H
@@ -19,11 +21,20 @@
 #define BODY_PITCH_GAIN 0.0027  /* rad per m/s^2 of longitudinal acceleration (1.5 deg/g) */
 #define BODY_ROLL_GAIN 0.0080   /* rad per m/s^2 of lateral acceleration (4.5 deg/g) */
 
+#define BODY_FREQ_HZ 1.5
+#define BODY_DAMPING 0.5
+
 typedef struct {
     const terrain_t *terrain;
     const trajectory_t *traj;
     const pb_vehicle_t *veh;
+    int n;                      /* samples of the body motion, at traj->dt */
+    double *ang;                /* per sample: roll, roll rate, pitch, pitch rate (rad, rad/s) */
 } body_model_t;
+
+/* Integrates the body's pitch and roll over the drive (set terrain, traj, veh first). */
+void body_model_init(body_model_t *m);
+void body_model_free(body_model_t *m);
 
 typedef struct {
     traj_state_t st;        /* the planar drive (route arc length, speed, curvature) */

@@ -205,6 +205,7 @@ int main(int argc, char **argv)
     lidar_model_t lm;
     lidar_model_os1_64(&lm);
     body_model_t body = { .terrain = &world.terrain, .traj = &traj, .veh = &veh };
+    body_model_init(&body);
     lidar_sim_t ls = { .world = &world, .route = &route, .traj = &traj, .body = &body, .veh = &veh, .model = &lm,
                        .seed = seed, .traffic = !mapping };
     lidar_sim_init(&ls);
@@ -327,6 +328,7 @@ int main(int argc, char **argv)
                 (long long)(counts[S_CAN_WS] + counts[S_CAN_SPD]), (long long)counts[S_GNSS],
                 (long long)counts[S_GT], out_dir);
     lidar_sim_free(&ls);
+    body_model_free(&body);
     free(out.buf);
     traj_free(&traj);
     world_free(&world);

@@ -62,7 +62,7 @@ static double section(const terrain_t *T, double s, double d, int *band)
 static double project_near(const pb_route_t *r, double x, double y, double s, double *d)
 {
     pb_route_point_t rp;
-    for (int it = 0; it < 4; it++) {
+    for (int it = 0; it < 8; it++) {
         pb_route_eval(r, s, &rp);
         double c = cos(rp.yaw), sn = sin(rp.yaw), dx = x - rp.x, dy = y - rp.y;
         double along = dx * c + dy * sn, lat = -dx * sn + dy * c;
@@ -72,7 +72,7 @@ static double project_near(const pb_route_t *r, double x, double y, double s, do
         if (step < -5) step = -5;
         s += step;
         *d = lat;
-        if (fabs(step) < 1e-6) break;
+        if (fabs(step) < 1e-12) break;      /* heights feed second differences: converge fully */
     }
     pb_route_eval(r, s, &rp);
     *d = -(x - rp.x) * sin(rp.yaw) + (y - rp.y) * cos(rp.yaw);
