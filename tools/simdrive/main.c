@@ -46,6 +46,7 @@ static void usage(FILE *f)
     fprintf(f,
         "usage: simdrive --out DIR [--seed N] [--duration S] [--speed-profile cautious|normal|aggressive]\n"
         "                [--site SITE_DIR] [--vehicle FILE] [--mapping] [--no-lidar] [--quiet]\n"
+        "                [--driver-spread F]\n"
         "       simdrive --terrain-out GROUND.yaml [--site SITE_DIR]\n"
         "\n"
         "Simulates a drive around a site's route and writes DIR/drive.lcm (LCM log) and\n"
@@ -65,6 +66,9 @@ static void usage(FILE *f)
         "  --vehicle FILE        vehicle file (default %s/vehicles/prius2017.yaml)\n"
         "  --mapping             the mapping day: mapping-day objects, no traffic, exactly\n"
         "                        one lap (ignores --duration), LiDAR keyframes at 2 Hz\n"
+        "  --driver-spread F     a human driver: cruise speed, braking point and deceleration\n"
+        "                        vary by up to +-F (e.g. 0.2) from stop to stop, per seed\n"
+        "                        (default 0: the planner's own speed curve)\n"
         "  --no-lidar            skip LIDAR_SCAN (fast drives for IMU, CAN and GNSS studies)\n"
         "  --quiet               no progress bar\n"
         "  --terrain-out FILE    write the site's true ground (the terrain's drivable and\n"
@@ -117,11 +121,13 @@ int main(int argc, char **argv)
     double duration = 60;
     int mapping = 0, quiet = 0, no_lidar = 0;
     const char *terrain_out = NULL;
+    double driver_spread = 0;
     static const struct option opts[] = {
         { "out", required_argument, 0, 'o' }, { "seed", required_argument, 0, 's' },
         { "duration", required_argument, 0, 'd' }, { "speed-profile", required_argument, 0, 'p' },
         { "site", required_argument, 0, 'S' }, { "vehicle", required_argument, 0, 'v' },
-        { "mapping", no_argument, 0, 'm' }, { "terrain-out", required_argument, 0, 'T' }, { "no-lidar", no_argument, 0, 'L' }, { "quiet", no_argument, 0, 'q' },
+        { "mapping", no_argument, 0, 'm' }, { "terrain-out", required_argument, 0, 'T' },
+        { "driver-spread", required_argument, 0, 'D' }, { "no-lidar", no_argument, 0, 'L' }, { "quiet", no_argument, 0, 'q' },
         { "help", no_argument, 0, 'h' }, { 0, 0, 0, 0 } };
     int c;
     while ((c = getopt_long(argc, argv, "h", opts, NULL)) != -1) {
@@ -141,6 +147,9 @@ int main(int argc, char **argv)
         case 'v': veh_path = optarg; break;
         case 'm': mapping = 1; break;
         case 'T': terrain_out = optarg; break;
+        case 'D':
+            if (pb_arg_double("simdrive", "driver-spread", optarg, 0, 0.5, &driver_spread)) return 2;
+            break;
         case 'q': quiet = 1; break;
         case 'L': no_lidar = 1; break;
         case 'h': usage(stdout); return 0;
@@ -184,7 +193,8 @@ int main(int argc, char **argv)
     /* The base origin (rear axle) halts so that the front bumper is 0.5 m behind the line. */
     double stop_offset = (veh.length - veh.rear_overhang) + 0.5;
     trajectory_t traj;
-    if (traj_plan(&traj, &route, &route.profiles[prof], mapping ? 0 : duration, stop_offset, seed, &err)) {
+    traj_driver_t driver = { mapping ? 0 : driver_spread };
+    if (traj_plan(&traj, &route, &route.profiles[prof], mapping ? 0 : duration, stop_offset, &driver, seed, &err)) {
         fprintf(stderr, "simdrive: %s\n", err.msg);
         return 1;
     }
