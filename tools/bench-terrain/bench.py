@@ -10,7 +10,12 @@
    and on default (flat plane: the baseline), one run each, same seed.
    Target: <= 30 s wall on 2 cores.
 
-    tools/bench-terrain/bench.py [--sites hills] [--work DIR]
+3. (--localizer) the current localizer on the hills: simdrive drives (3 profiles x
+   the given seeds, 30 s, drive day) + VEHICLE_SPEED, replayed through the localizer
+   started by GNSS, scored against GROUND_TRUTH like make bench-localizer-drive
+   (targets: median <= 0.03 m, p99 <= 0.15 m, yaw p99 <= 0.3 deg, no LOST).
+
+    tools/bench-terrain/bench.py [--sites hills] [--work DIR] [--localizer --loc-seeds 1,2]
 """
 import argparse
 import json
@@ -95,13 +100,61 @@ def drive_time(site, work):
             "cpu_s": (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)}
 
 
+def localizer_runs(site, seeds, work, duration=30):
+    sys.path.insert(0, str(ROOT / "modules" / "localizer" / "bench"))
+    import locbench as lb
+    rows = []
+    for prof in ("cautious", "normal", "aggressive"):
+        for seed in seeds:
+            d = work / f"loc-{site}-{prof}-{seed}"
+            merged = d / "input.lcm"
+            if not merged.exists():
+                lb.sh([BIN / "simdrive", "--site", ROOT / "maps" / site, "--out", d, "--seed", seed,
+                       "--speed-profile", prof, "--duration", duration, "--quiet"])
+                lb.sh([BIN / "can", "--replay", d / "drive.lcm", "--out", d / "speed.lcm"])
+                lb.sh([BIN / "log-merge", "--quiet", "--out", merged, d / "drive.lcm", d / "speed.lcm"])
+            out, stats = d / "out.lcm", d / "stats.csv"
+            p = lb.run_localizer(merged, out, ["--site", ROOT / "maps" / site], stats)
+            if p.returncode != 0:
+                rows.append({"site": site, "profile": prof, "seed": seed, "error": p.stderr[-300:]})
+                continue
+            r = lb.score_run(d / "drive.lcm", out, stats)
+            rows.append({"site": site, "profile": prof, "seed": seed,
+                         **{k: r.get(k) for k in ("t_median", "t_p99", "t_max", "yaw_p99", "lost_after_tracking",
+                                                  "first_tracking_s")}})
+    return rows
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--sites", default="hills")
     ap.add_argument("--work")
+    ap.add_argument("--localizer", action="store_true", help="also run the localizer on the sites' drives")
+    ap.add_argument("--loc-seeds", default="1")
+    ap.add_argument("--skip-ground", action="store_true")
     args = ap.parse_args()
     work = pathlib.Path(args.work or tempfile.mkdtemp(prefix="bench-terrain-"))
     work.mkdir(parents=True, exist_ok=True)
+    result = {}
+    if args.localizer:
+        loc = []
+        for site in args.sites.split(","):
+            loc += localizer_runs(site, [int(x) for x in args.loc_seeds.split(",")], work)
+        print("current localizer (GNSS start) vs GROUND_TRUTH; targets: median <= 0.03 m, p99 <= 0.15 m, "
+              "yaw p99 <= 0.3 deg, no LOST")
+        print(f"{'site':8} {'profile':11} {'seed':>4} {'med m':>7} {'p99 m':>7} {'max m':>7} {'yaw99':>6} {'LOST':>5} {'init s':>6}")
+        f = lambda v, n=3: "-" if v is None or (isinstance(v, float) and v != v) else f"{v:.{n}f}"
+        for r in loc:
+            if "error" in r:
+                print(f"{r['site']:8} {r['profile']:11} {r['seed']:>4} localizer failed: {r['error']}")
+                continue
+            print(f"{r['site']:8} {r['profile']:11} {r['seed']:>4} {f(r['t_median']):>7} {f(r['t_p99']):>7} "
+                  f"{f(r['t_max']):>7} {f(r['yaw_p99']):>6} {str(r['lost_after_tracking']):>5} {f(r['first_tracking_s'], 1):>6}")
+        result["localizer"] = loc
+        print()
+    if args.skip_ground:
+        print(json.dumps(result, indent=1, default=str))
+        return 0
     rows = [ground_accuracy(s, work) for s in args.sites.split(",")]
     print("ground model vs true height field (drivable + walkable cells); baseline: flat z = 0")
     print(f"{'site':8} {'cells':>9} {'covered':>8} {'med cm':>7} {'p95 cm':>7} {'max cm':>7} | {'flat med':>8} {'flat p95':>8}")
@@ -117,7 +170,7 @@ def main():
     print(f"ratio hills/default: wall {times[0]['wall_s'] / times[1]['wall_s']:.2f}, cpu {times[0]['cpu_s'] / times[1]['cpu_s']:.2f}")
     (ROOT / "build" / "bench").mkdir(parents=True, exist_ok=True)
     out = ROOT / "build" / "bench" / "terrain.json"
-    out.write_text(json.dumps({"ground": rows, "simdrive_60s": times}, indent=1))
+    out.write_text(json.dumps({"ground": rows, "simdrive_60s": times, **result}, indent=1, default=str))
     print(f"\nwrote {out}")
 
 
