@@ -46,7 +46,7 @@ static void usage(FILE *f)
     fprintf(f,
         "usage: simdrive --out DIR [--seed N] [--duration S] [--speed-profile cautious|normal|aggressive]\n"
         "                [--site SITE_DIR] [--vehicle FILE] [--mapping] [--no-lidar] [--quiet]\n"
-        "                [--driver-spread F]\n"
+        "                [--driver-spread F] [--without GROUPS]\n"
         "       simdrive --terrain-out GROUND.yaml [--site SITE_DIR]\n"
         "\n"
         "Simulates a drive around a site's route and writes DIR/drive.lcm (LCM log) and\n"
@@ -69,6 +69,8 @@ static void usage(FILE *f)
         "  --driver-spread F     a human driver: cruise speed, braking point and deceleration\n"
         "                        vary by up to +-F (e.g. 0.2) from stop to stop, per seed\n"
         "                        (default 0: the planner's own speed curve)\n"
+        "  --without G1,G2       leave out these object groups of world.yaml (the drive day's\n"
+        "                        changes, e.g. fence,bus: each switchable)\n"
         "  --no-lidar            skip LIDAR_SCAN (fast drives for IMU, CAN and GNSS studies)\n"
         "  --quiet               no progress bar\n"
         "  --terrain-out FILE    write the site's true ground (the terrain's drivable and\n"
@@ -122,12 +124,13 @@ int main(int argc, char **argv)
     int mapping = 0, quiet = 0, no_lidar = 0;
     const char *terrain_out = NULL;
     double driver_spread = 0;
+    char without[256] = "";
     static const struct option opts[] = {
         { "out", required_argument, 0, 'o' }, { "seed", required_argument, 0, 's' },
         { "duration", required_argument, 0, 'd' }, { "speed-profile", required_argument, 0, 'p' },
         { "site", required_argument, 0, 'S' }, { "vehicle", required_argument, 0, 'v' },
         { "mapping", no_argument, 0, 'm' }, { "terrain-out", required_argument, 0, 'T' },
-        { "driver-spread", required_argument, 0, 'D' }, { "no-lidar", no_argument, 0, 'L' }, { "quiet", no_argument, 0, 'q' },
+        { "driver-spread", required_argument, 0, 'D' }, { "without", required_argument, 0, 'W' }, { "no-lidar", no_argument, 0, 'L' }, { "quiet", no_argument, 0, 'q' },
         { "help", no_argument, 0, 'h' }, { 0, 0, 0, 0 } };
     int c;
     while ((c = getopt_long(argc, argv, "h", opts, NULL)) != -1) {
@@ -147,6 +150,7 @@ int main(int argc, char **argv)
         case 'v': veh_path = optarg; break;
         case 'm': mapping = 1; break;
         case 'T': terrain_out = optarg; break;
+        case 'W': snprintf(without, sizeof without, "%s", optarg); break;
         case 'D':
             if (pb_arg_double("simdrive", "driver-spread", optarg, 0, 0.5, &driver_spread)) return 2;
             break;
@@ -188,6 +192,13 @@ int main(int argc, char **argv)
         pb_route_free(&route);
         return rc ? 1 : 0;
     }
+    for (char *save = NULL, *g = strtok_r(without, ",", &save); g; g = strtok_r(NULL, ",", &save))
+        if (world_group_off(&world, g, &err)) {
+            fprintf(stderr, "simdrive: %s\n", err.msg);
+            world_free(&world);
+            pb_route_free(&route);
+            return 2;
+        }
     world_build_grid(&world, mapping ? DAY_MAP : DAY_DRIVE, GRID_CELL_M);
 
     /* The base origin (rear axle) halts so that the front bumper is 0.5 m behind the line. */

@@ -22,17 +22,18 @@ static int find_class(const world_t *w, const char *name, const pb_cfg_node_t *w
 static int read_object(world_t *w, const pb_cfg_node_t *node, prim_t *p, pb_err_t *err)
 {
     struct {
-        char type[16], cls[24], day[8];
+        char type[16], cls[24], day[8], group[24];
         const pb_cfg_node_t *center;
         double yaw_deg, size[3], z0, radius, height;
-    } o = { "", "", "both", NULL, 0, { -1, -1, -1 }, 0, -1, -1 };
+    } o = { "", "", "both", "", NULL, 0, { -1, -1, -1 }, 0, -1, -1 };
 #define O(key, type, field, len, req) { key, type, offsetof(typeof(o), field), len, req }
     const pb_cfg_field_t f[] = {
         O("type", PB_CFG_STRING, type, sizeof o.type, 1), O("class", PB_CFG_STRING, cls, sizeof o.cls, 1),
         O("center", PB_CFG_NODE, center, 0, 1), O("yaw_deg", PB_CFG_DOUBLE, yaw_deg, 0, 0),
         O("size", PB_CFG_DOUBLES, size, 3, 0), O("z0", PB_CFG_DOUBLE, z0, 0, 0),
         O("radius", PB_CFG_DOUBLE, radius, 0, 0), O("height", PB_CFG_DOUBLE, height, 0, 0),
-        O("day", PB_CFG_STRING, day, sizeof o.day, 0), PB_CFG_END };
+        O("day", PB_CFG_STRING, day, sizeof o.day, 0), O("group", PB_CFG_STRING, group, sizeof o.group, 0),
+        PB_CFG_END };
 #undef O
     if (pb_cfg_read(node, f, &o, err)) return -1;
     const char *file = pb_node_file(node);
@@ -43,6 +44,15 @@ static int read_object(world_t *w, const pb_cfg_node_t *node, prim_t *p, pb_err_
     else if (!strcmp(o.day, "map")) p->day = DAY_MAP;
     else if (!strcmp(o.day, "drive")) p->day = DAY_DRIVE;
     else return pb_err_set(err, "%s:%d: day: expected both, map or drive, got '%s'", file, line, o.day);
+    if (o.group[0]) {
+        int g = 0;
+        while (g < w->ngroups && strcmp(w->group_name[g], o.group)) g++;
+        if (g == w->ngroups) {
+            if (g == WORLD_MAX_GROUPS) return pb_err_set(err, "%s:%d: group: at most %d groups", file, line, WORLD_MAX_GROUPS);
+            snprintf(w->group_name[w->ngroups++], sizeof w->group_name[0], "%s", o.group);
+        }
+        p->group = (uint8_t)(g + 1);
+    }
     double c[3] = { 0, 0, 0 };
     if (!strcmp(o.type, "box")) {
         if (pb_node_doubles(o.center, "center", c, 2, err)) return -1;
@@ -182,6 +192,18 @@ out:
     return rc;
 }
 
+int world_group_off(world_t *w, const char *name, pb_err_t *err)
+{
+    for (int g = 0; g < w->ngroups; g++)
+        if (!strcmp(w->group_name[g], name)) { w->groups_off |= 1u << g; return 0; }
+    char known[WORLD_MAX_GROUPS * 26] = "";
+    for (int g = 0; g < w->ngroups; g++) {
+        strcat(known, g ? ", " : "");
+        strcat(known, w->group_name[g]);
+    }
+    return pb_err_set(err, "--without: no object group '%s' in the world (groups: %s)", name, w->ngroups ? known : "none");
+}
+
 void world_free(world_t *w)
 {
     terrain_free(&w->terrain);
@@ -225,6 +247,7 @@ void world_build_grid(world_t *w, int day, double cell)
         for (int i = 0; i < w->nprims; i++) {
             const prim_t *p = &w->prims[i];
             if (p->day != DAY_BOTH && p->day != day) continue;
+            if (p->group && (w->groups_off >> (p->group - 1) & 1)) continue;
             double b[4];
             prim_bounds(p, b);
             int x0 = (int)((b[0] - w->gx0) / cell), x1 = (int)((b[2] - w->gx0) / cell);
