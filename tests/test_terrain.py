@@ -251,3 +251,17 @@ def test_lab_and_road_same_events_on_the_hills(tmp, road_lab, truth):
     ft = np.concatenate(feet_truth)
     assert np.median(ft) < 0.012, np.median(ft)
     assert np.percentile(ft, 95) < 0.05, np.percentile(ft, 95)
+
+
+def test_world_changes_are_switchable_groups(tmp):
+    """The hills' drive-day changes (fence, bus, missing parked row, foliage) are object
+    groups; --without names them, and an unknown group is refused with the list."""
+    w = yaml.safe_load((HILLS / "world.yaml").read_text())
+    groups = {o.get("group") for o in w["objects"]} - {None}
+    assert groups == {"fence", "bus", "row", "foliage"}
+    assert all(o["day"] == "drive" for o in w["objects"] if o.get("group") in ("fence", "bus", "foliage"))
+    assert all(o["day"] == "map" for o in w["objects"] if o.get("group") == "row")
+    p = ts.simdrive(tmp / "nogroup", "--site", HILLS, "--duration", 1, "--no-lidar", "--without", "fence,sheep", check=False)
+    assert p.returncode == 2 and "'sheep'" in p.stderr and "fence, bus, row, foliage" in p.stderr
+    assert ts.simdrive(tmp / "allgroups", "--site", HILLS, "--duration", 1, "--no-lidar",
+                       "--without", "fence,bus,row,foliage").returncode == 0
