@@ -22,9 +22,9 @@ int pb_site_load(const char *dir, pb_site_t *s, pb_err_t *err)
     if (!cfg) return -1;
     int rc = -1;
     struct {
-        char name[64], description[256], route[256], world[256];
+        char name[64], description[256], route[256], world[256], ground[256];
         const pb_cfg_node_t *georef, *map;
-    } top = { "", "", "route.yaml", "world.yaml", 0, 0 };
+    } top = { "", "", "route.yaml", "world.yaml", "ground.yaml", 0, 0 };
 #define T(key, type, field, len, req) { key, type, offsetof(typeof(top), field), len, req }
     const pb_cfg_field_t f[] = {
         T("name", PB_CFG_STRING, name, sizeof top.name, 1),
@@ -32,6 +32,7 @@ int pb_site_load(const char *dir, pb_site_t *s, pb_err_t *err)
         T("georef", PB_CFG_NODE, georef, 0, 1),
         T("route", PB_CFG_STRING, route, sizeof top.route, 0),
         T("world", PB_CFG_STRING, world, sizeof top.world, 0),
+        T("ground", PB_CFG_STRING, ground, sizeof top.ground, 0),
         T("map", PB_CFG_NODE, map, 0, 0), PB_CFG_END };
 #undef T
     if (pb_cfg_read(pb_cfg_root(cfg), f, &top, err)) goto out;
@@ -62,6 +63,7 @@ int pb_site_load(const char *dir, pb_site_t *s, pb_err_t *err)
     snprintf(s->name, sizeof s->name, "%s", top.name);
     snprintf(s->route_path, sizeof s->route_path, "%s/%s", dir, top.route);
     snprintf(s->world_path, sizeof s->world_path, "%s/%s", dir, top.world);
+    snprintf(s->ground_path, sizeof s->ground_path, "%s/%s", dir, top.ground);
     rc = 0;
 out:
     pb_cfg_free(cfg);

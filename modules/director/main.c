@@ -271,6 +271,16 @@ int main(int argc, char **argv)
     dir_vehicle_t dv = { veh.length, veh.width, veh.height, veh.rear_overhang };
     a.dir = dir_create(&a.sc, &route, &dv, on_event, &a, &err);
     if (!a.dir) { fprintf(stderr, "director: %s\n", err.msg); sc_free(&a.sc); pb_route_free(&route); return 1; }
+    /* the ground model: agents stand on it, volume heights count from it */
+    pb_ground_t *ground = NULL;
+    if (file_exists(site.ground_path)) {
+        ground = pb_ground_load(site.ground_path, &err);
+        if (!ground) { fprintf(stderr, "director: %s\n", err.msg); dir_destroy(a.dir); sc_free(&a.sc); pb_route_free(&route); return 1; }
+        dir_set_ground(a.dir, ground);
+    } else {
+        fprintf(stderr, "director: warning: %s: no ground model (make builds it); the ground is taken as z = 0\n",
+                site.ground_path);
+    }
     if (a.state_path && file_exists(a.state_path)) {
         FILE *f = fopen(a.state_path, "r");
         static char buf[1 << 20];
@@ -279,7 +289,7 @@ int main(int argc, char **argv)
         buf[n] = 0;
         if (!f || dir_state_read(a.dir, buf, &err)) {
             fprintf(stderr, "director: %s: %s\n", a.state_path, f ? err.msg : strerror(errno));
-            dir_destroy(a.dir); sc_free(&a.sc); pb_route_free(&route);
+            dir_destroy(a.dir); pb_ground_destroy(ground); sc_free(&a.sc); pb_route_free(&route);
             return 1;
         }
         fprintf(stderr, "director: recovered %d fired trigger(s) from %s\n", dir_triggers_fired(a.dir), a.state_path);
@@ -287,7 +297,7 @@ int main(int argc, char **argv)
     if (check_only) {
         printf("%s: scenario %s: %d volumes, %d agents, %d behaviours, %d triggers: ok\n", sc_path, a.sc.id, a.sc.nvolumes,
                a.sc.nagents, a.sc.nbehaviours, a.sc.ntriggers);
-        dir_destroy(a.dir); sc_free(&a.sc); pb_route_free(&route);
+        dir_destroy(a.dir); pb_ground_destroy(ground); sc_free(&a.sc); pb_route_free(&route);
         return 0;
     }
     a.out = calloc(a.sc.nagents + 1, sizeof *a.out);
@@ -317,6 +327,7 @@ int main(int argc, char **argv)
     pb_status_destroy(a.status);
     pb_bus_destroy(a.bus);
     dir_destroy(a.dir);
+    pb_ground_destroy(ground);
     free(a.out); free(a.agents);
     sc_free(&a.sc);
     pb_route_free(&route);

@@ -16,6 +16,8 @@
 #include "pb_route.h"
 #include "pb_signal.h"
 #include "pb_site.h"
+#include "pb_ground.h"
+#include "pb_math.h"
 #include "pb_status.h"
 #include "pb_vehicle.h"
 #include "portobello_agents_t.h"
@@ -81,13 +83,22 @@ static void usage(FILE *f)
         PB_SOURCE_DIR, PB_SOURCE_DIR, (long long)DEFAULT_START_UTIME, PB_DEFAULT_LCM_URL);
 }
 
+/* The site's ground model, set once by main: the twin drives on it (NULL: z = 0). */
+static struct { pb_ground_t *g; double wheelbase, track; } ground;
+
 static void fill_pose(const lv_pose_t *p, portobello_pose_t *m)
 {
     memset(m, 0, sizeof *m);
     m->utime = p->utime;
-    m->position[0] = p->x; m->position[1] = p->y; m->position[2] = 0;
-    m->orientation[0] = cos(p->yaw / 2); m->orientation[3] = sin(p->yaw / 2);
+    /* on the ground model: height and tilt from the ground under the four tyres, so
+     * renderers get the heights the road car sees (unknown ground: level at z = 0) */
+    double z = 0, roll = 0, pitch = 0;
+    if (ground.g && pb_ground_car(ground.g, p->x, p->y, p->yaw, ground.wheelbase, ground.track, &z, &roll, &pitch))
+        z = roll = pitch = 0;
+    m->position[0] = p->x; m->position[1] = p->y; m->position[2] = z;
+    pb_quat_from_rpy(roll, pitch, p->yaw, m->orientation);
     m->velocity[0] = p->v * cos(p->yaw); m->velocity[1] = p->v * sin(p->yaw);
+    m->velocity[2] = -p->v * tan(pitch);
     m->angular_velocity[2] = p->omega;
     /* The twin's pose is exact by construction: 1 mm / 1 mrad standard deviations
      * (not zero, which pose_t reserves for "unknown"). */
@@ -437,12 +448,21 @@ int main(int argc, char **argv)
         return 1;
     }
     if (pb_route_load(site.route_path, &route, &err)) { fprintf(stderr, PROG ": %s\n", err.msg); return 1; }
+    if (access(site.ground_path, R_OK) == 0) {
+        ground.g = pb_ground_load(site.ground_path, &err);
+        if (!ground.g) { fprintf(stderr, PROG ": %s\n", err.msg); pb_route_free(&route); return 1; }
+        ground.wheelbase = veh.wheelbase;
+        ground.track = 0.5 * (veh.track_front + veh.track_rear);
+    } else {
+        fprintf(stderr, PROG ": warning: %s: no ground model (make builds it); driving at z = 0\n", site.ground_path);
+    }
     cfg.base_to_front_m = veh.length - veh.rear_overhang;
     lab_vehicle_t *lv = lv_create(&route, &cfg, &err);
     if (!lv) { fprintf(stderr, PROG ": %s\n", err.msg); pb_route_free(&route); return 1; }
     int rc = offline ? run_offline(lv, out, start_utime, auto_proceed, duration, ground_truth, quiet)
                      : run_bus(lv, url, in, out, ground_truth, duration, keyboard, cfg.proceed_input);
     lv_destroy(lv);
+    pb_ground_destroy(ground.g);
     pb_route_free(&route);
     return rc;
 }

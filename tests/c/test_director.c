@@ -249,6 +249,62 @@ static void test_predictor(void)
     CHECK(dir_predict_arrival(0.1, 0.0, 0.0, 2.0, 0.2) == 0);
 }
 
+/* Terrain: a road climbing 10 % along +x (z = 0.1 x), a sidewalk 0.15 m above it
+ * for y > 3 m. A box volume z 0..3 (relative to the ground) at x 50..52 sits
+ * where the road is 5 m up; a car driving up the slope (pose z and pitch from the
+ * ground) must touch it exactly where its front bumper reaches x = 50, and would
+ * pass under it... over it, never touching, if heights were absolute (the flat world's bug). An agent
+ * standing on the sidewalk has its feet on the sidewalk, not on the road. */
+static void test_ground(void)
+{
+    pb_ground_t *g = pb_ground_create(-10, -10, 0.25, 401, 81);
+    for (int j = 0; j < 81; j++)
+        for (int i = 0; i < 401; i++) {
+            double x = -10 + i * 0.25, y = -10 + j * 0.25;
+            pb_ground_set(g, i, j, 0.1 * x + (y > 3.0 ? 0.15 : 0));
+        }
+    sc_scenario_t sc;
+    pb_err_t err;
+    int rc = load_text(
+        "scenario: slope\n"
+        "volumes:\n  - {id: v, type: box, center: [51, 0], yaw_deg: 0, size: [2, 3, 3]}\n"
+        "agents:\n  - {id: p, kind: pedestrian, model: m, start: [40, 6], yaw_deg: 0}\n"
+        "triggers:\n  - id: hit\n    when: {type: enter, volume: v}\n    actions: [{type: emit, event: e}]\n",
+        &sc, &err);
+    CHECK(rc == 0);
+    if (rc) { fprintf(stderr, "%s\n", err.msg); pb_ground_destroy(g); return; }
+    for (int with_ground = 0; with_ground < 2; with_ground++) {
+        log_t l = { 0 };
+        director_t *d = dir_create(&sc, NULL, &CAR, on_event, &l, &err);
+        if (with_ground) dir_set_ground(d, g);
+        double front = CAR.length - CAR.rear_overhang, fired_x = NAN;
+        for (int k = 0; k <= 600; k++) {
+            double t = k * 0.01, x = 40 + 5.0 * t;     /* 5 m/s up the slope */
+            dir_pose_t p = pose_x(t, x, 5.0);
+            double pitch = -atan(0.1);
+            p.pos[2] = 0.1 * x;
+            p.q[0] = cos(pitch / 2); p.q[2] = sin(pitch / 2);
+            p.vel[2] = 0.5;
+            int before = count(&l, "trigger", "hit");
+            CHECK(dir_pose(d, &p, &err) == 0);
+            if (!before && count(&l, "trigger", "hit")) fired_x = x;
+        }
+        if (with_ground) {
+            /* the box's front reaches x = 50 at base x = 50 - front (pitch shortens it by 0.5 % : 2 cm) */
+            CHECK(count(&l, "trigger", "hit") == 1);
+            CHECK(fabs(fired_x + front - 50.0) < 0.1);
+            dir_agent_out_t a[1];
+            dir_agents(d, a);
+            CHECK(fabs(a[0].pos[2] - (0.1 * 40 + 0.15)) < 0.002);  /* on the sidewalk, 15 cm above the road */
+        } else {
+            CHECK(count(&l, "trigger", "hit") == 0);                /* heights taken as absolute: never touched */
+        }
+        dir_destroy(d);
+    }
+    sc_free(&sc);
+    pb_ground_destroy(g);
+}
+
 int main(void)
 {
     test_geometry();
@@ -256,5 +312,6 @@ int main(void)
     test_groups_edges_delay();
     test_agents_state_and_jump();
     test_predictor();
+    test_ground();
     return pb_check_report("test_director");
 }

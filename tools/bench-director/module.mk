@@ -3,7 +3,10 @@ $(eval $(call c_program,bench-director,tools/bench-director modules/director/cor
 
 BENCH_TARGETS += bench-director
 .PHONY: bench-director
-bench-director: $(BIN)/bench-director $(BIN)/director $(BIN)/simdrive
+bench-director: $(BIN)/bench-director $(BIN)/director $(BIN)/simdrive maps
 	@$(BIN)/bench-director
 	@echo
 	@$(VPY) tools/bench-director/timing.py --seeds 1,2,3,4,5
+	@echo
+	@echo "Arrival timing with a human driver (simdrive --driver-spread 0.2: cruise, braking point, decel +-20 % per stop)"
+	@$(VPY) tools/bench-director/timing.py --seeds 1,2,3,4,5 --driver-spread 0.2 --json $(BUILD)/bench/director-timing-varied.json

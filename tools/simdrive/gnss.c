@@ -22,7 +22,7 @@ void gnss_sim_init(gnss_sim_t *g, const pb_vehicle_t *v, uint64_t seed, double d
 }
 
 void gnss_step(gnss_sim_t *g, const pb_vehicle_t *v, const pb_georef_t *geo, double geoid_height_m,
-               const traj_state_t *st, uint64_t seed, int64_t utime, portobello_gnss_fix_t *fix)
+               const body_state_t *b, uint64_t seed, int64_t utime, portobello_gnss_fix_t *fix)
 {
     if (g->k > 0) {
         /* e[k] = phi e[k-1] + sigma sqrt(1 - phi^2) w: stationary sigma per axis */
@@ -32,9 +32,13 @@ void gnss_step(gnss_sim_t *g, const pb_vehicle_t *v, const pb_georef_t *geo, dou
                         sigma_axis(v, i) * sqrt(1 - phi * phi) * rng_gauss(seed, RNG_GNSS, (uint64_t)g->k, (uint64_t)i);
     }
     g->k++;
-    double c = cos(st->yaw), s = sin(st->yaw);
-    const double *a = v->gnss_xyz;
-    double p[3] = { st->x + c * a[0] - s * a[1] + g->err[0], st->y + s * a[0] + c * a[1] + g->err[1], a[2] + g->err[2] };
+    /* the antenna on the body (its height follows the terrain, pitch and roll) */
+    const double *a = v->gnss_xyz, *R = b->R;
+    double p[3], ra[3];
+    for (int i = 0; i < 3; i++) {
+        ra[i] = R[3 * i] * a[0] + R[3 * i + 1] * a[1] + R[3 * i + 2] * a[2];
+        p[i] = b->p[i] + ra[i] + g->err[i];
+    }
     pb_geo_map_to_wgs84(geo, p, &fix->lat_deg, &fix->lon_deg, &fix->alt_m);
     fix->utime = utime;
     fix->fix_type = PORTOBELLO_GNSS_FIX_T_FIX_3D;
@@ -44,7 +48,11 @@ void gnss_step(gnss_sim_t *g, const pb_vehicle_t *v, const pb_georef_t *geo, dou
     fix->h_acc_m = v->gnss_noise * M_SQRT2;   /* horizontal RMS of two axes of sigma gnss_noise */
     fix->v_acc_m = v->gnss_noise * VERT_FACTOR;
     /* velocity of the antenna (lever arm: omega x r), 5 cm/s white noise per axis */
-    double vm[3] = { st->v * c - st->omega * (s * a[0] + c * a[1]), st->v * s + st->omega * (c * a[0] - s * a[1]), 0 };
+    double wm[3], vm[3];    /* w in map, then v + w x (R a) */
+    for (int i = 0; i < 3; i++) wm[i] = R[3 * i] * b->w[0] + R[3 * i + 1] * b->w[1] + R[3 * i + 2] * b->w[2];
+    vm[0] = b->v[0] + wm[1] * ra[2] - wm[2] * ra[1];
+    vm[1] = b->v[1] + wm[2] * ra[0] - wm[0] * ra[2];
+    vm[2] = b->v[2] + wm[0] * ra[1] - wm[1] * ra[0];
     for (int i = 0; i < 2; i++) vm[i] += 0.05 * rng_gauss(seed, RNG_GNSS, (uint64_t)g->k, (uint64_t)(3 + i));
     double enu[3];
     pb_geo_map_to_enu_vec(geo, vm, enu);

@@ -5,7 +5,7 @@
 
 #include <stdint.h>
 #include "pb_geo.h"
-#include "trajectory.h"
+#include "body.h"
 #include "pb_vehicle.h"
 #include "portobello_gnss_fix_t.h"
 
@@ -17,8 +17,8 @@ typedef struct {
 } gnss_sim_t;
 
 void gnss_sim_init(gnss_sim_t *g, const pb_vehicle_t *v, uint64_t seed, double dt);
-/* Next fix (call at consecutive dt steps). */
+/* Next fix (call at consecutive dt steps) for the body state b (body_eval). */
 void gnss_step(gnss_sim_t *g, const pb_vehicle_t *v, const pb_georef_t *geo, double geoid_height_m,
-               const traj_state_t *st, uint64_t seed, int64_t utime, portobello_gnss_fix_t *fix);
+               const body_state_t *b, uint64_t seed, int64_t utime, portobello_gnss_fix_t *fix);
 
 #endif

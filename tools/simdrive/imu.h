@@ -4,7 +4,7 @@
 #define SIM_IMU_H
 
 #include <stdint.h>
-#include "trajectory.h"
+#include "body.h"
 #include "pb_vehicle.h"
 
 typedef struct {
@@ -12,10 +12,10 @@ typedef struct {
 } imu_sim_t;
 
 void imu_sim_init(imu_sim_t *im, const pb_vehicle_t *v, uint64_t seed);
-/* Ideal (noise-free, bias-free) measurement for a state: accel (m/s^2) and gyro (rad/s), imu frame. */
-void imu_ideal(const pb_vehicle_t *v, const traj_state_t *st, double accel[3], double gyro[3]);
-/* Measurement number k (noise keyed by k). */
-void imu_measure(const imu_sim_t *im, const pb_vehicle_t *v, const traj_state_t *st, uint64_t seed, uint64_t k,
+/* Ideal (noise-free, bias-free) measurement at time t: accel (m/s^2) and gyro (rad/s), imu frame. */
+void imu_ideal(const body_model_t *bm, double t, double accel[3], double gyro[3]);
+/* Measurement number k at time t (noise keyed by k). */
+void imu_measure(const imu_sim_t *im, const body_model_t *bm, double t, uint64_t seed, uint64_t k,
                  double accel[3], double gyro[3]);
 
 #endif

@@ -63,20 +63,16 @@ static void *worker(void *arg)
     for (int c0 = 32 * j->tid; c0 < LIDAR_COLS; c0 += 32 * LIDAR_THREADS)
         for (int c = c0; c < c0 + 32; c++) {
             double tc = j->t0 + m->col_off_us[c] * 1e-6;
-            traj_state_t st;
-            traj_eval(ls->traj, tc, &st);
-            /* map <- lidar at this column's time: base (level, on z = 0) * base <- lidar */
-            double cy = cos(st.yaw), sy = sin(st.yaw);
+            /* map <- lidar at this column's time: the body's pose on the terrain * base <- lidar */
+            body_state_t b;
+            body_pose(ls->body, tc, &b);
             double R[9], T[3];
-            for (int k = 0; k < 3; k++) {
-                R[0 + k] = cy * Rl[k] - sy * Rl[3 + k];
-                R[3 + k] = sy * Rl[k] + cy * Rl[3 + k];
-                R[6 + k] = Rl[6 + k];
-            }
             const double *lt = v->base_from_lidar.t;
-            T[0] = st.x + cy * lt[0] - sy * lt[1];
-            T[1] = st.y + sy * lt[0] + cy * lt[1];
-            T[2] = lt[2];
+            for (int i = 0; i < 3; i++) {
+                for (int k = 0; k < 3; k++)
+                    R[3 * i + k] = b.R[3 * i] * Rl[k] + b.R[3 * i + 1] * Rl[3 + k] + b.R[3 * i + 2] * Rl[6 + k];
+                T[i] = b.p[i] + b.R[3 * i] * lt[0] + b.R[3 * i + 1] * lt[1] + b.R[3 * i + 2] * lt[2];
+            }
             /* traffic moves < 1.5 m per sweep: linear interpolation is exact to mm */
             double f = m->col_off_us[c] / (double)LIDAR_PERIOD_US;
             for (int k = 0; k < j->nmov; k++) {

@@ -6,7 +6,7 @@
 #define SIM_LIDAR_H
 
 #include <stdint.h>
-#include "trajectory.h"
+#include "body.h"
 #include "pb_vehicle.h"
 #include "world.h"
 #include "portobello_lidar_scan_t.h"
@@ -28,6 +28,7 @@ typedef struct {
     const world_t *world;
     const pb_route_t *route;
     const trajectory_t *traj;
+    const body_model_t *body;   /* the car's 3-D pose on the terrain */
     const pb_vehicle_t *veh;
     const lidar_model_t *model;
     uint64_t seed;

@@ -10,11 +10,13 @@
 #include <sys/stat.h>
 
 #include "pb_arg.h"
+#include "pb_ground.h"
 #include "can.h"
 #include "gnss.h"
 #include "imu.h"
 #include "lidar.h"
 #include "occlusion_truth.h"
+#include "body.h"
 #include "pb_log.h"
 #include "pb_progress.h"
 #include "rng.h"
@@ -46,6 +48,8 @@ static void usage(FILE *f)
         "usage: simdrive --out DIR [--seed N] [--duration S] [--speed-profile cautious|normal|aggressive]\n"
         "                [--site SITE_DIR] [--vehicle FILE] [--mapping] [--no-lidar] [--quiet]\n"
         "                [--scenario FILE [--head]]\n"
+        "                [--driver-spread F] [--without GROUPS]\n"
+        "       simdrive --terrain-out GROUND.yaml [--site SITE_DIR]\n"
         "\n"
         "Simulates a drive around a site's route and writes DIR/drive.lcm (LCM log) and\n"
         "DIR/ground_truth.tum (base pose at 100 Hz: t x y z qx qy qz qw, t in seconds).\n"
@@ -64,6 +68,11 @@ static void usage(FILE *f)
         "  --vehicle FILE        vehicle file (default %s/vehicles/prius2017.yaml)\n"
         "  --mapping             the mapping day: mapping-day objects, no traffic, exactly\n"
         "                        one lap (ignores --duration), LiDAR keyframes at 2 Hz\n"
+        "  --driver-spread F     a human driver: cruise speed, braking point and deceleration\n"
+        "                        vary by up to +-F (e.g. 0.2) from stop to stop, per seed\n"
+        "                        (default 0: the planner's own speed curve)\n"
+        "  --without G1,G2       leave out these object groups of world.yaml (the drive day's\n"
+        "                        changes, e.g. fence,bus: each switchable)\n"
         "  --no-lidar            skip LIDAR_SCAN (fast drives for IMU, CAN and GNSS studies)\n"
         "  --scenario FILE       stage the scenario's agents (the director's core on ground\n"
         "                        truth): AGENTS (~33 Hz) and OCCLUSION_TRUTH at every sweep end\n"
@@ -72,6 +81,8 @@ static void usage(FILE *f)
         "  --head                also simulate the participant's head: HEAD_POSE (100 Hz),\n"
         "                        the truth's eye; without it the eye is the vehicle's seat\n"
         "  --quiet               no progress bar\n"
+        "  --terrain-out FILE    write the site's true ground (the terrain's drivable and\n"
+        "                        walkable cells; others unknown) as a ground model and exit\n"
         "  --help                this text\n",
         PB_SOURCE_DIR, PB_SOURCE_DIR);
 }
@@ -97,6 +108,19 @@ static double st_dist_or_zero(const trajectory_t *tr, double t)
     return st.dist;
 }
 
+/* The true ground as a ground model (pb_ground): what tools/build-ground is measured against. */
+static int write_terrain(const terrain_t *T, const char *path, pb_err_t *err)
+{
+    if (!T->enabled) return pb_err_set(err, "--terrain-out: the site has no terrain (its ground is the plane z = 0)");
+    pb_ground_t *g = pb_ground_create(T->x0, T->y0, T->cell, T->nx, T->ny);
+    for (int j = 0; j < T->ny; j++)
+        for (int i = 0; i < T->nx; i++)
+            if (T->walk[(size_t)j * T->nx + i]) pb_ground_set(g, i, j, T->h[(size_t)j * T->nx + i]);
+    int rc = pb_ground_save(g, path, err);
+    pb_ground_destroy(g);
+    return rc;
+}
+
 enum { S_GT, S_IMU, S_LIDAR, S_GNSS, S_CAN_WS, S_CAN_SPD, S_TRUTH, S_COUNT };
 
 int main(int argc, char **argv)
@@ -107,11 +131,15 @@ int main(int argc, char **argv)
     double duration = 60;
     int mapping = 0, quiet = 0, no_lidar = 0, head = 0;
     const char *scenario = NULL;
+    const char *terrain_out = NULL;
+    double driver_spread = 0;
+    char without[256] = "";
     static const struct option opts[] = {
         { "out", required_argument, 0, 'o' }, { "seed", required_argument, 0, 's' },
         { "duration", required_argument, 0, 'd' }, { "speed-profile", required_argument, 0, 'p' },
         { "site", required_argument, 0, 'S' }, { "vehicle", required_argument, 0, 'v' },
-        { "mapping", no_argument, 0, 'm' }, { "no-lidar", no_argument, 0, 'L' }, { "quiet", no_argument, 0, 'q' },
+        { "mapping", no_argument, 0, 'm' }, { "terrain-out", required_argument, 0, 'T' },
+        { "driver-spread", required_argument, 0, 'D' }, { "without", required_argument, 0, 'W' }, { "no-lidar", no_argument, 0, 'L' }, { "quiet", no_argument, 0, 'q' },
         { "scenario", required_argument, 0, 'c' }, { "head", no_argument, 0, 'H' },
         { "help", no_argument, 0, 'h' }, { 0, 0, 0, 0 } };
     int c;
@@ -131,6 +159,11 @@ int main(int argc, char **argv)
         case 'S': site_dir = optarg; break;
         case 'v': veh_path = optarg; break;
         case 'm': mapping = 1; break;
+        case 'T': terrain_out = optarg; break;
+        case 'W': snprintf(without, sizeof without, "%s", optarg); break;
+        case 'D':
+            if (pb_arg_double("simdrive", "driver-spread", optarg, 0, 0.5, &driver_spread)) return 2;
+            break;
         case 'q': quiet = 1; break;
         case 'L': no_lidar = 1; break;
         case 'c': scenario = optarg; break;
@@ -140,7 +173,7 @@ int main(int argc, char **argv)
         }
     }
     if (optind < argc) { fprintf(stderr, "simdrive: unexpected argument '%s'\n", argv[optind]); return 2; }
-    if (!out_dir) { fprintf(stderr, "simdrive: --out DIR is required (see --help)\n"); return 2; }
+    if (!out_dir && !terrain_out) { fprintf(stderr, "simdrive: --out DIR is required (see --help)\n"); return 2; }
     int prof = -1;
     for (int i = 0; i < PB_PROFILE_COUNT; i++)
         if (!strcmp(profile, pb_profile_names[i])) prof = i;
@@ -164,6 +197,20 @@ int main(int argc, char **argv)
         pb_route_free(&route);
         return 1;
     }
+    if (terrain_out) {
+        int rc = write_terrain(&world.terrain, terrain_out, &err);
+        if (rc) fprintf(stderr, "simdrive: %s\n", err.msg);
+        world_free(&world);
+        pb_route_free(&route);
+        return rc ? 1 : 0;
+    }
+    for (char *save = NULL, *g = strtok_r(without, ",", &save); g; g = strtok_r(NULL, ",", &save))
+        if (world_group_off(&world, g, &err)) {
+            fprintf(stderr, "simdrive: %s\n", err.msg);
+            world_free(&world);
+            pb_route_free(&route);
+            return 2;
+        }
     world_build_grid(&world, mapping ? DAY_MAP : DAY_DRIVE, GRID_CELL_M);
     sim_occ_t *occ = NULL;
     if (scenario) {
@@ -179,7 +226,8 @@ int main(int argc, char **argv)
     /* The base origin (rear axle) halts so that the front bumper is 0.5 m behind the line. */
     double stop_offset = (veh.length - veh.rear_overhang) + 0.5;
     trajectory_t traj;
-    if (traj_plan(&traj, &route, &route.profiles[prof], mapping ? 0 : duration, stop_offset, seed, &err)) {
+    traj_driver_t driver = { mapping ? 0 : driver_spread };
+    if (traj_plan(&traj, &route, &route.profiles[prof], mapping ? 0 : duration, stop_offset, &driver, seed, &err)) {
         fprintf(stderr, "simdrive: %s\n", err.msg);
         return 1;
     }
@@ -199,7 +247,9 @@ int main(int argc, char **argv)
     /* sensors */
     lidar_model_t lm;
     lidar_model_os1_64(&lm);
-    lidar_sim_t ls = { .world = &world, .route = &route, .traj = &traj, .veh = &veh, .model = &lm,
+    body_model_t body = { .terrain = &world.terrain, .traj = &traj, .veh = &veh };
+    body_model_init(&body);
+    lidar_sim_t ls = { .world = &world, .route = &route, .traj = &traj, .body = &body, .veh = &veh, .model = &lm,
                        .seed = seed, .traffic = !mapping };
     lidar_sim_init(&ls);
     imu_sim_t imu;
@@ -241,16 +291,20 @@ int main(int argc, char **argv)
         if (best < 0 || out.failed) break;
         int64_t utime = UTIME0 + tb;
         double t = tb * 1e-6;
-        traj_state_t st;
-        traj_eval(&traj, t, &st);
+        body_state_t b;
+        if (best == S_LIDAR) traj_eval(&traj, t, &b.st);
+        else body_eval(&body, t, &b);
+        const traj_state_t st = b.st;
         switch (best) {
         case S_GT: {
             portobello_pose_t p = { 0 };
             p.utime = utime;
-            p.position[0] = st.x; p.position[1] = st.y; p.position[2] = 0;
-            p.orientation[0] = cos(st.yaw / 2); p.orientation[3] = sin(st.yaw / 2);
-            p.velocity[0] = st.v * cos(st.yaw); p.velocity[1] = st.v * sin(st.yaw);
-            p.angular_velocity[2] = st.omega;
+            for (int i = 0; i < 3; i++) {
+                p.position[i] = b.p[i];
+                p.velocity[i] = b.v[i];
+                p.angular_velocity[i] = b.w[i];
+            }
+            memcpy(p.orientation, b.q, sizeof b.q);
             p.status = PORTOBELLO_POSE_T_STATUS_TRACKING;
             p.source = PORTOBELLO_POSE_T_SOURCE_GROUND_TRUTH;
             p.match_score = NAN;
@@ -265,7 +319,7 @@ int main(int argc, char **argv)
             portobello_imu_t m = { 0 };
             m.utime = utime;
             m.sensor = "sim";
-            imu_measure(&imu, &veh, &st, seed, (uint64_t)k[best], m.accel, m.gyro);
+            imu_measure(&imu, &body, t, seed, (uint64_t)k[best], m.accel, m.gyro);
             PB_LOG_WRITE_MSG(&out, "IMU", portobello_imu_t, &m);
             break;
         }
@@ -278,7 +332,7 @@ int main(int argc, char **argv)
             break;
         case S_GNSS: {
             portobello_gnss_fix_t fix = { 0 };
-            gnss_step(&gnss, &veh, &site.geo, site.geoid_height_m, &st, seed, utime, &fix);
+            gnss_step(&gnss, &veh, &site.geo, site.geoid_height_m, &b, seed, utime, &fix);
             PB_LOG_WRITE_MSG(&out, "GNSS_FIX", portobello_gnss_fix_t, &fix);
             break;
         }
@@ -290,14 +344,18 @@ int main(int argc, char **argv)
             f.bus = 0;
             f.len = 8;
             f.data = data;
+            /* the wheels roll the 3-D path: on a grade it is longer than the plan's map arc */
+            traj_state_t sw = st;
+            double vh = hypot(b.v[0], b.v[1]);
+            if (vh > 1e-6) { double k3 = hypot(vh, b.v[2]) / vh; sw.v *= k3; sw.omega *= k3; }
             if (best == S_CAN_WS) {
                 double fl, fr, rl, rr;
-                can_wheel_speeds_kmh(&veh, &st, &fl, &fr, &rl, &rr);
+                can_wheel_speeds_kmh(&veh, &sw, &fl, &fr, &rl, &rr);
                 can_encode_wheel_speeds(fl, fr, rl, rr, data);
                 f.id = CAN_ID_WHEEL_SPEEDS;
             } else {
                 uint8_t enc = (uint8_t)((int64_t)floor(st.dist / TYRE_CIRCUMFERENCE_M) & 0xFF);
-                can_encode_speed(st.v * 3.6, enc, data);
+                can_encode_speed(sw.v * 3.6, enc, data);
                 f.id = CAN_ID_SPEED;
             }
             PB_LOG_WRITE_MSG(&out, "CAN_FRAME", portobello_can_frame_t, &f);
@@ -320,6 +378,7 @@ int main(int argc, char **argv)
                 (long long)counts[S_GT], out_dir);
     lidar_sim_free(&ls);
     sim_occ_destroy(occ);
+    body_model_free(&body);
     free(out.buf);
     traj_free(&traj);
     world_free(&world);

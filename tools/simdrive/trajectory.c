@@ -14,17 +14,37 @@
 
 /* One plan over `laps` laps into tr (v, s, n, t_end). */
 static void plan_laps(trajectory_t *tr, const pb_route_t *r, const pb_speed_profile_t *p, int laps, int end_at_rest,
-                     double stop_offset, uint64_t seed)
+                     double stop_offset, double spread, uint64_t seed)
 {
     double S = laps * r->length;
     int N = (int)ceil(S / PLAN_DS) + 1;
     double ds = S / (N - 1);
     double *vmax = malloc(N * sizeof *vmax), *dwell = calloc(N, sizeof *dwell);
+    /* the driver's factors of the leg each grid point belongs to (the leg ends at the next stop) */
+    double *fc = malloc(N * sizeof *fc), *fd = malloc(N * sizeof *fd), *fb = malloc(N * sizeof *fb);
+    {
+        int nleg = 0;
+        for (int i = 0; i < N; i++) {
+            double s = i * ds, u[3] = { 0.5, 0.5, 0.5 };
+            /* leg index: stops passed so far (over all laps) */
+            while (1) {
+                int lap = nleg / (r->nstops ? r->nstops : 1), k = r->nstops ? nleg % r->nstops : 0;
+                if (!r->nstops || lap >= laps) break;
+                if (lap * r->length + r->stops[k].s - stop_offset >= s) break;
+                nleg++;
+            }
+            if (spread > 0)
+                for (int j = 0; j < 3; j++) u[j] = rng_uniform(seed, RNG_DRIVER, (uint64_t)nleg, (uint64_t)j);
+            fc[i] = 1 + spread * (2 * u[0] - 1);
+            fd[i] = 1 + spread * (2 * u[1] - 1);
+            fb[i] = 1 + spread * (2 * u[2] - 1);
+        }
+    }
     for (int i = 0; i < N; i++) {
         pb_route_point_t rp;
         pb_route_eval(r, i * ds, &rp);
-        double k = fabs(rp.kappa);
-        vmax[i] = k > 1e-9 ? fmin(p->cruise, sqrt(p->lat_accel / k)) : p->cruise;
+        double k = fabs(rp.kappa), cruise = p->cruise * fc[i];
+        vmax[i] = k > 1e-9 ? fmin(cruise, sqrt(p->lat_accel / k)) : cruise;
     }
     for (int lap = 0; lap < laps; lap++)
         for (int k = 0; k < r->nstops; k++) {
@@ -39,7 +59,23 @@ static void plan_laps(trajectory_t *tr, const pb_route_t *r, const pb_speed_prof
     if (end_at_rest) vmax[N - 1] = 0;
     /* forward (acceleration) and backward (deceleration) passes */
     for (int i = 1; i < N; i++) vmax[i] = fmin(vmax[i], sqrt(vmax[i - 1] * vmax[i - 1] + 2 * p->accel * ds));
-    for (int i = N - 2; i >= 0; i--) vmax[i] = fmin(vmax[i], sqrt(vmax[i + 1] * vmax[i + 1] + 2 * p->decel * ds));
+    if (spread <= 0) {
+        for (int i = N - 2; i >= 0; i--) vmax[i] = fmin(vmax[i], sqrt(vmax[i + 1] * vmax[i + 1] + 2 * p->decel * ds));
+    } else {
+        /* Two-phase braking into each stop (traj_driver_t): the main phase at decel * fd
+         * ends at half the leg's cruise speed; the final phase spans the rest of the
+         * braking distance b * v^2 / (2 decel) (at least 15 % of it) at whatever
+         * deceleration stops the car there. Away from stops, the profile's decel. */
+        double x_stop = 0;      /* distance to the next point at rest, walking back */
+        for (int i = N - 2; i >= 0; i--) {
+            x_stop = vmax[i + 1] == 0 && dwell[i + 1] > 0 ? ds : x_stop + ds;
+            double vc = p->cruise * fc[i], a1 = p->decel * fd[i];
+            double D0 = vc * vc / (2 * p->decel), R = fmax(fb[i] * D0 - 0.75 * vc * vc / (2 * a1), 0.15 * D0);
+            double a2 = 0.25 * vc * vc / (2 * R);
+            double a = x_stop <= R ? a2 : a1;
+            vmax[i] = fmin(vmax[i], sqrt(vmax[i + 1] * vmax[i + 1] + 2 * a * ds));
+        }
+    }
 
     /* Knots (t, v): constant acceleration between grid points, so v is linear in t. */
     double *kt = malloc((2 * N + 1) * sizeof *kt), *kv = malloc((2 * N + 1) * sizeof *kv);
@@ -79,21 +115,21 @@ static void plan_laps(trajectory_t *tr, const pb_route_t *r, const pb_speed_prof
     tr->s[0] = 0;
     for (int k = 1; k < n; k++) tr->s[k] = tr->s[k - 1] + 0.5 * (tr->v[k - 1] + tr->v[k]) * PROFILE_DT;
     tr->t_end = (n - 1) * PROFILE_DT;
-    free(vmax); free(dwell); free(kt); free(kv);
+    free(vmax); free(dwell); free(kt); free(kv); free(fc); free(fd); free(fb);
 }
 
 int traj_plan(trajectory_t *tr, const pb_route_t *r, const pb_speed_profile_t *p, double duration,
-              double stop_offset_m, uint64_t seed, pb_err_t *err)
+              double stop_offset_m, const traj_driver_t *driver, uint64_t seed, pb_err_t *err)
 {
     memset(tr, 0, sizeof *tr);
     tr->route = r;
     if (duration <= 0) {
-        plan_laps(tr, r, p, 1, 1, stop_offset_m, seed);
+        plan_laps(tr, r, p, 1, 1, stop_offset_m, driver ? driver->spread : 0, seed);
         return 0;
     }
     /* Enough laps to cover the duration plus the smoothing window at the end. */
     for (int laps = 1; laps < 10000; laps++) {
-        plan_laps(tr, r, p, laps, 0, stop_offset_m, seed);
+        plan_laps(tr, r, p, laps, 0, stop_offset_m, driver ? driver->spread : 0, seed);
         if (tr->t_end > duration + 2 * BOX_S + 1.0) {
             tr->t_end = duration + 2 * BOX_S;   /* the tail feels the unconstrained end; keep it out */
             return 0;

@@ -28,12 +28,21 @@ typedef struct {
     double alpha;       /* yaw acceleration, rad/s^2 */
 } traj_state_t;
 
+/* A human driver's variation from stop to stop (0: the planner's own curve).
+ * For each leg ending at a stop, three factors are drawn uniformly in
+ * [1 - spread, 1 + spread] per seed: the cruise speed, the deceleration of the
+ * main braking, and the braking point (where braking from cruise begins, relative to
+ * the nominal v^2 / 2 decel). Braking then runs in two phases: the main one down to
+ * half the cruise speed, and a final one whose deceleration makes the car stop at
+ * the line anyway (harder when the driver braked late, softer when early). */
+typedef struct { double spread; } traj_driver_t;
+
 /* Plans a drive from rest at the start of the route. duration > 0: long enough
  * for duration seconds (laps repeat). duration <= 0: exactly one lap, ending at
  * rest at the start point (the mapping drive). stop_offset_m: how far behind a
  * stop line the base origin halts (front bumper at the line). */
 int traj_plan(trajectory_t *tr, const pb_route_t *r, const pb_speed_profile_t *p, double duration,
-              double stop_offset_m, uint64_t seed, pb_err_t *err);
+              double stop_offset_m, const traj_driver_t *driver, uint64_t seed, pb_err_t *err);
 void traj_free(trajectory_t *tr);
 void traj_eval(const trajectory_t *tr, double t, traj_state_t *st);
 

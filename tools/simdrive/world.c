@@ -22,17 +22,18 @@ static int find_class(const world_t *w, const char *name, const pb_cfg_node_t *w
 static int read_object(world_t *w, const pb_cfg_node_t *node, prim_t *p, pb_err_t *err)
 {
     struct {
-        char type[16], cls[24], day[8];
+        char type[16], cls[24], day[8], group[24];
         const pb_cfg_node_t *center;
         double yaw_deg, size[3], z0, radius, height;
-    } o = { "", "", "both", NULL, 0, { -1, -1, -1 }, 0, -1, -1 };
+    } o = { "", "", "both", "", NULL, 0, { -1, -1, -1 }, 0, -1, -1 };
 #define O(key, type, field, len, req) { key, type, offsetof(typeof(o), field), len, req }
     const pb_cfg_field_t f[] = {
         O("type", PB_CFG_STRING, type, sizeof o.type, 1), O("class", PB_CFG_STRING, cls, sizeof o.cls, 1),
         O("center", PB_CFG_NODE, center, 0, 1), O("yaw_deg", PB_CFG_DOUBLE, yaw_deg, 0, 0),
         O("size", PB_CFG_DOUBLES, size, 3, 0), O("z0", PB_CFG_DOUBLE, z0, 0, 0),
         O("radius", PB_CFG_DOUBLE, radius, 0, 0), O("height", PB_CFG_DOUBLE, height, 0, 0),
-        O("day", PB_CFG_STRING, day, sizeof o.day, 0), PB_CFG_END };
+        O("day", PB_CFG_STRING, day, sizeof o.day, 0), O("group", PB_CFG_STRING, group, sizeof o.group, 0),
+        PB_CFG_END };
 #undef O
     if (pb_cfg_read(node, f, &o, err)) return -1;
     const char *file = pb_node_file(node);
@@ -43,6 +44,15 @@ static int read_object(world_t *w, const pb_cfg_node_t *node, prim_t *p, pb_err_
     else if (!strcmp(o.day, "map")) p->day = DAY_MAP;
     else if (!strcmp(o.day, "drive")) p->day = DAY_DRIVE;
     else return pb_err_set(err, "%s:%d: day: expected both, map or drive, got '%s'", file, line, o.day);
+    if (o.group[0]) {
+        int g = 0;
+        while (g < w->ngroups && strcmp(w->group_name[g], o.group)) g++;
+        if (g == w->ngroups) {
+            if (g == WORLD_MAX_GROUPS) return pb_err_set(err, "%s:%d: group: at most %d groups", file, line, WORLD_MAX_GROUPS);
+            snprintf(w->group_name[w->ngroups++], sizeof w->group_name[0], "%s", o.group);
+        }
+        p->group = (uint8_t)(g + 1);
+    }
     double c[3] = { 0, 0, 0 };
     if (!strcmp(o.type, "box")) {
         if (pb_node_doubles(o.center, "center", c, 2, err)) return -1;
@@ -69,6 +79,25 @@ static int read_object(world_t *w, const pb_cfg_node_t *node, prim_t *p, pb_err_
     }
     p->cx = c[0]; p->cy = c[1]; p->cz = c[2];
     return 0;
+}
+
+/* Heights in world.yaml count from the ground: a box or cylinder reaches down to the
+ * lowest ground under its footprint (a building on a slope has no gap beneath) and
+ * up to its height above the ground at its centre; a sphere rises with the ground. */
+static void stand_on_terrain(const terrain_t *T, prim_t *p)
+{
+    if (!T->enabled) return;
+    double hc = terrain_height(T, p->cx, p->cy);
+    if (p->kind == PRIM_SPHERE) { p->cz += hc; p->z0 += hc; p->z1 += hc; return; }
+    double lo = hc;
+    for (int k = 0; k < 4; k++) {
+        double u = (k & 1) ? 1 : -1, v = (k & 2) ? 1 : -1, x, y;
+        if (p->kind == PRIM_BOX) { x = p->cx + p->c * u * p->hx - p->s * v * p->hy; y = p->cy + p->s * u * p->hx + p->c * v * p->hy; }
+        else { x = p->cx + u * p->r; y = p->cy + v * p->r; }
+        lo = fmin(lo, terrain_height(T, x, y));
+    }
+    p->z0 += p->z0 == 0 ? lo : hc;
+    p->z1 += hc;
 }
 
 static int read_traffic(world_t *w, const pb_cfg_node_t *node, traffic_t *t, pb_err_t *err)
@@ -98,14 +127,15 @@ int world_load(const char *path, const pb_route_t *route, world_t *w, pb_err_t *
     pb_cfg_t *cfg = pb_cfg_load(path, err);
     if (!cfg) return -1;
     int rc = -1;
-    struct { const pb_cfg_node_t *classes, *traffic, *objects; char ground[24], paint[24]; } top =
-        { 0, 0, 0, "", "" };
+    struct { const pb_cfg_node_t *classes, *traffic, *objects, *terrain; char ground[24], paint[24]; } top =
+        { 0, 0, 0, 0, "", "" };
     const pb_cfg_field_t f[] = {
         { "classes", PB_CFG_NODE, offsetof(typeof(top), classes), 0, 1 },
         { "ground_class", PB_CFG_STRING, offsetof(typeof(top), ground), sizeof top.ground, 1 },
         { "paint_class", PB_CFG_STRING, offsetof(typeof(top), paint), sizeof top.paint, 0 },
         { "traffic", PB_CFG_NODE, offsetof(typeof(top), traffic), 0, 0 },
-        { "objects", PB_CFG_NODE, offsetof(typeof(top), objects), 0, 1 }, PB_CFG_END };
+        { "objects", PB_CFG_NODE, offsetof(typeof(top), objects), 0, 1 },
+        { "terrain", PB_CFG_NODE, offsetof(typeof(top), terrain), 0, 0 }, PB_CFG_END };
     const pb_cfg_node_t *root = pb_cfg_root(cfg);
     if (pb_cfg_read(root, f, &top, err)) goto out;
     if (pb_node_kind(top.classes) != PB_NODE_MAP) {
@@ -138,10 +168,13 @@ int world_load(const char *path, const pb_route_t *route, world_t *w, pb_err_t *
         for (int i = 0; i < w->ntraffic; i++)
             if (read_traffic(w, pb_node_at(top.traffic, i), &w->traffic[i], err)) goto out;
     }
+    if (terrain_load(&w->terrain, top.terrain, route, WORLD_TERRAIN_MARGIN_M, err)) goto out;
     w->nprims = pb_node_count(top.objects);
     w->prims = calloc(w->nprims ? w->nprims : 1, sizeof *w->prims);
-    for (int i = 0; i < w->nprims; i++)
+    for (int i = 0; i < w->nprims; i++) {
         if (read_object(w, pb_node_at(top.objects, i), &w->prims[i], err)) goto out;
+        stand_on_terrain(&w->terrain, &w->prims[i]);
+    }
     /* Crosswalk paint from the route: centre, unit axes along / across the road, half sizes. */
     w->ncw = route->ncw;
     w->cw = calloc(w->ncw ? w->ncw : 1, sizeof *w->cw);
@@ -159,8 +192,21 @@ out:
     return rc;
 }
 
+int world_group_off(world_t *w, const char *name, pb_err_t *err)
+{
+    for (int g = 0; g < w->ngroups; g++)
+        if (!strcmp(w->group_name[g], name)) { w->groups_off |= 1u << g; return 0; }
+    char known[WORLD_MAX_GROUPS * 26] = "";
+    for (int g = 0; g < w->ngroups; g++) {
+        strcat(known, g ? ", " : "");
+        strcat(known, w->group_name[g]);
+    }
+    return pb_err_set(err, "--without: no object group '%s' in the world (groups: %s)", name, w->ngroups ? known : "none");
+}
+
 void world_free(world_t *w)
 {
+    terrain_free(&w->terrain);
     free(w->prims); free(w->cw); free(w->cell_start); free(w->cell_items); free(w->cell_maxz);
     memset(w, 0, sizeof *w);
 }
@@ -201,6 +247,7 @@ void world_build_grid(world_t *w, int day, double cell)
         for (int i = 0; i < w->nprims; i++) {
             const prim_t *p = &w->prims[i];
             if (p->day != DAY_BOTH && p->day != day) continue;
+            if (p->group && (w->groups_off >> (p->group - 1) & 1)) continue;
             double b[4];
             prim_bounds(p, b);
             int x0 = (int)((b[0] - w->gx0) / cell), x1 = (int)((b[2] - w->gx0) / cell);
@@ -234,7 +281,8 @@ int world_movers(const world_t *w, const pb_route_t *route, double t, uint64_t s
         m->cy = rp.y + c * tr->lane_offset;
         m->c = -c; m->s = -s;
         m->hx = tr->size[0] / 2; m->hy = tr->size[1] / 2;
-        m->z0 = tr->z0; m->z1 = tr->z0 + tr->size[2];
+        double hg = terrain_height(&w->terrain, m->cx, m->cy);
+        m->z0 = hg + tr->z0; m->z1 = hg + tr->z0 + tr->size[2];
         m->cls = tr->cls;
     }
     return w->ntraffic;
@@ -330,10 +378,8 @@ int world_raycast(const world_t *w, const double o[3], const double d[3], double
 {
     double best = tmax;
     int cls = -1, ground = 0;
-    if (d[2] < -1e-12) {
-        double tg = -o[2] / d[2];
-        if (tg > EPS && tg < best) { best = tg; ground = 1; }
-    }
+    double tg = terrain_raycast(&w->terrain, o, d, best);
+    if (tg < best) { best = tg; ground = 1; }
     for (int i = 0; i < nmovers; i++) {
         const mover_t *m = &movers[i];
         double t = ray_box(m->cx, m->cy, m->c, m->s, m->hx, m->hy, m->z0, m->z1, o, d);

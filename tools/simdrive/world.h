@@ -1,4 +1,5 @@
-/* The world (world.yaml): ground plane z = 0 with painted crosswalks, static
+/* The world (world.yaml): the ground (the plane z = 0, or the terrain height field
+ * of terrain.h) with painted crosswalks, static
  * primitives (oriented boxes, vertical cylinders, spheres) in a 2-D uniform grid
  * for ray casting, and moving traffic (a few boxes, tested against every ray). */
 #ifndef SIM_WORLD_H
@@ -7,6 +8,7 @@
 #include <stdint.h>
 #include "pb_err.h"
 #include "pb_route.h"
+#include "terrain.h"
 
 #define WORLD_MAX_CLASSES 32
 #define WORLD_MAX_TRAFFIC 64
@@ -14,8 +16,11 @@
 enum { PRIM_BOX, PRIM_CYLINDER, PRIM_SPHERE };
 enum { DAY_BOTH, DAY_MAP, DAY_DRIVE };
 
+#define WORLD_MAX_GROUPS 16
+
 typedef struct {
     uint8_t kind, cls, day;
+    uint8_t group;              /* 0: none, else 1 + index into world_t.group_name */
     double cx, cy, cz;          /* centre (boxes, cylinders: cz unused) */
     double c, s;                /* cos, sin of yaw (boxes) */
     double hx, hy;              /* half length, half width (boxes) */
@@ -39,8 +44,12 @@ typedef struct {
     char class_name[WORLD_MAX_CLASSES][24];
     double albedo[WORLD_MAX_CLASSES];
     uint8_t ground_cls, paint_cls;
+    terrain_t terrain;          /* the ground; objects' z0 and traffic stand on it */
     int nprims;
     prim_t *prims;
+    int ngroups;                /* named changes of the drive day (object key `group`) */
+    char group_name[WORLD_MAX_GROUPS][24];
+    uint32_t groups_off;        /* bit g set: group g + 1 is left out */
     int ntraffic;
     traffic_t traffic[WORLD_MAX_TRAFFIC];
     /* crosswalk paint (from the route): centre, axes, half sizes */
@@ -55,8 +64,13 @@ typedef struct {
     double max_z;
 } world_t;
 
+/* Terrain rasters reach this far beyond the route (the LiDAR's range and more). */
+#define WORLD_TERRAIN_MARGIN_M 140.0
 int world_load(const char *path, const pb_route_t *route, world_t *w, pb_err_t *err);
-/* Builds the grid over the primitives present on `day` (DAY_MAP or DAY_DRIVE). */
+/* Leaves out every object of a group (e.g. "fence"); -1 with the known groups in err. */
+int world_group_off(world_t *w, const char *name, pb_err_t *err);
+/* Builds the grid over the primitives present on `day` (DAY_MAP or DAY_DRIVE), minus
+ * the groups left out. */
 void world_build_grid(world_t *w, int day, double cell_m);
 void world_free(world_t *w);
 

@@ -59,12 +59,23 @@ struct director {
     double speed, accel, s_base;
     int64_t still_since;        /* -1 when moving */
     double front;               /* rear axle to front bumper */
+    /* the ground model (NULL: the plane z = 0) and each volume's ground height */
+    const pb_ground_t *ground;
+    double *vol_dz;
     /* pending participant inputs */
     int ninputs;
     struct { int64_t utime; char input[32]; } inputs[MAX_INPUTS];
 };
 
 /* ---------------------------------------------------------------- helpers */
+/* Ground height at (x, y): the ground model's, else 0 (no model, or unknown there). */
+static double ground_z(const director_t *d, double x, double y)
+{
+    double z = 0;
+    if (d->ground && pb_ground_height(d->ground, x, y, &z)) z = 0;
+    return z;
+}
+
 static void emit(director_t *d, const char *kind, const char *event_id, int agent, const char *fmt, ...)
     __attribute__((format(printf, 5, 6)));
 static void emit(director_t *d, const char *kind, const char *event_id, int agent, const char *fmt, ...)
@@ -79,6 +90,7 @@ static void emit(director_t *d, const char *kind, const char *event_id, int agen
     if (agent >= 0) {
         snprintf(ev.agent_id, sizeof ev.agent_id, "%s", d->sc->agents[agent].id);
         ev.agent_pos[0] = d->ag[agent].x; ev.agent_pos[1] = d->ag[agent].y;
+        ev.agent_pos[2] = ground_z(d, d->ag[agent].x, d->ag[agent].y);
     }
     va_list ap;
     va_start(ap, fmt);
@@ -110,6 +122,9 @@ static int foot_touches_volume(const director_t *d, const geom_shape_t *foot, co
     if (dx * dx + dy * dy > r * r) return 0;
     geom_shape_t g;
     geom_volume(&g, v);
+    /* a volume's heights count from the ground at its centre */
+    double dz = d->vol_dz ? d->vol_dz[v - d->sc->volumes] : 0;
+    g.c[2] += dz; g.z0 += dz; g.z1 += dz;
     return geom_intersect(foot, &g);
 }
 
@@ -117,9 +132,9 @@ static void agent_shape(const director_t *d, int i, geom_shape_t *g)
 {
     const sc_agent_t *a = &d->sc->agents[i];
     if (a->shape == SC_SHAPE_CYLINDER) {
-        geom_cylinder(g, d->ag[i].x, d->ag[i].y, 0, a->radius, a->height);
+        geom_cylinder(g, d->ag[i].x, d->ag[i].y, ground_z(d, d->ag[i].x, d->ag[i].y), a->radius, a->height);
     } else {
-        double c[3] = { d->ag[i].x, d->ag[i].y, a->size[2] / 2 };
+        double c[3] = { d->ag[i].x, d->ag[i].y, ground_z(d, d->ag[i].x, d->ag[i].y) + a->size[2] / 2 };
         geom_box_yaw(g, c, d->ag[i].yaw, a->size);
     }
 }
@@ -220,9 +235,21 @@ director_t *dir_create(const sc_scenario_t *sc, const pb_route_t *route, const d
     return d;
 }
 
+void dir_set_ground(director_t *d, const pb_ground_t *ground)
+{
+    d->ground = ground;
+    free(d->vol_dz);
+    d->vol_dz = NULL;
+    if (!ground) return;
+    d->vol_dz = calloc(d->sc->nvolumes ? d->sc->nvolumes : 1, sizeof *d->vol_dz);
+    for (int i = 0; i < d->sc->nvolumes; i++)
+        d->vol_dz[i] = ground_z(d, d->sc->volumes[i].bound_c[0], d->sc->volumes[i].bound_c[1]);
+}
+
 void dir_destroy(director_t *d)
 {
     if (!d) return;
+    free(d->vol_dz);
     for (int i = 0; i < d->sc->ntriggers; i++) free(d->trig[i].conds);
     free(d->trig);
     free(d->ag);
@@ -668,9 +695,11 @@ int dir_agents(const director_t *d, dir_agent_out_t *out)
         const agent_rt_t *a = &d->ag[i];
         dir_agent_out_t *o = &out[i];
         o->id = sc->agents[i].id; o->kind = sc->agents[i].kind; o->model = sc->agents[i].model;
-        o->pos[0] = a->x; o->pos[1] = a->y; o->pos[2] = 0;
+        /* feet on the ground; the vertical speed follows the ground along the walk */
+        o->pos[0] = a->x; o->pos[1] = a->y; o->pos[2] = ground_z(d, a->x, a->y);
         o->yaw = a->yaw;
-        o->vel[0] = a->vx; o->vel[1] = a->vy; o->vel[2] = 0;
+        o->vel[0] = a->vx; o->vel[1] = a->vy;
+        o->vel[2] = (ground_z(d, a->x + 0.1 * a->vx, a->y + 0.1 * a->vy) - o->pos[2]) / 0.1;
         o->animation = a->anim;
         if (!strcmp(a->anim, "walk") || !strcmp(a->anim, "move")) o->phase = (float)fmod(a->walked / WALK_STRIDE_M, 1.0);
         else if (a->wait_total > 0 && a->wait_left > 0) o->phase = (float)(1 - a->wait_left / a->wait_total);

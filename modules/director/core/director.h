@@ -16,6 +16,7 @@
 #include <stdint.h>
 
 #include "pb_err.h"
+#include "pb_ground.h"
 #include "pb_route.h"
 #include "scenario.h"
 
@@ -56,6 +57,11 @@ typedef struct director director_t;
 director_t *dir_create(const sc_scenario_t *sc, const pb_route_t *route, const dir_vehicle_t *veh,
                        dir_event_fn on_event, void *user, pb_err_t *err);
 void dir_destroy(director_t *d);
+/* The site's ground model (borrowed; NULL: the plane z = 0). Agents' feet and paths
+ * are put on it, and every trigger volume's heights count from the ground at the
+ * volume's centre (a volume z 0..3 on a road 12 m up spans 12..15 m); the car's
+ * box is placed by its pose in 3-D. Where the model is unknown, the ground is z = 0. */
+void dir_set_ground(director_t *d, const pb_ground_t *ground);
 
 /* Advances to the pose's time and evaluates everything. Returns 0, or -1 if the
  * pose was refused (not finite, or older than the previous one: err says why). */

@@ -1,0 +1,178 @@
+#!/usr/bin/env python3
+"""Terrain benchmark (make bench-terrain); writes build/bench/terrain.json.
+
+1. Ground model accuracy, per site with terrain: the ground model make built from
+   the prior map (maps/SITE/ground.yaml, tools/build-ground) against the simulator's
+   true height field (simdrive --terrain-out) on the true drivable and walkable
+   cells: |error| median, p95, max, and the share of those cells the model covers.
+   Baseline: the flat ground z = 0 every figure used before terrain. Target: p95 <= 5 cm.
+2. simdrive's wall and CPU time for a 60 s drive (LiDAR on), on hills (terrain)
+   and on default (flat plane: the baseline), one run each, same seed.
+   Target: <= 30 s wall on 2 cores.
+
+3. (--localizer) the current localizer on the hills: simdrive drives (3 profiles x
+   the given seeds, 30 s, drive day) + VEHICLE_SPEED, replayed through the localizer
+   started by GNSS, scored against GROUND_TRUTH like make bench-localizer-drive
+   (targets: median <= 0.03 m, p99 <= 0.15 m, yaw p99 <= 0.3 deg, no LOST).
+
+    tools/bench-terrain/bench.py [--sites hills] [--work DIR] [--localizer --loc-seeds 1,2]
+"""
+import argparse
+import json
+import pathlib
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+
+import numpy as np
+import yaml
+
+ROOT = pathlib.Path(__file__).resolve().parents[2]
+BIN = ROOT / "build" / "bin"
+
+
+def read_ground(yaml_path):
+    """A ground model (docs/sites.md) as (x0, y0, cell, heights[ny, nx] with NaN unknown)."""
+    y = yaml.safe_load(open(yaml_path))
+    raw = open(pathlib.Path(yaml_path).parent / y["file"], "rb").read()
+    # header: P5, comments, width height, maxval, one whitespace
+    tokens, i = [], 2
+    while len(tokens) < 3:
+        while raw[i:i + 1].isspace():
+            i += 1
+        if raw[i:i + 1] == b"#":
+            while raw[i:i + 1] != b"\n":
+                i += 1
+            continue
+        j = i
+        while not raw[j:j + 1].isspace():
+            j += 1
+        tokens.append(int(raw[i:j]))
+        i = j
+    w, h, _ = tokens
+    v = np.frombuffer(raw[i + 1:], dtype=">u2").reshape(h, w).astype(np.float64)
+    z = np.where(v > 0, y["z0_m"] + (v - 1) * y["scale_m"], np.nan)
+    return y["origin_x"], y["origin_y"], y["cell_m"], z
+
+
+def sample(model, x, y):
+    """Bilinear heights of a model at points (NaN where a corner is unknown or outside)."""
+    x0, y0, c, z = model
+    fx, fy = (x - x0) / c, (y - y0) / c
+    i, j = np.floor(fx).astype(int), np.floor(fy).astype(int)
+    ok = (i >= 0) & (j >= 0) & (i < z.shape[1] - 1) & (j < z.shape[0] - 1)
+    out = np.full(x.shape, np.nan)
+    i, j, u, v = i[ok], j[ok], (fx - np.floor(fx))[ok], (fy - np.floor(fy))[ok]
+    out[ok] = ((1 - v) * ((1 - u) * z[j, i] + u * z[j, i + 1]) + v * ((1 - u) * z[j + 1, i] + u * z[j + 1, i + 1]))
+    return out
+
+
+def ground_accuracy(site, work):
+    truth_path = work / f"{site}-truth.yaml"
+    subprocess.run([BIN / "simdrive", "--site", ROOT / "maps" / site, "--terrain-out", truth_path], check=True)
+    truth = read_ground(truth_path)
+    model = read_ground(ROOT / "maps" / site / "ground.yaml")
+    x0, y0, c, zt = truth
+    jj, ii = np.nonzero(~np.isnan(zt))
+    x, y, ztrue = x0 + ii * c, y0 + jj * c, zt[jj, ii]
+    # cells of the truth whose four corners are walkable (a cell, not just a corner)
+    zm = sample(model, x, y)
+    cover = ~np.isnan(zm)
+    err = np.abs(zm[cover] - ztrue[cover])
+    flat = np.abs(ztrue)
+    row = {"site": site, "cells": int(len(ztrue)), "covered": float(cover.mean()),
+           "model_median_m": float(np.median(err)), "model_p95_m": float(np.percentile(err, 95)),
+           "model_max_m": float(err.max()),
+           "flat_median_m": float(np.median(flat)), "flat_p95_m": float(np.percentile(flat, 95))}
+    return row
+
+
+def drive_time(site, work):
+    out = work / f"drive-{site}"
+    t0 = time.monotonic()
+    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    subprocess.run([BIN / "simdrive", "--site", ROOT / "maps" / site, "--out", out, "--duration", "60",
+                    "--seed", "3", "--quiet"], check=True)
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return {"site": site, "wall_s": time.monotonic() - t0,
+            "cpu_s": (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)}
+
+
+def localizer_runs(site, seeds, work, duration=30):
+    sys.path.insert(0, str(ROOT / "modules" / "localizer" / "bench"))
+    import locbench as lb
+    rows = []
+    for prof in ("cautious", "normal", "aggressive"):
+        for seed in seeds:
+            d = work / f"loc-{site}-{prof}-{seed}"
+            merged = d / "input.lcm"
+            if not merged.exists():
+                lb.sh([BIN / "simdrive", "--site", ROOT / "maps" / site, "--out", d, "--seed", seed,
+                       "--speed-profile", prof, "--duration", duration, "--quiet"])
+                lb.sh([BIN / "can", "--replay", d / "drive.lcm", "--out", d / "speed.lcm"])
+                lb.sh([BIN / "log-merge", "--quiet", "--out", merged, d / "drive.lcm", d / "speed.lcm"])
+            out, stats = d / "out.lcm", d / "stats.csv"
+            p = lb.run_localizer(merged, out, ["--site", ROOT / "maps" / site], stats)
+            if p.returncode != 0:
+                rows.append({"site": site, "profile": prof, "seed": seed, "error": p.stderr[-300:]})
+                continue
+            r = lb.score_run(d / "drive.lcm", out, stats)
+            rows.append({"site": site, "profile": prof, "seed": seed,
+                         **{k: r.get(k) for k in ("t_median", "t_p99", "t_max", "yaw_p99", "lost_after_tracking",
+                                                  "first_tracking_s")}})
+    return rows
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--sites", default="hills")
+    ap.add_argument("--work")
+    ap.add_argument("--localizer", action="store_true", help="also run the localizer on the sites' drives")
+    ap.add_argument("--loc-seeds", default="1")
+    ap.add_argument("--skip-ground", action="store_true")
+    args = ap.parse_args()
+    work = pathlib.Path(args.work or tempfile.mkdtemp(prefix="bench-terrain-"))
+    work.mkdir(parents=True, exist_ok=True)
+    result = {}
+    if args.localizer:
+        loc = []
+        for site in args.sites.split(","):
+            loc += localizer_runs(site, [int(x) for x in args.loc_seeds.split(",")], work)
+        print("current localizer (GNSS start) vs GROUND_TRUTH; targets: median <= 0.03 m, p99 <= 0.15 m, "
+              "yaw p99 <= 0.3 deg, no LOST")
+        print(f"{'site':8} {'profile':11} {'seed':>4} {'med m':>7} {'p99 m':>7} {'max m':>7} {'yaw99':>6} {'LOST':>5} {'init s':>6}")
+        f = lambda v, n=3: "-" if v is None or (isinstance(v, float) and v != v) else f"{v:.{n}f}"
+        for r in loc:
+            if "error" in r:
+                print(f"{r['site']:8} {r['profile']:11} {r['seed']:>4} localizer failed: {r['error']}")
+                continue
+            print(f"{r['site']:8} {r['profile']:11} {r['seed']:>4} {f(r['t_median']):>7} {f(r['t_p99']):>7} "
+                  f"{f(r['t_max']):>7} {f(r['yaw_p99']):>6} {str(r['lost_after_tracking']):>5} {f(r['first_tracking_s'], 1):>6}")
+        result["localizer"] = loc
+        print()
+    if args.skip_ground:
+        print(json.dumps(result, indent=1, default=str))
+        return 0
+    rows = [ground_accuracy(s, work) for s in args.sites.split(",")]
+    print("ground model vs true height field (drivable + walkable cells); baseline: flat z = 0")
+    print(f"{'site':8} {'cells':>9} {'covered':>8} {'med cm':>7} {'p95 cm':>7} {'max cm':>7} | {'flat med':>8} {'flat p95':>8}")
+    for r in rows:
+        print(f"{r['site']:8} {r['cells']:9d} {100 * r['covered']:7.1f}% {100 * r['model_median_m']:7.2f} "
+              f"{100 * r['model_p95_m']:7.2f} {100 * r['model_max_m']:7.1f} | {100 * r['flat_median_m']:8.1f} "
+              f"{100 * r['flat_p95_m']:8.1f}")
+    times = [drive_time("hills", work), drive_time("default", work)]
+    print("\nsimdrive, 60 s drive with LiDAR (seed 3); baseline: default site (flat plane)")
+    print(f"{'site':8} {'wall s':>7} {'cpu s':>7}")
+    for t in times:
+        print(f"{t['site']:8} {t['wall_s']:7.1f} {t['cpu_s']:7.1f}")
+    print(f"ratio hills/default: wall {times[0]['wall_s'] / times[1]['wall_s']:.2f}, cpu {times[0]['cpu_s'] / times[1]['cpu_s']:.2f}")
+    (ROOT / "build" / "bench").mkdir(parents=True, exist_ok=True)
+    out = ROOT / "build" / "bench" / "terrain.json"
+    out.write_text(json.dumps({"ground": rows, "simdrive_60s": times, **result}, indent=1, default=str))
+    print(f"\nwrote {out}")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,110 @@
+/* Ground model from a prior map: lowest points, ground test, median, fill. */
+#include "ground_build.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+void gb_config_default(gb_config_t *c)
+{
+    c->cell_m = 0.25;
+    c->window_m = 1.0;
+    c->step_m = 0.18;
+    c->grade = 0.12;
+    c->fill_m = 2.5;
+}
+
+static int cmp_float(const void *a, const void *b)
+{
+    float x = *(const float *)a, y = *(const float *)b;
+    return (x > y) - (x < y);
+}
+
+pb_ground_t *gb_build(const float *pts, size_t n, size_t stride, const gb_config_t *c, size_t *nground)
+{
+    if (n == 0) return NULL;
+    double lo[2] = { INFINITY, INFINITY }, hi[2] = { -INFINITY, -INFINITY };
+    for (size_t i = 0; i < n; i++) {
+        const float *p = pts + i * stride;
+        if (!isfinite(p[0]) || !isfinite(p[1]) || !isfinite(p[2])) continue;
+        lo[0] = fmin(lo[0], p[0]); lo[1] = fmin(lo[1], p[1]);
+        hi[0] = fmax(hi[0], p[0]); hi[1] = fmax(hi[1], p[1]);
+    }
+    if (!isfinite(lo[0])) return NULL;
+    const double cs = c->cell_m;
+    double x0 = floor(lo[0] / cs) * cs, y0 = floor(lo[1] / cs) * cs;
+    int nx = (int)ceil((hi[0] - x0) / cs) + 2, ny = (int)ceil((hi[1] - y0) / cs) + 2;
+    size_t N = (size_t)nx * ny;
+    /* 1. lowest point per cell (cells centred on the grid's corners) */
+    float *zmin = malloc(N * sizeof *zmin), *win = malloc(N * sizeof *win), *g = malloc(N * sizeof *g);
+    for (size_t k = 0; k < N; k++) zmin[k] = INFINITY;
+    for (size_t i = 0; i < n; i++) {
+        const float *p = pts + i * stride;
+        if (!isfinite(p[0]) || !isfinite(p[1]) || !isfinite(p[2])) continue;
+        int ix = (int)lround((p[0] - x0) / cs), iy = (int)lround((p[1] - y0) / cs);
+        size_t k = (size_t)iy * nx + ix;
+        if (p[2] < zmin[k]) zmin[k] = p[2];
+    }
+    /* 2. the lowest point within the window (separable: rows, then columns) */
+    int r = (int)ceil(c->window_m / cs);
+    float *tmp = malloc(N * sizeof *tmp);
+    for (int y = 0; y < ny; y++)
+        for (int x = 0; x < nx; x++) {
+            float m = INFINITY;
+            for (int d = -r; d <= r; d++) if (x + d >= 0 && x + d < nx) m = fminf(m, zmin[(size_t)y * nx + x + d]);
+            tmp[(size_t)y * nx + x] = m;
+        }
+    for (int y = 0; y < ny; y++)
+        for (int x = 0; x < nx; x++) {
+            float m = INFINITY;
+            for (int d = -r; d <= r; d++) if (y + d >= 0 && y + d < ny) m = fminf(m, tmp[(size_t)(y + d) * nx + x]);
+            win[(size_t)y * nx + x] = m;
+        }
+    double tol = c->step_m + c->grade * c->window_m;
+    size_t count = 0;
+    for (size_t k = 0; k < N; k++) {
+        g[k] = (isfinite(zmin[k]) && zmin[k] - win[k] <= tol) ? zmin[k] : NAN;
+        count += !isnan(g[k]);
+    }
+    /* 3. 3x3 median over ground cells (a cell keeps its own value if alone) */
+    for (int y = 0; y < ny; y++)
+        for (int x = 0; x < nx; x++) {
+            size_t k = (size_t)y * nx + x;
+            tmp[k] = g[k];
+            if (isnan(g[k])) continue;
+            float v[9];
+            int m = 0;
+            for (int dy = -1; dy <= 1; dy++)
+                for (int dx = -1; dx <= 1; dx++) {
+                    int xx = x + dx, yy = y + dy;
+                    if (xx < 0 || yy < 0 || xx >= nx || yy >= ny) continue;
+                    float z = g[(size_t)yy * nx + xx];
+                    if (!isnan(z)) v[m++] = z;
+                }
+            qsort(v, m, sizeof *v, cmp_float);
+            tmp[k] = m % 2 ? v[m / 2] : 0.5f * (v[m / 2 - 1] + v[m / 2]);
+        }
+    memcpy(g, tmp, N * sizeof *g);
+    /* 4. fill holes near ground: each pass, unknown cells with known 4-neighbours take their mean */
+    int passes = (int)ceil(c->fill_m / cs);
+    for (int it = 0; it < passes; it++) {
+        memcpy(tmp, g, N * sizeof *g);
+        for (int y = 1; y < ny - 1; y++)
+            for (int x = 1; x < nx - 1; x++) {
+                size_t k = (size_t)y * nx + x;
+                if (!isnan(g[k])) continue;
+                const size_t nb[4] = { k - 1, k + 1, k - nx, k + nx };
+                double s = 0;
+                int m = 0;
+                for (int q = 0; q < 4; q++) if (!isnan(g[nb[q]])) { s += g[nb[q]]; m++; }
+                if (m) tmp[k] = (float)(s / m);
+            }
+        memcpy(g, tmp, N * sizeof *g);
+    }
+    pb_ground_t *out = pb_ground_create(x0, y0, cs, nx, ny);
+    for (int y = 0; y < ny; y++)
+        for (int x = 0; x < nx; x++) pb_ground_set(out, x, y, g[(size_t)y * nx + x]);
+    free(zmin); free(win); free(g); free(tmp);
+    if (nground) *nground = count;
+    return out;
+}

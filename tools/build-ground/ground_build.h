@@ -1,0 +1,37 @@
+/* The ground model from a prior map (pure: no I/O).
+ *
+ * Per cell, the lowest map point; a cell is ground when that point lies at most
+ * `step_m` + `grade` x `window_m` above the lowest one within window_m (a kerb or a
+ * slope passes; the roof or the side of a parked car or a wall above the ground
+ * does not), then a 3x3 median of the ground cells removes single outliers and
+ * cells up to fill_m from ground take the mean of their known neighbours (the road
+ * under a parked car). Everything else stays unknown.
+ *
+ * Ownership: gb_build returns a pb_ground_t the caller destroys. */
+#ifndef GROUND_BUILD_H
+#define GROUND_BUILD_H
+
+#include <stddef.h>
+#include "pb_ground.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+typedef struct {
+    double cell_m;      /* grid spacing (default 0.25) */
+    double window_m;    /* radius of the lowest-point window (default 1.0) */
+    double step_m;      /* a kerb or step allowed above the window's lowest point (default 0.18) */
+    double grade;       /* slope allowed across the window (default 0.12) */
+    double fill_m;      /* holes filled this far from ground (default 2.5) */
+} gb_config_t;
+
+void gb_config_default(gb_config_t *c);
+/* points: n x (x, y, z) floats, stride floats apart. NULL if n == 0. *nground counts
+ * ground cells before filling. */
+pb_ground_t *gb_build(const float *points, size_t n, size_t stride, const gb_config_t *c, size_t *nground);
+
+#ifdef __cplusplus
+}
+#endif
+#endif
