@@ -42,6 +42,8 @@ struct pb_bus {
     pb_input_hook_fn hook;
     void *hook_user;
     int64_t now;
+    int64_t wall_off;         /* live: wall minus monotonic time, as timer callbacks see it */
+    int wall_off_set;
     int64_t events;
     volatile int stop;
     pb_err_t publish_err;
@@ -211,6 +213,19 @@ int pb_bus_add_timer(pb_bus_t *bus, int64_t period_us, pb_timer_fn fn, void *use
 }
 
 /* Fires every timer whose deadline is at or before t, in deadline order. */
+/* Live, t and the deadlines are monotonic; callbacks get wall time, which messages carry,
+ * as deadline + (wall - monotonic). The offset is kept while it holds (within 50 ms), so a
+ * periodic timer's times stay on an exact grid; a wall-clock step moves it at once. */
+static int64_t wall_offset(pb_bus_t *bus, int64_t t)
+{
+    int64_t off = wall_utime() - t;
+    if (!bus->wall_off_set || llabs(off - bus->wall_off) > 50000) {
+        bus->wall_off = off;
+        bus->wall_off_set = 1;
+    }
+    return bus->wall_off;
+}
+
 static void fire_timers(pb_bus_t *bus, int64_t t)
 {
     for (;;) {
@@ -225,8 +240,7 @@ static void fire_timers(pb_bus_t *bus, int64_t t)
         due->next += due->period;
         if (due->next <= t - 10 * due->period) due->next = t + due->period;  /* skip a long gap */
         if (bus->replay) bus->now = deadline;
-        /* live: t is monotonic; the callback gets the wall time (what messages carry) */
-        due->fn(bus->replay ? deadline : wall_utime() - (t - deadline), due->user);
+        due->fn(bus->replay ? deadline : deadline + wall_offset(bus, t), due->user);
     }
 }
 
