@@ -1,0 +1,318 @@
+"""Study folders and session recordings: from LCM logs to one row per encounter.
+
+A study folder holds `study.csv` (participant, order, platform, recording: one row per
+recording, paths relative to the folder). An encounter is one synchronised pedestrian
+of a scenario (a behaviour with `sync` in the scenario file) met at its stop line; the
+scenario is named by the recording's SCENARIO_EVENTs and read from SITE/scenarios/.
+"""
+import csv
+import math
+import pathlib
+import struct
+import sys
+
+import numpy as np
+import yaml
+
+ORDERS = ("lab_first", "road_first")
+PLATFORMS = ("lab", "road")
+STATES = ("approaching", "at_kerb", "on_crosswalk", "cleared", "not_crossing")
+
+SPEED_REST = 0.1        # m/s: the car is at rest (the director's standstill threshold)
+KERB_ZONE_M = 1.5       # beyond either end of the crosswalk: "at the kerb"
+CROSSWALK_MARGIN_M = 0.5  # along the road on either side of the stripes: still "on" it
+NEAR_MISS_M = 1.0       # footprint to agent, without contact
+STOP_REACH_M = 12.0     # the car's base origin rests within this of its stop line
+
+
+class StudyError(Exception):
+    """Bad input: the message names the file and line."""
+
+
+# ---------------------------------------------------------------- the study folder
+def read_study(study_dir):
+    """study.csv -> (participants {id: order}, recordings [(participant, platform, path, line)])."""
+    path = pathlib.Path(study_dir) / "study.csv"
+    if not path.exists():
+        raise StudyError(f"{path}: no such file (a study folder holds study.csv)")
+    participants, recordings = {}, []
+    with open(path, newline="") as f:
+        rows = csv.reader(f)
+        header = next(rows, None)
+        need = ["participant", "order", "platform", "recording"]
+        if header is None:
+            raise StudyError(f"{path}:1: empty file (header {','.join(need)} expected)")
+        header = [h.strip() for h in header]
+        for col in need:
+            if col not in header:
+                raise StudyError(f"{path}:1: missing column '{col}' (header {','.join(need)} expected)")
+        ix = {c: header.index(c) for c in need}
+        for row in rows:
+            line = rows.line_num
+            if not row or all(not c.strip() for c in row):
+                continue
+            if len(row) != len(header):
+                raise StudyError(f"{path}:{line}: {len(row)} fields, the header has {len(header)}")
+            p, order, plat, rec = (row[ix[c]].strip() for c in need)
+            if not p:
+                raise StudyError(f"{path}:{line}: empty participant")
+            if order not in ORDERS:
+                raise StudyError(f"{path}:{line}: order '{order}': expected lab_first or road_first")
+            if plat not in PLATFORMS:
+                raise StudyError(f"{path}:{line}: platform '{plat}': expected lab or road")
+            if participants.setdefault(p, order) != order:
+                raise StudyError(f"{path}:{line}: participant {p} has order {order} here, "
+                                 f"{participants[p]} on an earlier line")
+            if rec:
+                recordings.append((p, plat, pathlib.Path(study_dir) / rec, line))
+    return participants, recordings
+
+
+# ---------------------------------------------------------------- strict log reading
+LCM_SYNC = 0xEDA1DA01
+
+
+def read_lcm_log(path):
+    """Every event of an LCM log as (channel, data). Strict: a bad sync word or a
+    truncated event raises StudyError naming the byte offset (lcm's own reader skips
+    damaged bytes silently)."""
+    raw = pathlib.Path(path).read_bytes()
+    out, off = [], 0
+    while off < len(raw):
+        if off + 28 > len(raw):
+            raise StudyError(f"{path}: byte {off}: truncated event header")
+        sync, _num, _ts, clen, dlen = struct.unpack_from(">IqqII", raw, off)
+        if sync != LCM_SYNC:
+            raise StudyError(f"{path}: byte {off}: bad sync word 0x{sync:08x}")
+        end = off + 28 + clen + dlen
+        if clen > 256 or end > len(raw):
+            raise StudyError(f"{path}: byte {off}: event runs past the end of the file")
+        out.append((raw[off + 28:off + 28 + clen].decode("utf-8", "replace"), raw[off + 28 + clen:end]))
+        off = end
+    return out
+
+
+# ---------------------------------------------------------------- site, scenarios, vehicle
+class Site:
+    def __init__(self, site_dir, vehicle_file):
+        site_dir = pathlib.Path(site_dir)
+        route = yaml.safe_load(open(site_dir / "route.yaml"))
+        self.crosswalks = {c["id"]: c for c in route.get("crosswalks", [])}
+        self.stop_lines = {s["id"]: s for s in route.get("stop_lines", [])}
+        self.scenarios = {}     # scenario id -> [encounter dicts]
+        for f in sorted((site_dir / "scenarios").glob("*.yaml")):
+            sc = yaml.safe_load(open(f))
+            agents = {a["id"]: a for a in sc.get("agents", [])}
+            encs = []
+            for b in sc.get("behaviours", []):
+                if "sync" not in b:
+                    continue
+                sl = self.stop_lines[b["sync"]["stop_line"]]
+                a = agents[b["agent"]]
+                encs.append({"scenario": sc["scenario"], "agent": b["agent"], "stop_line": sl["id"],
+                             "crosswalk": sl["crosswalk"], "agent_radius": a.get("radius", 0.3)})
+            self.scenarios[sc["scenario"]] = encs
+        veh = yaml.safe_load(open(vehicle_file))["dimensions"]
+        self.car_length, self.car_width, self.rear_overhang = veh["length"], veh["width"], veh["rear_overhang"]
+
+
+def _frame(c):
+    """Unit vectors along the road and across it for a crosswalk or stop line."""
+    yaw = math.radians(c["yaw_deg"])
+    return np.array([math.cos(yaw), math.sin(yaw)]), np.array([-math.sin(yaw), math.cos(yaw)])
+
+
+def ped_zone(cw, xy):
+    """Where a point lies relative to a crosswalk: 'on', 'kerb' or 'off'."""
+    along_u, across_u = _frame(cw)
+    d = np.asarray(xy[:2]) - np.asarray(cw["center"])
+    along, across = abs(d @ along_u), abs(d @ across_u)
+    if along > cw["width"] / 2 + CROSSWALK_MARGIN_M:
+        return "off"
+    if across <= cw["length"] / 2:
+        return "on"
+    if across <= cw["length"] / 2 + KERB_ZONE_M:
+        return "kerb"
+    return "off"
+
+
+def box_distance(site, pose_xy, yaw, pt):
+    """Distance from a point to the car's footprint (0 inside)."""
+    c, s = math.cos(yaw), math.sin(yaw)
+    dx, dy = pt[0] - pose_xy[0], pt[1] - pose_xy[1]
+    lx, ly = c * dx + s * dy, -s * dx + c * dy           # in base
+    ex = max(-site.rear_overhang - lx, 0.0, lx - (site.car_length - site.rear_overhang))
+    ey = max(abs(ly) - site.car_width / 2, 0.0)
+    return math.hypot(ex, ey)
+
+
+# ---------------------------------------------------------------- one recording
+class Recording:
+    """The decoded channels of one recording that the analysis uses."""
+
+    def __init__(self, path, pose_channel=None):
+        import portobello
+        events = read_lcm_log(path)
+        chans = {}
+        for ch, data in events:
+            chans.setdefault(ch, []).append(data)
+        pc = pose_channel or ("POSE" if "POSE" in chans else "GROUND_TRUTH")
+        if pc not in chans:
+            raise StudyError(f"{path}: no POSE or GROUND_TRUTH channel")
+        poses = [portobello.pose_t.decode(d) for d in chans[pc]]
+        poses = [p for p in poses if p.status in (portobello.pose_t.STATUS_TRACKING, portobello.pose_t.STATUS_DEGRADED)]
+        self.pose_t = np.array([p.utime for p in poses], dtype=np.int64)
+        self.pose_xy = np.array([p.position[:2] for p in poses])
+        self.pose_yaw = np.array([math.atan2(2 * (p.orientation[0] * p.orientation[3] + p.orientation[1] * p.orientation[2]),
+                                             1 - 2 * (p.orientation[2] ** 2 + p.orientation[3] ** 2)) for p in poses])
+        self.speed = np.array([math.hypot(p.velocity[0], p.velocity[1]) for p in poses])
+        self.events = [portobello.scenario_event_t.decode(d) for d in chans.get("SCENARIO_EVENT", [])]
+        self.presses = sorted(i.utime for i in (portobello.participant_input_t.decode(d)
+                                                for d in chans.get("PARTICIPANT_INPUT", []))
+                              if i.input == "proceed" and i.value != 0)
+        self.agents_t, self.agents = [], []     # utime, {id: (x, y)}
+        for d in chans.get("AGENTS", []):
+            a = portobello.agents_t.decode(d)
+            self.agents_t.append(a.utime)
+            self.agents.append({g.id: (g.position[0], g.position[1]) for g in a.agents})
+        self.agents_t = np.array(self.agents_t, dtype=np.int64)
+        if len(self.pose_t) == 0:
+            raise StudyError(f"{path}: no tracking pose on {pc}")
+        self.t0 = int(self.pose_t[0])
+        self.scenarios = sorted({e.scenario for e in self.events})
+
+
+def _rest_intervals(rec, idx):
+    """(start, end) pose indices of rest intervals among the pose indices idx (sorted)."""
+    out, start = [], None
+    for k, i in enumerate(idx):
+        if start is None:
+            start = i
+        if k + 1 == len(idx) or idx[k + 1] != i + 1:
+            out.append((start, i))
+            start = None
+    return out
+
+
+def encounter_rows(rec, site, participant, platform, order, rec_name):
+    """One dict per encounter of the recording's scenarios, plus the collisions list."""
+    rows, collisions = [], []
+    encs = [e for s in rec.scenarios for e in site.scenarios.get(s, [])]
+    found = []
+    for e in encs:
+        sl = site.stop_lines[e["stop_line"]]
+        along_u, across_u = _frame(sl)
+        d = rec.pose_xy - np.asarray(sl["xy"])
+        ahead = -(d @ along_u)                      # metres the base origin is before the line
+        near = (ahead > 0) & (ahead < STOP_REACH_M) & (np.abs(d @ across_u) < 4.0) & (rec.speed < SPEED_REST)
+        rests = _rest_intervals(rec, np.flatnonzero(near))
+        found.append((e, rests[0] if rests else None))
+    found.sort(key=lambda f: f[1][0] if f[1] else 1 << 62)
+    for e, rest in found:
+        cw = site.crosswalks[e["crosswalk"]]
+        row = {"participant": participant, "platform": platform, "order": order, "recording": rec_name,
+               "scenario": e["scenario"], "stop_line": e["stop_line"], "agent": e["agent"]}
+        if rest is None:
+            row.update(decision="no_stop")
+            rows.append(row)
+            continue
+        i0, i1 = rest
+        t_stop, t_go = int(rec.pose_t[i0]), int(rec.pose_t[i1])
+        row["stop_s"] = (t_stop - rec.t0) * 1e-6
+        row["stopped_for_s"] = (t_go - t_stop) * 1e-6
+        marks = [ev.utime for ev in rec.events if ev.kind == "mark" and ev.agent_id == e["agent"]
+                 and ev.scenario == e["scenario"]]
+        if marks:
+            row["arrival_offset_s"] = (marks[0] - t_stop) * 1e-6   # + pedestrian after the car
+        # the pedestrian's track from 30 s before the stop to 30 s after the departure
+        w0, w1 = t_stop - 30_000_000, t_go + 30_000_000
+        sel = [k for k in range(len(rec.agents_t)) if w0 <= rec.agents_t[k] <= w1 and e["agent"] in rec.agents[k]]
+        track_t = rec.agents_t[sel] if sel else np.array([], dtype=np.int64)
+        track = [rec.agents[k][e["agent"]] for k in sel]
+        on = np.array([ped_zone(cw, p) == "on" for p in track], dtype=bool)
+        t_on = t_clear = None
+        if on.any():
+            k_on = int(np.argmax(on))
+            k_off = k_on + int(np.argmax(~on[k_on:])) if (~on[k_on:]).any() else None
+            t_on = int(track_t[k_on])
+            t_clear = int(track_t[k_off]) if k_off is not None else None
+        press = next((p for p in rec.presses if t_stop <= p <= t_go + 500_000), None)
+        if press is None:
+            row["decision"] = "no_press"
+        else:
+            row["press_after_stop_s"] = (press - t_stop) * 1e-6
+            if t_clear is not None:
+                row["press_after_clear_s"] = (press - t_clear) * 1e-6
+            if t_on is None:
+                state = "not_crossing"
+            elif t_clear is not None and press >= t_clear:
+                state = "cleared"
+            elif press >= t_on:
+                state = "on_crosswalk"
+            else:
+                k = int(np.searchsorted(track_t, press, side="right")) - 1
+                state = "at_kerb" if k >= 0 and ped_zone(cw, track[k]) == "kerb" else "approaching"
+            row["decision"] = state
+            row["cooperative"] = "n/a" if t_on is None else ("yes" if state == "cleared" else "no")
+        # near miss: the closest the footprint came to the pedestrian around the encounter
+        dmin = math.inf
+        if len(track_t):
+            ip = np.clip(np.searchsorted(rec.pose_t, track_t), 0, len(rec.pose_t) - 1)
+            for k, i in enumerate(ip):
+                dmin = min(dmin, box_distance(site, rec.pose_xy[i], rec.pose_yaw[i], track[k]) - e["agent_radius"])
+        row["min_distance_m"] = max(dmin, 0.0) if math.isfinite(dmin) else None
+        row["collisions"] = 0
+        rows.append(row)
+    # every collision event once: to the encounter of its agent, else the nearest stop in time
+    for ev in (ev for ev in rec.events if ev.kind == "collision"):
+        target = next((r for r in rows if r["agent"] == ev.agent_id and r["scenario"] == ev.scenario
+                       and "stop_s" in r), None)
+        if target is None:
+            timed = [r for r in rows if "stop_s" in r and r["scenario"] == ev.scenario]
+            t = (ev.utime - rec.t0) * 1e-6
+            target = min(timed, key=lambda r: abs(r["stop_s"] - t)) if timed else None
+        collisions.append({"participant": participant, "platform": platform, "order": order,
+                           "recording": rec_name, "scenario": ev.scenario, "agent": ev.agent_id,
+                           "t_s": (ev.utime - rec.t0) * 1e-6,
+                           "stop_line": target["stop_line"] if target else ""})
+        if target is not None:
+            target["collisions"] += 1
+    for r in rows:
+        if "min_distance_m" in r:
+            r["near_miss"] = "yes" if (r["collisions"] == 0 and r["min_distance_m"] is not None
+                                        and r["min_distance_m"] < NEAR_MISS_M) else "no"
+    return rows, collisions
+
+
+ENCOUNTER_COLUMNS = ["participant", "platform", "order", "recording", "scenario", "stop_line", "agent",
+                     "stop_s", "stopped_for_s", "decision", "press_after_stop_s", "press_after_clear_s",
+                     "cooperative", "collisions", "min_distance_m", "near_miss", "arrival_offset_s"]
+
+
+def analyse_study(study_dir, site, pose_channel=None, progress=True):
+    """All encounters and collisions of a study folder; skipped recordings with reasons."""
+    participants, recordings = read_study(study_dir)
+    rows, collisions, skipped = [], [], []
+    for n, (p, plat, path, line) in enumerate(recordings):
+        if progress:
+            print(f"\r  recording {n + 1}/{len(recordings)}", end="", file=sys.stderr, flush=True)
+        name = str(path.relative_to(study_dir)) if path.is_relative_to(study_dir) else str(path)
+        try:
+            if not path.exists():
+                raise StudyError(f"{path}: missing (study.csv line {line})")
+            rec = Recording(path, pose_channel)
+            if not rec.scenarios:
+                raise StudyError(f"{path}: no SCENARIO_EVENT: no scenario ran")
+            r, c = encounter_rows(rec, site, p, plat, participants[p], name)
+        except StudyError as e:
+            skipped.append({"recording": name, "participant": p, "platform": plat, "reason": str(e)})
+            continue
+        except Exception as e:     # an undecodable message: reported, the study goes on
+            skipped.append({"recording": name, "participant": p, "platform": plat,
+                            "reason": f"{path}: cannot decode: {type(e).__name__}: {e}"})
+            continue
+        rows += r
+        collisions += c
+    if progress and recordings:
+        print(file=sys.stderr)
+    return participants, rows, collisions, skipped
