@@ -44,6 +44,7 @@ static void usage(FILE *f)
     fprintf(f,
         "usage: simdrive --out DIR [--seed N] [--duration S] [--speed-profile cautious|normal|aggressive]\n"
         "                [--site SITE_DIR] [--vehicle FILE] [--mapping] [--no-lidar] [--quiet]\n"
+        "                [--dwell S]...\n"
         "\n"
         "Simulates a drive around a site's route and writes DIR/drive.lcm (LCM log) and\n"
         "DIR/ground_truth.tum (base pose at 100 Hz: t x y z qx qy qz qw, t in seconds).\n"
@@ -63,6 +64,9 @@ static void usage(FILE *f)
         "  --mapping             the mapping day: mapping-day objects, no traffic, exactly\n"
         "                        one lap (ignores --duration), LiDAR keyframes at 2 Hz\n"
         "  --no-lidar            skip LIDAR_SCAN (fast drives for IMU, CAN and GNSS studies)\n"
+        "  --dwell S             rest S s (1.5 to 3600) at the next stop met, instead of the\n"
+        "                        seed's 2-3 s (repeatable: the 1st, 2nd... stop; a participant\n"
+        "                        who presses proceed, as study-synth does)\n"
         "  --quiet               no progress bar\n"
         "  --help                this text\n",
         PB_SOURCE_DIR, PB_SOURCE_DIR);
@@ -97,12 +101,13 @@ int main(int argc, char **argv)
     const char *veh_path = PB_SOURCE_DIR "/vehicles/prius2017.yaml", *profile = "normal";
     uint64_t seed = 1;
     double duration = 60;
-    int mapping = 0, quiet = 0, no_lidar = 0;
+    int mapping = 0, quiet = 0, no_lidar = 0, ndwells = 0;
+    double dwells[256];
     static const struct option opts[] = {
         { "out", required_argument, 0, 'o' }, { "seed", required_argument, 0, 's' },
         { "duration", required_argument, 0, 'd' }, { "speed-profile", required_argument, 0, 'p' },
         { "site", required_argument, 0, 'S' }, { "vehicle", required_argument, 0, 'v' },
-        { "mapping", no_argument, 0, 'm' }, { "no-lidar", no_argument, 0, 'L' }, { "quiet", no_argument, 0, 'q' },
+        { "mapping", no_argument, 0, 'm' }, { "no-lidar", no_argument, 0, 'L' }, { "dwell", required_argument, 0, 'w' }, { "quiet", no_argument, 0, 'q' },
         { "help", no_argument, 0, 'h' }, { 0, 0, 0, 0 } };
     int c;
     while ((c = getopt_long(argc, argv, "h", opts, NULL)) != -1) {
@@ -123,6 +128,14 @@ int main(int argc, char **argv)
         case 'm': mapping = 1; break;
         case 'q': quiet = 1; break;
         case 'L': no_lidar = 1; break;
+        case 'w':
+            if (ndwells == (int)(sizeof dwells / sizeof *dwells)) {
+                fprintf(stderr, "simdrive: --dwell: at most %d stops\n", ndwells);
+                return 2;
+            }
+            if (pb_arg_double("simdrive", "dwell", optarg, 1.5, 3600, &dwells[ndwells])) return 2;
+            ndwells++;
+            break;
         case 'h': usage(stdout); return 0;
         default: usage(stderr); return 2;
         }
@@ -157,7 +170,7 @@ int main(int argc, char **argv)
     /* The base origin (rear axle) halts so that the front bumper is 0.5 m behind the line. */
     double stop_offset = (veh.length - veh.rear_overhang) + 0.5;
     trajectory_t traj;
-    if (traj_plan(&traj, &route, &route.profiles[prof], mapping ? 0 : duration, stop_offset, seed, &err)) {
+    if (traj_plan(&traj, &route, &route.profiles[prof], mapping ? 0 : duration, stop_offset, seed, dwells, ndwells, &err)) {
         fprintf(stderr, "simdrive: %s\n", err.msg);
         return 1;
     }

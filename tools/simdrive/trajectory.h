@@ -31,9 +31,11 @@ typedef struct {
 /* Plans a drive from rest at the start of the route. duration > 0: long enough
  * for duration seconds (laps repeat). duration <= 0: exactly one lap, ending at
  * rest at the start point (the mapping drive). stop_offset_m: how far behind a
- * stop line the base origin halts (front bumper at the line). */
+ * stop line the base origin halts (front bumper at the line). dwells (may be NULL):
+ * the rest at the first ndwells stops met, in seconds (>= 1.5, so the car comes to
+ * rest within the smoothing window); the others are drawn from the seed. */
 int traj_plan(trajectory_t *tr, const pb_route_t *r, const pb_speed_profile_t *p, double duration,
-              double stop_offset_m, uint64_t seed, pb_err_t *err);
+              double stop_offset_m, uint64_t seed, const double *dwells, int ndwells, pb_err_t *err);
 void traj_free(trajectory_t *tr);
 void traj_eval(const trajectory_t *tr, double t, traj_state_t *st);
 
