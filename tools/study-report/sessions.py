@@ -147,39 +147,74 @@ def box_distance(site, pose_xy, yaw, pt):
 
 
 # ---------------------------------------------------------------- one recording
+POSE_DTYPE = np.dtype([("fp", ">u8"), ("utime", ">i8"), ("position", ">f8", 3), ("orientation", ">f8", 4),
+                       ("velocity", ">f8", 3), ("angular_velocity", ">f8", 3), ("covariance", ">f8", 36),
+                       ("status", "i1"), ("source", "i1"), ("match_score", ">f4")])
+AGENTS_STEP = 3     # AGENTS decoded: every 3rd (20 Hz of the director's 60 Hz), plus the one at each press
+
+
 class Recording:
-    """The decoded channels of one recording that the analysis uses."""
+    """The channels of one recording that the analysis uses. Poses are parsed in one
+    go with numpy (pose_t has a fixed size); AGENTS are kept raw and decoded on demand."""
 
     def __init__(self, path, pose_channel=None):
         import portobello
-        events = read_lcm_log(path)
+        self.path = path
         chans = {}
-        for ch, data in events:
+        for ch, data in read_lcm_log(path):
             chans.setdefault(ch, []).append(data)
         pc = pose_channel or ("POSE" if "POSE" in chans else "GROUND_TRUTH")
         if pc not in chans:
             raise StudyError(f"{path}: no POSE or GROUND_TRUTH channel")
-        poses = [portobello.pose_t.decode(d) for d in chans[pc]]
-        poses = [p for p in poses if p.status in (portobello.pose_t.STATUS_TRACKING, portobello.pose_t.STATUS_DEGRADED)]
-        self.pose_t = np.array([p.utime for p in poses], dtype=np.int64)
-        self.pose_xy = np.array([p.position[:2] for p in poses])
-        self.pose_yaw = np.array([math.atan2(2 * (p.orientation[0] * p.orientation[3] + p.orientation[1] * p.orientation[2]),
-                                             1 - 2 * (p.orientation[2] ** 2 + p.orientation[3] ** 2)) for p in poses])
-        self.speed = np.array([math.hypot(p.velocity[0], p.velocity[1]) for p in poses])
+        raw = chans[pc]
+        if any(len(d) != POSE_DTYPE.itemsize for d in raw):
+            raise StudyError(f"{path}: {pc}: a message of {next(len(d) for d in raw if len(d) != POSE_DTYPE.itemsize)} "
+                             f"bytes is no pose_t ({POSE_DTYPE.itemsize})")
+        poses = np.frombuffer(b"".join(raw), dtype=POSE_DTYPE)
+        fp = struct.unpack(">Q", portobello.pose_t._get_packed_fingerprint())[0]
+        if (poses["fp"] != fp).any():
+            raise StudyError(f"{path}: {pc}: a message that is no pose_t (fingerprint)")
+        poses = poses[(poses["status"] == portobello.pose_t.STATUS_TRACKING) |
+                      (poses["status"] == portobello.pose_t.STATUS_DEGRADED)]
+        if len(poses) == 0:
+            raise StudyError(f"{path}: no tracking pose on {pc}")
+        self.pose_t = poses["utime"].astype(np.int64)
+        self.pose_xy = poses["position"][:, :2].astype(float)
+        q = poses["orientation"].astype(float)
+        self.pose_yaw = np.arctan2(2 * (q[:, 0] * q[:, 3] + q[:, 1] * q[:, 2]), 1 - 2 * (q[:, 2] ** 2 + q[:, 3] ** 2))
+        self.speed = np.hypot(poses["velocity"][:, 0], poses["velocity"][:, 1]).astype(float)
         self.events = [portobello.scenario_event_t.decode(d) for d in chans.get("SCENARIO_EVENT", [])]
         self.presses = sorted(i.utime for i in (portobello.participant_input_t.decode(d)
                                                 for d in chans.get("PARTICIPANT_INPUT", []))
                               if i.input == "proceed" and i.value != 0)
-        self.agents_t, self.agents = [], []     # utime, {id: (x, y)}
-        for d in chans.get("AGENTS", []):
-            a = portobello.agents_t.decode(d)
-            self.agents_t.append(a.utime)
-            self.agents.append({g.id: (g.position[0], g.position[1]) for g in a.agents})
-        self.agents_t = np.array(self.agents_t, dtype=np.int64)
-        if len(self.pose_t) == 0:
-            raise StudyError(f"{path}: no tracking pose on {pc}")
+        self._agents_raw = chans.get("AGENTS", [])
+        afp = portobello.agents_t._get_packed_fingerprint()
+        if any(d[:8] != afp or len(d) < 16 for d in self._agents_raw):
+            raise StudyError(f"{path}: AGENTS: a message that is no agents_t (fingerprint)")
+        self.agents_t = np.array([struct.unpack_from(">q", d, 8)[0] for d in self._agents_raw], dtype=np.int64)
+        self._agents_cache = {}
         self.t0 = int(self.pose_t[0])
         self.scenarios = sorted({e.scenario for e in self.events})
+
+    def agent_positions(self, k):
+        """{agent id: (x, y)} of the k-th AGENTS message."""
+        if k not in self._agents_cache:
+            import portobello
+            a = portobello.agents_t.decode(self._agents_raw[k])
+            self._agents_cache[k] = {g.id: (g.position[0], g.position[1]) for g in a.agents}
+        return self._agents_cache[k]
+
+    def agent_track(self, agent, t0, t1, extra=()):
+        """(utimes, positions) of one agent between t0 and t1, at AGENTS_STEP, plus the
+        messages at or just before the utimes in extra."""
+        lo, hi = np.searchsorted(self.agents_t, [t0, t1])
+        ks = set(range(int(lo), int(hi), AGENTS_STEP))
+        for t in extra:
+            k = int(np.searchsorted(self.agents_t, t, side="right")) - 1
+            if k >= 0:
+                ks.add(k)
+        ks = sorted(k for k in ks if agent in self.agent_positions(k))
+        return self.agents_t[ks] if ks else np.array([], dtype=np.int64), [self.agent_positions(k)[agent] for k in ks]
 
 
 def _rest_intervals(rec, idx):
@@ -224,11 +259,10 @@ def encounter_rows(rec, site, participant, platform, order, rec_name):
                  and ev.scenario == e["scenario"]]
         if marks:
             row["arrival_offset_s"] = (marks[0] - t_stop) * 1e-6   # + pedestrian after the car
-        # the pedestrian's track from 30 s before the stop to 30 s after the departure
-        w0, w1 = t_stop - 30_000_000, t_go + 30_000_000
-        sel = [k for k in range(len(rec.agents_t)) if w0 <= rec.agents_t[k] <= w1 and e["agent"] in rec.agents[k]]
-        track_t = rec.agents_t[sel] if sel else np.array([], dtype=np.int64)
-        track = [rec.agents[k][e["agent"]] for k in sel]
+        # the pedestrian's track from 10 s before the stop to 20 s after the departure
+        press = next((p for p in rec.presses if t_stop <= p <= t_go + 500_000), None)
+        track_t, track = rec.agent_track(e["agent"], t_stop - 10_000_000, t_go + 20_000_000,
+                                         [press] if press else [])
         on = np.array([ped_zone(cw, p) == "on" for p in track], dtype=bool)
         t_on = t_clear = None
         if on.any():
@@ -236,7 +270,6 @@ def encounter_rows(rec, site, participant, platform, order, rec_name):
             k_off = k_on + int(np.argmax(~on[k_on:])) if (~on[k_on:]).any() else None
             t_on = int(track_t[k_on])
             t_clear = int(track_t[k_off]) if k_off is not None else None
-        press = next((p for p in rec.presses if t_stop <= p <= t_go + 500_000), None)
         if press is None:
             row["decision"] = "no_press"
         else:
