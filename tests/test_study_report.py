@@ -138,10 +138,16 @@ def synth(tmp_path_factory):
     return out
 
 
-def test_synthetic_sessions_decisions_and_collisions(synth, tmp_path):
-    rep = tmp_path / "rep"
+@pytest.fixture(scope="module")
+def synth_report(synth, tmp_path_factory):
+    rep = tmp_path_factory.mktemp("rep")
     run([REPORT, "--questionnaire", synth / "questionnaire.csv", "--sessions", synth, "--out", rep,
          "--json", rep / "r.json", "--quiet"])
+    return rep
+
+
+def test_synthetic_sessions_decisions_and_collisions(synth, synth_report):
+    rep = synth_report
     res = check_study(synth, rep)
     # 3 participants x 2 platforms x (4 single-encounter files + the 4-encounter study)
     assert res["encounters"] == 3 * 2 * 8
@@ -153,10 +159,9 @@ def test_synthetic_sessions_decisions_and_collisions(synth, tmp_path):
     assert len(doc["encounters"]) == res["encounters"] and doc["skipped"] == []
 
 
-def test_report_renders_in_chromium(synth, tmp_path):
+def test_report_renders_in_chromium(synth_report, tmp_path):
     from browser import assert_not_blank, screenshot
-    rep = tmp_path / "rep"
-    run([REPORT, "--questionnaire", synth / "questionnaire.csv", "--sessions", synth, "--out", rep, "--quiet"])
+    rep = synth_report
     page = (rep / "report.html").read_text()
     assert page.count("data:image/png;base64,") == 4       # the figures travel inside the page
     assert "src=\"http" not in page and "href=\"http" not in page
@@ -170,7 +175,13 @@ def test_report_renders_in_chromium(synth, tmp_path):
 def test_missing_and_damaged_recordings_are_skipped(synth, tmp_path):
     study = tmp_path / "study"
     shutil.copytree(synth, study)
-    rows = list(csv.DictReader(open(study / "study.csv")))
+    rows = list(csv.DictReader(open(study / "study.csv")))[:4]      # four recordings are enough here
+    with open(study / "study.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    q = (study / "questionnaire.csv").read_text().splitlines()
+    (study / "questionnaire.csv").write_text("\n".join(l for l in q if not l.startswith(("p02", "p03"))) + "\n")
     cut = study / rows[0]["recording"]           # the recorder died mid-event
     cut.write_bytes(cut.read_bytes()[:-1000])
     (study / rows[1]["recording"]).unlink()
@@ -189,3 +200,102 @@ def test_missing_and_damaged_recordings_are_skipped(synth, tmp_path):
     used = {e["recording"] for e in doc["encounters"]}
     assert not used & set(reasons) and rows[3]["recording"] in used
     assert "Skipped recordings" in (rep / "report.html").read_text()
+
+
+# ---------------------------------------------------------------- a hand-made recording
+def _handmade_recording(path, press_s, collide=False):
+    """The car rests 4.04 m behind sl01 (its rest point) from t = 0 to 20 s; cw01's main
+    pedestrian walks up to the kerb (off it until 3 s), stands at the kerb until 5 s,
+    crosses until 14 s (1.4 m/s), then walks on. One press at press_s."""
+    import numpy as np
+    import portobello
+    from sessions import _frame
+    from study_synth import UTIME0, write_log
+    sl = {"xy": [48.23, -3.51], "yaw_deg": -2.08}
+    cw = {"center": [51.79, -1.88], "yaw_deg": -2.08}
+    along, _ = _frame(sl)
+    _, across = _frame(cw)
+    rest = np.array(sl["xy"]) - along * (4.54 - 1.04 + 0.5)
+    ev = []
+
+    def ped(t):
+        a = (-8.5 - (3 - t) * 1.4 if t < 3 else -6.3 if t < 5 else
+             -6.3 + (t - 5) * 12.6 / 9 if t < 14 else 6.3 + min(t - 14, 2) * 1.4)
+        return np.array(cw["center"]) + across * a
+
+    for i in range(-200, 2500):                  # poses at 100 Hz: arriving, 20 s at rest, leaving
+        t = i * 0.01
+        v = 5.0 if t < 0 else 0.0 if t < 20 else 5.0
+        xy = rest + along * (5.0 * t if t < 0 else 0 if t < 20 else 5.0 * (t - 20))
+        p = portobello.pose_t()
+        p.utime = UTIME0 + round(t * 1e6)
+        p.position = [xy[0], xy[1], 0.0]
+        yaw = math.radians(sl["yaw_deg"])
+        p.orientation = [math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)]
+        p.velocity = [v * along[0], v * along[1], 0.0]
+        p.angular_velocity = [0.0] * 3
+        p.covariance = [0.0] * 36
+        p.status, p.source, p.match_score = 1, 1, float("nan")
+        ev.append((p.utime, "POSE", p.encode()))
+    for i in range(-60, 1500):                   # AGENTS at 60 Hz, as the director
+        t = i / 60
+        a = portobello.agents_t()
+        a.utime, a.scenario, a.nagents = UTIME0 + round(t * 1e6), "cw01_look_and_cross", 1
+        g = portobello.agent_t()
+        g.id, g.kind, g.model = "ped_a_main", "pedestrian", "m"
+        g.position = list(ped(t)) + [0.0]
+        g.yaw_rad, g.velocity, g.animation, g.animation_phase = 0.0, [0.0] * 3, "walk", 0.0
+        g.in_render_range, g.distance_m = True, 10.0
+        a.agents = [g]
+        ev.append((a.utime, "AGENTS", a.encode()))
+
+    def scen(t, kind, agent=""):
+        e = portobello.scenario_event_t()
+        e.utime, e.scenario, e.kind, e.event_id, e.agent_id = UTIME0 + round(t * 1e6), "cw01_look_and_cross", kind, \
+            kind, agent
+        e.vehicle = portobello.pose_t()
+        e.vehicle.orientation = [1.0, 0, 0, 0]
+        e.vehicle.covariance = [0.0] * 36
+        e.agent_position, e.detail = [0.0] * 3, ""
+        return (e.utime, "SCENARIO_EVENT", e.encode())
+    ev += [scen(-1.0, "trigger"), scen(3.0, "mark", "ped_a_main")]
+    if collide:
+        ev.append(scen(21.0, "collision", "ped_a_main"))
+    from study_synth import press_msg
+    ev.append((UTIME0 + round(press_s * 1e6), "PARTICIPANT_INPUT", press_msg(UTIME0 + round(press_s * 1e6))))
+    ev.sort(key=lambda e: e[0])
+    write_log(path, ev)
+
+
+def test_handmade_recordings_code_every_state(tmp_path):
+    sys.path.insert(0, str(BIN.parents[0] / "python"))
+    cases = {"approaching": 1.0, "at_kerb": 4.0, "on_crosswalk": 9.5, "cleared": 16.0}
+    study = tmp_path / "study"
+    study.mkdir()
+    lines = ["participant,order,platform,recording"]
+    for k, (state, t) in enumerate(cases.items()):
+        _handmade_recording(study / f"{state}.lcm", t, collide=state == "on_crosswalk")
+        lines.append(f"h{k},lab_first,lab,{state}.lcm")
+    (study / "study.csv").write_text("\n".join(lines) + "\n")
+    q = _write(tmp_path / "q.csv", "participant,platform,measure,value\nh0,lab,realism,3\nh0,road,realism,4\n")
+    rep = tmp_path / "rep"
+    run([REPORT, "--questionnaire", q, "--sessions", study, "--out", rep, "--quiet"])
+    rows = {r["recording"]: r for r in csv.DictReader(open(rep / "encounters.csv"))}
+    for state, t in cases.items():
+        r = rows[f"{state}.lcm"]
+        assert r["decision"] == state, (state, r)
+        assert abs(float(r["press_after_stop_s"]) - t) < 0.011
+        assert abs(float(r["arrival_offset_s"]) - 3.0) < 0.011
+        # stepped off the crosswalk (6 m across its centre) at 5 + 12.3 / 1.4 s; the
+        # track is read at 20 Hz, so the step-off is seen up to 50 ms late
+        late = (t - float(r["press_after_clear_s"])) - (5 + 12.3 / 1.4)
+        assert 0 <= late <= 0.051, r
+        assert r["cooperative"] == ("yes" if state == "cleared" else "no")
+        assert r["collisions"] == ("1" if state == "on_crosswalk" else "0")
+    # closest approach: the pedestrian crosses ahead of the resting car's front bumper
+    # (0.5 m behind sl01) along the crosswalk's centre, minus its 0.3 m radius
+    yaw = math.radians(-2.08)
+    gap = (51.79 - 48.23) * math.cos(yaw) + (-1.88 + 3.51) * math.sin(yaw) + 0.5 - 0.3
+    for r in rows.values():
+        assert abs(float(r["min_distance_m"]) - gap) < 0.01, (r["min_distance_m"], gap)
+        assert r["near_miss"] == ("no" if gap >= 1.0 else "yes")

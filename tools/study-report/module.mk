@@ -9,3 +9,11 @@ $(BIN)/study-synth: tools/study-report/study_synth.py | $(DEPS)
 	@mkdir -p $(@D)
 	@printf '#!/bin/sh\nexec "%s" "%s" "$$@"\n' "$(VPY)" "$(TOP)/tools/study-report/study_synth.py" > $@
 	@chmod +x $@
+
+# check-study: the full synthetic study (32 participants, both orders, both platforms, the
+# site's five scenarios) made, reported and checked: every coded decision against the
+# participant model's, every director-reported collision counted once. Writes
+# build/bench/study.json. make test runs the same checks on 3 participants.
+.PHONY: check-study
+check-study: $(BIN)/study-report $(BIN)/study-synth $(BIN)/lab_vehicle $(BIN)/director $(BIN)/simdrive $(BIN)/log-merge
+	@$(VPY) tools/study-report/check_study.py --participants 32 --work $(BUILD)/check-study --json $(BUILD)/bench/study.json
