@@ -9,7 +9,6 @@ does not overflow.
 import math
 
 import numpy as np
-from scipy import integrate, optimize
 
 RSCALE_MEDIUM = math.sqrt(2) / 2
 
@@ -32,6 +31,7 @@ def log_bf10(t, n, rscale=RSCALE_MEDIUM):
         raise ValueError(f"rscale must be positive, got {rscale}")
     if not math.isfinite(t):
         raise ValueError(f"t must be finite, got {t}")
+    from scipy import integrate, optimize      # here: error paths of the tools stay quick
     f = lambda u: -_log_integrand(u, t, n, rscale)
     # the mode, first on a coarse grid (the integrand is unimodal in u), then refined
     grid = np.arange(-20.0, 40.0, 0.25)

@@ -229,18 +229,23 @@ def _rest_intervals(rec, idx):
     return out
 
 
+def rests_at(rec, sl):
+    """(first, last) pose index of every rest of the car at a stop line: speed under
+    SPEED_REST, base origin at most STOP_REACH_M before the line and within 4 m of its lane."""
+    along_u, across_u = _frame(sl)
+    d = rec.pose_xy - np.asarray(sl["xy"])
+    ahead = -(d @ along_u)                      # metres the base origin is before the line
+    near = (ahead > 0) & (ahead < STOP_REACH_M) & (np.abs(d @ across_u) < 4.0) & (rec.speed < SPEED_REST)
+    return _rest_intervals(rec, np.flatnonzero(near))
+
+
 def encounter_rows(rec, site, participant, platform, order, rec_name):
     """One dict per encounter of the recording's scenarios, plus the collisions list."""
     rows, collisions = [], []
     encs = [e for s in rec.scenarios for e in site.scenarios.get(s, [])]
     found = []
     for e in encs:
-        sl = site.stop_lines[e["stop_line"]]
-        along_u, across_u = _frame(sl)
-        d = rec.pose_xy - np.asarray(sl["xy"])
-        ahead = -(d @ along_u)                      # metres the base origin is before the line
-        near = (ahead > 0) & (ahead < STOP_REACH_M) & (np.abs(d @ across_u) < 4.0) & (rec.speed < SPEED_REST)
-        rests = _rest_intervals(rec, np.flatnonzero(near))
+        rests = rests_at(rec, site.stop_lines[e["stop_line"]])
         found.append((e, rests[0] if rests else None))
     found.sort(key=lambda f: f[1][0] if f[1] else 1 << 62)
     for e, rest in found:

@@ -10,9 +10,10 @@ ROOT = HERE.parents[1]
 sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(ROOT / "build" / "python"))
 
+import yaml  # noqa: E402
+
 import jzs  # noqa: E402
 from questionnaire import compare_measures, read_questionnaire  # noqa: E402
-from report import write_report  # noqa: E402
 from sessions import Site, StudyError, analyse_study  # noqa: E402
 
 USAGE = """\
@@ -54,7 +55,10 @@ def main(argv=None):
     try:
         participants, rows, collisions, skipped = {}, [], [], []
         if a.sessions:
-            site = Site(a.site, a.vehicle)
+            try:
+                site = Site(a.site, a.vehicle)
+            except (OSError, KeyError, TypeError, yaml.YAMLError) as e:
+                raise StudyError(f"site {a.site} or vehicle {a.vehicle}: cannot read: {type(e).__name__}: {e}")
             participants, rows, collisions, skipped = analyse_study(pathlib.Path(a.sessions), site,
                                                                     a.pose_channel, not a.quiet)
         ratings = read_questionnaire(a.questionnaire, participants if a.sessions else None)
@@ -63,6 +67,7 @@ def main(argv=None):
         return 1
     for s in skipped:
         print(f"study-report: skipped {s['reason']}", file=sys.stderr)
+    from report import write_report     # matplotlib: only once the input is known good
     measures = compare_measures(ratings, rscales, participants if a.sessions else None)
     out.mkdir(parents=True, exist_ok=True)
     nparts = len(participants) or len({r[0] for r in ratings})

@@ -39,7 +39,7 @@ BIN = ROOT / "build" / "bin"
 sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(ROOT / "build" / "python"))
 
-from sessions import Recording, Site, _frame, _rest_intervals, STOP_REACH_M, SPEED_REST  # noqa: E402
+from sessions import Recording, Site, _frame, rests_at  # noqa: E402
 
 UTIME0 = 1714572000000000      # simdrive's and lab_vehicle's fixed epoch
 MODELS = ("cooperative", "impatient", "random")
@@ -148,11 +148,7 @@ def rest_starts(log, channel, site_dir):
     rec = Recording(log, channel)
     out = []
     for sl in site["stop_lines"]:
-        along_u, across_u = _frame(sl)
-        d = rec.pose_xy - np.asarray(sl["xy"])
-        ahead = -(d @ along_u)
-        near = (ahead > 0) & (ahead < STOP_REACH_M) & (np.abs(d @ across_u) < 4.0) & (rec.speed < SPEED_REST)
-        for i0, _ in _rest_intervals(rec, np.flatnonzero(near)):
+        for i0, _ in rests_at(rec, sl):
             out.append((rec.pose_t[i0] - UTIME0) * 1e-6)
     return sorted(out)
 
