@@ -1,11 +1,10 @@
 """Questionnaire ratings: a strict CSV reader and the per-measure paired comparison."""
-import csv
 import math
 
 import numpy as np
 
 import jzs
-from sessions import PLATFORMS, StudyError
+from sessions import PLATFORMS, StudyError, csv_rows
 
 COLUMNS = ("participant", "platform", "measure", "value")
 
@@ -15,50 +14,28 @@ def read_questionnaire(path, participants=None):
     CSV. Likert 1-5 integers; an empty value is a missing answer. Every problem raises
     StudyError naming the file and line."""
     out, seen = [], {}
-    try:
-        f = open(path, newline="")
-    except OSError as e:
-        raise StudyError(f"{path}: {e.strerror}")
-    with f:
-        rows = csv.reader(f)
-        header = next(rows, None)
-        if header is None:
-            raise StudyError(f"{path}:1: empty file (header {','.join(COLUMNS)} expected)")
-        header = [h.strip() for h in header]
-        for col in COLUMNS:
-            if col not in header:
-                raise StudyError(f"{path}:1: missing column '{col}' (header {','.join(COLUMNS)} expected)")
-        ix = [header.index(c) for c in COLUMNS]
-        for row in rows:
-            line = rows.line_num
-            if not row or all(not c.strip() for c in row):
-                continue
-            if len(row) != len(header):
-                raise StudyError(f"{path}:{line}: {len(row)} fields, the header has {len(header)}")
-            p, plat, measure, value = (row[i].strip() for i in ix)
-            if not p:
-                raise StudyError(f"{path}:{line}: empty participant")
-            if participants is not None and p not in participants:
-                raise StudyError(f"{path}:{line}: unknown participant '{p}' (not in the study folder's study.csv)")
-            if plat not in PLATFORMS:
-                raise StudyError(f"{path}:{line}: platform '{plat}': expected lab or road")
-            if not measure:
-                raise StudyError(f"{path}:{line}: empty measure")
-            if value == "":
-                v = None
-            else:
-                try:
-                    v = int(value)
-                except ValueError:
-                    raise StudyError(f"{path}:{line}: value '{value}' is not a whole number (Likert 1-5)")
-                if not 1 <= v <= 5:
-                    raise StudyError(f"{path}:{line}: value {v} outside the Likert scale 1-5")
-            key = (p, plat, measure)
-            if key in seen:
-                raise StudyError(f"{path}:{line}: second rating of {measure} by {p} on {plat} "
-                                 f"(first on line {seen[key]})")
-            seen[key] = line
-            out.append((p, plat, measure, v))
+    for line, (p, plat, measure, value) in csv_rows(path, COLUMNS):
+        if participants is not None and p not in participants:
+            raise StudyError(f"{path}:{line}: unknown participant '{p}' (not in the study folder's study.csv)")
+        if plat not in PLATFORMS:
+            raise StudyError(f"{path}:{line}: platform '{plat}': expected lab or road")
+        if not measure:
+            raise StudyError(f"{path}:{line}: empty measure")
+        if value == "":
+            v = None
+        else:
+            try:
+                v = int(value)
+            except ValueError:
+                raise StudyError(f"{path}:{line}: value '{value}' is not a whole number (Likert 1-5)")
+            if not 1 <= v <= 5:
+                raise StudyError(f"{path}:{line}: value {v} outside the Likert scale 1-5")
+        key = (p, plat, measure)
+        if key in seen:
+            raise StudyError(f"{path}:{line}: second rating of {measure} by {p} on {plat} "
+                             f"(first on line {seen[key]})")
+        seen[key] = line
+        out.append((p, plat, measure, v))
     if not out:
         raise StudyError(f"{path}: no ratings")
     return out

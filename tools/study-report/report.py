@@ -40,22 +40,30 @@ def _png(fig):
     return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode()
 
 
-def rating_distributions(measures):
-    """The paper's first kind: per measure, how many gave each rating, lab beside road."""
+def _small_multiples(measures, height, draw):
+    """One panel per measure, four to a row; draw(ax, measure) fills each."""
     n = len(measures)
     cols = min(n, 4)
     rows = math.ceil(n / cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 2.6 * rows), squeeze=False)
+    fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, height * rows), squeeze=False)
     for ax, m in zip(axes.flat, measures):
-        for k, pl in enumerate(PLATFORMS):
-            counts = [m[pl].count(v) for v in range(1, 6)]
-            ax.bar(np.arange(1, 6) + (k - 0.5) * 0.38, counts, 0.38, color=COLOURS[pl], label=pl)
+        draw(ax, m)
         ax.set_title(m["measure"], fontsize=10)
-        ax.set_xticks(range(1, 6))
-        ax.set_xlabel("rating")
     for ax in list(axes.flat)[n:]:
         ax.axis("off")
     axes.flat[0].set_ylabel("participants")
+    return fig, axes
+
+
+def rating_distributions(measures):
+    """The paper's first kind: per measure, how many gave each rating, lab beside road."""
+    def draw(ax, m):
+        for k, pl in enumerate(PLATFORMS):
+            counts = [m[pl].count(v) for v in range(1, 6)]
+            ax.bar(np.arange(1, 6) + (k - 0.5) * 0.38, counts, 0.38, color=COLOURS[pl], label=pl)
+        ax.set_xticks(range(1, 6))
+        ax.set_xlabel("rating")
+    fig, axes = _small_multiples(measures, 2.6, draw)
     axes.flat[0].legend(fontsize=8)
     fig.tight_layout()
     return _png(fig)
@@ -63,21 +71,14 @@ def rating_distributions(measures):
 
 def comparison_histograms(measures):
     """The paper's second kind: per measure, the histogram of road - lab per participant."""
-    n = len(measures)
-    cols = min(n, 4)
-    rows = math.ceil(n / cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 2.4 * rows), squeeze=False)
-    for ax, m in zip(axes.flat, measures):
+    def draw(ax, m):
         d = np.array(m["road"]) - np.array(m["lab"])
         counts = [int(np.sum(d == v)) for v in range(-4, 5)]
         ax.bar(range(-4, 5), counts, 0.8, color=["#4C72B0" if v < 0 else "#999999" if v == 0 else "#DD8452"
                                                 for v in range(-4, 5)])
-        ax.set_title(m["measure"], fontsize=10)
         ax.set_xticks(range(-4, 5))
         ax.set_xlabel("road - lab")
-    for ax in list(axes.flat)[n:]:
-        ax.axis("off")
-    axes.flat[0].set_ylabel("participants")
+    fig, _ = _small_multiples(measures, 2.4, draw)
     fig.tight_layout()
     return _png(fig)
 

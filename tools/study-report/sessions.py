@@ -30,41 +30,51 @@ class StudyError(Exception):
 
 
 # ---------------------------------------------------------------- the study folder
+def csv_rows(path, columns):
+    """(line, stripped values of columns) for every non-empty row of a CSV whose header
+    has those columns (in any order, among others); a missing column, a row of the
+    wrong length or an empty participant raise StudyError with FILE:LINE."""
+    try:
+        f = open(path, newline="")
+    except OSError as e:
+        raise StudyError(f"{path}: {e.strerror}")
+    with f:
+        rows = csv.reader(f)
+        header = next(rows, None)
+        if header is None:
+            raise StudyError(f"{path}:1: empty file (header {','.join(columns)} expected)")
+        header = [h.strip() for h in header]
+        for col in columns:
+            if col not in header:
+                raise StudyError(f"{path}:1: missing column '{col}' (header {','.join(columns)} expected)")
+        ix = [header.index(c) for c in columns]
+        for row in rows:
+            if not row or all(not c.strip() for c in row):
+                continue
+            if len(row) != len(header):
+                raise StudyError(f"{path}:{rows.line_num}: {len(row)} fields, the header has {len(header)}")
+            values = [row[i].strip() for i in ix]
+            if "participant" in columns and not values[columns.index("participant")]:
+                raise StudyError(f"{path}:{rows.line_num}: empty participant")
+            yield rows.line_num, values
+
+
 def read_study(study_dir):
     """study.csv -> (participants {id: order}, recordings [(participant, platform, path, line)])."""
     path = pathlib.Path(study_dir) / "study.csv"
     if not path.exists():
         raise StudyError(f"{path}: no such file (a study folder holds study.csv)")
     participants, recordings = {}, []
-    with open(path, newline="") as f:
-        rows = csv.reader(f)
-        header = next(rows, None)
-        need = ["participant", "order", "platform", "recording"]
-        if header is None:
-            raise StudyError(f"{path}:1: empty file (header {','.join(need)} expected)")
-        header = [h.strip() for h in header]
-        for col in need:
-            if col not in header:
-                raise StudyError(f"{path}:1: missing column '{col}' (header {','.join(need)} expected)")
-        ix = {c: header.index(c) for c in need}
-        for row in rows:
-            line = rows.line_num
-            if not row or all(not c.strip() for c in row):
-                continue
-            if len(row) != len(header):
-                raise StudyError(f"{path}:{line}: {len(row)} fields, the header has {len(header)}")
-            p, order, plat, rec = (row[ix[c]].strip() for c in need)
-            if not p:
-                raise StudyError(f"{path}:{line}: empty participant")
-            if order not in ORDERS:
-                raise StudyError(f"{path}:{line}: order '{order}': expected lab_first or road_first")
-            if plat not in PLATFORMS:
-                raise StudyError(f"{path}:{line}: platform '{plat}': expected lab or road")
-            if participants.setdefault(p, order) != order:
-                raise StudyError(f"{path}:{line}: participant {p} has order {order} here, "
-                                 f"{participants[p]} on an earlier line")
-            if rec:
-                recordings.append((p, plat, pathlib.Path(study_dir) / rec, line))
+    for line, (p, order, plat, rec) in csv_rows(path, ("participant", "order", "platform", "recording")):
+        if order not in ORDERS:
+            raise StudyError(f"{path}:{line}: order '{order}': expected lab_first or road_first")
+        if plat not in PLATFORMS:
+            raise StudyError(f"{path}:{line}: platform '{plat}': expected lab or road")
+        if participants.setdefault(p, order) != order:
+            raise StudyError(f"{path}:{line}: participant {p} has order {order} here, "
+                             f"{participants[p]} on an earlier line")
+        if rec:
+            recordings.append((p, plat, pathlib.Path(study_dir) / rec, line))
     return participants, recordings
 
 
