@@ -338,7 +338,8 @@ ENCOUNTER_COLUMNS = ["participant", "platform", "order", "recording", "scenario"
 
 
 def analyse_study(study_dir, site, pose_channel=None, progress=True):
-    """All encounters and collisions of a study folder; skipped recordings with reasons."""
+    """All encounters and collisions of a study folder, the recordings skipped (with
+    reasons) and the number of recordings listed."""
     participants, recordings = read_study(study_dir)
     rows, collisions, skipped = [], [], []
     for n, (p, plat, path, line) in enumerate(recordings):
@@ -363,4 +364,4 @@ def analyse_study(study_dir, site, pose_channel=None, progress=True):
         collisions += c
     if progress and recordings:
         print(file=sys.stderr)
-    return participants, rows, collisions, skipped
+    return participants, rows, collisions, skipped, len(recordings)

@@ -53,13 +53,13 @@ def main(argv=None):
             return 2
     out = pathlib.Path(a.out)
     try:
-        participants, rows, collisions, skipped = {}, [], [], []
+        participants, rows, collisions, skipped, listed = {}, [], [], [], 0
         if a.sessions:
             try:
                 site = Site(a.site, a.vehicle)
             except (OSError, KeyError, TypeError, yaml.YAMLError) as e:
                 raise StudyError(f"site {a.site} or vehicle {a.vehicle}: cannot read: {type(e).__name__}: {e}")
-            participants, rows, collisions, skipped = analyse_study(pathlib.Path(a.sessions), site,
+            participants, rows, collisions, skipped, listed = analyse_study(pathlib.Path(a.sessions), site,
                                                                     a.pose_channel, not a.quiet)
         ratings = read_questionnaire(a.questionnaire, participants if a.sessions else None)
     except StudyError as e:
@@ -72,7 +72,7 @@ def main(argv=None):
     out.mkdir(parents=True, exist_ok=True)
     nparts = len(participants) or len({r[0] for r in ratings})
     page, bf_rows, dec_rows = write_report(out, a.title, measures, rscales, rows, collisions, skipped,
-                                           {"participants": nparts, "recordings": len(rows and {r["recording"] for r in rows}),
+                                           {"participants": nparts, "recordings": listed - len(skipped),
                                             "questionnaire": a.questionnaire})
     if a.json:
         def clean(v):
