@@ -299,3 +299,50 @@ def test_handmade_recordings_code_every_state(tmp_path):
     for r in rows.values():
         assert abs(float(r["min_distance_m"]) - gap) < 0.01, (r["min_distance_m"], gap)
         assert r["near_miss"] == ("no" if gap >= 1.0 else "yes")
+
+
+def test_mutated_inputs_give_named_errors_only(tmp_path):
+    """A small in-process fuzz: 600 random mutations of a questionnaire, a study.csv and
+    a recording are read; each either parses or raises StudyError naming the file (a
+    recording's StudyError names a byte offset), never any other exception."""
+    import random
+    from questionnaire import read_questionnaire
+    from sessions import StudyError, read_lcm_log, read_study
+    from study_synth import UTIME0, press_msg, write_log
+    rng = random.Random(5)
+    q = b"participant,platform,measure,value\np1,lab,realism,3\np1,road,realism,4\np2,lab,realism,\n"
+    study = b"participant,order,platform,recording\np1,lab_first,lab,a.lcm\np1,lab_first,road,b.lcm\n"
+    write_log(tmp_path / "r.lcm", [(UTIME0 + k, "PARTICIPANT_INPUT", press_msg(UTIME0 + k)) for k in range(5)])
+    rec = (tmp_path / "r.lcm").read_bytes()
+
+    def mutate(b):
+        b = bytearray(b)
+        for _ in range(rng.randint(1, 4)):
+            op, i = rng.randrange(3), rng.randrange(len(b) + 1)
+            if op == 0 and i < len(b):
+                b[i] = rng.randrange(256)
+            elif op == 1:
+                b[i:i] = bytes([rng.choice(b",\n\"3x\xff\0")])
+            elif i < len(b):
+                del b[i]
+        return bytes(b)
+
+    outcomes = {"ok": 0, "error": 0}
+    for k in range(200):
+        f = tmp_path / "q.csv"
+        f.write_bytes(mutate(q))
+        d = tmp_path / f"s{k}"
+        d.mkdir()
+        (d / "study.csv").write_bytes(mutate(study))
+        (tmp_path / "m.lcm").write_bytes(mutate(rec))
+        for path, read in ((f, lambda: read_questionnaire(f, {"p1", "p2"})), (d / "study.csv", lambda: read_study(d)),
+                           (tmp_path / "m.lcm", lambda: read_lcm_log(tmp_path / "m.lcm"))):
+            try:
+                read()
+                outcomes["ok"] += 1
+            except StudyError as e:
+                assert str(path) in str(e), e
+                outcomes["error"] += 1
+            except UnicodeDecodeError:
+                raise AssertionError(f"{path}: undecodable bytes escaped as UnicodeDecodeError")
+    assert outcomes["ok"] > 0 and outcomes["error"] > 0, outcomes

@@ -6,6 +6,7 @@ of a scenario (a behaviour with `sync` in the scenario file) met at its stop lin
 scenario is named by the recording's SCENARIO_EVENTs and read from SITE/scenarios/.
 """
 import csv
+import io
 import math
 import pathlib
 import struct
@@ -35,11 +36,16 @@ def csv_rows(path, columns):
     has those columns (in any order, among others); a missing column, a row of the
     wrong length or an empty participant raise StudyError with FILE:LINE."""
     try:
-        f = open(path, newline="")
+        raw = pathlib.Path(path).read_bytes()
     except OSError as e:
         raise StudyError(f"{path}: {e.strerror}")
-    with f:
-        rows = csv.reader(f)
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as e:
+        line = raw[:e.start].count(b"\n") + 1
+        raise StudyError(f"{path}:{line}: not UTF-8 text (byte {e.start})")
+    rows = csv.reader(io.StringIO(text, newline=""))
+    try:
         header = next(rows, None)
         if header is None:
             raise StudyError(f"{path}:1: empty file (header {','.join(columns)} expected)")
@@ -57,6 +63,8 @@ def csv_rows(path, columns):
             if "participant" in columns and not values[columns.index("participant")]:
                 raise StudyError(f"{path}:{rows.line_num}: empty participant")
             yield rows.line_num, values
+    except csv.Error as e:
+        raise StudyError(f"{path}:{rows.line_num}: {e}")
 
 
 def read_study(study_dir):
