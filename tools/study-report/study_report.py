@@ -73,7 +73,7 @@ def main(argv=None):
     nparts = len(participants) or len({r[0] for r in ratings})
     page, bf_rows, dec_rows = write_report(out, a.title, measures, rscales, rows, collisions, skipped,
                                            {"participants": nparts, "recordings": listed - len(skipped),
-                                            "questionnaire": a.questionnaire})
+                                            "questionnaire": pathlib.Path(a.questionnaire).name})
     if a.json:
         def clean(v):
             if isinstance(v, float) and not math.isfinite(v):
