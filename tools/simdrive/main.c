@@ -48,7 +48,7 @@ static void usage(FILE *f)
         "usage: simdrive --out DIR [--seed N] [--duration S] [--speed-profile cautious|normal|aggressive]\n"
         "                [--site SITE_DIR] [--vehicle FILE] [--mapping] [--no-lidar] [--quiet]\n"
         "                [--scenario FILE [--head]]\n"
-        "                [--driver-spread F] [--without GROUPS]\n"
+        "                [--driver-spread F] [--without GROUPS] [--dwell S]...\n"
         "       simdrive --terrain-out GROUND.yaml [--site SITE_DIR]\n"
         "\n"
         "Simulates a drive around a site's route and writes DIR/drive.lcm (LCM log) and\n"
@@ -80,6 +80,9 @@ static void usage(FILE *f)
         "                        a bare name is looked up in SITE_DIR/scenarios/\n"
         "  --head                also simulate the participant's head: HEAD_POSE (100 Hz),\n"
         "                        the truth's eye; without it the eye is the vehicle's seat\n"
+        "  --dwell S             rest S s (1.5 to 3600) at the next stop met, instead of the\n"
+        "                        seed's 2-3 s (repeatable: the 1st, 2nd... stop; a participant\n"
+        "                        who presses proceed, as study-synth does)\n"
         "  --quiet               no progress bar\n"
         "  --terrain-out FILE    write the site's true ground (the terrain's drivable and\n"
         "                        walkable cells; others unknown) as a ground model and exit\n"
@@ -129,7 +132,8 @@ int main(int argc, char **argv)
     const char *veh_path = PB_SOURCE_DIR "/vehicles/prius2017.yaml", *profile = "normal";
     uint64_t seed = 1;
     double duration = 60;
-    int mapping = 0, quiet = 0, no_lidar = 0, head = 0;
+    int mapping = 0, quiet = 0, no_lidar = 0, head = 0, ndwells = 0;
+    double dwells[256];
     const char *scenario = NULL;
     const char *terrain_out = NULL;
     double driver_spread = 0;
@@ -141,6 +145,7 @@ int main(int argc, char **argv)
         { "mapping", no_argument, 0, 'm' }, { "terrain-out", required_argument, 0, 'T' },
         { "driver-spread", required_argument, 0, 'D' }, { "without", required_argument, 0, 'W' }, { "no-lidar", no_argument, 0, 'L' }, { "quiet", no_argument, 0, 'q' },
         { "scenario", required_argument, 0, 'c' }, { "head", no_argument, 0, 'H' },
+        { "dwell", required_argument, 0, 'w' },
         { "help", no_argument, 0, 'h' }, { 0, 0, 0, 0 } };
     int c;
     while ((c = getopt_long(argc, argv, "h", opts, NULL)) != -1) {
@@ -168,6 +173,14 @@ int main(int argc, char **argv)
         case 'L': no_lidar = 1; break;
         case 'c': scenario = optarg; break;
         case 'H': head = 1; break;
+        case 'w':
+            if (ndwells == (int)(sizeof dwells / sizeof *dwells)) {
+                fprintf(stderr, "simdrive: --dwell: at most %d stops\n", ndwells);
+                return 2;
+            }
+            if (pb_arg_double("simdrive", "dwell", optarg, 1.5, 3600, &dwells[ndwells])) return 2;
+            ndwells++;
+            break;
         case 'h': usage(stdout); return 0;
         default: usage(stderr); return 2;
         }
@@ -226,7 +239,7 @@ int main(int argc, char **argv)
     /* The base origin (rear axle) halts so that the front bumper is 0.5 m behind the line. */
     double stop_offset = (veh.length - veh.rear_overhang) + 0.5;
     trajectory_t traj;
-    traj_driver_t driver = { mapping ? 0 : driver_spread };
+    traj_driver_t driver = { mapping ? 0 : driver_spread, dwells, ndwells };
     if (traj_plan(&traj, &route, &route.profiles[prof], mapping ? 0 : duration, stop_offset, &driver, seed, &err)) {
         fprintf(stderr, "simdrive: %s\n", err.msg);
         return 1;

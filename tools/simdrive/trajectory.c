@@ -14,8 +14,12 @@
 
 /* One plan over `laps` laps into tr (v, s, n, t_end). */
 static void plan_laps(trajectory_t *tr, const pb_route_t *r, const pb_speed_profile_t *p, int laps, int end_at_rest,
-                     double stop_offset, double spread, uint64_t seed)
+                     double stop_offset, const traj_driver_t *driver, uint64_t seed)
 {
+    static const traj_driver_t planner = { 0 };
+    if (!driver) driver = &planner;
+    const double spread = driver->spread;
+    int met = 0;
     double S = laps * r->length;
     int N = (int)ceil(S / PLAN_DS) + 1;
     double ds = S / (N - 1);
@@ -53,7 +57,8 @@ static void plan_laps(trajectory_t *tr, const pb_route_t *r, const pb_speed_prof
             int i = (int)lround(s / ds);
             double u = rng_uniform(seed, RNG_DWELL, (uint64_t)lap, (uint64_t)k);
             vmax[i] = 0;
-            dwell[i] = r->dwell_s[0] + u * (r->dwell_s[1] - r->dwell_s[0]);
+            dwell[i] = met < driver->ndwells ? driver->dwells[met] : r->dwell_s[0] + u * (r->dwell_s[1] - r->dwell_s[0]);
+            met++;
         }
     vmax[0] = 0;
     if (end_at_rest) vmax[N - 1] = 0;
@@ -124,12 +129,12 @@ int traj_plan(trajectory_t *tr, const pb_route_t *r, const pb_speed_profile_t *p
     memset(tr, 0, sizeof *tr);
     tr->route = r;
     if (duration <= 0) {
-        plan_laps(tr, r, p, 1, 1, stop_offset_m, driver ? driver->spread : 0, seed);
+        plan_laps(tr, r, p, 1, 1, stop_offset_m, driver, seed);
         return 0;
     }
     /* Enough laps to cover the duration plus the smoothing window at the end. */
     for (int laps = 1; laps < 10000; laps++) {
-        plan_laps(tr, r, p, laps, 0, stop_offset_m, driver ? driver->spread : 0, seed);
+        plan_laps(tr, r, p, laps, 0, stop_offset_m, driver, seed);
         if (tr->t_end > duration + 2 * BOX_S + 1.0) {
             tr->t_end = duration + 2 * BOX_S;   /* the tail feels the unconstrained end; keep it out */
             return 0;

@@ -35,12 +35,19 @@ typedef struct {
  * the nominal v^2 / 2 decel). Braking then runs in two phases: the main one down to
  * half the cruise speed, and a final one whose deceleration makes the car stop at
  * the line anyway (harder when the driver braked late, softer when early). */
-typedef struct { double spread; } traj_driver_t;
+typedef struct {
+    double spread;
+    const double *dwells;   /* may be NULL: the rest at the first ndwells stops met, s */
+    int ndwells;
+} traj_driver_t;
 
 /* Plans a drive from rest at the start of the route. duration > 0: long enough
  * for duration seconds (laps repeat). duration <= 0: exactly one lap, ending at
  * rest at the start point (the mapping drive). stop_offset_m: how far behind a
- * stop line the base origin halts (front bumper at the line). */
+ * stop line the base origin halts (front bumper at the line). driver (may be NULL:
+ * the planner's own curve); its dwells are the rest at the first ndwells stops met, in
+ * seconds (>= 1.5, so the car comes to rest within the smoothing window); the others
+ * are drawn from the seed. */
 int traj_plan(trajectory_t *tr, const pb_route_t *r, const pb_speed_profile_t *p, double duration,
               double stop_offset_m, const traj_driver_t *driver, uint64_t seed, pb_err_t *err);
 void traj_free(trajectory_t *tr);
