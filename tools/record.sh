@@ -28,4 +28,4 @@ for v in participant session; do
 done
 mkdir -p "$dir"
 echo "record.sh: recording ${LCM_DEFAULT_URL:-the default LCM URL} to $dir/${participant}_${session}.lcm.NN (new file every $split MB)"
-exec "$root/.venv/bin/lcm-logger" --increment --split-mb "$split" "$dir/${participant}_${session}.lcm"
+exec "$root/.venv/bin/lcm-logger" --increment --split-mb="$split" "$dir/${participant}_${session}.lcm"

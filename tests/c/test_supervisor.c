@@ -188,12 +188,15 @@ static void test_hang_and_stop(void)
     sv_proc_heartbeat(&q, t + S(0.5), 1);
     sv_proc_restart(&q, t + S(1));
     CHECK(q.state == SV_STOPPING);
+    CHECK(sv_proc_tick(&q, t + S(1), 1) == SV_DO_TERM);           /* SIGTERM once, */
+    CHECK(sv_proc_tick(&q, t + S(1.1), 1) == SV_DO_NOTHING);      /* then wait for the exit */
     sv_proc_exited(&q, 0, t + S(1.2));
     CHECK(q.state == SV_BACKOFF && q.failures == 0);
     CHECK(sv_proc_tick(&q, t + S(1.2), 1) == SV_DO_START);
     sv_proc_started(&q, 51, t + S(1.2));
     sv_proc_stop(&q, t + S(2));
     CHECK(q.state == SV_STOPPING);
+    CHECK(sv_proc_tick(&q, t + S(2), 1) == SV_DO_TERM);
     sv_proc_exited(&q, 0, t + S(2.1));
     CHECK(q.state == SV_STOPPED && q.restarts == 1);
     CHECK(sv_proc_tick(&q, t + S(100), 1) == SV_DO_NOTHING);

@@ -37,6 +37,7 @@ static void begin_stop(sv_proc_t *p, int64_t now, int restart, int failure)
     p->restart_after_stop = restart;
     p->stop_is_failure = failure;
     p->killed = 0;
+    p->term_pending = 1;
     p->stop_deadline_us = now + US(p->policy->stop_timeout_s);
 }
 
@@ -75,11 +76,16 @@ sv_action_t sv_proc_tick(sv_proc_t *p, int64_t now, int gate_open)
                 snprintf(p->detail, sizeof p->detail, "hang: no STATUS for %.1f s (heartbeat_s %.1f)",
                          (now - (p->last_status_us ? p->last_status_us : p->started_us)) * 1e-6, pol->heartbeat_s);
                 begin_stop(p, now, 1, 1);
+                p->term_pending = 0;
                 return SV_DO_TERM;
             }
         }
         return SV_DO_NOTHING;
     case SV_STOPPING:
+        if (p->term_pending) {
+            p->term_pending = 0;
+            return SV_DO_TERM;
+        }
         if (!p->killed && now >= p->stop_deadline_us) {
             p->killed = 1;
             return SV_DO_KILL;

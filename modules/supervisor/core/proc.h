@@ -35,6 +35,7 @@ typedef struct {
     int wanted;             /* the operator wants it running */
     int restart_after_stop; /* STOPPING because of a restart or a hang, not a stop */
     int stop_is_failure;    /* the stop was a hang verdict: counts as a failure */
+    int term_pending;       /* STOPPING: SIGTERM not sent yet */
     int killed;             /* SIGKILL already sent in this STOPPING */
     int32_t pid;
     int64_t started_us, stop_deadline_us, restart_at_us, last_status_us, last_exit_us;
