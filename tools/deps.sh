@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Installs what a fresh Debian 12 needs to build and test the project. Idempotent:
+# Installs what a fresh Debian 12 needs to build and test the project (and what the
+# README's own commands use: procps for sysctl, iproute2 for ip). Idempotent:
 # installs only what is missing. Called by `make deps` (and by make, make test and
 # make demo when the stamp is missing or older than this script).
 set -euo pipefail
@@ -7,7 +8,7 @@ cd "$(dirname "$0")/.."
 
 APT_PKGS="build-essential pkg-config python3 python3-venv python3-pip libglib2.0-0 libglib2.0-dev \
 libyaml-dev libeigen3-dev libpcl-dev liboctomap-dev libccd-dev can-utils libcjson-dev \
-chromium chromium-driver"
+chromium chromium-driver procps iproute2"
 
 missing=""
 for p in $APT_PKGS; do
