@@ -9,6 +9,7 @@
   rotation, and stopping the recorder stops the real lcm-logger (the file ends cleanly).
 """
 import collections
+import html.parser
 import os
 import signal
 import subprocess
@@ -241,22 +242,28 @@ def test_fault_kill_hang_recording_and_no_trigger_twice(drive, tmp_path):
     assert len(ids) == len(set(ids)), f"a trigger fired twice: {ids}"
 
 
-def test_live_supervised_replay_equals_the_offline_chain(drive, tmp_path):
+@pytest.fixture(scope="module")
+def live(drive, tmp_path_factory):
+    """One supervised live replay of the drive, without faults: its run folder."""
+    tmp = tmp_path_factory.mktemp("sup_live")
     port = 7983
     bus = Bus(url(port))
-    sup = start_stack(tmp_path, port, sets=[f"LOG={drive}"])
+    sup = start_stack(tmp, port, sets=[f"LOG={drive}"])
     try:
         bus.wait(lambda: (c := bus.cmd("player")) and c.state in (CS.STATE_RUNNING, CS.STATE_EXITED), 60, "startup")
         bus.wait(lambda: bus.cmd("player").state == CS.STATE_EXITED, DRIVE_S + 30, "the end of the log")
         time.sleep(1.5)
-        for name in ("can", "localizer", "director"):
-            assert bus.cmd(name).restarts == 0, bus.table()
+        restarts = {n: bus.cmd(n).restarts for n in ("can", "localizer", "director")}
     finally:
         stop_stack(sup)
         bus.close()
-    rec = recording(tmp_path)
+    assert restarts == {"can": 0, "localizer": 0, "director": 0}, restarts
+    return tmp
 
-    off = tmp_path / "offline"
+
+def test_live_supervised_replay_equals_the_offline_chain(drive, live):
+    rec = recording(live)
+    off = live / "offline"
     off.mkdir()
     run([BIN / "can", "--replay", drive, "--out", off / "speed.lcm"])
     run([BIN / "log-merge", "--quiet", "--out", off / "in.lcm", drive, off / "speed.lcm"])
@@ -281,3 +288,73 @@ def test_live_supervised_replay_equals_the_offline_chain(drive, tmp_path):
     assert len(both) >= 0.9 * len(off_pose), f"{len(both)} of {len(off_pose)} offline POSE also live"
     worst = max(sum((a - b) ** 2 for a, b in zip(lp.position, op.position)) ** 0.5 for lp, op in both)
     assert worst < 0.01, f"live and offline POSE differ by up to {worst * 100:.2f} cm"
+
+
+class Tables(html.parser.HTMLParser):
+    """The cells of every <table id=...> of a page."""
+
+    def __init__(self):
+        super().__init__()
+        self.tables, self.cur, self.row, self.cell = {}, None, None, None
+
+    def handle_starttag(self, tag, attrs):
+        if tag == "table":
+            self.cur = self.tables.setdefault(dict(attrs).get("id"), [])
+        elif tag == "tr" and self.cur is not None:
+            self.row = []
+        elif tag in ("td", "th") and self.row is not None:
+            self.cell = ""
+
+    def handle_endtag(self, tag):
+        if tag in ("td", "th") and self.cell is not None:
+            self.row.append(self.cell)
+            self.cell = None
+        elif tag == "tr" and self.row is not None:
+            self.cur.append(self.row)
+            self.row = None
+        elif tag == "table":
+            self.cur = None
+
+    def handle_data(self, data):
+        if self.cell is not None:
+            self.cell += data
+
+
+def test_demo_report_renders_and_its_tables_match_the_logs(drive, live, tmp_path):
+    """The demo's report on the live run and a lab run: drawn in headless Chromium (not
+    blank), and its event table is the two logs' SCENARIO_EVENT sequences."""
+    from browser import assert_not_blank, screenshot
+    lab = tmp_path / "lab"
+    lab.mkdir()
+    run([BIN / "lab_vehicle", "--site", SITE, "--out", lab / "drive.lcm", "--auto-proceed", "2.0",
+         "--duration", DRIVE_S, "--quiet"])
+    run([BIN / "director", "--site", SITE, "--scenario", "crosswalk_study", "--replay", lab / "drive.lcm",
+         "--out", lab / "director.lcm"])
+    road = sorted((live / "recordings").glob("P00_S1.lcm.*"))
+    p = run([ROOT / ".venv" / "bin" / "python", ROOT / "tools" / "demo-report" / "report.py", "--site", SITE,
+             "--lab", lab / "drive.lcm", lab / "director.lcm", "--road", *road, "--out", tmp_path / "report"])
+    page = tmp_path / "report" / "report.html"
+    assert str(page) in p.stdout
+    assert_not_blank(screenshot(page, tmp_path / "report.png", size=(1280, 2400)))
+
+    t = Tables()
+    t.feed(page.read_text())
+    rows = t.tables["events"][1:]
+    lab_ev = [portobello.scenario_event_t.decode(d) for ch, _, d in read_log(lab / "director.lcm", {"SCENARIO_EVENT"})]
+    road_ev = [portobello.scenario_event_t.decode(d) for ch, d in recording(live) if ch == "SCENARIO_EVENT"]
+    assert len(rows) == max(len(lab_ev), len(road_ev)) and len(rows) >= 3
+    lab_t0 = min(portobello.pose_t.decode(d).utime for ch, _, d in read_log(lab / "drive.lcm", {"GROUND_TRUTH", "POSE"}))
+    for i, r in enumerate(rows):
+        if i < len(lab_ev):
+            e = lab_ev[i]
+            assert r[2:5] == [e.kind, e.event_id, e.agent_id]
+            assert abs(float(r[1]) - (e.utime - lab_t0) * 1e-6) <= 0.005
+        if i < len(road_ev):
+            e = road_ev[i]
+            assert r[6:9] == [e.kind, e.event_id, e.agent_id]
+    # The top-down plot holds both paths, the stop lines and one marker per trigger fired.
+    svg = page.read_text()
+    assert 'class="lab"' in svg and 'class="road"' in svg and svg.count('class="stop"') >= 4
+    n_trig = sum(e.kind == "trigger" for e in lab_ev) + sum(e.kind == "trigger" for e in road_ev)
+    assert svg.count('class="lab-trig"') + svg.count('class="road-trig"') == n_trig
+    assert "tracking POSE: horizontal error median" in (tmp_path / "report" / "report.txt").read_text()
