@@ -358,3 +358,85 @@ def test_demo_report_renders_and_its_tables_match_the_logs(drive, live, tmp_path
     n_trig = sum(e.kind == "trigger" for e in lab_ev) + sum(e.kind == "trigger" for e in road_ev)
     assert svg.count('class="lab-trig"') + svg.count('class="road-trig"') == n_trig
     assert "tracking POSE: horizontal error median" in (tmp_path / "report" / "report.txt").read_text()
+
+
+SMALL = """name: small
+workdir: {root}
+output_dir: {tmp}/output
+output_max_bytes: 65536
+output_keep: 2
+defaults: {{heartbeat_s: 2, start_grace_s: 5, stop_timeout_s: 2, backoff_initial_s: 0.1, backoff_max_s: 1,
+            stable_s: 5, max_failures: 4}}
+groups:
+  - name: rec
+    commands:
+      - name: recorder
+        run: [tools/record.sh, --participant, P01, --session, S9, --dir, {tmp}/recordings]
+        ready: started
+        heartbeat_s: 0
+  - name: mods
+    commands:
+      - name: summary
+        run: [build/bin/log-summary]
+      - name: flaky
+        run: [sh, -c, "test -f {tmp}/flag || exit 3; exec build/bin/log-summary"]
+      - name: chatty
+        run: [sh, -c, "yes 'a line of output to rotate' | head -c 300000; exec sleep 600"]
+        ready: started
+        heartbeat_s: 0
+"""
+
+
+def ctl(port, *args, check=True):
+    env = dict(os.environ, LCM_DEFAULT_URL=url(port))
+    return run([BIN / "supervisorctl", "--stack", "small", "--timeout", "15", *args], check=check, env=env)
+
+
+def test_supervisorctl_failed_recovery_rotation_and_recorder_stop(tmp_path):
+    port = 7985
+    stack = tmp_path / "small.yaml"
+    stack.write_text(SMALL.format(root=ROOT, tmp=tmp_path))
+    bus = Bus(url(port))
+    sup = start_stack(tmp_path, port, stack=stack)
+    try:
+        # flaky exits 3 at once: 4 failures in a row (delays 0.1, 0.2, 0.4 s) -> FAILED, and it stays FAILED.
+        bus.wait(lambda: (c := bus.cmd("flaky")) and c.state == CS.STATE_FAILED, 20, "flaky FAILED")
+        f = bus.cmd("flaky")
+        assert f.last_exit == 3 and f.restarts == 3 and "FAILED after 4 failures" in f.detail
+        time.sleep(2)
+        assert bus.cmd("flaky").state == CS.STATE_FAILED and bus.cmd("flaky").restarts == 3
+        out = ctl(port, "list").stdout
+        assert "flaky" in out and "FAILED" in out and "summary" in out
+        # The operator fixes the cause and starts it: it recovers.
+        (tmp_path / "flag").touch()
+        out = ctl(port, "start", "flaky").stdout
+        assert "RUNNING" in out
+        # restart: a new pid; stop: STOPPED, and stays stopped.
+        old = bus.cmd("summary").pid
+        ctl(port, "restart", "summary")
+        assert bus.cmd("summary").pid != old and bus.cmd("summary").state == CS.STATE_RUNNING
+        # Stopping the recorder stops the real lcm-logger (the wrapper's child) too, and the file ends cleanly.
+        rec = bus.cmd("recorder").pid
+        members = subprocess.run(["pgrep", "-g", str(rec)], capture_output=True, text=True).stdout.split()
+        assert len(members) == 2, f"wrapper and real lcm-logger expected in group {rec}: {members}"
+        ctl(port, "stop", "recorder")
+        assert not group_alive(rec), subprocess.run(["ps", "-g", str(rec)], capture_output=True, text=True).stdout
+        time.sleep(1.5)
+        assert bus.cmd("recorder").state == CS.STATE_STOPPED
+        files = sorted((tmp_path / "recordings").glob("P01_S9.lcm.*"))
+        evs = [ch for f in files for ch, _ in strict_events(f)]
+        assert "STATUS" in evs and "SUPERVISOR" in evs
+        # Output: captured per command, rotated by size, at most output_keep old files.
+        chatty = sorted(p.name for p in (tmp_path / "output").glob("chatty.log*"))
+        assert chatty == ["chatty.log", "chatty.log.1", "chatty.log.2"]
+        for p in (tmp_path / "output").glob("chatty.log*"):
+            assert p.stat().st_size <= 65536 + 65536   # rotated after the write that passed the limit
+        assert len(ctl(port, "tail", "flaky", "-n", "3").stdout.splitlines()) == 3
+        tail = ctl(port, "tail", "flaky", "-n", "40").stdout
+        assert "exited with status 3" in tail and "ready (first STATUS: log-summary)" in tail
+        bad = ctl(port, "stop", "nosuch", check=False)
+        assert bad.returncode == 2 and "no command or group 'nosuch'" in bad.stderr
+    finally:
+        err = stop_stack(sup)
+        bus.close()
+    assert "every command stopped" in err

@@ -74,12 +74,12 @@ static void test_stack(void)
     struct { const char *text, *want; } bad[] = {
         { "name: x\ngroups:\n  - name: g\n    commands:\n      - name: a\n        run: [x]\n        restrat: always\n", "stack.yaml:7: unknown key 'restrat'" },
         { "name: x\ngroups:\n  - name: g\n    commands:\n      - name: a\n        run: [x, \"${NOPE}\"]\n", "stack.yaml:6: unset variable NOPE" },
-        { "name: x\ngroups:\n  - name: g\n    commands:\n      - name: a\n        run: [x]\n      - name: a\n        run: [y]\n", "stack.yaml:7: name 'a' is used twice" },
+        { "name: x\ngroups:\n  - name: g\n    commands:\n      - name: a\n        run: [x]\n      - name: a\n        run: [y]\n", "stack.yaml:7: command name 'a' is used twice" },
         { "name: x\ngroups:\n  - name: g\n    commands:\n      - name: a\n        run: [x]\n        heartbeat_s: \"3\"\n", "stack.yaml:7" },
         { "name: x\ngroups:\n  - name: g\n    commands:\n      - name: a\n        run: []\n", "stack.yaml:6: a: run: expected a list" },
         { "name: x\ngroups:\n  - name: g\n    commands:\n      - name: a\n        run: [x]\n        restart: sometimes\n", "restart: expected always, on-failure or never, got 'sometimes'" },
         { "name: x\ndefaults: {backoff_initial_s: 5, backoff_max_s: 1}\ngroups:\n  - name: g\n    commands:\n      - name: a\n        run: [x]\n", "backoff_max_s is below" },
-        { "name: x\ngroups:\n  - name: a\n    commands:\n      - name: a\n        run: [x]\n", "used twice" },
+        { "name: x\ngroups:\n  - name: a\n    commands:\n      - name: b\n        run: [x]\n  - name: a\n    commands:\n      - name: c\n        run: [x]\n", "group 'a' is defined twice" },
         { "name: x\n", "missing required key 'groups'" },
     };
     for (size_t i = 0; i < sizeof bad / sizeof bad[0]; i++) {

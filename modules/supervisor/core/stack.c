@@ -275,17 +275,12 @@ int sv_stack_load(const char *path, sv_lookup_fn lk, void *u, sv_stack_t *s, pb_
             c->group_index = g;
             s->ncommands++;     /* counted first so sv_stack_free frees a half-read command */
             if (read_command(cn, &dflt, lk, u, c, err)) goto out;
-            if (sv_stack_find(s, c->name) != s->ncommands - 1 || sv_stack_find_group(s, c->name) >= 0) {
-                where(err, cn, "name '%s' is used twice (command and group names must all differ)%s", c->name, "");
+            if (sv_stack_find(s, c->name) != s->ncommands - 1) {
+                where(err, cn, "command name '%s' is used twice%s", c->name, "");
                 goto out;
             }
         }
     }
-    for (int g = 0; g < s->ngroups; g++)
-        if (sv_stack_find(s, s->groups[g]) >= 0) {
-            pb_err_set(err, "%s: group '%s' has the name of a command (names must all differ)", path, s->groups[g]);
-            goto out;
-        }
     rc = 0;
 out:
     pb_cfg_free(cfg);
