@@ -148,6 +148,13 @@ int pb_log_write(pb_log_t *log, int64_t timestamp, const char *channel, const vo
 int64_t pb_log_position(const pb_log_t *log) { return log ? log->pos : 0; }
 int64_t pb_log_size(const pb_log_t *log) { return log ? log->size : 0; }
 
+int pb_log_flush(pb_log_t *log, pb_err_t *err)
+{
+    if (!log || !log->writing) return 0;
+    if (fflush(log->out->f) != 0) return pb_err_set(err, "%s: flush failed: %s", log->path, strerror(errno));
+    return 0;
+}
+
 int pb_log_close(pb_log_t *log, pb_err_t *err)
 {
     if (!log) return 0;

@@ -48,6 +48,10 @@ int pb_log_write(pb_log_t *log, int64_t timestamp, const char *channel,
 int64_t pb_log_position(const pb_log_t *log);
 int64_t pb_log_size(const pb_log_t *log);
 
+/* Hands what was written to the kernel (fflush, no fsync): a recorder calls it often so a
+ * power loss costs at most the last moments. Returns 0 or -1. */
+int pb_log_flush(pb_log_t *log, pb_err_t *err);
+
 /* Flushes and closes; returns 0, or -1 if data could not be written. NULL is a no-op. */
 int pb_log_close(pb_log_t *log, pb_err_t *err);
 

@@ -446,7 +446,7 @@ static void on_status(const pb_msg_t *m, void *user)
         if (c && !c->leader_gone) {
             int was = c->p.state;
             sv_proc_heartbeat(&c->p, mono_us(), s.state);
-            if (was != (int)c->p.state) log_note(a, c, "pid %d ready (first STATUS: %s)", (int)c->p.pid, s.module);
+            if (was != (int)c->p.state) log_note(a, c, "pid %d ready (STATUS from its running loop: %s)", (int)c->p.pid, s.module);
         }
     }
     portobello_status_t_decode_cleanup(&s);

@@ -109,7 +109,9 @@ static void test_backoff_and_failed(void)
     CHECK(sv_proc_tick(&p, t, 1) == SV_DO_START);
     sv_proc_started(&p, 11, t);
     CHECK(p.state == SV_STARTING && !sv_proc_ready(&p));
-    sv_proc_heartbeat(&p, t + S(0.2), 1);
+    sv_proc_heartbeat(&p, t + S(0.01), 0);     /* alive (its bus is open), maybe still loading */
+    CHECK(p.state == SV_STARTING && !sv_proc_ready(&p));
+    sv_proc_heartbeat(&p, t + S(1.2), 1);      /* a beat from its running loop: ready */
     CHECK(p.state == SV_RUNNING && sv_proc_ready(&p) && p.restarts == 0);
 
     /* Quick failures: delays 0.1, 0.2, 0.4, 0.8, then FAILED at the 5th. */
@@ -185,6 +187,7 @@ static void test_hang_and_stop(void)
     sv_proc_start(&q, t);
     sv_proc_tick(&q, t, 1);
     sv_proc_started(&q, 50, t);
+    sv_proc_heartbeat(&q, t + S(0.1), 1);
     sv_proc_heartbeat(&q, t + S(0.5), 1);
     sv_proc_restart(&q, t + S(1));
     CHECK(q.state == SV_STOPPING);

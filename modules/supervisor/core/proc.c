@@ -102,6 +102,7 @@ void sv_proc_started(sv_proc_t *p, int32_t pid, int64_t now)
     p->pid = pid;
     p->started_us = now;
     p->last_status_us = 0;
+    p->beats = 0;
     p->module_state = -1;
     p->state = p->policy->ready == SV_READY_STARTED ? SV_RUNNING : SV_STARTING;
 }
@@ -138,7 +139,7 @@ void sv_proc_heartbeat(sv_proc_t *p, int64_t now, int module_state)
 {
     p->last_status_us = now;
     p->module_state = module_state;
-    if (p->state == SV_STARTING) p->state = SV_RUNNING;
+    if (p->state == SV_STARTING && ++p->beats >= 2) p->state = SV_RUNNING;
 }
 
 void sv_proc_start(sv_proc_t *p, int64_t now)

@@ -4,7 +4,7 @@
  * operator's request) with the time on a monotonic clock, and asks it each turn
  * what to do now (start, send SIGTERM to the group, SIGKILL it). No I/O, no clock.
  *
- *   STOPPED --start--> WAITING (group gate closed) --> STARTING --first STATUS--> RUNNING
+ *   STOPPED --start--> WAITING (group gate closed) --> STARTING --second STATUS--> RUNNING
  *   STARTING/RUNNING --exit--> BACKOFF --delay--> STARTING ...   (or EXITED: exit 0 with
  *       restart on-failure / never)
  *   STARTING/RUNNING --no STATUS for heartbeat_s after start_grace_s--> STOPPING --exit--> BACKOFF
@@ -41,6 +41,7 @@ typedef struct {
     int64_t started_us, stop_deadline_us, restart_at_us, last_status_us, last_exit_us;
     int32_t restarts, failures, last_exit, module_state;
     int runs;               /* runs started; a run after the first is a restart */
+    int beats;              /* STATUS heartbeats of this run */
     char detail[256];
 } sv_proc_t;
 
@@ -57,7 +58,9 @@ void sv_proc_heartbeat(sv_proc_t *p, int64_t now, int module_state);
 void sv_proc_start(sv_proc_t *p, int64_t now);
 void sv_proc_stop(sv_proc_t *p, int64_t now);
 void sv_proc_restart(sv_proc_t *p, int64_t now);
-/* Ready: the groups after this one may start. */
+/* Ready: the groups after this one may start. With ready: status, a module is ready at
+ * its second STATUS: the first goes out when its bus opens (it is alive, perhaps still
+ * loading a map), the next from its running loop a period later (it is subscribed). */
 int sv_proc_ready(const sv_proc_t *p);
 /* Delay before the next start after `failures` failures in a row. */
 double sv_backoff_s(const sv_policy_t *policy, int failures);
