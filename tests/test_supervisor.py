@@ -184,8 +184,8 @@ def test_fault_kill_hang_recording_and_no_trigger_twice(drive, tmp_path):
     sup = start_stack(tmp_path, port, sets=[f"LOG={drive}"])
     err = ""
     try:
-        bus.wait(lambda: (c := bus.cmd("player")) and c.state in (CS.STATE_RUNNING, CS.STATE_EXITED), 60,
-                 "every module up and the player started")
+        bus.wait(lambda: (c := bus.cmd("player")) and c.state in (CS.STATE_RUNNING, CS.STATE_EXITED), 240,
+                 "every module up and the player started")  # map load: 6-60 s
         t_play = time.monotonic()
         restarts = {}
         for name in ("can", "localizer", "director"):
@@ -250,7 +250,7 @@ def live(drive, tmp_path_factory):
     bus = Bus(url(port))
     sup = start_stack(tmp, port, sets=[f"LOG={drive}"])
     try:
-        bus.wait(lambda: (c := bus.cmd("player")) and c.state in (CS.STATE_RUNNING, CS.STATE_EXITED), 60, "startup")
+        bus.wait(lambda: (c := bus.cmd("player")) and c.state in (CS.STATE_RUNNING, CS.STATE_EXITED), 240, "startup")
         bus.wait(lambda: bus.cmd("player").state == CS.STATE_EXITED, DRIVE_S + 30, "the end of the log")
         time.sleep(1.5)
         restarts = {n: bus.cmd(n).restarts for n in ("can", "localizer", "director")}

@@ -36,13 +36,13 @@ build/bin/supervisor --config stacks/replay.yaml --set LOG="$out/drive.lcm" --se
 sup=$!
 trap 'kill -TERM $sup 2>/dev/null || true; wait $sup 2>/dev/null || true' EXIT
 # Until the player has played the whole log (state EXITED); the state every 20 s.
-deadline=$((SECONDS + 400)); next=0
+deadline=$((SECONDS + 600)); next=0
 while :; do
     state=$(build/bin/supervisorctl --stack replay --timeout 3 list 2>/dev/null || true)
     if [ $SECONDS -ge $next ] && [ -n "$state" ]; then echo "$state" | sed 's/^/   /'; next=$((SECONDS + 20)); fi
     echo "$state" | grep -Eq '^player +player +EXITED' && break
     echo "$state" | grep -Eq '^player +player +FAILED' && { echo "demo: the player FAILED" >&2; exit 1; }
-    [ $SECONDS -lt $deadline ] || { echo "demo: the live replay did not finish in 400 s" >&2; exit 1; }
+    [ $SECONDS -lt $deadline ] || { echo "demo: the live replay did not finish in 600 s" >&2; exit 1; }
     sleep 2
 done
 sleep 1.5    # the last messages reach the recorder
