@@ -112,6 +112,7 @@ def stop_stack(p, timeout=30):
         p.kill()
         out, err = p.communicate()
         raise AssertionError(f"supervisor did not stop within {timeout} s:\n{err}")
+    assert p.returncode == 0, f"supervisor exited {p.returncode}:\n{err}"
     return err
 
 
