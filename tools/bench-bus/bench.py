@@ -3,14 +3,15 @@
 
 A publisher puts 10 Hz LiDAR sweeps (64 x 1024 range images from a simulated drive,
 re-stamped to the wall clock), 200 Hz POSE_PREDICTED and 60 Hz AGENTS (12 agents) on a
-private bus. A supervised stack listens: the session recorder (lcm-logger), the
+private bus. A supervised stack listens: the session recorder (build/bin/recorder), the
 localizer (LIDAR_SCAN), lab_vehicle (AGENTS) and log-summary (every channel). Measured:
 - every message sent is in the recording (counted per channel, the files read strictly);
 - every live module received every message of its channels (its STATUS input counts);
 - resident memory of every process (the supervisor's 1 Hz figures per process group, and
   the supervisor's own) is flat: after a 60 s warm-up, max and last within 5% of the first.
-Baseline, measured in the same run on the same stream: a subscriber with LCM's default
-30-message queue (what a module gets without pb_bus raising it to 1000).
+Baselines, measured in the same run on the same stream: lcm-logger (from the lcm wheel,
+recording beside the recorder), and a subscriber with LCM's default 30-message queue
+(what a module gets without pb_bus raising it to 1000).
 Writes build/bench/bus.json and prints the table.
 
     tools/bench-bus/bench.py [--duration S] [--port N]
@@ -50,7 +51,9 @@ groups:
   - name: recorder
     commands:
       - name: recorder
-        run: [tools/record.sh, --participant, BENCH, --session, bus, --dir, {run}/recordings, --split-mb, "1024"]
+        run: [build/bin/recorder, --participant, BENCH, --session, bus, --dir, {run}/recordings, --split-mb, "1024"]
+      - name: lcm-logger
+        run: [tools/record.sh, --participant, BENCH, --session, lcmlogger, --dir, {run}/recordings, --split-mb, "1024"]
         ready: started
         heartbeat_s: 0
   - name: modules
@@ -90,7 +93,7 @@ def templates():
     p = portobello.pose_t()
     p.utime, p.position, p.orientation = 0, [1.0, 2.0, 0.0], [1.0, 0.0, 0.0, 0.0]
     p.velocity, p.angular_velocity, p.covariance = [5.0, 0, 0], [0, 0, 0], [0.0] * 36
-    p.status, p.source, p.match_score = portobello.pose_t.STATUS_TRACKING, "IMU", 0.0
+    p.status, p.source, p.match_score = portobello.pose_t.STATUS_TRACKING, portobello.pose_t.SOURCE_PREDICTED, 0.0
     a = portobello.agents_t()
     a.utime, a.scenario = 0, "bench"
     for i in range(12):
@@ -270,14 +273,19 @@ def main():
     rec = collections.Counter()
     for f in recs:
         rec += read_strict(f, pose_buf[16:])
+    base_rec = collections.Counter()
+    for f in sorted((run / "recordings").glob("BENCH_lcmlogger.lcm.*")):
+        base_rec += read_strict(f, pose_buf[16:])
 
     rows = []
     for ch in CHANNELS:
-        rows.append({"what": f"recorder (lcm-logger) {ch}", "sent": sent[ch], "got": rec[ch]})
+        rows.append({"what": f"recorder {ch}", "sent": sent[ch], "got": rec[ch]})
     for mod, chans in CONSUMERS.items():
         for ch in chans:
             got = final.get(mod, {}).get(ch, 0) - base0.get(mod, {}).get(ch, 0)
             rows.append({"what": f"{mod} {ch}", "sent": sent[ch], "got": got})
+    for ch in CHANNELS:
+        rows.append({"what": f"baseline: lcm-logger {ch}", "sent": sent[ch], "got": base_rec[ch]})
     for ch in CHANNELS:
         rows.append({"what": f"baseline: default 30-deep queue {ch}", "sent": sent[ch], "got": lis.baseline[ch]})
     mem = {name: flatness(s, a.warmup) for name, s in sorted(lis.rss.items())}
@@ -289,7 +297,7 @@ def main():
     print(f"\n{'process (group)':<14} {'RSS at ' + str(int(a.warmup)) + ' s':>12} {'max MB':>8} {'last MB':>8} {'max growth':>11} {'flat':>5}")
     flat_all = True
     for name, m in mem.items():
-        if m is None:
+        if m is None or name == "lcm-logger":
             continue
         ok = m["max_growth_pct"] <= 5
         flat_all &= ok
