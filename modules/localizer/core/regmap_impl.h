@@ -24,6 +24,9 @@ struct Level {
     double voxel = 0, inv_voxel = 0;
     VoxelHash index;
     std::vector<Cell> cells;
+    /* cells the map's points occupy without a reliable target (foliage, scattered
+     * structure): no registration target, but evidence for the structure test */
+    VoxelHash rough;
 
     const Cell *lookup(double x, double y, double z) const
     {
