@@ -293,7 +293,7 @@ def section_localization(s):
     tmax = max(t for t, _ in err) or 1
     emax = max(max(e) * 100, 1)
     pts = " ".join(f"{pad + t / tmax * (w - 2 * pad):.1f},{h - pad - v * 100 / emax * (h - 2 * pad):.1f}" for t, v in err)
-    ticks = "".join(f'<text x="4" y="{h - pad - f * (h - 2 * pad) + 4:.1f}" class="lbl">{f * emax:.0f} cm</text>'
+    ticks = "".join(f'<text x="4" y="{h - pad - f * (h - 2 * pad) + 4:.1f}" class="lbl">{f * emax:.1f} cm</text>'
                     for f in (0, 0.5, 1))
     xt = "".join(f'<text x="{pad + f * (w - 2 * pad):.1f}" y="{h - 10}" class="lbl">{f * tmax:.0f} s</text>'
                  for f in (0, 0.25, 0.5, 0.75, 1))
