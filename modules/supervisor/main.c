@@ -66,20 +66,6 @@ static int g_wake[2] = { -1, -1 };
 static volatile pid_t g_pgids[256];
 static int g_npgids;
 
-static int64_t mono_us(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (int64_t)ts.tv_sec * 1000000 + ts.tv_nsec / 1000;
-}
-
-static int64_t wall_us(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_REALTIME, &ts);
-    return (int64_t)ts.tv_sec * 1000000 + ts.tv_nsec / 1000;
-}
-
 /* First SIGINT/SIGTERM: stop every command in reverse start order, then exit. A second
  * one: SIGKILL every command's process group and exit at once. */
 static void on_stop_signal(int sig)
@@ -404,7 +390,7 @@ static void publish_state(app_t *a, int64_t now)
         cs[i] = (portobello_command_state_t){
             .name = c->cmd->name, .group = c->cmd->group, .state = (int8_t)c->p.state, .pid = c->p.pid,
             .restarts = c->p.restarts, .quick_failures = c->p.failures, .last_exit = c->p.last_exit,
-            .last_exit_utime = c->p.last_exit_us ? wall_us() - (now - c->p.last_exit_us) : 0,
+            .last_exit_utime = c->p.last_exit_us ? pb_bus_now(a->bus) - (now - c->p.last_exit_us) : 0,
             .uptime_s = c->p.pid > 0 ? (float)((now - c->p.started_us) * 1e-6) : 0,
             .cpu_percent = c->cpu_percent, .rss_bytes = c->p.pid > 0 ? c->rss_bytes : 0,
             .heartbeat_age_s = c->p.pid > 0 && c->p.last_status_us ? (float)((now - c->p.last_status_us) * 1e-6) : -1,
@@ -415,7 +401,7 @@ static void publish_state(app_t *a, int64_t now)
     }
     char cfg_path[SV_PATH_MAX];
     snprintf(cfg_path, sizeof cfg_path, "%s", a->stack.path);
-    portobello_supervisor_t m = { .utime = wall_us(), .stack = a->stack.name, .config_path = cfg_path,
+    portobello_supervisor_t m = { .utime = pb_bus_now(a->bus), .stack = a->stack.name, .config_path = cfg_path,
                                   .pid = (int32_t)getpid(), .ncommands = a->ncmds, .commands = cs };
     pb_err_t err;
     if (PB_PUBLISH(a->bus, "SUPERVISOR", portobello_supervisor_t, &m, &err)) pb_status_error(a->status, "SUPERVISOR: %s", err.msg);
@@ -445,7 +431,7 @@ static void on_status(const pb_msg_t *m, void *user)
         }
         if (c && !c->leader_gone) {
             int was = c->p.state;
-            sv_proc_heartbeat(&c->p, mono_us(), s.state);
+            sv_proc_heartbeat(&c->p, pb_bus_monotonic(a->bus), s.state);
             if (was != (int)c->p.state) log_note(a, c, "pid %d ready (STATUS from its running loop: %s)", (int)c->p.pid, s.module);
         }
     }
@@ -454,7 +440,7 @@ static void on_status(const pb_msg_t *m, void *user)
 
 static int apply(app_t *a, const char *action, const char *target)
 {
-    int64_t now = mono_us();
+    int64_t now = pb_bus_monotonic(a->bus);
     int g = sv_stack_find_group(&a->stack, target), n = 0;
     for (int i = 0; i < a->ncmds; i++) {
         cmd_t *c = &a->cmds[i];
@@ -540,7 +526,7 @@ static int shutdown_step(app_t *a, int64_t now)
 
 static int turn(app_t *a)
 {
-    int64_t now = mono_us();
+    int64_t now = pb_bus_monotonic(a->bus);
     reap(a, now);
     if (g_signals && !a->shutting_down) {
         a->shutting_down = 1;
@@ -731,12 +717,12 @@ int main(int argc, char **argv)
 
     fprintf(stderr, "supervisor: stack %s (%s): %d commands in %d groups, bus %s, output in %s\n", a.stack.name, config,
             a.ncmds, a.stack.ngroups, a.url, outdir);
-    int64_t now = mono_us();
+    int64_t now = pb_bus_monotonic(a.bus);
     for (int i = 0; i < a.ncmds; i++) sv_proc_start(&a.cmds[i].p, now);
     a.gate[0] = 1;
     int rc = run(&a);
     pb_status_set_state(a.status, PORTOBELLO_STATUS_T_STATE_STOPPING);
-    publish_state(&a, mono_us());
+    publish_state(&a, pb_bus_monotonic(a.bus));
     pb_status_publish(a.status);
     for (int i = 0; i < a.ncmds; i++) if (a.cmds[i].log_fd >= 0) close(a.cmds[i].log_fd);
     fprintf(stderr, "supervisor: every command stopped\n");

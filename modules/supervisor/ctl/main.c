@@ -31,13 +31,6 @@ static const char *state_name(int s)
     return s >= 0 && s < 8 ? names[s] : "UNKNOWN";
 }
 
-static int64_t mono_us(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (int64_t)ts.tv_sec * 1000000 + ts.tv_nsec / 1000;
-}
-
 static void usage(FILE *f)
 {
     fprintf(f,
@@ -81,7 +74,7 @@ static int wait_state(pb_bus_t *bus, ctl_t *c, int64_t deadline)
     c->fresh = 0;
     pb_err_t err;
     while (!c->fresh) {
-        int64_t left = deadline - mono_us();
+        int64_t left = deadline - pb_bus_monotonic(bus);
         if (left <= 0) return -1;
         struct pollfd p = { .fd = pb_bus_fileno(bus), .events = POLLIN };
         poll(&p, 1, (int)(left / 1000 + 1) > 100 ? 100 : (int)(left / 1000 + 1));
@@ -224,9 +217,9 @@ int main(int argc, char **argv)
     pb_bus_t *bus = pb_bus_create_live(url, &err);
     if (!bus) { fprintf(stderr, "supervisorctl: %s\n", err.msg); return 1; }
     pb_bus_subscribe(bus, "SUPERVISOR", on_supervisor, &c);
-    int64_t deadline = mono_us() + (int64_t)(timeout * 1e6);
+    int64_t deadline = pb_bus_monotonic(bus) + (int64_t)(timeout * 1e6);
     int rc = 1;
-    if (wait_state(bus, &c, mono_us() + (int64_t)((timeout < 3 ? timeout : 3) * 1e6))) {
+    if (wait_state(bus, &c, pb_bus_monotonic(bus) + (int64_t)((timeout < 3 ? timeout : 3) * 1e6))) {
         fprintf(stderr, "supervisorctl: no supervisor%s%s heard on %s%s%s\n", c.stack ? " of stack " : "", c.stack ? c.stack : "",
                 pb_lcm_url(url), c.other_stack[0] ? " (heard stack " : "", c.other_stack[0] ? c.other_stack : "");
         if (c.other_stack[0]) fprintf(stderr, ")\n");
