@@ -29,13 +29,14 @@ int pb_vehicle_load(const char *path, pb_vehicle_t *v, pb_err_t *err)
     pb_cfg_t *cfg = pb_cfg_load(path, err);
     if (!cfg) return -1;
     const pb_cfg_node_t *dims, *sensors, *sim, *lidar, *imu, *gnss;
-    struct { char name[64], dbc[256]; const pb_cfg_node_t *dims, *sensors, *sim; } top = { "", "", 0, 0, 0 };
+    struct { char name[64], dbc[256]; const pb_cfg_node_t *dims, *sensors, *sim, *seat; } top = { "", "", 0, 0, 0, 0 };
     const pb_cfg_field_t top_f[] = {
         { "name", PB_CFG_STRING, offsetof(typeof(top), name), sizeof top.name, 1 },
         { "dbc", PB_CFG_STRING, offsetof(typeof(top), dbc), sizeof top.dbc, 0 },
         { "dimensions", PB_CFG_NODE, offsetof(typeof(top), dims), 0, 1 },
         { "sensors", PB_CFG_NODE, offsetof(typeof(top), sensors), 0, 1 },
         { "simulation", PB_CFG_NODE, offsetof(typeof(top), sim), 0, 0 },
+        { "seat", PB_CFG_NODE, offsetof(typeof(top), seat), 0, 0 },
         PB_CFG_END };
     int rc = -1;
     if (pb_cfg_read(pb_cfg_root(cfg), top_f, &top, err)) goto out;
@@ -82,6 +83,11 @@ int pb_vehicle_load(const char *path, pb_vehicle_t *v, pb_err_t *err)
             F("gnss_noise", PB_CFG_DOUBLE, gnss_noise, 0, 0), F("gnss_noise_tau", PB_CFG_DOUBLE, gnss_noise_tau, 0, 0),
             PB_CFG_END };
         if (pb_cfg_read(sim, sim_f, v, err)) goto out;
+    }
+    if (top.seat) {     /* the driver's eye: the occlusion module's viewer without HEAD_POSE */
+        const pb_cfg_field_t seat_f[] = { F("eye_xyz", PB_CFG_DOUBLES, seat_eye_xyz, 3, 1), PB_CFG_END };
+        if (pb_cfg_read(top.seat, seat_f, v, err)) goto out;
+        v->has_seat_eye = 1;
     }
     if (v->wheelbase <= 0 || v->track_front <= 0 || v->track_rear <= 0 || v->length <= v->rear_overhang) {
         pb_err_set(err, "%s:%d: dimensions: wheelbase, tracks and length must be positive", path, pb_node_line(dims));

@@ -15,6 +15,8 @@ typedef struct {
     char dbc[512];          /* path of the DBC, resolved against the vehicle file's folder; "" if none */
     double length, width, height, wheelbase, track_front, track_rear, rear_overhang;
     double lidar_xyz[3], lidar_rpy_deg[3], imu_xyz[3], imu_rpy_deg[3], gnss_xyz[3], gnss_rpy_deg[3];
+    double seat_eye_xyz[3];  /* the driver's eye in base, m (seat: eye_xyz); valid if has_seat_eye */
+    int has_seat_eye;
     double imu_rate_hz, accel_noise, gyro_noise, accel_bias, gyro_bias;
     double lidar_range_noise, lidar_dropout, lidar_max_range, gnss_noise, gnss_noise_tau;
     pb_transform_t base_from_lidar, base_from_imu, base_from_gnss;  /* derived */

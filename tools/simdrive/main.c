@@ -14,6 +14,7 @@
 #include "gnss.h"
 #include "imu.h"
 #include "lidar.h"
+#include "occlusion_truth.h"
 #include "pb_log.h"
 #include "pb_progress.h"
 #include "rng.h"
@@ -44,6 +45,7 @@ static void usage(FILE *f)
     fprintf(f,
         "usage: simdrive --out DIR [--seed N] [--duration S] [--speed-profile cautious|normal|aggressive]\n"
         "                [--site SITE_DIR] [--vehicle FILE] [--mapping] [--no-lidar] [--quiet]\n"
+        "                [--scenario FILE [--head]]\n"
         "\n"
         "Simulates a drive around a site's route and writes DIR/drive.lcm (LCM log) and\n"
         "DIR/ground_truth.tum (base pose at 100 Hz: t x y z qx qy qz qw, t in seconds).\n"
@@ -63,6 +65,12 @@ static void usage(FILE *f)
         "  --mapping             the mapping day: mapping-day objects, no traffic, exactly\n"
         "                        one lap (ignores --duration), LiDAR keyframes at 2 Hz\n"
         "  --no-lidar            skip LIDAR_SCAN (fast drives for IMU, CAN and GNSS studies)\n"
+        "  --scenario FILE       stage the scenario's agents (the director's core on ground\n"
+        "                        truth): AGENTS (~33 Hz) and OCCLUSION_TRUTH at every sweep end\n"
+        "                        (analytic visibility of each body sample from the eye);\n"
+        "                        a bare name is looked up in SITE_DIR/scenarios/\n"
+        "  --head                also simulate the participant's head: HEAD_POSE (100 Hz),\n"
+        "                        the truth's eye; without it the eye is the vehicle's seat\n"
         "  --quiet               no progress bar\n"
         "  --help                this text\n",
         PB_SOURCE_DIR, PB_SOURCE_DIR);
@@ -89,7 +97,7 @@ static double st_dist_or_zero(const trajectory_t *tr, double t)
     return st.dist;
 }
 
-enum { S_GT, S_IMU, S_LIDAR, S_GNSS, S_CAN_WS, S_CAN_SPD, S_COUNT };
+enum { S_GT, S_IMU, S_LIDAR, S_GNSS, S_CAN_WS, S_CAN_SPD, S_TRUTH, S_COUNT };
 
 int main(int argc, char **argv)
 {
@@ -97,12 +105,14 @@ int main(int argc, char **argv)
     const char *veh_path = PB_SOURCE_DIR "/vehicles/prius2017.yaml", *profile = "normal";
     uint64_t seed = 1;
     double duration = 60;
-    int mapping = 0, quiet = 0, no_lidar = 0;
+    int mapping = 0, quiet = 0, no_lidar = 0, head = 0;
+    const char *scenario = NULL;
     static const struct option opts[] = {
         { "out", required_argument, 0, 'o' }, { "seed", required_argument, 0, 's' },
         { "duration", required_argument, 0, 'd' }, { "speed-profile", required_argument, 0, 'p' },
         { "site", required_argument, 0, 'S' }, { "vehicle", required_argument, 0, 'v' },
         { "mapping", no_argument, 0, 'm' }, { "no-lidar", no_argument, 0, 'L' }, { "quiet", no_argument, 0, 'q' },
+        { "scenario", required_argument, 0, 'c' }, { "head", no_argument, 0, 'H' },
         { "help", no_argument, 0, 'h' }, { 0, 0, 0, 0 } };
     int c;
     while ((c = getopt_long(argc, argv, "h", opts, NULL)) != -1) {
@@ -123,6 +133,8 @@ int main(int argc, char **argv)
         case 'm': mapping = 1; break;
         case 'q': quiet = 1; break;
         case 'L': no_lidar = 1; break;
+        case 'c': scenario = optarg; break;
+        case 'H': head = 1; break;
         case 'h': usage(stdout); return 0;
         default: usage(stderr); return 2;
         }
@@ -153,6 +165,16 @@ int main(int argc, char **argv)
         return 1;
     }
     world_build_grid(&world, mapping ? DAY_MAP : DAY_DRIVE, GRID_CELL_M);
+    sim_occ_t *occ = NULL;
+    if (scenario) {
+        char sc_path[1200];
+        if (!strchr(scenario, '/'))
+            snprintf(sc_path, sizeof sc_path, "%s/scenarios/%s%s", site_dir, scenario, strstr(scenario, ".yaml") ? "" : ".yaml");
+        else
+            snprintf(sc_path, sizeof sc_path, "%s", scenario);
+        occ = sim_occ_create(sc_path, &route, &veh, &world, head, seed, &err);
+        if (!occ) { fprintf(stderr, "simdrive: %s\n", err.msg); return 1; }
+    }
 
     /* The base origin (rear axle) halts so that the front bumper is 0.5 m behind the line. */
     double stop_offset = (veh.length - veh.rear_overhang) + 0.5;
@@ -198,8 +220,9 @@ int main(int argc, char **argv)
     /* Streams: period, phase; CAN frames carry a small receive-time jitter. */
     const int64_t period[S_COUNT] = { GT_PERIOD_US, (int64_t)llround(1e6 / veh.imu_rate_hz),
                                       mapping ? MAPPING_LIDAR_PERIOD_US : LIDAR_PERIOD_US, GNSS_PERIOD_US,
-                                      CAN_WHEEL_SPEEDS_PERIOD_US, CAN_SPEED_PERIOD_US };
-    const int64_t phase[S_COUNT] = { 0, 0, 0, 0, 2000, 5000 };
+                                      CAN_WHEEL_SPEEDS_PERIOD_US, CAN_SPEED_PERIOD_US, LIDAR_PERIOD_US };
+    /* OCCLUSION_TRUTH at the end of each sweep (its last column) */
+    const int64_t phase[S_COUNT] = { 0, 0, 0, 0, 2000, 5000, lm.col_off_us[LIDAR_COLS - 1] };
     int64_t k[S_COUNT] = { 0 };
     int64_t counts[S_COUNT] = { 0 };
     pb_progress_t prog;
@@ -212,6 +235,7 @@ int main(int argc, char **argv)
             if (s == S_CAN_WS || s == S_CAN_SPD)
                 t += (int64_t)llround((rng_uniform(seed, RNG_CAN_JITTER, (uint64_t)s, (uint64_t)k[s]) - 0.5) * 2 * CAN_JITTER_US);
             if (s == S_LIDAR && no_lidar) continue;
+            if (s == S_TRUTH && (!occ || mapping)) continue;
             if (t < end_us && (best < 0 || t < tb)) { best = s; tb = t; }
         }
         if (best < 0 || out.failed) break;
@@ -232,6 +256,7 @@ int main(int argc, char **argv)
             p.match_score = NAN;
             PB_LOG_WRITE_MSG(&out, "GROUND_TRUTH", portobello_pose_t, &p);
             if (k[best] % 50 == 0) pb_progress_update(&prog, tb);
+            if (occ) sim_occ_pose(occ, &st, utime, &out);
             fprintf(tum, "%.6f %.6f %.6f %.6f %.9f %.9f %.9f %.9f\n", utime * 1e-6, p.position[0], p.position[1],
                     p.position[2], p.orientation[1], p.orientation[2], p.orientation[3], p.orientation[0]);
             break;
@@ -244,6 +269,9 @@ int main(int argc, char **argv)
             PB_LOG_WRITE_MSG(&out, "IMU", portobello_imu_t, &m);
             break;
         }
+        case S_TRUTH:
+            sim_occ_truth(occ, &st, utime, &out);
+            break;
         case S_LIDAR:
             lidar_simulate(&ls, (int32_t)k[best], t, utime, &scan);
             PB_LOG_WRITE_MSG(&out, "LIDAR_SCAN", portobello_lidar_scan_t, &scan);
@@ -291,6 +319,7 @@ int main(int argc, char **argv)
                 (long long)(counts[S_CAN_WS] + counts[S_CAN_SPD]), (long long)counts[S_GNSS],
                 (long long)counts[S_GT], out_dir);
     lidar_sim_free(&ls);
+    sim_occ_destroy(occ);
     free(out.buf);
     traj_free(&traj);
     world_free(&world);

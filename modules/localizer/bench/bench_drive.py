@@ -11,8 +11,14 @@ POSE_PREDICTED rate. Baseline in the same run on the same logs: the LiDAR-only m
 (--no-imu --no-speed) on the seed-1 drives. Then the fault scenarios (seed 5, normal,
 40 s): a 3 s LiDAR gap, a 20 m jump (a wrong INITIAL_POSE, see docs/localizer.md), a
 GNSS-only start and an --initial-pose start without GNSS.
+Then starts like real life (bench_starts.py): mid-drive moving starts from 100 guesses
+within 3 m / 15 degrees (fused and LiDAR-only on the same cuts), GNSS 5 m off with its
+clock 2 s off, and no prior at all (global search in the full site map); and the faults
+of issue 9: a 30 s LiDAR outage, a GNSS clock 2 s off, a clock step back of 10 s on the
+live bus. Everything printed is also written to build/bench/localizer-drive.json.
   BENCH_QUICK=1  only seed 1 (three profiles) and the faults
-  BENCH_FAULTS_ONLY=1  only the fault scenarios
+  BENCH_FAULTS_ONLY=1  only the fault scenarios (and the starts)
+  BENCH_STARTS=N  N guesses per start mode instead of 100 (and N/5 GNSS and no-prior starts)
 """
 import math
 import os
@@ -22,6 +28,7 @@ import sys
 import numpy as np
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+import bench_starts  # noqa: E402
 import locbench as lb  # noqa: E402
 
 OUT = lb.ROOT / "build" / "bench-localizer-drive"
@@ -202,6 +209,148 @@ def main():
     if r:
         print(f"{'--initial-pose start, no GNSS':<34} tracking {r.get('first_tracking_s', float('nan')):.1f} s after the "
               f"first sweep; median {fmt(r.get('t_median'))} m, p99 {fmt(r.get('t_p99'))} m")
+    report = {"drives": results, "lidar_only": base, "faults": {}}
+    report["faults"]["lidar_outage_30s"] = fault_outage(d, log)
+    o = report["faults"]["lidar_outage_30s"]
+    print(f"{'LiDAR outage 30 s (limit 10 s), IMU+CAN':<34} LOST {fmt(o.get('lost_after_last_scan_s'), '{:.2f}')} s after the "
+          f"last sweep; tracking again {fmt(o.get('tracking_after_return_s'), '{:.2f}')} s after the scans return "
+          f"(error then {fmt(o.get('error_at_tracking_m'))} m)   (targets: LOST at the limit, tracking within 5 s)")
+    report["faults"]["gnss_clock_2s"] = fault_gnss_clock(d, log)
+    o = report["faults"]["gnss_clock_2s"]
+    print(f"{'GNSS clock 2 s off, GNSS-only start':<34} reported: {o.get('reported')}; tracking "
+          f"{fmt(o.get('first_tracking_s'), '{:.1f}')} s after the first sweep; median {fmt(o.get('t_median'))} m   "
+          f"(targets: reported, start-up within 3 s)")
+    report["faults"]["live_clock_step_10s"] = fault_live_clock_step(d, log)
+    o = report["faults"]["live_clock_step_10s"]
+    print(f"{'clock step back 10 s, live bus':<34} POSE_PREDICTED {fmt(o.get('rate_before_hz'), '{:.0f}')} Hz in the 3 s "
+          f"before, {fmt(o.get('rate_after_hz'), '{:.0f}')} Hz in the 3 s after; longest pause {fmt(o.get('max_pause_s'))} s; "
+          f"tracking at the end: {o.get('tracking_at_end')}   (target: POSE_PREDICTED keeps its rate)")
+    print()
+    n = int(os.environ.get("BENCH_STARTS", "100"))
+    report["starts"] = bench_starts.run_starts(d, log, lb.ROOT / "maps" / "default", n_guesses=n,
+                                               n_gnss=max(2, n // 5), n_global=max(2, n // 5))
+    bench_starts.write_json(lb.ROOT / "build" / "bench" / "localizer-drive.json", report)
+    print(f"written: {lb.ROOT / 'build' / 'bench' / 'localizer-drive.json'}")
+
+
+def fault_outage(d, log):
+    """30 s without LIDAR_SCAN (IMU and CAN go on), no GNSS, default limit 10 s."""
+    import subprocess
+    flog = d / "fault_outage.lcm"
+    subprocess.run([sys.executable, lb.ROOT / "tools/log-fault/log_fault.py", "lidar-gap", "--in", log, "--out", flog,
+                    "--at", "5", "--for", "30"], check=True, capture_output=True)
+    gt = lb.read_poses(d / "drive.lcm", "GROUND_TRUTH")
+    x, y, z, yaw = gt[0, 1], gt[0, 2], gt[0, 3], gt[0, 4] * 180 / math.pi
+    out = d / "out_outage.lcm"
+    p = lb.run_localizer(flog, out, ["--no-gnss", f"--initial-pose={x},{y},{z},0,0,{yaw}"])
+    if p.returncode != 0:
+        return {"error": p.stderr[-300:]}
+    poses = lb.read_poses(out, "POSE")
+    scans = lb.read_channel_times(flog, "LIDAR_SCAN")
+    t0 = lb.read_channel_times(flog, "IMU")[0]
+    last = scans[scans < t0 + 5e6].max() + 1e5       # the sweep's end
+    ret = scans[scans >= t0 + 35e6].min()
+    lost = poses[(poses[:, 5] == 3) & (poses[:, 0] > last)]
+    after = poses[poses[:, 0] >= ret]
+    trk = np.nonzero(after[:, 5] == 1)[0]
+    r = {"lost_after_last_scan_s": float(lost[0, 0] - last) * 1e-6 if len(lost) else None}
+    if len(trk):
+        r["tracking_after_return_s"] = float(after[trk[0], 0] - ret) * 1e-6
+        _, et, _ = lb.errors_vs_truth(after[trk[0]:trk[0] + 1], gt)
+        r["error_at_tracking_m"] = float(et[0]) if len(et) else None
+    return r
+
+
+def fault_live_clock_step(d, log, url="udpm://239.255.76.67:7901?ttl=0&recv_buf_size=8388608"):
+    """The drive published live (12 s from 3 s in) on a private bus; 6 s in, every sensor
+    time steps back 10 s (an NTP or GNSS time sync on the car). POSE_PREDICTED as received."""
+    import subprocess
+    import threading
+    import time
+
+    import lcm
+    from portobello import pose_t
+    flog = d / "fault_time_step.lcm"
+    subprocess.run([sys.executable, lb.ROOT / "tools/log-fault/log_fault.py", "time-step", "--in", log, "--out", flog,
+                    "--at", "9", "--seconds", "10"], check=True, capture_output=True)
+    chans = ["IMU", "LIDAR_SCAN", "GNSS_FIX", "VEHICLE_SPEED"]
+    # paced by the original event times (the wall clock runs on); the data carry the stepped times
+    events = [(o[0], o[1], f[2]) for o, f in zip(lb.read_events(log, chans), lb.read_events(flog, chans))]
+    lc = lcm.LCM(url)
+    got = []
+    lc.subscribe("POSE_PREDICTED", lambda ch, data: got.append((time.monotonic(), pose_t.decode(data).status)))
+    stop = threading.Event()
+
+    def spin():
+        while not stop.is_set():
+            lc.handle_timeout(20)
+
+    th = threading.Thread(target=spin, daemon=True)
+    th.start()
+    proc = subprocess.Popen([str(lb.BIN / "localizer"), "--site", str(lb.ROOT / "maps" / "default"), "--lcm-url", url,
+                             "--no-gnss"], stderr=subprocess.PIPE, text=True)
+    try:
+        lcm_pub = lcm.LCM(url)
+        time.sleep(2)
+        # wait for the map: the first STATUS
+        ready = []
+        lcm_pub.subscribe("STATUS", lambda ch, data: ready.append(1))
+        deadline = time.time() + 180
+        while not ready and time.time() < deadline:
+            lcm_pub.handle_timeout(100)
+        gt = lb.read_poses(d / "drive.lcm", "GROUND_TRUTH")
+        t_play0 = events[0][0] + 3_000_000
+        g = gt[np.searchsorted(gt[:, 0], t_play0)]
+        ip = pose_t()
+        ip.utime, ip.position = int(t_play0), [g[1], g[2], g[3]]
+        ip.orientation = [math.cos(g[4] / 2), 0.0, 0.0, math.sin(g[4] / 2)]
+        ip.velocity, ip.angular_velocity, ip.covariance = [0.0] * 3, [0.0] * 3, [0.0] * 36
+        ip.status, ip.source, ip.match_score = pose_t.STATUS_TRACKING, pose_t.SOURCE_OPERATOR, float("nan")
+        lcm_pub.publish("INITIAL_POSE", ip.encode())
+        play = [e for e in events if t_play0 <= e[0] < t_play0 + 12_000_000]
+        start = time.monotonic()
+        step_wall = None
+        for ts, ch, data in play:
+            delay = (ts - t_play0) * 1e-6 - (time.monotonic() - start)
+            if delay > 0:
+                time.sleep(delay)
+            if step_wall is None and ts >= events[0][0] + 9_000_000:
+                step_wall = time.monotonic()
+            lcm_pub.publish(ch, data)
+        time.sleep(0.5)
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+        stop.set()
+        th.join()
+    if step_wall is None or len(got) < 10:
+        return {"error": "no POSE_PREDICTED received"}
+    t = np.array([g[0] for g in got])
+    before = t[(t >= step_wall - 3) & (t < step_wall)]
+    after = t[(t >= step_wall) & (t < step_wall + 3)]
+    around = t[(t >= step_wall - 1) & (t < step_wall + 3)]
+    return {"rate_before_hz": len(before) / 3.0, "rate_after_hz": len(after) / 3.0,
+            "max_pause_s": float(np.max(np.diff(around))) if len(around) > 1 else None,
+            "tracking_at_end": bool(got[-1][1] == 1)}
+
+
+def fault_gnss_clock(d, log):
+    import subprocess
+    from portobello import status_t
+    flog = d / "fault_gnss_clock.lcm"
+    subprocess.run([sys.executable, lb.ROOT / "tools/log-fault/log_fault.py", "gnss-clock", "--in", log, "--out", flog,
+                    "--seconds", "2"], check=True, capture_output=True)
+    out = d / "out_gnss_clock.lcm"
+    p = lb.run_localizer(flog, out)
+    if p.returncode != 0:
+        return {"error": p.stderr[-300:]}
+    r = lb.score_run(d / "drive.lcm", out)
+    msgs = [status_t.decode(data) for _, _, data in lb.read_events(out, ["STATUS"])]
+    r["reported"] = next((m.last_error for m in msgs if "clock" in m.last_error), None)
+    return {k: (float(v) if isinstance(v, (np.floating, float)) else v) for k, v in r.items()}
 
 
 if __name__ == "__main__":

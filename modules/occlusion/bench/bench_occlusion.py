@@ -1,0 +1,92 @@
+#!/usr/bin/env python3
+"""make bench-occlusion: cost and agreement of the occlusion module on a 10-minute
+simulated drive with OCCLUSION_TRUTH, against stock OctoMap on the same sweeps.
+
+1. simdrive --scenario occlusion_scene --head, 600 s (once; kept in build/bench/occlusion/drive)
+2. occlusion-bench (one thread, thread CPU time): ours on every sweep (integrate; query of
+   100 agents), stock insertPointCloud + castRay on sweeps STOCK_FROM.. (after 10 warm-up)
+3. agreement with the truth: ours over the whole drive; ours and stock on the stock sweeps
+Prints a table; writes build/bench/occlusion.json.
+"""
+import json
+import os
+import subprocess
+import sys
+
+TOP = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", "..", ".."))
+BUILD = os.path.join(TOP, "build")
+sys.path.insert(0, os.path.join(BUILD, "python"))
+sys.path.insert(0, os.path.dirname(__file__))
+from occ_agreement import agreement, read  # noqa: E402
+
+DURATION = int(os.environ.get("OCC_BENCH_DURATION", "600"))
+STOCK_FROM = int(os.environ.get("OCC_BENCH_STOCK_FROM", "300"))
+STOCK_COUNT = int(os.environ.get("OCC_BENCH_STOCK_COUNT", "30"))
+
+
+def main():
+    d = os.path.join(BUILD, "bench", "occlusion")
+    drive = os.path.join(d, "drive", "drive.lcm")
+    stamp = os.path.join(d, "drive", f"done-{DURATION}")
+    if not os.path.exists(stamp):
+        print(f"bench-occlusion: simulating a {DURATION} s drive with agents and OCCLUSION_TRUTH (once) ...", flush=True)
+        subprocess.run([os.path.join(BUILD, "bin", "simdrive"), "--out", os.path.dirname(drive), "--duration",
+                        str(DURATION), "--seed", "3", "--scenario", "occlusion_scene", "--head", "--quiet"], check=True)
+        open(stamp, "w").close()
+    out = os.path.join(d, "bench_out.lcm")
+    print("bench-occlusion: ours on every sweep, stock OctoMap on "
+          f"{STOCK_COUNT} sweeps from {STOCK_FROM} (about 1-3 s each) ...", flush=True)
+    r = subprocess.run([os.path.join(BUILD, "bin", "occlusion-bench"), "--log", drive, "--out", out,
+                        "--stock-from", str(STOCK_FROM), "--stock-count", str(STOCK_COUNT)],
+                       check=True, stdout=subprocess.PIPE, text=True)
+    cost = json.loads(r.stdout)
+    ours_all = agreement(drive, out, "OCCLUSION")
+    stock_times = set(read(out, "OCCLUSION_STOCK")[0])
+    ours_sub = agreement(drive, out, "OCCLUSION", utimes=stock_times)
+    stock_sub = agreement(drive, out, "OCCLUSION_STOCK", utimes=stock_times)
+    mem = cost.pop("memory_per_minute")
+    memory = [dict(sweep=mem[i], leaves=mem[i + 1], map_bytes=mem[i + 2], rss_kb=mem[i + 3]) for i in range(0, len(mem), 4)]
+    res = dict(cost=cost, agreement_ours_drive=ours_all, agreement_ours_stock_sweeps=ours_sub,
+               agreement_stock=stock_sub, memory=memory, duration_s=DURATION, stock_from=STOCK_FROM,
+               stock_count=STOCK_COUNT)
+    with open(os.path.join(BUILD, "bench", "occlusion.json"), "w") as f:
+        json.dump(res, f, indent=1)
+
+    c = cost
+    print()
+    print("occlusion, one thread (thread CPU time)          ours          stock OctoMap   target")
+    print(f"integrate a 64x1024 sweep, median (ms)       {c['integrate_ms_p50']:9.2f}     {c['stock_insert_ms_p50']:12.1f}   <= 15")
+    print(f"integrate, p99 (ms)                          {c['integrate_ms_p99']:9.2f}     {c['stock_insert_ms_p99']:12.1f}   <= 30")
+    print(f"  stock / ours (median)                      {c['stock_insert_ms_p50'] / c['integrate_ms_p50']:9.0f}x")
+    print(f"query 100 agents, median (ms)                {c['query100_ms_p50']:9.3f}     {c['stock_query100_ms_p50']:12.3f}   <= 1")
+    print(f"  per ray (us)                               {c['ours_us_per_ray_p50']:9.3f}     {c['stock_us_per_ray_p50']:12.3f}")
+    print(f"sweeps                                       {c['sweeps']:9d}     {c['stock_sweeps']:12d}")
+    print()
+
+    def row(name, a):
+        cf = a["confusion"]
+        print(f"{name:34s} {a['samples']:8d} {100 * a['agreement']:7.2f}% {100 * a['visible_when_hidden_of_hidden']:7.2f}% "
+              f"{100 * a['visible_when_hidden_of_all']:7.3f}% {100 * a['unknown_fraction']:6.2f}% "
+              f"{100 * a['changes_within_one_sweep']:6.1f}% ({a['state_changes']})")
+        return cf
+    print("agreement with OCCLUSION_TRUTH (samples within 45 m)  samples  agree  vis|hid  vis|hid  unknown  changes<=1 sweep")
+    print("                                                                (of hid) (of all)")
+    cf = row("ours, whole drive", ours_all)
+    row(f"ours, the {STOCK_COUNT} stock sweeps", ours_sub)
+    row(f"stock OctoMap, same sweeps", stock_sub)
+    print("targets: agree >= 97%, visible when truly hidden <= 1%, every change within one sweep")
+    print()
+    print("confusion, ours, whole drive (rows truth, columns module)")
+    print(f"{'':16s}{'visible':>10s}{'hidden':>10s}{'unknown':>10s}")
+    for t in ("visible", "hidden"):
+        r_ = cf[f"truth_{t}"]
+        print(f"{t:16s}{r_['module_visible']:10d}{r_['module_hidden']:10d}{r_['module_unknown']:10d}")
+    print()
+    print("memory over the drive: minute, map leaves, map MB, process RSS MB")
+    for m in memory:
+        print(f"  {m['sweep'] / 600:4.0f}  {m['leaves']:9d}  {m['map_bytes'] / 1e6:7.1f}  {m['rss_kb'] / 1e3:7.1f}")
+    print(f"\nwritten: {os.path.join(BUILD, 'bench', 'occlusion.json')}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,454 @@
+/* occ_map: OctoMap occupancy in a rolling window, cleared by the sweep's own view;
+ * eye-ray queries (see occ_map.h). */
+#include "occ_map.h"
+
+#include <octomap/OcTree.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <unordered_map>
+#include <vector>
+
+using octomap::OcTree;
+using octomap::OcTreeKey;
+
+namespace {
+
+const int KEY_ORIGIN = 32768;               /* OctoMap's key of coordinate 0 (tree depth 16) */
+const int BLOCK_FINE_LOG2 = 5;              /* 32 fine voxels: 6.4 m blocks at 0.2 m */
+/* bitmap index of the fine occupied voxels, a ring over keys (x, y: 102.4 m; z: 12.8 m at 0.2 m) */
+const int FX = 512, FZ = 64;
+/* bitmap of observed voxels, a ring (x, y: 128 cells; z: 16) */
+const int CX = 128, CZ = 16;
+/* ground: lowest return per 1 m cell, a 256 x 256 ring; forgotten after GROUND_TTL sweeps */
+const int GN = 256, GROUND_TTL = 50;
+/* direction bins of a sweep for clearing */
+const int NAZ = 1024, NEL = 128;
+const double EL_MIN = -0.55, EL_MAX = 0.55;  /* rad (+-31.5 deg) */
+
+struct ground_cell_t { int32_t cx, cy, sweep; float minz; };
+
+inline uint64_t pack(const OcTreeKey &k) { return (uint64_t)k[0] | (uint64_t)k[1] << 16 | (uint64_t)k[2] << 32; }
+inline OcTreeKey unpack(uint64_t p) { return OcTreeKey((uint16_t)p, (uint16_t)(p >> 16), (uint16_t)(p >> 32)); }
+
+/* A set of 64-bit keys cleared in O(1) per sweep (generation stamps). */
+struct key_set_t {
+    std::vector<uint64_t> key;
+    std::vector<uint32_t> gen;
+    uint32_t g = 1;
+    size_t mask;
+    explicit key_set_t(int log2) : key((size_t)1 << log2), gen((size_t)1 << log2, 0), mask(((size_t)1 << log2) - 1) {}
+    void clear() { if (++g == 0) { std::fill(gen.begin(), gen.end(), 0); g = 1; } }
+    static size_t mix(uint64_t k) {     /* murmur3's finalizer: keys differ in few bits */
+        k ^= k >> 33; k *= 0xff51afd7ed558ccdull; k ^= k >> 33; k *= 0xc4ceb9fe1a85ec53ull; k ^= k >> 33;
+        return (size_t)k;
+    }
+    bool insert(uint64_t k) {   /* true if new; silently full (never here: sized for a sweep) */
+        size_t h = mix(k) & mask;
+        for (size_t i = 0; i <= mask; i++, h = (h + 1) & mask) {
+            if (gen[h] != g) { gen[h] = g; key[h] = k; return true; }
+            if (key[h] == k) return false;
+        }
+        return false;
+    }
+    bool has(uint64_t k) const {
+        size_t h = mix(k) & mask;
+        for (size_t i = 0; i <= mask; i++, h = (h + 1) & mask) {
+            if (gen[h] != g) return false;
+            if (key[h] == k) return true;
+        }
+        return false;
+    }
+};
+
+}  // namespace
+
+struct occ_map_t {
+    occ_config_t cfg;
+    OcTree fine, observed;
+    double inv_res, inv_cres;
+    int cshift;                             /* observed voxel = 2^cshift fine voxels */
+    int coff;                               /* observed key = (fine key >> cshift) + coff */
+    std::vector<uint64_t> fine_bits, obs_bits;
+    std::vector<uint64_t> any_bits;         /* observed-size cells that may hold an occupied fine voxel (queries skip the rest) */
+    std::vector<ground_cell_t> ground;
+    int32_t sweep = 0;
+    key_set_t hits{17};
+    std::vector<uint64_t> listed_bits;      /* fine voxels in `occupied` (same ring as fine_bits) */
+    std::vector<float> bin_min;             /* NEL x NAZ, +inf = no return in the bin */
+    std::unordered_map<uint64_t, char> blocks;   /* live 6.4 m blocks (packed block keys) */
+    octomap::KeyRay ray;
+    std::vector<uint64_t> to_clear;
+    std::vector<uint64_t> occupied;         /* keys whose bit went 0 -> 1 (stale ones dropped lazily) */
+
+    explicit occ_map_t(const occ_config_t &c) : cfg(c), fine(c.resolution), observed(c.observed_resolution) {}
+};
+
+static inline size_t fine_bit(const OcTreeKey &k) { return ((size_t)(k[2] & (FZ - 1)) * FX + (k[1] & (FX - 1))) * FX + (k[0] & (FX - 1)); }
+static inline size_t obs_bit(const OcTreeKey &k) { return ((size_t)(k[2] & (CZ - 1)) * CX + (k[1] & (CX - 1))) * CX + (k[0] & (CX - 1)); }
+static inline bool get_bit(const std::vector<uint64_t> &b, size_t i) { return (b[i >> 6] >> (i & 63)) & 1; }
+static inline void set_bit(std::vector<uint64_t> &b, size_t i) { b[i >> 6] |= 1ull << (i & 63); }
+static inline void clr_bit(std::vector<uint64_t> &b, size_t i) { b[i >> 6] &= ~(1ull << (i & 63)); }
+
+occ_map_t *occ_map_create(const occ_config_t *cfg)
+{
+    occ_map_t *m = new occ_map_t(*cfg);
+    for (OcTree *t : { &m->fine, &m->observed }) {
+        t->setProbHit(cfg->prob_hit);
+        t->setProbMiss(cfg->prob_miss);
+        t->setClampingThresMin(cfg->clamp_min);
+        t->setClampingThresMax(cfg->clamp_max);
+    }
+    m->inv_res = 1.0 / cfg->resolution;
+    m->inv_cres = 1.0 / cfg->observed_resolution;
+    m->cshift = (int)std::lround(std::log2(cfg->observed_resolution / cfg->resolution));
+    m->coff = KEY_ORIGIN - (KEY_ORIGIN >> m->cshift);
+    m->fine_bits.assign((size_t)FX * FX * FZ / 64, 0);
+    m->listed_bits.assign((size_t)FX * FX * FZ / 64, 0);
+    m->obs_bits.assign((size_t)CX * CX * CZ / 64, 0);
+    m->any_bits.assign((size_t)CX * CX * CZ / 64, 0);
+    m->ground.assign((size_t)GN * GN, ground_cell_t{ 0, 0, -1000000, 0 });
+    m->bin_min.assign((size_t)NAZ * NEL, INFINITY);
+    return m;
+}
+
+void occ_map_destroy(occ_map_t *m) { delete m; }
+
+void occ_map_clear(occ_map_t *m)
+{
+    m->fine.clear();
+    m->observed.clear();
+    std::fill(m->fine_bits.begin(), m->fine_bits.end(), 0);
+    std::fill(m->listed_bits.begin(), m->listed_bits.end(), 0);
+    std::fill(m->obs_bits.begin(), m->obs_bits.end(), 0);
+    std::fill(m->any_bits.begin(), m->any_bits.end(), 0);
+    for (ground_cell_t &g : m->ground) g.sweep = -1000000;
+    m->blocks.clear();
+    m->occupied.clear();
+}
+
+void occ_map_size(const occ_map_t *m, int64_t *leaves, int64_t *bytes)
+{
+    *leaves = (int64_t)m->fine.getNumLeafNodes() + (int64_t)m->observed.getNumLeafNodes();
+    *bytes = (int64_t)m->fine.memoryUsage() + (int64_t)m->observed.memoryUsage();
+}
+
+static inline bool key_of(double inv, double x, double y, double z, OcTreeKey &k)
+{
+    double c[3] = { x, y, z };
+    for (int i = 0; i < 3; i++) {
+        double f = std::floor(c[i] * inv) + KEY_ORIGIN;
+        if (!(f >= 0 && f < 2 * KEY_ORIGIN)) return false;
+        k[i] = (uint16_t)f;
+    }
+    return true;
+}
+
+static ground_cell_t *ground_cell(occ_map_t *m, int32_t cx, int32_t cy)
+{
+    return &m->ground[(size_t)(cy & (GN - 1)) * GN + (cx & (GN - 1))];
+}
+
+/* Lowest return over the 3 x 3 cells around (x, y) seen within GROUND_TTL sweeps; +inf if none. */
+static float ground_z(occ_map_t *m, float x, float y)
+{
+    int32_t cx = (int32_t)std::floor(x), cy = (int32_t)std::floor(y);
+    float z = INFINITY;
+    for (int dy = -1; dy <= 1; dy++)
+        for (int dx = -1; dx <= 1; dx++) {
+            const ground_cell_t *g = ground_cell(m, cx + dx, cy + dy);
+            if (g->cx == cx + dx && g->cy == cy + dy && m->sweep - g->sweep < GROUND_TTL) z = std::min(z, g->minz);
+        }
+    return z;
+}
+
+/* atan2 to 4e-6 rad (the bins are 6 mm rad wide): a minimax polynomial of atan on
+ * [0, 1] and the octant symmetries. */
+static inline double fast_atan2(double y, double x)
+{
+    double ax = std::fabs(x), ay = std::fabs(y);
+    double mx = std::max(ax, ay), mn = std::min(ax, ay);
+    if (mx == 0) return 0;
+    double a = mn / mx, s = a * a;
+    double r = ((((-0.0134804 * s + 0.0574773) * s - 0.1212390) * s + 0.1956359) * s - 0.3329946) * s * a + 0.9999956 * a;
+    if (ay > ax) r = M_PI_2 - r;
+    if (x < 0) r = M_PI - r;
+    return y < 0 ? -r : r;
+}
+
+/* Direction bin of a map point seen from the sweep's mid pose: -1 outside the bins. */
+static inline int bin_of(const occ_sweep_t *sw, double px, double py, double pz, double *range)
+{
+    double d[3] = { px - sw->mid_origin[0], py - sw->mid_origin[1], pz - sw->mid_origin[2] };
+    const double *R = sw->mid_rot;  /* sensor = R^T * d */
+    double lx = R[0] * d[0] + R[3] * d[1] + R[6] * d[2];
+    double ly = R[1] * d[0] + R[4] * d[1] + R[7] * d[2];
+    double lz = R[2] * d[0] + R[5] * d[1] + R[8] * d[2];
+    double h = std::sqrt(lx * lx + ly * ly);
+    *range = std::sqrt(h * h + lz * lz);
+    double el = fast_atan2(lz, h);
+    if (el < EL_MIN || el >= EL_MAX) return -1;
+    int e = (int)((el - EL_MIN) / (EL_MAX - EL_MIN) * NEL);
+    int a = (int)((fast_atan2(ly, lx) + M_PI) / (2 * M_PI) * NAZ) & (NAZ - 1);
+    return e * NAZ + a;
+}
+
+static uint64_t block_of(const OcTreeKey &fine_key)
+{
+    return pack(OcTreeKey(fine_key[0] >> BLOCK_FINE_LOG2, fine_key[1] >> BLOCK_FINE_LOG2, fine_key[2] >> BLOCK_FINE_LOG2));
+}
+
+/* Makes node a leaf: OctoMap frees a node's child array only when it prunes it (8
+ * equal leaf children), and deleting a node that still has that array trips its
+ * assertion (OctoMap 1.9.7's deleteNode does, for an emptied parent), so children
+ * are completed, equalled and pruned bottom up. */
+static void make_leaf(OcTree &t, octomap::OcTreeNode *node)
+{
+    if (!t.nodeHasChildren(node)) return;
+    for (unsigned i = 0; i < 8; i++) {
+        if (!t.nodeChildExists(node, i)) t.createNodeChild(node, i);
+        else make_leaf(t, t.getNodeChild(node, i));
+        t.getNodeChild(node, i)->setLogOdds(0);
+    }
+    t.pruneNode(node);
+}
+
+/* Removes the block (a node at depth) from its parent; the parent stays, possibly
+ * with no children (never deleted itself, see make_leaf). */
+static void delete_block(OcTree &t, const OcTreeKey &k, unsigned depth)
+{
+    octomap::OcTreeNode *parent = t.search(k, depth - 1);
+    if (!parent || !t.nodeHasChildren(parent)) return;
+    unsigned pos = octomap::computeChildIdx(k, 16 - depth);
+    if (!t.nodeChildExists(parent, pos)) return;
+    make_leaf(t, t.getNodeChild(parent, pos));
+    t.deleteNodeChild(parent, pos);
+}
+
+/* Deletes the blocks whose centre left the window from both trees and both bitmaps. */
+static int roll_window(occ_map_t *m, const double car[3])
+{
+    const double bs = m->cfg.resolution * (1 << BLOCK_FINE_LOG2);
+    const unsigned fine_depth = 16 - BLOCK_FINE_LOG2, obs_depth = 16 - (BLOCK_FINE_LOG2 - m->cshift);
+    int n = 0;
+    for (auto it = m->blocks.begin(); it != m->blocks.end();) {
+        OcTreeKey b = unpack(it->first);
+        double cx = ((int)b[0] - (KEY_ORIGIN >> BLOCK_FINE_LOG2) + 0.5) * bs;
+        double cy = ((int)b[1] - (KEY_ORIGIN >> BLOCK_FINE_LOG2) + 0.5) * bs;
+        if (std::hypot(cx - car[0], cy - car[1]) <= m->cfg.window_m) { ++it; continue; }
+        OcTreeKey f0(b[0] << BLOCK_FINE_LOG2, b[1] << BLOCK_FINE_LOG2, b[2] << BLOCK_FINE_LOG2);
+        delete_block(m->fine, f0, fine_depth);
+        int s = m->cshift, o = m->coff;
+        OcTreeKey c0((f0[0] >> s) + o, (f0[1] >> s) + o, (f0[2] >> s) + o);
+        delete_block(m->observed, c0, obs_depth);
+        const int nf = 1 << BLOCK_FINE_LOG2, nc = nf >> s;
+        for (int z = 0; z < nf; z++)
+            for (int y = 0; y < nf; y++)
+                for (int x = 0; x < nf; x++)
+                    clr_bit(m->fine_bits, fine_bit(OcTreeKey(f0[0] + x, f0[1] + y, f0[2] + z)));
+        for (int z = 0; z < nc; z++)
+            for (int y = 0; y < nc; y++)
+                for (int x = 0; x < nc; x++)
+                    { clr_bit(m->obs_bits, obs_bit(OcTreeKey(c0[0] + x, c0[1] + y, c0[2] + z))); clr_bit(m->any_bits, obs_bit(OcTreeKey(c0[0] + x, c0[1] + y, c0[2] + z))); }
+        it = m->blocks.erase(it);
+        n++;
+    }
+    return n;
+}
+
+void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_t *st)
+{
+    const occ_config_t &c = m->cfg;
+    occ_integrate_stats_t s = {};
+    m->sweep++;
+    const double r2max = c.range_m * c.range_m;
+    std::fill(m->bin_min.begin(), m->bin_min.end(), INFINITY);
+
+    /* 1. ground: lowest return per 1 m cell; the sweep binned by direction (nearest return).
+     * Every point_stride-th return (the others on the next sweeps): neighbouring returns of
+     * a 0.35-degree sweep mostly fall in the same 0.2 m voxel anyway */
+    const int ps = std::max(1, c.point_stride), p0 = m->sweep % ps;
+    for (int i = p0; i < sw->n; i += ps) {
+        float x = sw->x[i], y = sw->y[i], z = sw->z[i];
+        if (!std::isfinite(x) || !std::isfinite(y) || !std::isfinite(z)) continue;
+        double r;
+        int b = bin_of(sw, x, y, z, &r);
+        if (b >= 0 && r < m->bin_min[b]) m->bin_min[b] = (float)r;
+        if (r * r > r2max) continue;
+        int32_t cx = (int32_t)std::floor(x), cy = (int32_t)std::floor(y);
+        ground_cell_t *g = ground_cell(m, cx, cy);
+        if (g->cx != cx || g->cy != cy || m->sweep - g->sweep >= GROUND_TTL) *g = ground_cell_t{ cx, cy, m->sweep, z };
+        else { g->minz = std::min(g->minz, z); g->sweep = m->sweep; }
+    }
+
+    /* 2. hits: returns above the ground, one update per voxel */
+    m->hits.clear();
+    for (int i = p0; i < sw->n; i += ps) {
+        float x = sw->x[i], y = sw->y[i], z = sw->z[i];
+        if (!std::isfinite(x) || !std::isfinite(y) || !std::isfinite(z)) continue;
+        const double *o = sw->origins[sw->origin_index[i]];
+        double dx = x - o[0], dy = y - o[1], dz = z - o[2];
+        if (dx * dx + dy * dy + dz * dz > r2max) continue;
+        s.points++;
+        if (z < ground_z(m, x, y) + c.ground_clearance_m) { s.ground++; continue; }
+        OcTreeKey k;
+        if (!key_of(m->inv_res, x, y, z, k) || !m->hits.insert(pack(k))) continue;
+        octomap::OcTreeNode *nd = m->fine.updateNode(k, true, true);
+        s.hit_voxels++;
+        size_t bi = fine_bit(k);
+        if (nd && m->fine.isNodeOccupied(nd)) {
+            set_bit(m->fine_bits, bi);
+            set_bit(m->any_bits, obs_bit(OcTreeKey((k[0] >> m->cshift) + m->coff, (k[1] >> m->cshift) + m->coff, (k[2] >> m->cshift) + m->coff)));
+            if (!get_bit(m->listed_bits, bi)) { set_bit(m->listed_bits, bi); m->occupied.push_back(pack(k)); }
+        }
+        m->blocks.emplace(block_of(k), 1);
+    }
+
+    /* 3. misses: occupied voxels in view whose surrounding beams all went on past them */
+    m->to_clear.clear();
+    /* the occupied voxels come from a list kept beside the tree (iterating the tree's
+     * leaves costs more than the rest of the sweep); entries whose bit went are dropped */
+    for (size_t j = 0; j < m->occupied.size();) {
+        uint64_t pk = m->occupied[j];
+        OcTreeKey k = unpack(pk);
+        size_t bi = fine_bit(k);
+        if (!get_bit(m->fine_bits, bi)) {
+            clr_bit(m->listed_bits, bi);
+            m->occupied[j] = m->occupied.back();
+            m->occupied.pop_back();
+            continue;
+        }
+        j++;
+        if (m->hits.has(pk)) continue;
+        s.occupied_checked++;
+        octomap::point3d p = m->fine.keyToCoord(k);
+        double r;
+        int b = bin_of(sw, p.x(), p.y(), p.z(), &r);
+        if (b < 0 || r > c.range_m) continue;
+        int e = b / NAZ, a = b % NAZ, seen = 0;
+        bool past = true;
+        for (int de = -1; de <= 1 && past; de++)
+            for (int da = -1; da <= 1; da++) {
+                if (e + de < 0 || e + de >= NEL) continue;
+                float rb = m->bin_min[(size_t)(e + de) * NAZ + ((a + da) & (NAZ - 1))];
+                if (!std::isfinite(rb)) continue;
+                seen++;
+                if (rb < r + c.clear_margin_m) { past = false; break; }
+            }
+        if (past && seen > 0) m->to_clear.push_back(pack(k));
+    }
+    for (uint64_t p : m->to_clear) {
+        OcTreeKey k = unpack(p);
+        octomap::OcTreeNode *nd = m->fine.updateNode(k, false, true);
+        if (!nd || !m->fine.isNodeOccupied(nd)) { clr_bit(m->fine_bits, fine_bit(k)); s.cleared++; }
+    }
+
+    /* 4. observed space: every Nth beam traced through the coarse tree (new voxels only) */
+    int stride = std::max(1, c.observed_ray_stride);
+    for (int i = m->sweep % stride; i < sw->n; i += stride) {     /* other beams next sweep */
+        float x = sw->x[i], y = sw->y[i], z = sw->z[i];
+        if (!std::isfinite(x) || !std::isfinite(y) || !std::isfinite(z)) continue;
+        const double *o = sw->origins[sw->origin_index[i]];
+        double d[3] = { x - o[0], y - o[1], z - o[2] };
+        double len = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+        if (len < 1e-3) continue;
+        double f = std::min(1.0, c.range_m / len);
+        octomap::point3d po((float)o[0], (float)o[1], (float)o[2]);
+        octomap::point3d pe((float)(o[0] + d[0] * f), (float)(o[1] + d[1] * f), (float)(o[2] + d[2] * f));
+        if (!m->observed.computeRayKeys(po, pe, m->ray)) continue;
+        OcTreeKey ke;
+        if (m->observed.coordToKeyChecked(pe, ke)) m->ray.addKey(ke);
+        for (const OcTreeKey &k : m->ray) {
+            size_t bi = obs_bit(k);
+            if (get_bit(m->obs_bits, bi)) continue;
+            set_bit(m->obs_bits, bi);
+            m->observed.updateNode(k, false, true);
+            s.observed_new++;
+            int sh = m->cshift, o = m->coff;
+            m->blocks.emplace(block_of(OcTreeKey((k[0] - o) << sh, (k[1] - o) << sh, (k[2] - o) << sh)), 1);
+        }
+    }
+
+    /* 5. the rolling window */
+    s.blocks_deleted = roll_window(m, sw->car);
+    if (st) *st = s;
+}
+
+/* ---------------------------------------------------------------- queries */
+
+/* Where the ray e + t d (|d| = 1) leaves the car's box (0 if it starts outside it). */
+static double ego_exit(const occ_config_t &c, const double e[3], const double d[3], const double bp[3], double yaw)
+{
+    double cy = std::cos(yaw), sy = std::sin(yaw);
+    double o[3] = { cy * (e[0] - bp[0]) + sy * (e[1] - bp[1]), -sy * (e[0] - bp[0]) + cy * (e[1] - bp[1]), e[2] - bp[2] };
+    double v[3] = { cy * d[0] + sy * d[1], -sy * d[0] + cy * d[1], d[2] };
+    double lo[3] = { c.ego_x0, -c.ego_half_width, 0 }, hi[3] = { c.ego_x1, c.ego_half_width, c.ego_height };
+    for (int i = 0; i < 3; i++)
+        if (o[i] < lo[i] || o[i] > hi[i]) return 0;
+    double t = INFINITY;
+    for (int i = 0; i < 3; i++) {
+        if (v[i] > 1e-12) t = std::min(t, (hi[i] - o[i]) / v[i]);
+        else if (v[i] < -1e-12) t = std::min(t, (lo[i] - o[i]) / v[i]);
+    }
+    return std::isfinite(t) ? t : 0;
+}
+
+static int8_t query_one(const occ_map_t *m, const double e[3], const double bp[3], double yaw, double sx, double sy,
+                        double sz, float *occ)
+{
+    const occ_config_t &c = m->cfg;
+    *occ = NAN;
+    double d[3] = { sx - e[0], sy - e[1], sz - e[2] };
+    double len = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+    if (!(len <= c.range_m)) return OCC_UNKNOWN;
+    double tend = len - c.stop_short_m;
+    if (tend <= 0) return OCC_VISIBLE;
+    for (int i = 0; i < 3; i++) d[i] /= len;
+    double t = ego_exit(c, e, d, bp, yaw);
+    if (t >= tend) return OCC_VISIBLE;
+    /* 3-D DDA over the fine voxels from t to tend (Amanatides & Woo) */
+    const double res = c.resolution;
+    int key[3], step[3];
+    double tmax[3], tdelta[3];
+    for (int i = 0; i < 3; i++) {
+        double p = e[i] + d[i] * t;
+        double f = std::floor(p * m->inv_res);
+        key[i] = (int)f + KEY_ORIGIN;
+        if (d[i] > 1e-12) { step[i] = 1; tmax[i] = t + ((f + 1) * res - p) / d[i]; tdelta[i] = res / d[i]; }
+        else if (d[i] < -1e-12) { step[i] = -1; tmax[i] = t + (f * res - p) / d[i]; tdelta[i] = -res / d[i]; }
+        else { step[i] = 0; tmax[i] = INFINITY; tdelta[i] = INFINITY; }
+    }
+    bool unknown = false;
+    const int sh = m->cshift, co = m->coff;
+    for (;;) {
+        if (key[0] < 0 || key[1] < 0 || key[2] < 0 || key[0] >= 2 * KEY_ORIGIN || key[1] >= 2 * KEY_ORIGIN ||
+            key[2] >= 2 * KEY_ORIGIN)
+            return OCC_UNKNOWN;
+        OcTreeKey k((uint16_t)key[0], (uint16_t)key[1], (uint16_t)key[2]);
+        OcTreeKey ck((uint16_t)((key[0] >> sh) + co), (uint16_t)((key[1] >> sh) + co), (uint16_t)((key[2] >> sh) + co));
+        size_t cb = obs_bit(ck);
+        if (get_bit(m->any_bits, cb) && get_bit(m->fine_bits, fine_bit(k))) {
+            const octomap::OcTreeNode *nd = m->fine.search(k);
+            if (nd && m->fine.isNodeOccupied(nd)) { *occ = (float)t; return OCC_HIDDEN; }
+        }
+        if (!unknown && !get_bit(m->obs_bits, cb)) unknown = true;
+        int a = tmax[0] < tmax[1] ? (tmax[0] < tmax[2] ? 0 : 2) : (tmax[1] < tmax[2] ? 1 : 2);
+        t = tmax[a];
+        if (t >= tend) break;
+        key[a] += step[a];
+        tmax[a] += tdelta[a];
+    }
+    return unknown ? OCC_UNKNOWN : OCC_VISIBLE;
+}
+
+double occ_map_ego_exit(const occ_map_t *m, const double eye[3], const double d[3], const double base_pos[3], double base_yaw)
+{
+    return ego_exit(m->cfg, eye, d, base_pos, base_yaw);
+}
+
+void occ_map_query(const occ_map_t *m, const double eye[3], const double base_pos[3], double base_yaw, const float *x,
+                   const float *y, const float *z, int n, int8_t *state, float *occluder_m)
+{
+    for (int i = 0; i < n; i++) state[i] = query_one(m, eye, base_pos, base_yaw, x[i], y[i], z[i], &occluder_m[i]);
+}

@@ -1,0 +1,84 @@
+/* occ_map: what the LiDAR sees around the car, in the map frame, and what it hides
+ * from an eye.
+ *
+ * The store is OctoMap, two trees over one rolling window around the car:
+ *  - `fine` (0.2 m): occupancy of real objects above the ground. Each sweep's
+ *    endpoints are hits (one update per voxel, lazily); every occupied voxel in
+ *    view is then checked against the sweep itself, binned by direction: where
+ *    the beams around it went on past it (by clear_margin_m), it gets a miss, so
+ *    a bus that drove on is gone after one or two sweeps. This clears only the
+ *    voxels that hold something, instead of tracing every beam through the tree.
+ *  - `observed` (0.8 m): space the LiDAR has looked through or at (every
+ *    observed_ray_stride-th beam traced): what is not in it is unknown, not free.
+ * Ground returns (below the local ground + ground_clearance_m, from a 1 m grid of
+ * the lowest return) are not occluders: the eye looks along the ground at feet.
+ * Blocks of 6.4 m farther than window_m from the car are deleted from both trees.
+ *
+ * Queries walk the fine voxels from the eye to a sample (skipping the car's own
+ * box) through a bitmap index of the occupied voxels, confirmed in the tree:
+ * hidden if an occupied voxel lies before the sample, else unknown if any part of
+ * the way was never observed, else visible.
+ *
+ * Pure: no I/O, no clocks. Ownership: occ_map_create returns a map freed with
+ * occ_map_destroy; inputs are only read during the calls. */
+#ifndef OCC_MAP_H
+#define OCC_MAP_H
+
+#include <stdint.h>
+
+struct occ_config_t {
+    double resolution = 0.2;          /* fine voxel edge, m */
+    double observed_resolution = 0.8; /* observed-space voxel edge, m (a power of 2 times resolution) */
+    double range_m = 45.0;            /* returns and queries within this distance of the sensor / eye */
+    double window_m = 46.0;           /* rolling window: blocks whose centre is farther from the car go */
+    double ground_clearance_m = 0.25; /* returns this close to the local ground are ground */
+    double clear_margin_m = 0.4;      /* a beam that ends this far past a voxel clears it */
+    int point_stride = 2;             /* every Nth return per sweep for hits and ground (alternating) */
+    int observed_ray_stride = 8;      /* every Nth return's beam marks observed space (the next N-1 sweeps trace the others) */
+    double prob_hit = 0.7, prob_miss = 0.12, clamp_min = 0.12, clamp_max = 0.88;  /* one clear miss frees any voxel */
+    double stop_short_m = 0.3;        /* eye rays stop this far before the sample (the agent's own spot) */
+    /* the car's own box in base (the eye looks out through it): x from, x to, half width, height */
+    double ego_x0 = -1.04, ego_x1 = 3.50, ego_half_width = 0.88, ego_height = 1.47;
+};
+
+/* One sweep in the map frame: endpoints and, per endpoint, the index of its sensor origin. */
+struct occ_sweep_t {
+    int n;
+    const float *x, *y, *z;
+    const uint16_t *origin_index;     /* into origins */
+    int norigins;
+    const double (*origins)[3];       /* sensor positions during the sweep, map */
+    double mid_origin[3];             /* sensor at mid sweep, map: the view the sweep is binned in */
+    double mid_rot[9];                /* map <- sensor at mid sweep, row-major */
+    double car[3];                    /* base origin, map: the window's centre */
+};
+
+struct occ_integrate_stats_t {
+    int points, ground, hit_voxels, cleared, occupied_checked, observed_new, blocks_deleted;
+};
+
+enum { OCC_VISIBLE = 0, OCC_HIDDEN = 1, OCC_UNKNOWN = 2 };
+
+struct occ_map_t;
+
+occ_map_t *occ_map_create(const occ_config_t *cfg);
+void occ_map_destroy(occ_map_t *m);
+
+/* Integrates one sweep (returns beyond range_m or not finite are skipped). */
+void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_t *st);
+
+/* States of n samples seen from eye (map); base_pos/base_yaw place the car's own box.
+ * occluder_m: distance from the eye to the first occupied voxel (hidden), else NaN. */
+void occ_map_query(const occ_map_t *m, const double eye[3], const double base_pos[3], double base_yaw,
+                   const float *x, const float *y, const float *z, int n, int8_t *state, float *occluder_m);
+
+/* Distance along the eye ray (d unit) at which it leaves the car's own box; 0 if the eye is outside it. */
+double occ_map_ego_exit(const occ_map_t *m, const double eye[3], const double d[3], const double base_pos[3], double base_yaw);
+
+/* Forgets everything (e.g. after the pose jumped). */
+void occ_map_clear(occ_map_t *m);
+
+/* Size of the store: leaves of both trees and their memory (OctoMap's own count), bytes. */
+void occ_map_size(const occ_map_t *m, int64_t *leaves, int64_t *bytes);
+
+#endif

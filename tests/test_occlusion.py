@@ -1,0 +1,148 @@
+"""occlusion: a short simulated drive with staged agents and OCCLUSION_TRUTH, replayed
+through the module; agreement with the truth and bad input (NaN points, a lost pose,
+no HEAD_POSE, agents beyond range). Cost figures are measured by `make bench-occlusion`."""
+import math
+import sys
+
+import pytest
+
+from conftest import BIN, ROOT, read_log, run
+
+sys.path.insert(0, str(ROOT / "modules" / "occlusion" / "bench"))
+from occ_agreement import agreement  # noqa: E402
+
+FAULT = ROOT / "tools" / "log-fault" / "log_fault.py"
+PY = ROOT / ".venv" / "bin" / "python"
+
+
+@pytest.fixture(scope="module")
+def drive(tmp_path_factory):
+    d = tmp_path_factory.mktemp("occ")
+    run([BIN / "simdrive", "--out", d, "--duration", "12", "--seed", "5", "--scenario", "occlusion_scene", "--head",
+         "--quiet"])
+    return d / "drive.lcm"
+
+
+def replay(log, out, *extra):
+    return run([BIN / "occlusion", "--replay", log, "--out", out, *extra])
+
+
+def occlusions(path, channel="OCCLUSION"):
+    from portobello import occlusion_t
+    return [occlusion_t.decode(d) for _, _, d in read_log(path, {channel})]
+
+
+def statuses(path):
+    from portobello import status_t
+    return [status_t.decode(d) for _, _, d in read_log(path, {"STATUS"})]
+
+
+def counter(st, name):
+    return dict(zip(st.counter_names, st.counter_values)).get(name, 0)
+
+
+def test_help():
+    p = run([BIN / "occlusion", "--help"])
+    assert "OCCLUSION" in p.stdout and "--replay" in p.stdout
+
+
+def test_agrees_with_truth(drive, tmp_path):
+    out = tmp_path / "occ.lcm"
+    replay(drive, out, "--pose-channel", "GROUND_TRUTH")
+    occ = occlusions(out)
+    truth = occlusions(drive, "OCCLUSION_TRUTH")
+    assert len(occ) == len(truth) == 120          # one per sweep, none lost
+    a = agreement(drive, out)
+    assert a["samples"] > 5000
+    # measured on this drive (seed 5, 12 s from rest, so the LiDAR's blind zone around the
+    # car is unknown at first): agreement 0.938 (error 0.062), visible when truly hidden
+    # 0.35 % of all samples; bounds at 3x the measured errors
+    assert a["agreement"] >= 0.815
+    assert a["visible_when_hidden_of_all"] <= 0.0105
+    assert a["confusion"]["truth_hidden"]["module_hidden"] > 0     # it does see occluders
+    # replaying again gives the same bytes
+    out2 = tmp_path / "occ2.lcm"
+    replay(drive, out2, "--pose-channel", "GROUND_TRUTH")
+    assert out.read_bytes() == out2.read_bytes()
+
+
+def test_agents_beyond_range_are_unknown(drive, tmp_path):
+    out = tmp_path / "occ.lcm"
+    replay(drive, out, "--pose-channel", "GROUND_TRUTH")
+    far = 0
+    for m in occlusions(out):
+        for a in m.agents:
+            if a.nsamples and math.dist((a.sample_x[0], a.sample_y[0], 0), (m.viewer[0], m.viewer[1], 0)) > 60:
+                far += 1
+                assert set(a.state) == {2} and a.visible_fraction == 0
+    assert far > 100
+
+
+def test_lost_pose_makes_every_sample_unknown(drive, tmp_path):
+    """GROUND_TRUTH becomes POSE; between 4 and 7 s its status is lost, then initializing."""
+    import lcm
+    from portobello import pose_t
+    lost = tmp_path / "lost.lcm"
+    src = lcm.EventLog(str(drive), "r")
+    dst = lcm.EventLog(str(lost), "w", overwrite=True)
+    t0 = None
+    for ev in src:
+        t0 = ev.timestamp if t0 is None else t0
+        ch, data = ev.channel, ev.data
+        if ch == "GROUND_TRUTH":
+            p = pose_t.decode(data)
+            dt = (p.utime - t0) * 1e-6
+            if 4 <= dt < 5.5:
+                p.status = pose_t.STATUS_LOST
+            elif 5.5 <= dt < 7:
+                p.status = pose_t.STATUS_INITIALIZING
+            ch, data = "POSE", p.encode()
+        dst.write_event(ev.timestamp, ch, data)
+    dst.close()
+    out = tmp_path / "occ.lcm"
+    replay(lost, out)
+    occ = occlusions(out)
+    assert len(occ) == 120
+    during = [m for m in occ if 4.15 <= (m.utime - t0) * 1e-6 < 7]
+    assert len(during) >= 25
+    for m in during:
+        for a in m.agents:
+            assert all(s == 2 for s in a.state), "a sample without a usable pose must be unknown"
+    after = [m for m in occ if (m.utime - t0) * 1e-6 > 7.3]
+    assert any(s == 0 for m in after for a in m.agents for s in a.state)      # back once tracking
+    st = statuses(out)
+    assert counter(st[-1], "sweep_without_pose") >= 25
+    assert any("no usable pose" in s.last_error for s in st)
+
+
+def test_missing_head_pose_falls_back_to_the_seat(drive, tmp_path):
+    nohead = tmp_path / "nohead.lcm"
+    run([PY, FAULT, "drop-channel", "--channel", "HEAD_POSE", "--in", drive, "--out", nohead])
+    out = tmp_path / "occ.lcm"
+    replay(nohead, out, "--pose-channel", "GROUND_TRUTH")
+    from portobello import occlusion_t
+    occ = occlusions(out)
+    assert occ and all(m.eye_source == occlusion_t.EYE_SEAT for m in occ)
+    st = statuses(out)
+    assert counter(st[-1], "eye_seat_fallback") == 1
+    assert any("seat" in s.last_error for s in st)
+    assert any(s.state == s.STATE_DEGRADED for s in st)
+    # the truth's eye moved with the simulated head: the seat is close (a few cm), so the
+    # states still mostly agree (measured 0.939: error 0.061, bound 3x)
+    assert agreement(drive, out)["agreement"] >= 0.815
+
+
+def test_nan_points_are_dropped_and_counted(drive, tmp_path):
+    bad = tmp_path / "nan.lcm"
+    run([PY, FAULT, "nan-points", "--at", "3", "--count", "5", "--in", drive, "--out", bad])
+    out = tmp_path / "occ.lcm"
+    replay(bad, out, "--pose-channel", "GROUND_TRUTH")
+    occ = occlusions(out)
+    assert len(occ) == 120
+    for m in occ:
+        for a in m.agents:
+            assert all(s in (0, 1, 2) for s in a.state)
+            assert all(math.isfinite(v) for v in a.sample_x)
+    st = statuses(out)
+    assert counter(st[-1], "scan_nonfinite_points") > 0
+    assert agreement(drive, out)["agreement"] >= 0.815   # measured 0.938, as without the fault
