@@ -297,6 +297,20 @@ static int run_live(pb_bus_t *bus, pb_err_t *err)
     return 0;
 }
 
+int pb_bus_fileno(const pb_bus_t *bus) { return bus->replay ? -1 : lcm_get_fileno(bus->lcm); }
+
+int pb_bus_dispatch(pb_bus_t *bus, pb_err_t *err)
+{
+    if (bus->replay) return 0;
+    for (int i = 0; i < 1000; i++) {     /* bounded: a flood must not starve the caller */
+        int r = lcm_handle_timeout(bus->lcm, 0);
+        if (r == 0) break;
+        if (r < 0) return pb_err_set(err, "lcm_handle failed");
+    }
+    fire_timers(bus, mono_utime());
+    return 0;
+}
+
 int pb_bus_run(pb_bus_t *bus, pb_err_t *err)
 {
     return bus->replay ? run_replay(bus, err) : run_live(bus, err);

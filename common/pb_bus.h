@@ -94,6 +94,12 @@ void pb_bus_stop(pb_bus_t *bus);
  * (err set), else 0. */
 int pb_bus_advance(pb_bus_t *bus, int64_t t, pb_err_t *err);
 
+/* Live only, for shells that wait on other descriptors too (the supervisor's child
+ * pipes): the LCM socket to poll(), and a call that handles the messages waiting on
+ * it (without blocking) and fires the timers due. Replay: -1 and 0. */
+int pb_bus_fileno(const pb_bus_t *bus);
+int pb_bus_dispatch(pb_bus_t *bus, pb_err_t *err);
+
 /* Replay only: events read and delivered so far. */
 int64_t pb_bus_events_read(const pb_bus_t *bus);
 

@@ -23,6 +23,7 @@ struct pb_log {
     uint8_t *buf;
     size_t cap;
     char channel[PB_LOG_MAX_CHANNEL + 1];
+    char torn[700];             /* the warning about a torn last event; "" if none */
 };
 
 static uint32_t be32(const uint8_t *p) { return ((uint32_t)p[0] << 24) | ((uint32_t)p[1] << 16) | ((uint32_t)p[2] << 8) | p[3]; }
@@ -55,18 +56,36 @@ pb_log_t *pb_log_open_write(const char *path, pb_err_t *err)
     return log;
 }
 
+/* The file ends inside its last event: what lcm-logger leaves when the power goes
+ * (or it is killed) mid-write. Everything before is the study's data, so this is
+ * the end of the log, with a warning naming the byte offset, not an error. */
+static int torn_end(pb_log_t *log, int64_t at, int64_t have, int64_t need)
+{
+    char got[64] = "";
+    if (have >= 0) snprintf(got, sizeof got, " (%lld of its %lld bytes)", (long long)have, (long long)need);
+    snprintf(log->torn, sizeof log->torn,
+             "%s: byte %lld: warning: the last event is torn%s, as when a recording is cut short; "
+             "the log is read up to byte %lld", log->path, (long long)at, got, (long long)at);
+    fprintf(stderr, "%s\n", log->torn);
+    fseek(log->f, 0, SEEK_END);
+    log->pos = at;
+    return 0;
+}
+
+const char *pb_log_torn(const pb_log_t *log) { return log && log->torn[0] ? log->torn : NULL; }
+
 int pb_log_next(pb_log_t *log, pb_event_t *ev, pb_err_t *err)
 {
+    if (log && log->torn[0]) return 0;
     if (!log || log->writing) return pb_err_set(err, "pb_log_next: not a log opened for reading");
     uint8_t hdr[28];
     int64_t at = log->pos;
     size_t got = fread(hdr, 1, sizeof hdr, log->f);
     if (got == 0 && feof(log->f)) return 0;
-    if (got < sizeof hdr)
-        return pb_err_set(err, "%s: byte %lld: truncated event header (%zu of 28 bytes)", log->path, (long long)at, got);
-    if (be32(hdr) != PB_LOG_SYNC)
+    if (got >= 4 && be32(hdr) != PB_LOG_SYNC)
         return pb_err_set(err, "%s: byte %lld: bad sync word 0x%08x (expected 0xEDA1DA01): corrupt log",
                           log->path, (long long)at, be32(hdr));
+    if (got < sizeof hdr) return torn_end(log, at, got, 28);
     int64_t eventnum = (int64_t)be64(hdr + 4);
     int64_t timestamp = (int64_t)be64(hdr + 12);
     int32_t chlen = (int32_t)be32(hdr + 20);
@@ -77,10 +96,9 @@ int pb_log_next(pb_log_t *log, pb_event_t *ev, pb_err_t *err)
     if (datalen < 0 || datalen > PB_LOG_MAX_DATA)
         return pb_err_set(err, "%s: byte %lld: data length %d out of range: corrupt log", log->path, (long long)at, datalen);
     if (log->size >= 0 && at + 28 + chlen + (int64_t)datalen > log->size)
-        return pb_err_set(err, "%s: byte %lld: truncated event (needs %lld bytes, file ends at %lld)", log->path,
-                          (long long)at, (long long)(28 + chlen + (int64_t)datalen), (long long)log->size);
+        return torn_end(log, at, log->size - at, 28 + chlen + (int64_t)datalen);
     if (fread(log->channel, 1, (size_t)chlen, log->f) != (size_t)chlen)
-        return pb_err_set(err, "%s: byte %lld: truncated channel name", log->path, (long long)at);
+        return torn_end(log, at, -1, 28 + chlen + (int64_t)datalen);
     log->channel[chlen] = 0;
     for (int i = 0; i < chlen; i++) {
         unsigned char c = (unsigned char)log->channel[i];
@@ -95,7 +113,7 @@ int pb_log_next(pb_log_t *log, pb_event_t *ev, pb_err_t *err)
         log->cap = cap;
     }
     if (datalen && fread(log->buf, 1, (size_t)datalen, log->f) != (size_t)datalen)
-        return pb_err_set(err, "%s: byte %lld: truncated event data", log->path, (long long)at);
+        return torn_end(log, at, -1, 28 + chlen + (int64_t)datalen);
     log->pos = at + 28 + chlen + datalen;
     ev->eventnum = eventnum;
     ev->timestamp = timestamp;
@@ -129,6 +147,13 @@ int pb_log_write(pb_log_t *log, int64_t timestamp, const char *channel, const vo
 
 int64_t pb_log_position(const pb_log_t *log) { return log ? log->pos : 0; }
 int64_t pb_log_size(const pb_log_t *log) { return log ? log->size : 0; }
+
+int pb_log_flush(pb_log_t *log, pb_err_t *err)
+{
+    if (!log || !log->writing) return 0;
+    if (fflush(log->out->f) != 0) return pb_err_set(err, "%s: flush failed: %s", log->path, strerror(errno));
+    return 0;
+}
 
 int pb_log_close(pb_log_t *log, pb_err_t *err)
 {

@@ -32,9 +32,13 @@ typedef struct {
 pb_log_t *pb_log_open_read(const char *path, pb_err_t *err);
 pb_log_t *pb_log_open_write(const char *path, pb_err_t *err);
 
-/* Reads the next event. Returns 1 with *ev filled, 0 at a clean end of file,
- * -1 on a truncated or corrupt event (err: "PATH: byte N: what"). */
+/* Reads the next event. Returns 1 with *ev filled, 0 at the end of the file, -1 on a
+ * corrupt event (err: "PATH: byte N: what"). A file that ends inside its last event
+ * (a torn event: a recording cut by a power loss) ends there: 0, with a warning naming
+ * the byte offset printed to stderr and kept for pb_log_torn. */
 int pb_log_next(pb_log_t *log, pb_event_t *ev, pb_err_t *err);
+/* The torn-event warning once pb_log_next met one, else NULL. */
+const char *pb_log_torn(const pb_log_t *log);
 
 /* Appends an event (eventnum is assigned in order). Returns 0 or -1. */
 int pb_log_write(pb_log_t *log, int64_t timestamp, const char *channel,
@@ -43,6 +47,10 @@ int pb_log_write(pb_log_t *log, int64_t timestamp, const char *channel,
 /* Bytes read so far and file size (for progress), or written so far. */
 int64_t pb_log_position(const pb_log_t *log);
 int64_t pb_log_size(const pb_log_t *log);
+
+/* Hands what was written to the kernel (fflush, no fsync): a recorder calls it often so a
+ * power loss costs at most the last moments. Returns 0 or -1. */
+int pb_log_flush(pb_log_t *log, pb_err_t *err);
 
 /* Flushes and closes; returns 0, or -1 if data could not be written. NULL is a no-op. */
 int pb_log_close(pb_log_t *log, pb_err_t *err);

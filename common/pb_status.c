@@ -62,6 +62,9 @@ pb_status_t *pb_status_create(pb_bus_t *bus, const char *module, int64_t period_
     st->state = PORTOBELLO_STATUS_T_STATE_STARTING;
     pb_bus_set_input_hook(bus, on_input, st);
     pb_bus_add_timer(bus, st->period, on_timer, st);
+    /* Live, the first heartbeat goes out at once: a supervisor sees a (re)started
+     * module within milliseconds, not a period later. Replay keeps its log-time grid. */
+    if (!pb_bus_is_replay(bus)) pb_status_publish(st);
     return st;
 }
 

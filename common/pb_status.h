@@ -2,7 +2,8 @@
  *
  * Counts every message delivered by the bus per channel, keeps named counters
  * (rejected inputs by reason, ...) and the last error, and publishes a
- * portobello_status_t on channel STATUS every period (message time in replay).
+ * portobello_status_t on channel STATUS every period (message time in replay);
+ * live, the first one is published by pb_status_create itself.
  * Ownership: created on a bus, destroyed by the caller before the bus. */
 #ifndef PB_STATUS_H
 #define PB_STATUS_H

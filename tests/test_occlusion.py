@@ -18,7 +18,7 @@ PY = ROOT / ".venv" / "bin" / "python"
 @pytest.fixture(scope="module")
 def drive(tmp_path_factory):
     d = tmp_path_factory.mktemp("occ")
-    run([BIN / "simdrive", "--out", d, "--duration", "12", "--seed", "5", "--scenario", "occlusion_scene", "--head",
+    run([BIN / "simdrive", "--out", d, "--duration", "12", "--seed", "5", "--scenario", ROOT / "maps/default/scenes/occlusion_scene.yaml", "--head",
          "--quiet"])
     return d / "drive.lcm"
 

@@ -93,18 +93,14 @@ def event_offsets(path):
     return offs
 
 
-@pytest.mark.parametrize("damage", ["truncate", "corrupt"])
-def test_damaged_log_stops_with_byte_offset_and_keeps_output(drive, tmp_path, damage):
+def test_corrupt_log_stops_with_byte_offset_and_keeps_output(drive, tmp_path):
     d, n = drive
     offs = event_offsets(d / "in.lcm")
     assert len(offs) == n
     bad_event = 1000  # past 3.3 s of log time: STATUS at 1, 2, 3 s is already out
     src = tmp_path / "bad.lcm"
     data = bytearray((d / "in.lcm").read_bytes())
-    if damage == "truncate":
-        data = data[:offs[bad_event] + 17]
-    else:
-        data[offs[bad_event]:offs[bad_event] + 4] = b"JUNK"
+    data[offs[bad_event]:offs[bad_event] + 4] = b"JUNK"
     src.write_bytes(bytes(data))
     p = run([BIN / "log-summary", "--replay", src, "--out", tmp_path / "out.lcm"], check=False)
     assert p.returncode == 1
@@ -116,6 +112,23 @@ def test_damaged_log_stops_with_byte_offset_and_keeps_output(drive, tmp_path, da
     assert st[-1].state == portobello.status_t.STATE_ERROR
     assert f"byte {offs[bad_event]}" in st[-1].last_error
     assert sum(i.count for i in st[-1].inputs) == bad_event
+
+
+def test_torn_last_event_replays_up_to_the_cut_with_a_warning(drive, tmp_path):
+    """A recording cut by a power loss ends inside its last event: the replay reads
+    everything before it, warns with the byte offset, and exits 0 (the data is the study's)."""
+    d, n = drive
+    offs = event_offsets(d / "in.lcm")
+    cut = 1000
+    src = tmp_path / "torn.lcm"
+    src.write_bytes((d / "in.lcm").read_bytes()[:offs[cut] + 17])
+    p = run([BIN / "log-summary", "--replay", src, "--out", tmp_path / "out.lcm"], check=False)
+    assert p.returncode == 0, p.stderr
+    assert f"torn.lcm: byte {offs[cut]}: warning: the last event is torn (17 of its" in p.stderr
+    st = status_messages(tmp_path / "out.lcm")
+    assert len(st) == 4
+    assert st[-1].state == portobello.status_t.STATE_STOPPING
+    assert sum(i.count for i in st[-1].inputs) == cut
 
 
 def test_bad_arguments(tmp_path):

@@ -1,22 +1,23 @@
 #!/usr/bin/env bash
-# make demo, last step: the study report for the demo's two sessions (the lab twin and
-# the road car of tools/demo-study.sh, one participant "demo", lab first). Each
-# recording is the vehicle's log merged with one scenario's director output.
-#   tools/demo-study-report.sh [STUDY_OUT_DIR]   (default build/demo-study; the folder demo-study.sh wrote)
+# make demo, last step: the study report of the demo's two sessions, one participant
+# "demo", lab first. The lab session is the twin's drive merged with the director's
+# output; the road session is the supervised stack's recording (every channel of the
+# live bus, possibly split into several files by size).
+#   tools/demo-study-report.sh OUT_DIR LAB_LOG... -- ROAD_RECORDING...
 set -euo pipefail
 cd "$(dirname "$0")/.."
-out=${1:-build/demo-study}
+out=$1; shift
 site=${SITE:-maps/default}
+lab=(); road=()
+while [ $# -gt 0 ] && [ "$1" != "--" ]; do lab+=("$1"); shift; done
+[ $# -gt 0 ] && shift
+road=("$@")
+[ ${#lab[@]} -gt 0 ] && [ ${#road[@]} -gt 0 ] || { echo "usage: $0 OUT_DIR LAB_LOG... -- ROAD_RECORDING..." >&2; exit 2; }
 study="$out/study"
 mkdir -p "$study"
-echo "participant,order,platform,recording" > "$study/study.csv"
-for f in "$site"/scenarios/*.yaml; do
-    name=$(basename "$f" .yaml)
-    build/bin/log-merge --quiet --out "$study/lab_$name.lcm" "$out/lab.lcm" "$out/lab_$name.lcm"
-    build/bin/log-merge --quiet --out "$study/road_$name.lcm" "$out/road/localizer.lcm" "$out/road_$name.lcm"
-    echo "demo,lab_first,lab,lab_$name.lcm" >> "$study/study.csv"
-    echo "demo,lab_first,road,road_$name.lcm" >> "$study/study.csv"
-done
+build/bin/log-merge --quiet --out "$study/lab.lcm" "${lab[@]}"
+build/bin/log-merge --quiet --out "$study/road.lcm" "${road[@]}"
+printf 'participant,order,platform,recording\ndemo,lab_first,lab,lab.lcm\ndemo,lab_first,road,road.lcm\n' > "$study/study.csv"
 # The demo has no questionnaire: one participant's example ratings (a Bayes factor needs
 # at least two participants, so the table says "too few pairs").
 printf 'participant,platform,measure,value\ndemo,lab,realism,3\ndemo,road,realism,4\ndemo,lab,presence,3\ndemo,road,presence,5\n' \

@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Installs what a fresh Debian 12 needs to build and test the project. Idempotent:
+# Installs what a fresh Debian 12 needs to build and test the project (and what the
+# README's own commands use: procps for sysctl, iproute2 for ip). Idempotent:
 # installs only what is missing. Called by `make deps` (and by make, make test and
 # make demo when the stamp is missing or older than this script).
 set -euo pipefail
@@ -7,7 +8,7 @@ cd "$(dirname "$0")/.."
 
 APT_PKGS="build-essential pkg-config python3 python3-venv python3-pip libglib2.0-0 libglib2.0-dev \
 libyaml-dev libeigen3-dev libpcl-dev liboctomap-dev libccd-dev can-utils libcjson-dev \
-chromium chromium-driver mono-mcs mono-runtime libmono-system-runtime-serialization4.0-cil"
+chromium chromium-driver mono-mcs mono-runtime libmono-system-runtime-serialization4.0-cil procps iproute2"
 # nodejs + npm bundle the webui pages at build time (esbuild from npm); a machine whose
 # node already brings npm (e.g. NodeSource's nodejs) must not get Debian's npm on top.
 command -v npm >/dev/null 2>&1 || APT_PKGS="$APT_PKGS nodejs npm"

@@ -2,6 +2,7 @@
  *   can --iface can0 [--lcm-url URL]           live SocketCAN (raw socket, listen-only)
  *   can --candump FILE.log [--out OUT.lcm]     a `candump -l` capture (- stdin), to a log or live
  *   can --replay IN.lcm --out OUT.lcm          CAN_FRAME events of a log (simdrive, import-candump)
+ *   can --from-bus [--lcm-url URL]             CAN_FRAME on the live bus (a log played by lcm-logplayer)
  * The shell: options, input, publishing, STATUS. Decoding is can_speed.c, frame
  * layout can_kernel.c, the DBC can_dbc.c. */
 #include <errno.h>
@@ -53,7 +54,7 @@ typedef struct {
 static void usage(FILE *f)
 {
     fprintf(f,
-        "usage: can (--iface IFACE | --candump FILE.log [--out OUT.lcm] | --replay IN.lcm --out OUT.lcm)\n"
+        "usage: can (--iface IFACE | --candump FILE.log [--out OUT.lcm] | --replay IN.lcm --out OUT.lcm | --from-bus)\n"
         "           [--vehicle FILE.yaml] [--dbc FILE.dbc] [--bus N] [--checksum auto|toyota|none]\n"
         "           [--yaw-max-age-ms MS] [--lcm-url URL]\n"
         "\n"
@@ -72,6 +73,8 @@ static void usage(FILE *f)
         "  --realtime           live --candump: publish each frame at its time after the first\n"
         "                       (gaps capped at 1 s) instead of as fast as possible\n"
         "  --replay IN.lcm      offline: decode the CAN_FRAME events of IN; VEHICLE_SPEED to --out\n"
+        "  --from-bus           live: decode the CAN_FRAME messages on the bus (a drive played\n"
+        "                       with lcm-logplayer) to VEHICLE_SPEED, as --replay does offline\n"
         "  --out OUT.lcm        the log --candump / --replay write (with STATUS)\n"
         "  --vehicle FILE       vehicle file whose dbc: is used (default vehicles/prius2017.yaml)\n"
         "  --dbc FILE           a DBC instead of the vehicle's\n"
@@ -304,6 +307,7 @@ static int run_socket(app_t *a, const char *iface, pb_err_t *err)
 int main(int argc, char **argv)
 {
     const char *url = NULL, *in = NULL, *out = NULL, *candump = NULL, *iface = NULL;
+    int from_bus = 0;
     const char *vehicle_path = PB_SOURCE_DIR "/vehicles/prius2017.yaml", *dbc_path = NULL, *checksum = "auto";
     app_t a = { .frame_channel = "CAN_FRAME", .speed_channel = "VEHICLE_SPEED" };
     can_speed_config_t cfg;
@@ -314,7 +318,7 @@ int main(int argc, char **argv)
         { "vehicle", required_argument, 0, 'v' }, { "dbc", required_argument, 0, 'd' },
         { "bus", required_argument, 0, 'b' }, { "checksum", required_argument, 0, 'k' },
         { "yaw-max-age-ms", required_argument, 0, 'y' }, { "lcm-url", required_argument, 0, 'u' },
-        { "realtime", no_argument, 0, 'R' }, { "frame-channel", required_argument, 0, 'F' }, { "speed-channel", required_argument, 0, 'S' },
+        { "realtime", no_argument, 0, 'R' }, { "from-bus", no_argument, 0, 'B' }, { "frame-channel", required_argument, 0, 'F' }, { "speed-channel", required_argument, 0, 'S' },
         { "help", no_argument, 0, 'h' }, { 0, 0, 0, 0 },
     };
     int c;
@@ -334,6 +338,7 @@ int main(int argc, char **argv)
                   cfg.yaw_max_age_us = (int64_t)(dv * 1000); break;
         case 'u': url = optarg; break;
         case 'R': a.realtime = 1; break;
+        case 'B': from_bus = 1; break;
         case 'F': a.frame_channel = optarg; break;
         case 'S': a.speed_channel = optarg; break;
         case 'h': usage(stdout); return 0;
@@ -341,7 +346,8 @@ int main(int argc, char **argv)
         }
     }
     if (optind < argc) { fprintf(stderr, "can: unexpected argument '%s'\n", argv[optind]); usage(stderr); return 2; }
-    if (!!in + !!candump + !!iface != 1) { fprintf(stderr, "can: give exactly one of --iface, --candump, --replay\n"); usage(stderr); return 2; }
+    if (!!in + !!candump + !!iface + from_bus != 1) { fprintf(stderr, "can: give exactly one of --iface, --candump, --replay, --from-bus\n"); usage(stderr); return 2; }
+    if (from_bus && out) { fprintf(stderr, "can: --from-bus publishes to the live bus; --out goes with --candump or --replay\n"); return 2; }
     if (a.realtime && (!candump || out)) { fprintf(stderr, "can: --realtime goes with --candump to the live bus (no --out)\n"); return 2; }
     if (in && !out) { fprintf(stderr, "can: --replay needs --out OUT.lcm\n"); return 2; }
     if (iface && out) { fprintf(stderr, "can: --out goes with --candump or --replay, not --iface\n"); return 2; }
@@ -373,14 +379,15 @@ int main(int argc, char **argv)
     else if (candump && out) a.bus = pb_bus_create_source(out, &err);
     else a.bus = pb_bus_create_live(url, &err);
     if (!a.bus) { fprintf(stderr, "can: %s\n", err.msg); can_speed_destroy(a.dec); can_dbc_destroy(dbc); return 1; }
-    a.publish_frames = !in;
+    a.publish_frames = !in && !from_bus;     /* the frames are on the bus already */
     pb_signal_install();
     a.status = pb_status_create(a.bus, "can", 1000000);
     pb_status_set_state(a.status, PORTOBELLO_STATUS_T_STATE_OK);
 
     int rc;
-    if (in) {
+    if (in || from_bus) {
         pb_bus_subscribe(a.bus, a.frame_channel, on_can_frame, &a);
+        if (from_bus) fprintf(stderr, "can: decoding %s on %s\n", a.frame_channel, pb_lcm_url(url));
         rc = pb_bus_run(a.bus, &err);
     } else if (candump) {
         rc = run_candump(&a, candump, &err);

@@ -379,11 +379,10 @@ static double percentile(std::vector<double> v, double q)
 }
 
 /* Fails before anything runs: publish one STATUS naming the cause (to OUT in replay). */
-static int fail_start(pb_bus_t *bus, const char *msg)
+static int fail_start(pb_bus_t *bus, pb_status_t *st, const char *msg)
 {
     fprintf(stderr, "localizer: %s\n", msg);
     if (bus) {
-        pb_status_t *st = pb_status_create(bus, "localizer", 1000000);
         pb_status_set_state(st, PORTOBELLO_STATUS_T_STATE_ERROR);
         pb_status_count(st, "start_failed", 1);
         pb_status_error(st, "%s", msg);
@@ -456,9 +455,12 @@ int main(int argc, char **argv)
     pb_bus_t *bus = in ? pb_bus_create_replay(in, outp, &err) : pb_bus_create_live(url, &err);
     if (!bus) { fprintf(stderr, "localizer: %s\n", err.msg); return 1; }
     a.bus = bus;
+    /* The heartbeat starts before the map loads (seconds): live, a supervisor sees at once
+     * that the localizer is up (state STARTING). */
+    a.status = pb_status_create(bus, "localizer", 1000000);
 
     pb_vehicle_t veh;
-    if (pb_vehicle_load(vehicle.c_str(), &veh, &err) != 0) return fail_start(bus, err.msg);
+    if (pb_vehicle_load(vehicle.c_str(), &veh, &err) != 0) return fail_start(bus, a.status, err.msg);
     a.vehicle_name = veh.name;
     a.vehicle_path = vehicle;
     extrinsics_t ex;
@@ -470,13 +472,13 @@ int main(int argc, char **argv)
     struct stat sb;
     if (stat(site.c_str(), &sb) != 0 || !S_ISDIR(sb.st_mode)) {
         std::string m = site + ": site folder not found";
-        return fail_start(bus, m.c_str());
+        return fail_start(bus, a.status, m.c_str());
     }
     pb_site_t st;
     bool has_geo = false;
     std::string site_yaml = site + "/site.yaml";
     if (stat(site_yaml.c_str(), &sb) == 0) {
-        if (pb_site_load(site.c_str(), &st, &err) != 0) return fail_start(bus, err.msg);
+        if (pb_site_load(site.c_str(), &st, &err) != 0) return fail_start(bus, a.status, err.msg);
         has_geo = true;
     } else {
         fprintf(stderr, "localizer: %s: no site.yaml, so no geo-reference: GNSS_FIX is not used\n", site.c_str());
@@ -484,7 +486,7 @@ int main(int argc, char **argv)
     std::string map_path = site + "/map.pcd";
     double t0 = wall_ms();
     pb_regmap_t *map = pb_regmap_load(map_path.c_str(), nullptr, nullptr, &err);
-    if (!map) return fail_start(bus, err.msg);
+    if (!map) return fail_start(bus, a.status, err.msg);
     pb_regmap_info_t info;
     pb_regmap_info(map, &info);
     fprintf(stderr, "localizer: map %s: %lld points, %lld cells, loaded in %.1f s\n", map_path.c_str(),
@@ -496,7 +498,6 @@ int main(int argc, char **argv)
         fprintf(a.stats, "utime,wall_ms,reg_ms,status,matched,accepted,inlier_fraction,structure_inliers,score,innovation_chi2,gnss_residual_m\n");
     }
     a.L = localizer_create(cfg, ex, map, has_geo && a.use_gnss ? &st.geo : nullptr);
-    a.status = pb_status_create(bus, "localizer", 1000000);
     pb_signal_install();
     pb_bus_subscribe(bus, "LIDAR_SCAN", on_scan, &a);
     pb_bus_subscribe(bus, "IMU", on_imu, &a);

@@ -120,11 +120,19 @@ int main(void)
     snprintf(cmd, sizeof cmd, "cmp -s %s %s", out, out2);
     CHECK(system(cmd) == 0);
 
-    /* A truncated input: stops with the byte offset, keeps what was published before. */
+    /* A torn last event (the input cut short): a clean end after every whole event before
+     * the cut (the warning is on stderr), and everything published for them is kept. */
     snprintf(cmd, sizeof cmd, "head -c 4000 %s > %s", in, trunc);
     CHECK(system(cmd) == 0);
+    CHECK(run_replay(trunc, out2, &c, &err) == 0);
+    CHECK(c.echoes > 10 && c.echoes < 100);
+    CHECK(count_channel(out2, "ECHO", NULL) == c.echoes);
+
+    /* Damage inside the file (a bad sync word): stops with the byte offset, keeps what came before. */
+    snprintf(cmd, sizeof cmd, "cp %s %s && printf 'JUNK' | dd of=%s bs=1 seek=3975 conv=notrunc status=none", in, trunc, trunc);
+    CHECK(system(cmd) == 0);
     CHECK(run_replay(trunc, out2, &c, &err) == -1);
-    CHECK_CONTAINS(err.msg, "trunc.lcm: byte ");
+    CHECK_CONTAINS(err.msg, "trunc.lcm: byte 3975: bad sync word");
     CHECK(c.echoes > 10);
     CHECK(count_channel(out2, "ECHO", NULL) == c.echoes);
 

@@ -10,6 +10,7 @@
 #include "portobello_agent_t.h"
 #include "portobello_agents_t.h"
 #include "portobello_can_frame_t.h"
+#include "portobello_command_state_t.h"
 #include "portobello_gnss_fix_t.h"
 #include "portobello_head_pose_t.h"
 #include "portobello_imu_t.h"
@@ -20,11 +21,13 @@
 #include "portobello_pose_t.h"
 #include "portobello_scenario_event_t.h"
 #include "portobello_status_t.h"
+#include "portobello_supervisor_command_t.h"
+#include "portobello_supervisor_t.h"
 #include "portobello_vehicle_speed_t.h"
 
-#define TYPES(X) X(agent_occlusion_t) X(agent_t) X(agents_t) X(can_frame_t) X(gnss_fix_t) X(head_pose_t) \
+#define TYPES(X) X(agent_occlusion_t) X(agent_t) X(agents_t) X(can_frame_t) X(command_state_t) X(gnss_fix_t) X(head_pose_t) \
     X(imu_t) X(input_status_t) X(lidar_scan_t) X(occlusion_t) X(participant_input_t) X(pose_t) \
-    X(scenario_event_t) X(status_t) X(vehicle_speed_t)
+    X(scenario_event_t) X(status_t) X(supervisor_command_t) X(supervisor_t) X(vehicle_speed_t)
 
 /* Decode then re-encode; returns the new size or -1. */
 #define ROUNDTRIP(T) \

@@ -2,7 +2,7 @@
 """make bench-occlusion: cost and agreement of the occlusion module on a 10-minute
 simulated drive with OCCLUSION_TRUTH, against stock OctoMap on the same sweeps.
 
-1. simdrive --scenario occlusion_scene --head, 600 s (once; kept in build/bench/occlusion/drive)
+1. simdrive --scenario maps/default/scenes/occlusion_scene.yaml --head, 600 s (once; kept in build/bench/occlusion/drive)
 2. occlusion-bench (one thread, thread CPU time): ours on every sweep (integrate; query of
    100 agents), stock insertPointCloud + castRay on sweeps STOCK_FROM.. (after 10 warm-up)
 3. agreement with the truth: ours over the whole drive; ours and stock on the stock sweeps
@@ -31,7 +31,7 @@ def main():
     if not os.path.exists(stamp):
         print(f"bench-occlusion: simulating a {DURATION} s drive with agents and OCCLUSION_TRUTH (once) ...", flush=True)
         subprocess.run([os.path.join(BUILD, "bin", "simdrive"), "--out", os.path.dirname(drive), "--duration",
-                        str(DURATION), "--seed", "3", "--scenario", "occlusion_scene", "--head", "--quiet"], check=True)
+                        str(DURATION), "--seed", "3", "--scenario", os.path.join(TOP, "maps", "default", "scenes", "occlusion_scene.yaml"), "--head", "--quiet"], check=True)
         open(stamp, "w").close()
     out = os.path.join(d, "bench_out.lcm")
     print("bench-occlusion: ours on every sweep, stock OctoMap on "
