@@ -7,7 +7,12 @@
 DEFAULT_SITE := maps/default
 DEFAULT_MAPPING := $(BUILD)/sites/default-mapping
 
-maps: $(DEFAULT_SITE)/map.pcd
+maps: $(DEFAULT_SITE)/map.pcd $(DEFAULT_SITE)/map.tiles
+
+# The same map prepared and cut into tiles, which the localizer pages in around the car.
+$(DEFAULT_SITE)/map.tiles: $(DEFAULT_SITE)/map.pcd $(BIN)/map-tiles
+	@echo "  TILES   $@"
+	@$(BIN)/map-tiles --map $< --out $@ --quiet
 
 $(DEFAULT_SITE)/map.pcd: $(BIN)/simdrive $(BIN)/build-map $(DEFAULT_SITE)/site.yaml $(DEFAULT_SITE)/route.yaml \
                          $(DEFAULT_SITE)/world.yaml vehicles/prius2017.yaml

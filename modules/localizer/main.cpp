@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "core/localizer.h"
+#include "map_source.h"
 #include "pb_arg.h"
 #include "pb_bus.h"
 #include "pb_signal.h"
@@ -50,7 +51,20 @@ struct app_t {
     double pending_prep_ms = 0;
     std::vector<int32_t> red_range, red_off;
     std::vector<uint8_t> red_refl;
+    map_source_t *map = nullptr;   /* paged around the newest position (map.tiles) */
+    const pb_georef_t *geo = nullptr;
 };
+
+/* Pages the map's tiles in around map (x, y): the newest position known (a pose, a
+ * GNSS fix, an initial pose). A no-op for a map loaded whole. */
+static void page_map(app_t *a, double x, double y)
+{
+    pb_err_t err;
+    if (map_source_page(a->map, x, y, &err) < 0) {
+        pb_status_count(a->status, "map_tile_unreadable", 1);
+        pb_status_error(a->status, "%s", err.msg);
+    }
+}
 
 static void input_time(app_t *a, const char *channel, int64_t utime)
 {
@@ -139,6 +153,8 @@ static void flush(app_t *a, double t0 = -1)
             pb_status_error(a->status, "%s: %s", ch, err.msg);
         }
         (p.predicted ? a->predicted : a->poses)++;
+        if (!p.predicted && p.status != ST_INITIALIZING)
+            page_map(a, p.map_from_base.translation().x(), p.map_from_base.translation().y());
     }
     for (const event_t &e : a->out.events) {
         pb_status_count(a->status, e.counter.c_str(), 1);
@@ -272,6 +288,12 @@ static void on_gnss(const pb_msg_t *m, void *user)
         gnss_in_t g;
         g.utime = s.utime; g.fix_type = s.fix_type; g.lat_deg = s.lat_deg; g.lon_deg = s.lon_deg; g.alt_m = s.alt_m;
         g.h_acc_m = s.h_acc_m; g.speed_mps = s.speed_mps; g.heading_deg = s.heading_deg; g.heading_acc_deg = s.heading_acc_deg;
+        if (a->geo && s.fix_type > 0 && std::isfinite(s.lat_deg) && std::isfinite(s.lon_deg)) {
+            double xyz[3];
+            pb_geo_wgs84_to_map(a->geo, s.lat_deg, s.lon_deg, s.alt_m, xyz);
+            int st = localizer_status(a->L);
+            if (st == ST_INITIALIZING || st == ST_LOST) page_map(a, xyz[0], xyz[1]);
+        }
         localizer_gnss(a->L, g, &a->out);
     }
     portobello_gnss_fix_t_decode_cleanup(&s);
@@ -293,6 +315,7 @@ static void on_initial_pose(const pb_msg_t *m, void *user)
         Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
         T.linear() = q.normalized().toRotationMatrix();
         T.translation() = Vec3(s.position[0], s.position[1], s.position[2]);
+        page_map(a, T.translation().x(), T.translation().y());
         localizer_initial_pose(a->L, s.utime, T, &a->out);
     }
     portobello_pose_t_decode_cleanup(&s);
@@ -430,21 +453,27 @@ int main(int argc, char **argv)
     } else {
         fprintf(stderr, "localizer: %s: no site.yaml, so no geo-reference: GNSS_FIX is not used\n", site.c_str());
     }
-    std::string map_path = site + "/map.pcd";
     double t0 = wall_ms();
-    pb_regmap_t *map = pb_regmap_load(map_path.c_str(), nullptr, nullptr, &err);
-    if (!map) return fail_start(bus, err.msg);
+    a.map = map_source_open(site, nullptr, &err);
+    if (!a.map) return fail_start(bus, err.msg);
+    const pb_regmap_t *map = map_source_map(a.map);
+    if (cfg.has_initial_pose) map_source_page(a.map, cfg.initial_pose[0], cfg.initial_pose[1], &err);
     pb_regmap_info_t info;
     pb_regmap_info(map, &info);
-    fprintf(stderr, "localizer: map %s: %lld points, %lld cells, loaded in %.1f s\n", map_path.c_str(),
-            (long long)info.points, (long long)info.cells, (wall_ms() - t0) * 1e-3);
+    if (map_source_paged(a.map))
+        fprintf(stderr, "localizer: map %s: %lld points, paged in tiles within %.0f m of the car\n",
+                map_source_path(a.map), (long long)info.points, info.load_radius_m);
+    else
+        fprintf(stderr, "localizer: map %s: %lld points, %lld cells, loaded in %.1f s\n", map_source_path(a.map),
+                (long long)info.points, (long long)info.cells, (wall_ms() - t0) * 1e-3);
 
     if (stats) {
         a.stats = fopen(stats, "w");
-        if (!a.stats) { fprintf(stderr, "localizer: %s: cannot write\n", stats); pb_regmap_destroy(map); pb_bus_destroy(bus); return 1; }
+        if (!a.stats) { fprintf(stderr, "localizer: %s: cannot write\n", stats); map_source_close(a.map); pb_bus_destroy(bus); return 1; }
         fprintf(a.stats, "utime,wall_ms,reg_ms,status,matched,accepted,inlier_fraction,structure_inliers,score,innovation_chi2,gnss_residual_m\n");
     }
-    a.L = localizer_create(cfg, ex, map, has_geo && a.use_gnss ? &st.geo : nullptr);
+    a.geo = has_geo && a.use_gnss ? &st.geo : nullptr;
+    a.L = localizer_create(cfg, ex, map, a.geo);
     a.status = pb_status_create(bus, "localizer", 1000000);
     pb_signal_install();
     pb_bus_subscribe(bus, "LIDAR_SCAN", on_scan, &a);
@@ -474,7 +503,7 @@ int main(int argc, char **argv)
     pb_status_destroy(a.status);
     localizer_destroy(a.L);
     pb_points_free(&a.pts);
-    pb_regmap_destroy(map);
+    map_source_close(a.map);
     pb_bus_destroy(bus);
     return rc == 0 ? 0 : 1;
 }

@@ -85,6 +85,8 @@ size_t build_level(const float *xyz, size_t n, double voxel, const pb_regmap_con
     lv->index.reset(keys.size());
     lv->cells.clear();
     lv->cells.reserve(keys.size());
+    lv->keys.clear();
+    lv->keys.reserve(keys.size());
     for (size_t c = 0; c < keys.size(); c++) {
         int64_t ix, iy, iz;
         voxel_unkey(keys[c], &ix, &iy, &iz);
@@ -125,6 +127,7 @@ size_t build_level(const float *xyz, size_t n, double voxel, const pb_regmap_con
         bool inserted;
         lv->index.insert(keys[c], (int32_t)lv->cells.size(), &inserted);
         lv->cells.push_back(cell);
+        lv->keys.push_back(keys[c]);
     }
     return lv->cells.size();
 }

@@ -24,6 +24,7 @@ struct Level {
     double voxel = 0, inv_voxel = 0;
     VoxelHash index;
     std::vector<Cell> cells;
+    std::vector<uint64_t> keys;   /* voxel key of each cell (for tiling and paging) */
 
     const Cell *lookup(double x, double y, double z) const
     {
