@@ -17,6 +17,8 @@ void refine_config_default(refine_config_t *cfg)
     cfg->stop_m = 0.005;
     cfg->voxel_m = 0.5;
     cfg->min_points_used = 200;
+    cfg->coarse_iterations = 0;
+    cfg->min_pair_inliers = 0.3;
 }
 
 namespace {
@@ -70,6 +72,7 @@ Match match_to_others(const std::vector<std::vector<float>> &scans, const std::v
     if (!map) return m;
     pb_reg_config_t rc;
     pb_reg_config_default(&rc);
+    rc.coarse_iterations = cfg->coarse_iterations;
     pb_reg_result_t r;
     pb_reg_config_t ev = rc;
     ev.max_iterations = 0;
@@ -90,6 +93,108 @@ double angle_deg(const Eigen::Isometry3d &a, const Eigen::Isometry3d &b)
     return Eigen::AngleAxisd(a.linear().transpose() * b.linear()).angle() * 180 / M_PI;
 }
 
+typedef Eigen::Matrix<double, 6, 1> Vec6;
+typedef Eigen::Matrix<double, 6, 6> Mat6;
+
+/* A relative pose measured by registering scan i to the map of scan j alone
+ * (no doubled structure from other scans' errors): Z ~ T_j^-1 T_i, with the
+ * information W of the registration (in j's frame). */
+struct Edge {
+    size_t i, j;
+    Eigen::Isometry3d Z;
+    Mat6 W;
+};
+
+/* [t; rotation vector] of a small transform */
+Vec6 vec_of(const Eigen::Isometry3d &T)
+{
+    Eigen::AngleAxisd aa(T.linear());
+    Vec6 v;
+    v.head<3>() = T.translation();
+    v.tail<3>() = aa.axis() * aa.angle();
+    return v;
+}
+
+/* T' = Exp(d) T with d = [dt (map); dtheta (map axes)], the registration's convention */
+Eigen::Isometry3d perturb(const Eigen::Isometry3d &T, const Vec6 &d)
+{
+    Eigen::Isometry3d P = T;
+    P.translation() += d.head<3>();
+    double a = d.tail<3>().norm();
+    if (a > 0) P.linear() = Eigen::AngleAxisd(a, d.tail<3>() / a).toRotationMatrix() * T.linear();
+    return P;
+}
+
+/* residual of an edge at poses Ti, Tj: left error of T_j^-1 T_i against Z, in j's frame */
+Vec6 edge_residual(const Edge &e, const Eigen::Isometry3d &Ti, const Eigen::Isometry3d &Tj)
+{
+    return vec_of(Tj.inverse() * Ti * e.Z.inverse());
+}
+
+/* Measures the edges between each scan and its neighbours (j > i) at the current poses. */
+std::vector<Edge> measure_edges(const std::vector<std::vector<float>> &scans, const std::vector<pb_regmap_t *> &maps,
+                                const std::vector<Eigen::Isometry3d> &poses, const refine_config_t *cfg)
+{
+    pb_reg_config_t rc;
+    pb_reg_config_default(&rc);
+    rc.coarse_iterations = cfg->coarse_iterations;
+    std::vector<Edge> edges;
+    for (size_t i = 0; i < poses.size(); i++)
+        for (size_t j : neighbours(poses, i, cfg)) {
+            if (j < i || !maps[j]) continue;
+            pb_reg_result_t r;
+            pb_err_t err;
+            Eigen::Isometry3d guess = poses[j].inverse() * poses[i];
+            int st = pb_reg_align(maps[j], scans[i].data(), scans[i].size() / 3, guess, &rc, &r, &err);
+            if ((st != PB_REG_OK && st != PB_REG_MAX_ITER) || r.points_matched < cfg->min_points_used ||
+                r.inlier_fraction < cfg->min_pair_inliers)
+                continue;
+            Mat6 C = r.covariance;
+            for (int k = 0; k < 3; k++) { C(k, k) += 0.02 * 0.02; C(k + 3, k + 3) += std::pow(0.1 * M_PI / 180, 2); }
+            edges.push_back({i, j, r.pose, C.inverse()});
+        }
+    return edges;
+}
+
+/* Least squares over all poses (Gauss-Newton, numeric Jacobians, Cauchy weights
+ * on the Mahalanobis residual; the first pose holds the gauge). */
+void solve_graph(const std::vector<Edge> &edges, std::vector<Eigen::Isometry3d> *poses)
+{
+    const size_t n = poses->size();
+    for (int it = 0; it < 10; it++) {
+        Eigen::MatrixXd H = Eigen::MatrixXd::Zero(6 * n, 6 * n);
+        Eigen::VectorXd b = Eigen::VectorXd::Zero(6 * n);
+        for (const Edge &e : edges) {
+            const Eigen::Isometry3d &Ti = (*poses)[e.i], &Tj = (*poses)[e.j];
+            Vec6 r0 = edge_residual(e, Ti, Tj);
+            Eigen::Matrix<double, 6, 12> J;
+            for (int k = 0; k < 6; k++) {
+                Vec6 d = Vec6::Zero();
+                d(k) = 1e-6;
+                J.col(k) = (edge_residual(e, perturb(Ti, d), Tj) - r0) / 1e-6;
+                J.col(6 + k) = (edge_residual(e, Ti, perturb(Tj, d)) - r0) / 1e-6;
+            }
+            double m2 = r0.dot(e.W * r0), w = 1.0 / (1.0 + m2 / 9.0);   /* Cauchy, scale 3 sigma */
+            Eigen::Matrix<double, 12, 12> h = w * J.transpose() * e.W * J;
+            Eigen::Matrix<double, 12, 1> g = w * J.transpose() * e.W * r0;
+            size_t idx[2] = {6 * e.i, 6 * e.j};
+            for (int a = 0; a < 2; a++) {
+                b.segment<6>((Eigen::Index)idx[a]) -= g.segment<6>(6 * a);
+                for (int c = 0; c < 2; c++) H.block<6, 6>((Eigen::Index)idx[a], (Eigen::Index)idx[c]) += h.block<6, 6>(6 * a, 6 * c);
+            }
+        }
+        H.block<6, 6>(0, 0) += 1e9 * Mat6::Identity();
+        H.diagonal().array() += 1e-6;
+        Eigen::VectorXd dx = H.ldlt().solve(b);
+        double step = 0;
+        for (size_t k = 0; k < n; k++) {
+            (*poses)[k] = perturb((*poses)[k], dx.segment<6>(6 * (Eigen::Index)k));
+            step = std::max(step, dx.segment<3>(6 * (Eigen::Index)k).norm());
+        }
+        if (step < 1e-4) break;
+    }
+}
+
 }  // namespace
 
 int refine_poses(const std::vector<std::vector<float>> &scans, std::vector<Eigen::Isometry3d> *poses,
@@ -105,18 +210,29 @@ int refine_poses(const std::vector<std::vector<float>> &scans, std::vector<Eigen
     *rep = refine_report_t();
     rep->fit_before.assign(n, NAN);
     rep->fit_after.assign(n, NAN);
+    /* each scan's own map, for the pairwise registrations */
+    std::vector<pb_regmap_t *> maps(n, nullptr);
+    pb_regmap_config_t mc;
+    pb_regmap_config_default(&mc);
+    mc.voxel_m = cfg.voxel_m;
+    for (size_t i = 0; i < n; i++) maps[i] = pb_regmap_from_points(scans[i].data(), scans[i].size() / 3, &mc, nullptr);
+    for (size_t i = 0; i < n; i++) rep->fit_before[i] = match_to_others(scans, input, i, &cfg).fit_at_start;
     Eigen::Matrix3Xd in_pos(3, n);
     for (size_t i = 0; i < n; i++) in_pos.col((Eigen::Index)i) = input[i].translation();
     for (int round = 0; round < cfg.max_rounds; round++) {
-        /* 1. every scan against the others at their current poses (Jacobi step) */
-        std::vector<Eigen::Isometry3d> next(n);
+        /* 1. relative poses from pairwise registration at the current poses,
+         *    then every pose from all of them at once (least squares) */
+        const std::vector<Eigen::Isometry3d> prev = *poses;
+        std::vector<Edge> edges = measure_edges(scans, maps, prev, &cfg);
+        std::vector<Eigen::Isometry3d> &next = *poses;
+        solve_graph(edges, &next);
+        rep->edges = (int)edges.size();
         int kept = 0;
-        for (size_t i = 0; i < n; i++) {
-            Match m = match_to_others(scans, *poses, i, &cfg);
-            if (round == 0) rep->fit_before[i] = m.fit_at_start;
-            next[i] = m.pose;
-            kept += !m.ok;
-        }
+        std::vector<int> degree(n, 0);
+        for (const Edge &e : edges) { degree[e.i]++; degree[e.j]++; }
+        for (size_t i = 0; i < n; i++) kept += degree[i] == 0;
+        rep->edge_resid_m.clear();
+        for (const Edge &e : edges) rep->edge_resid_m.push_back(edge_residual(e, next[e.i], next[e.j]).head<3>().norm());
         /* 2. back into the input's frame: the rigid motion that best aligns the
          *    new positions with the input ones */
         Eigen::Matrix3Xd pos(3, n);
@@ -125,16 +241,16 @@ int refine_poses(const std::vector<std::vector<float>> &scans, std::vector<Eigen
         double moved = 0;
         for (size_t i = 0; i < n; i++) {
             next[i] = A * next[i];
-            moved = std::max(moved, (next[i].translation() - (*poses)[i].translation()).norm());
+            moved = std::max(moved, (next[i].translation() - prev[i].translation()).norm());
         }
-        *poses = next;
         rep->moved_m.push_back(moved);
         rep->rounds = round + 1;
         rep->kept = kept;
         if (progress) progress(round + 1, moved, user);
         if (moved < cfg.stop_m) break;
     }
-    /* 3. how good: one more evaluation round, nothing moved */
+    for (pb_regmap_t *m : maps) pb_regmap_destroy(m);
+    /* 3. how good: every scan against the map of the others (leave-one-out), nothing moved */
     rep->loo_m.assign(n, NAN);
     rep->loo_deg.assign(n, NAN);
     rep->change_m.assign(n, NAN);
