@@ -63,6 +63,15 @@ static int64_t wall_utime(void)
     return (int64_t)ts.tv_sec * 1000000 + ts.tv_nsec / 1000;
 }
 
+/* Live timers are scheduled on this clock: a step of the wall clock (NTP, GNSS time
+ * sync) neither stalls nor bursts them. */
+static int64_t mono_utime(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (int64_t)ts.tv_sec * 1000000 + ts.tv_nsec / 1000;
+}
+
 pb_bus_t *pb_bus_create_live(const char *url, pb_err_t *err)
 {
     url = pb_lcm_url(url);
@@ -115,6 +124,7 @@ void pb_bus_destroy(pb_bus_t *bus)
 
 int pb_bus_is_replay(const pb_bus_t *bus) { return bus->replay; }
 int64_t pb_bus_now(const pb_bus_t *bus) { return bus->replay ? bus->now : wall_utime(); }
+int64_t pb_bus_monotonic(const pb_bus_t *bus) { return bus->replay ? bus->now : mono_utime(); }
 int64_t pb_bus_events_read(const pb_bus_t *bus) { return bus->events; }
 void pb_bus_stop(pb_bus_t *bus) { bus->stop = 1; }
 
@@ -215,7 +225,8 @@ static void fire_timers(pb_bus_t *bus, int64_t t)
         due->next += due->period;
         if (due->next <= t - 10 * due->period) due->next = t + due->period;  /* skip a long gap */
         if (bus->replay) bus->now = deadline;
-        due->fn(deadline, due->user);
+        /* live: t is monotonic; the callback gets the wall time (what messages carry) */
+        due->fn(bus->replay ? deadline : wall_utime() - (t - deadline), due->user);
     }
 }
 
@@ -226,7 +237,7 @@ int pb_bus_advance(pb_bus_t *bus, int64_t t, pb_err_t *err)
         bus->now = t;
         if (bus->publish_failed) { if (err) *err = bus->publish_err; return -1; }
     } else {
-        fire_timers(bus, wall_utime());
+        fire_timers(bus, mono_utime());
     }
     return 0;
 }
@@ -257,7 +268,7 @@ static int run_live(pb_bus_t *bus, pb_err_t *err)
         /* Wait for a message at most until the next timer deadline (and 50 ms), so a
          * 100 Hz timer fires on time instead of in bursts after each 50 ms wait. */
         int wait_ms = 50;
-        int64_t now = wall_utime();
+        int64_t now = mono_utime();
         for (int i = 0; i < bus->ntimers; i++) {
             int64_t next = bus->timers[i].next;
             if (next == 0) continue;
@@ -267,7 +278,7 @@ static int run_live(pb_bus_t *bus, pb_err_t *err)
         int r = wait_ms > 0 ? lcm_handle_timeout(bus->lcm, wait_ms) : 0;
         if (r < 0 && pb_signal_stop_requested()) break;   /* a signal interrupted the wait */
         if (r < 0) return pb_err_set(err, "lcm_handle failed");
-        fire_timers(bus, wall_utime());
+        fire_timers(bus, mono_utime());
     }
     return 0;
 }

@@ -69,13 +69,17 @@ int pb_bus_publish_encoded(pb_bus_t *bus, const char *channel, const void *msg,
                            int (*size_fn)(const void *),
                            int (*encode_fn)(void *, int, int, const void *), pb_err_t *err);
 
-/* Calls fn every period_us (first call one period after the first event). */
+/* Calls fn every period_us (first call one period after the first event). Live, the
+ * period is kept on CLOCK_MONOTONIC, so a wall-clock step does not stall the timer. */
 int pb_bus_add_timer(pb_bus_t *bus, int64_t period_us, pb_timer_fn fn, void *user);
 
 void pb_bus_set_input_hook(pb_bus_t *bus, pb_input_hook_fn fn, void *user);
 
 /* Time of the event being handled (replay: log timestamp; live: wall clock). */
 int64_t pb_bus_now(const pb_bus_t *bus);
+/* A clock that never steps (replay: the log time; live: CLOCK_MONOTONIC), for measuring
+ * intervals. Live timers run on it; their callbacks still get the wall time. */
+int64_t pb_bus_monotonic(const pb_bus_t *bus);
 
 /* Runs until pb_bus_stop, a signal (see pb_signal) or the end of the replay log.
  * Returns 0 on a clean end, -1 on error (a corrupt input log: err names the byte

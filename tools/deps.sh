@@ -6,7 +6,8 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 APT_PKGS="build-essential pkg-config python3 python3-venv python3-pip libglib2.0-0 libglib2.0-dev \
-libyaml-dev libeigen3-dev libpcl-dev liboctomap-dev libccd-dev can-utils libcjson-dev"
+libyaml-dev libeigen3-dev libpcl-dev liboctomap-dev libccd-dev can-utils libcjson-dev \
+chromium chromium-driver"
 
 missing=""
 for p in $APT_PKGS; do
@@ -16,7 +17,7 @@ done
 # --check: exit 0 if nothing is missing (make runs this on every invocation; it is cheap).
 if [ "${1:-}" = "--check" ]; then
   [ -z "$missing" ] && [ -f .venv/.deps-ok ] && [ -f .venv/lcm/include/lcm/lcm.h ] &&
-    .venv/bin/python -c 'import importlib.util as u, sys; sys.exit(any(u.find_spec(m) is None for m in ("lcm", "cantools", "numpy", "pytest", "yaml")))' 2>/dev/null
+    .venv/bin/python -c 'import importlib.util as u, sys; sys.exit(any(u.find_spec(m) is None for m in ("lcm", "cantools", "numpy", "pytest", "yaml", "PIL")))' 2>/dev/null
   exit $?
 fi
 if [ -n "$missing" ]; then

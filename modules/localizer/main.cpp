@@ -53,6 +53,8 @@ struct app_t {
     std::vector<uint8_t> red_refl;
     map_source_t *map = nullptr;   /* paged around the newest position (map.tiles) */
     const pb_georef_t *geo = nullptr;
+    std::string vehicle_name, vehicle_path;
+    bool frame_error = false;
 };
 
 /* Pages the map's tiles in around map (x, y): the newest position known (a pose, a
@@ -69,9 +71,12 @@ static void page_map(app_t *a, double x, double y)
 static void input_time(app_t *a, const char *channel, int64_t utime)
 {
     pb_status_input_time(a->status, channel, utime);
-    if (utime > a->input_utime) {
+    /* GNSS keeps its own clock (it may be seconds off; the core measures that) */
+    if (strcmp(channel, "GNSS_FIX") == 0) return;
+    /* newer, or much older: the sensors' clock stepped back (the core starts again) */
+    if (utime > a->input_utime || utime < a->input_utime - 1000000) {
         a->input_utime = utime;
-        a->input_bus_time = pb_bus_now(a->bus);
+        a->input_bus_time = pb_bus_monotonic(a->bus);
     }
 }
 
@@ -87,14 +92,18 @@ static void usage(FILE *f)
     fprintf(f,
             "usage: localizer [--site SITE_DIR] [--replay IN.lcm --out OUT.lcm] [--lcm-url URL]\n"
             "                 [--initial-pose x,y,z,roll,pitch,yaw] [--vehicle FILE] [--no-imu]\n"
-            "                 [--no-speed] [--no-gnss] [--stats FILE.csv] [--verbose]\n"
+            "                 [--no-speed] [--no-gnss] [--lidar-lost-s S] [--no-global-search]\n"
+            "                 [--stats FILE.csv] [--verbose]\n"
             "Localizes the vehicle in a site's prior map (SITE_DIR/map.pcd) by matching each\n"
             "LIDAR_SCAN to the map, fused in an error-state Kalman filter with IMU and\n"
             "VEHICLE_SPEED (either may be absent: LiDAR alone works). Publishes POSE per sweep\n"
             "(status initializing / tracking / degraded / lost, covariance, match score) and\n"
             "POSE_PREDICTED at every IMU sample (200 Hz from a timer without IMU). Starts from\n"
-            "INITIAL_POSE, --initial-pose, or GNSS_FIX (position, heading from course or a yaw\n"
-            "search); detects a wrong pose (GNSS and match consistency) and relocalizes.\n"
+            "INITIAL_POSE or --initial-pose (a prior: searched within 3 m and 15 degrees), GNSS_FIX\n"
+            "(position, heading from course or a yaw search; a receiver clock offset is measured and\n"
+            "taken out), or with neither by a global search of the whole map (place descriptors);\n"
+            "until it has a pose, STATUS says why. Detects a wrong pose (structure fit, motion and\n"
+            "GNSS consistency) and relocalizes; a LiDAR outage longer than --lidar-lost-s is LOST.\n"
             "  --site DIR           site folder: map.pcd, optional site.yaml (geo-reference for\n"
             "                       GNSS); default %s/maps/default\n"
             "  --vehicle FILE       extrinsics (default %s/vehicles/prius2017.yaml)\n"
@@ -104,6 +113,11 @@ static void usage(FILE *f)
             "  --initial-pose P     x,y,z (m),roll,pitch,yaw (degrees) of base in map, used at the\n"
             "                       first sweep when no INITIAL_POSE / GNSS start came first\n"
             "  --no-imu, --no-speed, --no-gnss   ignore that input (tests, benchmarks)\n"
+            "  --lidar-lost-s S     no LIDAR_SCAN for this long: LOST (default 10)\n"
+            "  --paged-map          page SITE_DIR/map.tiles (tools/map-tiles) in around the car instead of\n"
+            "                       loading map.pcd whole: memory bounded by 120 m, not by the map. Not yet\n"
+            "                       with rough-structure cells or place descriptors (no global search)\n"
+            "  --no-global-search   without a prior or GNSS, wait instead of searching the map\n"
             "  --stats FILE.csv     one line per sweep: utime, wall ms, status, match figures\n"
             "  --column-stride N    use every Nth column of a range-image sweep (default 2; 1 = all)\n"
             "  --verbose            print state changes to stderr\n"
@@ -190,6 +204,34 @@ static void undecodable(app_t *a, const pb_msg_t *m)
     pb_status_error(a->status, "%s: message of %d bytes does not decode", m->channel, m->len);
 }
 
+/* A sensor string "VEHICLE:NAME" (import-scans) says whose base frame the scans and
+ * GROUND_TRUTH are in: another vehicle than ours is an error naming both, not a silent
+ * misfit; the run stops. A plain name (drivers, simdrive) is taken as ours. */
+static bool frame_matches(app_t *a, const portobello_lidar_scan_t *s)
+{
+    const char *colon = s->sensor ? strchr(s->sensor, ':') : nullptr;
+    if (!colon) return true;
+    std::string veh(s->sensor, colon - s->sensor);
+    if (veh == a->vehicle_name) return true;
+    pb_status_count(a->status, "frame_mismatch", 1);
+    char msg[1024];
+    if (veh == "lidar")
+        snprintf(msg, sizeof msg, "LIDAR_SCAN sensor '%s': the scans were imported without --vehicle (GROUND_TRUTH is "
+                 "the LiDAR's pose), but this run uses vehicle '%s' (%s): import them with --vehicle %s, or use "
+                 "vehicles/lidar_mast.yaml for both", s->sensor, a->vehicle_name.c_str(), a->vehicle_path.c_str(),
+                 a->vehicle_path.c_str());
+    else
+        snprintf(msg, sizeof msg, "LIDAR_SCAN sensor '%s': the scans are in the frame of vehicle '%s', but this run "
+                 "uses vehicle '%s' (%s): run with the vehicle file the log was imported with",
+                 s->sensor, veh.c_str(), a->vehicle_name.c_str(), a->vehicle_path.c_str());
+    fprintf(stderr, "localizer: %s\n", msg);
+    pb_status_set_state(a->status, PORTOBELLO_STATUS_T_STATE_ERROR);
+    pb_status_error(a->status, "%s", msg);
+    a->frame_error = true;
+    pb_bus_stop(a->bus);
+    return false;
+}
+
 static void on_scan(const pb_msg_t *m, void *user)
 {
     app_t *a = (app_t *)user;
@@ -240,6 +282,7 @@ static void on_scan(const pb_msg_t *m, void *user)
         }
     }
     int64_t utime = s.utime;
+    if (!frame_matches(a, &s)) { portobello_lidar_scan_t_decode_cleanup(&s); return; }
     portobello_lidar_scan_t_decode_cleanup(&s);
     localizer_scan(a->L, utime, &a->pts, &a->out);
     if (!a->out.has_scan_diag) {
@@ -327,7 +370,8 @@ static void on_tick(int64_t now, void *user)
     app_t *a = (app_t *)user;
     if (a->input_utime == 0) return;
     double t0 = wall_ms();
-    localizer_tick(a->L, a->input_utime + (now - a->input_bus_time), &a->out);
+    /* message time now: the newest input's time plus the monotonic time since it came */
+    localizer_tick(a->L, a->input_utime + (pb_bus_monotonic(a->bus) - a->input_bus_time), &a->out);
     flush(a, t0);
 }
 
@@ -390,9 +434,12 @@ int main(int argc, char **argv)
         { "lcm-url", required_argument, 0, 'u' }, { "initial-pose", required_argument, 0, 'i' },
         { "no-imu", no_argument, 0, 'I' }, { "no-speed", no_argument, 0, 'S' }, { "no-gnss", no_argument, 0, 'G' },
         { "stats", required_argument, 0, 't' }, { "column-stride", required_argument, 0, 'k' }, { "verbose", no_argument, 0, 'V' },
+        { "lidar-lost-s", required_argument, 0, 'L' }, { "no-global-search", no_argument, 0, 'g' },
+        { "paged-map", no_argument, 0, 'P' },
         { "help", no_argument, 0, 'h' }, { 0, 0, 0, 0 },
     };
     int c;
+    bool paged_map = false;
     while ((c = getopt_long(argc, argv, "h", opts, nullptr)) != -1) {
         switch (c) {
         case 's': site = optarg; break;
@@ -419,6 +466,14 @@ int main(int argc, char **argv)
             break;
         }
         case 'V': a.verbose = true; break;
+        case 'L': {
+            double v;
+            if (pb_arg_double("localizer", "--lidar-lost-s", optarg, 0.5, 3600, &v) != 0) return 2;
+            cfg.lidar_lost_us = (int64_t)(v * 1e6);
+            break;
+        }
+        case 'g': cfg.global_search = false; break;
+        case 'P': paged_map = true; break;
         case 'h': usage(stdout); return 0;
         default: usage(stderr); return 2;
         }
@@ -433,6 +488,8 @@ int main(int argc, char **argv)
 
     pb_vehicle_t veh;
     if (pb_vehicle_load(vehicle.c_str(), &veh, &err) != 0) return fail_start(bus, err.msg);
+    a.vehicle_name = veh.name;
+    a.vehicle_path = vehicle;
     extrinsics_t ex;
     ex.base_from_lidar = to_iso(veh.base_from_lidar);
     ex.base_from_imu = to_iso(veh.base_from_imu);
@@ -454,7 +511,7 @@ int main(int argc, char **argv)
         fprintf(stderr, "localizer: %s: no site.yaml, so no geo-reference: GNSS_FIX is not used\n", site.c_str());
     }
     double t0 = wall_ms();
-    a.map = map_source_open(site, nullptr, &err);
+    a.map = map_source_open(site, paged_map, nullptr, &err);
     if (!a.map) return fail_start(bus, err.msg);
     const pb_regmap_t *map = map_source_map(a.map);
     if (cfg.has_initial_pose) map_source_page(a.map, cfg.initial_pose[0], cfg.initial_pose[1], &err);
@@ -486,9 +543,13 @@ int main(int argc, char **argv)
 
     int rc = pb_bus_run(bus, &err);
     double tf = wall_ms();
-    localizer_finish(a.L, &a.out);
-    flush(&a, tf);
-    if (rc != 0) {
+    if (!a.frame_error) {
+        localizer_finish(a.L, &a.out);
+        flush(&a, tf);
+    }
+    if (a.frame_error) {
+        rc = -1;   /* the STATUS saying why is set */
+    } else if (rc != 0) {
         fprintf(stderr, "localizer: %s\n", err.msg);
         pb_status_set_state(a.status, PORTOBELLO_STATUS_T_STATE_ERROR);
         pb_status_error(a.status, "%s", err.msg);

@@ -27,18 +27,24 @@ static int read_at(void *user, uint64_t offset, void *buf, size_t len)
     return 0;
 }
 
-map_source_t *map_source_open(const std::string &site, const pb_tiles_config_t *cfg, pb_err_t *err)
+map_source_t *map_source_open(const std::string &site, bool paged, const pb_tiles_config_t *cfg, pb_err_t *err)
 {
     map_source_t *s = new map_source_t();
     std::string pcd = site + "/map.pcd", tiles = site + "/map.tiles";
     struct stat st_t, st_p;
-    if (stat(tiles.c_str(), &st_t) != 0) {
+    if (!paged) {
         s->path = pcd;
         s->whole = pb_regmap_load(pcd.c_str(), nullptr, nullptr, err);
         if (!s->whole) { delete s; return nullptr; }
         return s;
     }
     s->path = tiles;
+    if (stat(tiles.c_str(), &st_t) != 0) {
+        pb_err_set(err, "%s: %s (build it with map-tiles --map %s --out %s)", tiles.c_str(), strerror(errno), pcd.c_str(),
+                   tiles.c_str());
+        delete s;
+        return nullptr;
+    }
     if (stat(pcd.c_str(), &st_p) == 0 &&
         (st_p.st_mtim.tv_sec > st_t.st_mtim.tv_sec ||
          (st_p.st_mtim.tv_sec == st_t.st_mtim.tv_sec && st_p.st_mtim.tv_nsec > st_t.st_mtim.tv_nsec))) {

@@ -1,8 +1,10 @@
 /* map_source: the localizer's prior map from a site folder, whole or paged.
  *
- * SITE/map.tiles (tools/map-tiles; built by `make` for the default site) is
- * paged: only the tiles around the car are held (core/map_tiles). Without it,
- * SITE/map.pcd is loaded whole, as before. A map.tiles older than map.pcd is
+ * With paged = true, SITE/map.tiles (tools/map-tiles; built by `make` for the
+ * default site) is paged: only the tiles around the car are held
+ * (core/map_tiles). Otherwise SITE/map.pcd is loaded whole, as before. The
+ * tile format does not carry the rough-structure cells yet, and place
+ * descriptors built from a paged map see only the loaded tiles: opt-in. A map.tiles older than map.pcd is
  * an error naming both (it would localize in yesterday's map).
  *
  * Shell code (file I/O). Ownership: map_source_open returns an object freed
@@ -17,7 +19,7 @@
 typedef struct map_source map_source_t;
 
 /* site: the folder; cfg NULL = default radii (ignored for a whole map). */
-map_source_t *map_source_open(const std::string &site, const pb_tiles_config_t *cfg, pb_err_t *err);
+map_source_t *map_source_open(const std::string &site, bool paged, const pb_tiles_config_t *cfg, pb_err_t *err);
 void map_source_close(map_source_t *s);
 const pb_regmap_t *map_source_map(const map_source_t *s);
 /* 1 when paged (map.tiles), 0 when whole. */

@@ -64,7 +64,9 @@ static void usage(FILE *f)
         "                 --voxel metres (default 0.15; 0 keeps every point). A folder holding\n"
         "                 only this file as map.pcd is a loadable site\n"
         "  --every N      import every Nth scan only (default 1)\n"
-        "  --sensor NAME  LIDAR_SCAN sensor string (default \"imported\")\n"
+        "  --sensor NAME  LIDAR_SCAN sensor name (default \"imported\"); the sensor string written is\n"
+        "                 VEHICLE:NAME with --vehicle (the vehicle file's name), else lidar:NAME, so a\n"
+        "                 module run with another vehicle file can tell and refuse the log\n"
         "If the numbers of scans, poses and times differ, the first min(...) are imported and a\n"
         "warning names the counts. Errors name FILE:LINE (text files) or FILE: byte N (.bin).\n");
 }
@@ -470,6 +472,10 @@ int main(int argc, char **argv)
 
     // GROUND_TRUTH is the LiDAR pose unless a vehicle file gives base <- lidar.
     Eigen::Isometry3d lidar_from_base = Eigen::Isometry3d::Identity();
+    // The scans say which frame their GROUND_TRUTH is in: "VEHICLE:SENSOR" (the base of
+    // that vehicle file) or "lidar:SENSOR" (the LiDAR itself); the localizer refuses a
+    // log whose vehicle is not its own instead of matching in the wrong frame.
+    std::string frame = "lidar";
     if (vehicle_path) {
         pb_vehicle_t veh;
         if (pb_vehicle_load(vehicle_path, &veh, &err) != 0) {
@@ -481,7 +487,9 @@ int main(int argc, char **argv)
         base_from_lidar.linear() = Eigen::Quaterniond(b.q[0], b.q[1], b.q[2], b.q[3]).toRotationMatrix();
         base_from_lidar.translation() = Eigen::Vector3d(b.t[0], b.t[1], b.t[2]);
         lidar_from_base = base_from_lidar.inverse();
+        frame = veh.name;
     }
+    const std::string sensor_tag = frame + ":" + sensor;
     std::vector<Eigen::Isometry3d> gt_poses;
     for (const auto &P : poses) gt_poses.push_back(P * lidar_from_base);
 
@@ -569,7 +577,7 @@ int main(int argc, char **argv)
         std::memset(&m, 0, sizeof m);
         double ident[16] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
         m.utime = utime;
-        m.sensor = const_cast<char *>(sensor);
+        m.sensor = const_cast<char *>(sensor_tag.c_str());
         m.seq = int32_t(k);
         std::memcpy(m.lidar_from_beam, ident, sizeof ident);
         m.npoints = np;

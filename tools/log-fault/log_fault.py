@@ -18,10 +18,18 @@ and benchmarks. Times (--at, --for) are seconds after the first event of the log
   garbage       replace --count LIDAR_SCAN payloads after `at` by bytes that do not decode
   gnss-jump     move every GNSS_FIX in [at, at+for) --metres to the east (multipath or
                 spoofing: the localizer must not follow it)
-The log stays ordered by event timestamp except for `reorder`. Prints what it did.
+  cut           keep only the events in [at, at+for) (a start in the middle of a drive,
+                the car moving); --keep CH,CH,... keeps only those channels
+  gnss-clock    add --seconds to every GNSS_FIX utime (a receiver whose clock is off the
+                host's; the event times stay)
+  time-step     from `at` on, subtract --seconds from every message utime and event time
+                (the sensors' clock stepped back, e.g. an NTP or GNSS time sync)
+The log stays ordered by event timestamp except for `reorder` and `time-step`. Prints
+what it did.
 """
 import argparse
 import math
+import struct
 import pathlib
 import subprocess
 import sys
@@ -36,6 +44,12 @@ from portobello import lidar_scan_t, pose_t  # noqa: E402
 def read_events(path):
     log = lcm.EventLog(str(path), "r")
     return [(ev.timestamp, ev.channel, ev.data) for ev in log]
+
+
+def shift_utime(data, delta):
+    """Every portobello message starts with its 8-byte fingerprint and int64 utime."""
+    u = struct.unpack(">q", data[8:16])[0]
+    return data[:8] + struct.pack(">q", u + delta) + data[16:]
 
 
 def msg_utime(data):
@@ -93,7 +107,8 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
     ap.add_argument("fault", choices=["lidar-gap", "jump", "imu-gap", "drop-channel", "nan-points", "empty-scans",
-                                      "duplicate", "reorder", "garbage", "gnss-jump"])
+                                      "duplicate", "reorder", "garbage", "gnss-jump", "cut", "gnss-clock",
+                                      "time-step"])
     ap.add_argument("--in", dest="inp", required=True, help="input log")
     ap.add_argument("--out", required=True, help="output log")
     ap.add_argument("--at", type=float, default=10.0, help="seconds after the log's first event (default 10)")
@@ -101,6 +116,8 @@ def main():
     ap.add_argument("--metres", type=float, default=20.0, help="jump length (default 20)")
     ap.add_argument("--count", type=int, default=3, help="sweeps for nan-points / empty-scans / garbage")
     ap.add_argument("--channel", default="GNSS_FIX", help="channel for drop-channel")
+    ap.add_argument("--keep", default="", help="cut: channels to keep, comma-separated (default all)")
+    ap.add_argument("--seconds", type=float, default=2.0, help="gnss-clock / time-step: seconds (default 2)")
     a = ap.parse_args()
 
     ev = read_events(a.inp)
@@ -176,6 +193,32 @@ def main():
             else:
                 out.append(e)
         note = f"moved {n} GNSS fixes {a.metres:.0f} m east"
+    elif a.fault == "cut":
+        keep = set(c for c in a.keep.split(",") if c)
+        out = [e for e in ev if t_at <= e[0] < t_end and (not keep or e[1] in keep)]
+        note = f"kept {len(out)} events in [{t_at}, {t_end})" + (f" of {', '.join(sorted(keep))}" if keep else "")
+    elif a.fault == "gnss-clock":
+        from portobello import gnss_fix_t
+        n = 0
+        for e in ev:
+            if e[1] == "GNSS_FIX":
+                f = gnss_fix_t.decode(e[2])
+                f.utime += int(round(a.seconds * 1e6))
+                out.append((e[0], e[1], f.encode()))
+                n += 1
+            else:
+                out.append(e)
+        note = f"{n} GNSS_FIX utimes moved by {a.seconds:+.3f} s"
+    elif a.fault == "time-step":
+        shift = int(round(a.seconds * 1e6))
+        n = 0
+        for e in ev:
+            if e[0] < t_at:
+                out.append(e)
+                continue
+            out.append((e[0] - shift, e[1], shift_utime(e[2], -shift)))
+            n += 1
+        note = f"{n} events from {t_at} on stepped back {a.seconds:.3f} s"
     elif a.fault == "duplicate":
         n = 0
         for e in ev:

@@ -77,7 +77,7 @@ def rss_kb(pid):
     return None
 
 
-def run_looped(site, evs, loops, workdir):
+def run_looped(site, evs, loops, workdir, extra=()):
     """Runs the localizer on `loops` laps through a FIFO; returns RSS samples (wall s, lap, MB)."""
     fifo = pathlib.Path(workdir) / f"loop-{os.getpid()}.fifo"
     if fifo.exists():
@@ -86,7 +86,7 @@ def run_looped(site, evs, loops, workdir):
     progress = {"lap": 0}
     writer = threading.Thread(target=write_loops, args=(evs, loops, fifo, progress), daemon=True)
     writer.start()
-    p = subprocess.Popen([str(BIN / "localizer"), "--site", str(site), "--replay", str(fifo), "--out", "/dev/null"],
+    p = subprocess.Popen([str(BIN / "localizer"), "--site", str(site), "--replay", str(fifo), "--out", "/dev/null"] + list(extra),
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     samples, t0, last_print = [], time.monotonic(), -1
     while p.poll() is None:
@@ -127,10 +127,10 @@ def main():
             (whole / f).symlink_to(SITE / f)
         # 1. one lap to files, both maps: poses identical?
         res = {}
-        for name, site in (("paged", SITE), ("whole", whole)):
+        for name, site, extra in (("paged", SITE, ["--paged-map"]), ("whole", whole, [])):
             out = pathlib.Path(tmp) / f"{name}.lcm"
             t = time.monotonic()
-            p = locbench.run_localizer(drive, out, ["--site", site])
+            p = locbench.run_localizer(drive, out, ["--site", site] + extra)
             if p.returncode != 0:
                 raise RuntimeError(f"localizer ({name}) exited {p.returncode}:\n{p.stderr}")
             res[name] = {"wall_s": time.monotonic() - t, "poses": pose_messages(out),
@@ -141,7 +141,7 @@ def main():
         print("bench-localizer-memory: one lap, whole map", file=sys.stderr)
         whole_samples, _ = run_looped(whole, evs, 1, tmp)
         print(f"bench-localizer-memory: {a.loops} laps, paged map", file=sys.stderr)
-        paged_samples, paged_err = run_looped(SITE, evs, a.loops, tmp)
+        paged_samples, paged_err = run_looped(SITE, evs, a.loops, tmp, ["--paged-map"])
 
     def lap_rss(samples, lap):
         v = [s[2] for s in samples if s[1] == lap]

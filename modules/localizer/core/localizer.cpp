@@ -1,5 +1,5 @@
 /* The localizer pipeline (see localizer.h). */
-#include "localizer.h"
+#include "localizer_impl.h"
 
 #include <algorithm>
 #include <cmath>
@@ -9,73 +9,7 @@
 
 namespace loc {
 
-enum { EV_IMU = 0, EV_SPEED = 1 };
-
-struct input_ev_t {
-    int64_t t;
-    int kind;
-    Vec3 accel, gyro;   /* EV_IMU, raw (imu frame) */
-    double speed;       /* EV_SPEED */
-};
-
-struct gnss_res_t {
-    int64_t t;
-    Eigen::Vector2d r;  /* fix minus predicted antenna position, map xy */
-    double h_acc;
-};
-
-struct pose_sample_t {
-    int64_t t;
-    Eigen::Isometry3d map_from_imu;
-};
-
-struct localizer {
-    localizer_config_t cfg;
-    extrinsics_t ex;
-    const pb_regmap_t *map;
-    bool has_geo;
-    pb_georef_t geo;
-
-    filter_t kf;       /* committed: at the last sweep (or the last commit of old inputs) */
-    filter_t pred;     /* kf moved forward by every input since */
-    std::deque<input_ev_t> buf;
-    Vec3 last_accel = Vec3::Zero(), last_gyro = Vec3::Zero();
-
-    int64_t last_imu_t = 0, last_speed_t = 0, last_scan_t = 0, last_pose_out_t = 0, last_pred_out_t = 0;
-    int status = ST_INITIALIZING;
-    bool candidate = false;     /* kf holds a pose still being verified */
-    int verify_count = 0, reject_count = 0;
-    bool lidar_gap_reported = false;
-
-    bool has_hint = false;
-    Eigen::Isometry3d hint;
-    int64_t hint_t = 0;
-    Vec3 hint_body_vel = Vec3::Zero();   /* velocity in base before the hint, carried over */
-
-    bool has_fix = false;
-    gnss_in_t fix;
-    Vec3 fix_map = Vec3::Zero();
-    std::deque<gnss_res_t> gnss_res;
-
-    /* LiDAR-only turn rate from successive poses */
-    bool has_prev_pose = false;
-    Eigen::Isometry3d prev_pose;
-    int64_t prev_pose_t = 0;
-
-    double last_structure = NAN;       /* the last structure fit >= cfg.structure_trust, and its time */
-    int64_t last_structure_t = 0;
-    std::vector<float> xyz, above;
-    /* a sweep waiting for the IMU to reach its end */
-    bool has_pending = false;
-    int64_t pend_utime = 0, pend_t_ref = 0;
-    std::vector<float> pend_x, pend_y, pend_z;
-    std::vector<int32_t> pend_off;
-    std::vector<pose_sample_t> samples;
-};
-
-static void event(outputs_t *out, const char *counter, const char *fmt = nullptr, ...)
-    __attribute__((format(printf, 3, 4)));
-static void event(outputs_t *out, const char *counter, const char *fmt, ...)
+void event(outputs_t *out, const char *counter, const char *fmt, ...)
 {
     event_t e;
     e.counter = counter;
@@ -127,11 +61,79 @@ localizer_t *localizer_create(const localizer_config_t &cfg, const extrinsics_t 
     return L;
 }
 
-void localizer_destroy(localizer_t *L) { delete L; }
+void localizer_destroy(localizer_t *L)
+{
+    if (L) places_destroy(L->places);
+    delete L;
+}
 
-static bool imu_fresh(const localizer_t *L, int64_t t)
+/* Starts afresh (a clock step or a log gap): everything known about motion and time is
+ * dropped; the last pose becomes a prior for the next sweep when the car cannot have
+ * moved far (a clock step, not a gap). */
+static void restart(localizer_t *L, bool keep_pose, outputs_t *out, const char *why)
+{
+    bool had = L->pred.initialized && keep_pose;
+    Eigen::Isometry3d last = had ? filter_base_pose(&L->pred) : Eigen::Isometry3d::Identity();
+    localizer_config_t cfg = L->cfg;
+    cfg.has_initial_pose = false;
+    extrinsics_t ex = L->ex;
+    const pb_regmap_t *map = L->map;
+    bool has_geo = L->has_geo;
+    pb_georef_t geo = L->geo;
+    int status = L->status;
+    places_t *places = L->places;
+    *L = localizer();
+    L->places = places;
+    L->cfg = cfg; L->ex = ex; L->map = map; L->has_geo = has_geo; L->geo = geo;
+    filter_create(&L->kf, cfg.filter, ex.base_from_imu);
+    L->pred = L->kf;
+    L->status = status;
+    if (had) { L->has_hint = true; L->hint = last; L->hint_t = 0; }
+    set_status(L, ST_INITIALIZING, out, why);
+}
+
+/* A time far behind the newest input (the clock stepped back) or far after it (a gap in
+ * the log): start again rather than drop everything as out of order or dead-reckon across. */
+static void check_clock(localizer_t *L, int64_t t, const char *channel, outputs_t *out)
+{
+    /* one stray old message is out of order, not a clock step: the step is taken when
+     * cfg.time_jump_inputs successive inputs agree on the earlier time */
+    bool behind = L->newest_t != 0 && L->newest_t - t > L->cfg.time_jump_us;
+    if (!behind) {
+        L->jump_count = 0;
+    } else if (L->jump_count == 0 || std::llabs(t - L->jump_last_t) > L->cfg.time_jump_us) {
+        L->jump_count = 1;
+        L->jump_last_t = t;
+    } else {
+        L->jump_count++;
+        L->jump_last_t = std::max(L->jump_last_t, t);
+    }
+    if (behind && L->jump_count >= L->cfg.time_jump_inputs) {
+        L->jump_count = 0;
+        char why[160];
+        snprintf(why, sizeof why, "%s: time stepped back %.1f s; starting again from the last pose", channel,
+                 (L->newest_t - t) * 1e-6);
+        event(out, "time_jump", "%s", why);
+        restart(L, true, out, why);
+    } else if (L->newest_t != 0 && t - L->newest_t > L->cfg.reinit_gap_us) {
+        char why[160];
+        snprintf(why, sizeof why, "%s: no input for %.1f s; starting again", channel, (t - L->newest_t) * 1e-6);
+        event(out, "log_gap", "%s", why);
+        restart(L, false, out, why);
+    }
+    if (t > L->newest_t) L->newest_t = t;
+}
+
+bool imu_fresh(const localizer_t *L, int64_t t)
 {
     return L->last_imu_t != 0 && t - L->last_imu_t <= L->cfg.imu_timeout_us && t >= L->last_imu_t - 1000000;
+}
+
+double newest_speed(const localizer_t *L, int64_t t)
+{
+    for (auto it = L->buf.rbegin(); it != L->buf.rend(); ++it)
+        if (it->kind == EV_SPEED) return std::llabs(t - it->t) <= L->cfg.speed_timeout_us ? it->speed : NAN;
+    return NAN;
 }
 
 /* Applies one buffered input to a filter (IMU predict or speed update). */
@@ -143,7 +145,10 @@ static void apply_input(const localizer_t *L, filter_t *f, const input_ev_t &e)
     } else if (e.kind == EV_SPEED) {
         if (f->initialized) {
             if (e.t > f->utime && !imu_fresh(L, e.t)) filter_predict_cv(f, e.t);
-            filter_update_speed(f, e.speed);
+            /* many cars report the speed's magnitude only (Toyota wheel speeds): when the
+             * scan matches clearly move backwards, so does the car */
+            double v = e.speed >= 0 && L->match_fwd_mps < -L->cfg.reverse_detect_mps ? -e.speed : e.speed;
+            filter_update_speed(f, v);
         }
     }
 }
@@ -171,7 +176,10 @@ static void emit_unknown_pose(localizer_t *L, int64_t t, outputs_t *out)
     p.map_from_base = Eigen::Isometry3d::Identity();
     p.velocity.setZero();
     p.angular_velocity.setZero();
-    p.covariance.setZero();   /* all zero: unknown */
+    /* no estimate: a covariance that says so (never a certain identity) */
+    p.covariance.setZero();
+    p.covariance.diagonal() << UNKNOWN_POS_VAR, UNKNOWN_POS_VAR, UNKNOWN_POS_VAR, UNKNOWN_ROT_VAR, UNKNOWN_ROT_VAR,
+        UNKNOWN_ROT_VAR;
     p.status = L->status;
     p.source = SRC_LOCALIZER;
     p.match_score = NAN;
@@ -179,7 +187,7 @@ static void emit_unknown_pose(localizer_t *L, int64_t t, outputs_t *out)
     L->last_pose_out_t = t;
 }
 
-static void set_status(localizer_t *L, int s, outputs_t *out, const char *why)
+void set_status(localizer_t *L, int s, outputs_t *out, const char *why)
 {
     if (s == L->status) return;
     char c[64];
@@ -189,7 +197,7 @@ static void set_status(localizer_t *L, int s, outputs_t *out, const char *why)
 }
 
 /* Rebuilds pred from kf and the inputs after it. */
-static void rebuild_pred(localizer_t *L)
+void rebuild_pred(localizer_t *L)
 {
     L->pred = L->kf;
     for (const input_ev_t &e : L->buf)
@@ -215,6 +223,15 @@ static void maybe_gap_pose(localizer_t *L, int64_t t, outputs_t *out)
               (t - L->last_scan_t) * 1e-3);
         if (L->status == ST_TRACKING) set_status(L, ST_DEGRADED, out, "no LiDAR");
     }
+    /* dead reckoning is no pose for long: lost by time, relocalised when the scans return */
+    if (t - L->last_scan_t > L->cfg.lidar_lost_us && L->status != ST_LOST) {
+        char why[96];
+        snprintf(why, sizeof why, "no LiDAR for %.1f s (limit %.1f s)", (t - L->last_scan_t) * 1e-6,
+                 L->cfg.lidar_lost_us * 1e-6);
+        event(out, "lidar_outage", "LIDAR_SCAN: %s", why);
+        L->candidate = false;
+        set_status(L, ST_LOST, out, why);
+    }
     if (t - L->last_pose_out_t >= L->cfg.gap_pose_period_us) {
         filter_t f = L->pred;
         if (t > f.utime) filter_predict_cv(&f, t);
@@ -231,6 +248,7 @@ void localizer_imu(localizer_t *L, int64_t utime, const Vec3 &accel, const Vec3 
         event(out, "imu_nonfinite", "IMU: non-finite sample at %lld dropped", (long long)utime);
         return;
     }
+    check_clock(L, utime, "IMU", out);
     if (utime <= L->last_imu_t) {
         if (utime == L->last_imu_t) event(out, "imu_duplicate");
         else event(out, "imu_out_of_order", "IMU: sample %lld us older than the last one dropped",
@@ -267,6 +285,7 @@ void localizer_speed(localizer_t *L, int64_t utime, double speed_mps, outputs_t 
         event(out, "speed_invalid", "VEHICLE_SPEED: %g m/s at %lld dropped", speed_mps, (long long)utime);
         return;
     }
+    check_clock(L, utime, "VEHICLE_SPEED", out);
     if (utime <= L->last_speed_t) {
         event(out, utime == L->last_speed_t ? "speed_duplicate" : "speed_out_of_order");
         return;
@@ -279,7 +298,11 @@ void localizer_speed(localizer_t *L, int64_t utime, double speed_mps, outputs_t 
     while (it != L->buf.begin() && std::prev(it)->t > utime) --it;
     bool at_end = it == L->buf.end();
     L->buf.insert(it, e);
-    if (!L->kf.initialized || utime <= L->kf.utime) return;
+    if (!L->kf.initialized) {
+        while (!L->buf.empty() && L->buf.front().t < utime - 1000000) L->buf.pop_front();
+        return;
+    }
+    if (utime <= L->kf.utime) return;
     if (at_end) apply_input(L, &L->pred, e);
     else rebuild_pred(L);
     if (!imu_fresh(L, utime)) maybe_gap_pose(L, utime, out);
@@ -302,7 +325,7 @@ static Eigen::Isometry3d interp(const std::vector<pose_sample_t> &s, int64_t t)
     return T;
 }
 
-static Eigen::Isometry3d imu_pose(const filter_t &f)
+Eigen::Isometry3d imu_pose(const filter_t &f)
 {
     Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
     T.linear() = f.q.toRotationMatrix();
@@ -353,188 +376,19 @@ static void deskew_points(localizer_t *L, int64_t utime, const pb_points_t *pts,
     L->xyz.resize(k);
 }
 
-static Vec3 antenna_map(const localizer_t *L, const Eigen::Isometry3d &map_from_base)
-{
-    return map_from_base * L->ex.base_from_gnss.translation();
-}
-
-static bool fix_fresh(const localizer_t *L, int64_t t)
-{
-    return L->has_fix && std::llabs(t - L->fix.utime) < 500000;
-}
-
-static double gnss_gate(const localizer_t *L, double h_acc)
-{
-    double g = L->cfg.gnss_gate_k * (std::isfinite(h_acc) ? h_acc : 0.0);
-    return g > L->cfg.gnss_gate_min_m ? g : L->cfg.gnss_gate_min_m;
-}
-
-/* Distance of a pose's antenna from the latest fix, extrapolated by the pose's velocity. */
-static double candidate_gnss_residual(const localizer_t *L, const Eigen::Isometry3d &pose, const Vec3 &vel, int64_t t)
-{
-    if (!fix_fresh(L, t)) return NAN;
-    Vec3 a = antenna_map(L, pose) + vel * ((L->fix.utime - t) * 1e-6);
-    return std::hypot(L->fix_map.x() - a.x(), L->fix_map.y() - a.y());
-}
-
-/* Structure test (see localizer.h): share of above-ground points on the map's surfaces
- * at pose, or NaN when the sweep has too little structure to judge. */
-static double structure_inliers(localizer_t *L, const Eigen::Isometry3d &pose)
-{
-    L->above.clear();
-    size_t n = L->xyz.size() / 3, stride = n > 8000 ? n / 4000 : 1;   /* a sample is enough to judge */
-    for (size_t i = 0; i + 2 < L->xyz.size(); i += 3 * stride)
-        if (L->xyz[i + 2] > L->cfg.structure_min_z_m) {
-            L->above.push_back(L->xyz[i]);
-            L->above.push_back(L->xyz[i + 1]);
-            L->above.push_back(L->xyz[i + 2]);
-        }
-    if (L->above.size() / 3 < size_t(L->cfg.structure_min_points)) return NAN;
-    pb_reg_config_t c = L->cfg.reg;
-    c.max_iterations = 0;   /* evaluate at the pose, do not move it */
-    c.coarse_iterations = 0;
-    pb_reg_result_t r;
-    pb_err_t err;
-    if (pb_reg_align(L->map, L->above.data(), L->above.size() / 3, pose, &c, &r, &err) < 0) return NAN;
-    if (r.points_used < L->cfg.structure_min_points / 3) return NAN;
-    return r.inlier_fraction;
-}
-
-static Mat6 floored(const localizer_t *L, const Mat6 &c)
-{
-    Mat6 m = c;
-    if (!m.allFinite()) m = Mat6::Identity() * 1e-2;
-    double ft = L->cfg.pose_sigma_floor_m, fr = L->cfg.pose_sigma_floor_rad;
-    for (int i = 0; i < 3; i++) m(i, i) += ft * ft;
-    for (int i = 3; i < 6; i++) m(i, i) += fr * fr;
-    return m;
-}
 
 /* Start-up or relocalisation on this sweep: returns true with kf reset at a candidate. */
-static bool try_initialize(localizer_t *L, int64_t t_ref, outputs_t *out)
-{
-    pb_err_t err;
-    pb_reg_result_t res;
-    Eigen::Isometry3d seed = Eigen::Isometry3d::Identity();
-    double radius = 0, yaw_range = 0;
-    Vec3 vel = Vec3::Zero();
-    const char *how = nullptr;
-    Vec3 omega = L->kf.initialized ? L->pred.omega : L->kf.omega;
-    if (L->has_hint) {
-        seed = L->hint;
-        vel = seed.linear() * L->hint_body_vel;
-        if (vel.isZero() && fix_fresh(L, t_ref) && L->fix.speed_mps > 0.5) {
-            double yaw_enu = M_PI / 2 - L->fix.heading_deg * M_PI / 180;
-            double yaw = yaw_enu - L->geo.yaw_deg * M_PI / 180;
-            vel = Vec3(std::cos(yaw), std::sin(yaw), 0) * L->fix.speed_mps;
-        }
-        /* the hint is for its own time; the car moved on since */
-        if (L->hint_t != 0 && t_ref > L->hint_t && t_ref - L->hint_t < 2000000)
-            seed.translation() += vel * ((t_ref - L->hint_t) * 1e-6);
-        L->has_hint = false;
-        how = "initial pose";
-        int rc = pb_reg_align(L->map, L->xyz.data(), L->xyz.size() / 3, seed, &L->cfg.reg, &res, &err);
-        if (rc < 0) { event(out, "init_failed", "initial pose: %s", err.msg); return false; }
-    } else if (fix_fresh(L, t_ref) && L->has_geo) {
-        const gnss_in_t &fx = L->fix;
-        double yaw = 0;
-        if (fx.speed_mps > L->cfg.gnss_init_speed_mps && fx.heading_acc_deg < L->cfg.gnss_init_heading_acc_deg) {
-            /* course over ground, clockwise from north, to map yaw (CCW from map +x) */
-            double yaw_enu = M_PI / 2 - fx.heading_deg * M_PI / 180;
-            yaw = pb_wrap_angle(yaw_enu - L->geo.yaw_deg * M_PI / 180);
-            yaw_range = std::max(3 * fx.heading_acc_deg * M_PI / 180, 10 * M_PI / 180);
-            double c = std::cos(yaw), s = std::sin(yaw);
-            vel = Vec3(c, s, 0) * fx.speed_mps;
-            how = "GNSS position and course";
-        } else {
-            if (L->pred.initialized) yaw = std::atan2(L->pred.q.toRotationMatrix()(1, 0), L->pred.q.toRotationMatrix()(0, 0));
-            yaw_range = M_PI;
-            how = "GNSS position and yaw search";
-            if (fx.speed_mps > 0.5) {
-                double ye = M_PI / 2 - fx.heading_deg * M_PI / 180 - L->geo.yaw_deg * M_PI / 180;
-                vel = Vec3(std::cos(ye), std::sin(ye), 0) * fx.speed_mps;
-            }
-        }
-        seed.linear() = Eigen::AngleAxisd(yaw, Vec3::UnitZ()).toRotationMatrix();
-        Vec3 ant = L->ex.base_from_gnss.translation();
-        Vec3 base = L->fix_map + vel * ((t_ref - fx.utime) * 1e-6) - seed.linear() * ant;
-        /* height: GNSS altitude is the least accurate axis; the map's ground decides in the match */
-        seed.translation() = base;
-        radius = std::max(L->cfg.gnss_search_radius_m, 2 * (std::isfinite(fx.h_acc_m) ? fx.h_acc_m : 2.0));
-        int rc = pb_reg_align_global(L->map, L->xyz.data(), L->xyz.size() / 3, seed, radius, yaw_range,
-                                     L->cfg.search_pos_step_m, L->cfg.search_yaw_step_deg * M_PI / 180,
-                                     &L->cfg.reg, &res, &err);
-        if (rc < 0) { event(out, "init_failed", "GNSS start: %s", err.msg); return false; }
-    } else if (L->status == ST_LOST && L->pred.initialized) {
-        /* no GNSS: look around the dead-reckoned pose */
-        seed = filter_base_pose(&L->pred);
-        vel = filter_base_velocity(&L->pred);
-        how = "dead-reckoned pose search";
-        int rc = pb_reg_align_global(L->map, L->xyz.data(), L->xyz.size() / 3, seed, 3.0, 20 * M_PI / 180,
-                                     L->cfg.search_pos_step_m, L->cfg.search_yaw_step_deg * M_PI / 180,
-                                     &L->cfg.reg, &res, &err);
-        if (rc < 0) { event(out, "init_failed", "relocalisation: %s", err.msg); return false; }
-    } else {
-        return false;
-    }
-    if (res.status == PB_REG_FEW_POINTS || res.inlier_fraction < L->cfg.min_inlier_fraction) {
-        event(out, "init_rejected", "%s: best match explains %.0f%% of the sweep (need %.0f%%)", how,
-              100 * res.inlier_fraction, 100 * L->cfg.min_inlier_fraction);
-        return false;
-    }
-    double si = structure_inliers(L, res.pose);
-    if (std::isfinite(si) && si < L->cfg.min_structure_inliers) {
-        event(out, "init_rejected_structure", "%s: only %.0f%% of the structure above the ground fits the map (need %.0f%%)",
-              how, 100 * si, 100 * L->cfg.min_structure_inliers);
-        if (L->status != ST_LOST && (L->kf.initialized || how[0] == 'i'))
-            set_status(L, ST_LOST, out, "pose does not fit the map's structure");
-        return false;
-    }
-    double gr = candidate_gnss_residual(L, res.pose, vel, t_ref);
-    if (std::isfinite(gr) && gr > gnss_gate(L, L->fix.h_acc_m)) {
-        event(out, "init_rejected_gnss", "%s: candidate is %.1f m from the GNSS fix", how, gr);
-        /* a pose we were given (INITIAL_POSE) or had is contradicted: say so, then relocalise from GNSS */
-        if (L->status != ST_LOST && (L->kf.initialized || how[0] == 'i'))
-            set_status(L, ST_LOST, out, "pose disagrees with GNSS");
-        return false;
-    }
-    Eigen::Isometry3d pose = res.pose;
-    if (L->pred.initialized && vel.isZero()) vel = filter_base_velocity(&L->pred);
-    /* omega: the rates of the newest IMU sample (or the LiDAR-only estimate) */
-    filter_reset(&L->kf, t_ref, pose, vel, omega, 0.3, 2 * M_PI / 180, 1.0);
-    while (!L->buf.empty() && L->buf.front().t <= t_ref) L->buf.pop_front();
-    rebuild_pred(L);
-    L->candidate = true;
-    L->verify_count = 1;
-    L->reject_count = 0;
-    L->gnss_res.clear();
-    L->has_prev_pose = false;
-    event(out, "init_candidate", "%s: candidate at (%.1f, %.1f) yaw %.1f deg, inliers %.0f%%", how,
-          pose.translation().x(), pose.translation().y(),
-          std::atan2(pose.linear()(1, 0), pose.linear()(0, 0)) * 180 / M_PI, 100 * res.inlier_fraction);
-    return true;
-}
-
-void localizer_initial_pose(localizer_t *L, int64_t utime, const Eigen::Isometry3d &T, outputs_t *out)
-{
-    if (!T.matrix().allFinite()) {
-        event(out, "initial_pose_invalid", "INITIAL_POSE: non-finite pose ignored");
-        return;
-    }
-    event(out, "initial_pose", "INITIAL_POSE at (%.1f, %.1f): verifying", T.translation().x(), T.translation().y());
-    L->has_hint = true;
-    L->hint = T;
-    L->hint_t = utime;
-    L->hint_body_vel = L->pred.initialized ? Vec3(filter_base_pose(&L->pred).linear().transpose() * filter_base_velocity(&L->pred))
-                                           : Vec3::Zero();
-    /* the current track (if any) keeps running on prediction until the hint is verified,
-     * so a wrong hint can fall back on it */
-    L->candidate = false;
-    set_status(L, ST_INITIALIZING, out, "INITIAL_POSE received");
-}
 
 static void update_lidar_only_motion(localizer_t *L, int64_t t)
 {
+    /* the forward speed between successive accepted matches: the direction of travel that
+     * an unsigned CAN speed lacks */
+    Eigen::Isometry3d base = filter_base_pose(&L->kf);
+    if (L->last_match_t != 0 && t > L->last_match_t && t - L->last_match_t < 500000)
+        L->match_fwd_mps = (base.linear().transpose() * (base.translation() - L->last_match_pose.translation())).x() /
+                           ((t - L->last_match_t) * 1e-6);
+    L->last_match_pose = base;
+    L->last_match_t = t;
     Eigen::Isometry3d cur = imu_pose(L->kf);
     if (L->has_prev_pose && t > L->prev_pose_t && !imu_fresh(L, t)) {
         double dt = (t - L->prev_pose_t) * 1e-6;
@@ -548,6 +402,22 @@ static void update_lidar_only_motion(localizer_t *L, int64_t t)
     L->has_prev_pose = true;
     L->prev_pose = cur;
     L->prev_pose_t = t;
+}
+
+/* The second match of a candidate whose speed was unknown: velocity and turn rate from the
+ * two matched poses, the filter restarted at the second. */
+static void restart_from_two_matches(localizer_t *L, filter_t *f, const Eigen::Isometry3d &pose, int64_t t)
+{
+    double dt = (t - L->cand_t) * 1e-6;
+    Vec3 v = (pose.translation() - L->cand_pose.translation()) / dt;
+    Vec3 omega = f->omega;
+    if (!imu_fresh(L, t)) {
+        Eigen::AngleAxisd aa(L->cand_pose.linear().transpose() * pose.linear());
+        omega = L->ex.base_from_imu.linear().transpose() * (aa.axis() * aa.angle() / dt);
+    }
+    /* the speed is the difference of two matches (each good to a few cm) */
+    filter_reset(f, t, pose, v, omega, 0.1, 1 * M_PI / 180, std::max(0.1, 0.1 / dt));
+    L->cand_vel_unknown = false;
 }
 
 /* Matches one complete sweep (t_ref: its end) and updates the state machine. */
@@ -591,7 +461,11 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
             L->samples.push_back({ t_ref, Eigen::Isometry3d::Identity() });
         }
         deskew_points(L, utime, pts, t_ref);
-        if (try_initialize(L, t_ref, out)) {
+        L->init_inliers = L->init_structure = NAN;
+        bool found = try_initialize(L, t_ref, out);
+        d.inlier_fraction = L->init_inliers;
+        d.structure_inliers = L->init_structure;
+        if (found) {
             d.matched = true;
             out->poses.push_back(make_pose(L, L->kf, t_ref, false, NAN));
         } else if (L->kf.initialized) {
@@ -609,7 +483,13 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
     pb_err_t err;
     pb_reg_result_t res;
     Eigen::Isometry3d guess = filter_base_pose(&prior);
-    int rc = pb_reg_align(L->map, L->xyz.data(), L->xyz.size() / 3, guess, &L->cfg.reg, &res, &err);
+    /* a candidate whose speed is not known yet (no CAN, GNSS or earlier track: a moving
+     * start from a prior or a search): the car may have moved anywhere a car can since */
+    bool free_motion = L->candidate && L->cand_vel_unknown;
+    double reach = free_motion ? std::min(L->cfg.max_speed_mps * (t_ref - L->cand_t) * 1e-6, 8.0) : 0;
+    int rc = reach > 1.0 ? pb_reg_align_global(L->map, L->xyz.data(), L->xyz.size() / 3, guess, reach, 5 * M_PI / 180,
+                                               1.0, 5 * M_PI / 180, &L->cfg.reg, &res, &err)
+                         : pb_reg_align(L->map, L->xyz.data(), L->xyz.size() / 3, guess, &L->cfg.reg, &res, &err);
     bool accept = false;
     const char *why = nullptr;
     char whybuf[1200];
@@ -635,7 +515,8 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
                      100 * L->cfg.min_inlier_fraction);
             why = whybuf;
             event(out, "match_low_inliers", "%s", whybuf);
-        } else if (chi2 > L->cfg.gate_chi2 && (step > L->cfg.gate_min_m || r.tail<3>().norm() > 2 * M_PI / 180)) {
+        } else if (!free_motion && chi2 > L->cfg.gate_chi2 &&
+                   (step > L->cfg.gate_min_m || r.tail<3>().norm() > 2 * M_PI / 180)) {
             snprintf(whybuf, sizeof whybuf, "match %.2f m / %.1f deg from the prediction (chi2 %.0f)", step,
                      r.tail<3>().norm() * 180 / M_PI, chi2);
             why = whybuf;
@@ -650,7 +531,8 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
                 event(out, "match_structure_mismatch", "%s", whybuf);
             } else {
                 accept = true;
-                filter_update_pose(&prior, res.pose, cov);
+                if (free_motion) restart_from_two_matches(L, &prior, res.pose, t_ref);
+                else filter_update_pose(&prior, res.pose, cov);
                 if (std::isfinite(si) && si >= L->cfg.structure_trust) {
                     L->last_structure = si;
                     L->last_structure_t = t_ref;
@@ -729,6 +611,7 @@ void localizer_scan(localizer_t *L, int64_t utime, const pb_points_t *pts, outpu
         event(out, "scan_invalid", "LIDAR_SCAN: point times span %.1f s (more than a sweep); dropped", max_off * 1e-6);
         return;
     }
+    check_clock(L, t_ref, "LIDAR_SCAN", out);
     if (L->last_scan_t != 0 && t_ref <= L->last_scan_t) {
         if (t_ref == L->last_scan_t) event(out, "scan_duplicate", "LIDAR_SCAN: sweep at %lld repeated, dropped", (long long)utime);
         else event(out, "scan_out_of_order", "LIDAR_SCAN: sweep %.0f ms older than the last one dropped",
@@ -753,17 +636,21 @@ void localizer_scan(localizer_t *L, int64_t utime, const pb_points_t *pts, outpu
     process_scan(L, utime, t_ref, pts, out);
 }
 
-void localizer_gnss(localizer_t *L, const gnss_in_t &fx, outputs_t *out)
+void localizer_gnss(localizer_t *L, const gnss_in_t &raw, outputs_t *out)
 {
     if (!L->has_geo) return;
-    if (fx.fix_type < 2 || !std::isfinite(fx.lat_deg) || !std::isfinite(fx.lon_deg) || !std::isfinite(fx.alt_m)) {
+    if (raw.fix_type < 2 || !std::isfinite(raw.lat_deg) || !std::isfinite(raw.lon_deg) || !std::isfinite(raw.alt_m)) {
         event(out, "gnss_no_fix");
         return;
     }
-    if (L->has_fix && fx.utime <= L->fix.utime) {
-        event(out, fx.utime == L->fix.utime ? "gnss_duplicate" : "gnss_out_of_order");
+    if (L->has_fix && raw.utime <= L->fix_raw_utime) {
+        event(out, raw.utime == L->fix_raw_utime ? "gnss_duplicate" : "gnss_out_of_order");
         return;
     }
+    L->fix_raw_utime = raw.utime;
+    /* the receiver's clock may be off the other sensors' by seconds: measured and taken out */
+    gnss_in_t fx = raw;
+    fx.utime -= gnss_clock_offset(L, raw.utime, out);
     double xyz[3];
     pb_geo_wgs84_to_map(&L->geo, fx.lat_deg, fx.lon_deg, fx.alt_m, xyz);
     L->fix = fx;

@@ -34,6 +34,7 @@
 #ifndef LOC_LOCALIZER_H
 #define LOC_LOCALIZER_H
 
+#include <cmath>
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -48,6 +49,9 @@ namespace loc {
 
 enum { ST_INITIALIZING = 0, ST_TRACKING = 1, ST_DEGRADED = 2, ST_LOST = 3 };
 enum { SRC_LOCALIZER = 0, SRC_PREDICTED = 3 };
+/* Covariance diagonal of a POSE without an estimate (status initializing, pose identity):
+ * 10 km standard deviation in position, pi in each angle. */
+static const double UNKNOWN_POS_VAR = 1e8, UNKNOWN_ROT_VAR = M_PI * M_PI;
 
 struct localizer_config_t {
     filter_config_t filter;
@@ -56,18 +60,28 @@ struct localizer_config_t {
     int64_t imu_timeout_us = 250000;       /* IMU older than this: LiDAR-only prediction */
     int64_t imu_gap_us = 50000;            /* a gap between IMU samples worth reporting */
     int64_t lidar_timeout_us = 250000;     /* no sweep for this long: DEGRADED, POSE from prediction */
+    int64_t lidar_lost_us = 10000000;      /* no sweep for this long: LOST (dead reckoning is no pose) */
+    int64_t time_jump_us = 1000000;        /* inputs this much older than the newest: the clock stepped back ... */
+    int time_jump_inputs = 3;              /* ... when this many in a row say so (one stray message does not) */
+    int64_t reinit_gap_us = 60000000;      /* no input for this long (a log gap): start afresh */
+    int64_t gnss_clock_tol_us = 300000;    /* GNSS time off the other sensors by more: an offset, compensated */
     int64_t gap_pose_period_us = 100000;   /* POSE period while the LiDAR is missing */
     int64_t speed_timeout_us = 500000;     /* VEHICLE_SPEED older than this is not used */
+    double reverse_detect_mps = 0.5;       /* matches moving backwards faster: an unsigned CAN speed is negated */
     int min_scan_points = 500;             /* fewer valid points: the sweep is not matched */
     /* match acceptance */
     double min_inlier_fraction = 0.25;     /* of downsampled points within reg.inlier_m of a plane */
-    /* structure test: the share of points above the ground (base z > structure_min_z_m)
-     * that lie on the map's surfaces at the pose. The ground fits almost any pose on a
-     * road, so the overall score stays high when the pose is wrong; walls, poles and
-     * parked cars do not. Applied when at least structure_min_points such points exist. */
+    /* structure test: the share of points higher than structure_min_z_m above the local
+     * ground (the map's ground below each point; base z where the map has none) that lie
+     * on the map's surfaces at the pose: within reg.inlier_m of a plane, or inside an
+     * occupied cell of rough structure (trees, bushes, fences). The ground fits almost
+     * any pose on a road, so the overall score stays high when the pose is wrong; walls,
+     * poles, vegetation and parked cars do not. Applied when at least
+     * structure_min_points such points exist. */
     double structure_min_z_m = 0.7;
     int structure_min_points = 300;
     double min_structure_inliers = 0.45;
+    double structure_rough_m = 0.25;       /* a point this near a cell of rough structure fits it */
     /* GNSS that disagrees while the structure fitted this well within the last second is
      * taken to be the faulty one (multipath, spoofing): counted, the pose is kept.
      * Measured: 0.6-0.9 at the right pose, 0-0.15 at a pose 20 m off. */
@@ -87,6 +101,16 @@ struct localizer_config_t {
     double gnss_search_radius_m = 4.0;     /* relocalisation search around the GNSS position */
     double search_pos_step_m = 2.0;        /* grid of the start-up / relocalisation search */
     double search_yaw_step_deg = 10.0;
+    /* an initial pose (INITIAL_POSE, --initial-pose) is a prior: searched within this */
+    double hint_radius_m = 3.0;
+    double hint_yaw_deg = 15.0;
+    int hint_retries = 20;                 /* sweeps a failing prior is tried on before it is dropped */
+    double lost_search_max_m = 12.0;       /* the dead-reckoned search when lost grows with the covariance to this */
+    int lost_searches = 20;                /* ... and runs on this many sweeps, then the global search */
+    double max_speed_mps = 25.0;           /* how far a car may have moved between a start's first two sweeps */
+    /* no prior at all: global relocalisation in the whole map (place descriptor, see startup.cpp) */
+    bool global_search = true;
+    int global_candidates = 8;             /* places verified by registration per sweep */
     /* --initial-pose, applied to the first sweep if nothing better came */
     bool has_initial_pose = false;
     double initial_pose[6] = { 0 };        /* x, y, z, roll, pitch, yaw (m, rad) */

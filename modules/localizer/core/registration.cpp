@@ -489,3 +489,40 @@ int pb_reg_align_global(const pb_regmap_t *map, const float *xyz, size_t n, cons
     res->time_ms = ms_since(t0);
     return res->status;
 }
+
+double pb_reg_structure_fit(const pb_regmap_t *map, const float *xyz, size_t n, const Eigen::Isometry3d &pose,
+                            double inlier_m, double rough_m)
+{
+    if (!map || n == 0) return NAN;
+    const Level &lv = map->fine;
+    const Eigen::Matrix3d R = pose.linear();
+    const Eigen::Vector3d t = pose.translation();
+    size_t fit = 0;
+    for (size_t i = 0; i < n; i++) {
+        Eigen::Vector3d q = R * Eigen::Vector3d(xyz[3 * i], xyz[3 * i + 1], xyz[3 * i + 2]) + t;
+        const Cell *near[7];
+        int nn = lv.lookup_near(q(0), q(1), q(2), near);
+        bool ok = false;
+        for (int k = 0; k < nn && !ok; k++) {
+            Eigen::Vector3d d(q(0) - near[k]->mean[0], q(1) - near[k]->mean[1], q(2) - near[k]->mean[2]);
+            double ra = d.dot(Eigen::Vector3d(near[k]->u1[0], near[k]->u1[1], near[k]->u1[2]));
+            double rb = near[k]->kind == CELL_LINE ? d.dot(Eigen::Vector3d(near[k]->u2[0], near[k]->u2[1], near[k]->u2[2])) : 0;
+            ok = ra * ra + rb * rb < inlier_m * inlier_m;
+        }
+        if (!ok && lv.rough.size() > 0) {
+            /* rough structure: the point's own cell, or a cell within rough_m of it */
+            int64_t ix, iy, iz;
+            uint64_t key;
+            if (voxel_index_of(q(0), q(1), q(2), lv.inv_voxel, &ix, &iy, &iz) && voxel_key(ix, iy, iz, &key))
+                ok = lv.rough.find(key) >= 0;
+            for (int a = 0; a < 3 && !ok; a++)
+                for (int sgn = -1; sgn <= 1 && !ok; sgn += 2) {
+                    Eigen::Vector3d o = q;
+                    o(a) += sgn * rough_m;
+                    ok = voxel_key_of(o(0), o(1), o(2), lv.inv_voxel, &key) && lv.rough.find(key) >= 0;
+                }
+        }
+        fit += ok;
+    }
+    return (double)fit / (double)n;
+}

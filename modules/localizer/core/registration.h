@@ -118,6 +118,14 @@ int pb_reg_align_global(const pb_regmap_t *map, const float *xyz, size_t n,
                         double pos_step_m, double yaw_step_rad, const pb_reg_config_t *cfg,
                         pb_reg_result_t *result, pb_err_t *err);
 
+/* Structure fit: the share of n points (base frame) that lie on the map at pose:
+ * within inlier_m of a plane or line target, or inside a cell of rough structure
+ * (foliage, fences: occupied by map points without a target) or next to one within
+ * rough_m. Evaluated at the pose, not optimised. *counted: points that had a map cell
+ * near them at all (the rest are in free space). Returns the share, NaN for n == 0. */
+double pb_reg_structure_fit(const pb_regmap_t *map, const float *xyz, size_t n, const Eigen::Isometry3d &pose,
+                            double inlier_m, double rough_m);
+
 /* Downsamples n points to about cfg->target_points (one centroid per voxel,
  * voxel grown geometrically from scan_voxel_m), after the range filter; out is
  * resized. Deterministic. pb_reg_align calls this itself; exposed for benches. */

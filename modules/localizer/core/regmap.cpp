@@ -4,6 +4,7 @@
 
 #include <sys/stat.h>
 #include <cerrno>
+#include <cmath>
 #include <cstring>
 #include <limits>
 #include <new>
@@ -83,6 +84,7 @@ size_t build_level(const float *xyz, size_t n, double voxel, const pb_regmap_con
     /* 2. per voxel: gather the neighbourhood's moments (shifted to this voxel's
      *    corner), fit mean and covariance, classify by eigenvalues */
     lv->index.reset(keys.size());
+    lv->rough.reset(16);
     lv->cells.clear();
     lv->cells.reserve(keys.size());
     lv->keys.clear();
@@ -117,7 +119,11 @@ size_t build_level(const float *xyz, size_t n, double voxel, const pb_regmap_con
         Eigen::Vector3d mu, u1, u2;
         int kind = fit_target(N, S, SS, cfg, &mu, &u1, &u2);
         if (!kind) kind = fit_target(own.n, own.s, own.ss, cfg, &mu, &u1, &u2);
-        if (!kind) continue;   /* scattered (foliage) or too few points: no reliable target */
+        if (!kind) {   /* scattered (foliage) or too few points: no reliable target */
+            bool inserted;
+            if (own.n >= 2) lv->rough.insert(keys[c], 0, &inserted);
+            continue;
+        }
         Cell cell;
         cell.kind = (uint8_t)kind;
         cell.mean[0] = (float)(mu(0) + ix * voxel);
@@ -271,4 +277,48 @@ int pb_regmap_covers(const pb_regmap_t *m, double x, double y, double r)
     if (m->info.load_radius_m <= 0) return 1;
     double dx = x - m->info.center_xy[0], dy = y - m->info.center_xy[1];
     return std::sqrt(dx * dx + dy * dy) + r <= m->info.load_radius_m ? 1 : 0;
+}
+
+int pb_regmap_ground_z(const pb_regmap_t *m, double x, double y, double z_hint, double search_m,
+                       int below_only, double *z)
+{
+    if (!m || !std::isfinite(x) || !std::isfinite(y) || !std::isfinite(z_hint)) return 0;
+    const pb_loc::Level &L = m->fine;
+    const double v = L.voxel;
+    int steps = (int)std::ceil(search_m / v);
+    bool found = false;
+    double best = 0, best_d = 0;
+    /* below_only: from the point down, the first ground is the one under it */
+    for (int i = 0; i <= (below_only ? steps : 2 * steps); i++) {
+        int k = below_only ? -i : i - steps;
+        const pb_loc::Cell *c = L.lookup(x, y, z_hint + k * v);
+        if (!c || c->kind != pb_loc::CELL_PLANE || std::fabs(c->u1[2]) < 0.8) continue;
+        /* the plane's height at (x, y) */
+        double h = c->mean[2] - (c->u1[0] * (x - c->mean[0]) + c->u1[1] * (y - c->mean[1])) / c->u1[2];
+        if (below_only && h > z_hint + 0.5 * v) continue;
+        double d = std::fabs(h - z_hint);
+        if (!found || d < best_d) { found = true; best = h; best_d = d; }
+        if (below_only) break;
+    }
+    if (found) *z = best;
+    return found ? 1 : 0;
+}
+
+void pb_regmap_cells(const pb_regmap_t *m, std::vector<float> *xyz, std::vector<uint8_t> *ground)
+{
+    xyz->clear();
+    ground->clear();
+    if (!m) return;
+    const pb_loc::Level &L = m->fine;
+    for (const pb_loc::Cell &c : L.cells) {
+        xyz->insert(xyz->end(), c.mean, c.mean + 3);
+        ground->push_back(c.kind == pb_loc::CELL_PLANE && std::fabs(c.u1[2]) >= 0.8);
+    }
+    L.rough.for_each([&](uint64_t key, int32_t) {
+        int64_t ix, iy, iz;
+        pb_loc::voxel_unkey(key, &ix, &iy, &iz);
+        float p[3] = { (float)((ix + 0.5) * L.voxel), (float)((iy + 0.5) * L.voxel), (float)((iz + 0.5) * L.voxel) };
+        xyz->insert(xyz->end(), p, p + 3);
+        ground->push_back(0);
+    });
 }

@@ -24,6 +24,7 @@
 
 #include <stddef.h>
 #include <stdint.h>
+#include <vector>
 #include <Eigen/Core>
 #include "pb_err.h"
 
@@ -67,5 +68,18 @@ void pb_regmap_info(const pb_regmap_t *m, pb_regmap_info_t *info);
 /* 1 if the horizontal disc of radius r around (x, y) lies inside the loaded
  * disc (always 1 for a whole map), else 0: reload around the car when 0. */
 int pb_regmap_covers(const pb_regmap_t *m, double x, double y, double r);
+
+/* Height of the ground (an upward-facing plane cell of the fine level) below or near
+ * (x, y): the ground cell in the vertical column at (x, y) whose plane height is nearest
+ * z_hint within +-search_m, or with below_only the highest one at most z_hint (the
+ * ground under a point). Returns 1 with *z set, or 0 when the column has no ground
+ * (off the map, under dense foliage). */
+/* The fine level as points, for place descriptors: one per cell (the centroid of a
+ * target cell, the centre of a rough one), xyz interleaved, and per point 1 if it is
+ * ground (an upward-facing plane), else 0. Both vectors are replaced. */
+void pb_regmap_cells(const pb_regmap_t *m, std::vector<float> *xyz, std::vector<uint8_t> *ground);
+
+int pb_regmap_ground_z(const pb_regmap_t *m, double x, double y, double z_hint, double search_m,
+                       int below_only, double *z);
 
 #endif

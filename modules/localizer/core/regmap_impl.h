@@ -25,6 +25,9 @@ struct Level {
     VoxelHash index;
     std::vector<Cell> cells;
     std::vector<uint64_t> keys;   /* voxel key of each cell (for tiling and paging) */
+    /* cells the map's points occupy without a reliable target (foliage, scattered
+     * structure): no registration target, but evidence for the structure test */
+    VoxelHash rough;
 
     const Cell *lookup(double x, double y, double z) const
     {

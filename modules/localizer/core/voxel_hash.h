@@ -98,6 +98,14 @@ public:
         }
     }
 
+    /* Calls fn(key, value) for every entry, in table order (deterministic for one
+     * insertion sequence). */
+    template <class F> void for_each(F fn) const
+    {
+        for (size_t i = 0; i < keys_.size(); i++)
+            if (keys_[i] != kEmpty) fn(keys_[i], vals_[i]);
+    }
+
 private:
     /* Fibonacci hashing: the top bits of the product mix every bit of the key */
     size_t slot(uint64_t key) const { return (size_t)((key * 0x9E3779B97F4A7C15ull) >> shift_); }

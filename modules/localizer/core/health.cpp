@@ -1,0 +1,98 @@
+/* Health checks: whether a pose is right (structure fit, GNSS agreement) and the match
+ * covariance floor (see docs/localizer.md "Divergence test"). */
+#include <algorithm>
+#include <cmath>
+#include <vector>
+
+#include "localizer_impl.h"
+
+namespace loc {
+
+Vec3 antenna_map(const localizer_t *L, const Eigen::Isometry3d &map_from_base)
+{
+    return map_from_base * L->ex.base_from_gnss.translation();
+}
+
+bool fix_fresh(const localizer_t *L, int64_t t)
+{
+    return L->has_fix && std::llabs(t - L->fix.utime) < 500000;
+}
+
+double gnss_gate(const localizer_t *L, double h_acc)
+{
+    double g = L->cfg.gnss_gate_k * (std::isfinite(h_acc) ? h_acc : 0.0);
+    return g > L->cfg.gnss_gate_min_m ? g : L->cfg.gnss_gate_min_m;
+}
+
+/* Distance of a pose's antenna from the latest fix, extrapolated by the pose's velocity. */
+double candidate_gnss_residual(const localizer_t *L, const Eigen::Isometry3d &pose, const Vec3 &vel, int64_t t)
+{
+    if (!fix_fresh(L, t)) return NAN;
+    Vec3 a = antenna_map(L, pose) + vel * ((L->fix.utime - t) * 1e-6);
+    return std::hypot(L->fix_map.x() - a.x(), L->fix_map.y() - a.y());
+}
+
+/* The GNSS receiver's clock against the other sensors': a fix is stamped at most a few
+ * hundred ms after the newest IMU/CAN/LiDAR time it arrives with. A median over the last
+ * fixes further off than cfg.gnss_clock_tol_us is an offset: reported once (and again
+ * when it changes) and returned, to be subtracted from every fix time. */
+int64_t gnss_clock_offset(localizer_t *L, int64_t fix_utime, outputs_t *out)
+{
+    if (L->newest_t == 0) return L->gnss_offset;
+    L->gnss_lag.push_back(fix_utime - L->newest_t);
+    while (L->gnss_lag.size() > 5) L->gnss_lag.pop_front();
+    if (L->gnss_lag.size() < 3) return L->gnss_offset;
+    std::vector<int64_t> v(L->gnss_lag.begin(), L->gnss_lag.end());
+    std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
+    int64_t med = v[v.size() / 2];
+    if (std::llabs(med) <= L->cfg.gnss_clock_tol_us) med = 0;
+    L->gnss_offset = med;
+    if (std::llabs(med - L->gnss_offset_reported) > L->cfg.gnss_clock_tol_us) {
+        if (med != 0)
+            event(out, "gnss_clock_offset", "GNSS_FIX: the receiver's clock is %+.2f s off the other sensors; "
+                  "fix times corrected by that", med * 1e-6);
+        else
+            event(out, "gnss_clock_offset", "GNSS_FIX: the receiver's clock agrees with the other sensors again");
+        L->gnss_offset_reported = med;
+    }
+    return L->gnss_offset;
+}
+
+/* Structure test (see localizer.h): share of the points above the local ground that lie
+ * on the map's surfaces at pose, or NaN when the sweep has too little structure to judge.
+ * "Above the ground" is measured from the map's ground below each point, so crests, sags
+ * and banked roads do not turn the road surface into structure; where the map has no
+ * ground under a point, from the base plane. */
+double structure_inliers(localizer_t *L, const Eigen::Isometry3d &pose)
+{
+    L->above.clear();
+    size_t n = L->xyz.size() / 3, stride = n > 4000 ? n / 4000 : 1;   /* a sample is enough to judge */
+    const double hmin = L->cfg.structure_min_z_m, r2min = L->cfg.reg.min_range_m * L->cfg.reg.min_range_m;
+    for (size_t k = 0; k < n; k += stride) {
+        const float *p = &L->xyz[3 * k];
+        if (double(p[0]) * p[0] + double(p[1]) * p[1] < r2min) continue;   /* the car itself */
+        Vec3 q = pose * Vec3(p[0], p[1], p[2]);
+        double gz;
+        double h = pb_regmap_ground_z(L->map, q.x(), q.y(), q.z(), 6.0, 1, &gz) ? q.z() - gz : p[2];
+        if (h <= hmin) continue;
+        L->above.insert(L->above.end(), p, p + 3);
+    }
+    if (L->above.size() / 3 < size_t(L->cfg.structure_min_points)) return NAN;
+    /* even out the density (near points would dominate) like the registration does */
+    pb_reg_downsample(L->above.data(), L->above.size() / 3, &L->cfg.reg, &L->above_ds);
+    if (L->above_ds.size() / 3 < size_t(L->cfg.structure_min_points / 3)) return NAN;
+    return pb_reg_structure_fit(L->map, L->above_ds.data(), L->above_ds.size() / 3, pose, L->cfg.reg.inlier_m,
+                                L->cfg.structure_rough_m);
+}
+
+Mat6 floored(const localizer_t *L, const Mat6 &c)
+{
+    Mat6 m = c;
+    if (!m.allFinite()) m = Mat6::Identity() * 1e-2;
+    double ft = L->cfg.pose_sigma_floor_m, fr = L->cfg.pose_sigma_floor_rad;
+    for (int i = 0; i < 3; i++) m(i, i) += ft * ft;
+    for (int i = 3; i < 6; i++) m(i, i) += fr * fr;
+    return m;
+}
+
+} // namespace loc

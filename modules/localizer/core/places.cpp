@@ -1,0 +1,242 @@
+/* places: Scan-Context-like place recognition in the prior map (see places.h). */
+#include "places.h"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstring>
+
+namespace loc {
+
+namespace {
+
+const double kColumn = 1.0;   /* the map is summarised in 1 m columns */
+
+struct column_t {
+    float ground = NAN;       /* the ground's height (NaN: none seen, filled from neighbours) */
+    float height = 0;         /* highest structure above the ground, clipped */
+    bool has_ground = false;  /* ground seen in this very column */
+    bool low = false;         /* structure below car height here: no place */
+};
+
+struct offset_t { int dx, dy, ring, sector; };
+
+} // namespace
+
+struct places {
+    places_config_t cfg;
+    int W = 0, H = 0;
+    double lo[2] = { 0, 0 };
+    std::vector<float> height;         /* per column: highest structure above the ground */
+    std::vector<std::array<float, PLACE_RINGS>> ring_key;   /* per place (full descriptors on demand) */
+    std::vector<int> spot_col;         /* the column of each place */
+    std::vector<place_match_t> spot;   /* x, y, z of each place (yaw, distance unused) */
+    std::vector<offset_t> offsets;     /* the polar grid around a column */
+};
+
+/* The descriptor of the place at column (ix, iy), from the column heights. */
+static void describe_column(const places_t *p, int ix, int iy, place_desc_t *d)
+{
+    for (int r = 0; r < PLACE_RINGS; r++)
+        for (int s = 0; s < PLACE_SECTORS; s++) d->h[r][s] = 0;
+    for (const offset_t &o : p->offsets) {
+        int jx = ix + o.dx, jy = iy + o.dy;
+        if (jx < 0 || jy < 0 || jx >= p->W || jy >= p->H) continue;
+        float h = p->height[(size_t)jy * p->W + jx];
+        if (h > d->h[o.ring][o.sector]) d->h[o.ring][o.sector] = h;
+    }
+}
+
+static int sector_of(double dx, double dy)
+{
+    int s = (int)std::floor((std::atan2(dy, dx) + M_PI) / (2 * M_PI) * PLACE_SECTORS);
+    return std::min(std::max(s, 0), PLACE_SECTORS - 1);
+}
+
+/* Bins behind the first tall one along each sector are unknown; then the ring key. */
+static void finish(const places_config_t &cfg, place_desc_t *d)
+{
+    for (int s = 0; s < PLACE_SECTORS; s++) {
+        bool hidden = false;
+        for (int r = 0; r < PLACE_RINGS; r++) {
+            if (hidden) d->h[r][s] = -1;
+            else if (d->h[r][s] >= cfg.tall_m) hidden = true;
+        }
+    }
+    for (int r = 0; r < PLACE_RINGS; r++) {
+        int known = 0, full = 0;
+        for (int s = 0; s < PLACE_SECTORS; s++) {
+            if (d->h[r][s] < 0) continue;
+            known++;
+            full += d->h[r][s] > 0;
+        }
+        d->ring_key[r] = known ? (float)full / known : 0.f;
+    }
+}
+
+places_t *places_build(const pb_regmap_t *map, const places_config_t &cfg)
+{
+    std::vector<float> xyz;
+    std::vector<uint8_t> ground;
+    pb_regmap_cells(map, &xyz, &ground);
+    size_t n = ground.size();
+    if (n == 0) return nullptr;
+    /* 1. the map in columns: ground height, then the highest structure above it */
+    double lo[2] = { HUGE_VAL, HUGE_VAL }, hi[2] = { -HUGE_VAL, -HUGE_VAL };
+    for (size_t i = 0; i < n; i++)
+        for (int a = 0; a < 2; a++) { lo[a] = std::min(lo[a], (double)xyz[3 * i + a]); hi[a] = std::max(hi[a], (double)xyz[3 * i + a]); }
+    int W = (int)((hi[0] - lo[0]) / kColumn) + 1, H = (int)((hi[1] - lo[1]) / kColumn) + 1;
+    if ((double)W * H > 4e7) return nullptr;   /* a map this large is tiled first */
+    std::vector<column_t> col((size_t)W * H);
+    auto at = [&](int ix, int iy) -> column_t & { return col[(size_t)iy * W + ix]; };
+    auto cell = [&](size_t i, int *ix, int *iy) {
+        *ix = std::min(W - 1, (int)((xyz[3 * i] - lo[0]) / kColumn));
+        *iy = std::min(H - 1, (int)((xyz[3 * i + 1] - lo[1]) / kColumn));
+    };
+    bool any = false;
+    for (size_t i = 0; i < n; i++) {
+        if (!ground[i]) continue;
+        int ix, iy;
+        cell(i, &ix, &iy);
+        column_t &c = at(ix, iy);
+        if (!c.has_ground || xyz[3 * i + 2] < c.ground) c.ground = xyz[3 * i + 2];
+        c.has_ground = any = true;
+    }
+    if (!any) return nullptr;
+    /* columns without ground (under buildings, foliage): from the neighbours */
+    for (int pass = 0; pass < 8; pass++) {
+        std::vector<float> fill((size_t)W * H, NAN);
+        for (int iy = 0; iy < H; iy++)
+            for (int ix = 0; ix < W; ix++) {
+                if (!std::isnan(at(ix, iy).ground)) continue;
+                double s = 0;
+                int k = 0;
+                for (int dy = -1; dy <= 1; dy++)
+                    for (int dx = -1; dx <= 1; dx++) {
+                        int jx = ix + dx, jy = iy + dy;
+                        if (jx < 0 || jy < 0 || jx >= W || jy >= H || std::isnan(at(jx, jy).ground)) continue;
+                        s += at(jx, jy).ground;
+                        k++;
+                    }
+                if (k) fill[(size_t)iy * W + ix] = (float)(s / k);
+            }
+        for (size_t i = 0; i < col.size(); i++) if (std::isnan(col[i].ground)) col[i].ground = fill[i];
+    }
+    for (size_t i = 0; i < n; i++) {
+        if (ground[i]) continue;
+        int ix, iy;
+        cell(i, &ix, &iy);
+        column_t &c = at(ix, iy);
+        if (std::isnan(c.ground)) continue;
+        double h = xyz[3 * i + 2] - c.ground;
+        if (h >= 0.3 && h < cfg.car_clearance_m) c.low = true;
+        if (h >= cfg.min_height_m) c.height = std::max(c.height, (float)std::min(h, cfg.clip_m));
+    }
+    places_t *p = new places();
+    p->cfg = cfg;
+    /* 2. the polar grid as column offsets (no trigonometry per place) */
+    int R = (int)std::ceil(PLACE_RINGS * cfg.ring_m / kColumn);
+    for (int dy = -R; dy <= R; dy++)
+        for (int dx = -R; dx <= R; dx++) {
+            double r = std::hypot(dx, dy) * kColumn;
+            int ring = (int)(r / cfg.ring_m);
+            if (ring >= PLACE_RINGS || r < 1e-9) continue;
+            p->offsets.push_back({ dx, dy, ring, sector_of(dx, dy) });
+        }
+    p->W = W; p->H = H; p->lo[0] = lo[0]; p->lo[1] = lo[1];
+    p->height.resize(col.size());
+    for (size_t i = 0; i < col.size(); i++) p->height[i] = col[i].height;
+    /* 3. a place at every free ground spot of a place_step grid; only its ring key is
+     *    kept (the full descriptor is rebuilt from the columns for the shortlist) */
+    int step = std::max(1, (int)std::lround(cfg.place_step_m / kColumn));
+    place_desc_t d;
+    for (int iy = 0; iy < H; iy += step)
+        for (int ix = 0; ix < W; ix += step) {
+            const column_t &c = at(ix, iy);
+            if (!c.has_ground || c.low) continue;
+            describe_column(p, ix, iy, &d);
+            finish(cfg, &d);
+            std::array<float, PLACE_RINGS> rk;
+            std::copy(d.ring_key, d.ring_key + PLACE_RINGS, rk.begin());
+            p->ring_key.push_back(rk);
+            p->spot_col.push_back(iy * W + ix);
+            p->spot.push_back({ lo[0] + (ix + 0.5) * kColumn, lo[1] + (iy + 0.5) * kColumn, c.ground, 0, 0 });
+        }
+    if (p->spot.empty()) { delete p; return nullptr; }
+    return p;
+}
+
+void places_destroy(places_t *p) { delete p; }
+size_t places_count(const places_t *p) { return p ? p->spot.size() : 0; }
+
+void places_describe(const places_t *p, const float *xyz, size_t n, place_desc_t *d)
+{
+    const places_config_t &cfg = p->cfg;
+    for (int r = 0; r < PLACE_RINGS; r++)
+        for (int s = 0; s < PLACE_SECTORS; s++) d->h[r][s] = 0;
+    for (size_t i = 0; i < n; i++) {
+        double x = xyz[3 * i], y = xyz[3 * i + 1], h = xyz[3 * i + 2];
+        if (h < cfg.min_height_m) continue;
+        int ring = (int)(std::hypot(x, y) / cfg.ring_m);
+        if (ring >= PLACE_RINGS) continue;
+        float v = (float)std::min(h, cfg.clip_m);
+        int s = sector_of(x, y);
+        if (v > d->h[ring][s]) d->h[ring][s] = v;
+    }
+    finish(cfg, d);
+}
+
+/* Mean height difference over bins known on both sides, scan sector s against map
+ * sector s + shift; 1 when too few bins are comparable. */
+static double compare(const places_config_t &cfg, const place_desc_t &a, const place_desc_t &m, int shift)
+{
+    double sum = 0;
+    int k = 0;
+    for (int r = 0; r < PLACE_RINGS; r++)
+        for (int s = 0; s < PLACE_SECTORS; s++) {
+            float ha = a.h[r][s], hm = m.h[r][(s + shift) % PLACE_SECTORS];
+            if (ha < 0 || hm < 0) continue;
+            sum += std::fabs(ha - hm);
+            k++;
+        }
+    if (k < PLACE_RINGS * PLACE_SECTORS / 10) return 1.0;
+    return sum / (k * cfg.clip_m);
+}
+
+void places_query(const places_t *p, const place_desc_t &d, int k, std::vector<place_match_t> *out)
+{
+    out->clear();
+    size_t n = p->spot.size();
+    /* 1. shortlist by the ring key (rotation invariant) */
+    std::vector<std::pair<double, size_t>> rk(n);
+    for (size_t i = 0; i < n; i++) {
+        double s = 0;
+        for (int r = 0; r < PLACE_RINGS; r++) s += std::fabs(d.ring_key[r] - p->ring_key[i][r]);
+        rk[i] = { s, i };
+    }
+    size_t m = std::min(n, (size_t)std::max(k, p->cfg.shortlist));
+    std::partial_sort(rk.begin(), rk.begin() + m, rk.end());
+    /* 2. the full descriptors under every sector shift */
+    place_desc_t pd;
+    for (size_t j = 0; j < m; j++) {
+        int c = p->spot_col[rk[j].second];
+        describe_column(p, c % p->W, c / p->W, &pd);
+        finish(p->cfg, &pd);
+        double best = HUGE_VAL;
+        int best_shift = 0;
+        for (int sh = 0; sh < PLACE_SECTORS; sh++) {
+            double c = compare(p->cfg, d, pd, sh);
+            if (c < best) { best = c; best_shift = sh; }
+        }
+        place_match_t pm = p->spot[rk[j].second];
+        pm.yaw = best_shift * 2 * M_PI / PLACE_SECTORS;
+        pm.distance = best;
+        out->push_back(pm);
+    }
+    std::stable_sort(out->begin(), out->end(), [](const place_match_t &a, const place_match_t &b) {
+        return a.distance < b.distance;
+    });
+    if ((int)out->size() > k) out->resize(k);
+}
+
+} // namespace loc

@@ -1,0 +1,67 @@
+/* places: place recognition in the prior map, for a start with no prior at all.
+ *
+ * A Scan-Context-like descriptor (after Kim and Kim, "Scan Context", IROS 2018): around
+ * a place, a polar grid of PLACE_RINGS rings x PLACE_SECTORS sectors holds the highest
+ * structure above the ground in each bin. The map's descriptors are computed from the
+ * map itself at every free ground spot on a grid; a sweep's from its points. Occlusion
+ * is modelled on both sides alike: along each sector, bins behind the first tall
+ * structure are unknown (a sweep cannot see through a wall; the map has what is behind
+ * it), and only bins known on both sides are compared.
+ *
+ * Query: a rotation-invariant ring key (per ring, the share of known sectors holding
+ * structure) shortlists places; the full descriptors are then compared under every
+ * sector shift, which also gives the yaw. The caller verifies the best few by
+ * registration and the structure test: a descriptor only proposes.
+ *
+ * Pure: no I/O, no clocks. Ownership: places_build returns an object the caller frees
+ * with places_destroy; the map is only read while building. */
+#ifndef LOC_PLACES_H
+#define LOC_PLACES_H
+
+#include <cstddef>
+#include <vector>
+
+#include "regmap.h"
+
+namespace loc {
+
+enum { PLACE_RINGS = 20, PLACE_SECTORS = 60 };
+
+struct places_config_t {
+    double ring_m = 2.0;          /* ring width: the grid reaches PLACE_RINGS * ring_m */
+    double place_step_m = 3.0;    /* places every this many metres of free ground */
+    double min_height_m = 0.7;    /* structure starts this high above the ground */
+    double tall_m = 2.5;          /* a bin this high hides the bins behind it */
+    double clip_m = 5.0;          /* heights are clipped here (the sweep sees little higher nearby) */
+    double car_clearance_m = 2.0; /* a place needs no structure up to this height at its spot */
+    int shortlist = 60;           /* places compared in full after the ring key */
+};
+
+/* One descriptor: height (m, 0 = free) per bin, -1 unknown (hidden). */
+struct place_desc_t {
+    float h[PLACE_RINGS][PLACE_SECTORS];
+    float ring_key[PLACE_RINGS];
+};
+
+struct place_match_t {
+    double x, y, z;      /* the place: map position of the ground spot */
+    double yaw;          /* base yaw in map that aligns the sweep's descriptor */
+    double distance;     /* descriptor distance, 0..1 (smaller is more alike) */
+};
+
+typedef struct places places_t;
+
+/* Builds the descriptors of every free ground spot of the map. NULL if the map has no
+ * ground. */
+places_t *places_build(const pb_regmap_t *map, const places_config_t &cfg);
+void places_destroy(places_t *p);
+size_t places_count(const places_t *p);
+
+/* The descriptor of a sweep (points in base, metres; base z = 0 on the ground). */
+void places_describe(const places_t *p, const float *xyz, size_t n, place_desc_t *d);
+
+/* The k most alike places, best first. */
+void places_query(const places_t *p, const place_desc_t &d, int k, std::vector<place_match_t> *out);
+
+} // namespace loc
+#endif

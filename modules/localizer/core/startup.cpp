@@ -1,0 +1,228 @@
+/* Start-up and relocalisation: which pose to try on this sweep, and whether the match there
+ * may become a candidate (see localizer.h, docs/localizer.md "Start-up"). */
+#include <algorithm>
+#include <cmath>
+
+#include "localizer_impl.h"
+#include "places.h"
+
+namespace loc {
+
+/* Where to search on this sweep, and why. */
+struct start_t {
+    Eigen::Isometry3d seed = Eigen::Isometry3d::Identity();
+    double radius = 0, yaw_range = 0;
+    Vec3 vel = Vec3::Zero();
+    bool vel_known = false;
+    const char *how = nullptr;
+};
+
+/* The base on the map's ground at (x, y): a start's height (and a GNSS height, MSL or
+ * ellipsoidal, metres off) never decides it. Keeps z when the map has no ground there. */
+static void put_on_ground(const localizer_t *L, Eigen::Isometry3d *T, double search_m)
+{
+    double gz;
+    Vec3 t = T->translation();
+    if (pb_regmap_ground_z(L->map, t.x(), t.y(), t.z(), search_m, 0, &gz)) T->translation().z() = gz;
+}
+
+static Vec3 course_velocity(const localizer_t *L, const gnss_in_t &fx)
+{
+    /* course over ground, clockwise from north, to map yaw (CCW from map +x) */
+    double yaw = M_PI / 2 - fx.heading_deg * M_PI / 180 - L->geo.yaw_deg * M_PI / 180;
+    return Vec3(std::cos(yaw), std::sin(yaw), 0) * fx.speed_mps;
+}
+
+/* Chooses the start for this sweep: an initial pose (a prior: searched within
+ * cfg.hint_radius_m / hint_yaw_deg), a GNSS fix, or the dead-reckoned pose when lost.
+ * Returns false when there is none (the caller then searches the whole map). */
+static bool choose_start(localizer_t *L, int64_t t_ref, start_t *s)
+{
+    if (L->has_hint) {
+        s->seed = L->hint;
+        s->vel = s->seed.linear() * L->hint_body_vel;
+        if (s->vel.isZero() && fix_fresh(L, t_ref) && L->fix.speed_mps > 0.5) s->vel = course_velocity(L, L->fix);
+        /* the hint is for its own time; the car moved on since */
+        if (L->hint_t != 0 && t_ref > L->hint_t && t_ref - L->hint_t < 2000000)
+            s->seed.translation() += s->vel * ((t_ref - L->hint_t) * 1e-6);
+        s->vel_known = !s->vel.isZero();
+        /* a start that fails is tried again on later sweeps, unless a track runs to fall back on */
+        if (L->kf.initialized || ++L->hint_tries >= L->cfg.hint_retries) L->has_hint = false;
+        put_on_ground(L, &s->seed, 10.0);
+        s->radius = L->cfg.hint_radius_m;
+        s->yaw_range = L->cfg.hint_yaw_deg * M_PI / 180;
+        s->how = "initial pose";
+        return true;
+    }
+    if (fix_fresh(L, t_ref) && L->has_geo) {
+        const gnss_in_t &fx = L->fix;
+        double yaw = 0;
+        if (fx.speed_mps > L->cfg.gnss_init_speed_mps && fx.heading_acc_deg < L->cfg.gnss_init_heading_acc_deg) {
+            s->vel = course_velocity(L, fx);
+            yaw = std::atan2(s->vel.y(), s->vel.x());
+            s->yaw_range = std::max(3 * fx.heading_acc_deg * M_PI / 180, 10 * M_PI / 180);
+            s->how = "GNSS position and course";
+        } else {
+            if (L->pred.initialized) yaw = std::atan2(L->pred.q.toRotationMatrix()(1, 0), L->pred.q.toRotationMatrix()(0, 0));
+            s->yaw_range = M_PI;
+            s->how = "GNSS position and yaw search";
+            if (fx.speed_mps > 0.5) s->vel = course_velocity(L, fx);
+        }
+        s->vel_known = std::isfinite(fx.speed_mps);   /* under 0.5 m/s: at rest */
+        s->seed.linear() = Eigen::AngleAxisd(yaw, Vec3::UnitZ()).toRotationMatrix();
+        Vec3 ant = L->ex.base_from_gnss.translation();
+        s->seed.translation() = L->fix_map + s->vel * ((t_ref - fx.utime) * 1e-6) - s->seed.linear() * ant;
+        put_on_ground(L, &s->seed, 60.0);
+        s->radius = std::max(L->cfg.gnss_search_radius_m, 2 * (std::isfinite(fx.h_acc_m) ? fx.h_acc_m : 2.0));
+        return true;
+    }
+    if (L->status == ST_LOST && L->pred.initialized && L->lost_searches++ < L->cfg.lost_searches) {
+        /* no GNSS: look around the dead-reckoned pose, as far as its covariance says */
+        s->seed = filter_base_pose(&L->pred);
+        s->vel = filter_base_velocity(&L->pred);
+        s->vel_known = true;
+        Mat6 P = filter_base_covariance(&L->pred);
+        double sd = std::sqrt(std::max(P(0, 0), P(1, 1)));
+        s->radius = std::min(std::max(3.0, 3 * sd), L->cfg.lost_search_max_m);
+        s->yaw_range = std::min(std::max(20 * M_PI / 180, 3 * std::sqrt(P(5, 5))), M_PI);
+        s->how = "dead-reckoned pose search";
+        return true;
+    }
+    return false;
+}
+
+/* No prior at all: the places most like this sweep (places.h), each verified by a small
+ * registration search; returns the one whose structure fits the map best. Successive
+ * sweeps try successive ranks, so a start keeps trying until a place is verified. */
+bool global_search(localizer_t *L, pb_reg_result_t *res, outputs_t *out)
+{
+    if (!L->places && !L->places_failed) {
+        places_config_t pc;
+        L->places = places_build(L->map, pc);
+        L->places_failed = !L->places;
+        if (L->places) event(out, "places_built", "global search: %zu places described in the map", places_count(L->places));
+    }
+    if (!L->places) {
+        event(out, "no_start", "no pose: waiting for INITIAL_POSE or a GNSS fix (the map has no ground to search)");
+        return false;
+    }
+    place_desc_t d;
+    places_describe(L->places, L->xyz.data(), L->xyz.size() / 3, &d);
+    int k = L->cfg.global_candidates, rounds = 3;
+    std::vector<place_match_t> pm;
+    places_query(L->places, d, k * rounds, &pm);
+    size_t first = (size_t)(L->global_round++ % rounds) * k;
+    bool have = false;
+    double best_fit = -1;
+    for (size_t i = first; i < pm.size() && i < first + k; i++) {
+        Eigen::Isometry3d seed = Eigen::Isometry3d::Identity();
+        seed.linear() = Eigen::AngleAxisd(pm[i].yaw, Vec3::UnitZ()).toRotationMatrix();
+        seed.translation() = Vec3(pm[i].x, pm[i].y, pm[i].z);
+        pb_reg_result_t r;
+        pb_err_t err;
+        if (pb_reg_align_global(L->map, L->xyz.data(), L->xyz.size() / 3, seed, 2.0, 12 * M_PI / 180, 1.0,
+                                6 * M_PI / 180, &L->cfg.reg, &r, &err) < 0 ||
+            r.status == PB_REG_FEW_POINTS || r.inlier_fraction < L->cfg.min_inlier_fraction)
+            continue;
+        double si = structure_inliers(L, r.pose);
+        double fit = std::isfinite(si) ? si : 0.0;
+        if (fit > best_fit) { best_fit = fit; *res = r; have = true; }
+    }
+    if (!have) {
+        event(out, "no_start", "no pose: no INITIAL_POSE or GNSS fix, and none of %zu likely places in the map fits "
+              "this sweep; still searching", std::min(pm.size() - std::min(pm.size(), first), (size_t)k));
+        return false;
+    }
+    return true;
+}
+
+bool try_initialize(localizer_t *L, int64_t t_ref, outputs_t *out)
+{
+    pb_err_t err;
+    pb_reg_result_t res;
+    start_t s;
+    Vec3 omega = L->kf.initialized ? L->pred.omega : L->kf.omega;
+    if (choose_start(L, t_ref, &s)) {
+        int rc = pb_reg_align_global(L->map, L->xyz.data(), L->xyz.size() / 3, s.seed, s.radius, s.yaw_range,
+                                     L->cfg.search_pos_step_m, L->cfg.search_yaw_step_deg * M_PI / 180,
+                                     &L->cfg.reg, &res, &err);
+        if (rc < 0) { event(out, "init_failed", "%s: %s", s.how, err.msg); return false; }
+    } else if (L->cfg.global_search) {
+        s.how = "global search";
+        if (!global_search(L, &res, out)) return false;
+    } else {
+        event(out, "no_start", "no pose: waiting for INITIAL_POSE or a GNSS fix");
+        return false;
+    }
+    const char *how = s.how;
+    L->init_inliers = res.inlier_fraction;
+    L->init_structure = NAN;
+    if (res.status == PB_REG_FEW_POINTS || res.inlier_fraction < L->cfg.min_inlier_fraction) {
+        event(out, "init_rejected", "%s: best match explains %.0f%% of the sweep (need %.0f%%)", how,
+              100 * res.inlier_fraction, 100 * L->cfg.min_inlier_fraction);
+        return false;
+    }
+    double si = structure_inliers(L, res.pose);
+    L->init_structure = si;
+    if (std::isfinite(si) && si < L->cfg.min_structure_inliers) {
+        event(out, "init_rejected_structure", "%s: only %.0f%% of the structure above the ground fits the map (need %.0f%%)",
+              how, 100 * si, 100 * L->cfg.min_structure_inliers);
+        if (L->status != ST_LOST && L->kf.initialized)
+            set_status(L, ST_LOST, out, "pose does not fit the map's structure");
+        return false;
+    }
+    double gr = candidate_gnss_residual(L, res.pose, s.vel, t_ref);
+    if (std::isfinite(gr) && gr > gnss_gate(L, L->fix.h_acc_m)) {
+        event(out, "init_rejected_gnss", "%s: candidate is %.1f m from the GNSS fix", how, gr);
+        /* a pose we had is contradicted: say so, then relocalise from GNSS */
+        if (L->status != ST_LOST && L->kf.initialized) set_status(L, ST_LOST, out, "pose disagrees with GNSS");
+        return false;
+    }
+    Eigen::Isometry3d pose = res.pose;
+    double speed = newest_speed(L, t_ref);
+    if (!s.vel_known && std::isfinite(speed)) {
+        s.vel = pose.linear().col(0) * speed;   /* CAN speed along the matched heading */
+        s.vel_known = true;
+    }
+    if (L->pred.initialized && !s.vel_known) { s.vel = filter_base_velocity(&L->pred); s.vel_known = true; }
+    /* omega: the rates of the newest IMU sample (or the LiDAR-only estimate) */
+    filter_reset(&L->kf, t_ref, pose, s.vel, omega, 0.3, 2 * M_PI / 180, 1.0);
+    while (!L->buf.empty() && L->buf.front().t <= t_ref) L->buf.pop_front();
+    rebuild_pred(L);
+    L->candidate = true;
+    L->lost_searches = 0;
+    L->cand_vel_unknown = !s.vel_known;
+    L->cand_pose = pose;
+    L->cand_t = t_ref;
+    L->verify_count = 1;
+    L->reject_count = 0;
+    L->gnss_res.clear();
+    L->has_prev_pose = false;
+    L->has_hint = false;
+    event(out, "init_candidate", "%s: candidate at (%.1f, %.1f, %.1f) yaw %.1f deg, inliers %.0f%%%s", how,
+          pose.translation().x(), pose.translation().y(), pose.translation().z(),
+          std::atan2(pose.linear()(1, 0), pose.linear()(0, 0)) * 180 / M_PI, 100 * res.inlier_fraction,
+          s.vel_known ? "" : ", speed unknown");
+    return true;
+}
+
+void localizer_initial_pose(localizer_t *L, int64_t utime, const Eigen::Isometry3d &T, outputs_t *out)
+{
+    if (!T.matrix().allFinite()) {
+        event(out, "initial_pose_invalid", "INITIAL_POSE: non-finite pose ignored");
+        return;
+    }
+    event(out, "initial_pose", "INITIAL_POSE at (%.1f, %.1f): verifying", T.translation().x(), T.translation().y());
+    L->has_hint = true;
+    L->hint = T;
+    L->hint_t = utime;
+    L->hint_tries = 0;
+    L->hint_body_vel = L->pred.initialized ? Vec3(filter_base_pose(&L->pred).linear().transpose() * filter_base_velocity(&L->pred))
+                                           : Vec3::Zero();
+    /* the current track (if any) keeps running on prediction until the hint is verified,
+     * so a wrong hint can fall back on it */
+    L->candidate = false;
+    set_status(L, ST_INITIALIZING, out, "INITIAL_POSE received");
+}
+
+} // namespace loc
