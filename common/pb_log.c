@@ -37,7 +37,8 @@ pb_log_t *pb_log_open_read(const char *path, pb_err_t *err)
     snprintf(log->path, sizeof log->path, "%s", path);
     log->f = f;
     struct stat st;
-    log->size = fstat(fileno(f), &st) == 0 ? (int64_t)st.st_size : -1;
+    /* a pipe or FIFO has no size: read it to its end */
+    log->size = fstat(fileno(f), &st) == 0 && S_ISREG(st.st_mode) ? (int64_t)st.st_size : -1;
     return log;
 }
 

@@ -10,7 +10,13 @@
 SITES := default hills
 
 define site_rules
-maps: maps/$(1)/map.pcd maps/$(1)/ground.yaml
+maps: maps/$(1)/map.pcd maps/$(1)/ground.yaml maps/$(1)/map.tiles
+
+# The same map prepared and cut into tiles, which the localizer pages in around the car
+# (--paged-map).
+maps/$(1)/map.tiles: maps/$(1)/map.pcd $$(BIN)/map-tiles
+	@echo "  TILES   $$@"
+	@$$(BIN)/map-tiles --map $$< --out $$@ --quiet
 
 maps/$(1)/map.pcd: $$(BIN)/simdrive $$(BIN)/build-map maps/$(1)/site.yaml maps/$(1)/route.yaml \
                    maps/$(1)/world.yaml vehicles/prius2017.yaml

@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "core/localizer.h"
+#include "map_source.h"
 #include "pb_arg.h"
 #include "pb_bus.h"
 #include "pb_signal.h"
@@ -50,9 +51,22 @@ struct app_t {
     double pending_prep_ms = 0;
     std::vector<int32_t> red_range, red_off;
     std::vector<uint8_t> red_refl;
+    map_source_t *map = nullptr;   /* paged around the newest position (map.tiles) */
+    const pb_georef_t *geo = nullptr;
     std::string vehicle_name, vehicle_path;
     bool frame_error = false;
 };
+
+/* Pages the map's tiles in around map (x, y): the newest position known (a pose, a
+ * GNSS fix, an initial pose). A no-op for a map loaded whole. */
+static void page_map(app_t *a, double x, double y)
+{
+    pb_err_t err;
+    if (map_source_page(a->map, x, y, &err) < 0) {
+        pb_status_count(a->status, "map_tile_unreadable", 1);
+        pb_status_error(a->status, "%s", err.msg);
+    }
+}
 
 static void input_time(app_t *a, const char *channel, int64_t utime)
 {
@@ -100,6 +114,9 @@ static void usage(FILE *f)
             "                       first sweep when no INITIAL_POSE / GNSS start came first\n"
             "  --no-imu, --no-speed, --no-gnss   ignore that input (tests, benchmarks)\n"
             "  --lidar-lost-s S     no LIDAR_SCAN for this long: LOST (default 10)\n"
+            "  --paged-map          page SITE_DIR/map.tiles (tools/map-tiles) in around the car instead of\n"
+            "                       loading map.pcd whole: memory bounded by 120 m, not by the map. Not yet\n"
+            "                       with rough-structure cells or place descriptors (no global search)\n"
             "  --no-global-search   without a prior or GNSS, wait instead of searching the map\n"
             "  --stats FILE.csv     one line per sweep: utime, wall ms, status, match figures\n"
             "  --column-stride N    use every Nth column of a range-image sweep (default 2; 1 = all)\n"
@@ -150,6 +167,8 @@ static void flush(app_t *a, double t0 = -1)
             pb_status_error(a->status, "%s: %s", ch, err.msg);
         }
         (p.predicted ? a->predicted : a->poses)++;
+        if (!p.predicted && p.status != ST_INITIALIZING)
+            page_map(a, p.map_from_base.translation().x(), p.map_from_base.translation().y());
     }
     for (const event_t &e : a->out.events) {
         pb_status_count(a->status, e.counter.c_str(), 1);
@@ -312,6 +331,12 @@ static void on_gnss(const pb_msg_t *m, void *user)
         gnss_in_t g;
         g.utime = s.utime; g.fix_type = s.fix_type; g.lat_deg = s.lat_deg; g.lon_deg = s.lon_deg; g.alt_m = s.alt_m;
         g.h_acc_m = s.h_acc_m; g.speed_mps = s.speed_mps; g.heading_deg = s.heading_deg; g.heading_acc_deg = s.heading_acc_deg;
+        if (a->geo && s.fix_type > 0 && std::isfinite(s.lat_deg) && std::isfinite(s.lon_deg)) {
+            double xyz[3];
+            pb_geo_wgs84_to_map(a->geo, s.lat_deg, s.lon_deg, s.alt_m, xyz);
+            int st = localizer_status(a->L);
+            if (st == ST_INITIALIZING || st == ST_LOST) page_map(a, xyz[0], xyz[1]);
+        }
         localizer_gnss(a->L, g, &a->out);
     }
     portobello_gnss_fix_t_decode_cleanup(&s);
@@ -333,6 +358,7 @@ static void on_initial_pose(const pb_msg_t *m, void *user)
         Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
         T.linear() = q.normalized().toRotationMatrix();
         T.translation() = Vec3(s.position[0], s.position[1], s.position[2]);
+        page_map(a, T.translation().x(), T.translation().y());
         localizer_initial_pose(a->L, s.utime, T, &a->out);
     }
     portobello_pose_t_decode_cleanup(&s);
@@ -408,9 +434,11 @@ int main(int argc, char **argv)
         { "no-imu", no_argument, 0, 'I' }, { "no-speed", no_argument, 0, 'S' }, { "no-gnss", no_argument, 0, 'G' },
         { "stats", required_argument, 0, 't' }, { "column-stride", required_argument, 0, 'k' }, { "verbose", no_argument, 0, 'V' },
         { "lidar-lost-s", required_argument, 0, 'L' }, { "no-global-search", no_argument, 0, 'g' },
+        { "paged-map", no_argument, 0, 'P' },
         { "help", no_argument, 0, 'h' }, { 0, 0, 0, 0 },
     };
     int c;
+    bool paged_map = false;
     while ((c = getopt_long(argc, argv, "h", opts, nullptr)) != -1) {
         switch (c) {
         case 's': site = optarg; break;
@@ -444,6 +472,7 @@ int main(int argc, char **argv)
             break;
         }
         case 'g': cfg.global_search = false; break;
+        case 'P': paged_map = true; break;
         case 'h': usage(stdout); return 0;
         default: usage(stderr); return 2;
         }
@@ -483,21 +512,27 @@ int main(int argc, char **argv)
     } else {
         fprintf(stderr, "localizer: %s: no site.yaml, so no geo-reference: GNSS_FIX is not used\n", site.c_str());
     }
-    std::string map_path = site + "/map.pcd";
     double t0 = wall_ms();
-    pb_regmap_t *map = pb_regmap_load(map_path.c_str(), nullptr, nullptr, &err);
-    if (!map) return fail_start(bus, a.status, err.msg);
+    a.map = map_source_open(site, paged_map, nullptr, &err);
+    if (!a.map) return fail_start(bus, a.status, err.msg);
+    const pb_regmap_t *map = map_source_map(a.map);
+    if (cfg.has_initial_pose) map_source_page(a.map, cfg.initial_pose[0], cfg.initial_pose[1], &err);
     pb_regmap_info_t info;
     pb_regmap_info(map, &info);
-    fprintf(stderr, "localizer: map %s: %lld points, %lld cells, loaded in %.1f s\n", map_path.c_str(),
-            (long long)info.points, (long long)info.cells, (wall_ms() - t0) * 1e-3);
+    if (map_source_paged(a.map))
+        fprintf(stderr, "localizer: map %s: %lld points, paged in tiles within %.0f m of the car\n",
+                map_source_path(a.map), (long long)info.points, info.load_radius_m);
+    else
+        fprintf(stderr, "localizer: map %s: %lld points, %lld cells, loaded in %.1f s\n", map_source_path(a.map),
+                (long long)info.points, (long long)info.cells, (wall_ms() - t0) * 1e-3);
 
     if (stats) {
         a.stats = fopen(stats, "w");
-        if (!a.stats) { fprintf(stderr, "localizer: %s: cannot write\n", stats); pb_regmap_destroy(map); pb_bus_destroy(bus); return 1; }
+        if (!a.stats) { fprintf(stderr, "localizer: %s: cannot write\n", stats); map_source_close(a.map); pb_bus_destroy(bus); return 1; }
         fprintf(a.stats, "utime,wall_ms,reg_ms,status,matched,accepted,inlier_fraction,structure_inliers,score,innovation_chi2,gnss_residual_m\n");
     }
-    a.L = localizer_create(cfg, ex, map, has_geo && a.use_gnss ? &st.geo : nullptr);
+    a.geo = has_geo && a.use_gnss ? &st.geo : nullptr;
+    a.L = localizer_create(cfg, ex, map, a.geo);
     pb_signal_install();
     pb_bus_subscribe(bus, "LIDAR_SCAN", on_scan, &a);
     pb_bus_subscribe(bus, "IMU", on_imu, &a);
@@ -530,7 +565,7 @@ int main(int argc, char **argv)
     pb_status_destroy(a.status);
     localizer_destroy(a.L);
     pb_points_free(&a.pts);
-    pb_regmap_destroy(map);
+    map_source_close(a.map);
     pb_bus_destroy(bus);
     return rc == 0 ? 0 : 1;
 }

@@ -7,5 +7,13 @@ BENCH_TARGETS += bench-localizer-drive
 bench-localizer-drive: $(BIN)/localizer $(BIN)/simdrive $(BIN)/can $(BIN)/log-merge
 	@$(VPY) modules/localizer/bench/bench_drive.py
 
+# Resident memory with the map paged in tiles vs whole, over a one-hour replay (a 232 s
+# lap looped; about 10-15 minutes on the shared machine). LOCMEM_LOOPS=N for fewer laps.
+BENCH_TARGETS += bench-localizer-memory
+.PHONY: bench-localizer-memory
+LOCMEM_LOOPS ?= 16
+bench-localizer-memory: $(BIN)/localizer $(BIN)/simdrive $(BIN)/can $(BIN)/log-merge $(DEFAULT_SITE)/map.tiles
+	@$(VPY) modules/localizer/bench/bench_memory.py --loops $(LOCMEM_LOOPS)
+
 # Unit tests of the filter (run by tests/test_c_units.py).
 $(eval $(call cxx_test,test_localizer_filter,modules/localizer/core/filter.cpp tests/c/test_localizer_filter.cpp))

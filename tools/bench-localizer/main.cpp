@@ -9,7 +9,8 @@
 //   tracking: N(0, 5 cm) in x, y, N(0, 2 cm) z, N(0, 0.2 deg) yaw, N(0, 0.05 deg) roll/pitch
 //   offset:   1 m in a random horizontal direction and +-3 deg yaw
 //   global:   (--global R,DEG) uniform within R metres and +-DEG yaw, aligned with
-//             pb_reg_align_global (the relocalisation path)
+//             pb_reg_align_global (the relocalisation path); --starts K of them per scan
+// PCL NDT runs at each resolution of --ndt-res on the same reduced points and starts.
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -44,7 +45,8 @@ static void usage(FILE *f)
     std::fprintf(f,
         "usage: bench-localizer --log LOG.lcm --map MAP.pcd [--vehicle FILE] [--voxel 0.5]\n"
         "                       [--every N] [--baseline-every K] [--max-scans N] [--odd]\n"
-        "                       [--global R,DEG] [--dump FILE] [--json FILE] [--seed N]\n"
+        "                       [--global R,DEG] [--starts K] [--converge M] [--ndt-res R1,R2]\n"
+        "                       [--dump FILE] [--json FILE] [--seed N]\n"
         "\n"
         "Aligns every Nth LIDAR_SCAN of LOG (in base, deskewed with GROUND_TRUTH velocities)\n"
         "to MAP from tracking starts and from starts 1 m / 3 deg off, with the localizer's\n"
@@ -56,6 +58,9 @@ static void usage(FILE *f)
         "  --baseline-every K  PCL NDT on every Kth benchmarked scan; 0 = none (default 10)\n"
         "  --odd            only scans with odd index (maps built from the even ones)\n"
         "  --global R,DEG   instead: starts uniform within R m and +-DEG yaw, global align\n"
+        "  --starts K       K such starts per scan (default 1)\n"
+        "  --converge M     'converged' = final error below M metres (default 0.3)\n"
+        "  --ndt-res LIST   PCL NDT resolutions, comma-separated (default: the --voxel)\n"
         "  --dump FILE      write the baseline scans, starts and truth for bench.py, and the\n"
         "                   map points near them as FILE.map (float32 xyz)\n"
         "  --json FILE      write the per-method results as JSON\n"
@@ -68,8 +73,11 @@ struct Scan {
     int index;
     int64_t utime;
     std::vector<float> pts;         // base frame, deskewed
-    Eigen::Isometry3d gt, track_start, off_start;
+    Eigen::Isometry3d gt, track_start;
+    std::vector<Eigen::Isometry3d> off_starts;
 };
+
+static double g_converge = 0.3;
 
 struct Run {
     std::vector<double> ms, terr, yerr;
@@ -101,17 +109,17 @@ static double share_below(const std::vector<double> &v, double x)
 
 static void print_row(const char *method, const char *start, int nscans, const Run &r)
 {
-    std::printf("| %-22s | %-9s | %5d | %8.2f | %8.2f | %8.3f | %8.3f | %7.3f | %6.1f%% |\n", method, start, nscans,
+    std::printf("| %-26s | %-9s | %5d | %8.2f | %8.2f | %8.3f | %8.3f | %7.3f | %6.1f%% |\n", method, start, nscans,
                 pct(r.ms, 50), pct(r.ms, 99), pct(r.terr, 50), pct(r.terr, 99), pct(r.yerr, 99),
-                100.0 * share_below(r.terr, 0.3));
+                100.0 * share_below(r.terr, g_converge));
 }
 
 static void json_run(FILE *f, const char *name, const Run &r, bool last)
 {
     std::fprintf(f, "  \"%s\": {\"n\": %zu, \"ms_median\": %.4f, \"ms_p99\": %.4f, \"t_median\": %.5f, "
-                 "\"t_p99\": %.5f, \"yaw_p99\": %.5f, \"within_0.3\": %.4f}%s\n", name, r.ms.size(),
+                 "\"t_p99\": %.5f, \"yaw_p99\": %.5f, \"converged\": %.4f}%s\n", name, r.ms.size(),
                  pct(r.ms, 50), pct(r.ms, 99), pct(r.terr, 50), pct(r.terr, 99), pct(r.yerr, 99),
-                 share_below(r.terr, 0.3), last ? "" : ",");
+                 share_below(r.terr, g_converge), last ? "" : ",");
 }
 
 // CPU time of this thread: the machine is shared, and the target is cost on one core.
@@ -126,13 +134,14 @@ int main(int argc, char **argv)
 {
     const char *log_path = nullptr, *map_path = nullptr, *vehicle_path = nullptr, *dump = nullptr, *json = nullptr;
     double voxel = 0.5, g_radius = 0, g_yaw_deg = 0;
-    long every = 1, base_every = 10, max_scans = 1000000, seed = 1;
+    long every = 1, base_every = 10, max_scans = 1000000, seed = 1, nstarts = 1;
+    std::vector<double> ndt_res;
     bool odd = false, global = false, verbose = false;
     static const struct option opts[] = {
         {"log", 1, 0, 'l'}, {"map", 1, 0, 'm'}, {"vehicle", 1, 0, 'v'}, {"voxel", 1, 0, 'x'},
         {"every", 1, 0, 'e'}, {"baseline-every", 1, 0, 'b'}, {"max-scans", 1, 0, 'n'}, {"odd", 0, 0, 'o'},
         {"global", 1, 0, 'g'}, {"dump", 1, 0, 'd'}, {"json", 1, 0, 'j'}, {"seed", 1, 0, 's'},
-        {"verbose", 0, 0, 'V'}, {"target-points", 1, 0, 'T'}, {"coarse-iterations", 1, 0, 'C'}, {"help", 0, 0, 'h'}, {0, 0, 0, 0}};
+        {"verbose", 0, 0, 'V'}, {"starts", 1, 0, 'K'}, {"converge", 1, 0, 'c'}, {"ndt-res", 1, 0, 'R'}, {"target-points", 1, 0, 'T'}, {"coarse-iterations", 1, 0, 'C'}, {"help", 0, 0, 'h'}, {0, 0, 0, 0}};
     long target_points = -1, coarse_iterations = -1;
     int c;
     while ((c = getopt_long(argc, argv, "", opts, nullptr)) != -1) {
@@ -156,6 +165,22 @@ int main(int argc, char **argv)
             }
             global = true;
             break;
+        case 'K': if (pb_arg_long("bench-localizer", "--starts", optarg, 1, 10000, &nstarts)) return 2; break;
+        case 'c': if (pb_arg_double("bench-localizer", "--converge", optarg, 0.001, 100, &g_converge)) return 2; break;
+        case 'R': {
+            std::string list = optarg;
+            size_t at = 0;
+            while (at <= list.size()) {
+                size_t e = list.find(',', at);
+                std::string item = list.substr(at, e == std::string::npos ? std::string::npos : e - at);
+                double r;
+                if (pb_arg_double("bench-localizer", "--ndt-res", item.c_str(), 0.05, 20, &r)) return 2;
+                ndt_res.push_back(r);
+                if (e == std::string::npos) break;
+                at = e + 1;
+            }
+            break;
+        }
         case 'd': dump = optarg; break;
         case 'j': json = optarg; break;
         case 'h': usage(stdout); return 0;
@@ -163,6 +188,8 @@ int main(int argc, char **argv)
         }
     }
     if (!log_path || !map_path) { usage(stderr); return 2; }
+    if (ndt_res.empty()) ndt_res.push_back(voxel);
+    if (!global) nstarts = 1;
     pb_err_t err;
     pb_transform_t base_from_lidar = {{0, 0, 0}, {1, 0, 0, 0}};
     if (vehicle_path) {
@@ -241,14 +268,17 @@ int main(int argc, char **argv)
         ms_prep += now_ms() - t0;
         raw_points_max = std::max(raw_points_max, np);
         if (global) {
-            double r = g_radius * std::sqrt(uni(rng)), a = 2 * M_PI * uni(rng), y = (2 * uni(rng) - 1) * g_yaw_deg * deg;
-            sc.off_start = perturb(sc.gt, r * std::cos(a), r * std::sin(a), 0, 0, 0, y);
-            sc.track_start = sc.off_start;
+            for (long k = 0; k < nstarts; k++) {
+                double r = g_radius * std::sqrt(uni(rng)), a = 2 * M_PI * uni(rng), y = (2 * uni(rng) - 1) * g_yaw_deg * deg;
+                sc.off_starts.push_back(perturb(sc.gt, r * std::cos(a), r * std::sin(a), 0, 0, 0, y));
+            }
+            sc.track_start = perturb(sc.gt, 0.05 * nrm(rng), 0.05 * nrm(rng), 0.02 * nrm(rng), 0.05 * deg * nrm(rng),
+                                     0.05 * deg * nrm(rng), 0.2 * deg * nrm(rng));
         } else {
             sc.track_start = perturb(sc.gt, 0.05 * nrm(rng), 0.05 * nrm(rng), 0.02 * nrm(rng), 0.05 * deg * nrm(rng),
                                      0.05 * deg * nrm(rng), 0.2 * deg * nrm(rng));
             double a = 2 * M_PI * uni(rng);
-            sc.off_start = perturb(sc.gt, std::cos(a), std::sin(a), 0, 0, 0, (uni(rng) < 0.5 ? -3 : 3) * deg);
+            sc.off_starts.push_back(perturb(sc.gt, std::cos(a), std::sin(a), 0, 0, 0, (uni(rng) < 0.5 ? -3 : 3) * deg));
         }
         scans.push_back(std::move(sc));
     }
@@ -276,14 +306,7 @@ int main(int argc, char **argv)
         const Scan &sc = scans[k];
         bool sub = base_every > 0 && k % (size_t)base_every == 0;
         pb_reg_result_t r;
-        if (global) {
-            double c0 = now_ms();
-            pb_reg_align_global(map, sc.pts.data(), sc.pts.size() / 3, sc.off_start, g_radius, g_yaw_deg * deg, 0, 0,
-                                &rcfg, &r, &err);
-            double ms = now_ms() - c0;
-            ours_off.add(ms, r.pose, sc.gt);
-            if (sub) ours_off_sub.add(ms, r.pose, sc.gt);
-        } else {
+        {
             double c0 = now_ms();
             pb_reg_align(map, sc.pts.data(), sc.pts.size() / 3, sc.track_start, &rcfg, &r, &err);
             double ms = now_ms() - c0;
@@ -303,36 +326,42 @@ int main(int argc, char **argv)
                             std::sqrt(r.covariance(1, 1)), std::sqrt(r.covariance(5, 5)) / deg);
             }
             if (sub) ours_track_sub.add(ms, r.pose, sc.gt);
-            c0 = now_ms();
-            pb_reg_align(map, sc.pts.data(), sc.pts.size() / 3, sc.off_start, &rcfg, &r, &err);
-            ms = now_ms() - c0;
-            ours_off.add(ms, r.pose, sc.gt);
-            if (sub) ours_off_sub.add(ms, r.pose, sc.gt);
+            for (const Eigen::Isometry3d &start : sc.off_starts) {
+                c0 = now_ms();
+                if (global)
+                    pb_reg_align_global(map, sc.pts.data(), sc.pts.size() / 3, start, g_radius, g_yaw_deg * deg, 0, 0,
+                                        &rcfg, &r, &err);
+                else
+                    pb_reg_align(map, sc.pts.data(), sc.pts.size() / 3, start, &rcfg, &r, &err);
+                ms = now_ms() - c0;
+                ours_off.add(ms, r.pose, sc.gt);
+                if (sub) ours_off_sub.add(ms, r.pose, sc.gt);
+            }
         }
         if (sub) {
             // the same reduced points the baselines get, through our whole call again
             pb_reg_downsample(sc.pts.data(), sc.pts.size() / 3, &rcfg, &reduced[k]);
             const std::vector<float> &rp = reduced[k];
-            double c0 = now_ms();
-            if (global)
-                pb_reg_align_global(map, rp.data(), rp.size() / 3, sc.off_start, g_radius, g_yaw_deg * deg, 0, 0, &rcfg, &r, &err);
-            else
-                pb_reg_align(map, rp.data(), rp.size() / 3, sc.off_start, &rcfg, &r, &err);
-            ours_off_red.add(now_ms() - c0, r.pose, sc.gt);
-            if (!global) {
-                c0 = now_ms();
-                pb_reg_align(map, rp.data(), rp.size() / 3, sc.track_start, &rcfg, &r, &err);
-                ours_track_red.add(now_ms() - c0, r.pose, sc.gt);
+            for (const Eigen::Isometry3d &start : sc.off_starts) {
+                double c0 = now_ms();
+                if (global)
+                    pb_reg_align_global(map, rp.data(), rp.size() / 3, start, g_radius, g_yaw_deg * deg, 0, 0, &rcfg, &r, &err);
+                else
+                    pb_reg_align(map, rp.data(), rp.size() / 3, start, &rcfg, &r, &err);
+                ours_off_red.add(now_ms() - c0, r.pose, sc.gt);
             }
+            double c0 = now_ms();
+            pb_reg_align(map, rp.data(), rp.size() / 3, sc.track_start, &rcfg, &r, &err);
+            ours_track_red.add(now_ms() - c0, r.pose, sc.gt);
         }
     }
     pb_regmap_destroy(map);
 
     // ---- baselines on the subsample: the same reduced points (our downsampling,
     // range filter included) and the same starts; the map cropped to 120 m of them
-    Run ndt_track, ndt_off;
+    std::vector<Run> ndt_track(ndt_res.size()), ndt_off(ndt_res.size());
+    std::vector<double> ms_ndt_target(ndt_res.size(), 0);
     size_t nsub = 0, map_crop = 0;
-    double ms_ndt_target = 0;
     if (base_every > 0) {
         pcl::PointCloud<pcl::PointXYZ>::Ptr full(new pcl::PointCloud<pcl::PointXYZ>), crop(new pcl::PointCloud<pcl::PointXYZ>);
         if (pcl::io::loadPCDFile(map_path, *full) < 0) { std::fprintf(stderr, "bench-localizer: %s: cannot read\n", map_path); return 1; }
@@ -344,14 +373,6 @@ int main(int argc, char **argv)
         }
         full.reset();
         map_crop = crop->size();
-        pcl::NormalDistributionsTransform<pcl::PointXYZ, pcl::PointXYZ> ndt;
-        ndt.setResolution((float)voxel);
-        ndt.setTransformationEpsilon(1e-4);   // PCL 1.13 compares it with the squared step
-        ndt.setStepSize(0.1);
-        ndt.setMaximumIterations(35);
-        t0 = now_ms();
-        ndt.setInputTarget(crop);
-        ms_ndt_target = now_ms() - t0;
         FILE *df = nullptr;
         if (dump) {
             df = std::fopen(dump, "wb");
@@ -361,33 +382,45 @@ int main(int argc, char **argv)
             for (const auto &p : crop->points) { float v[3] = {p.x, p.y, p.z}; std::fwrite(v, 4, 3, mf); }
             std::fclose(mf);
         }
-        for (size_t k = 0; k < scans.size(); k += (size_t)base_every) {
-            const Scan &sc = scans[k];
-            pcl::PointCloud<pcl::PointXYZ>::Ptr src(new pcl::PointCloud<pcl::PointXYZ>);
-            for (size_t i = 0; i + 2 < reduced[k].size(); i += 3)
-                src->push_back(pcl::PointXYZ(reduced[k][i], reduced[k][i + 1], reduced[k][i + 2]));
-            ndt.setInputSource(src);
-            pcl::PointCloud<pcl::PointXYZ> out;
-            const Eigen::Isometry3d *starts[2] = {&sc.track_start, &sc.off_start};
-            Run *runs[2] = {&ndt_track, &ndt_off};
-            for (int s = global ? 1 : 0; s < 2; s++) {
-                t0 = now_ms();
-                ndt.align(out, starts[s]->matrix().cast<float>());
-                double ms = now_ms() - t0;
-                Eigen::Isometry3d T(ndt.getFinalTransformation().cast<double>());
-                runs[s]->add(ms, T, sc.gt);
-            }
-            if (df) {
-                int32_t n = (int32_t)(reduced[k].size() / 3);
-                std::fwrite(&n, 4, 1, df);
-                std::fwrite(reduced[k].data(), 4, reduced[k].size(), df);
-                const Eigen::Isometry3d *mats[3] = {&sc.gt, &sc.track_start, &sc.off_start};
-                for (auto *m : mats) {
-                    Eigen::Matrix<double, 4, 4, Eigen::RowMajor> M = m->matrix();
-                    std::fwrite(M.data(), 8, 16, df);
+        for (size_t ri = 0; ri < ndt_res.size(); ri++) {
+            pcl::NormalDistributionsTransform<pcl::PointXYZ, pcl::PointXYZ> ndt;
+            ndt.setResolution((float)ndt_res[ri]);
+            ndt.setTransformationEpsilon(1e-4);   // PCL 1.13 compares it with the squared step
+            ndt.setStepSize(0.1);
+            ndt.setMaximumIterations(35);
+            t0 = now_ms();
+            ndt.setInputTarget(crop);
+            ms_ndt_target[ri] = now_ms() - t0;
+            for (size_t k = 0; k < scans.size(); k += (size_t)base_every) {
+                const Scan &sc = scans[k];
+                pcl::PointCloud<pcl::PointXYZ>::Ptr src(new pcl::PointCloud<pcl::PointXYZ>);
+                for (size_t i = 0; i + 2 < reduced[k].size(); i += 3)
+                    src->push_back(pcl::PointXYZ(reduced[k][i], reduced[k][i + 1], reduced[k][i + 2]));
+                ndt.setInputSource(src);
+                pcl::PointCloud<pcl::PointXYZ> out;
+                auto run = [&](const Eigen::Isometry3d &start, Run *into) {
+                    double c0 = now_ms();
+                    ndt.align(out, start.matrix().cast<float>());
+                    double ms = now_ms() - c0;
+                    into->add(ms, Eigen::Isometry3d(ndt.getFinalTransformation().cast<double>()), sc.gt);
+                };
+                run(sc.track_start, &ndt_track[ri]);
+                for (const Eigen::Isometry3d &start : sc.off_starts) run(start, &ndt_off[ri]);
+                if (ri == 0 && df) {
+                    // per scan: n, points, number of starts, then truth, tracking start, each start (row-major 4x4)
+                    int32_t n = (int32_t)(reduced[k].size() / 3), ns = (int32_t)sc.off_starts.size();
+                    std::fwrite(&n, 4, 1, df);
+                    std::fwrite(reduced[k].data(), 4, reduced[k].size(), df);
+                    std::fwrite(&ns, 4, 1, df);
+                    std::vector<const Eigen::Isometry3d *> mats = {&sc.gt, &sc.track_start};
+                    for (const auto &st : sc.off_starts) mats.push_back(&st);
+                    for (auto *m : mats) {
+                        Eigen::Matrix<double, 4, 4, Eigen::RowMajor> M = m->matrix();
+                        std::fwrite(M.data(), 8, 16, df);
+                    }
                 }
+                if (ri == 0) nsub++;
             }
-            nsub++;
         }
         if (df) std::fclose(df);
     }
@@ -402,48 +435,57 @@ int main(int argc, char **argv)
                     "input' rows: every method gets the same already reduced points (%d target points) and starts\n",
                     rcfg.target_points);
     std::printf("ms: CPU time of the aligning thread per scan (one core); err: |translation - truth| m; "
-                "yaw p99: deg; < 0.3 m: share of scans\n");
+                "yaw p99: deg; conv: share of runs ending within %.2f m; %ld start(s) per scan besides tracking\n",
+                g_converge, nstarts);
     if (base_every > 0)
         std::printf("baselines on every %ld-th benchmarked scan (%zu scans), map cropped to 120 m of them "
-                    "(%zu points; NDT target built in %.0f ms)\n", base_every, nsub, map_crop, ms_ndt_target);
-    std::printf("\n| %-22s | %-9s | %5s | %8s | %8s | %8s | %8s | %7s | %7s |\n", "method", "start", "scans",
-                "ms med", "ms p99", "err med", "err p99", "yaw p99", "< 0.3 m");
-    std::printf("|%s|%s|%s|%s|%s|%s|%s|%s|%s|\n", std::string(24, '-').c_str(), std::string(11, '-').c_str(),
+                    "(%zu points; NDT target built in %.0f ms at %.2f m)\n", base_every, nsub, map_crop,
+                    ms_ndt_target[0], ndt_res[0]);
+    std::printf("\n| %-26s | %-9s | %5s | %8s | %8s | %8s | %8s | %7s | %7s |\n", "method", "start", "runs",
+                "ms med", "ms p99", "err med", "err p99", "yaw p99", "conv");
+    std::printf("|%s|%s|%s|%s|%s|%s|%s|%s|%s|\n", std::string(28, '-').c_str(), std::string(11, '-').c_str(),
                 std::string(7, '-').c_str(), std::string(10, '-').c_str(), std::string(10, '-').c_str(),
                 std::string(10, '-').c_str(), std::string(10, '-').c_str(), std::string(9, '-').c_str(),
                 std::string(9, '-').c_str());
-    if (global) {
-        char start[32];
-        std::snprintf(start, sizeof start, "%.0fm/%.0fdeg", g_radius, g_yaw_deg);
-        print_row("ours (global align)", start, (int)ours_off.ms.size(), ours_off);
-        if (nsub) print_row("ours, subsample", start, (int)ours_off_sub.ms.size(), ours_off_sub);
-        if (nsub) print_row("ours, reduced input", start, (int)ours_off_red.ms.size(), ours_off_red);
-        if (nsub) print_row("PCL NDT, reduced input", start, (int)ndt_off.ms.size(), ndt_off);
-    } else {
-        print_row("ours", "tracking", (int)ours_track.ms.size(), ours_track);
-        print_row("ours", "1m/3deg", (int)ours_off.ms.size(), ours_off);
-        if (nsub) {
-            print_row("ours, subsample", "tracking", (int)ours_track_sub.ms.size(), ours_track_sub);
-            print_row("ours, subsample", "1m/3deg", (int)ours_off_sub.ms.size(), ours_off_sub);
-            print_row("ours, reduced input", "tracking", (int)ours_track_red.ms.size(), ours_track_red);
-            print_row("ours, reduced input", "1m/3deg", (int)ours_off_red.ms.size(), ours_off_red);
-            print_row("PCL NDT, reduced input", "tracking", (int)ndt_track.ms.size(), ndt_track);
-            print_row("PCL NDT, reduced input", "1m/3deg", (int)ndt_off.ms.size(), ndt_off);
+    char start[32];
+    if (global) std::snprintf(start, sizeof start, "%.0fm/%.0fdeg", g_radius, g_yaw_deg);
+    else std::snprintf(start, sizeof start, "1m/3deg");
+    const char *how = global ? "ours (global align)" : "ours";
+    print_row("ours", "tracking", (int)ours_track.ms.size(), ours_track);
+    print_row(how, start, (int)ours_off.ms.size(), ours_off);
+    if (nsub) {
+        print_row("ours, subsample", "tracking", (int)ours_track_sub.ms.size(), ours_track_sub);
+        print_row("ours, subsample", start, (int)ours_off_sub.ms.size(), ours_off_sub);
+        print_row("ours, reduced input", "tracking", (int)ours_track_red.ms.size(), ours_track_red);
+        print_row("ours, reduced input", start, (int)ours_off_red.ms.size(), ours_off_red);
+        for (size_t ri = 0; ri < ndt_res.size(); ri++) {
+            char name[64];
+            std::snprintf(name, sizeof name, "PCL NDT %.1f m, reduced", ndt_res[ri]);
+            print_row(name, "tracking", (int)ndt_track[ri].ms.size(), ndt_track[ri]);
+            print_row(name, start, (int)ndt_off[ri].ms.size(), ndt_off[ri]);
         }
     }
     if (json) {
         FILE *f = std::fopen(json, "w");
         if (!f) { std::fprintf(stderr, "bench-localizer: %s: cannot write\n", json); return 1; }
-        std::fprintf(f, "{\n  \"scans\": %zu, \"baseline_scans\": %zu, \"baseline_every\": %ld, \"global\": %s,\n",
-                     scans.size(), nsub, base_every, global ? "true" : "false");
+        std::fprintf(f, "{\n  \"scans\": %zu, \"baseline_scans\": %zu, \"baseline_every\": %ld, \"global\": %s,\n"
+                     "  \"starts_per_scan\": %ld, \"converge_m\": %g, \"start\": \"%s\", \"ndt_res\": [",
+                     scans.size(), nsub, base_every, global ? "true" : "false", nstarts, g_converge, start);
+        for (size_t ri = 0; ri < ndt_res.size(); ri++) std::fprintf(f, "%s%g", ri ? ", " : "", ndt_res[ri]);
+        std::fprintf(f, "],\n");
         json_run(f, "ours_track", ours_track, false);
         json_run(f, "ours_off", ours_off, false);
         json_run(f, "ours_track_sub", ours_track_sub, false);
         json_run(f, "ours_off_sub", ours_off_sub, false);
         json_run(f, "ours_track_red", ours_track_red, false);
-        json_run(f, "ours_off_red", ours_off_red, false);
-        json_run(f, "ndt_track", ndt_track, false);
-        json_run(f, "ndt_off", ndt_off, true);
+        for (size_t ri = 0; ri < ndt_res.size(); ri++) {
+            char name[64];
+            std::snprintf(name, sizeof name, "ndt%g_track", ndt_res[ri]);
+            json_run(f, name, ndt_track[ri], false);
+            std::snprintf(name, sizeof name, "ndt%g_off", ndt_res[ri]);
+            json_run(f, name, ndt_off[ri], false);
+        }
+        json_run(f, "ours_off_red", ours_off_red, true);
         std::fprintf(f, "}\n");
         std::fclose(f);
     }

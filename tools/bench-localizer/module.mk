@@ -21,26 +21,53 @@ bench-localizer: $(BIN)/bench-localizer $(LOCREG_BENCH)/drive.lcm $(DEPS)
 	@$(VPY) tools/bench-localizer/bench.py $(LOCREG_BENCH)/baseline.bin $(LOCREG_BENCH)/results.json
 
 # Unit tests of the registration core (run by make test through tests/test_c_units.py).
-LOCREG_CORE := modules/localizer/core/registration.cpp modules/localizer/core/regmap.cpp modules/localizer/core/deskew.cpp
+LOCREG_CORE := modules/localizer/core/registration.cpp modules/localizer/core/regmap.cpp modules/localizer/core/deskew.cpp \
+               modules/localizer/core/map_tiles.cpp modules/localizer/core/refine.cpp
 $(eval $(call cxx_test,test_registration,tests/c/test_registration.cpp $(LOCREG_CORE)))
 $(OBJ)/tests/c/test_registration.o: CPPFLAGS += -I$(TOP)/modules/localizer/core
 
-# Real LiDAR (optional; reads ../shared/data, never copied into the project): MulRan
-# Riverside02 keyframes. Map from the even scans (import-scans --every 2), odd scans
-# localized from starts perturbed uniformly within 2 m / 10 deg yaw (global align,
-# seeded), and from tracking and 1 m / 3 deg starts; errors are distances to the
-# dataset's own SLAM poses (an estimate, not ground truth).
+# Real LiDAR (optional; reads ../shared/data, never copied into the project).
+# 1. MulRan Riverside02 keyframes: the dataset's SLAM poses are refined first
+#    (refine-poses: every scan registered to the map of the others), the map is built
+#    from the even scans at the refined poses, and every 2nd odd scan is localized
+#    against the refined reference: from tracking starts (5 cm) and from
+#    LOCREAL_STARTS starts per scan drawn uniformly within 3 m / 15 deg (ours: the
+#    relocalisation search pb_reg_align_global around the start; baselines: aligned
+#    from the start). Baselines (PCL NDT at 1 and 2 m, small_gicp GICP and VGICP) on
+#    every LOCREAL_BASE_EVERY-th of those scans, same reduced points and starts.
+# 2. The HDL-32E pair (tests/data, BSD-3): the first scan is the map, the second is
+#    localized from 100 starts within 3 m / 15 deg; reference = relative.txt.
 MULRAN := $(abspath $(TOP)/../shared/data/lidar_seq_mulran_riverside02_part1)
 LOCREG_REAL := $(BUILD)/bench/localizer-real
-bench-localizer-real: $(BIN)/bench-localizer $(BIN)/import-scans
-	@if [ ! -d "$(MULRAN)" ]; then echo "bench-localizer-real: skipped, $(MULRAN) is absent"; exit 0; fi; \
-	mkdir -p $(LOCREG_REAL) && \
+LOCREAL_STARTS ?= 20
+LOCREAL_BASE_EVERY ?= 3
+LOCREAL_BENCH = --global 3,15 --converge 0.2 --ndt-res 1,2
+bench-localizer-real: $(BIN)/bench-localizer $(BIN)/import-scans $(BIN)/refine-poses $(DEPS)
+	@mkdir -p $(LOCREG_REAL)/hdl32/scans && \
+	echo "== HDL-32E pair (tests/data/lidar_pair_hdl32): map = first scan, second localized from 100 starts" && \
+	ln -sf $(TOP)/tests/data/lidar_pair_hdl32/251370668.pcd $(TOP)/tests/data/lidar_pair_hdl32/251371071.pcd $(LOCREG_REAL)/hdl32/scans/ && \
+	{ echo "1 0 0 0 0 1 0 0 0 0 1 0"; awk 'NR<=3{printf "%s %s %s %s%s", $$1, $$2, $$3, $$4, NR<3?" ":"\n"}' \
+	    tests/data/lidar_pair_hdl32/relative.txt; } > $(LOCREG_REAL)/hdl32/poses.txt && \
+	$(BIN)/import-scans --scans $(LOCREG_REAL)/hdl32/scans --poses $(LOCREG_REAL)/hdl32/poses.txt --every 2 \
+	    --map-out $(LOCREG_REAL)/hdl32/map.pcd --voxel 0 --out $(LOCREG_REAL)/hdl32/even.lcm --quiet && \
+	$(BIN)/import-scans --scans $(LOCREG_REAL)/hdl32/scans --poses $(LOCREG_REAL)/hdl32/poses.txt \
+	    --out $(LOCREG_REAL)/hdl32/all.lcm --quiet && \
+	$(BIN)/bench-localizer --log $(LOCREG_REAL)/hdl32/all.lcm --map $(LOCREG_REAL)/hdl32/map.pcd --odd \
+	    $(LOCREAL_BENCH) --starts 100 --baseline-every 1 --seed 1 \
+	    --dump $(LOCREG_REAL)/hdl32/baseline.bin --json $(LOCREG_REAL)/hdl32-results.json && \
+	$(VPY) tools/bench-localizer/bench.py $(LOCREG_REAL)/hdl32/baseline.bin $(LOCREG_REAL)/hdl32-results.json
+	@if [ ! -d "$(MULRAN)" ]; then echo "bench-localizer-real: MulRan part skipped, $(MULRAN) is absent"; exit 0; fi; \
+	echo "== MulRan Riverside02: refining the dataset's SLAM poses" && \
 	$(BIN)/import-scans --scans $(MULRAN)/Scans --poses $(MULRAN)/optimized_poses.txt --times $(MULRAN)/times.txt \
+	    --out $(LOCREG_REAL)/slam.lcm --quiet && \
+	$(BIN)/refine-poses --log $(LOCREG_REAL)/slam.lcm --out $(LOCREG_REAL)/refined_poses.txt \
+	    --report $(LOCREG_REAL)/refine-report.json && \
+	$(BIN)/import-scans --scans $(MULRAN)/Scans --poses $(LOCREG_REAL)/refined_poses.txt --times $(MULRAN)/times.txt \
 	    --every 2 --map-out $(LOCREG_REAL)/map.pcd --voxel 0.15 --out $(LOCREG_REAL)/even.lcm --quiet && \
-	$(BIN)/import-scans --scans $(MULRAN)/Scans --poses $(MULRAN)/optimized_poses.txt --times $(MULRAN)/times.txt \
+	$(BIN)/import-scans --scans $(MULRAN)/Scans --poses $(LOCREG_REAL)/refined_poses.txt --times $(MULRAN)/times.txt \
 	    --out $(LOCREG_REAL)/all.lcm --quiet && \
-	$(BIN)/bench-localizer --log $(LOCREG_REAL)/all.lcm --map $(LOCREG_REAL)/map.pcd --odd --global 2,10 \
-	    --baseline-every 0 --seed 1 && \
-	$(BIN)/bench-localizer --log $(LOCREG_REAL)/all.lcm --map $(LOCREG_REAL)/map.pcd --odd --baseline-every 3 \
-	    --dump $(LOCREG_REAL)/baseline.bin --json $(LOCREG_REAL)/results.json --seed 1 && \
+	echo "== MulRan Riverside02 against the refined reference: every 2nd odd scan, $(LOCREAL_STARTS) starts each" && \
+	$(BIN)/bench-localizer --log $(LOCREG_REAL)/all.lcm --map $(LOCREG_REAL)/map.pcd --odd --every 2 \
+	    $(LOCREAL_BENCH) --starts $(LOCREAL_STARTS) --baseline-every $(LOCREAL_BASE_EVERY) --seed 1 \
+	    --dump $(LOCREG_REAL)/baseline.bin --json $(LOCREG_REAL)/results.json && \
 	$(VPY) tools/bench-localizer/bench.py $(LOCREG_REAL)/baseline.bin $(LOCREG_REAL)/results.json

@@ -87,6 +87,8 @@ size_t build_level(const float *xyz, size_t n, double voxel, const pb_regmap_con
     lv->rough.reset(16);
     lv->cells.clear();
     lv->cells.reserve(keys.size());
+    lv->keys.clear();
+    lv->keys.reserve(keys.size());
     for (size_t c = 0; c < keys.size(); c++) {
         int64_t ix, iy, iz;
         voxel_unkey(keys[c], &ix, &iy, &iz);
@@ -131,6 +133,7 @@ size_t build_level(const float *xyz, size_t n, double voxel, const pb_regmap_con
         bool inserted;
         lv->index.insert(keys[c], (int32_t)lv->cells.size(), &inserted);
         lv->cells.push_back(cell);
+        lv->keys.push_back(keys[c]);
     }
     return lv->cells.size();
 }

@@ -24,6 +24,7 @@ struct Level {
     double voxel = 0, inv_voxel = 0;
     VoxelHash index;
     std::vector<Cell> cells;
+    std::vector<uint64_t> keys;   /* voxel key of each cell (for tiling and paging) */
     /* cells the map's points occupy without a reliable target (foliage, scattered
      * structure): no registration target, but evidence for the structure test */
     VoxelHash rough;

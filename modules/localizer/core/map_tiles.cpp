@@ -1,0 +1,347 @@
+/* map_tiles: tiled prepared map and the pager (see map_tiles.h). */
+#include "map_tiles.h"
+#include "regmap_impl.h"
+
+#include <algorithm>
+#include <array>
+#include <cinttypes>
+#include <cmath>
+#include <cstring>
+#include <map>
+#include <memory>
+#include <string>
+#include <new>
+#include <unordered_map>
+#include <utility>
+
+using namespace pb_loc;
+
+namespace {
+
+const char kMagic[8] = {'P', 'B', 'T', 'I', 'L', 'E', 'S', '1'};
+const uint32_t kVersion = 1;
+const size_t kHeaderBytes = 128, kTableBytes = 32, kCellBytes = 48;
+
+int64_t floor_div(int64_t a, int64_t b) { return a / b - ((a % b != 0) && ((a < 0) != (b < 0))); }
+
+/* voxels per tile edge, or 0 when tile_m is not a whole multiple of voxel */
+int64_t voxels_per_tile(double tile_m, double voxel)
+{
+    double k = tile_m / voxel;
+    int64_t n = (int64_t)std::llround(k);
+    return n >= 1 && std::fabs(k - (double)n) < 1e-9 * k ? n : 0;
+}
+
+void tile_of_key(uint64_t key, int64_t per_tile, int32_t *tx, int32_t *ty)
+{
+    int64_t ix, iy, iz;
+    voxel_unkey(key, &ix, &iy, &iz);
+    *tx = (int32_t)floor_div(ix, per_tile);
+    *ty = (int32_t)floor_div(iy, per_tile);
+}
+
+template <class T> void put(std::vector<uint8_t> *o, size_t at, T v) { std::memcpy(o->data() + at, &v, sizeof v); }
+template <class T> T get(const uint8_t *p) { T v; std::memcpy(&v, p, sizeof v); return v; }
+
+struct TileEntry {
+    int32_t tx, ty;
+    uint64_t offset;
+    uint32_t fine, coarse;
+};
+
+uint64_t tile_id(int32_t tx, int32_t ty) { return ((uint64_t)(uint32_t)tx << 32) | (uint32_t)ty; }
+
+}  // namespace
+
+void pb_tiles_config_default(pb_tiles_config_t *cfg)
+{
+    /* 120 m: the scan range (80 m) plus the start-up / relocalisation search
+     * radius and the travel between two paging calls, with margin */
+    cfg->load_radius_m = 120;
+    cfg->keep_radius_m = 160;
+}
+
+int pb_tiles_encode(const pb_regmap_t *map, double tile_m, std::vector<uint8_t> *out, pb_err_t *err)
+{
+    const Level *lv[2] = {&map->fine, &map->coarse};
+    int64_t per[2] = {voxels_per_tile(tile_m, map->fine.voxel), 0};
+    per[1] = map->coarse.cells.empty() ? 1 : voxels_per_tile(tile_m, map->coarse.voxel);
+    if (!(tile_m > 0) || per[0] == 0 || per[1] == 0)
+        return pb_err_set(err, "tile edge %g m is not a whole multiple of the voxel sizes %g and %g m", tile_m,
+                          map->fine.voxel, map->coarse.voxel);
+    /* cells of each tile, fine then coarse, in the map's own order (deterministic) */
+    std::map<std::pair<int32_t, int32_t>, std::array<std::vector<uint32_t>, 2>> tiles;
+    for (int l = 0; l < 2; l++)
+        for (size_t i = 0; i < lv[l]->cells.size(); i++) {
+            int32_t tx, ty;
+            tile_of_key(lv[l]->keys[i], per[l], &tx, &ty);
+            tiles[{tx, ty}][l].push_back((uint32_t)i);
+        }
+    size_t ncells = map->fine.cells.size() + map->coarse.cells.size();
+    out->assign(kHeaderBytes + kTableBytes * tiles.size() + kCellBytes * ncells, 0);
+    std::memcpy(out->data(), kMagic, 8);
+    put<uint32_t>(out, 8, kVersion);
+    put<uint32_t>(out, 12, (uint32_t)tiles.size());
+    put<double>(out, 16, map->cfg.voxel_m);
+    put<double>(out, 24, map->coarse.cells.empty() ? 0.0 : map->cfg.coarse_voxel_m);
+    put<double>(out, 32, map->cfg.planarity_max);
+    put<double>(out, 40, tile_m);
+    put<int32_t>(out, 48, map->cfg.min_points);
+    put<int64_t>(out, 56, map->info.points);
+    put<int64_t>(out, 64, (int64_t)map->fine.cells.size());
+    put<int64_t>(out, 72, (int64_t)map->coarse.cells.size());
+    for (int a = 0; a < 3; a++) {
+        put<double>(out, 80 + 8 * a, map->info.min[a]);
+        put<double>(out, 104 + 8 * a, map->info.max[a]);
+    }
+    size_t row = kHeaderBytes, at = kHeaderBytes + kTableBytes * tiles.size();
+    for (const auto &t : tiles) {
+        put<int32_t>(out, row, t.first.first);
+        put<int32_t>(out, row + 4, t.first.second);
+        put<uint64_t>(out, row + 8, (uint64_t)at);
+        put<uint32_t>(out, row + 16, (uint32_t)t.second[0].size());
+        put<uint32_t>(out, row + 20, (uint32_t)t.second[1].size());
+        row += kTableBytes;
+        for (int l = 0; l < 2; l++)
+            for (uint32_t i : t.second[l]) {
+                const Cell &c = lv[l]->cells[i];
+                put<uint64_t>(out, at, lv[l]->keys[i]);
+                std::memcpy(out->data() + at + 8, c.mean, 12);
+                std::memcpy(out->data() + at + 20, c.u1, 12);
+                std::memcpy(out->data() + at + 32, c.u2, 12);
+                (*out)[at + 44] = c.kind;
+                at += kCellBytes;
+            }
+    }
+    return 0;
+}
+
+struct pb_tiles {
+    pb_tiles_config_t cfg;
+    pb_tiles_read_fn read;
+    void *user;
+    std::string name;
+    uint64_t file_size;
+    double tile_m;
+    int64_t per_tile[2];
+    std::vector<TileEntry> table;
+    std::unordered_map<uint64_t, size_t> by_id;   /* tile id -> table row */
+    std::vector<char> loaded;                     /* per table row */
+    int tiles_loaded = 0;
+    int64_t loads = 0, drops = 0;
+    pb_regmap_t *map = nullptr;
+    std::vector<uint8_t> buf;                     /* one tile's bytes (reused) */
+};
+
+pb_tiles_t *pb_tiles_open(pb_tiles_read_fn read, void *user, uint64_t file_size, const char *name,
+                          const pb_tiles_config_t *cfg, pb_err_t *err)
+{
+    uint8_t h[kHeaderBytes];
+    if (file_size < kHeaderBytes || read(user, 0, h, kHeaderBytes) != 0) {
+        pb_err_set(err, "%s: byte 0: shorter than the %zu-byte tile header", name, kHeaderBytes);
+        return nullptr;
+    }
+    if (std::memcmp(h, kMagic, 8) != 0) {
+        pb_err_set(err, "%s: byte 0: not a map tile file (no PBTILES1 magic)", name);
+        return nullptr;
+    }
+    if (get<uint32_t>(h + 8) != kVersion) {
+        pb_err_set(err, "%s: byte 8: tile file version %u, this localizer reads %u (rebuild it with map-tiles)", name,
+                   get<uint32_t>(h + 8), kVersion);
+        return nullptr;
+    }
+    std::unique_ptr<pb_tiles_t> t(new (std::nothrow) pb_tiles_t());
+    if (!t) { pb_err_set(err, "%s: out of memory", name); return nullptr; }
+    pb_tiles_config_default(&t->cfg);
+    if (cfg) t->cfg = *cfg;
+    t->read = read; t->user = user; t->name = name; t->file_size = file_size;
+    uint32_t ntiles = get<uint32_t>(h + 12);
+    pb_regmap_config_t mc;
+    pb_regmap_config_default(&mc);
+    mc.voxel_m = get<double>(h + 16);
+    mc.coarse_voxel_m = get<double>(h + 24);
+    mc.planarity_max = get<double>(h + 32);
+    t->tile_m = get<double>(h + 40);
+    mc.min_points = get<int32_t>(h + 48);
+    t->per_tile[0] = voxels_per_tile(t->tile_m, mc.voxel_m);
+    t->per_tile[1] = mc.coarse_voxel_m > 0 ? voxels_per_tile(t->tile_m, mc.coarse_voxel_m) : 1;
+    if (!(mc.voxel_m > 0.01 && mc.voxel_m < 100) || !(mc.coarse_voxel_m >= 0 && mc.coarse_voxel_m < 1000) ||
+        !(t->tile_m > 0 && t->tile_m < 1e5) || t->per_tile[0] == 0 || t->per_tile[1] == 0) {
+        pb_err_set(err, "%s: byte 16: bad tile geometry (voxel %g m, coarse %g m, tile %g m)", name, mc.voxel_m,
+                   mc.coarse_voxel_m, t->tile_m);
+        return nullptr;
+    }
+    if ((file_size - kHeaderBytes) / kTableBytes < ntiles) {
+        pb_err_set(err, "%s: byte 12: %u tiles do not fit in %" PRIu64 " bytes", name, ntiles, file_size);
+        return nullptr;
+    }
+    /* the tile table: every tile's cells must lie inside the file */
+    std::vector<uint8_t> tb((size_t)ntiles * kTableBytes);
+    if (ntiles && read(user, kHeaderBytes, tb.data(), tb.size()) != 0) {
+        pb_err_set(err, "%s: byte %zu: cannot read the tile table", name, kHeaderBytes);
+        return nullptr;
+    }
+    t->table.resize(ntiles);
+    for (uint32_t i = 0; i < ntiles; i++) {
+        const uint8_t *r = tb.data() + (size_t)i * kTableBytes;
+        TileEntry &e = t->table[i];
+        e.tx = get<int32_t>(r); e.ty = get<int32_t>(r + 4);
+        e.offset = get<uint64_t>(r + 8);
+        e.fine = get<uint32_t>(r + 16); e.coarse = get<uint32_t>(r + 20);
+        uint64_t bytes = ((uint64_t)e.fine + e.coarse) * kCellBytes;
+        if (e.offset < kHeaderBytes || e.offset > file_size || bytes > file_size - e.offset ||
+            !t->by_id.emplace(tile_id(e.tx, e.ty), i).second) {
+            pb_err_set(err, "%s: byte %zu: tile (%d, %d) is out of the file or repeated", name,
+                       kHeaderBytes + (size_t)i * kTableBytes, e.tx, e.ty);
+            return nullptr;
+        }
+    }
+    t->loaded.assign(ntiles, 0);
+    t->map = new (std::nothrow) pb_regmap_t();
+    if (!t->map) { pb_err_set(err, "%s: out of memory", name); return nullptr; }
+    t->map->cfg = mc;
+    t->map->cfg.load_radius_m = t->cfg.load_radius_m;
+    t->map->fine.voxel = mc.voxel_m; t->map->fine.inv_voxel = 1.0 / mc.voxel_m;
+    double cv = mc.coarse_voxel_m > 0 ? mc.coarse_voxel_m : mc.voxel_m;
+    t->map->coarse.voxel = cv; t->map->coarse.inv_voxel = 1.0 / cv;
+    pb_regmap_info_t &info = t->map->info;
+    info.points = get<int64_t>(h + 56);
+    for (int a = 0; a < 3; a++) { info.min[a] = get<double>(h + 80 + 8 * a); info.max[a] = get<double>(h + 104 + 8 * a); }
+    info.load_radius_m = t->cfg.load_radius_m;
+    return t.release();
+}
+
+void pb_tiles_destroy(pb_tiles_t *t)
+{
+    if (!t) return;
+    pb_regmap_destroy(t->map);
+    delete t;
+}
+
+const pb_regmap_t *pb_tiles_map(const pb_tiles_t *t) { return t->map; }
+
+namespace {
+
+/* horizontal distance from (x, y) to a tile's square */
+double tile_distance(const pb_tiles_t *t, const TileEntry &e, double x, double y)
+{
+    double x0 = e.tx * t->tile_m, y0 = e.ty * t->tile_m;
+    double dx = std::max({x0 - x, 0.0, x - (x0 + t->tile_m)});
+    double dy = std::max({y0 - y, 0.0, y - (y0 + t->tile_m)});
+    return std::hypot(dx, dy);
+}
+
+/* Drops the cells of unloaded tiles from a level, keeping the order of the rest. */
+void compact(const pb_tiles_t *t, int l, Level *lv)
+{
+    size_t w = 0;
+    for (size_t i = 0; i < lv->cells.size(); i++) {
+        int32_t tx, ty;
+        tile_of_key(lv->keys[i], t->per_tile[l], &tx, &ty);
+        auto it = t->by_id.find(tile_id(tx, ty));
+        if (it == t->by_id.end() || !t->loaded[it->second]) continue;
+        lv->cells[w] = lv->cells[i];
+        lv->keys[w] = lv->keys[i];
+        w++;
+    }
+    lv->cells.resize(w);
+    lv->keys.resize(w);
+}
+
+void reindex(Level *lv)
+{
+    lv->index.reset(lv->cells.size());
+    bool inserted;
+    for (size_t i = 0; i < lv->keys.size(); i++) lv->index.insert(lv->keys[i], (int32_t)i, &inserted);
+}
+
+/* Reads one tile and appends its cells; on error nothing is appended. */
+int load_tile(pb_tiles_t *t, size_t row, pb_err_t *err)
+{
+    const TileEntry &e = t->table[row];
+    size_t n = (size_t)e.fine + e.coarse;
+    t->buf.resize(n * kCellBytes);
+    if (n && t->read(t->user, e.offset, t->buf.data(), t->buf.size()) != 0)
+        return pb_err_set(err, "%s: byte %" PRIu64 ": cannot read tile (%d, %d)", t->name.c_str(), e.offset, e.tx, e.ty);
+    /* check everything first, so a corrupt tile leaves the map as it was */
+    for (size_t i = 0; i < n; i++) {
+        const uint8_t *r = t->buf.data() + i * kCellBytes;
+        int l = i < e.fine ? 0 : 1;
+        int32_t tx, ty;
+        tile_of_key(get<uint64_t>(r), t->per_tile[l], &tx, &ty);
+        bool finite = true;
+        for (int k = 0; k < 9; k++) finite &= std::isfinite(get<float>(r + 8 + 4 * k));
+        uint8_t kind = r[44];
+        if (tx != e.tx || ty != e.ty || !finite || (kind != CELL_PLANE && kind != CELL_LINE))
+            return pb_err_set(err, "%s: byte %" PRIu64 ": corrupt cell in tile (%d, %d)", t->name.c_str(),
+                              e.offset + i * kCellBytes, e.tx, e.ty);
+    }
+    for (size_t i = 0; i < n; i++) {
+        const uint8_t *r = t->buf.data() + i * kCellBytes;
+        Level &lv = i < e.fine ? t->map->fine : t->map->coarse;
+        Cell c;
+        std::memcpy(c.mean, r + 8, 12);
+        std::memcpy(c.u1, r + 20, 12);
+        std::memcpy(c.u2, r + 32, 12);
+        c.kind = r[44];
+        lv.cells.push_back(c);
+        lv.keys.push_back(get<uint64_t>(r));
+    }
+    return 0;
+}
+
+}  // namespace
+
+int pb_tiles_page(pb_tiles_t *t, double x, double y, pb_err_t *err)
+{
+    /* 1. which tiles to drop and to load (only rows near the car are looked at) */
+    std::vector<size_t> drop, load;
+    for (size_t i = 0; i < t->table.size(); i++)
+        if (t->loaded[i] && tile_distance(t, t->table[i], x, y) > t->cfg.keep_radius_m) drop.push_back(i);
+    int64_t reach = (int64_t)std::ceil(t->cfg.load_radius_m / t->tile_m) + 1;
+    int64_t cx = (int64_t)std::floor(x / t->tile_m), cy = (int64_t)std::floor(y / t->tile_m);
+    if (std::isfinite(x) && std::isfinite(y) && std::fabs(x) < 1e9 && std::fabs(y) < 1e9)
+        for (int64_t ty = cy - reach; ty <= cy + reach; ty++)
+            for (int64_t tx = cx - reach; tx <= cx + reach; tx++) {
+                auto it = t->by_id.find(tile_id((int32_t)tx, (int32_t)ty));
+                if (it == t->by_id.end() || t->loaded[it->second]) continue;
+                if (tile_distance(t, t->table[it->second], x, y) <= t->cfg.load_radius_m) load.push_back(it->second);
+            }
+    if (drop.empty() && load.empty()) return 0;
+    /* 2. drop: remove their cells, keeping the order of the others */
+    for (size_t i : drop) t->loaded[i] = 0;
+    if (!drop.empty()) { compact(t, 0, &t->map->fine); compact(t, 1, &t->map->coarse); }
+    /* 3. load: append the new tiles' cells */
+    int rc = 0;
+    int changed = (int)drop.size();
+    for (size_t i : load) {
+        if (load_tile(t, i, rc ? nullptr : err) != 0) { rc = -1; continue; }
+        t->loaded[i] = 1;
+        changed++;
+    }
+    /* 4. rebuild both hash indexes over what is loaded */
+    reindex(&t->map->fine);
+    reindex(&t->map->coarse);
+    t->tiles_loaded += changed - 2 * (int)drop.size();
+    t->loads += changed - (int64_t)drop.size();
+    t->drops += (int64_t)drop.size();
+    pb_regmap_info_t &info = t->map->info;
+    info.cells = (int64_t)t->map->fine.cells.size();
+    info.coarse_cells = (int64_t)t->map->coarse.cells.size();
+    info.planar_cells = 0;
+    for (const Cell &c : t->map->fine.cells) info.planar_cells += c.kind == CELL_PLANE;
+    info.center_xy[0] = x;
+    info.center_xy[1] = y;
+    return rc < 0 ? -1 : changed;
+}
+
+void pb_tiles_stats(const pb_tiles_t *t, pb_tiles_stats_t *st)
+{
+    st->tiles_total = (int)t->table.size();
+    st->tiles_loaded = t->tiles_loaded;
+    st->fine_cells = (int64_t)t->map->fine.cells.size();
+    st->coarse_cells = (int64_t)t->map->coarse.cells.size();
+    st->loads = t->loads;
+    st->drops = t->drops;
+    st->tile_m = t->tile_m;
+}

@@ -1,0 +1,77 @@
+/* map_tiles: the prior map cut into square tiles of prepared cells, so the
+ * localizer holds only the tiles around the car and pages as it moves (maps of
+ * any size, memory bounded by the load radius, not by the map).
+ *
+ * At map build time (tools/map-tiles, `make` for the default site) the whole
+ * map is prepared once as a pb_regmap_t (planes and lines of the fine and the
+ * coarse level, each fitted to its 3x3x3 neighbourhood of the whole map) and
+ * every cell is stored in the tile its voxel falls in (SITE/map.tiles). A tile
+ * loaded at run time therefore holds exactly the cells a whole-map load would
+ * have there: where the loaded tiles cover the scan, registration gives
+ * bit-identical poses with and without paging.
+ *
+ * File (little-endian, written and read by this code only):
+ *   header, 128 bytes: "PBTILES1", u32 version (1), u32 tiles, f64 voxel_m,
+ *     coarse_voxel_m, planarity_max, tile_m, i32 min_points, i32 0,
+ *     i64 map points, fine cells, coarse cells, f64 min[3], max[3]
+ *   tile table, 32 bytes a tile: i32 tx, ty (tile = floor(x / tile_m)),
+ *     u64 byte offset, u32 fine cells, u32 coarse cells, u64 0
+ *   cells, 48 bytes each, a tile's fine cells then its coarse cells: u64 voxel
+ *     key, f32 mean[3], u1[3], u2[3], u8 kind (1 plane, 2 line), 3 bytes 0
+ *
+ * Pure: reading is through a callback the caller provides (the shell does the
+ * file I/O); no clocks.
+ * Ownership: pb_tiles_open returns a pager the caller frees with
+ * pb_tiles_destroy; it owns the map pb_tiles_map returns (valid until then; its
+ * contents change only inside pb_tiles_page, never behind the caller's back).
+ * Errors: -1 / NULL with pb_err_t naming the file and the byte offset. */
+#ifndef PB_LOC_MAP_TILES_H
+#define PB_LOC_MAP_TILES_H
+
+#include <stddef.h>
+#include <stdint.h>
+#include <vector>
+#include "pb_err.h"
+#include "regmap.h"
+
+typedef struct {
+    double load_radius_m;   /* tiles within this horizontal distance of the car are loaded (default 120) */
+    double keep_radius_m;   /* loaded tiles are dropped beyond this (hysteresis; default 160) */
+} pb_tiles_config_t;
+
+void pb_tiles_config_default(pb_tiles_config_t *cfg);
+
+/* Encodes a whole prepared map into the tile file format (out is replaced).
+ * tile_m must be a whole multiple of both voxel sizes of the map. */
+int pb_tiles_encode(const pb_regmap_t *map, double tile_m, std::vector<uint8_t> *out, pb_err_t *err);
+
+/* Reads len bytes at offset into buf; returns 0, or -1 when they cannot all be read. */
+typedef int (*pb_tiles_read_fn)(void *user, uint64_t offset, void *buf, size_t len);
+
+typedef struct pb_tiles pb_tiles_t;
+
+/* Reads and checks the header and the tile table (file_size bytes in all);
+ * name is used in messages. Nothing is loaded until pb_tiles_page. */
+pb_tiles_t *pb_tiles_open(pb_tiles_read_fn read, void *user, uint64_t file_size, const char *name,
+                          const pb_tiles_config_t *cfg, pb_err_t *err);
+void pb_tiles_destroy(pb_tiles_t *t);
+
+/* The paged map (empty until the first pb_tiles_page). */
+const pb_regmap_t *pb_tiles_map(const pb_tiles_t *t);
+
+/* Brings the loaded tiles to those around map (x, y): loads every tile within
+ * load_radius_m, drops those beyond keep_radius_m. Returns the number of tiles
+ * loaded plus dropped (0: nothing changed, cheap), or -1 when a tile cannot be
+ * read or is corrupt (err set; the tiles that could be read are in use and the
+ * bad one is tried again at the next call). */
+int pb_tiles_page(pb_tiles_t *t, double x, double y, pb_err_t *err);
+
+typedef struct {
+    int tiles_total, tiles_loaded;
+    int64_t fine_cells, coarse_cells;   /* loaded */
+    int64_t loads, drops;               /* tiles, since open */
+    double tile_m;
+} pb_tiles_stats_t;
+void pb_tiles_stats(const pb_tiles_t *t, pb_tiles_stats_t *st);
+
+#endif

@@ -1,0 +1,66 @@
+/* refine: multi-scan refinement of a sequence of LiDAR poses (a better
+ * reference than a SLAM estimate, and the mapper's consistency step).
+ *
+ * Each round registers every scan, with the localizer's registration
+ * (pb_reg_align), to the map of each single scan near it (within
+ * neighbour_radius_m, the nearest max_neighbours), starting from their current
+ * relative pose: one relative-pose edge per pair, with the registration's
+ * covariance (pairs, not a map of many scans, so one scan's error never shows
+ * as doubled walls that the others lock onto). Then all poses are solved at
+ * once by least squares over the edges (Gauss-Newton, Cauchy-robust), and the
+ * whole set is moved back by the one rigid transform that best aligns it with
+ * the input poses (the input fixes the frame: refinement removes
+ * inconsistency, not the frame). Rounds repeat until the largest move is
+ * below stop_m or max_rounds.
+ *
+ * How good the result is, measured by pb_refine_poses itself (refine_report_t):
+ *   edge residuals: how far each pair's registration disagrees with the
+ *     solved poses (translation, m);
+ *   leave-one-out: each scan registered to a map of all the other scans near
+ *     it at their refined poses; how far it would still move (median / p90 /
+ *     max). Small = the poses agree with each other.
+ *   fit: share of each scan's points within 0.1 m of the map of the others,
+ *     at the input poses and at the refined poses.
+ *
+ * Frames: poses are map <- sensor; scans are points in the sensor frame (one
+ * instant, deskewed). Pure: no I/O, no clocks; deterministic.
+ * Ownership: the caller owns every array; nothing is kept after the call. */
+#ifndef PB_LOC_REFINE_H
+#define PB_LOC_REFINE_H
+
+#include <vector>
+#include <Eigen/Geometry>
+#include "pb_err.h"
+
+typedef struct {
+    double neighbour_radius_m;  /* scans within this distance form a scan's map (default 40) */
+    int max_neighbours;         /* the nearest this many (default 30) */
+    int max_rounds;             /* (default 8) */
+    double stop_m;              /* stop when no scan moves more than this in a round (default 0.005) */
+    double voxel_m;             /* map cell of the neighbour maps (default 0.5) */
+    int min_points_used;        /* a scan whose match uses fewer points keeps its pose (default 200) */
+    double min_pair_inliers;    /* a pair registration with a smaller inlier share gives no edge (default 0.3) */
+    int coarse_iterations;      /* pb_reg_config_t's coarse retry; 0 = fine level only (default 0: the input
+                                 * is within a metre, and the coarse level can alias repeated structure) */
+} refine_config_t;
+
+void refine_config_default(refine_config_t *cfg);
+
+typedef struct {
+    int rounds;
+    std::vector<double> moved_m;        /* per round: the largest move of a scan */
+    std::vector<double> loo_m, loo_deg; /* per scan: leave-one-out move after the last round */
+    std::vector<double> fit_before, fit_after;  /* per scan: inlier share against the others */
+    std::vector<double> change_m;       /* per scan: refined minus input position */
+    int kept;                           /* scans with no edge in the last round (left where the graph puts them) */
+    int edges;                          /* pair registrations used in the last round */
+    std::vector<double> edge_resid_m;   /* per edge: translation residual at the solution */
+} refine_report_t;
+
+/* Refines poses (n of them, in/out) of scans[k] (xyz interleaved, sensor frame).
+ * progress (may be NULL) is called after each round with (round, largest move). */
+int refine_poses(const std::vector<std::vector<float>> &scans, std::vector<Eigen::Isometry3d> *poses,
+                 const refine_config_t *cfg, refine_report_t *report, void (*progress)(int, double, void *),
+                 void *user, pb_err_t *err);
+
+#endif
