@@ -73,6 +73,8 @@ def test_every_page_renders_on_the_default_site(site, tmp_path):
         try:
             d.get(f"{b.url}/operator")
             wait_for(lambda: "TRACKING" in d.find_element("id", "panel").text, what="operator shows the localizer")
+            # heartbeats come at 1 Hz: the first may arrive a second after the pose
+            wait_for(lambda: "lab_vehicle" in d.find_element("id", "panel").text, 5, "operator shows the heartbeats")
             text = d.find_element("id", "panel").text
             assert "km/h" in text and "lab_vehicle" in text and "next stop" in text
             d.get(f"{b.url}/view")
