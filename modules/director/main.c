@@ -12,6 +12,7 @@
 #include <unistd.h>
 
 #include "core/director.h"
+#include "core/agents_msg.h"
 #include "pb_arg.h"
 #include "pb_bus.h"
 #include "pb_route.h"
@@ -189,18 +190,7 @@ static void on_timer(int64_t now, void *user)
     int64_t t = a->last_pose_utime + (now - a->last_pose_recv);
     dir_tick(a->dir, t);
     int n = dir_agents(a->dir, a->out);
-    for (int i = 0; i < n; i++) {
-        portobello_agent_t *g = &a->agents[i];
-        const dir_agent_out_t *o = &a->out[i];
-        g->id = (char *)o->id; g->kind = (char *)o->kind; g->model = (char *)o->model;
-        memcpy(g->position, o->pos, sizeof g->position);
-        g->yaw_rad = o->yaw;
-        memcpy(g->velocity, o->vel, sizeof g->velocity);
-        g->animation = (char *)o->animation;
-        g->animation_phase = o->phase;
-        g->in_render_range = o->in_range;
-        g->distance_m = o->distance_m;
-    }
+    dir_agents_to_msg(a->out, n, a->agents);
     portobello_agents_t m = { .utime = dir_time(a->dir), .scenario = a->sc.id, .nagents = n, .agents = a->agents };
     pb_err_t err;
     if (PB_PUBLISH(a->bus, "AGENTS", portobello_agents_t, &m, &err)) pb_status_error(a->status, "AGENTS: %s", err.msg);

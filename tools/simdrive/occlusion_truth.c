@@ -6,6 +6,7 @@
 #include <string.h>
 
 #include "director.h"
+#include "agents_msg.h"
 #include "pb_body.h"
 #include "scenario.h"
 #include "portobello_agents_t.h"
@@ -95,18 +96,7 @@ void sim_occ_pose(sim_occ_t *so, const traj_state_t *st, int64_t utime, pb_log_o
     }
     if (so->poses++ % AGENTS_EVERY) return;
     int n = dir_agents(so->dir, so->agents);
-    for (int i = 0; i < n; i++) {
-        portobello_agent_t *g = &so->msg_agents[i];
-        const dir_agent_out_t *o = &so->agents[i];
-        g->id = (char *)o->id; g->kind = (char *)o->kind; g->model = (char *)o->model;
-        memcpy(g->position, o->pos, sizeof g->position);
-        g->yaw_rad = o->yaw;
-        memcpy(g->velocity, o->vel, sizeof g->velocity);
-        g->animation = (char *)o->animation;
-        g->animation_phase = o->phase;
-        g->in_render_range = o->in_range;
-        g->distance_m = o->distance_m;
-    }
+    dir_agents_to_msg(so->agents, n, so->msg_agents);
     portobello_agents_t m = { .utime = utime, .scenario = so->sc.id, .nagents = n, .agents = so->msg_agents };
     PB_LOG_WRITE_MSG(out, "AGENTS", portobello_agents_t, &m);
 }
