@@ -387,17 +387,36 @@ def test_gnss_clock_offset_is_found_reported_and_taken_out(drive, tmp_path):
     assert said and 1.7 <= said[0] <= 2.1, said
 
 
-def test_clock_step_back_starts_again(drive, tmp_path):
-    """The sensors' clock steps back 10 s (NTP, GNSS time sync): not ten seconds of dropped
-    input, but a restart from the last pose."""
+def test_clock_step_back_carries_the_pose_over(drive, tmp_path):
+    """The sensors' clock steps back 10 s (NTP, GNSS time sync) while the car drives on: the
+    state moves to the new clock (no restart, no search), POSE_PREDICTED goes on at the IMU
+    rate and the track continues."""
     flog, out = tmp_path / "step.lcm", tmp_path / "o.lcm"
     run([sys.executable, FAULT, "time-step", "--in", drive["log"], "--out", flog, "--at", "5", "--seconds", "10"])
     localize(drive, flog, out, "--no-gnss",
              "--initial-pose=%f,%f,%f,0,0,%f" % (*drive["gt"][0, 1:4], math.degrees(drive["gt"][0, 4])))
     c = counters(last_status_msg(out))
     assert c.get("time_jump") == 1, c
-    s = statuses(out)
-    assert s[-1] == 1 and 3 not in s
+    poses, pred = lb.read_poses(out, "POSE"), lb.read_poses(out, "POSE_PREDICTED")
+    k = int(np.nonzero(np.diff(poses[:, 0]) < -5e6)[0][0]) + 1          # the first POSE on the new clock
+    after = poses[k:]
+    # measured: every POSE after the step tracking (degraded only between the step and the
+    # next accepted match); never initializing or lost
+    assert set(after[:, 5].astype(int)) <= {1, 2} and np.sum(after[:, 5] != 1) <= 2, after[:20, 5]
+    # the truth on the new clock is the drive's truth 10 s later
+    gt_new = drive["gt"].copy()
+    gt_new[:, 0] -= 10e6
+    _, et, _ = lb.errors_vs_truth(after[after[:, 5] == 1], gt_new)
+    assert len(et) > 30 and et.max() < 0.06, et.max()       # measured: max 0.020 m over 69 POSE
+    # POSE_PREDICTED at every IMU sample across the step: measured 1 missing (2378 of 2379;
+    # the samples that showed the step before it was taken are dropped as out of order)
+    imu = lb.read_channel_times(flog, "IMU")
+    k_imu = int(np.nonzero(np.diff(imu) < -5e6)[0][0]) + 1
+    n_imu = int(np.sum(imu[:k_imu] >= pred[0, 0])) + len(imu) - k_imu    # IMU samples since the first pose
+    assert n_imu - 3 <= len(pred) <= n_imu, (len(pred), n_imu)
+    jump = np.nonzero(np.diff(pred[:, 0]) < -5e6)[0]
+    # measured: the predicted times step back 9.990 s (10 s less the 2 samples dropped)
+    assert len(jump) == 1 and 9.97e6 <= pred[jump[0], 0] - pred[jump[0] + 1, 0] <= 10.0e6
 
 
 def test_frame_mismatch_is_an_error_naming_both(drive, tmp_path):

@@ -27,13 +27,15 @@ def sh(args, **kw):
     return p
 
 
-def make_drive(out_dir, seed, profile, duration):
-    """simdrive drive + VEHICLE_SPEED merged in: returns the path of the merged log (cached)."""
+def make_drive(out_dir, seed, profile, duration, extra=()):
+    """simdrive drive + VEHICLE_SPEED merged in: returns the path of the merged log (cached).
+    extra: more simdrive options (e.g. --reverse 50)."""
     out_dir = pathlib.Path(out_dir)
     merged = out_dir / "input.lcm"
     if merged.exists():
         return merged
-    sh([BIN / "simdrive", "--out", out_dir, "--seed", seed, "--speed-profile", profile, "--duration", duration, "--quiet"])
+    sh([BIN / "simdrive", "--out", out_dir, "--seed", seed, "--speed-profile", profile, "--duration", duration, "--quiet",
+        *extra])
     sh([BIN / "can", "--replay", out_dir / "drive.lcm", "--out", out_dir / "speed.lcm"])
     sh([BIN / "log-merge", "--quiet", "--out", merged, out_dir / "drive.lcm", out_dir / "speed.lcm"])
     return merged

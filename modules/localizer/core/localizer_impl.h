@@ -47,7 +47,9 @@ struct localizer {
     int64_t newest_t = 0;      /* newest IMU, CAN or LiDAR time: the clock of the sensors */
     int jump_count = 0;        /* successive inputs far behind newest_t, the newest of them */
     int64_t jump_last_t = 0;
+    int64_t jump_step = 0;     /* how far the clock stepped back, from the first input of the run */
     int64_t last_imu_t = 0, last_speed_t = 0, last_scan_t = 0, last_pose_out_t = 0, last_pred_out_t = 0;
+    int64_t imu_dt = 0, speed_dt = 0, scan_dt = 0;   /* the last interval of each input */
     int status = ST_INITIALIZING;
     bool candidate = false;     /* kf holds a pose still being verified */
     bool cand_vel_unknown = false;   /* ... whose velocity is not known yet */
