@@ -177,7 +177,8 @@ static void apply_input(const localizer_t *L, filter_t *f, const input_ev_t &e)
             if (e.t > f->utime && !imu_fresh(L, e.t)) filter_predict_cv(f, e.t);
             /* many cars report the speed's magnitude only (Toyota wheel speeds): when the
              * scan matches clearly move backwards, so does the car */
-            double v = e.speed >= 0 && L->match_fwd_mps < -L->cfg.reverse_detect_mps ? -e.speed : e.speed;
+            double v = !L->speed_signed && e.speed >= 0 && L->match_fwd_mps < -L->cfg.reverse_detect_mps ? -e.speed
+                                                                                                   : e.speed;
             filter_update_speed(f, v);
         }
     }
@@ -289,6 +290,15 @@ void localizer_imu(localizer_t *L, int64_t utime, const Vec3 &accel, const Vec3 
         event(out, "imu_gap", "IMU: gap of %.0f ms before %lld", (utime - L->last_imu_t) * 1e-3, (long long)utime);
     L->imu_dt = L->last_imu_t != 0 ? utime - L->last_imu_t : 0;
     L->last_imu_t = utime;
+    if (L->pred.initialized && L->imu_dt > 0 && L->imu_dt < L->cfg.imu_gap_us) {
+        /* the direction of a departure: the IMU's forward acceleration (gravity and bias
+         * taken out with the filter's attitude) integrated since the car last stood */
+        const Eigen::Matrix3d R = L->pred.q.toRotationMatrix();
+        Vec3 a = R * (accel - L->pred.ba) - Vec3(0, 0, L->cfg.filter.gravity);
+        Vec3 fwd = R * (L->ex.base_from_imu.linear().transpose() * Vec3::UnitX());
+        L->depart_v += a.dot(fwd) * (L->imu_dt * 1e-6);
+        if (L->depart_dir == 0 && std::fabs(L->depart_v) > L->cfg.depart_detect_mps) L->depart_dir = L->depart_v > 0 ? 1 : -1;
+    }
     L->last_accel = accel;
     L->last_gyro = gyro;
     input_ev_t e;
@@ -323,6 +333,10 @@ void localizer_speed(localizer_t *L, int64_t utime, double speed_mps, outputs_t 
     }
     L->speed_dt = L->last_speed_t != 0 ? utime - L->last_speed_t : 0;
     L->last_speed_t = utime;
+    /* an unsigned speed takes the direction the IMU saw at the departure */
+    if (speed_mps < 0) L->speed_signed = true;
+    if (std::fabs(speed_mps) < L->cfg.standstill_mps) { L->depart_v = 0; L->depart_dir = 0; }
+    if (!L->speed_signed && L->depart_dir < 0) speed_mps = -speed_mps;
     input_ev_t e;
     e.t = utime; e.kind = EV_SPEED; e.speed = speed_mps; e.accel.setZero(); e.gyro.setZero();
     /* keep the buffer in time order (IMU and CAN interleave within a few ms) */

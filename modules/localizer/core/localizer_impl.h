@@ -77,6 +77,10 @@ struct localizer {
     int64_t gnss_offset = 0, gnss_offset_reported = 0;
     std::deque<gnss_res_t> gnss_res;
 
+    /* the direction of travel an unsigned CAN speed lacks (Toyota without the gear) */
+    bool speed_signed = false;  /* a negative VEHICLE_SPEED came: the car reports reverse itself */
+    double depart_v = 0;        /* forward speed from the IMU alone since the car last stood */
+    int depart_dir = 0;         /* its sign once clear (+1 forwards, -1 backwards), 0 at rest */
     /* forward speed from successive accepted matches (the direction of travel) */
     Eigen::Isometry3d last_match_pose = Eigen::Isometry3d::Identity();
     int64_t last_match_t = 0;
