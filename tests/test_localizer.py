@@ -42,6 +42,13 @@ def read_pcd_binary(path):
         return np.frombuffer(f.read(n * 16), dtype="<f4").reshape(n, 4)
 
 
+def write_cropped_map(gt, path, margin=70):
+    """The default map cropped to the drive's surroundings: it loads in about a second."""
+    pts = read_pcd_binary(ROOT / "maps" / "default" / "map.pcd")
+    lo, hi = gt[:, 1:3].min(0) - margin, gt[:, 1:3].max(0) + margin
+    write_pcd(path, pts[(pts[:, 0] > lo[0]) & (pts[:, 0] < hi[0]) & (pts[:, 1] > lo[1]) & (pts[:, 1] < hi[1])])
+
+
 @pytest.fixture(scope="module")
 def drive(tmp_path_factory):
     d = tmp_path_factory.mktemp("locdrive")
@@ -51,10 +58,7 @@ def drive(tmp_path_factory):
     site.mkdir()
     for name in ("site.yaml", "route.yaml", "world.yaml"):
         shutil.copy(ROOT / "maps" / "default" / name, site / name)
-    pts = read_pcd_binary(ROOT / "maps" / "default" / "map.pcd")
-    lo, hi = gt[:, 1:3].min(0) - 70, gt[:, 1:3].max(0) + 70
-    keep = (pts[:, 0] > lo[0]) & (pts[:, 0] < hi[0]) & (pts[:, 1] > lo[1]) & (pts[:, 1] < hi[1])
-    write_pcd(site / "map.pcd", pts[keep])
+    write_cropped_map(gt, site / "map.pcd")
     only_map = d / "only_map"
     only_map.mkdir()
     shutil.copy(site / "map.pcd", only_map / "map.pcd")
@@ -444,27 +448,14 @@ def reverse_drive(tmp_path_factory):
     """simdrive --reverse 8: the car backs 8 m at its first stop (about 15 s in); Toyota
     speeds are magnitudes, the gear is in GEAR_PACKET. Kept: 12-28 s, around the manoeuvre,
     with GEAR_PACKET removed before the CAN decoding (a car whose DBC has no gear)."""
-    import lcm
-    from portobello import can_frame_t
     d = tmp_path_factory.mktemp("reverse")
     run([BIN / "simdrive", "--out", d, "--seed", "5", "--duration", "30", "--reverse", "8", "--quiet"])
-    raw = d / "nogear.lcm"
-    w = lcm.EventLog(str(raw), "w", overwrite=True)
-    for ev in lcm.EventLog(str(d / "drive.lcm"), "r"):
-        if not (ev.channel == "CAN_FRAME" and can_frame_t.decode(ev.data).id == 0x3BC):
-            w.write_event(ev.timestamp, ev.channel, ev.data)
-    w.close()
-    run([BIN / "can", "--replay", raw, "--out", d / "speed.lcm"])
-    run([BIN / "log-merge", "--quiet", "--out", d / "merged.lcm", raw, d / "speed.lcm"])
+    lb.add_speed_without_gear(d / "drive.lcm", d / "merged.lcm", d)
     run([sys.executable, FAULT, "cut", "--in", d / "merged.lcm", "--out", d / "input.lcm", "--at", "12", "--for", "16"])
-    gt = lb.read_poses(d / "drive.lcm", "GROUND_TRUTH")
-    vel = np.array([lb.pose_t.decode(e[2]).velocity[:2] for e in lb.read_events(d / "drive.lcm", ["GROUND_TRUTH"])])
-    fwd = vel[:, 0] * np.cos(gt[:, 4]) + vel[:, 1] * np.sin(gt[:, 4])
+    gt, fwd = lb.forward_speed(d / "drive.lcm")
     site = d / "site"
     site.mkdir()
-    pts = read_pcd_binary(ROOT / "maps" / "default" / "map.pcd")
-    lo, hi = gt[:, 1:3].min(0) - 70, gt[:, 1:3].max(0) + 70
-    write_pcd(site / "map.pcd", pts[(pts[:, 0] > lo[0]) & (pts[:, 0] < hi[0]) & (pts[:, 1] > lo[1]) & (pts[:, 1] < hi[1])])
+    write_cropped_map(gt, site / "map.pcd")
     return {"dir": d, "gt": gt, "fwd": fwd, "site": site, "input": d / "input.lcm"}
 
 

@@ -277,26 +277,15 @@ def fault_reverse():
     """A drive (seed 5, normal, 70 s) that backs 50 m at its first stop (simdrive --reverse
     50; the gear in GEAR_PACKET, the speeds magnitudes), started from an --initial-pose at
     the true start, no GNSS. Modes: IMU + CAN with the gear decoded (signed speed), IMU +
-    CAN without GEAR_PACKET (unsigned speed: the direction from the scan matches), LiDAR
+    CAN without GEAR_PACKET (unsigned speed: the direction from the IMU at the departure), LiDAR
     alone. Errors over the POSE while the car reverses (GROUND_TRUTH speed along its
     heading below -0.3 m/s)."""
-    import lcm
-    from portobello import can_frame_t
     d = OUT / "s5_normal_70_reverse50"
     log = lb.make_drive(d, 5, "normal", 70, ["--reverse", "50"])
     nogear = d / "input_nogear.lcm"
     if not nogear.exists():
-        raw = d / "drive_nogear.lcm"
-        w = lcm.EventLog(str(raw), "w", overwrite=True)
-        for ev in lcm.EventLog(str(d / "drive.lcm"), "r"):
-            if not (ev.channel == "CAN_FRAME" and can_frame_t.decode(ev.data).id == 0x3BC):
-                w.write_event(ev.timestamp, ev.channel, ev.data)
-        w.close()
-        lb.sh([lb.BIN / "can", "--replay", raw, "--out", d / "speed_nogear.lcm"])
-        lb.sh([lb.BIN / "log-merge", "--quiet", "--out", nogear, raw, d / "speed_nogear.lcm"])
-    gt = lb.read_poses(d / "drive.lcm", "GROUND_TRUTH")
-    vel = np.array([lb.pose_t.decode(e[2]).velocity[:2] for e in lb.read_events(d / "drive.lcm", ["GROUND_TRUTH"])])
-    fwd = vel[:, 0] * np.cos(gt[:, 4]) + vel[:, 1] * np.sin(gt[:, 4])
+        lb.add_speed_without_gear(d / "drive.lcm", nogear, d)
+    gt, fwd = lb.forward_speed(d / "drive.lcm")
     rev = fwd < -0.3
     t_rev = gt[rev, 0]
     x, y, z, yaw = gt[0, 1], gt[0, 2], gt[0, 3], gt[0, 4] * 180 / math.pi

@@ -41,6 +41,28 @@ def make_drive(out_dir, seed, profile, duration, extra=()):
     return merged
 
 
+def add_speed_without_gear(drive, out, work):
+    """The drive with VEHICLE_SPEED decoded after dropping GEAR_PACKET (0x3BC): a car whose
+    DBC has no gear, whose speeds are magnitudes. Returns out."""
+    from portobello import can_frame_t
+    raw = pathlib.Path(work) / "drive_nogear.lcm"
+    w = lcm.EventLog(str(raw), "w", overwrite=True)
+    for ev in lcm.EventLog(str(drive), "r"):
+        if not (ev.channel == "CAN_FRAME" and can_frame_t.decode(ev.data).id == 0x3BC):
+            w.write_event(ev.timestamp, ev.channel, ev.data)
+    w.close()
+    sh([BIN / "can", "--replay", raw, "--out", pathlib.Path(work) / "speed_nogear.lcm"])
+    sh([BIN / "log-merge", "--quiet", "--out", out, raw, pathlib.Path(work) / "speed_nogear.lcm"])
+    return out
+
+
+def forward_speed(drive):
+    """(GROUND_TRUTH rows as read_poses, their speed along the car's heading)."""
+    gt = read_poses(drive, "GROUND_TRUTH")
+    vel = np.array([pose_t.decode(e[2]).velocity[:2] for e in read_events(drive, ["GROUND_TRUTH"])])
+    return gt, vel[:, 0] * np.cos(gt[:, 4]) + vel[:, 1] * np.sin(gt[:, 4])
+
+
 def run_localizer(inp, out, extra=(), stats=None, timeout=1800):
     args = [BIN / "localizer", "--replay", inp, "--out", out]
     if stats:
