@@ -222,11 +222,12 @@ def main():
     print(f"{'GNSS clock 2 s off, GNSS-only start':<34} reported: {o.get('reported')}; tracking "
           f"{fmt(o.get('first_tracking_s'), '{:.1f}')} s after the first sweep; median {fmt(o.get('t_median'))} m   "
           f"(targets: reported, start-up within 3 s)")
-    report["faults"]["live_clock_step_10s"] = fault_live_clock_step(d, log)
-    o = report["faults"]["live_clock_step_10s"]
-    print(f"{'clock step back 10 s, live bus':<34} POSE_PREDICTED {fmt(o.get('rate_before_hz'), '{:.0f}')} Hz in the 3 s "
-          f"before, {fmt(o.get('rate_after_hz'), '{:.0f}')} Hz in the 3 s after; longest pause {fmt(o.get('max_pause_s'))} s; "
-          f"tracking at the end: {o.get('tracking_at_end')}   (target: POSE_PREDICTED keeps its rate)")
+    for sec, label in ((10, "clock step back 10 s, live bus"), (0, "  baseline: no step, same run")):
+        report["faults"][f"live_clock_step_{sec}s"] = o = fault_live_clock_step(d, log, sec)
+        print(f"{label:<34} POSE_PREDICTED {fmt(o.get('rate_before_hz'), '{:.0f}')} Hz in the 3 s before, "
+              f"{fmt(o.get('rate_after_hz'), '{:.0f}')} Hz in the 3 s after; longest pause {fmt(o.get('max_pause_s'))} s; "
+              f"tracking at the end: {o.get('tracking_at_end')}")
+    print(f"{'':<34} (target: POSE_PREDICTED keeps its rate: as without the step)")
     report["faults"]["reversing_50m"] = fault_reverse()
     for mode, o in report["faults"]["reversing_50m"].items():
         print(f"{'reversing 50 m, ' + mode:<34} {o.get('reverse_poses', 0)} POSE while reversing "
@@ -314,18 +315,19 @@ def fault_reverse():
     return out
 
 
-def fault_live_clock_step(d, log, url="udpm://239.255.76.67:7901?ttl=0&recv_buf_size=8388608"):
+def fault_live_clock_step(d, log, seconds=10, url="udpm://239.255.76.67:7901?ttl=0&recv_buf_size=8388608"):
     """The drive published live (12 s from 3 s in) on a private bus; 6 s in, every sensor
-    time steps back 10 s (an NTP or GNSS time sync on the car). POSE_PREDICTED as received."""
+    time steps back `seconds` (an NTP or GNSS time sync on the car; 0: the baseline, the
+    same run without a step). POSE_PREDICTED as received."""
     import subprocess
     import threading
     import time
 
     import lcm
     from portobello import pose_t
-    flog = d / "fault_time_step.lcm"
+    flog = d / f"fault_time_step_{seconds}.lcm"
     subprocess.run([sys.executable, lb.ROOT / "tools/log-fault/log_fault.py", "time-step", "--in", log, "--out", flog,
-                    "--at", "9", "--seconds", "10"], check=True, capture_output=True)
+                    "--at", "9", "--seconds", str(seconds)], check=True, capture_output=True)
     chans = ["IMU", "LIDAR_SCAN", "GNSS_FIX", "VEHICLE_SPEED"]
     # paced by the original event times (the wall clock runs on); the data carry the stepped times
     events = [(o[0], o[1], f[2]) for o, f in zip(lb.read_events(log, chans), lb.read_events(flog, chans))]
