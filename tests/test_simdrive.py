@@ -396,7 +396,7 @@ def test_can_frames_decode_to_ground_truth(drive60, vehicle):
             # Toyota checksum: id high + id low + length + data bytes 0..6
             assert sig["CHECKSUM"] == (0x00 + 0xB4 + 8 + sum(data[:7])) & 0xFF
         elif m.id == 0x3BC:
-            assert str(sig["GEAR"]) == "D" and sig["DRIVE_ENGAGED"] == 1     # this drive never reverses
+            assert str(sig["GEAR"]) == "D" and str(sig["DRIVE_ENGAGED"]) == "on"     # this drive never reverses
         else:
             pytest.fail(f"unexpected CAN id {m.id:#x}")
     assert worst <= 0.01, worst
