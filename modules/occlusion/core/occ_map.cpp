@@ -81,6 +81,9 @@ struct occ_map_t {
     octomap::KeyRay ray;
     std::vector<uint64_t> to_clear;
     std::vector<uint64_t> occupied;         /* keys whose bit went 0 -> 1 (stale ones dropped lazily) */
+    std::vector<uint64_t> fill_bits;        /* this sweep's columns below objects that reach under the lowest beam */
+    std::vector<uint32_t> fill_list;        /* their bit indices (cleared at the next sweep) */
+    std::vector<int> low_candidates;        /* scratch: non-ground returns near the car */
 
     explicit occ_map_t(const occ_config_t &c) : cfg(c), fine(c.resolution), observed(c.observed_resolution) {}
 };
@@ -110,6 +113,7 @@ occ_map_t *occ_map_create(const occ_config_t *cfg)
     m->any_bits.assign((size_t)CX * CX * CZ / 64, 0);
     m->ground.assign((size_t)GN * GN, ground_cell_t{ 0, 0, -1000000, 0 });
     m->bin_min.assign((size_t)NAZ * NEL, INFINITY);
+    m->fill_bits.assign((size_t)FX * FX * FZ / 64, 0);
     return m;
 }
 
@@ -123,6 +127,8 @@ void occ_map_clear(occ_map_t *m)
     std::fill(m->listed_bits.begin(), m->listed_bits.end(), 0);
     std::fill(m->obs_bits.begin(), m->obs_bits.end(), 0);
     std::fill(m->any_bits.begin(), m->any_bits.end(), 0);
+    std::fill(m->fill_bits.begin(), m->fill_bits.end(), 0);
+    m->fill_list.clear();
     for (ground_cell_t &g : m->ground) g.sweep = -1000000;
     m->blocks.clear();
     m->occupied.clear();
@@ -257,6 +263,62 @@ static int roll_window(occ_map_t *m, const double car[3])
     return n;
 }
 
+/* Ground under (x, y) near the car, h metres from the sensor: the ground grid's, unless
+ * that is unknown or well above the car's own ground (within 6 m the roof LiDAR does not
+ * see the ground, so a cell's lowest return may be the bottom of what stands on it). */
+static float near_ground_z(occ_map_t *m, const occ_sweep_t *sw, float x, float y, double h)
+{
+    float g = ground_z(m, x, y), car = (float)sw->car[2] + (float)(0.1 * h);   /* 10 % slope */
+    return std::isfinite(g) && g < car + 0.3f ? g : (float)sw->car[2];
+}
+
+/* Objects beside the car that reach below the LiDAR's lowest beam (a passing car whose
+ * roof and upper doors a roof LiDAR sees, not its lower body): the space under them may
+ * have been seen free before they came, and the LiDAR cannot see it now. Objects stand on
+ * the ground, so the column below such a return, down to the ground, counts as occupied
+ * for this sweep's queries (only this sweep: it is inferred, not seen). */
+static void fill_below_view(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_t *s)
+{
+    const occ_config_t &c = m->cfg;
+    for (uint32_t b : m->fill_list) clr_bit(m->fill_bits, b);
+    m->fill_list.clear();
+    const double *R = sw->mid_rot, r2 = c.fill_radius_m * c.fill_radius_m;
+    /* 1. the lowest beam: the least elevation (as a sine, in the sensor frame) of the returns near the car */
+    double sin_min = INFINITY;
+    m->low_candidates.clear();
+    for (int i = 0; i < sw->n; i++) {
+        const double *o = sw->origins[sw->origin_index[i]];
+        double dx = sw->x[i] - o[0], dy = sw->y[i] - o[1], dz = sw->z[i] - o[2], h2 = dx * dx + dy * dy;
+        if (!(h2 <= r2)) continue;      /* also drops NaN */
+        double sn = (R[2] * dx + R[5] * dy + R[8] * dz) / std::sqrt(h2 + dz * dz);
+        if (sn < sin_min) sin_min = sn;
+        m->low_candidates.push_back(i);
+    }
+    if (!std::isfinite(sin_min)) return;
+    const double sin_tol = std::sin(std::asin(std::max(-1.0, sin_min)) + c.fill_elevation_tol_rad);
+    /* 2. returns of the lowest beams above the ground: fill down to the ground */
+    for (int i : m->low_candidates) {
+        const double *o = sw->origins[sw->origin_index[i]];
+        double dx = sw->x[i] - o[0], dy = sw->y[i] - o[1], dz = sw->z[i] - o[2], h2 = dx * dx + dy * dy;
+        if ((R[2] * dx + R[5] * dy + R[8] * dz) / std::sqrt(h2 + dz * dz) > sin_tol) continue;
+        float gz = near_ground_z(m, sw, sw->x[i], sw->y[i], std::sqrt(h2));
+        if (sw->z[i] < gz + c.ground_clearance_m) continue;
+        OcTreeKey top, bot;
+        if (!key_of(m->inv_res, sw->x[i], sw->y[i], sw->z[i], top) ||
+            !key_of(m->inv_res, sw->x[i], sw->y[i], gz + c.ground_clearance_m, bot))
+            continue;
+        for (int kz = top[2]; kz >= bot[2]; kz--) {
+            OcTreeKey k(top[0], top[1], (uint16_t)kz);
+            size_t bi = fine_bit(k);
+            if (get_bit(m->fill_bits, bi)) continue;
+            set_bit(m->fill_bits, bi);
+            m->fill_list.push_back((uint32_t)bi);
+            set_bit(m->any_bits, obs_bit(OcTreeKey((k[0] >> m->cshift) + m->coff, (k[1] >> m->cshift) + m->coff, (k[2] >> m->cshift) + m->coff)));
+            s->filled++;
+        }
+    }
+}
+
 void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_t *st)
 {
     const occ_config_t &c = m->cfg;
@@ -370,7 +432,10 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
         }
     }
 
-    /* 5. the rolling window */
+    /* 5. what stands beside the car below the lowest beam (this sweep only) */
+    fill_below_view(m, sw, &s);
+
+    /* 6. the rolling window */
     s.blocks_deleted = roll_window(m, sw->car);
     if (st) *st = s;
 }
@@ -428,9 +493,13 @@ static int8_t query_one(const occ_map_t *m, const double e[3], const double bp[3
         OcTreeKey k((uint16_t)key[0], (uint16_t)key[1], (uint16_t)key[2]);
         OcTreeKey ck((uint16_t)((key[0] >> sh) + co), (uint16_t)((key[1] >> sh) + co), (uint16_t)((key[2] >> sh) + co));
         size_t cb = obs_bit(ck);
-        if (get_bit(m->any_bits, cb) && get_bit(m->fine_bits, fine_bit(k))) {
-            const octomap::OcTreeNode *nd = m->fine.search(k);
-            if (nd && m->fine.isNodeOccupied(nd)) { *occ = (float)t; return OCC_HIDDEN; }
+        if (get_bit(m->any_bits, cb)) {
+            size_t fb = fine_bit(k);
+            if (get_bit(m->fill_bits, fb)) { *occ = (float)t; return OCC_HIDDEN; }
+            if (get_bit(m->fine_bits, fb)) {
+                const octomap::OcTreeNode *nd = m->fine.search(k);
+                if (nd && m->fine.isNodeOccupied(nd)) { *occ = (float)t; return OCC_HIDDEN; }
+            }
         }
         if (!unknown && !get_bit(m->obs_bits, cb)) unknown = true;
         int a = tmax[0] < tmax[1] ? (tmax[0] < tmax[2] ? 0 : 2) : (tmax[1] < tmax[2] ? 1 : 2);

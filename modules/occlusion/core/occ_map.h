@@ -36,6 +36,8 @@ struct occ_config_t {
     int point_stride = 2;             /* every Nth return per sweep for hits and ground (alternating) */
     int observed_ray_stride = 8;      /* every Nth return's beam marks observed space (the next N-1 sweeps trace the others) */
     double prob_hit = 0.7, prob_miss = 0.12, clamp_min = 0.12, clamp_max = 0.88;  /* one clear miss frees any voxel */
+    double fill_radius_m = 10.0;      /* returns of the lowest beams this close (horizontally) are checked for objects reaching under the view */
+    double fill_elevation_tol_rad = 0.021;  /* "lowest beams": within 1.2 deg of the sweep's least elevation */
     double stop_short_m = 0.3;        /* eye rays stop this far before the sample (the agent's own spot) */
     /* the car's own box in base (the eye looks out through it): x from, x to, half width, height */
     double ego_x0 = -1.04, ego_x1 = 3.50, ego_half_width = 0.88, ego_height = 1.47;
@@ -54,7 +56,7 @@ struct occ_sweep_t {
 };
 
 struct occ_integrate_stats_t {
-    int points, ground, hit_voxels, cleared, occupied_checked, observed_new, blocks_deleted;
+    int points, ground, hit_voxels, cleared, occupied_checked, observed_new, blocks_deleted, filled;
 };
 
 enum { OCC_VISIBLE = 0, OCC_HIDDEN = 1, OCC_UNKNOWN = 2 };
