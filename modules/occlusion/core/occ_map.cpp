@@ -32,36 +32,6 @@ struct ground_cell_t { int32_t cx, cy, sweep; float minz; };
 inline uint64_t pack(const OcTreeKey &k) { return (uint64_t)k[0] | (uint64_t)k[1] << 16 | (uint64_t)k[2] << 32; }
 inline OcTreeKey unpack(uint64_t p) { return OcTreeKey((uint16_t)p, (uint16_t)(p >> 16), (uint16_t)(p >> 32)); }
 
-/* A set of 64-bit keys cleared in O(1) per sweep (generation stamps). */
-struct key_set_t {
-    std::vector<uint64_t> key;
-    std::vector<uint32_t> gen;
-    uint32_t g = 1;
-    size_t mask;
-    explicit key_set_t(int log2) : key((size_t)1 << log2), gen((size_t)1 << log2, 0), mask(((size_t)1 << log2) - 1) {}
-    void clear() { if (++g == 0) { std::fill(gen.begin(), gen.end(), 0); g = 1; } }
-    static size_t mix(uint64_t k) {     /* murmur3's finalizer: keys differ in few bits */
-        k ^= k >> 33; k *= 0xff51afd7ed558ccdull; k ^= k >> 33; k *= 0xc4ceb9fe1a85ec53ull; k ^= k >> 33;
-        return (size_t)k;
-    }
-    bool insert(uint64_t k) {   /* true if new; silently full (never here: sized for a sweep) */
-        size_t h = mix(k) & mask;
-        for (size_t i = 0; i <= mask; i++, h = (h + 1) & mask) {
-            if (gen[h] != g) { gen[h] = g; key[h] = k; return true; }
-            if (key[h] == k) return false;
-        }
-        return false;
-    }
-    bool has(uint64_t k) const {
-        size_t h = mix(k) & mask;
-        for (size_t i = 0; i <= mask; i++, h = (h + 1) & mask) {
-            if (gen[h] != g) return false;
-            if (key[h] == k) return true;
-        }
-        return false;
-    }
-};
-
 }  // namespace
 
 struct occ_map_t {
@@ -74,7 +44,8 @@ struct occ_map_t {
     std::vector<uint64_t> any_bits;         /* observed-size cells that may hold an occupied fine voxel (queries skip the rest) */
     std::vector<ground_cell_t> ground;
     int32_t sweep = 0;
-    key_set_t hits{17};
+    std::vector<uint64_t> hit_bits;         /* fine voxels hit this sweep (same ring as fine_bits) */
+    std::vector<uint32_t> hit_list;         /* their bit indices (cleared at the next sweep) */
     std::vector<uint64_t> listed_bits;      /* fine voxels in `occupied` (same ring as fine_bits) */
     std::vector<float> bin_min;             /* NEL x NAZ, +inf = no return in the bin */
     std::unordered_map<uint64_t, char> blocks;   /* live 6.4 m blocks (packed block keys) */
@@ -93,6 +64,11 @@ static inline size_t obs_bit(const OcTreeKey &k) { return ((size_t)(k[2] & (CZ -
 static inline bool get_bit(const std::vector<uint64_t> &b, size_t i) { return (b[i >> 6] >> (i & 63)) & 1; }
 static inline void set_bit(std::vector<uint64_t> &b, size_t i) { b[i >> 6] |= 1ull << (i & 63); }
 static inline void clr_bit(std::vector<uint64_t> &b, size_t i) { b[i >> 6] &= ~(1ull << (i & 63)); }
+/* Clears n bits from i (n a power of 2 <= 64, i a multiple of n: within one word). */
+static inline void clear_run(std::vector<uint64_t> &b, size_t i, int n)
+{
+    b[i >> 6] &= ~((n == 64 ? ~0ull : ((1ull << n) - 1)) << (i & 63));
+}
 
 occ_map_t *occ_map_create(const occ_config_t *cfg)
 {
@@ -114,6 +90,7 @@ occ_map_t *occ_map_create(const occ_config_t *cfg)
     m->ground.assign((size_t)GN * GN, ground_cell_t{ 0, 0, -1000000, 0 });
     m->bin_min.assign((size_t)NAZ * NEL, INFINITY);
     m->fill_bits.assign((size_t)FX * FX * FZ / 64, 0);
+    m->hit_bits.assign((size_t)FX * FX * FZ / 64, 0);
     return m;
 }
 
@@ -248,15 +225,17 @@ static int roll_window(occ_map_t *m, const double car[3])
         int s = m->cshift, o = m->coff;
         OcTreeKey c0((f0[0] >> s) + o, (f0[1] >> s) + o, (f0[2] >> s) + o);
         delete_block(m->observed, c0, obs_depth);
+        /* the block's voxels are runs of nf (nc) bits in x, aligned: cleared a run at a time */
         const int nf = 1 << BLOCK_FINE_LOG2, nc = nf >> s;
         for (int z = 0; z < nf; z++)
             for (int y = 0; y < nf; y++)
-                for (int x = 0; x < nf; x++)
-                    clr_bit(m->fine_bits, fine_bit(OcTreeKey(f0[0] + x, f0[1] + y, f0[2] + z)));
+                clear_run(m->fine_bits, fine_bit(OcTreeKey(f0[0], f0[1] + y, f0[2] + z)), nf);
         for (int z = 0; z < nc; z++)
-            for (int y = 0; y < nc; y++)
-                for (int x = 0; x < nc; x++)
-                    { clr_bit(m->obs_bits, obs_bit(OcTreeKey(c0[0] + x, c0[1] + y, c0[2] + z))); clr_bit(m->any_bits, obs_bit(OcTreeKey(c0[0] + x, c0[1] + y, c0[2] + z))); }
+            for (int y = 0; y < nc; y++) {
+                size_t b0 = obs_bit(OcTreeKey(c0[0], c0[1] + y, c0[2] + z));
+                clear_run(m->obs_bits, b0, nc);
+                clear_run(m->any_bits, b0, nc);
+            }
         it = m->blocks.erase(it);
         n++;
     }
@@ -345,7 +324,8 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
     }
 
     /* 2. hits: returns above the ground, one update per voxel */
-    m->hits.clear();
+    for (uint32_t b : m->hit_list) clr_bit(m->hit_bits, b);
+    m->hit_list.clear();
     for (int i = p0; i < sw->n; i += ps) {
         float x = sw->x[i], y = sw->y[i], z = sw->z[i];
         if (!std::isfinite(x) || !std::isfinite(y) || !std::isfinite(z)) continue;
@@ -355,10 +335,13 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
         s.points++;
         if (z < ground_z(m, x, y) + c.ground_clearance_m) { s.ground++; continue; }
         OcTreeKey k;
-        if (!key_of(m->inv_res, x, y, z, k) || !m->hits.insert(pack(k))) continue;
+        if (!key_of(m->inv_res, x, y, z, k)) continue;
+        size_t bi = fine_bit(k);
+        if (get_bit(m->hit_bits, bi)) continue;
+        set_bit(m->hit_bits, bi);
+        m->hit_list.push_back((uint32_t)bi);
         octomap::OcTreeNode *nd = m->fine.updateNode(k, true, true);
         s.hit_voxels++;
-        size_t bi = fine_bit(k);
         if (nd && m->fine.isNodeOccupied(nd)) {
             set_bit(m->fine_bits, bi);
             set_bit(m->any_bits, obs_bit(OcTreeKey((k[0] >> m->cshift) + m->coff, (k[1] >> m->cshift) + m->coff, (k[2] >> m->cshift) + m->coff)));
@@ -382,7 +365,7 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
             continue;
         }
         j++;
-        if (m->hits.has(pk)) continue;
+        if (get_bit(m->hit_bits, bi)) continue;
         s.occupied_checked++;
         octomap::point3d p = m->fine.keyToCoord(k);
         double r;
@@ -472,41 +455,63 @@ static int8_t query_one(const occ_map_t *m, const double e[3], const double bp[3
     for (int i = 0; i < 3; i++) d[i] /= len;
     double t = ego_exit(c, e, d, bp, yaw);
     if (t >= tend) return OCC_VISIBLE;
-    /* 3-D DDA over the fine voxels from t to tend (Amanatides & Woo) */
-    const double res = c.resolution;
-    int key[3], step[3];
-    double tmax[3], tdelta[3];
+    /* Two-level 3-D DDA (Amanatides & Woo) in units of fine voxels from t to tend: over the
+     * observed-size cells (4 x 4 x 4 fine voxels), and over the fine voxels only inside
+     * cells that may hold an occupied one (most of a ray crosses empty cells). */
+    double u0[3], du[3], step[3];
+    int ck[3], cstep[3];
+    double ctmax[3], ctdelta[3], tdelta[3];
+    const int sh = m->cshift, cw = 1 << sh, co = m->coff;
     for (int i = 0; i < 3; i++) {
-        double p = e[i] + d[i] * t;
-        double f = std::floor(p * m->inv_res);
-        key[i] = (int)f + KEY_ORIGIN;
-        if (d[i] > 1e-12) { step[i] = 1; tmax[i] = t + ((f + 1) * res - p) / d[i]; tdelta[i] = res / d[i]; }
-        else if (d[i] < -1e-12) { step[i] = -1; tmax[i] = t + (f * res - p) / d[i]; tdelta[i] = -res / d[i]; }
-        else { step[i] = 0; tmax[i] = INFINITY; tdelta[i] = INFINITY; }
+        u0[i] = e[i] * m->inv_res + KEY_ORIGIN;
+        du[i] = d[i] * m->inv_res;
+        double u = u0[i] + du[i] * t;
+        if (!(u >= 0 && u < 2 * KEY_ORIGIN)) return OCC_UNKNOWN;
+        ck[i] = (int)u >> sh;
+        if (du[i] > 1e-12) { cstep[i] = 1; ctmax[i] = t + ((ck[i] + 1) * cw - u) / du[i]; ctdelta[i] = cw / du[i]; tdelta[i] = 1 / du[i]; }
+        else if (du[i] < -1e-12) { cstep[i] = -1; ctmax[i] = t + (ck[i] * cw - u) / du[i]; ctdelta[i] = -cw / du[i]; tdelta[i] = -1 / du[i]; }
+        else { cstep[i] = 0; ctmax[i] = INFINITY; ctdelta[i] = INFINITY; tdelta[i] = INFINITY; }
+        step[i] = cstep[i];
     }
     bool unknown = false;
-    const int sh = m->cshift, co = m->coff;
     for (;;) {
-        if (key[0] < 0 || key[1] < 0 || key[2] < 0 || key[0] >= 2 * KEY_ORIGIN || key[1] >= 2 * KEY_ORIGIN ||
-            key[2] >= 2 * KEY_ORIGIN)
+        if (ck[0] < 0 || ck[1] < 0 || ck[2] < 0 || ck[0] >= (2 * KEY_ORIGIN >> sh) || ck[1] >= (2 * KEY_ORIGIN >> sh) ||
+            ck[2] >= (2 * KEY_ORIGIN >> sh))
             return OCC_UNKNOWN;
-        OcTreeKey k((uint16_t)key[0], (uint16_t)key[1], (uint16_t)key[2]);
-        OcTreeKey ck((uint16_t)((key[0] >> sh) + co), (uint16_t)((key[1] >> sh) + co), (uint16_t)((key[2] >> sh) + co));
-        size_t cb = obs_bit(ck);
+        size_t cb = obs_bit(OcTreeKey((uint16_t)(ck[0] + co), (uint16_t)(ck[1] + co), (uint16_t)(ck[2] + co)));
+        int ca = ctmax[0] < ctmax[1] ? (ctmax[0] < ctmax[2] ? 0 : 2) : (ctmax[1] < ctmax[2] ? 1 : 2);
+        double tout = std::min(ctmax[ca], tend);
         if (get_bit(m->any_bits, cb)) {
-            size_t fb = fine_bit(k);
-            if (get_bit(m->fill_bits, fb)) { *occ = (float)t; return OCC_HIDDEN; }
-            if (get_bit(m->fine_bits, fb)) {
-                const octomap::OcTreeNode *nd = m->fine.search(k);
-                if (nd && m->fine.isNodeOccupied(nd)) { *occ = (float)t; return OCC_HIDDEN; }
+            /* the fine voxels of this cell from t to tout; keys clamped into the cell (rounding at its faces) */
+            int key[3];
+            double tmax[3];
+            for (int i = 0; i < 3; i++) {
+                double u = u0[i] + du[i] * t;
+                key[i] = std::min(ck[i] * cw + cw - 1, std::max(ck[i] * cw, (int)u));
+                tmax[i] = step[i] > 0 ? t + (key[i] + 1 - u) / du[i] : step[i] < 0 ? t + (key[i] - u) / du[i] : INFINITY;
+            }
+            double tf = t;
+            for (;;) {
+                OcTreeKey k((uint16_t)key[0], (uint16_t)key[1], (uint16_t)key[2]);
+                size_t fb = fine_bit(k);
+                if (get_bit(m->fill_bits, fb)) { *occ = (float)tf; return OCC_HIDDEN; }
+                if (get_bit(m->fine_bits, fb)) {
+                    const octomap::OcTreeNode *nd = m->fine.search(k);
+                    if (nd && m->fine.isNodeOccupied(nd)) { *occ = (float)tf; return OCC_HIDDEN; }
+                }
+                int a = tmax[0] < tmax[1] ? (tmax[0] < tmax[2] ? 0 : 2) : (tmax[1] < tmax[2] ? 1 : 2);
+                tf = tmax[a];
+                if (tf >= tout) break;
+                key[a] += (int)step[a];
+                if ((key[a] >> sh) != ck[a]) break;
+                tmax[a] += tdelta[a];
             }
         }
         if (!unknown && !get_bit(m->obs_bits, cb)) unknown = true;
-        int a = tmax[0] < tmax[1] ? (tmax[0] < tmax[2] ? 0 : 2) : (tmax[1] < tmax[2] ? 1 : 2);
-        t = tmax[a];
-        if (t >= tend) break;
-        key[a] += step[a];
-        tmax[a] += tdelta[a];
+        if (ctmax[ca] >= tend) break;
+        t = ctmax[ca];
+        ck[ca] += cstep[ca];
+        ctmax[ca] += ctdelta[ca];
     }
     return unknown ? OCC_UNKNOWN : OCC_VISIBLE;
 }
