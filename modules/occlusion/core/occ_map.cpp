@@ -46,6 +46,7 @@ struct occ_map_t {
     int32_t sweep = 0;
     std::vector<uint64_t> hit_bits;         /* fine voxels hit this sweep (same ring as fine_bits) */
     std::vector<uint32_t> hit_list;         /* their bit indices (cleared at the next sweep) */
+    std::vector<uint64_t> sat_bits;         /* fine voxels at clamp_max (a hit would not change them) */
     std::vector<uint64_t> listed_bits;      /* fine voxels in `occupied` (same ring as fine_bits) */
     std::vector<float> bin_min;             /* NEL x NAZ, +inf = no return in the bin */
     std::unordered_map<uint64_t, char> blocks;   /* live 6.4 m blocks (packed block keys) */
@@ -91,6 +92,7 @@ occ_map_t *occ_map_create(const occ_config_t *cfg)
     m->bin_min.assign((size_t)NAZ * NEL, INFINITY);
     m->fill_bits.assign((size_t)FX * FX * FZ / 64, 0);
     m->hit_bits.assign((size_t)FX * FX * FZ / 64, 0);
+    m->sat_bits.assign((size_t)FX * FX * FZ / 64, 0);
     return m;
 }
 
@@ -105,6 +107,9 @@ void occ_map_clear(occ_map_t *m)
     std::fill(m->obs_bits.begin(), m->obs_bits.end(), 0);
     std::fill(m->any_bits.begin(), m->any_bits.end(), 0);
     std::fill(m->fill_bits.begin(), m->fill_bits.end(), 0);
+    std::fill(m->sat_bits.begin(), m->sat_bits.end(), 0);
+    std::fill(m->hit_bits.begin(), m->hit_bits.end(), 0);
+    m->hit_list.clear();
     m->fill_list.clear();
     for (ground_cell_t &g : m->ground) g.sweep = -1000000;
     m->blocks.clear();
@@ -229,7 +234,7 @@ static int roll_window(occ_map_t *m, const double car[3])
         const int nf = 1 << BLOCK_FINE_LOG2, nc = nf >> s;
         for (int z = 0; z < nf; z++)
             for (int y = 0; y < nf; y++)
-                clear_run(m->fine_bits, fine_bit(OcTreeKey(f0[0], f0[1] + y, f0[2] + z)), nf);
+                { size_t b0 = fine_bit(OcTreeKey(f0[0], f0[1] + y, f0[2] + z)); clear_run(m->fine_bits, b0, nf); clear_run(m->sat_bits, b0, nf); }
         for (int z = 0; z < nc; z++)
             for (int y = 0; y < nc; y++) {
                 size_t b0 = obs_bit(OcTreeKey(c0[0], c0[1] + y, c0[2] + z));
@@ -326,6 +331,10 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
     /* 2. hits: returns above the ground, one update per voxel */
     for (uint32_t b : m->hit_list) clr_bit(m->hit_bits, b);
     m->hit_list.clear();
+    /* the bitmaps are rings of FZ voxels in z: exact for the FZ around the car's height
+     * (everything the eye rays cross); returns beyond that band skip the per-sweep shortcuts */
+    OcTreeKey car_key;
+    const int car_kz = key_of(m->inv_res, sw->car[0], sw->car[1], sw->car[2], car_key) ? car_key[2] : -1000000;
     for (int i = p0; i < sw->n; i += ps) {
         float x = sw->x[i], y = sw->y[i], z = sw->z[i];
         if (!std::isfinite(x) || !std::isfinite(y) || !std::isfinite(z)) continue;
@@ -337,17 +346,22 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
         OcTreeKey k;
         if (!key_of(m->inv_res, x, y, z, k)) continue;
         size_t bi = fine_bit(k);
-        if (get_bit(m->hit_bits, bi)) continue;
-        set_bit(m->hit_bits, bi);
-        m->hit_list.push_back((uint32_t)bi);
+        bool band = std::abs((int)k[2] - car_kz) < FZ / 2;
+        if (band) {
+            if (get_bit(m->hit_bits, bi)) continue;        /* one update per voxel and sweep */
+            set_bit(m->hit_bits, bi);
+            m->hit_list.push_back((uint32_t)bi);
+            s.hit_voxels++;
+            if (get_bit(m->sat_bits, bi)) continue;        /* at clamp_max: OctoMap would not change it */
+        }
         octomap::OcTreeNode *nd = m->fine.updateNode(k, true, true);
-        s.hit_voxels++;
         if (nd && m->fine.isNodeOccupied(nd)) {
             set_bit(m->fine_bits, bi);
+            if (band && nd->getLogOdds() >= m->fine.getClampingThresMaxLog()) set_bit(m->sat_bits, bi);
             set_bit(m->any_bits, obs_bit(OcTreeKey((k[0] >> m->cshift) + m->coff, (k[1] >> m->cshift) + m->coff, (k[2] >> m->cshift) + m->coff)));
             if (!get_bit(m->listed_bits, bi)) { set_bit(m->listed_bits, bi); m->occupied.push_back(pack(k)); }
         }
-        m->blocks.emplace(block_of(k), 1);
+        m->blocks.try_emplace(block_of(k), 1);
     }
 
     /* 3. misses: occupied voxels in view whose surrounding beams all went on past them */
@@ -386,6 +400,7 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
     for (uint64_t p : m->to_clear) {
         OcTreeKey k = unpack(p);
         octomap::OcTreeNode *nd = m->fine.updateNode(k, false, true);
+        clr_bit(m->sat_bits, fine_bit(k));
         if (!nd || !m->fine.isNodeOccupied(nd)) { clr_bit(m->fine_bits, fine_bit(k)); s.cleared++; }
     }
 
@@ -411,7 +426,7 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
             m->observed.updateNode(k, false, true);
             s.observed_new++;
             int sh = m->cshift, o = m->coff;
-            m->blocks.emplace(block_of(OcTreeKey((k[0] - o) << sh, (k[1] - o) << sh, (k[2] - o) << sh)), 1);
+            m->blocks.try_emplace(block_of(OcTreeKey((k[0] - o) << sh, (k[1] - o) << sh, (k[2] - o) << sh)), 1);
         }
     }
 
