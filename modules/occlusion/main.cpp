@@ -215,8 +215,6 @@ int main(int argc, char **argv)
     const char *url = nullptr, *in = nullptr, *outp = nullptr, *stats = nullptr, *pose_channel = "POSE";
     std::string vehicle = std::string(PB_SOURCE_DIR) + "/vehicles/prius2017.yaml";
     occ_config_t cfg;
-    if (getenv("XSS")) cfg.stop_short_m = atof(getenv("XSS"));  /*XPERIMENT*/
-    if (getenv("XPS")) cfg.point_stride = atoi(getenv("XPS"));  /*XPERIMENT*/
     static const struct option opts[] = {
         { "replay", required_argument, 0, 'r' }, { "out", required_argument, 0, 'o' },
         { "lcm-url", required_argument, 0, 'u' }, { "pose-channel", required_argument, 0, 'p' },

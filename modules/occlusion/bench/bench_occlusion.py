@@ -85,6 +85,8 @@ def main():
     print("memory over the drive: minute, map leaves, map MB, process RSS MB")
     for m in memory:
         print(f"  {m['sweep'] / 600:4.0f}  {m['leaves']:9d}  {m['map_bytes'] / 1e6:7.1f}  {m['rss_kb'] / 1e3:7.1f}")
+    print(f"  process RSS: max {c['rss_max_kb'] / 1e3:.1f} MB, end {c['rss_end_kb'] / 1e3:.1f} MB "
+          f"(the stock tree of sweeps {STOCK_FROM - 10}..{STOCK_FROM + STOCK_COUNT - 1} is in it from then on)")
     print(f"\nwritten: {os.path.join(BUILD, 'bench', 'occlusion.json')}")
 
 

@@ -387,8 +387,8 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
         if (b < 0 || r > c.range_m) continue;
         int e = b / NAZ, a = b % NAZ, seen = 0;
         bool past = true;
-        for (int de = -1; de <= 1 && past; de++)
-            for (int da = -1; da <= 1; da++) {
+        for (int de = -c.clear_bins_el; de <= c.clear_bins_el && past; de++)
+            for (int da = -c.clear_bins_az; da <= c.clear_bins_az; da++) {
                 if (e + de < 0 || e + de >= NEL) continue;
                 float rb = m->bin_min[(size_t)(e + de) * NAZ + ((a + da) & (NAZ - 1))];
                 if (!std::isfinite(rb)) continue;

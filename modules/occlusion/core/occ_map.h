@@ -33,7 +33,8 @@ struct occ_config_t {
     double window_m = 46.0;           /* rolling window: blocks whose centre is farther from the car go */
     double ground_clearance_m = 0.25; /* returns this close to the local ground are ground */
     double clear_margin_m = 0.4;      /* a beam that ends this far past a voxel clears it */
-    int point_stride = 2;             /* every Nth return per sweep for hits and ground (alternating) */
+    int point_stride = 1;             /* every Nth return per sweep for hits and ground (alternating) */
+    int clear_bins_el = 1, clear_bins_az = 0;  /* a voxel is cleared by the beams of its direction bin and this many bins either side */
     int observed_ray_stride = 8;      /* every Nth return's beam marks observed space (the next N-1 sweeps trace the others) */
     double prob_hit = 0.7, prob_miss = 0.12, clamp_min = 0.12, clamp_max = 0.88;  /* one clear miss frees any voxel */
     double fill_radius_m = 10.0;      /* returns of the lowest beams this close (horizontally) are checked for objects reaching under the view */
