@@ -36,7 +36,7 @@ struct occ_config_t {
     int point_stride = 1;             /* every Nth return per sweep for hits and ground (alternating) */
     int clear_bins_el = 1, clear_bins_az = 0;  /* a voxel is cleared by the beams of its direction bin and this many bins either side */
     int observed_ray_stride = 8;      /* every Nth return's beam marks observed space (the next N-1 sweeps trace the others) */
-    double prob_hit = 0.7, prob_miss = 0.12, clamp_min = 0.12, clamp_max = 0.88;  /* one clear miss frees any voxel */
+    double prob_hit = 0.7, prob_miss = 0.1, clamp_min = 0.12, clamp_max = 0.88;  /* one clear miss frees any voxel */
     double fill_radius_m = 10.0;      /* returns of the lowest beams this close (horizontally) are checked for objects reaching under the view */
     double fill_elevation_tol_rad = 0.021;  /* "lowest beams": within 1.2 deg of the sweep's least elevation */
     double stop_short_m = 0.3;        /* eye rays stop this far before the sample (the agent's own spot) */
