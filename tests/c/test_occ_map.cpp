@@ -8,7 +8,7 @@
 #include <cmath>
 #include <vector>
 
-#include "../../modules/occlusion/core/occ_map.h"
+#include "occlusion/core/occ_map.h"
 #include "pb_check.h"
 
 struct box_t { double lo[3], hi[3]; };
