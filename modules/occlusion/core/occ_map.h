@@ -12,12 +12,16 @@
  *    observed_ray_stride-th beam traced): what is not in it is unknown, not free.
  * Ground returns (below the local ground + ground_clearance_m, from a 1 m grid of
  * the lowest return) are not occluders: the eye looks along the ground at feet.
+ * Returns of the lowest beams above the ground within fill_radius_m mark an object
+ * reaching under the LiDAR's view (a car alongside): its column down to the ground
+ * counts as occupied for this sweep's queries only (not written to the trees).
  * Blocks of 6.4 m farther than window_m from the car are deleted from both trees.
  *
- * Queries walk the fine voxels from the eye to a sample (skipping the car's own
- * box) through a bitmap index of the occupied voxels, confirmed in the tree:
- * hidden if an occupied voxel lies before the sample, else unknown if any part of
- * the way was never observed, else visible.
+ * Queries walk the observed-size cells from the eye to a sample (skipping the car's
+ * own box), and the fine voxels only in cells that may hold an occupied one, through
+ * bitmap indexes (occupied voxels confirmed in the tree): hidden if an occupied voxel
+ * lies before the sample, else unknown if any part of the way was never observed,
+ * else visible.
  *
  * Pure: no I/O, no clocks. Ownership: occ_map_create returns a map freed with
  * occ_map_destroy; inputs are only read during the calls. */
