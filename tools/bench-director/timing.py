@@ -122,7 +122,7 @@ def main():
     for prof in PROFILES:
         for seed in seeds:
             d = work / f"{prof}_{seed}"
-            run([BIN / "simdrive", "--no-lidar", "--quiet", "--seed", seed, "--duration", 100 if prof == "cautious" else 75, "--speed-profile", prof, "--out", d,
+            run([BIN / "simdrive", "--no-lidar", "--quiet", "--seed", seed, "--duration", int((100 if prof == "cautious" else 75) * (1.5 if args.with_groups else 1)), "--speed-profile", prof, "--out", d,
                  "--site", site, "--driver-spread", args.driver_spread] + (["--with", args.with_groups] if args.with_groups else []))
             gt = ground_truth(d / "drive.lcm")
             for name, f_sync, f_fixed, agent, mark, stop_xy in scen:

@@ -14,8 +14,10 @@
    the given seeds, 30 s, drive day) + VEHICLE_SPEED, replayed through the localizer
    started by GNSS, scored against GROUND_TRUTH like make bench-localizer-drive
    (targets: median <= 0.03 m, p99 <= 0.15 m, yaw p99 <= 0.3 deg, no LOST).
+   --loc-sites NAME[:GROUP+GROUP...] drives each site with those simdrive --with groups,
+   e.g. default:lead+crossing+pedestrians+roof (the messier world).
 
-    tools/bench-terrain/bench.py [--sites hills] [--work DIR] [--localizer --loc-seeds 1,2]
+    tools/bench-terrain/bench.py [--sites hills] [--work DIR] [--localizer --loc-seeds 1,2 --loc-sites hills]
 """
 import argparse
 import json
@@ -100,26 +102,28 @@ def drive_time(site, work):
             "cpu_s": (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)}
 
 
-def localizer_runs(site, seeds, work, duration=30):
+def localizer_runs(spec, seeds, work, duration=30):
+    site, _, groups = spec.partition(":")
+    groups = groups.replace("+", ",")
     sys.path.insert(0, str(ROOT / "modules" / "localizer" / "bench"))
     import locbench as lb
     rows = []
     for prof in ("cautious", "normal", "aggressive"):
         for seed in seeds:
-            d = work / f"loc-{site}-{prof}-{seed}"
+            d = work / f"loc-{site}{'-' + groups.replace(',', '-') if groups else ''}-{prof}-{seed}"
             merged = d / "input.lcm"
             if not merged.exists():
                 lb.sh([BIN / "simdrive", "--site", ROOT / "maps" / site, "--out", d, "--seed", seed,
-                       "--speed-profile", prof, "--duration", duration, "--quiet"])
+                       "--speed-profile", prof, "--duration", duration, "--quiet"] + (["--with", groups] if groups else []))
                 lb.sh([BIN / "can", "--replay", d / "drive.lcm", "--out", d / "speed.lcm"])
                 lb.sh([BIN / "log-merge", "--quiet", "--out", merged, d / "drive.lcm", d / "speed.lcm"])
             out, stats = d / "out.lcm", d / "stats.csv"
             p = lb.run_localizer(merged, out, ["--site", ROOT / "maps" / site], stats)
             if p.returncode != 0:
-                rows.append({"site": site, "profile": prof, "seed": seed, "error": p.stderr[-300:]})
+                rows.append({"site": spec, "profile": prof, "seed": seed, "error": p.stderr[-300:]})
                 continue
             r = lb.score_run(d / "drive.lcm", out, stats)
-            rows.append({"site": site, "profile": prof, "seed": seed,
+            rows.append({"site": spec, "profile": prof, "seed": seed,
                          **{k: r.get(k) for k in ("t_median", "t_p99", "t_max", "yaw_p99", "lost_after_tracking",
                                                   "first_tracking_s")}})
     return rows
@@ -131,6 +135,7 @@ def main():
     ap.add_argument("--work")
     ap.add_argument("--localizer", action="store_true", help="also run the localizer on the sites' drives")
     ap.add_argument("--loc-seeds", default="1")
+    ap.add_argument("--loc-sites", default=None, help="sites for --localizer (default: --sites), NAME[:GROUP+GROUP]")
     ap.add_argument("--skip-ground", action="store_true")
     args = ap.parse_args()
     work = pathlib.Path(args.work or tempfile.mkdtemp(prefix="bench-terrain-"))
@@ -138,7 +143,7 @@ def main():
     result = {}
     if args.localizer:
         loc = []
-        for site in args.sites.split(","):
+        for site in (args.loc_sites or args.sites).split(","):
             loc += localizer_runs(site, [int(x) for x in args.loc_seeds.split(",")], work)
         print("current localizer (GNSS start) vs GROUND_TRUTH; targets: median <= 0.03 m, p99 <= 0.15 m, "
               "yaw p99 <= 0.3 deg, no LOST")
@@ -153,7 +158,10 @@ def main():
         result["localizer"] = loc
         print()
     if args.skip_ground:
-        print(json.dumps(result, indent=1, default=str))
+        (ROOT / "build" / "bench").mkdir(parents=True, exist_ok=True)
+        out = ROOT / "build" / "bench" / "terrain-localizer.json"
+        out.write_text(json.dumps(result, indent=1, default=str))
+        print(f"wrote {out}")
         return 0
     rows = [ground_accuracy(s, work) for s in args.sites.split(",")]
     print("ground model vs true height field (drivable + walkable cells); baseline: flat z = 0")
