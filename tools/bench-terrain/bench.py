@@ -17,7 +17,15 @@
    --loc-sites NAME[:GROUP+GROUP...] drives each site with those simdrive --with groups,
    e.g. default:lead+crossing+pedestrians+roof (the messier world).
 
+4. (--twin) lab vs road on a site with the localizer's POSE on the road: a 110 s simdrive
+   drive (normal profile) replayed through the localizer, the lab twin offline (proceed
+   2 s after each stop), the director on each with every cw*.yaml scenario. Per
+   scenario: whether the SCENARIO_EVENT sequences (kind, id, agent) are identical, and
+   the distance between the car's positions where each trigger fired on the two
+   platforms. Baseline: the road side on GROUND_TRUTH. Target: identical, <= 0.2 m.
+
     tools/bench-terrain/bench.py [--sites hills] [--work DIR] [--localizer --loc-seeds 1,2 --loc-sites hills]
+                                 [--twin --twin-seed 3]
 """
 import argparse
 import json
@@ -129,6 +137,48 @@ def localizer_runs(spec, seeds, work, duration=30):
     return rows
 
 
+def twin_run(site, seed, work):
+    sys.path.insert(0, str(ROOT / "modules" / "localizer" / "bench"))
+    sys.path.insert(0, str(ROOT / "build" / "python"))
+    import lcm
+    import locbench as lb
+    import portobello
+    sdir = ROOT / "maps" / site
+    d = work / f"twin-{site}-{seed}"
+    merged, out, road = d / "input.lcm", d / "loc.lcm", d / "road.lcm"
+    if not road.exists():
+        lb.sh([BIN / "simdrive", "--site", sdir, "--out", d, "--seed", seed, "--duration", 110, "--quiet"])
+        lb.sh([BIN / "can", "--replay", d / "drive.lcm", "--out", d / "speed.lcm"])
+        lb.sh([BIN / "log-merge", "--quiet", "--out", merged, d / "drive.lcm", d / "speed.lcm"])
+        p = lb.run_localizer(merged, out, ["--site", sdir])
+        if p.returncode != 0:
+            raise SystemExit(f"localizer failed: {p.stderr[-500:]}")
+        lb.sh([BIN / "log-merge", "--quiet", "--out", road, d / "drive.lcm", out])
+    lab = d / "lab.lcm"
+    if not lab.exists():
+        lb.sh([BIN / "lab_vehicle", "--site", sdir, "--out", lab, "--auto-proceed", 2.0, "--duration", 115])
+
+    def events(log):
+        return [portobello.scenario_event_t.decode(ev.data) for ev in lcm.EventLog(str(log), "r")
+                if ev.channel == "SCENARIO_EVENT"]
+    rows = []
+    for f in sorted((sdir / "scenarios").glob("cw*.yaml")):
+        seqs, where = {}, {}
+        for side, log, ch in (("lab", lab, "POSE"), ("road", road, "POSE"), ("truth", d / "drive.lcm", "GROUND_TRUTH")):
+            o = d / f"{side}_{f.stem}.lcm"
+            lb.sh([BIN / "director", "--site", sdir, "--scenario", f, "--replay", log, "--out", o, "--pose-channel", ch])
+            ev = events(o)
+            seqs[side] = [(e.kind, e.event_id, e.agent_id) for e in ev]
+            where[side] = {e.event_id: np.array(e.vehicle.position[:2]) for e in ev if e.kind == "trigger"}
+        gap = lambda a, b: max([float(np.hypot(*(where[a][k] - where[b][k]))) for k in where[a] if k in where[b]] or [np.nan])
+        rows.append({"scenario": f.stem, "triggers": len(where["lab"]),
+                     "same_road": seqs["lab"] == seqs["road"], "same_truth": seqs["lab"] == seqs["truth"],
+                     "max_trigger_gap_road_m": gap("lab", "road"), "max_trigger_gap_truth_m": gap("lab", "truth"),
+                     "per_trigger_road_m": {k: float(np.hypot(*(where["lab"][k] - where["road"][k])))
+                                            for k in where["lab"] if k in where["road"]}})
+    return rows
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--sites", default="hills")
@@ -137,6 +187,8 @@ def main():
     ap.add_argument("--loc-seeds", default="1")
     ap.add_argument("--loc-sites", default=None, help="sites for --localizer (default: --sites), NAME[:GROUP+GROUP]")
     ap.add_argument("--skip-ground", action="store_true")
+    ap.add_argument("--twin", action="store_true", help="lab twin vs road (localizer POSE) on the first of --sites")
+    ap.add_argument("--twin-seed", type=int, default=3)
     args = ap.parse_args()
     work = pathlib.Path(args.work or tempfile.mkdtemp(prefix="bench-terrain-"))
     work.mkdir(parents=True, exist_ok=True)
@@ -157,9 +209,20 @@ def main():
                   f"{f(r['t_max']):>7} {f(r['yaw_p99']):>6} {str(r['lost_after_tracking']):>5} {f(r['first_tracking_s'], 1):>6}")
         result["localizer"] = loc
         print()
+    if args.twin:
+        site = args.sites.split(",")[0]
+        tw = twin_run(site, args.twin_seed, work)
+        print(f"lab twin vs road on {site} (seed {args.twin_seed}, 110 s, normal): SCENARIO_EVENT sequences and the "
+              f"car's position at each trigger; road = localizer POSE, baseline = GROUND_TRUTH. Target: same, <= 0.2 m")
+        print(f"{'scenario':24} {'triggers':>8} {'same (loc)':>10} {'max gap m':>9} | {'same (GT)':>9} {'max gap m':>9}")
+        for r in tw:
+            print(f"{r['scenario']:24} {r['triggers']:8d} {str(r['same_road']):>10} {r['max_trigger_gap_road_m']:9.3f} | "
+                  f"{str(r['same_truth']):>9} {r['max_trigger_gap_truth_m']:9.3f}")
+        result["twin"] = tw
+        print()
     if args.skip_ground:
         (ROOT / "build" / "bench").mkdir(parents=True, exist_ok=True)
-        out = ROOT / "build" / "bench" / "terrain-localizer.json"
+        out = ROOT / "build" / "bench" / ("terrain-twin.json" if args.twin and not args.localizer else "terrain-localizer.json")
         out.write_text(json.dumps(result, indent=1, default=str))
         print(f"wrote {out}")
         return 0
