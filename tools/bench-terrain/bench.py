@@ -6,8 +6,9 @@
    true height field (simdrive --terrain-out) on the true drivable and walkable
    cells: |error| median, p95, max, and the share of those cells the model covers.
    Baseline: the flat ground z = 0 every figure used before terrain. Target: p95 <= 5 cm.
-2. simdrive's wall and CPU time for a 60 s drive (LiDAR on), on hills (terrain)
-   and on default (flat plane: the baseline), one run each, same seed.
+2. simdrive's wall and CPU time for a 60 s drive (LiDAR on), on hills (terrain),
+   on default (flat plane: the baseline) and on default with the messier world
+   (--with lead,crossing,pedestrians,roof), one run each, same seed.
    Target: <= 30 s wall on 2 cores.
 
 3. (--localizer) the current localizer on the hills: simdrive drives (3 profiles x
@@ -99,14 +100,14 @@ def ground_accuracy(site, work):
     return row
 
 
-def drive_time(site, work):
-    out = work / f"drive-{site}"
+def drive_time(site, work, groups=""):
+    out = work / f"drive-{site}{'-messy' if groups else ''}"
     t0 = time.monotonic()
     r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     subprocess.run([BIN / "simdrive", "--site", ROOT / "maps" / site, "--out", out, "--duration", "60",
-                    "--seed", "3", "--quiet"], check=True)
+                    "--seed", "3", "--quiet"] + (["--with", groups] if groups else []), check=True)
     r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return {"site": site, "wall_s": time.monotonic() - t0,
+    return {"site": site + (" +" + groups.replace(",", "+") if groups else ""), "wall_s": time.monotonic() - t0,
             "cpu_s": (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)}
 
 
@@ -233,11 +234,12 @@ def main():
         print(f"{r['site']:8} {r['cells']:9d} {100 * r['covered']:7.1f}% {100 * r['model_median_m']:7.2f} "
               f"{100 * r['model_p95_m']:7.2f} {100 * r['model_max_m']:7.1f} | {100 * r['flat_median_m']:8.1f} "
               f"{100 * r['flat_p95_m']:8.1f}")
-    times = [drive_time("hills", work), drive_time("default", work)]
+    times = [drive_time("hills", work), drive_time("default", work),
+             drive_time("default", work, "lead,crossing,pedestrians,roof")]
     print("\nsimdrive, 60 s drive with LiDAR (seed 3); baseline: default site (flat plane)")
-    print(f"{'site':8} {'wall s':>7} {'cpu s':>7}")
+    print(f"{'site':42} {'wall s':>7} {'cpu s':>7}")
     for t in times:
-        print(f"{t['site']:8} {t['wall_s']:7.1f} {t['cpu_s']:7.1f}")
+        print(f"{t['site']:42} {t['wall_s']:7.1f} {t['cpu_s']:7.1f}")
     print(f"ratio hills/default: wall {times[0]['wall_s'] / times[1]['wall_s']:.2f}, cpu {times[0]['cpu_s'] / times[1]['cpu_s']:.2f}")
     (ROOT / "build" / "bench").mkdir(parents=True, exist_ok=True)
     out = ROOT / "build" / "bench" / "terrain.json"
