@@ -334,9 +334,10 @@ static void sync_speed(director_t *d, int i, const sc_behaviour_t *b, int64_t t)
         a->holding = 0;
     }
     /* Early even at speed_min (the car slowed down: a lead car, a late braker): pause
-     * once that would be more than 0.5 s early, and stay paused until speed_min is
-     * needed again, rather than arrive early. */
-    if (v < b->speed_min && (a->speed == 0 || avail - D / b->speed_min > 0.5)) { a->speed = 0; return; }
+     * once that would be more than 0.5 s early, and set off again at speed_min when it
+     * would be 0.25 s early (the car usually comes sooner than a slow approach predicts). */
+    double slack = avail - D / b->speed_min;
+    if (slack > (a->speed == 0 ? 0.25 : 0.5)) { a->speed = 0; return; }
     a->speed = v < b->speed_min ? b->speed_min : v > b->speed_max ? b->speed_max : v;
 }
 
