@@ -162,9 +162,15 @@ def test_crossers_are_seen_where_their_paths_are(tmp, vehicle):
         # a return from a crosser's body: within half its width (0.9 m for cars) of its path
         dd = dist_to_segments(p[:, :2], segs)
         assert np.percentile(dd, 99) < 1.0, np.percentile(dd, 99)
-        # never inside the car: nothing within the car's footprint
-        assert np.min(np.hypot(p[:, 0] - a.interp(sa.utime, a.gt_pos[:, 0]),
-                               p[:, 1] - a.interp(sa.utime, a.gt_pos[:, 1]))) > 1.0
+        # crossers yield: none of their returns inside the car's footprint (+0.3 m)
+        dims = vehicle["dimensions"]
+        cx, cy = a.interp(sa.utime, a.gt_pos[:, 0]), a.interp(sa.utime, a.gt_pos[:, 1])
+        yaw = a.interp(sa.utime, a.gt_yaw)
+        lx = (p[:, 0] - cx) * np.cos(yaw) + (p[:, 1] - cy) * np.sin(yaw)
+        ly = -(p[:, 0] - cx) * np.sin(yaw) + (p[:, 1] - cy) * np.cos(yaw)
+        inside = ((lx > -dims["rear_overhang"] - 0.3) & (lx < dims["length"] - dims["rear_overhang"] + 0.3)
+                  & (np.abs(ly) < dims["width"] / 2 + 0.3))
+        assert not inside.any()
     assert changed > 50, changed
 
 
