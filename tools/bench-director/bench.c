@@ -19,7 +19,7 @@
 #include <time.h>
 #include <unistd.h>
 
-#include "../../modules/director/core/director.h"
+#include "director/core/director.h"
 #include "pb_route.h"
 #include "pb_site.h"
 #include "pb_vehicle.h"
