@@ -443,8 +443,29 @@ static void test_refine(void)
     CHECK_CONTAINS(err.msg, "refine");
 }
 
+/* The car's own body (roof returns from a low mount) is dropped by the body box; a point
+ * outside it at the same range from base is kept (the 2 m sphere alone keeps both). */
+static void test_body_box(void)
+{
+    pb_reg_config_t cfg;
+    pb_reg_config_default(&cfg);
+    cfg.target_points = 0;
+    const float pts[] = { 1.6f, 0.3f, 1.5f,     /* on the roof, 2.2 m from base */
+                          -1.6f, 0.3f, 1.5f,    /* behind the car at the same range */
+                          10.0f, 2.0f, 0.5f };  /* far */
+    std::vector<float> out;
+    pb_reg_downsample(pts, 3, &cfg, &out);
+    CHECK(out.size() == 9);
+    const double box[6] = { -1.14, -0.98, -0.1, 3.6, 0.98, 1.57 };
+    memcpy(cfg.body_box, box, sizeof box);
+    pb_reg_downsample(pts, 3, &cfg, &out);
+    CHECK(out.size() == 6);
+    for (size_t i = 0; i < out.size(); i += 3) CHECK(!(out[i] > 1.0f && out[i] < 2.0f));
+}
+
 int main(void)
 {
+    test_body_box();
     test_align_street();
     test_degenerate_corridor();
     test_regmap_errors();
