@@ -1,5 +1,5 @@
 # localizer: LiDAR localization in the prior map (core: filter, pipeline, registration).
-$(eval $(call cxx_program,localizer,modules/localizer modules/localizer/core))
+$(eval $(call cxx_program,localizer,modules/localizer modules/localizer/core,-lz))
 
 # Module-level figures on simulated drives (long: simulates ~8 min of driving; cached).
 BENCH_TARGETS += bench-localizer-drive

@@ -310,10 +310,10 @@ static void test_map_tiles(void)
     CHECK(whole != nullptr);
     if (!whole) return;
     MemFile f;
-    CHECK(pb_tiles_encode(whole, 32, &f.bytes, &err) == 0);
-    CHECK(pb_tiles_encode(whole, 33, &f.bytes, &err) == -1);   /* not a multiple of 2 m */
+    CHECK(pb_tiles_encode(whole, 32, pb_tiles_source_t{0, 0}, {}, &f.bytes, &err) == 0);
+    CHECK(pb_tiles_encode(whole, 33, pb_tiles_source_t{0, 0}, {}, &f.bytes, &err) == -1);   /* not a multiple of 2 m */
     CHECK_CONTAINS(err.msg, "multiple");
-    CHECK(pb_tiles_encode(whole, 32, &f.bytes, &err) == 0);
+    CHECK(pb_tiles_encode(whole, 32, pb_tiles_source_t{0, 0}, {}, &f.bytes, &err) == 0);
     pb_tiles_config_t tc;
     pb_tiles_config_default(&tc);
     tc.load_radius_m = 60;   /* the scans reach 40 m */
@@ -373,10 +373,10 @@ static void test_map_tiles(void)
     CHECK_CONTAINS(err.msg, "out of the file");
     bad = f;
     uint64_t first_cells;
-    std::memcpy(&first_cells, bad.bytes.data() + 128 + 8, 8);
+    std::memcpy(&first_cells, bad.bytes.data() + 192 + 8, 8);
     bad.bytes[first_cells + 44] = 7;   /* a cell kind that does not exist, in the first tile */
     int32_t tx;
-    std::memcpy(&tx, bad.bytes.data() + 128, 4);
+    std::memcpy(&tx, bad.bytes.data() + 192, 4);
     t = pb_tiles_open(mem_read, &bad, bad.bytes.size(), "kind.tiles", &tc, &err);
     CHECK(t != nullptr);
     if (t) {
