@@ -12,7 +12,7 @@ bench-localizer-drive: $(BIN)/localizer $(BIN)/simdrive $(BIN)/can $(BIN)/log-me
 BENCH_TARGETS += bench-localizer-memory
 .PHONY: bench-localizer-memory
 LOCMEM_LOOPS ?= 16
-bench-localizer-memory: $(BIN)/localizer $(BIN)/simdrive $(BIN)/can $(BIN)/log-merge $(DEFAULT_SITE)/map.tiles
+bench-localizer-memory: $(BIN)/localizer $(BIN)/simdrive $(BIN)/can $(BIN)/log-merge maps/default/map.tiles
 	@$(VPY) modules/localizer/bench/bench_memory.py --loops $(LOCMEM_LOOPS)
 
 # Unit tests of the filter (run by tests/test_c_units.py).
