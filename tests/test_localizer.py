@@ -5,10 +5,13 @@ The site is the default site with its prior map cropped to the drive's surroundi
 (so each run loads in about a second); the drive is simdrive (12 s, normal profile)
 with VEHICLE_SPEED added by `can --replay` and `log-merge`."""
 import math
+import os
 import shutil
 import struct
 import subprocess
 import sys
+import threading
+import time
 
 import numpy as np
 import pytest
@@ -229,13 +232,31 @@ def test_tiles_of_another_map_are_refused(drive, tmp_path):
 
 
 def run_rss(args):
-    """Runs a command; returns (CompletedProcess-like stderr, returncode, peak RSS in MB of that process)."""
-    import os
+    """Runs a command; returns (stderr, returncode, peak RSS in MB). The peak is VmHWM of
+    /proc/PID/status, polled while it runs (it only grows; reset at exec, so the forking
+    test process's own memory does not count, unlike ru_maxrss)."""
     pr = subprocess.Popen([str(a) for a in args], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    hwm = [0]
+
+    def poll():
+        while pr.poll() is None:
+            try:
+                if os.readlink(f"/proc/{pr.pid}/exe") != str(args[0]):
+                    continue   # not exec'd yet: the forked test process
+                for line in open(f"/proc/{pr.pid}/status"):
+                    if line.startswith("VmHWM:"):
+                        hwm[0] = max(hwm[0], int(line.split()[1]))
+            except OSError:
+                pass
+            finally:
+                time.sleep(0.02)
+
+    th = threading.Thread(target=poll)
+    th.start()
     err = pr.stderr.read()
-    _, status, ru = os.wait4(pr.pid, 0)
-    pr.returncode = os.waitstatus_to_exitcode(status)
-    return err, pr.returncode, ru.ru_maxrss / 1024.0
+    pr.wait(timeout=300)
+    th.join()
+    return err, pr.returncode, hwm[0] / 1024.0
 
 
 def test_default_site_is_paged(drive, tmp_path):
@@ -251,7 +272,9 @@ def test_default_site_is_paged(drive, tmp_path):
     r = lb.score_run(drive["drive"], out)
     assert r["first_tracking_s"] <= 3.0 and r["lost_after_tracking"] == 0
     assert r["t_median"] < 0.05 and r["t_p99"] < 0.3, r
-    # measured: peak RSS xx MB on this 12 s drive (whole map: about 167 MB held, 356 MB peak)
+    # measured: peak RSS 52 MB on this 12 s drive, 59-64 MB on the 232 s lap (the whole map
+    # held: about 167 MB, 356 MB peak while loading map.pcd); 150 MB is the target
+    print(f"default site, GNSS start, 12 s: peak RSS {peak:.1f} MB")
     assert peak < 150, peak
 
 
@@ -265,13 +288,13 @@ def test_no_prior_start_on_the_paged_default_site(drive, tmp_path):
     assert rc == 0, err
     poses = lb.read_poses(out, "POSE")
     k = first_tracking(poses)
-    # measured: tracking after x.x s
+    # measured: tracking after 0.2 s (3rd sweep), peak RSS 63 MB; 150 MB is the target
     assert k is not None and (poses[k, 0] - poses[0, 0]) <= 5.0e6, "tracking within 5 s"
     _, et, _ = lb.errors_vs_truth(poses[k:][poses[k:, 5] == 1], drive["gt"])
     assert et.max() < 0.2, et.max()
     c = counters(last_status_msg(out))
     assert c.get("map_tile_loaded", 0) > 0 and c.get("map_tile_dropped", 0) > 0, c
-    # measured: peak RSS xx MB
+    print(f"default site, no prior: tracking after {(poses[k, 0] - poses[0, 0]) * 1e-6:.1f} s, peak RSS {peak:.1f} MB")
     assert peak < 150, peak
 
 
