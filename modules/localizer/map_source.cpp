@@ -118,11 +118,13 @@ map_source_t *map_source_open(const std::string &site, const pb_tiles_config_t *
     s->tiles = size < 0 ? nullptr : pb_tiles_open(read_at, &s->fd, (uint64_t)size, s->path.c_str(), cfg, err);
     if (!s->tiles) { close(s->fd); delete s; return nullptr; }
     /* tiles of another map than the site's map.pcd: never used */
-    pb_tiles_source_t want, have = pb_tiles_source(s->tiles);
-    if (have_pcd && (map_source_file_id(pcd.c_str(), &want, err) != 0 || want.bytes != have.bytes ||
-                     want.crc32 != have.crc32)) {
-        if (want.bytes != have.bytes || want.crc32 != have.crc32)
-            pb_err_set(err, "%s was prepared from another map than %s (%" PRIu64 " bytes, CRC-32 %08x; the map has %"
+    pb_tiles_source_t want = {0, 0}, have = pb_tiles_source(s->tiles);
+    if (have_pcd && map_source_file_id(pcd.c_str(), &want, err) != 0) {
+        map_source_close(s);
+        return nullptr;
+    }
+    if (have_pcd && (want.bytes != have.bytes || want.crc32 != have.crc32)) {
+        pb_err_set(err, "%s was prepared from another map than %s (%" PRIu64 " bytes, CRC-32 %08x; the map has %"
                        PRIu64 " bytes, CRC-32 %08x): rebuild it with map-tiles --map %s --out %s (make does it for "
                        "the bundled sites)", tiles.c_str(), pcd.c_str(), have.bytes, have.crc32, want.bytes, want.crc32,
                        pcd.c_str(), tiles.c_str());
