@@ -7,8 +7,9 @@ BENCH_TARGETS += bench-localizer-drive
 bench-localizer-drive: $(BIN)/localizer $(BIN)/simdrive $(BIN)/can $(BIN)/log-merge
 	@$(VPY) modules/localizer/bench/bench_drive.py
 
-# Resident memory with the map paged in tiles vs whole, over a one-hour replay (a 232 s
-# lap looped; about 10-15 minutes on the shared machine). LOCMEM_LOOPS=N for fewer laps.
+# Resident memory of the localizer as it runs (map paged in tiles) vs every tile held (the
+# whole map), over a one-hour replay (a 232 s lap looped 16 times; replayed faster than
+# real time, 20-40 minutes on the shared machine). LOCMEM_LOOPS=N for fewer laps.
 BENCH_TARGETS += bench-localizer-memory
 .PHONY: bench-localizer-memory
 LOCMEM_LOOPS ?= 16
