@@ -50,6 +50,7 @@ static void usage(FILE *f)
         "                [--site SITE_DIR] [--vehicle FILE] [--mapping] [--no-lidar] [--quiet]\n"
         "                [--scenario FILE [--head]]\n"
         "                [--driver-spread F] [--without GROUPS] [--with GROUPS] [--dwell S]...\n"
+        "                [--reverse M]\n"
         "       simdrive --terrain-out GROUND.yaml [--site SITE_DIR]\n"
         "\n"
         "Simulates a drive around a site's route and writes DIR/drive.lcm (LCM log) and\n"
@@ -58,7 +59,8 @@ static void usage(FILE *f)
         "dwell times and traffic phase.\n"
         "\n"
         "Channels: LIDAR_SCAN (OS1-64 range image, 10 Hz), IMU (vehicle rate), CAN_FRAME\n"
-        "(Prius 0x0AA WHEEL_SPEEDS ~83 Hz, 0x0B4 SPEED ~41.7 Hz), GNSS_FIX (10 Hz),\n"
+        "(Prius 0x0AA WHEEL_SPEEDS ~83 Hz, 0x0B4 SPEED ~41.7 Hz, both magnitudes; 0x3BC\n"
+        "GEAR_PACKET 1 Hz and at every shift), GNSS_FIX (10 Hz),\n"
         "GROUND_TRUTH (base in map, 100 Hz).\n"
         "\n"
         "  --out DIR             output folder (created)\n"
@@ -91,6 +93,9 @@ static void usage(FILE *f)
         "  --dwell S             rest S s (1.5 to 3600) at the next stop met, instead of the\n"
         "                        seed's 2-3 s (repeatable: the 1st, 2nd... stop; a participant\n"
         "                        who presses proceed, as study-synth does)\n"
+        "  --reverse M           at the first stop met, shift to R, back M metres (1 to 500)\n"
+        "                        along the route at 2.5 m/s, shift to D and drive back to\n"
+        "                        the stop line (a reversing manoeuvre; deterministic)\n"
         "  --quiet               no progress bar\n"
         "  --terrain-out FILE    write the site's true ground (the terrain's drivable and\n"
         "                        walkable cells; others unknown) as a ground model and exit\n"
@@ -132,7 +137,7 @@ static int write_terrain(const terrain_t *T, const char *path, pb_err_t *err)
     return rc;
 }
 
-enum { S_GT, S_IMU, S_LIDAR, S_GNSS, S_CAN_WS, S_CAN_SPD, S_TRUTH, S_COUNT };
+enum { S_GT, S_IMU, S_LIDAR, S_GNSS, S_CAN_WS, S_CAN_SPD, S_TRUTH, S_CAN_GEAR, S_COUNT };
 
 int main(int argc, char **argv)
 {
@@ -144,7 +149,7 @@ int main(int argc, char **argv)
     double dwells[256];
     const char *scenario = NULL;
     const char *terrain_out = NULL;
-    double driver_spread = 0;
+    double driver_spread = 0, reverse_m = 0;
     char without[256] = "", with[256] = "";
     static const struct option opts[] = {
         { "out", required_argument, 0, 'o' }, { "seed", required_argument, 0, 's' },
@@ -153,7 +158,7 @@ int main(int argc, char **argv)
         { "mapping", no_argument, 0, 'm' }, { "terrain-out", required_argument, 0, 'T' },
         { "driver-spread", required_argument, 0, 'D' }, { "without", required_argument, 0, 'W' }, { "with", required_argument, 0, 'A' }, { "no-lidar", no_argument, 0, 'L' }, { "quiet", no_argument, 0, 'q' },
         { "scenario", required_argument, 0, 'c' }, { "head", no_argument, 0, 'H' },
-        { "dwell", required_argument, 0, 'w' },
+        { "dwell", required_argument, 0, 'w' }, { "reverse", required_argument, 0, 'R' },
         { "help", no_argument, 0, 'h' }, { 0, 0, 0, 0 } };
     int c;
     while ((c = getopt_long(argc, argv, "h", opts, NULL)) != -1) {
@@ -189,6 +194,9 @@ int main(int argc, char **argv)
             }
             if (pb_arg_double("simdrive", "dwell", optarg, 1.5, 3600, &dwells[ndwells])) return 2;
             ndwells++;
+            break;
+        case 'R':
+            if (pb_arg_double("simdrive", "reverse", optarg, 1, 500, &reverse_m)) return 2;
             break;
         case 'h': usage(stdout); return 0;
         default: usage(stderr); return 2;
@@ -254,7 +262,7 @@ int main(int argc, char **argv)
     /* The base origin (rear axle) halts so that the front bumper is 0.5 m behind the line. */
     double stop_offset = (veh.length - veh.rear_overhang) + 0.5;
     trajectory_t traj;
-    traj_driver_t driver = { mapping ? 0 : driver_spread, dwells, ndwells };
+    traj_driver_t driver = { mapping ? 0 : driver_spread, dwells, ndwells, mapping ? 0 : reverse_m, 0 };
     if (traj_plan(&traj, &route, &route.profiles[prof], mapping ? 0 : duration, stop_offset, &driver, seed, &err)) {
         fprintf(stderr, "simdrive: %s\n", err.msg);
         return 1;
@@ -314,9 +322,11 @@ int main(int argc, char **argv)
     /* Streams: period, phase; CAN frames carry a small receive-time jitter. */
     const int64_t period[S_COUNT] = { GT_PERIOD_US, (int64_t)llround(1e6 / veh.imu_rate_hz),
                                       mapping ? MAPPING_LIDAR_PERIOD_US : LIDAR_PERIOD_US, GNSS_PERIOD_US,
-                                      CAN_WHEEL_SPEEDS_PERIOD_US, CAN_SPEED_PERIOD_US, LIDAR_PERIOD_US };
+                                      CAN_WHEEL_SPEEDS_PERIOD_US, CAN_SPEED_PERIOD_US, LIDAR_PERIOD_US,
+                                      CAN_GEAR_TICK_US };
     /* OCCLUSION_TRUTH at the end of each sweep (its last column) */
-    const int64_t phase[S_COUNT] = { 0, 0, 0, 0, 2000, 5000, lm.col_off_us[LIDAR_COLS - 1] };
+    const int64_t phase[S_COUNT] = { 0, 0, 0, 0, 2000, 5000, lm.col_off_us[LIDAR_COLS - 1], 7000 };
+    int gear_sent = -1;     /* the gear of the last GEAR_PACKET (sent at 1 Hz and at every shift) */
     int64_t k[S_COUNT] = { 0 };
     int64_t counts[S_COUNT] = { 0 };
     pb_progress_t prog;
@@ -326,7 +336,7 @@ int main(int argc, char **argv)
         int64_t tb = 0;
         for (int s = 0; s < S_COUNT; s++) {
             int64_t t = phase[s] + k[s] * period[s];
-            if (s == S_CAN_WS || s == S_CAN_SPD)
+            if (s == S_CAN_WS || s == S_CAN_SPD || s == S_CAN_GEAR)
                 t += (int64_t)llround((rng_uniform(seed, RNG_CAN_JITTER, (uint64_t)s, (uint64_t)k[s]) - 0.5) * 2 * CAN_JITTER_US);
             if (s == S_LIDAR && no_lidar) continue;
             if (s == S_TRUTH && (!occ || mapping)) continue;
@@ -380,6 +390,20 @@ int main(int argc, char **argv)
             PB_LOG_WRITE_MSG(&out, "GNSS_FIX", portobello_gnss_fix_t, &fix);
             break;
         }
+        case S_CAN_GEAR: {
+            int gear = t >= traj.reverse_t0 && t < traj.reverse_t1 ? CAN_GEAR_R : CAN_GEAR_D;
+            if (gear == gear_sent && k[best] % (CAN_GEAR_PERIOD_US / CAN_GEAR_TICK_US) != 0) break;
+            gear_sent = gear;
+            uint8_t data[8];
+            portobello_can_frame_t f = { 0 };
+            f.utime = utime;
+            f.len = 8;
+            f.data = data;
+            f.id = CAN_ID_GEAR;
+            can_encode_gear(gear, data);
+            PB_LOG_WRITE_MSG(&out, "CAN_FRAME", portobello_can_frame_t, &f);
+            break;
+        }
         case S_CAN_WS:
         case S_CAN_SPD: {
             uint8_t data[8];
@@ -399,7 +423,7 @@ int main(int argc, char **argv)
                 f.id = CAN_ID_WHEEL_SPEEDS;
             } else {
                 uint8_t enc = (uint8_t)((int64_t)floor(st.dist / TYRE_CIRCUMFERENCE_M) & 0xFF);
-                can_encode_speed(sw.v * 3.6, enc, data);
+                can_encode_speed(fabs(sw.v) * 3.6, enc, data);   /* a magnitude, as the car sends it */
                 f.id = CAN_ID_SPEED;
             }
             PB_LOG_WRITE_MSG(&out, "CAN_FRAME", portobello_can_frame_t, &f);
@@ -418,7 +442,7 @@ int main(int argc, char **argv)
         fprintf(stderr, "simdrive: %s, %.1f s, %.0f m, %d stops planned: %lld scans, %lld imu, %lld can, %lld gnss, %lld gt -> %s\n",
                 site.name, duration, st_dist_or_zero(&traj, duration), traj.stops_made,
                 (long long)counts[S_LIDAR], (long long)counts[S_IMU],
-                (long long)(counts[S_CAN_WS] + counts[S_CAN_SPD]), (long long)counts[S_GNSS],
+                (long long)(counts[S_CAN_WS] + counts[S_CAN_SPD] + counts[S_CAN_GEAR]), (long long)counts[S_GNSS],
                 (long long)counts[S_GT], out_dir);
     lidar_sim_free(&ls);
     free(body_range);

@@ -68,6 +68,8 @@ struct localizer_config_t {
     int64_t gap_pose_period_us = 100000;   /* POSE period while the LiDAR is missing */
     int64_t speed_timeout_us = 500000;     /* VEHICLE_SPEED older than this is not used */
     double reverse_detect_mps = 0.5;       /* matches moving backwards faster: an unsigned CAN speed is negated */
+    double standstill_mps = 0.05;          /* CAN speed below this: the car stands (a departure follows) */
+    double depart_detect_mps = 0.15;       /* IMU-integrated speed since standing that fixes its direction */
     int min_scan_points = 500;             /* fewer valid points: the sweep is not matched */
     /* match acceptance */
     /* of downsampled points within reg.inlier_m of a plane: a sanity floor only (the
