@@ -28,24 +28,21 @@ static void usage(FILE *f)
 {
     std::fprintf(f,
         "usage: refine-poses --log SCANS.lcm --out POSES.txt [--report REPORT.json] [--rounds 8]\n"
-        "                    [--radius 30] [--neighbours 12] [--search 3] [--quiet]\n"
+        "                    [--radius 40] [--neighbours 30] [--quiet]\n"
         "\n"
         "Refines the poses of a LiDAR sequence so its scans agree with each other: each round\n"
-        "registers every scan to each scan near it with the localizer's registration (the first\n"
-        "round searches --search metres / 6 deg around the input's relative pose), solves all\n"
-        "poses at once by robust least squares over these pairs, and keeps the input's frame (the\n"
+        "registers every scan to a map of the other scans near it (itself left out) with the\n"
+        "localizer's registration, moves all scans at once, and keeps the input's frame (the\n"
         "rigid motion that best aligns the result with the input is removed). SCANS.lcm is an\n"
         "import-scans log (LIDAR_SCAN point form, GROUND_TRUTH = LiDAR pose at the same utime).\n"
         "Writes one KITTI line (3x4 row-major, map <- LiDAR) per scan, for import-scans --poses,\n"
         "and prints how consistent the poses are before and after: leave-one-out moves (how far\n"
-        "each scan would still move given all the others), the fit of each scan to the map of\n"
-        "the others (share of points within 0.1 m of a surface), the pairs' residuals at the\n"
-        "solution and the spread of registrations started 0.5 m off in 4 directions.\n"
+        "each scan would still move given all the others) and the fit of each scan to the map of\n"
+        "the others (share of points within 0.1 m of a surface).\n"
         "  --report FILE    the same figures and per-scan values as JSON\n"
         "  --rounds N       at most N rounds (default 8; stops when no scan moves 5 mm)\n"
-        "  --radius M       scans within M metres are registered to each other (default 30)\n"
-        "  --neighbours N   at most the N nearest (default 12)\n"
-        "  --search M       first round's search radius around the input (default 3; 0 = none)\n");
+        "  --radius M       scans within M metres form a scan's map (default 40)\n"
+        "  --neighbours N   at most the N nearest (default 30)\n");
 }
 
 static double pct(std::vector<double> v, double p)
@@ -77,7 +74,7 @@ int main(int argc, char **argv)
     refine_config_default(&cfg);
     bool quiet = false;
     static const struct option opts[] = {{"log", 1, 0, 'l'}, {"out", 1, 0, 'o'}, {"report", 1, 0, 'r'},
-                                         {"rounds", 1, 0, 'n'}, {"radius", 1, 0, 'R'}, {"neighbours", 1, 0, 'N'}, {"search", 1, 0, 's'},
+                                         {"rounds", 1, 0, 'n'}, {"radius", 1, 0, 'R'}, {"neighbours", 1, 0, 'N'},
                                          {"quiet", 0, 0, 'q'}, {"help", 0, 0, 'h'}, {0, 0, 0, 0}};
     int c;
     long v;
@@ -89,7 +86,6 @@ int main(int argc, char **argv)
         case 'n': if (pb_arg_long("refine-poses", "--rounds", optarg, 1, 100, &v)) return 2; cfg.max_rounds = (int)v; break;
         case 'R': if (pb_arg_double("refine-poses", "--radius", optarg, 1, 1000, &cfg.neighbour_radius_m)) return 2; break;
         case 'N': if (pb_arg_long("refine-poses", "--neighbours", optarg, 1, 1000, &v)) return 2; cfg.max_neighbours = (int)v; break;
-        case 's': if (pb_arg_double("refine-poses", "--search", optarg, 0, 50, &cfg.search_radius_m)) return 2; break;
         case 'q': quiet = true; break;
         case 'h': usage(stdout); return 0;
         default: usage(stderr); return 2;
@@ -165,10 +161,6 @@ int main(int argc, char **argv)
                     pct(rep.loo_m, 50), pct(rep.loo_m, 90), pct(rep.loo_m, 100), pct(rep.loo_deg, 50), pct(rep.loo_deg, 90));
         std::printf("  refined minus input position: median %.3f m p90 %.3f m max %.3f m\n", pct(rep.change_m, 50),
                     pct(rep.change_m, 90), pct(rep.change_m, 100));
-        std::printf("  pair residuals at the solution (%d pairs): median %.3f m p90 %.3f m\n", rep.edges,
-                    pct(rep.edge_resid_m, 50), pct(rep.edge_resid_m, 90));
-        std::printf("  spread of 4 registrations started 0.5 m off: median %.3f m p90 %.3f m max %.3f m\n",
-                    pct(rep.spread_m, 50), pct(rep.spread_m, 90), pct(rep.spread_m, 100));
     }
     if (report_path) {
         FILE *jf = std::fopen(report_path, "w");
@@ -178,11 +170,6 @@ int main(int argc, char **argv)
                      "\"loo_m_p90\": %.4f, \"loo_m_max\": %.4f, \"loo_deg_median\": %.4f, \"change_m_median\": %.4f,\n",
                      pct(rep.fit_before, 50), pct(rep.fit_after, 50), pct(rep.loo_m, 50), pct(rep.loo_m, 90),
                      pct(rep.loo_m, 100), pct(rep.loo_deg, 50), pct(rep.change_m, 50));
-        std::fprintf(jf, "  \"edges\": %d, \"edge_resid_m_median\": %.4f, \"edge_resid_m_p90\": %.4f, "
-                     "\"spread_m_median\": %.4f, \"spread_m_p90\": %.4f,\n", rep.edges, pct(rep.edge_resid_m, 50),
-                     pct(rep.edge_resid_m, 90), pct(rep.spread_m, 50), pct(rep.spread_m, 90));
-        json_array(jf, "spread_m", rep.spread_m, false);
-        json_array(jf, "edge_resid_m", rep.edge_resid_m, false);
         json_array(jf, "moved_m", rep.moved_m, false);
         json_array(jf, "fit_before", rep.fit_before, false);
         json_array(jf, "fit_after", rep.fit_after, false);

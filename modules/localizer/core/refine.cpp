@@ -11,18 +11,14 @@
 
 void refine_config_default(refine_config_t *cfg)
 {
-    cfg->neighbour_radius_m = 30;
-    cfg->max_neighbours = 12;
+    cfg->neighbour_radius_m = 40;
+    cfg->max_neighbours = 30;
     cfg->max_rounds = 8;
     cfg->stop_m = 0.005;
     cfg->voxel_m = 0.5;
     cfg->min_points_used = 200;
     cfg->coarse_iterations = 0;
     cfg->min_pair_inliers = 0.3;
-    cfg->search_radius_m = 3.0;
-    cfg->search_yaw_deg = 6.0;
-    cfg->edge_gate_m = 0.5;
-    cfg->spread_offset_m = 0.5;
 }
 
 namespace {
@@ -135,15 +131,13 @@ Vec6 edge_residual(const Edge &e, const Eigen::Isometry3d &Ti, const Eigen::Isom
     return vec_of(Tj.inverse() * Ti * e.Z.inverse());
 }
 
-/* Measures the edges between each scan and its neighbours (j > i) at the current
- * poses: with search, around the current relative pose (first round); without,
- * from it, dropping a pair that lands more than edge_gate_m away from it. */
+/* Measures the edges between each scan and its neighbours (j > i) at the current poses. */
 std::vector<Edge> measure_edges(const std::vector<std::vector<float>> &scans, const std::vector<pb_regmap_t *> &maps,
-                                const std::vector<Eigen::Isometry3d> &poses, const refine_config_t *cfg, bool search)
+                                const std::vector<Eigen::Isometry3d> &poses, const refine_config_t *cfg)
 {
     pb_reg_config_t rc;
     pb_reg_config_default(&rc);
-    rc.coarse_iterations = search ? 0 : cfg->coarse_iterations;
+    rc.coarse_iterations = cfg->coarse_iterations;
     std::vector<Edge> edges;
     for (size_t i = 0; i < poses.size(); i++)
         for (size_t j : neighbours(poses, i, cfg)) {
@@ -151,14 +145,10 @@ std::vector<Edge> measure_edges(const std::vector<std::vector<float>> &scans, co
             pb_reg_result_t r;
             pb_err_t err;
             Eigen::Isometry3d guess = poses[j].inverse() * poses[i];
-            int st = search ? pb_reg_align_global(maps[j], scans[i].data(), scans[i].size() / 3, guess,
-                                                  cfg->search_radius_m, cfg->search_yaw_deg * M_PI / 180, 1.0,
-                                                  3.0 * M_PI / 180, &rc, &r, &err)
-                            : pb_reg_align(maps[j], scans[i].data(), scans[i].size() / 3, guess, &rc, &r, &err);
+            int st = pb_reg_align(maps[j], scans[i].data(), scans[i].size() / 3, guess, &rc, &r, &err);
             if ((st != PB_REG_OK && st != PB_REG_MAX_ITER) || r.points_matched < cfg->min_points_used ||
                 r.inlier_fraction < cfg->min_pair_inliers)
                 continue;
-            if (!search && (r.pose.translation() - guess.translation()).norm() > cfg->edge_gate_m) continue;
             Mat6 C = r.covariance;
             for (int k = 0; k < 3; k++) { C(k, k) += 0.02 * 0.02; C(k + 3, k + 3) += std::pow(0.1 * M_PI / 180, 2); }
             edges.push_back({i, j, r.pose, C.inverse()});
@@ -166,49 +156,12 @@ std::vector<Edge> measure_edges(const std::vector<std::vector<float>> &scans, co
     return edges;
 }
 
-/* Spread of independent registrations of scan i to its nearest neighbour's map:
- * starts offset by off_m forward, back, left and right of the solved relative
- * pose; the largest distance of a result from their mean (NaN if one fails). */
-double registration_spread(const std::vector<std::vector<float>> &scans, const std::vector<pb_regmap_t *> &maps,
-                           const std::vector<Eigen::Isometry3d> &poses, size_t i, const refine_config_t *cfg)
-{
-    std::vector<size_t> nb = neighbours(poses, i, cfg);
-    size_t best = nb.size();
-    double bd = INFINITY;
-    for (size_t k = 0; k < nb.size(); k++) {
-        double d = (poses[nb[k]].translation() - poses[i].translation()).norm();
-        if (maps[nb[k]] && d < bd) { bd = d; best = k; }
-    }
-    if (best == nb.size()) return NAN;
-    const size_t j = nb[best];
-    const Eigen::Isometry3d rel = poses[j].inverse() * poses[i];
-    pb_reg_config_t rc;
-    pb_reg_config_default(&rc);
-    rc.coarse_iterations = cfg->coarse_iterations;
-    const double dirs[4][2] = {{1, 0}, {-1, 0}, {0, 1}, {0, -1}};
-    std::vector<Eigen::Vector3d> t;
-    for (const auto &d : dirs) {
-        Eigen::Isometry3d g = rel;
-        g.translation() += rel.linear() * Eigen::Vector3d(d[0], d[1], 0) * cfg->spread_offset_m;
-        pb_reg_result_t r;
-        pb_err_t err;
-        int st = pb_reg_align(maps[j], scans[i].data(), scans[i].size() / 3, g, &rc, &r, &err);
-        if (st != PB_REG_OK && st != PB_REG_MAX_ITER) return NAN;
-        t.push_back(r.pose.translation());
-    }
-    Eigen::Vector3d mean = Eigen::Vector3d::Zero();
-    for (const auto &v : t) mean += v / (double)t.size();
-    double spread = 0;
-    for (const auto &v : t) spread = std::max(spread, (v - mean).norm());
-    return spread;
-}
-
 /* Least squares over all poses (Gauss-Newton, numeric Jacobians, Cauchy weights
  * on the Mahalanobis residual; the first pose holds the gauge). */
 void solve_graph(const std::vector<Edge> &edges, std::vector<Eigen::Isometry3d> *poses)
 {
     const size_t n = poses->size();
-    for (int it = 0; it < 20; it++) {
+    for (int it = 0; it < 10; it++) {
         Eigen::MatrixXd H = Eigen::MatrixXd::Zero(6 * n, 6 * n);
         Eigen::VectorXd b = Eigen::VectorXd::Zero(6 * n);
         for (const Edge &e : edges) {
@@ -270,11 +223,10 @@ int refine_poses(const std::vector<std::vector<float>> &scans, std::vector<Eigen
         /* 1. relative poses from pairwise registration at the current poses,
          *    then every pose from all of them at once (least squares) */
         const std::vector<Eigen::Isometry3d> prev = *poses;
-        std::vector<Edge> edges = measure_edges(scans, maps, prev, &cfg, round == 0);
+        std::vector<Edge> edges = measure_edges(scans, maps, prev, &cfg);
         std::vector<Eigen::Isometry3d> &next = *poses;
         solve_graph(edges, &next);
         rep->edges = (int)edges.size();
-        rep->edges_per_round.push_back(rep->edges);
         int kept = 0;
         std::vector<int> degree(n, 0);
         for (const Edge &e : edges) { degree[e.i]++; degree[e.j]++; }
@@ -297,8 +249,6 @@ int refine_poses(const std::vector<std::vector<float>> &scans, std::vector<Eigen
         if (progress) progress(round + 1, moved, user);
         if (moved < cfg.stop_m) break;
     }
-    rep->spread_m.assign(n, NAN);
-    for (size_t i = 0; i < n; i++) rep->spread_m[i] = registration_spread(scans, maps, *poses, i, &cfg);
     for (pb_regmap_t *m : maps) pb_regmap_destroy(m);
     /* 3. how good: every scan against the map of the others (leave-one-out), nothing moved */
     rep->loo_m.assign(n, NAN);

@@ -1,18 +1,13 @@
 /* refine: multi-scan refinement of a sequence of LiDAR poses (a better
  * reference than a SLAM estimate, and the mapper's consistency step).
  *
- * Each round registers every scan, with the localizer's registration, to the
- * map of each single scan near it (within neighbour_radius_m, the nearest
- * max_neighbours): one relative-pose edge per pair, with the registration's
+ * Each round registers every scan, with the localizer's registration
+ * (pb_reg_align), to the map of each single scan near it (within
+ * neighbour_radius_m, the nearest max_neighbours), starting from their current
+ * relative pose: one relative-pose edge per pair, with the registration's
  * covariance (pairs, not a map of many scans, so one scan's error never shows
- * as doubled walls that the others lock onto). The first round searches
- * around the input's relative pose (pb_reg_align_global, search_radius_m and
- * search_yaw_deg: a SLAM estimate can be metres off between neighbours);
- * later rounds start from the solved relative pose and drop a pair whose
- * registration lands more than edge_gate_m from it (it disagrees with all the
- * others: aliasing, little overlap). A pair with a small inlier share gives no
- * edge. Then all poses are solved at once by least squares over the edges
- * (Gauss-Newton on SE(3), Cauchy-robust), and the
+ * as doubled walls that the others lock onto). Then all poses are solved at
+ * once by least squares over the edges (Gauss-Newton, Cauchy-robust), and the
  * whole set is moved back by the one rigid transform that best aligns it with
  * the input poses (the input fixes the frame: refinement removes
  * inconsistency, not the frame). Rounds repeat until the largest move is
@@ -21,9 +16,6 @@
  * How good the result is, measured by pb_refine_poses itself (refine_report_t):
  *   edge residuals: how far each pair's registration disagrees with the
  *     solved poses (translation, m);
- *   spread: each scan registered to its nearest neighbour's map from starts
- *     offset by spread_offset_m in 4 directions; how far apart the results land
- *     (max distance to their mean): independent registrations agreeing;
  *   leave-one-out: each scan registered to a map of all the other scans near
  *     it at their refined poses; how far it would still move (median / p90 /
  *     max). Small = the poses agree with each other.
@@ -48,13 +40,8 @@ typedef struct {
     double voxel_m;             /* map cell of the neighbour maps (default 0.5) */
     int min_points_used;        /* a scan whose match uses fewer points keeps its pose (default 200) */
     double min_pair_inliers;    /* a pair registration with a smaller inlier share gives no edge (default 0.3) */
-    int coarse_iterations;      /* pb_reg_config_t's coarse retry in rounds after the first (default 0:
-                                 * the poses are then close, and the coarse level can alias repeated structure) */
-    double search_radius_m;     /* first round: pair search radius around the input relative pose (default 3) */
-    double search_yaw_deg;      /* and yaw range (default 6) */
-    double edge_gate_m;         /* later rounds: a pair landing farther than this from the solution is dropped
-                                 * (default 0.5) */
-    double spread_offset_m;     /* start offset of the spread measure (default 0.5) */
+    int coarse_iterations;      /* pb_reg_config_t's coarse retry; 0 = fine level only (default 0: the input
+                                 * is within a metre, and the coarse level can alias repeated structure) */
 } refine_config_t;
 
 void refine_config_default(refine_config_t *cfg);
@@ -68,8 +55,6 @@ typedef struct {
     int kept;                           /* scans with no edge in the last round (left where the graph puts them) */
     int edges;                          /* pair registrations used in the last round */
     std::vector<double> edge_resid_m;   /* per edge: translation residual at the solution */
-    std::vector<int> edges_per_round;   /* pair registrations used, per round */
-    std::vector<double> spread_m;       /* per scan: spread of independent registrations (see above) */
 } refine_report_t;
 
 /* Refines poses (n of them, in/out) of scans[k] (xyz interleaved, sensor frame).
