@@ -27,7 +27,7 @@ CC  ?= cc
 CXX ?= c++
 OPT ?= -O2
 WARN     := -Wall -Wextra -Wno-unused-parameter
-CPPFLAGS := -I$(TOP)/common -I$(BUILD)/gen/c -I$(BUILD)/gen/cpp $(LCM_CFLAGS) -DPB_SOURCE_DIR='"$(TOP)"'
+CPPFLAGS := -I$(TOP)/common -I$(TOP)/modules -I$(BUILD)/gen/c -I$(BUILD)/gen/cpp $(LCM_CFLAGS) -DPB_SOURCE_DIR='"$(TOP)"'
 CFLAGS   := -std=gnu11 $(OPT) -g $(WARN) -MMD -MP
 CXXFLAGS := -std=c++17 $(OPT) -g $(WARN) -MMD -MP
 PCL_CFLAGS = $(shell pkg-config --cflags pcl_common pcl_io pcl_filters eigen3 2>/dev/null)

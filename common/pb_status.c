@@ -9,8 +9,6 @@
 
 #include "portobello_status_t.h"
 
-#define PB_STATUS_MAX 32
-
 typedef struct {
     char name[64];
     int64_t count, count_at_beat, last_utime;
@@ -26,19 +24,32 @@ struct pb_status {
     char module[64];
     int64_t period;
     int8_t state;
-    pb_input_t inputs[PB_STATUS_MAX];
-    int ninputs;
-    pb_counter_t counters[PB_STATUS_MAX];
-    int ncounters;
+    /* Grown as channels and counters appear: STATUS carries every one a module names. */
+    pb_input_t *inputs;
+    int ninputs, cap_inputs;
+    pb_counter_t *counters;
+    int ncounters, cap_counters;
     char last_error[512];
     int64_t module_time;
 };
+
+/* Room for one more element of a growable array; 0, or -1 when out of memory. */
+static int grow(void **items, int *cap, int n, size_t size)
+{
+    if (n < *cap) return 0;
+    int want = *cap ? 2 * *cap : 16;
+    void *p = realloc(*items, (size_t)want * size);
+    if (!p) return -1;
+    *items = p;
+    *cap = want;
+    return 0;
+}
 
 static pb_input_t *input(pb_status_t *st, const char *channel)
 {
     for (int i = 0; i < st->ninputs; i++)
         if (strcmp(st->inputs[i].name, channel) == 0) return &st->inputs[i];
-    if (st->ninputs >= PB_STATUS_MAX) return NULL;
+    if (grow((void **)&st->inputs, &st->cap_inputs, st->ninputs, sizeof *st->inputs) != 0) return NULL;
     pb_input_t *in = &st->inputs[st->ninputs++];
     memset(in, 0, sizeof *in);
     snprintf(in->name, sizeof in->name, "%s", channel);
@@ -72,6 +83,8 @@ void pb_status_destroy(pb_status_t *st)
 {
     if (!st) return;
     pb_bus_set_input_hook(st->bus, NULL, NULL);
+    free(st->inputs);
+    free(st->counters);
     free(st);
 }
 
@@ -86,7 +99,8 @@ static pb_counter_t *counter(pb_status_t *st, const char *name, int create)
 {
     for (int i = 0; i < st->ncounters; i++)
         if (strcmp(st->counters[i].name, name) == 0) return &st->counters[i];
-    if (!create || st->ncounters >= PB_STATUS_MAX) return NULL;
+    if (!create || grow((void **)&st->counters, &st->cap_counters, st->ncounters, sizeof *st->counters) != 0)
+        return NULL;
     pb_counter_t *c = &st->counters[st->ncounters++];
     snprintf(c->name, sizeof c->name, "%s", name);
     c->value = 0;
@@ -123,9 +137,16 @@ int pb_status_publish(pb_status_t *st)
     /* Module time: the newest input message time, else the bus clock. */
     int64_t now = pb_bus_now(st->bus);
     int64_t mt = st->module_time ? st->module_time : now;
-    portobello_input_status_t inputs[PB_STATUS_MAX];
-    char *names[PB_STATUS_MAX];
-    int64_t values[PB_STATUS_MAX];
+    portobello_input_status_t *inputs = calloc((size_t)st->ninputs + 1, sizeof *inputs);
+    char **names = calloc((size_t)st->ncounters + 1, sizeof *names);
+    int64_t *values = calloc((size_t)st->ncounters + 1, sizeof *values);
+    if (!inputs || !names || !values) {
+        free(inputs);
+        free(names);
+        free(values);
+        fprintf(stderr, "%s: STATUS: out of memory\n", st->module);
+        return -1;
+    }
     for (int i = 0; i < st->ninputs; i++) {
         pb_input_t *in = &st->inputs[i];
         inputs[i].channel = in->name;
@@ -152,9 +173,10 @@ int pb_status_publish(pb_status_t *st)
         .last_error = st->last_error,
     };
     pb_err_t err;
-    if (PB_PUBLISH(st->bus, "STATUS", portobello_status_t, &msg, &err) != 0) {
-        fprintf(stderr, "%s: STATUS: %s\n", st->module, err.msg);
-        return -1;
-    }
-    return 0;
+    int rc = PB_PUBLISH(st->bus, "STATUS", portobello_status_t, &msg, &err);
+    if (rc != 0) fprintf(stderr, "%s: STATUS: %s\n", st->module, err.msg);
+    free(inputs);
+    free(names);
+    free(values);
+    return rc != 0 ? -1 : 0;
 }

@@ -149,8 +149,7 @@ def road(tmp):
 
 @pytest.fixture(scope="module")
 def lab(tmp):
-    if not (BIN / "lab_vehicle").exists():
-        pytest.skip("build/bin/lab_vehicle not built (modules/lab_vehicle)")
+    assert (BIN / "lab_vehicle").exists(), "build/bin/lab_vehicle not built: make test builds it"
     out = tmp / "lab.lcm"
     run([BIN / "lab_vehicle", "--site", SITE, "--out", out, "--auto-proceed", 2.0, "--duration", 80])
     return out
@@ -438,8 +437,7 @@ def test_help_and_bad_options():
 def test_live_closed_loop_with_the_lab_twin_yields_to_the_crossing_pedestrian():
     """director and lab_vehicle live on one bus: the twin waits at sl01 until the
     synchronised pedestrian has crossed (AGENTS), so no virtual collision happens."""
-    if not (BIN / "lab_vehicle").exists():
-        pytest.skip("build/bin/lab_vehicle not built (modules/lab_vehicle)")
+    assert (BIN / "lab_vehicle").exists(), "build/bin/lab_vehicle not built: make test builds it"
     url = "udpm://239.255.76.67:7772?ttl=0&recv_buf_size=8388608"
     lc = lcm.LCM(url)
     evs = []

@@ -498,8 +498,7 @@ SCENARIOS = sorted((SITE / "scenarios").glob("*.yaml")) if (SITE / "scenarios").
 @pytest.fixture(scope="module")
 def platforms(tmp):
     """One lab lap and one simdrive road drive of the same route."""
-    if not (BIN / "director").exists() or not SCENARIOS:
-        pytest.skip("needs build/bin/director and maps/default/scenarios (modules/director)")
+    assert (BIN / "director").exists() and SCENARIOS, "needs build/bin/director and maps/default/scenarios: make test builds them"
     lab("--out", tmp / "plat_lab.lcm", "--auto-proceed", 2.0, "--quiet")
     run([BIN / "simdrive", "--out", tmp / "plat_road", "--duration", 300, "--no-lidar", "--quiet"], timeout=120)
     return tmp / "plat_lab.lcm", tmp / "plat_road" / "drive.lcm"

@@ -580,8 +580,7 @@ def test_default_prior_map_is_the_mapping_day():
     """maps/default/map.pcd (built by make from a --mapping drive) lies on the
     mapping-day surfaces: map-only parked cars are in it, drive-only ones are not."""
     pcd = SITE / "map.pcd"
-    if not pcd.exists():
-        pytest.skip("maps/default/map.pcd not built (make builds it)")
+    assert pcd.exists(), "maps/default/map.pcd not built: make test builds it"
     raw = pcd.read_bytes()
     head = raw[: raw.index(b"DATA binary\n")].decode()
     assert "FIELDS x y z intensity" in head and "TYPE F F F F" in head

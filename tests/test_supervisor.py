@@ -363,6 +363,17 @@ def test_demo_report_renders_and_its_tables_match_the_logs(drive, live, tmp_path
     n_trig = sum(e.kind == "trigger" for e in lab_ev) + sum(e.kind == "trigger" for e in road_ev)
     assert svg.count('class="lab-trig"') + svg.count('class="road-trig"') == n_trig
     assert "tracking POSE: horizontal error median" in (tmp_path / "report" / "report.txt").read_text()
+    # The occlusion module ran in the stack: its table is the recorded OCCLUSION, per agent.
+    occ = [portobello.occlusion_t.decode(d) for ch, d in recording(live) if ch == "OCCLUSION"]
+    assert len(occ) >= 10, f"{len(occ)} OCCLUSION recorded"
+    sweeps, visible = {}, 0
+    for m in occ:
+        for a in m.agents:
+            sweeps[a.agent_id] = sweeps.get(a.agent_id, 0) + 1
+            visible += sum(1 for v in a.state if v == portobello.agent_occlusion_t.STATE_VISIBLE)
+    assert visible > 0, "no agent sample was ever visible from the seat"
+    rows = t.tables["occlusion"][1:]
+    assert {r[0]: int(r[1]) for r in rows} == sweeps
 
 
 SMALL = """name: small

@@ -15,7 +15,7 @@ import pytest
 
 from browser import assert_not_blank, screenshot
 from conftest import BIN, ROOT, read_log, run
-from webui_util import Bridge, Feeder, Listener, WsClient, chrome, site_copy, wait_for
+from webui_util import Bridge, Feeder, Listener, WsClient, chrome, site_copy, supervisor_msg, wait_for
 
 LCM = "udpm://239.255.76.67:{}?ttl=0&recv_buf_size=8388608"
 
@@ -77,6 +77,23 @@ def test_every_page_renders_on_the_default_site(site, tmp_path):
             wait_for(lambda: "lab_vehicle" in d.find_element("id", "panel").text, 5, "operator shows the heartbeats")
             text = d.find_element("id", "panel").text
             assert "km/h" in text and "lab_vehicle" in text and "next stop" in text
+            # the supervisor's view: a command in a crash loop shows its state and restarts
+            import lcm
+            import portobello
+            CS = portobello.command_state_t
+            lc = lcm.LCM(b.lcm_url)
+            sup = supervisor_msg(time.time_ns() // 1000, [("localizer", CS.STATE_RUNNING, 0, ""),
+                                                          ("director", CS.STATE_BACKOFF, 3, "exit 1 <x>")])
+            # the supervisor publishes at 1 Hz; the bridge advertises a channel at its first
+            # message and the page subscribes then, so the first one is not relayed
+            def shown():
+                lc.publish("SUPERVISOR", sup.encode())
+                return "SUPERVISOR ROAD" in d.find_element("id", "panel").text
+            wait_for(shown, 5, "operator shows SUPERVISOR")
+            text = d.find_element("id", "panel").text
+            assert "BACKOFF ×3" in text and "RUNNING" in text, text
+            assert d.execute_script("return [...document.querySelectorAll('#panel b.bad')]"
+                                    ".some(e => e.textContent === 'BACKOFF ×3')")
             d.get(f"{b.url}/view")
             wait_for(lambda: "agents in range" in d.find_element("id", "info").text, what="view shows agents")
             # 12 agents staged, 10 within the render distance: the others are not drawn

@@ -146,6 +146,21 @@ def status_msg(t_us, module, counters=None, state=1):
     return s
 
 
+def supervisor_msg(t_us, commands):
+    """SUPERVISOR of stack "road" with (name, state, restarts, detail) per command."""
+    pb = _types()
+    m = pb.supervisor_t()
+    m.utime, m.stack, m.config_path, m.pid = t_us, "road", "stacks/road.yaml", 1
+    for name, state, restarts, detail in commands:
+        c = pb.command_state_t()
+        c.name, c.group, c.state, c.pid, c.restarts, c.detail = name, "road", state, 2, restarts, detail
+        c.last_exit = pb.command_state_t.EXIT_NONE
+        c.output_path = ""
+        m.commands.append(c)
+    m.ncommands = len(m.commands)
+    return m
+
+
 class Feeder(threading.Thread):
     """Publishes POSE_PREDICTED at pose_hz, POSE at 10 Hz, AGENTS (12 agents) at agents_hz and
     STATUS of lab_vehicle / localizer / director at 1 Hz, each stamped with the wall clock

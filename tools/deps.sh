@@ -19,9 +19,30 @@ for p in $APT_PKGS; do
 done
 
 # --check: exit 0 if nothing is missing (make runs this on every invocation; it is cheap).
+# Every pinned Python package counts, the tests' oracles (pyubx2, pynmeagps, cantools) and
+# the benchmarks' baselines (small_gicp, foxglove-sdk) as much as the build's lcm; what is
+# missing or at another version is named on stderr.
 if [ "${1:-}" = "--check" ]; then
-  [ -z "$missing" ] && [ -f .venv/.deps-ok ] && [ -f .venv/lcm/include/lcm/lcm.h ] &&
-    .venv/bin/python -c 'import importlib.util as u, sys; sys.exit(any(u.find_spec(m) is None for m in ("lcm", "cantools", "numpy", "pytest", "yaml", "PIL", "websockets", "ruamel.yaml", "selenium", "foxglove")))' 2>/dev/null
+  [ -z "$missing" ] || { echo "deps: missing Debian packages:$missing" >&2; exit 1; }
+  [ -f .venv/.deps-ok ] && [ -f .venv/lcm/include/lcm/lcm.h ] || exit 1
+  .venv/bin/python - tools/requirements.txt <<'PY'
+import importlib.metadata as md, sys
+bad = []
+for line in open(sys.argv[1]):
+    line = line.split("#")[0].strip()
+    if not line:
+        continue
+    name, _, want = line.partition("==")
+    try:
+        have = md.version(name)
+    except md.PackageNotFoundError:
+        have = None
+    if have != want:
+        bad.append(f"{name}=={want} ({'not installed' if have is None else 'installed ' + have})")
+if bad:
+    print("deps: Python packages of tools/requirements.txt: " + ", ".join(bad), file=sys.stderr)
+sys.exit(1 if bad else 0)
+PY
   exit $?
 fi
 if [ -n "$missing" ]; then

@@ -9,7 +9,7 @@
 #include <string.h>
 #include <unistd.h>
 
-#include "lab_vehicle.h"
+#include "lab_vehicle/core/lab_vehicle.h"
 #include "pb_arg.h"
 #include "pb_bus.h"
 #include "pb_log.h"

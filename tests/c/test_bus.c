@@ -8,6 +8,8 @@
 #include "pb_bus.h"
 #include "pb_check.h"
 #include "pb_log.h"
+#include "pb_status.h"
+#include "portobello_status_t.h"
 
 typedef struct {
     pb_bus_t *bus;
@@ -135,6 +137,36 @@ int main(void)
     CHECK_CONTAINS(err.msg, "trunc.lcm: byte 3975: bad sync word");
     CHECK(c.echoes > 10);
     CHECK(count_channel(out2, "ECHO", NULL) == c.echoes);
+
+    /* STATUS carries every counter a module names, however many (the localizer names ~40). */
+    {
+        pb_bus_t *bus = pb_bus_create_replay(in, out2, &err);
+        CHECK(bus != NULL);
+        pb_status_t *st = pb_status_create(bus, "many", 1000000);
+        char name[32];
+        for (int i = 0; i < 45; i++) {
+            snprintf(name, sizeof name, "counter_%02d", i);
+            pb_status_count(st, name, i + 1);
+        }
+        CHECK(pb_status_counter(st, "counter_44") == 45);
+        CHECK(pb_status_publish(st) == 0);
+        pb_status_destroy(st);
+        pb_bus_destroy(bus);
+        pb_log_t *r = pb_log_open_read(out2, NULL);
+        pb_event_t ev;
+        int found = 0;
+        while (pb_log_next(r, &ev, NULL) == 1) {
+            portobello_status_t m;
+            if (strcmp(ev.channel, "STATUS") != 0 || portobello_status_t_decode(ev.data, 0, ev.datalen, &m) < 0)
+                continue;
+            found = 1;
+            CHECK(m.ncounters == 45);
+            CHECK(m.ncounters == 45 && strcmp(m.counter_names[44], "counter_44") == 0 && m.counter_values[44] == 45);
+            portobello_status_t_decode_cleanup(&m);
+        }
+        pb_log_close(r, NULL);
+        CHECK(found);
+    }
 
     /* Missing input: clear error, no bus. */
     CHECK(run_replay("/nonexistent/in.lcm", out2, &c, &err) == -2);

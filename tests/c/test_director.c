@@ -8,8 +8,8 @@
 #include <string.h>
 #include <unistd.h>
 
-#include "../../modules/director/core/director.h"
-#include "../../modules/director/core/geom.h"
+#include "director/core/director.h"
+#include "director/core/geom.h"
 #include "pb_check.h"
 
 static const dir_vehicle_t CAR = { 4.54, 1.76, 1.47, 1.04 };

@@ -6,8 +6,8 @@
 
 #include "pb_check.h"
 #include "pb_route.h"
-#include "../../modules/lab_vehicle/lab_vehicle.h"
-#include "../../modules/lab_vehicle/lv_plan.h"
+#include "lab_vehicle/core/lab_vehicle.h"
+#include "lab_vehicle/core/lv_plan.h"
 
 #ifndef PB_SOURCE_DIR
 #define PB_SOURCE_DIR "."

@@ -4,8 +4,8 @@
 #include <stdlib.h>
 #include <unistd.h>
 
-#include "../../modules/supervisor/core/proc.h"
-#include "../../modules/supervisor/core/stack.h"
+#include "supervisor/core/proc.h"
+#include "supervisor/core/stack.h"
 #include "pb_check.h"
 
 static char dir[] = "/tmp/pb_test_supervisor_XXXXXX";

@@ -7,7 +7,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "../../modules/gnss/core/gnss_driver.h"
+#include "gnss/core/gnss_driver.h"
 
 static void on_fix(void *u, const gnss_fix_out_t *f)
 {

@@ -6,8 +6,8 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "../../modules/ouster/core/ouster_driver.h"
-#include "../../modules/ouster/core/ouster_meta.h"
+#include "ouster/core/ouster_driver.h"
+#include "ouster/core/ouster_meta.h"
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 {

@@ -10,7 +10,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "../../modules/ouster/core/ouster_driver.h"
+#include "ouster/core/ouster_driver.h"
 #include "pb_scan.h"
 
 static pb_points_t pts;

@@ -7,7 +7,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "../../modules/ouster/core/ouster_pcap.h"
+#include "ouster/core/ouster_pcap.h"
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 {

@@ -11,8 +11,8 @@
 #include <string.h>
 #include <unistd.h>
 
-#include "../../modules/director/core/director.h"
-#include "../../modules/director/core/scenario.h"
+#include "director/core/director.h"
+#include "director/core/scenario.h"
 
 static void on_event(const dir_event_t *ev, void *user) { (void)ev; (*(int *)user)++; }
 

@@ -8,7 +8,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "../../modules/gnss/core/gnss_driver.h"
+#include "gnss/core/gnss_driver.h"
 
 typedef struct {
     uint64_t hash;

@@ -17,7 +17,7 @@ if [ -n "${missing:-}" ]; then
 fi
 out=build/fuzz
 mkdir -p $out
-CFLAGS="-g -O1 -fsanitize=fuzzer,address,undefined -fno-sanitize-recover=undefined -Icommon -Ibuild/gen/c -I.venv/lcm/include"
+CFLAGS="-g -O1 -fsanitize=fuzzer,address,undefined -fno-sanitize-recover=undefined -Icommon -Imodules -Ibuild/gen/c -I.venv/lcm/include"
 LCM="-L.venv/lcm/lib -Wl,-rpath,$PWD/.venv/lcm/lib -llcm"
 summary=()
 for f in tests/fuzz/fuzz_*.c tests/fuzz/fuzz_*.cpp; do

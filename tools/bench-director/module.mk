@@ -4,6 +4,7 @@ $(eval $(call c_program,bench-director,tools/bench-director modules/director/cor
 BENCH_TARGETS += bench-director
 .PHONY: bench-director
 bench-director: $(BIN)/bench-director $(BIN)/director $(BIN)/simdrive maps
+	@mkdir -p $(BUILD)/bench
 	@$(BIN)/bench-director
 	@echo
 	@$(VPY) tools/bench-director/timing.py --seeds 1,2,3,4,5

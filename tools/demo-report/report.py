@@ -10,7 +10,7 @@ e.g. every file of recordings/P00_S1.lcm.*. Writes DIR/report.txt and DIR/report
 (one self-contained page: tables and inline SVG) and prints their paths.
 
 The report is a list of sections (SECTIONS below): each is a function taking the loaded
-study and returning (title, text, html). A new section (occlusion, study figures, links to
+study and returning (title, text, html). A new section (study figures, links to
 the web pages) is one function appended to SECTIONS.
 """
 import argparse
@@ -60,6 +60,7 @@ class Platform:
         self.name = name
         self.paths = [str(p) for p in paths]
         self.pose, self.truth, self.events, self.agents, self.supervisor = [], [], [], {}, None
+        self.occlusion = []   # (utime, eye_source, {agent id: (visible, hidden, unknown) samples})
         for path in paths:
             for ch, _, d in read_events(path):
                 if ch == "POSE":
@@ -79,6 +80,10 @@ class Platform:
                             track.append((m.utime, a.position[0], a.position[1]))
                 elif ch == "SUPERVISOR":
                     self.supervisor = portobello.supervisor_t.decode(d)
+                elif ch == "OCCLUSION":
+                    m = portobello.occlusion_t.decode(d)
+                    self.occlusion.append((m.utime, m.eye_source, {
+                        a.agent_id: tuple(sum(1 for v in a.state if v == k) for k in range(3)) for a in m.agents}))
         self.pose.sort()
         self.truth.sort()
         self.events.sort(key=lambda e: e.utime)
@@ -325,8 +330,42 @@ def section_supervisor(s):
             + "</tbody></table>")
 
 
+def section_occlusion(s):
+    occ = s.road.occlusion
+    if not occ:
+        return ("Occlusion", "no OCCLUSION message in the road logs", "<p>no OCCLUSION message recorded</p>")
+    eyes = {0: "HEAD_POSE", 1: "seat", 2: "LiDAR"}
+    used = sorted({eyes.get(e, "?") for _, e, _ in occ})
+    per = {}
+    for _, _, agents in occ:
+        for aid, counts in agents.items():
+            per.setdefault(aid, [0, 0, 0, 0])
+            for k in range(3):
+                per[aid][k] += counts[k]
+            per[aid][3] += 1
+    tot = [sum(v[k] for v in per.values()) for k in range(3)]
+    n = sum(tot) or 1
+    summary = (f"{len(occ)} OCCLUSION sweeps, eye from {', '.join(used)}; samples of agents in range: "
+               f"visible {tot[0] / n * 100:.1f}%, hidden by real objects {tot[1] / n * 100:.1f}%, "
+               f"unknown {tot[2] / n * 100:.1f}%")
+    text, rows = [summary], []
+    for aid in sorted(per):
+        v, h, u, sweeps = per[aid]
+        m = (v + h + u) or 1
+        text.append(f"  {aid:<14} {sweeps:5d} sweeps  visible {v / m * 100:5.1f}%  hidden {h / m * 100:5.1f}%  "
+                    f"unknown {u / m * 100:5.1f}%")
+        rows.append(f"<tr><td class=id>{html.escape(aid)}</td><td>{sweeps}</td><td>{v / m * 100:.1f}</td>"
+                    f"<td>{h / m * 100:.1f}</td><td>{u / m * 100:.1f}</td></tr>")
+    return ("Occlusion", "\n".join(text),
+            f'<p id="occ-summary">{html.escape(summary)}</p><p>Per agent, the share of its body samples that the '
+            'occlusion module found visible from the eye, hidden behind something the LiDAR sees, or unknown '
+            '(never observed, out of range, or no tracking pose).</p><table id="occlusion"><thead><tr><th>agent</th>'
+            '<th>sweeps</th><th>visible %</th><th>hidden %</th><th>unknown %</th></tr></thead><tbody>'
+            + "".join(rows) + "</tbody></table>")
+
+
 # Append a function here to add a section (it receives the Study, returns (title, text, html)).
-SECTIONS = [section_events, section_timing, section_plot, section_localization, section_supervisor]
+SECTIONS = [section_events, section_timing, section_plot, section_localization, section_occlusion, section_supervisor]
 
 CSS = """
 body{font-family:sans-serif;margin:24px;color:#222;max-width:1160px}

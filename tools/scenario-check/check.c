@@ -8,7 +8,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "../../modules/director/core/geom.h"
+#include "director/core/geom.h"
 
 static void report(check_report_fn fn, void *user, int is_error, const char *file, int line, const char *fmt, ...)
     __attribute__((format(printf, 6, 7)));

@@ -7,7 +7,7 @@
 #define CHECK_H
 
 #include "pb_route.h"
-#include "../../modules/director/core/scenario.h"
+#include "director/core/scenario.h"
 
 typedef struct { double length, width, height, rear_overhang; } check_vehicle_t;
 typedef void (*check_report_fn)(int is_error, const char *file, int line, const char *msg, void *user);

@@ -10,9 +10,9 @@
 #include <string.h>
 #include <time.h>
 
-#include "../core/ouster_driver.h"
-#include "../core/ouster_meta.h"
-#include "../core/ouster_pcap.h"
+#include "ouster/core/ouster_driver.h"
+#include "ouster/core/ouster_meta.h"
+#include "ouster/core/ouster_pcap.h"
 #include "pb_arg.h"
 
 typedef struct { int encode; uint8_t *buf; int cap; long bytes; } sink_t;

@@ -134,3 +134,7 @@ export function yawOf(q) {   // q = [w, x, y, z] (map <- base)
 
 export const STATE_NAMES = ["STARTING", "OK", "DEGRADED", "ERROR", "STOPPING"];
 export const POSE_STATUS = ["INITIALIZING", "TRACKING", "DEGRADED", "LOST"];
+// Text from the bus made safe for innerHTML (names and details are set by any process).
+export const esc = (s) => String(s ?? "").replace(/[&<>"']/g, (c) => `&#${c.charCodeAt(0)};`);
+// command_state_t.STATE_* of SUPERVISOR, in order
+export const COMMAND_STATES = ["STOPPED", "WAITING", "STARTING", "RUNNING", "BACKOFF", "STOPPING", "EXITED", "FAILED"];

@@ -2,10 +2,10 @@
 // crosswalks, trigger volumes, the car (POSE_PREDICTED), agents with their animation,
 // agents hidden by real objects (OCCLUSION) drawn hollow, the next encounter's time to
 // arrival for the car and its synchronised pedestrian, localizer status, process health.
-import { Bus, loadSite, loadCloud, yawOf, STATE_NAMES, POSE_STATUS } from "./bus.js";
+import { Bus, loadSite, loadCloud, yawOf, STATE_NAMES, POSE_STATUS, COMMAND_STATES, esc } from "./bus.js";
 import { TopDown, KIND_COLOUR } from "./topdown.js";
 
-const TOPICS = ["POSE_PREDICTED", "POSE", "AGENTS", "OCCLUSION", "STATUS", "LAB_EVENT", "SCENARIO_EVENT"];
+const TOPICS = ["POSE_PREDICTED", "POSE", "AGENTS", "OCCLUSION", "STATUS", "SUPERVISOR", "LAB_EVENT", "SCENARIO_EVENT"];
 const HIDDEN_BELOW = 0.5;       // visible fraction under which an agent counts as hidden by a real object
 const STALE_S = 2.5;            // a STATUS heartbeat (1 Hz) older than this: the process is silent
 const bus = new Bus("operator", TOPICS);
@@ -120,9 +120,22 @@ function draw() {
   for (const [mod, h] of [...health.entries()].sort()) {
     const age = (now - h.rxMs) / 1000;
     const st = age > STALE_S ? "SILENT" : STATE_NAMES[h.state] || "?";
-    html += `<div class="row" title="${(h.err || "").replace(/"/g, "'")}"><span>${mod}</span><b class="${st === "OK" ? "ok" : "bad"}">${st}</b></div>`;
+    html += `<div class="row" title="${esc(h.err)}"><span>${esc(mod)}</span><b class="${st === "OK" ? "ok" : "bad"}">${st}</b></div>`;
   }
   if (!health.size) html += `<div class="row"><span>no heartbeats</span></div>`;
+  // The supervisor's view (1 Hz): each command's state and restarts, so a crash loop shows
+  // even while the new process's heartbeat says OK.
+  const sup = bus.latest.SUPERVISOR;
+  if (sup) {
+    const stale = (now - sup.rxMs) / 1000 > STALE_S;
+    html += `<div class="head">supervisor ${esc(sup.msg.stack)}${stale ? " (SILENT)" : ""}</div>`;
+    for (const c of sup.msg.commands) {
+      const st = COMMAND_STATES[c.state] || "?";
+      const good = !stale && (st === "RUNNING" || st === "EXITED") && c.restarts === 0;
+      html += `<div class="row" title="${esc(c.detail)}"><span>${esc(c.name)}</span><b class="${good ? "ok" : "bad"}">` +
+        `${st}${c.restarts ? ` ×${c.restarts}` : ""}</b></div>`;
+    }
+  }
   html += `<div class="head">message age</div>`;
   for (const t of ["POSE_PREDICTED", "AGENTS", "OCCLUSION"]) html += `<div class="row"><span>${t}</span><b>${fmtAge(t)}</b></div>`;
   html += `<div class="row"><span>bridge</span><b class="${bus.connected ? "ok" : "bad"}">${bus.connected ? "connected" : "offline"}</b></div>`;
