@@ -29,7 +29,8 @@ $(OBJ)/tests/c/test_registration.o: CPPFLAGS += -I$(TOP)/modules/localizer/core
 
 # Real LiDAR (optional; reads ../shared/data, never copied into the project).
 # 1. MulRan Riverside02 keyframes: the dataset's SLAM poses are refined first
-#    (refine-poses: every scan registered to the map of the others), the map is built
+#    (reference.py: a pose graph over pairwise small_gicp GICP registrations, so the
+#    reference does not come from the registration under test), the map is built
 #    from the even scans at the refined poses, and every 2nd odd scan is localized
 #    against the refined reference: from tracking starts (5 cm) and from
 #    LOCREAL_STARTS starts per scan drawn uniformly within 3 m / 15 deg (ours: the
@@ -43,7 +44,7 @@ LOCREG_REAL := $(BUILD)/bench/localizer-real
 LOCREAL_STARTS ?= 20
 LOCREAL_BASE_EVERY ?= 3
 LOCREAL_BENCH = --global 3,15 --converge 0.2 --ndt-res 1,2
-bench-localizer-real: $(BIN)/bench-localizer $(BIN)/import-scans $(BIN)/refine-poses $(DEPS)
+bench-localizer-real: $(BIN)/bench-localizer $(BIN)/import-scans $(DEPS)
 	@mkdir -p $(LOCREG_REAL)/hdl32/scans && \
 	echo "== HDL-32E pair (tests/data/lidar_pair_hdl32): map = first scan, second localized from 100 starts" && \
 	ln -sf $(TOP)/tests/data/lidar_pair_hdl32/251370668.pcd $(TOP)/tests/data/lidar_pair_hdl32/251371071.pcd $(LOCREG_REAL)/hdl32/scans/ && \
@@ -59,10 +60,8 @@ bench-localizer-real: $(BIN)/bench-localizer $(BIN)/import-scans $(BIN)/refine-p
 	$(VPY) tools/bench-localizer/bench.py $(LOCREG_REAL)/hdl32/baseline.bin $(LOCREG_REAL)/hdl32-results.json
 	@if [ ! -d "$(MULRAN)" ]; then echo "bench-localizer-real: MulRan part skipped, $(MULRAN) is absent"; exit 0; fi; \
 	echo "== MulRan Riverside02: refining the dataset's SLAM poses" && \
-	$(BIN)/import-scans --scans $(MULRAN)/Scans --poses $(MULRAN)/optimized_poses.txt --times $(MULRAN)/times.txt \
-	    --out $(LOCREG_REAL)/slam.lcm --quiet && \
-	$(BIN)/refine-poses --log $(LOCREG_REAL)/slam.lcm --out $(LOCREG_REAL)/refined_poses.txt \
-	    --report $(LOCREG_REAL)/refine-report.json && \
+	$(VPY) tools/bench-localizer/reference.py --scans $(MULRAN)/Scans --poses $(MULRAN)/optimized_poses.txt \
+	    --out $(LOCREG_REAL)/refined_poses.txt --report $(LOCREG_REAL)/reference-report.json && \
 	$(BIN)/import-scans --scans $(MULRAN)/Scans --poses $(LOCREG_REAL)/refined_poses.txt --times $(MULRAN)/times.txt \
 	    --every 2 --map-out $(LOCREG_REAL)/map.pcd --voxel 0.15 --out $(LOCREG_REAL)/even.lcm --quiet && \
 	$(BIN)/import-scans --scans $(MULRAN)/Scans --poses $(LOCREG_REAL)/refined_poses.txt --times $(MULRAN)/times.txt \
