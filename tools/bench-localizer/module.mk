@@ -8,27 +8,29 @@ BENCH_TARGETS += bench-localizer
 # A 60 s drive on the default site (drive day: other parked cars, traffic), every 2nd
 # scan (~300) for ours, every 15th of those (~20) for the baselines as well.
 LOCREG_BENCH := $(BUILD)/bench/localizer
-$(LOCREG_BENCH)/drive.lcm: $(BIN)/simdrive $(DEFAULT_SITE)/map.pcd vehicles/prius2017.yaml
+$(LOCREG_BENCH)/drive.lcm: $(BIN)/simdrive maps/default/map.pcd vehicles/prius2017.yaml
 	@echo "  SIM     $(@D) (60 s, seed 11)"
 	@rm -rf $(@D).tmp && $(BIN)/simdrive --seed 11 --duration 60 --speed-profile normal --quiet \
-	    --site $(DEFAULT_SITE) --vehicle vehicles/prius2017.yaml --out $(@D).tmp && \
+	    --site maps/default --vehicle vehicles/prius2017.yaml --out $(@D).tmp && \
 	  mkdir -p $(@D) && mv $(@D).tmp/drive.lcm $@ && rm -rf $(@D).tmp
 
 bench-localizer: $(BIN)/bench-localizer $(LOCREG_BENCH)/drive.lcm $(DEPS)
-	@$(BIN)/bench-localizer --log $(LOCREG_BENCH)/drive.lcm --map $(DEFAULT_SITE)/map.pcd \
+	@$(BIN)/bench-localizer --log $(LOCREG_BENCH)/drive.lcm --map maps/default/map.pcd \
 	    --vehicle vehicles/prius2017.yaml --every 2 --baseline-every 15 \
 	    --dump $(LOCREG_BENCH)/baseline.bin --json $(LOCREG_BENCH)/results.json
 	@$(VPY) tools/bench-localizer/bench.py $(LOCREG_BENCH)/baseline.bin $(LOCREG_BENCH)/results.json
 
 # Unit tests of the registration core (run by make test through tests/test_c_units.py).
 LOCREG_CORE := modules/localizer/core/registration.cpp modules/localizer/core/regmap.cpp modules/localizer/core/deskew.cpp \
-               modules/localizer/core/map_tiles.cpp modules/localizer/core/refine.cpp
+               modules/localizer/core/map_tiles.cpp modules/localizer/core/refine.cpp \
+               modules/localizer/core/places.cpp
 $(eval $(call cxx_test,test_registration,tests/c/test_registration.cpp $(LOCREG_CORE)))
 $(OBJ)/tests/c/test_registration.o: CPPFLAGS += -I$(TOP)/modules/localizer/core
 
 # Real LiDAR (optional; reads ../shared/data, never copied into the project).
 # 1. MulRan Riverside02 keyframes: the dataset's SLAM poses are refined first
-#    (refine-poses: every scan registered to the map of the others), the map is built
+#    (reference.py: a pose graph over pairwise small_gicp GICP registrations, so the
+#    reference does not come from the registration under test), the map is built
 #    from the even scans at the refined poses, and every 2nd odd scan is localized
 #    against the refined reference: from tracking starts (5 cm) and from
 #    LOCREAL_STARTS starts per scan drawn uniformly within 3 m / 15 deg (ours: the
@@ -42,7 +44,7 @@ LOCREG_REAL := $(BUILD)/bench/localizer-real
 LOCREAL_STARTS ?= 20
 LOCREAL_BASE_EVERY ?= 3
 LOCREAL_BENCH = --global 3,15 --converge 0.2 --ndt-res 1,2
-bench-localizer-real: $(BIN)/bench-localizer $(BIN)/import-scans $(BIN)/refine-poses $(DEPS)
+bench-localizer-real: $(BIN)/bench-localizer $(BIN)/import-scans $(DEPS)
 	@mkdir -p $(LOCREG_REAL)/hdl32/scans && \
 	echo "== HDL-32E pair (tests/data/lidar_pair_hdl32): map = first scan, second localized from 100 starts" && \
 	ln -sf $(TOP)/tests/data/lidar_pair_hdl32/251370668.pcd $(TOP)/tests/data/lidar_pair_hdl32/251371071.pcd $(LOCREG_REAL)/hdl32/scans/ && \
@@ -58,10 +60,8 @@ bench-localizer-real: $(BIN)/bench-localizer $(BIN)/import-scans $(BIN)/refine-p
 	$(VPY) tools/bench-localizer/bench.py $(LOCREG_REAL)/hdl32/baseline.bin $(LOCREG_REAL)/hdl32-results.json
 	@if [ ! -d "$(MULRAN)" ]; then echo "bench-localizer-real: MulRan part skipped, $(MULRAN) is absent"; exit 0; fi; \
 	echo "== MulRan Riverside02: refining the dataset's SLAM poses" && \
-	$(BIN)/import-scans --scans $(MULRAN)/Scans --poses $(MULRAN)/optimized_poses.txt --times $(MULRAN)/times.txt \
-	    --out $(LOCREG_REAL)/slam.lcm --quiet && \
-	$(BIN)/refine-poses --log $(LOCREG_REAL)/slam.lcm --out $(LOCREG_REAL)/refined_poses.txt \
-	    --report $(LOCREG_REAL)/refine-report.json && \
+	$(VPY) tools/bench-localizer/reference.py --scans $(MULRAN)/Scans --poses $(MULRAN)/optimized_poses.txt \
+	    --out $(LOCREG_REAL)/refined_poses.txt --report $(LOCREG_REAL)/reference-report.json && \
 	$(BIN)/import-scans --scans $(MULRAN)/Scans --poses $(LOCREG_REAL)/refined_poses.txt --times $(MULRAN)/times.txt \
 	    --every 2 --map-out $(LOCREG_REAL)/map.pcd --voxel 0.15 --out $(LOCREG_REAL)/even.lcm --quiet && \
 	$(BIN)/import-scans --scans $(MULRAN)/Scans --poses $(LOCREG_REAL)/refined_poses.txt --times $(MULRAN)/times.txt \

@@ -9,6 +9,7 @@
 #include <string.h>
 #include <sys/stat.h>
 
+#include "actors.h"
 #include "pb_arg.h"
 #include "pb_ground.h"
 #include "can.h"
@@ -48,7 +49,8 @@ static void usage(FILE *f)
         "usage: simdrive --out DIR [--seed N] [--duration S] [--speed-profile cautious|normal|aggressive]\n"
         "                [--site SITE_DIR] [--vehicle FILE] [--mapping] [--no-lidar] [--quiet]\n"
         "                [--scenario FILE [--head]]\n"
-        "                [--driver-spread F] [--without GROUPS] [--dwell S]... [--reverse M]\n"
+        "                [--driver-spread F] [--without GROUPS] [--with GROUPS] [--dwell S]...\n"
+        "                [--reverse M]\n"
         "       simdrive --terrain-out GROUND.yaml [--site SITE_DIR]\n"
         "\n"
         "Simulates a drive around a site's route and writes DIR/drive.lcm (LCM log) and\n"
@@ -74,6 +76,13 @@ static void usage(FILE *f)
         "                        (default 0: the planner's own speed curve)\n"
         "  --without G1,G2       leave out these object groups of world.yaml (the drive day's\n"
         "                        changes, e.g. fence,bus: each switchable)\n"
+        "  --with G1,G2          switch on road users and returns that are off by default:\n"
+        "                        lead (a lead car in the car's lane, world.yaml lead_car:; the\n"
+        "                        car follows it and stops behind it), crossing (cars crossing at\n"
+        "                        junctions), pedestrians (people on sidewalks and crosswalks;\n"
+        "                        both world.yaml crossers:, yielding to the car), roof (LiDAR\n"
+        "                        returns from the car's own body, where the mount lets beams\n"
+        "                        reach it); not with --mapping\n"
         "  --no-lidar            skip LIDAR_SCAN (fast drives for IMU, CAN and GNSS studies)\n"
         "  --scenario FILE       stage the scenario's agents (the director's core on ground\n"
         "                        truth): AGENTS (~33 Hz) and OCCLUSION_TRUTH at every sweep end\n"
@@ -141,13 +150,13 @@ int main(int argc, char **argv)
     const char *scenario = NULL;
     const char *terrain_out = NULL;
     double driver_spread = 0, reverse_m = 0;
-    char without[256] = "";
+    char without[256] = "", with[256] = "";
     static const struct option opts[] = {
         { "out", required_argument, 0, 'o' }, { "seed", required_argument, 0, 's' },
         { "duration", required_argument, 0, 'd' }, { "speed-profile", required_argument, 0, 'p' },
         { "site", required_argument, 0, 'S' }, { "vehicle", required_argument, 0, 'v' },
         { "mapping", no_argument, 0, 'm' }, { "terrain-out", required_argument, 0, 'T' },
-        { "driver-spread", required_argument, 0, 'D' }, { "without", required_argument, 0, 'W' }, { "no-lidar", no_argument, 0, 'L' }, { "quiet", no_argument, 0, 'q' },
+        { "driver-spread", required_argument, 0, 'D' }, { "without", required_argument, 0, 'W' }, { "with", required_argument, 0, 'A' }, { "no-lidar", no_argument, 0, 'L' }, { "quiet", no_argument, 0, 'q' },
         { "scenario", required_argument, 0, 'c' }, { "head", no_argument, 0, 'H' },
         { "dwell", required_argument, 0, 'w' }, { "reverse", required_argument, 0, 'R' },
         { "help", no_argument, 0, 'h' }, { 0, 0, 0, 0 } };
@@ -170,6 +179,7 @@ int main(int argc, char **argv)
         case 'm': mapping = 1; break;
         case 'T': terrain_out = optarg; break;
         case 'W': snprintf(without, sizeof without, "%s", optarg); break;
+        case 'A': snprintf(with, sizeof with, "%s", optarg); break;
         case 'D':
             if (pb_arg_double("simdrive", "driver-spread", optarg, 0, 0.5, &driver_spread)) return 2;
             break;
@@ -231,6 +241,12 @@ int main(int argc, char **argv)
             pb_route_free(&route);
             return 2;
         }
+    if (with[0] && (mapping || actors_switch_on(world.actors, with, &err))) {
+        fprintf(stderr, "simdrive: %s\n", mapping ? "--with: the mapping day has no traffic" : err.msg);
+        world_free(&world);
+        pb_route_free(&route);
+        return 2;
+    }
     world_build_grid(&world, mapping ? DAY_MAP : DAY_DRIVE, GRID_CELL_M);
     sim_occ_t *occ = NULL;
     if (scenario) {
@@ -251,6 +267,15 @@ int main(int argc, char **argv)
         fprintf(stderr, "simdrive: %s\n", err.msg);
         return 1;
     }
+    if (world.actors->on & ACT_LEAD) {     /* behind a lead car: its speed, not the planner's */
+        double front = veh.length - veh.rear_overhang;
+        if (actors_plan_follow(world.actors, &traj, &route, &route.profiles[prof], duration, front, stop_offset, &driver,
+                               seed, &err)) {
+            fprintf(stderr, "simdrive: %s\n", err.msg);
+            return 1;
+        }
+    }
+    actors_schedule(world.actors, &route, &traj, &veh, duration, seed);
     if (mapping) duration = traj.t_end;
     int64_t end_us = (int64_t)llround(duration * 1e6);
 
@@ -272,6 +297,13 @@ int main(int argc, char **argv)
     lidar_sim_t ls = { .world = &world, .route = &route, .traj = &traj, .body = &body, .veh = &veh, .model = &lm,
                        .seed = seed, .traffic = !mapping };
     lidar_sim_init(&ls);
+    double *body_range = NULL;
+    if (world.actors->on & ACT_ROOF) {
+        body_range = malloc(LIDAR_ROWS * LIDAR_COLS * sizeof *body_range);
+        actors_body_ranges(&veh, lm.alt, lm.az, lm.origin_m, LIDAR_ROWS, LIDAR_COLS, body_range);
+        ls.body_range = body_range;
+        ls.body_cls = world.actors->body_cls;
+    }
     imu_sim_t imu;
     imu_sim_init(&imu, &veh, seed);
     gnss_sim_t gnss;
@@ -413,6 +445,7 @@ int main(int argc, char **argv)
                 (long long)(counts[S_CAN_WS] + counts[S_CAN_SPD] + counts[S_CAN_GEAR]), (long long)counts[S_GNSS],
                 (long long)counts[S_GT], out_dir);
     lidar_sim_free(&ls);
+    free(body_range);
     sim_occ_destroy(occ);
     body_model_free(&body);
     free(out.buf);

@@ -61,6 +61,19 @@ localizer_t *localizer_create(const localizer_config_t &cfg, const extrinsics_t 
     return L;
 }
 
+void localizer_set_pager(localizer_t *L, localizer_pager_fn pager, void *user)
+{
+    L->pager = pager;
+    L->pager_user = user;
+}
+
+void localizer_set_places(localizer_t *L, places_t *places)
+{
+    places_destroy(L->places);
+    L->places = places;
+    L->places_failed = false;
+}
+
 void localizer_destroy(localizer_t *L)
 {
     if (L) places_destroy(L->places);
@@ -82,8 +95,12 @@ static void restart(localizer_t *L, bool keep_pose, outputs_t *out, const char *
     pb_georef_t geo = L->geo;
     int status = L->status;
     places_t *places = L->places;
+    localizer_pager_fn pager = L->pager;
+    void *pager_user = L->pager_user;
     *L = localizer();
     L->places = places;
+    L->pager = pager;
+    L->pager_user = pager_user;
     L->cfg = cfg; L->ex = ex; L->map = map; L->has_geo = has_geo; L->geo = geo;
     filter_create(&L->kf, cfg.filter, ex.base_from_imu);
     L->pred = L->kf;

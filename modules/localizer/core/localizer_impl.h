@@ -58,7 +58,9 @@ struct localizer {
     int verify_count = 0, reject_count = 0;
     bool lidar_gap_reported = false;
 
-    places_t *places = nullptr;     /* place descriptors of the map, built at the first global search */
+    places_t *places = nullptr;     /* place descriptors of the map (given, or built at the first global search) */
+    localizer_pager_fn pager = nullptr;   /* pages the map around a place (NULL: a whole map) */
+    void *pager_user = nullptr;
     bool places_failed = false;
     int64_t global_round = 0;
     bool has_hint = false;
