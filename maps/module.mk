@@ -12,8 +12,8 @@ SITES := default hills
 define site_rules
 maps: maps/$(1)/map.pcd maps/$(1)/ground.yaml maps/$(1)/map.tiles
 
-# The same map prepared and cut into tiles, which the localizer pages in around the car
-# (--paged-map).
+# The same map prepared and cut into tiles, with the place descriptors of the whole map:
+# the localizer pages the tiles in around the car (it refuses tiles of another map.pcd).
 maps/$(1)/map.tiles: maps/$(1)/map.pcd $$(BIN)/map-tiles
 	@echo "  TILES   $$@"
 	@$$(BIN)/map-tiles --map $$< --out $$@ --quiet

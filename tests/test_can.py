@@ -148,9 +148,9 @@ def test_simdrive_log_replay(tmp_path):
     drive = tmp_path / "d" / "drive.lcm"
     out = tmp_path / "can.lcm"
     run([BIN / "can", "--replay", drive, "--out", out])       # default vehicle: the Prius
-    fr = frames(drive)
+    fr = [f for f in frames(drive) if f.id != 0x3BC]          # GEAR_PACKET gives no record
     vs = speeds(out)
-    assert len(vs) == len(fr) > 1000                          # every frame is 0x0AA or 0x0B4
+    assert len(vs) == len(fr) > 1000                          # every other frame is 0x0AA or 0x0B4
     import cantools
     db = cantools.database.load_file(str(DBC_DIR / "toyota_prius_2017_pt_generated.dbc"), strict=False)
     for f, m in zip(fr, vs):
@@ -171,6 +171,31 @@ def test_simdrive_log_replay(tmp_path):
     assert np.abs(np.array([m.speed_mps for m in sp]) - v_at).max() < 0.05
     counters, _ = last_status(out)
     assert counters.get("bad_checksum", 0) == 0 and counters["speed"] == len(vs)
+    assert counters["decoded"] == len(frames(drive)) - len(fr) >= 20    # GEAR_PACKET at 1 Hz
+
+
+def test_simdrive_reversing_signs_the_speed_by_the_gear(tmp_path):
+    """simdrive --reverse: the car backs 20 m at its first stop; its speeds are magnitudes
+    and GEAR_PACKET says R. VEHICLE_SPEED is the signed forward speed of the truth."""
+    run([BIN / "simdrive", "--out", tmp_path / "d", "--duration", "45", "--no-lidar", "--quiet", "--seed", "5",
+         "--reverse", "20"])
+    drive = tmp_path / "d" / "drive.lcm"
+    out = tmp_path / "can.lcm"
+    run([BIN / "can", "--replay", drive, "--out", out])
+    vs = [m for m in speeds(out) if m.source == "SPEED"]
+    gt = [(t, portobello.pose_t.decode(d)) for _, t, d in read_log(drive, {"GROUND_TRUTH"})]
+    gt_t = np.array([t for t, _ in gt])
+    yaw = np.array([math.atan2(2 * (p.orientation[0] * p.orientation[3] + p.orientation[1] * p.orientation[2]),
+                               1 - 2 * (p.orientation[2] ** 2 + p.orientation[3] ** 2)) for _, p in gt])
+    fwd = np.array([p.velocity[0] for _, p in gt]) * np.cos(yaw) + np.array([p.velocity[1] for _, p in gt]) * np.sin(yaw)
+    v_at = np.interp([m.utime for m in vs], gt_t, fwd)
+    v = np.array([m.speed_mps for m in vs])
+    assert v.min() < -2.4 and np.sum(v < -0.1) > 100                        # backing at 2.5 m/s
+    # the gear changes at rest, so the sign is right on every record
+    assert np.abs(v - v_at).max() < 0.05, np.abs(v - v_at).max()
+    # backed about 20 m and drove forward again
+    back = -np.sum(np.minimum(fwd, 0)) * 0.01
+    assert 19.5 < back < 20.5, back
 
 
 # ---------------------------------------------------------------- bad input

@@ -5,10 +5,13 @@ The site is the default site with its prior map cropped to the drive's surroundi
 (so each run loads in about a second); the drive is simdrive (12 s, normal profile)
 with VEHICLE_SPEED added by `can --replay` and `log-merge`."""
 import math
+import os
 import shutil
 import struct
 import subprocess
 import sys
+import threading
+import time
 
 import numpy as np
 import pytest
@@ -42,6 +45,13 @@ def read_pcd_binary(path):
         return np.frombuffer(f.read(n * 16), dtype="<f4").reshape(n, 4)
 
 
+def write_cropped_map(gt, path, margin=70):
+    """The default map cropped to the drive's surroundings: it loads in about a second."""
+    pts = read_pcd_binary(ROOT / "maps" / "default" / "map.pcd")
+    lo, hi = gt[:, 1:3].min(0) - margin, gt[:, 1:3].max(0) + margin
+    write_pcd(path, pts[(pts[:, 0] > lo[0]) & (pts[:, 0] < hi[0]) & (pts[:, 1] > lo[1]) & (pts[:, 1] < hi[1])])
+
+
 @pytest.fixture(scope="module")
 def drive(tmp_path_factory):
     d = tmp_path_factory.mktemp("locdrive")
@@ -51,10 +61,10 @@ def drive(tmp_path_factory):
     site.mkdir()
     for name in ("site.yaml", "route.yaml", "world.yaml"):
         shutil.copy(ROOT / "maps" / "default" / name, site / name)
-    pts = read_pcd_binary(ROOT / "maps" / "default" / "map.pcd")
-    lo, hi = gt[:, 1:3].min(0) - 70, gt[:, 1:3].max(0) + 70
-    keep = (pts[:, 0] > lo[0]) & (pts[:, 0] < hi[0]) & (pts[:, 1] > lo[1]) & (pts[:, 1] < hi[1])
-    write_pcd(site / "map.pcd", pts[keep])
+    write_cropped_map(gt, site / "map.pcd")
+    # the site as make prepares one: map.tiles next to map.pcd (the folder with map.pcd
+    # alone is prepared by the localizer at start-up)
+    run([BIN / "map-tiles", "--map", site / "map.pcd", "--out", site / "map.tiles", "--quiet"])
     only_map = d / "only_map"
     only_map.mkdir()
     shutil.copy(site / "map.pcd", only_map / "map.pcd")
@@ -201,6 +211,95 @@ def test_map_missing_or_corrupt(drive, tmp_path, what):
     assert str(site) in p.stderr
     st = last_status_msg(out)
     assert st.state == st.STATE_ERROR and str(site) in st.last_error
+
+
+def test_tiles_of_another_map_are_refused(drive, tmp_path):
+    """A map.tiles prepared from another map.pcd (an edited map, a copied site) is an error
+    naming both files, never used; a site with map.pcd alone is prepared at start-up."""
+    site = tmp_path / "site"
+    site.mkdir()
+    for name in ("site.yaml", "map.tiles"):
+        shutil.copy(drive["site"] / name, site / name)
+    pts = read_pcd_binary(drive["site"] / "map.pcd")
+    write_pcd(site / "map.pcd", pts[:-1])   # one point less: another map
+    out = tmp_path / "o.lcm"
+    p = run([BIN / "localizer", "--site", site, "--replay", drive["log"], "--out", out], check=False, timeout=60)
+    assert p.returncode == 1
+    assert "prepared from another map" in p.stderr and str(site / "map.pcd") in p.stderr, p.stderr
+    st = last_status_msg(out)
+    assert st.state == st.STATE_ERROR and str(site / "map.tiles") in st.last_error
+    # only map.pcd: prepared into a temporary tile file, said on stderr, tracks as usual
+    (site / "map.tiles").unlink()
+    p = localize(drive, drive["log"], out, site=site)
+    assert "no map.tiles" in p.stderr
+    assert lb.score_run(drive["drive"], out)["t_p99"] < 0.3
+
+
+def run_rss(args):
+    """Runs a command; returns (stderr, returncode, peak RSS in MB). The peak is VmHWM of
+    /proc/PID/status, polled while it runs (it only grows; reset at exec, so the forking
+    test process's own memory does not count, unlike ru_maxrss)."""
+    pr = subprocess.Popen([str(a) for a in args], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    hwm = [0]
+
+    def poll():
+        while pr.poll() is None:
+            try:
+                if os.readlink(f"/proc/{pr.pid}/exe") != str(args[0]):
+                    continue   # not exec'd yet: the forked test process
+                for line in open(f"/proc/{pr.pid}/status"):
+                    if line.startswith("VmHWM:"):
+                        hwm[0] = max(hwm[0], int(line.split()[1]))
+            except OSError:
+                pass
+            finally:
+                time.sleep(0.02)
+
+    th = threading.Thread(target=poll)
+    th.start()
+    err = pr.stderr.read()
+    pr.wait(timeout=300)
+    th.join()
+    return err, pr.returncode, hwm[0] / 1024.0
+
+
+def test_default_site_is_paged(drive, tmp_path):
+    """The full default site (maps/default with the map.tiles make builds): the localizer holds
+    only the tiles around the car, loads and drops them (STATUS counters) and stays small."""
+    out = tmp_path / "o.lcm"
+    site = ROOT / "maps" / "default"
+    err, rc, peak = run_rss([BIN / "localizer", "--site", site, "--replay", drive["log"], "--out", out, "--verbose"])
+    assert rc == 0, err
+    assert "paged within 120 m" in err and "map tiles around" in err
+    c = counters(last_status_msg(out))
+    assert c.get("map_tile_loaded", 0) > 0, c
+    r = lb.score_run(drive["drive"], out)
+    assert r["first_tracking_s"] <= 3.0 and r["lost_after_tracking"] == 0
+    assert r["t_median"] < 0.05 and r["t_p99"] < 0.3, r
+    # measured: peak RSS 52 MB on this 12 s drive, 59-64 MB on the 232 s lap (the whole map
+    # held: about 167 MB, 356 MB peak while loading map.pcd); 150 MB is the target
+    print(f"default site, GNSS start, 12 s: peak RSS {peak:.1f} MB")
+    assert peak < 150, peak
+
+
+def test_no_prior_start_on_the_paged_default_site(drive, tmp_path):
+    """No prior, LiDAR alone, on the full default site: the global search tries places all
+    over the map, paging their tiles in and out, and finds the car; memory stays bounded
+    (before the descriptors were stored with the tiles, building them peaked at 387 MB)."""
+    log, out = tmp_path / "cut.lcm", tmp_path / "o.lcm"
+    cut(drive, log, 5, 6, "LIDAR_SCAN,GROUND_TRUTH")
+    err, rc, peak = run_rss([BIN / "localizer", "--site", ROOT / "maps" / "default", "--replay", log, "--out", out])
+    assert rc == 0, err
+    poses = lb.read_poses(out, "POSE")
+    k = first_tracking(poses)
+    # measured: tracking after 0.2 s (3rd sweep), peak RSS 63 MB; 150 MB is the target
+    assert k is not None and (poses[k, 0] - poses[0, 0]) <= 5.0e6, "tracking within 5 s"
+    _, et, _ = lb.errors_vs_truth(poses[k:][poses[k:, 5] == 1], drive["gt"])
+    assert et.max() < 0.2, et.max()
+    c = counters(last_status_msg(out))
+    assert c.get("map_tile_loaded", 0) > 0 and c.get("map_tile_dropped", 0) > 0, c
+    print(f"default site, no prior: tracking after {(poses[k, 0] - poses[0, 0]) * 1e-6:.1f} s, peak RSS {peak:.1f} MB")
+    assert peak < 150, peak
 
 
 def test_pose_to_tum(drive, tmp_path):
@@ -387,17 +486,36 @@ def test_gnss_clock_offset_is_found_reported_and_taken_out(drive, tmp_path):
     assert said and 1.7 <= said[0] <= 2.1, said
 
 
-def test_clock_step_back_starts_again(drive, tmp_path):
-    """The sensors' clock steps back 10 s (NTP, GNSS time sync): not ten seconds of dropped
-    input, but a restart from the last pose."""
+def test_clock_step_back_carries_the_pose_over(drive, tmp_path):
+    """The sensors' clock steps back 10 s (NTP, GNSS time sync) while the car drives on: the
+    state moves to the new clock (no restart, no search), POSE_PREDICTED goes on at the IMU
+    rate and the track continues."""
     flog, out = tmp_path / "step.lcm", tmp_path / "o.lcm"
     run([sys.executable, FAULT, "time-step", "--in", drive["log"], "--out", flog, "--at", "5", "--seconds", "10"])
     localize(drive, flog, out, "--no-gnss",
              "--initial-pose=%f,%f,%f,0,0,%f" % (*drive["gt"][0, 1:4], math.degrees(drive["gt"][0, 4])))
     c = counters(last_status_msg(out))
     assert c.get("time_jump") == 1, c
-    s = statuses(out)
-    assert s[-1] == 1 and 3 not in s
+    poses, pred = lb.read_poses(out, "POSE"), lb.read_poses(out, "POSE_PREDICTED")
+    k = int(np.nonzero(np.diff(poses[:, 0]) < -5e6)[0][0]) + 1          # the first POSE on the new clock
+    after = poses[k:]
+    # measured: every POSE after the step tracking (degraded only between the step and the
+    # next accepted match); never initializing or lost
+    assert set(after[:, 5].astype(int)) <= {1, 2} and np.sum(after[:, 5] != 1) <= 2, after[:20, 5]
+    # the truth on the new clock is the drive's truth 10 s later
+    gt_new = drive["gt"].copy()
+    gt_new[:, 0] -= 10e6
+    _, et, _ = lb.errors_vs_truth(after[after[:, 5] == 1], gt_new)
+    assert len(et) > 30 and et.max() < 0.06, et.max()       # measured: max 0.020 m over 69 POSE
+    # POSE_PREDICTED at every IMU sample across the step: measured 1 missing (2378 of 2379;
+    # the samples that showed the step before it was taken are dropped as out of order)
+    imu = lb.read_channel_times(flog, "IMU")
+    k_imu = int(np.nonzero(np.diff(imu) < -5e6)[0][0]) + 1
+    n_imu = int(np.sum(imu[:k_imu] >= pred[0, 0])) + len(imu) - k_imu    # IMU samples since the first pose
+    assert n_imu - 3 <= len(pred) <= n_imu, (len(pred), n_imu)
+    jump = np.nonzero(np.diff(pred[:, 0]) < -5e6)[0]
+    # measured: the predicted times step back 9.990 s (10 s less the 2 samples dropped)
+    assert len(jump) == 1 and 9.97e6 <= pred[jump[0], 0] - pred[jump[0] + 1, 0] <= 10.0e6
 
 
 def test_frame_mismatch_is_an_error_naming_both(drive, tmp_path):
@@ -418,3 +536,47 @@ def test_frame_mismatch_is_an_error_naming_both(drive, tmp_path):
     assert "lidar:imported" in p.stderr and "prius2017" in p.stderr
     st = last_status_msg(out)
     assert st.state == st.STATE_ERROR and "prius2017" in st.last_error
+
+
+@pytest.fixture(scope="module")
+def reverse_drive(tmp_path_factory):
+    """simdrive --reverse 8: the car backs 8 m at its first stop (about 15 s in); Toyota
+    speeds are magnitudes, the gear is in GEAR_PACKET. Kept: 12-28 s, around the manoeuvre,
+    with GEAR_PACKET removed before the CAN decoding (a car whose DBC has no gear)."""
+    d = tmp_path_factory.mktemp("reverse")
+    run([BIN / "simdrive", "--out", d, "--seed", "5", "--duration", "30", "--reverse", "8", "--quiet"])
+    lb.add_speed_without_gear(d / "drive.lcm", d / "merged.lcm", d)
+    run([sys.executable, FAULT, "cut", "--in", d / "merged.lcm", "--out", d / "input.lcm", "--at", "12", "--for", "16"])
+    gt, fwd = lb.forward_speed(d / "drive.lcm")
+    site = d / "site"
+    site.mkdir()
+    write_cropped_map(gt, site / "map.pcd")
+    return {"dir": d, "gt": gt, "fwd": fwd, "site": site, "input": d / "input.lcm"}
+
+
+@pytest.mark.parametrize("mode", ["imu_can_no_gear", "lidar_only"])
+def test_reversing_keeps_tracking(reverse_drive, tmp_path, mode):
+    """Backing 8 m: with IMU and an unsigned CAN speed the direction comes from the IMU at the
+    departure; LiDAR alone takes it from the matches. Tracking all along, no LOST."""
+    r = reverse_drive
+    gt, inp = r["gt"], r["input"]
+    t_first = lb.read_channel_times(inp, "LIDAR_SCAN")[0]
+    g = gt[np.searchsorted(gt[:, 0], t_first)]
+    out = tmp_path / "o.lcm"
+    extra = ["--no-imu", "--no-speed"] if mode == "lidar_only" else []
+    localize(r, inp, out, "--no-gnss", *extra, "--initial-pose=%f,%f,%f,0,0,%f" % (*g[1:4], math.degrees(g[4])),
+             site=r["site"])
+    poses = lb.read_poses(out, "POSE")
+    t_rev = gt[r["fwd"] < -0.3, 0]
+    assert t_rev[-1] - t_rev[0] > 4e6                           # the car did back (measured 5.1 s)
+    k = first_tracking(poses)
+    assert k is not None and poses[k, 0] < t_rev[0] - 1e6        # tracking before it backs
+    during = poses[(poses[:, 0] >= t_rev[0]) & (poses[:, 0] <= t_rev[-1])]
+    assert len(during) > 40 and np.all(during[:, 5] == 1), during[:, 5]
+    assert not np.any(poses[k:, 5] == 3)
+    _, et, ey = lb.errors_vs_truth(during, gt)
+    # measured while backing (51 POSE): IMU + CAN without gear p99 0.074 m (the first
+    # 0.2 s of the departure, before the IMU has told the direction), LiDAR-only p99
+    # 0.009 m; yaw p99 0.003-0.004 degrees in both
+    bound = 0.2 if mode == "imu_can_no_gear" else 0.03
+    assert np.percentile(et, 99) < bound and np.percentile(ey, 99) < 0.015, (np.percentile(et, 99), np.percentile(ey, 99))

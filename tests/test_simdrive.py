@@ -275,6 +275,7 @@ def test_channel_rates(drive60):
     assert n["IMU"] / T >= 100 and n["IMU"] / T == pytest.approx(200.0, rel=0.01)
     assert len(d.can(0x0AA)) / T == pytest.approx(1000 / 12, rel=0.01)
     assert len(d.can(0x0B4)) / T == pytest.approx(1000 / 24, rel=0.01)
+    assert len(d.can(0x3BC)) / T == pytest.approx(1.0, rel=0.05)        # GEAR_PACKET, no shift
     assert n["GNSS_FIX"] / T == pytest.approx(10.0, rel=0.01)
     assert n["GROUND_TRUTH"] / T == pytest.approx(100.0, rel=0.01)
     # log event time = message utime, in order, from the fixed epoch
@@ -394,6 +395,8 @@ def test_can_frames_decode_to_ground_truth(drive60, vehicle):
             worst = max(worst, abs(sig["SPEED"] - 3.6 * d.interp(m.utime, v)))
             # Toyota checksum: id high + id low + length + data bytes 0..6
             assert sig["CHECKSUM"] == (0x00 + 0xB4 + 8 + sum(data[:7])) & 0xFF
+        elif m.id == 0x3BC:
+            assert str(sig["GEAR"]) == "D" and sig["DRIVE_ENGAGED"] == 1     # this drive never reverses
         else:
             pytest.fail(f"unexpected CAN id {m.id:#x}")
     assert worst <= 0.01, worst

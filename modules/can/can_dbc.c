@@ -1,4 +1,4 @@
-/* DBC reader: BO_ and SG_ lines strictly, everything else skipped (see can_dbc.h). */
+/* DBC reader: BO_, SG_ and VAL_ lines strictly, everything else skipped (see can_dbc.h). */
 #include "can_dbc.h"
 
 #include <errno.h>
@@ -7,9 +7,19 @@
 #include <stdlib.h>
 #include <string.h>
 
+/* One entry of a signal's value table (VAL_): raw value -> label. */
+typedef struct {
+    uint32_t dbc_id;        /* the id as written (bit 31: extended) */
+    char signal[CAN_DBC_NAME_MAX];
+    int64_t raw;
+    char label[CAN_DBC_NAME_MAX];
+} can_value_t;
+
 struct can_dbc {
     can_message_t *msgs;
     int nmsgs, cap;
+    can_value_t *vals;
+    int nvals, vcap;
 };
 
 /* A cursor over one line: [p, end). */
@@ -96,9 +106,25 @@ static int read_quoted(cur_t *c, char *out, size_t cap, const char *what)
     if (c->p >= c->end || *c->p != '"') return fail(c, what);
     const char *s = ++c->p;
     while (c->p < c->end && *c->p != '"') c->p++;
-    if (c->p >= c->end) { c->p = s - 1; return fail(c, "unterminated unit string"); }
+    if (c->p >= c->end) { c->p = s - 1; return fail(c, "unterminated string"); }
     size_t n = (size_t)(c->p - s);
-    if (n >= cap) { c->p = s; return fail(c, "unit too long"); }
+    if (n >= cap) { c->p = s; return fail(c, "string too long"); }
+    memcpy(out, s, n);
+    out[n] = 0;
+    c->p++;
+    return 0;
+}
+
+/* A value-table label: quoted, any length (descriptions are long); kept up to cap - 1
+ * characters, which is more than any label a decoder looks up. */
+static int read_label(cur_t *c, char *out, size_t cap)
+{
+    skip_ws(c);
+    if (c->p >= c->end || *c->p != '"') return fail(c, "quoted label expected");
+    const char *s = ++c->p;
+    while (c->p < c->end && *c->p != '"') c->p++;
+    if (c->p >= c->end) { c->p = s - 1; return fail(c, "unterminated string"); }
+    size_t n = (size_t)(c->p - s) < cap - 1 ? (size_t)(c->p - s) : cap - 1;
     memcpy(out, s, n);
     out[n] = 0;
     c->p++;
@@ -223,6 +249,36 @@ static int parse_sg(cur_t *c, can_message_t *m)
     return 0;
 }
 
+/* VAL_ <id> <signal> (<raw> "<label>")* ; -- a signal's value table. Environment
+ * variable tables (VAL_ <name> ...) have no id and are skipped by the caller. */
+static int parse_val(cur_t *c, can_dbc_t *db)
+{
+    uint64_t id;
+    char sig[CAN_DBC_NAME_MAX];
+    if (read_uint(c, 0xFFFFFFFFu, &id, "message id expected")) return -1;
+    if (read_ident(c, sig, sizeof sig, "signal name expected")) return -1;
+    for (;;) {
+        skip_ws(c);
+        if (c->p < c->end && *c->p == ';') return 0;
+        if (c->p >= c->end) return fail(c, "';' expected at the end of the value table");
+        int neg = *c->p == '-';
+        if (neg) c->p++;
+        uint64_t raw;
+        if (read_uint(c, INT64_MAX, &raw, "raw value expected")) return -1;
+        can_value_t v = { (uint32_t)id, "", neg ? -(int64_t)raw : (int64_t)raw, "" };
+        memcpy(v.signal, sig, sizeof sig);
+        if (read_label(c, v.label, sizeof v.label)) return -1;
+        if (db->nvals == db->vcap) {
+            int cap = db->vcap ? 2 * db->vcap : 64;
+            can_value_t *m = realloc(db->vals, (size_t)cap * sizeof *m);
+            if (!m) return fail(c, "out of memory");
+            db->vals = m;
+            db->vcap = cap;
+        }
+        db->vals[db->nvals++] = v;
+    }
+}
+
 static int cmp_msg(const void *a, const void *b)
 {
     const can_message_t *x = a, *y = b;
@@ -271,6 +327,15 @@ can_dbc_t *can_dbc_parse(const char *text, size_t len, pb_err_t *err)
             if (!cur_msg && !skip_signals) { fail(&c, "signal outside a message"); goto bad; }
             if (cur_msg && parse_sg(&c, cur_msg)) goto bad;
             parsed = 1;
+        } else if (!in_string && keyword(&c, "VAL_")) {
+            c.p += 4;
+            skip_ws(&c);
+            cur_msg = NULL;
+            skip_signals = 0;
+            if (c.p < c.end && *c.p >= '0' && *c.p <= '9') {
+                if (parse_val(&c, db)) goto bad;
+                parsed = 1;
+            }
         } else if (!in_string && c.p < c.end && is_ident_char(*c.p)) {
             cur_msg = NULL;     /* any other section ends the message's signal list */
             skip_signals = 0;
@@ -320,6 +385,7 @@ void can_dbc_destroy(can_dbc_t *dbc)
     if (!dbc) return;
     for (int i = 0; i < dbc->nmsgs; i++) free(dbc->msgs[i].signals);
     free(dbc->msgs);
+    free(dbc->vals);
     free(dbc);
 }
 
@@ -384,4 +450,18 @@ double can_signal_value(const can_signal_t *sig, const uint8_t *data, int len, i
     int64_t raw = can_signal_raw(sig, data);
     double r = sig->is_signed ? (double)raw : (double)(uint64_t)raw;
     return r * sig->factor + sig->offset;
+}
+
+int can_dbc_value_raw(const can_dbc_t *dbc, const can_message_t *msg, const char *signal, const char *label,
+                      int64_t *raw)
+{
+    uint32_t dbc_id = msg->id | (msg->extended ? 0x80000000u : 0);
+    for (int i = 0; i < dbc->nvals; i++) {
+        const can_value_t *v = &dbc->vals[i];
+        if (v->dbc_id == dbc_id && strcmp(v->signal, signal) == 0 && strcmp(v->label, label) == 0) {
+            *raw = v->raw;
+            return 0;
+        }
+    }
+    return -1;
 }

@@ -1,10 +1,11 @@
 /* can_dbc: a DBC file (Vector CAN database) read at start-up, and signal decoding.
  *
- * Only what decoding needs is kept: messages (BO_: id, name, length) and their
+ * Only what decoding needs is kept: messages (BO_: id, name, length), their
  * signals (SG_: name, start bit, length, byte order, sign, factor, offset, unit,
- * multiplexing). Every other section (BU_, CM_, BA_, VAL_, ...) is skipped, with
+ * multiplexing) and the signals' value tables (VAL_ id signal raw "label" ... ;).
+ * Every other section (BU_, CM_, BA_, ...) is skipped, with
  * quoted strings that span lines tracked so a comment can never be read as a
- * message. BO_ and SG_ lines are parsed strictly: a malformed one, a signal that
+ * message. BO_, SG_ and VAL_ lines are parsed strictly: a malformed one, a signal that
  * does not fit its message, or a duplicate id is an error "LINE:COL: what".
  *
  * Bit numbering is the DBC one: bit b is bit (b % 8) of byte (b / 8).
@@ -69,6 +70,10 @@ const can_message_t *can_dbc_find(const can_dbc_t *dbc, uint32_t id, int extende
 const can_message_t *can_dbc_find_name(const can_dbc_t *dbc, const char *name);
 const can_signal_t *can_message_signal(const can_message_t *msg, const char *name);
 
+/* The raw value the DBC's value table gives `label` of msg's `signal` (e.g. GEAR "R"):
+ * 0 and *raw, or -1 when the DBC has no such entry. */
+int can_dbc_value_raw(const can_dbc_t *dbc, const can_message_t *msg, const char *signal, const char *label,
+                      int64_t *raw);
 /* Raw value of a signal (sign-extended if signed). The caller guarantees
  * len > sig->last_byte. */
 int64_t can_signal_raw(const can_signal_t *sig, const uint8_t *data);

@@ -10,8 +10,10 @@ struct can_speed_dec {
     const can_dbc_t *dbc;
     const can_message_t *first;         /* message index = msg - first */
     const can_signal_t **checksum_sig;  /* per DBC message: its CHECKSUM signal or NULL */
-    const can_message_t *wheel_msg, *speed_msg, *yaw_msg;
-    const can_signal_t *wheel[4], *speed_sig, *yaw_sig;
+    const can_message_t *wheel_msg, *speed_msg, *yaw_msg, *gear_msg;
+    const can_signal_t *wheel[4], *speed_sig, *yaw_sig, *gear_sig;
+    int64_t gear_reverse_raw, gear_utime;
+    int have_gear, reverse;
     double wheel_scale, speed_scale, yaw_scale;     /* DBC unit -> m/s, rad/s */
     int64_t last_utime, yaw_utime;
     int have_time, have_yaw;
@@ -27,6 +29,8 @@ void can_speed_config_default(can_speed_config_t *cfg)
         .speed_msg = "SPEED", .speed_sig = "SPEED",
         .yaw_msg = "KINEMATICS", .yaw_sig = "YAW_RATE",
         .yaw_max_age_us = 50000,
+        .gear_msg = "GEAR_PACKET", .gear_sig = "GEAR", .gear_reverse = "R",
+        .gear_max_age_us = 5000000,
     };
 }
 
@@ -112,6 +116,12 @@ can_speed_dec_t *can_speed_create(const can_dbc_t *dbc, const can_speed_config_t
     }
     d->yaw_msg = cfg->yaw_msg ? can_dbc_find_name(dbc, cfg->yaw_msg) : NULL;
     if (d->yaw_msg && lookup_signal(d->yaw_msg, cfg->yaw_sig, &d->yaw_sig, rate_unit, &d->yaw_scale, err)) goto bad;
+    /* the gear, when the DBC has the message, the signal and "R" in its value table */
+    d->gear_msg = cfg->gear_msg ? can_dbc_find_name(dbc, cfg->gear_msg) : NULL;
+    d->gear_sig = d->gear_msg && cfg->gear_sig ? can_message_signal(d->gear_msg, cfg->gear_sig) : NULL;
+    if (!d->gear_sig || d->gear_sig->multiplexed || !cfg->gear_reverse ||
+        can_dbc_value_raw(dbc, d->gear_msg, cfg->gear_sig, cfg->gear_reverse, &d->gear_reverse_raw) != 0)
+        d->gear_msg = NULL;
     return d;
 bad:
     can_speed_destroy(d);
@@ -152,6 +162,11 @@ can_verdict_t can_speed_decode(can_speed_dec_t *d, const can_rx_t *f, can_speed_
         d->yaw_utime = f->utime;
         d->have_yaw = 1;
     }
+    if (m == d->gear_msg) {
+        d->reverse = can_signal_raw(d->gear_sig, f->data) == d->gear_reverse_raw;
+        d->gear_utime = f->utime;
+        d->have_gear = 1;
+    }
     if (m != d->wheel_msg && m != d->speed_msg) return CAN_V_DECODED;
 
     memset(out, 0, sizeof *out);
@@ -164,6 +179,12 @@ can_verdict_t can_speed_decode(can_speed_dec_t *d, const can_rx_t *f, can_speed_
         out->speed_mps = sum / 4;
     } else {
         out->speed_mps = value(d->speed_sig, f, d->speed_scale);
+    }
+    /* Speeds are magnitudes (Toyota): the gear gives the direction, while it is recent */
+    if (d->have_gear && llabs(f->utime - d->gear_utime) <= d->cfg.gear_max_age_us) {
+        out->has_gear = 1;
+        out->reverse = d->reverse;
+        if (d->reverse) out->speed_mps = -fabs(out->speed_mps);
     }
     /* A yaw rate from the last yaw_max_age_us (either side: logs may interleave buses). */
     if (d->have_yaw && llabs(f->utime - d->yaw_utime) <= d->cfg.yaw_max_age_us) {

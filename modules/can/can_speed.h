@@ -10,6 +10,10 @@
  *   - the yaw-rate message (Toyota: KINEMATICS 0x024, signal YAW_RATE) gives no
  *     record of its own; its newest value is attached to the next speed record
  *     if it is at most yaw_max_age_us old.
+ *   - the gear message (Toyota: GEAR_PACKET 0x3BC, signal GEAR) gives no record of its
+ *     own; while its newest value is at most gear_max_age_us old, a speed record says
+ *     so, and in reverse (the raw value the DBC's value table gives gear_reverse, "R")
+ *     its speed is negative. Speeds are otherwise magnitudes, as the car sends them.
  * Every frame of a message the DBC knows is checked: its length against the DBC
  * (a frame of another length is not decoded), and, when the DBC message has a
  * CHECKSUM signal and a checksum kind is configured, the checksum.
@@ -51,9 +55,12 @@ typedef struct {
     const char *speed_msg, *speed_sig;
     const char *yaw_msg, *yaw_sig;
     int64_t yaw_max_age_us;
+    const char *gear_msg, *gear_sig, *gear_reverse;    /* gear_reverse: the value-table label */
+    int64_t gear_max_age_us;
 } can_speed_config_t;
 
-/* Toyota message and signal names (opendbc), bus 0, no checksum check, yaw 50 ms. */
+/* Toyota message and signal names (opendbc), bus 0, no checksum check, yaw 50 ms,
+ * gear 5 s (the RAV4 sends GEAR_PACKET about once a second). */
 void can_speed_config_default(can_speed_config_t *cfg);
 
 /* What became of a frame; every frame gets exactly one. */
@@ -80,6 +87,8 @@ typedef struct {
     double wheel_speed_mps[4];      /* FL, FR, RL, RR */
     int has_yaw_rate;
     double yaw_rate_rps;
+    int has_gear;                   /* the gear is known: speed_mps is signed */
+    int reverse;                    /* ... and it is reverse */
 } can_speed_t;
 
 typedef struct can_speed_dec can_speed_dec_t;

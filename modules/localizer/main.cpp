@@ -52,21 +52,37 @@ struct app_t {
     std::vector<int32_t> red_range, red_off;
     std::vector<uint8_t> red_refl;
     map_source_t *map = nullptr;   /* paged around the newest position (map.tiles) */
+    int64_t tile_loads = 0, tile_drops = 0;   /* reported with --verbose */
     const pb_georef_t *geo = nullptr;
     std::string vehicle_name, vehicle_path;
     bool frame_error = false;
 };
 
 /* Pages the map's tiles in around map (x, y): the newest position known (a pose, a
- * GNSS fix, an initial pose). A no-op for a map loaded whole. */
+ * GNSS fix, an initial pose, a place the global search tries). Tiles loaded and dropped
+ * are counted in STATUS (map_tile_loaded, map_tile_dropped). */
 static void page_map(app_t *a, double x, double y)
 {
     pb_err_t err;
-    if (map_source_page(a->map, x, y, &err) < 0) {
+    int rc = map_source_page(a->map, x, y, &err);
+    if (rc < 0) {
         pb_status_count(a->status, "map_tile_unreadable", 1);
         pb_status_error(a->status, "%s", err.msg);
     }
+    if (rc == 0) return;
+    pb_tiles_stats_t st;
+    map_source_stats(a->map, &st);
+    pb_status_count(a->status, "map_tile_loaded", st.loads - a->tile_loads);
+    pb_status_count(a->status, "map_tile_dropped", st.drops - a->tile_drops);
+    if (a->verbose)
+        fprintf(stderr, "localizer: map tiles around (%.0f, %.0f): %lld loaded, %lld dropped, %d held (%lld cells)\n", x,
+                y, (long long)(st.loads - a->tile_loads), (long long)(st.drops - a->tile_drops), st.tiles_loaded,
+                (long long)(st.fine_cells + st.coarse_cells + st.rough_cells));
+    a->tile_loads = st.loads;
+    a->tile_drops = st.drops;
 }
+
+static void page_for_core(void *user, double x, double y) { page_map((app_t *)user, x, y); }
 
 static void input_time(app_t *a, const char *channel, int64_t utime)
 {
@@ -104,8 +120,9 @@ static void usage(FILE *f)
             "taken out), or with neither by a global search of the whole map (place descriptors);\n"
             "until it has a pose, STATUS says why. Detects a wrong pose (structure fit, motion and\n"
             "GNSS consistency) and relocalizes; a LiDAR outage longer than --lidar-lost-s is LOST.\n"
-            "  --site DIR           site folder: map.pcd, optional site.yaml (geo-reference for\n"
-            "                       GNSS); default %s/maps/default\n"
+            "  --site DIR           site folder: map.pcd and map.tiles (its paged form, from\n"
+            "                       map-tiles; held only within --map-radius of the car), optional\n"
+            "                       site.yaml (geo-reference for GNSS); default %s/maps/default\n"
             "  --vehicle FILE       extrinsics (default %s/vehicles/prius2017.yaml)\n"
             "  --replay IN.lcm      run on a log as fast as the CPU allows (with --out)\n"
             "  --out OUT.lcm        where the replay writes POSE, POSE_PREDICTED and STATUS\n"
@@ -114,9 +131,8 @@ static void usage(FILE *f)
             "                       first sweep when no INITIAL_POSE / GNSS start came first\n"
             "  --no-imu, --no-speed, --no-gnss   ignore that input (tests, benchmarks)\n"
             "  --lidar-lost-s S     no LIDAR_SCAN for this long: LOST (default 10)\n"
-            "  --paged-map          page SITE_DIR/map.tiles (tools/map-tiles) in around the car instead of\n"
-            "                       loading map.pcd whole: memory bounded by 120 m, not by the map. Not yet\n"
-            "                       with rough-structure cells or place descriptors (no global search)\n"
+            "  --map-radius M       hold the map's tiles within M metres of the car (default 120; SITE_DIR/\n"
+            "                       map.tiles from map-tiles, else map.pcd is prepared at start-up)\n"
             "  --no-global-search   without a prior or GNSS, wait instead of searching the map\n"
             "  --stats FILE.csv     one line per sweep: utime, wall ms, status, match figures\n"
             "  --column-stride N    use every Nth column of a range-image sweep (default 2; 1 = all)\n"
@@ -167,7 +183,8 @@ static void flush(app_t *a, double t0 = -1)
             pb_status_error(a->status, "%s: %s", ch, err.msg);
         }
         (p.predicted ? a->predicted : a->poses)++;
-        if (!p.predicted && p.status != ST_INITIALIZING)
+        /* a pose that is known (not the "unknown" covariance of a start) */
+        if (!p.predicted && p.covariance(0, 0) < 1e6)
             page_map(a, p.map_from_base.translation().x(), p.map_from_base.translation().y());
     }
     for (const event_t &e : a->out.events) {
@@ -434,11 +451,12 @@ int main(int argc, char **argv)
         { "no-imu", no_argument, 0, 'I' }, { "no-speed", no_argument, 0, 'S' }, { "no-gnss", no_argument, 0, 'G' },
         { "stats", required_argument, 0, 't' }, { "column-stride", required_argument, 0, 'k' }, { "verbose", no_argument, 0, 'V' },
         { "lidar-lost-s", required_argument, 0, 'L' }, { "no-global-search", no_argument, 0, 'g' },
-        { "paged-map", no_argument, 0, 'P' },
+        { "map-radius", required_argument, 0, 'R' },
         { "help", no_argument, 0, 'h' }, { 0, 0, 0, 0 },
     };
     int c;
-    bool paged_map = false;
+    pb_tiles_config_t tiles_cfg;
+    pb_tiles_config_default(&tiles_cfg);
     while ((c = getopt_long(argc, argv, "h", opts, nullptr)) != -1) {
         switch (c) {
         case 's': site = optarg; break;
@@ -472,7 +490,10 @@ int main(int argc, char **argv)
             break;
         }
         case 'g': cfg.global_search = false; break;
-        case 'P': paged_map = true; break;
+        case 'R':
+            if (pb_arg_double("localizer", "--map-radius", optarg, 90, 1e6, &tiles_cfg.load_radius_m) != 0) return 2;
+            tiles_cfg.keep_radius_m = tiles_cfg.load_radius_m + 40;   /* hysteresis: no reload at a tile's edge */
+            break;
         case 'h': usage(stdout); return 0;
         default: usage(stderr); return 2;
         }
@@ -496,6 +517,11 @@ int main(int argc, char **argv)
     ex.base_from_lidar = to_iso(veh.base_from_lidar);
     ex.base_from_imu = to_iso(veh.base_from_imu);
     ex.base_from_gnss = to_iso(veh.base_from_gnss);
+    {   /* the car's own body (returns from the roof where the mount lets beams reach it), 10 cm margin */
+        const double m = 0.10, ro = veh.rear_overhang;
+        const double box[6] = { -ro - m, -veh.width / 2 - m, -m, veh.length - ro + m, veh.width / 2 + m, veh.height + m };
+        memcpy(cfg.reg.body_box, box, sizeof box);
+    }
 
     /* A site folder holding only map.pcd is enough; site.yaml adds the geo-reference. */
     struct stat sb;
@@ -513,18 +539,20 @@ int main(int argc, char **argv)
         fprintf(stderr, "localizer: %s: no site.yaml, so no geo-reference: GNSS_FIX is not used\n", site.c_str());
     }
     double t0 = wall_ms();
-    a.map = map_source_open(site, paged_map, nullptr, &err);
+    a.map = map_source_open(site, &tiles_cfg, &err);
     if (!a.map) return fail_start(bus, a.status, err.msg);
     const pb_regmap_t *map = map_source_map(a.map);
-    if (cfg.has_initial_pose) map_source_page(a.map, cfg.initial_pose[0], cfg.initial_pose[1], &err);
+    if (cfg.has_initial_pose) page_map(&a, cfg.initial_pose[0], cfg.initial_pose[1]);
+    /* the place descriptors of the whole map, for a start with no prior (a few MB) */
+    places_t *places = cfg.global_search ? map_source_places(a.map, &err) : nullptr;
+    if (cfg.global_search && !places && err.msg[0]) return fail_start(bus, a.status, err.msg);
     pb_regmap_info_t info;
     pb_regmap_info(map, &info);
-    if (map_source_paged(a.map))
-        fprintf(stderr, "localizer: map %s: %lld points, paged in tiles within %.0f m of the car\n",
-                map_source_path(a.map), (long long)info.points, info.load_radius_m);
-    else
-        fprintf(stderr, "localizer: map %s: %lld points, %lld cells, loaded in %.1f s\n", map_source_path(a.map),
-                (long long)info.points, (long long)info.cells, (wall_ms() - t0) * 1e-3);
+    pb_tiles_stats_t ts;
+    map_source_stats(a.map, &ts);
+    fprintf(stderr, "localizer: map %s: %lld points in %d tiles of %.0f m, paged within %.0f m of the car; %zu places "
+            "for a global search; ready in %.1f s\n", map_source_path(a.map), (long long)info.points, ts.tiles_total,
+            ts.tile_m, tiles_cfg.load_radius_m, places_count(places), (wall_ms() - t0) * 1e-3);
 
     if (stats) {
         a.stats = fopen(stats, "w");
@@ -533,6 +561,8 @@ int main(int argc, char **argv)
     }
     a.geo = has_geo && a.use_gnss ? &st.geo : nullptr;
     a.L = localizer_create(cfg, ex, map, a.geo);
+    localizer_set_pager(a.L, page_for_core, &a);
+    if (places) localizer_set_places(a.L, places);
     pb_signal_install();
     pb_bus_subscribe(bus, "LIDAR_SCAN", on_scan, &a);
     pb_bus_subscribe(bus, "IMU", on_imu, &a);

@@ -1,32 +1,48 @@
-/* map_source: the localizer's prior map from a site folder, whole or paged.
+/* map_source: the localizer's prior map from a site folder, paged in tiles.
  *
- * With paged = true, SITE/map.tiles (tools/map-tiles; built by `make` for the
- * default site) is paged: only the tiles around the car are held
- * (core/map_tiles). Otherwise SITE/map.pcd is loaded whole, as before. The
- * tile format does not carry the rough-structure cells yet, and place
- * descriptors built from a paged map see only the loaded tiles: opt-in. A map.tiles older than map.pcd is
- * an error naming both (it would localize in yesterday's map).
+ * SITE/map.tiles (tools/map-tiles; built by `make` for the bundled sites) is paged:
+ * only the tiles around the car are held (core/map_tiles), so memory follows the
+ * load radius, not the map. The file also carries the rough-structure cells and the
+ * place descriptors of the whole map (global search without a prior). A map.tiles
+ * prepared from another map.pcd than the site's (size or CRC-32 differ) is an error
+ * naming both: it would localize in yesterday's map. A site with map.pcd alone is
+ * prepared at start-up into a temporary tile file (the whole map is in memory for
+ * those seconds; build map.tiles once to avoid it).
  *
- * Shell code (file I/O). Ownership: map_source_open returns an object freed
- * with map_source_close; map_source_map's pointer is valid until then. */
+ * Shell code (file I/O). Ownership: map_source_open returns an object freed with
+ * map_source_close; map_source_map's pointer is valid until then, its contents
+ * change only in map_source_page. */
 #ifndef LOC_MAP_SOURCE_H
 #define LOC_MAP_SOURCE_H
 
 #include <string>
+#include <vector>
 #include "core/map_tiles.h"
+#include "core/places.h"
 #include "core/regmap.h"
 
 typedef struct map_source map_source_t;
 
-/* site: the folder; cfg NULL = default radii (ignored for a whole map). */
-map_source_t *map_source_open(const std::string &site, bool paged, const pb_tiles_config_t *cfg, pb_err_t *err);
+enum { MAP_SOURCE_TILE_M = 32 };   /* default tile edge, metres */
+
+/* Size and CRC-32 of a map file (identifies the map.pcd a tile file was made from). */
+int map_source_file_id(const char *path, pb_tiles_source_t *id, pb_err_t *err);
+
+/* The whole map.pcd prepared (cells, rough cells, place descriptors) and encoded as a
+ * tile file (out replaced). info: the prepared map's figures (may be NULL). */
+int map_source_prepare(const char *pcd, double tile_m, std::vector<uint8_t> *out, pb_regmap_info_t *info,
+                       size_t *places, pb_err_t *err);
+
+/* site: the folder; cfg NULL = default radii. */
+map_source_t *map_source_open(const std::string &site, const pb_tiles_config_t *cfg, pb_err_t *err);
 void map_source_close(map_source_t *s);
 const pb_regmap_t *map_source_map(const map_source_t *s);
-/* 1 when paged (map.tiles), 0 when whole. */
-int map_source_paged(const map_source_t *s);
-/* The file in use (map.tiles or map.pcd), for messages. */
+/* The file in use, for messages. */
 const char *map_source_path(const map_source_t *s);
-/* Pages around map (x, y); a no-op for a whole map. Returns as pb_tiles_page. */
+/* The stored place descriptors (caller frees with places_destroy), or NULL: with err
+ * set when they are damaged, with err.msg empty when the file has none. */
+loc::places_t *map_source_places(const map_source_t *s, pb_err_t *err);
+/* Pages around map (x, y). Returns as pb_tiles_page. */
 int map_source_page(map_source_t *s, double x, double y, pb_err_t *err);
 void map_source_stats(const map_source_t *s, pb_tiles_stats_t *st);
 

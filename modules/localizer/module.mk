@@ -1,5 +1,5 @@
 # localizer: LiDAR localization in the prior map (core: filter, pipeline, registration).
-$(eval $(call cxx_program,localizer,modules/localizer modules/localizer/core))
+$(eval $(call cxx_program,localizer,modules/localizer modules/localizer/core,-lz))
 
 # Module-level figures on simulated drives (long: simulates ~8 min of driving; cached).
 BENCH_TARGETS += bench-localizer-drive
@@ -7,12 +7,13 @@ BENCH_TARGETS += bench-localizer-drive
 bench-localizer-drive: $(BIN)/localizer $(BIN)/simdrive $(BIN)/can $(BIN)/log-merge
 	@$(VPY) modules/localizer/bench/bench_drive.py
 
-# Resident memory with the map paged in tiles vs whole, over a one-hour replay (a 232 s
-# lap looped; about 10-15 minutes on the shared machine). LOCMEM_LOOPS=N for fewer laps.
+# Resident memory of the localizer as it runs (map paged in tiles) vs every tile held (the
+# whole map), over a one-hour replay (a 232 s lap looped 16 times; replayed faster than
+# real time, 20-40 minutes on the shared machine). LOCMEM_LOOPS=N for fewer laps.
 BENCH_TARGETS += bench-localizer-memory
 .PHONY: bench-localizer-memory
 LOCMEM_LOOPS ?= 16
-bench-localizer-memory: $(BIN)/localizer $(BIN)/simdrive $(BIN)/can $(BIN)/log-merge $(DEFAULT_SITE)/map.tiles
+bench-localizer-memory: $(BIN)/localizer $(BIN)/simdrive $(BIN)/can $(BIN)/log-merge maps/default/map.tiles
 	@$(VPY) modules/localizer/bench/bench_memory.py --loops $(LOCMEM_LOOPS)
 
 # Unit tests of the filter (run by tests/test_c_units.py).

@@ -11,3 +11,6 @@ BENCH_TARGETS += bench-occlusion
 .PHONY: bench-occlusion
 bench-occlusion: $(BIN)/occlusion $(BIN)/occlusion-bench $(BIN)/simdrive
 	@$(VPY) modules/occlusion/bench/bench_occlusion.py
+
+# Unit test of the map: synthetic sweeps (a car alongside, a wall, a box driving away).
+$(eval $(call cxx_test,test_occ_map,tests/c/test_occ_map.cpp modules/occlusion/core/occ_map.cpp,-loctomap -loctomath))

@@ -247,6 +247,13 @@ static void test_predictor(void)
     CHECK_NEAR(dir_predict_arrival(100.0, 10.0, 0.0, 2.0, 0.0), 12.5, 1e-9);
     CHECK(isinf(dir_predict_arrival(50.0, 0.0, 0.0, 2.0, 0.2)));
     CHECK(dir_predict_arrival(0.1, 0.0, 0.0, 2.0, 0.2) == 0);
+    /* braking at 1.5 m/s^2 from 1.2 m/s stops within 1 m: 8 m short of the line it is
+     * stopping behind something (a lead car), so the arrival is unknown ... */
+    CHECK(isinf(dir_predict_arrival(9.0, 1.2, -1.5, 2.0, 0.2)));
+    CHECK(isinf(dir_predict_arrival(40.0, 8.0, -3.0, 2.0, 0.2)));
+    /* ... but an early braker that will ease off (stopping distance at a within 1 m of
+     * twice the line's distance) is still predicted */
+    CHECK(isfinite(dir_predict_arrival(30.0, 10.0, -2.4, 2.0, 0.2)));
 }
 
 /* Terrain: a road climbing 10 % along +x (z = 0.1 x), a sidewalk 0.15 m above it

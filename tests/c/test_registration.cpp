@@ -18,6 +18,7 @@
 #include "pb_check.h"
 #include "deskew.h"
 #include "map_tiles.h"
+#include "places.h"
 #include "refine.h"
 #include "registration.h"
 #include "regmap.h"
@@ -305,15 +306,26 @@ static void test_map_tiles(void)
      * car, and every pose equals the whole map's bit for bit */
     std::vector<float> m;
     street(&m, true, -20, 620);
+    /* bushes on the pavements: scattered points that fit no plane or line (rough cells,
+     * which the structure test counts as map evidence) */
+    std::mt19937 rng(3);
+    std::uniform_real_distribution<double> u(-1, 1);
+    for (double bx = -10; bx < 610; bx += 15)
+        for (int k = 0; k < 400; k++) {
+            double d[3] = {u(rng), u(rng), u(rng)};
+            if (d[0] * d[0] + d[1] * d[1] + d[2] * d[2] > 1) continue;
+            m.push_back((float)(bx + d[0])); m.push_back((float)((bx / 15 - std::floor(bx / 30) * 2 > 0.5 ? 6 : -6) + d[1]));
+            m.push_back((float)(1.5 + d[2]));
+        }
     pb_err_t err;
     pb_regmap_t *whole = pb_regmap_from_points(m.data(), m.size() / 3, nullptr, &err);
     CHECK(whole != nullptr);
     if (!whole) return;
     MemFile f;
-    CHECK(pb_tiles_encode(whole, 32, &f.bytes, &err) == 0);
-    CHECK(pb_tiles_encode(whole, 33, &f.bytes, &err) == -1);   /* not a multiple of 2 m */
+    CHECK(pb_tiles_encode(whole, 32, pb_tiles_source_t{0, 0}, {}, &f.bytes, &err) == 0);
+    CHECK(pb_tiles_encode(whole, 33, pb_tiles_source_t{0, 0}, {}, &f.bytes, &err) == -1);   /* not a multiple of 2 m */
     CHECK_CONTAINS(err.msg, "multiple");
-    CHECK(pb_tiles_encode(whole, 32, &f.bytes, &err) == 0);
+    CHECK(pb_tiles_encode(whole, 32, pb_tiles_source_t{0, 0}, {}, &f.bytes, &err) == 0);
     pb_tiles_config_t tc;
     pb_tiles_config_default(&tc);
     tc.load_radius_m = 60;   /* the scans reach 40 m */
@@ -325,7 +337,8 @@ static void test_map_tiles(void)
     pb_regmap_info(whole, &wi);
     int64_t max_cells = 0, max_first_half = 0, max_second_half = 0;
     int max_tiles = 0;
-    int identical = 0, steps = 0;
+    int identical = 0, steps = 0, fit_identical = 0;
+    int64_t max_rough = 0;
     for (double x = 0; x <= 600; x += 10) {
         CHECK(pb_tiles_page(t, x, 0, &err) >= 0);
         pb_tiles_stats_t st;
@@ -340,6 +353,14 @@ static void test_map_tiles(void)
         pb_reg_align(whole, scan.data(), scan.size() / 3, pose(x + 0.1, -0.2, 3), nullptr, &a, &err);
         pb_reg_align(pb_tiles_map(t), scan.data(), scan.size() / 3, pose(x + 0.1, -0.2, 3), nullptr, &b, &err);
         identical += a.pose.matrix() == b.pose.matrix() && a.inlier_fraction == b.inlier_fraction;
+        /* the structure test (planes, lines and rough cells) gives the same fit too */
+        std::vector<float> above;
+        for (size_t i = 0; i < scan.size() / 3; i++)
+            if (scan[3 * i + 2] > 0.7) above.insert(above.end(), &scan[3 * i], &scan[3 * i + 3]);
+        double fa = pb_reg_structure_fit(whole, above.data(), above.size() / 3, truth, 0.1, 0.25);
+        double fb = pb_reg_structure_fit(pb_tiles_map(t), above.data(), above.size() / 3, truth, 0.1, 0.25);
+        fit_identical += fa == fb && fa > 0.9;
+        max_rough = std::max(max_rough, st.rough_cells);
         steps++;
     }
     pb_tiles_stats_t st;
@@ -349,6 +370,8 @@ static void test_map_tiles(void)
                 (long long)wi.cells, (long long)max_cells, max_tiles, (long long)max_first_half,
                 (long long)max_second_half, (long long)st.loads, (long long)st.drops, identical, steps);
     CHECK(identical == steps);
+    CHECK(fit_identical == steps);
+    CHECK(max_rough > 0);   /* the bushes' rough cells are paged with their tiles */
     /* measured: at most 31% of the street's cells in 12 tiles (two rows: the street
      * spans y = -9..9); a tile is held only while within keep_radius (90 m) of the car,
      * so at most 2 rows of 2 * (90 + 32) / 32 + 1 = 8 */
@@ -359,6 +382,50 @@ static void test_map_tiles(void)
     CHECK(max_first_half > 0 && max_second_half <= max_first_half * 11 / 10);
     CHECK(pb_tiles_page(t, 600, 0, &err) == 0);   /* nothing to do: no change */
     pb_tiles_destroy(t);
+
+    /* the place descriptors stored with the tiles answer a query as the built ones do */
+    loc::places_config_t pc;
+    loc::places_t *built = loc::places_build(whole, pc);
+    CHECK(built != nullptr);
+    if (built) {
+        std::vector<uint8_t> pbytes;
+        loc::places_encode(built, &pbytes);
+        MemFile pf;
+        CHECK(pb_tiles_encode(whole, 32, pb_tiles_source_t{123, 456}, pbytes, &pf.bytes, &err) == 0);
+        pb_tiles_t *pt = pb_tiles_open(mem_read, &pf, pf.bytes.size(), "places.tiles", &tc, &err);
+        CHECK(pt != nullptr);
+        std::vector<uint8_t> back;
+        if (pt) {
+            CHECK(pb_tiles_source(pt).bytes == 123 && pb_tiles_source(pt).crc32 == 456);
+            CHECK(pb_tiles_read_places(pt, &back, &err) == 0 && back == pbytes);
+            pb_tiles_destroy(pt);
+        }
+        char msg[200];
+        loc::places_t *read = loc::places_decode(back.data(), back.size(), msg, sizeof msg);
+        CHECK(read != nullptr && loc::places_count(read) == loc::places_count(built));
+        if (read) {
+            std::vector<float> scan = scan_of(m, pose(300.3, -0.4, 4));
+            loc::place_desc_t d;
+            loc::places_describe(built, scan.data(), scan.size() / 3, &d);
+            std::vector<loc::place_match_t> qa, qb;
+            loc::places_query(built, d, 8, &qa);
+            loc::places_query(read, d, 8, &qb);
+            bool same = qa.size() == qb.size() && !qa.empty();
+            for (size_t i = 0; same && i < qa.size(); i++)
+                same = qa[i].x == qb[i].x && qa[i].y == qb[i].y && qa[i].yaw == qb[i].yaw && qa[i].distance == qb[i].distance;
+            CHECK(same);
+            loc::places_destroy(read);
+        }
+        /* damaged descriptors: refused with the byte named, never a crash */
+        std::vector<uint8_t> bad = pbytes;
+        bad.resize(bad.size() - 1);
+        CHECK(loc::places_decode(bad.data(), bad.size(), msg, sizeof msg) == nullptr);
+        CHECK_CONTAINS(msg, "byte");
+        bad = pbytes;
+        std::memset(bad.data() + 8, 0xff, 8);   /* ring width NaN */
+        CHECK(loc::places_decode(bad.data(), bad.size(), msg, sizeof msg) == nullptr);
+        loc::places_destroy(built);
+    }
 
     /* bad files: named, with the byte offset */
     MemFile bad = f;
@@ -373,10 +440,10 @@ static void test_map_tiles(void)
     CHECK_CONTAINS(err.msg, "out of the file");
     bad = f;
     uint64_t first_cells;
-    std::memcpy(&first_cells, bad.bytes.data() + 128 + 8, 8);
+    std::memcpy(&first_cells, bad.bytes.data() + 192 + 8, 8);
     bad.bytes[first_cells + 44] = 7;   /* a cell kind that does not exist, in the first tile */
     int32_t tx;
-    std::memcpy(&tx, bad.bytes.data() + 128, 4);
+    std::memcpy(&tx, bad.bytes.data() + 192, 4);
     t = pb_tiles_open(mem_read, &bad, bad.bytes.size(), "kind.tiles", &tc, &err);
     CHECK(t != nullptr);
     if (t) {
@@ -443,8 +510,29 @@ static void test_refine(void)
     CHECK_CONTAINS(err.msg, "refine");
 }
 
+/* The car's own body (roof returns from a low mount) is dropped by the body box; a point
+ * outside it at the same range from base is kept (the 2 m sphere alone keeps both). */
+static void test_body_box(void)
+{
+    pb_reg_config_t cfg;
+    pb_reg_config_default(&cfg);
+    cfg.target_points = 0;
+    const float pts[] = { 1.6f, 0.3f, 1.5f,     /* on the roof, 2.2 m from base */
+                          -1.6f, 0.3f, 1.5f,    /* behind the car at the same range */
+                          10.0f, 2.0f, 0.5f };  /* far */
+    std::vector<float> out;
+    pb_reg_downsample(pts, 3, &cfg, &out);
+    CHECK(out.size() == 9);
+    const double box[6] = { -1.14, -0.98, -0.1, 3.6, 0.98, 1.57 };
+    memcpy(cfg.body_box, box, sizeof box);
+    pb_reg_downsample(pts, 3, &cfg, &out);
+    CHECK(out.size() == 6);
+    for (size_t i = 0; i < out.size(); i += 3) CHECK(!(out[i] > 1.0f && out[i] < 2.0f));
+}
+
 int main(void)
 {
+    test_body_box();
     test_align_street();
     test_degenerate_corridor();
     test_regmap_errors();

@@ -11,3 +11,6 @@ bench-director: $(BIN)/bench-director $(BIN)/director $(BIN)/simdrive maps
 	@echo
 	@echo "Arrival timing with a human driver (simdrive --driver-spread 0.2: cruise, braking point, decel +-20 % per stop)"
 	@$(VPY) tools/bench-director/timing.py --seeds 1,2,3,4,5 --driver-spread 0.2 --json $(BUILD)/bench/director-timing-varied.json
+	@echo
+	@echo "Arrival timing behind a lead car (simdrive --with lead) with the human driver (--driver-spread 0.2)"
+	@$(VPY) tools/bench-director/timing.py --seeds 1,2,3,4,5 --driver-spread 0.2 --with lead --json $(BUILD)/bench/director-timing-lead.json

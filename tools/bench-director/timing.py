@@ -91,6 +91,8 @@ def main():
     ap.add_argument("--driver-spread", type=float, default=0.0,
                     help="simdrive's human driver: cruise speed, braking point and deceleration vary by "
                          "+-this from stop to stop (0: the planner's own curve, which the predictor was fitted to)")
+    ap.add_argument("--with", dest="with_groups", default="",
+                    help="simdrive --with: e.g. lead (a lead car the road car follows and stops behind)")
     ap.add_argument("--site", default=str(SITE))
     ap.add_argument("--json", default=None, help="write the table here (default build/bench/director-timing.json)")
     args = ap.parse_args()
@@ -120,8 +122,8 @@ def main():
     for prof in PROFILES:
         for seed in seeds:
             d = work / f"{prof}_{seed}"
-            run([BIN / "simdrive", "--no-lidar", "--quiet", "--seed", seed, "--duration", 100 if prof == "cautious" else 75, "--speed-profile", prof, "--out", d,
-                 "--site", site, "--driver-spread", args.driver_spread])
+            run([BIN / "simdrive", "--no-lidar", "--quiet", "--seed", seed, "--duration", int((100 if prof == "cautious" else 75) * (1.5 if args.with_groups else 1)), "--speed-profile", prof, "--out", d,
+                 "--site", site, "--driver-spread", args.driver_spread] + (["--with", args.with_groups] if args.with_groups else []))
             gt = ground_truth(d / "drive.lcm")
             for name, f_sync, f_fixed, agent, mark, stop_xy in scen:
                 for kind, f in (("sync", f_sync), ("fixed", f_fixed)):
@@ -159,7 +161,8 @@ def main():
                         continue
                     lab_rows[prof][kind].append((t_mark - t_rest) / 1e6)
     print(f"Arrival timing: |t(pedestrian at mark) - t(car at rest at the stop line)|, s "
-          f"({len(scen)} scenarios; road: simdrive GROUND_TRUTH 100 Hz, seeds {args.seeds}; "
+          f"({len(scen)} scenarios; road: simdrive GROUND_TRUTH 100 Hz, seeds {args.seeds}, driver spread "
+          f"{args.driver_spread}{', with ' + args.with_groups if args.with_groups else ''}; "
           f"lab: lab_vehicle POSE 100 Hz, proceed 2 s after each stop; AGENTS 60 Hz)")
     print(f"{'profile':<14} {'n':>3} | {'sync median':>11} {'sync p95':>9} {'sync max':>9} | {'fixed median':>12} {'fixed p95':>10} {'fixed max':>10} | {'p95 ratio':>9}")
     allsync, allfixed = [], []
@@ -184,7 +187,7 @@ def main():
     import json
     out = pathlib.Path(args.json) if args.json else ROOT / "build" / "bench" / "director-timing.json"
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"site": str(site.name), "driver_spread": args.driver_spread, "seeds": seeds,
+    out.write_text(json.dumps({"site": str(site.name), "driver_spread": args.driver_spread, "with": args.with_groups, "seeds": seeds,
                                "road": rows, "lab": lab_rows, "missing": missing,
                                "sync_p95_all": float(np.percentile(s, 95)), "fixed_p95_all": float(np.percentile(fx, 95))},
                               indent=1))

@@ -8,21 +8,22 @@ BENCH_TARGETS += bench-localizer
 # A 60 s drive on the default site (drive day: other parked cars, traffic), every 2nd
 # scan (~300) for ours, every 15th of those (~20) for the baselines as well.
 LOCREG_BENCH := $(BUILD)/bench/localizer
-$(LOCREG_BENCH)/drive.lcm: $(BIN)/simdrive $(DEFAULT_SITE)/map.pcd vehicles/prius2017.yaml
+$(LOCREG_BENCH)/drive.lcm: $(BIN)/simdrive maps/default/map.pcd vehicles/prius2017.yaml
 	@echo "  SIM     $(@D) (60 s, seed 11)"
 	@rm -rf $(@D).tmp && $(BIN)/simdrive --seed 11 --duration 60 --speed-profile normal --quiet \
-	    --site $(DEFAULT_SITE) --vehicle vehicles/prius2017.yaml --out $(@D).tmp && \
+	    --site maps/default --vehicle vehicles/prius2017.yaml --out $(@D).tmp && \
 	  mkdir -p $(@D) && mv $(@D).tmp/drive.lcm $@ && rm -rf $(@D).tmp
 
 bench-localizer: $(BIN)/bench-localizer $(LOCREG_BENCH)/drive.lcm $(DEPS)
-	@$(BIN)/bench-localizer --log $(LOCREG_BENCH)/drive.lcm --map $(DEFAULT_SITE)/map.pcd \
+	@$(BIN)/bench-localizer --log $(LOCREG_BENCH)/drive.lcm --map maps/default/map.pcd \
 	    --vehicle vehicles/prius2017.yaml --every 2 --baseline-every 15 \
 	    --dump $(LOCREG_BENCH)/baseline.bin --json $(LOCREG_BENCH)/results.json
 	@$(VPY) tools/bench-localizer/bench.py $(LOCREG_BENCH)/baseline.bin $(LOCREG_BENCH)/results.json
 
 # Unit tests of the registration core (run by make test through tests/test_c_units.py).
 LOCREG_CORE := modules/localizer/core/registration.cpp modules/localizer/core/regmap.cpp modules/localizer/core/deskew.cpp \
-               modules/localizer/core/map_tiles.cpp modules/localizer/core/refine.cpp
+               modules/localizer/core/map_tiles.cpp modules/localizer/core/refine.cpp \
+               modules/localizer/core/places.cpp
 $(eval $(call cxx_test,test_registration,tests/c/test_registration.cpp $(LOCREG_CORE)))
 $(OBJ)/tests/c/test_registration.o: CPPFLAGS += -I$(TOP)/modules/localizer/core
 

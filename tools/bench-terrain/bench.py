@@ -6,16 +6,27 @@
    true height field (simdrive --terrain-out) on the true drivable and walkable
    cells: |error| median, p95, max, and the share of those cells the model covers.
    Baseline: the flat ground z = 0 every figure used before terrain. Target: p95 <= 5 cm.
-2. simdrive's wall and CPU time for a 60 s drive (LiDAR on), on hills (terrain)
-   and on default (flat plane: the baseline), one run each, same seed.
+2. simdrive's wall and CPU time for a 60 s drive (LiDAR on), on hills (terrain),
+   on default (flat plane: the baseline) and on default with the messier world
+   (--with lead,crossing,pedestrians,roof), one run each, same seed.
    Target: <= 30 s wall on 2 cores.
 
 3. (--localizer) the current localizer on the hills: simdrive drives (3 profiles x
    the given seeds, 30 s, drive day) + VEHICLE_SPEED, replayed through the localizer
    started by GNSS, scored against GROUND_TRUTH like make bench-localizer-drive
    (targets: median <= 0.03 m, p99 <= 0.15 m, yaw p99 <= 0.3 deg, no LOST).
+   --loc-sites NAME[:GROUP+GROUP...] drives each site with those simdrive --with groups,
+   e.g. default:lead+crossing+pedestrians+roof (the messier world).
 
-    tools/bench-terrain/bench.py [--sites hills] [--work DIR] [--localizer --loc-seeds 1,2]
+4. (--twin) lab vs road on a site with the localizer's POSE on the road: a 110 s simdrive
+   drive (normal profile) replayed through the localizer, the lab twin offline (proceed
+   2 s after each stop), the director on each with every cw*.yaml scenario. Per
+   scenario: whether the SCENARIO_EVENT sequences (kind, id, agent) are identical, and
+   the distance between the car's positions where each trigger fired on the two
+   platforms. Baseline: the road side on GROUND_TRUTH. Target: identical, <= 0.2 m.
+
+    tools/bench-terrain/bench.py [--sites hills] [--work DIR] [--localizer --loc-seeds 1,2 --loc-sites hills]
+                                 [--twin --twin-seed 3]
 """
 import argparse
 import json
@@ -89,39 +100,87 @@ def ground_accuracy(site, work):
     return row
 
 
-def drive_time(site, work):
-    out = work / f"drive-{site}"
+def drive_time(site, work, groups=""):
+    out = work / f"drive-{site}{'-messy' if groups else ''}"
     t0 = time.monotonic()
     r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     subprocess.run([BIN / "simdrive", "--site", ROOT / "maps" / site, "--out", out, "--duration", "60",
-                    "--seed", "3", "--quiet"], check=True)
+                    "--seed", "3", "--quiet"] + (["--with", groups] if groups else []), check=True)
     r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return {"site": site, "wall_s": time.monotonic() - t0,
+    return {"site": site + (" +" + groups.replace(",", "+") if groups else ""), "wall_s": time.monotonic() - t0,
             "cpu_s": (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)}
 
 
-def localizer_runs(site, seeds, work, duration=30):
+def localizer_runs(spec, seeds, work, duration=30):
+    site, _, groups = spec.partition(":")
+    groups = groups.replace("+", ",")
     sys.path.insert(0, str(ROOT / "modules" / "localizer" / "bench"))
     import locbench as lb
     rows = []
     for prof in ("cautious", "normal", "aggressive"):
         for seed in seeds:
-            d = work / f"loc-{site}-{prof}-{seed}"
+            d = work / f"loc-{site}{'-' + groups.replace(',', '-') if groups else ''}-{prof}-{seed}"
             merged = d / "input.lcm"
             if not merged.exists():
                 lb.sh([BIN / "simdrive", "--site", ROOT / "maps" / site, "--out", d, "--seed", seed,
-                       "--speed-profile", prof, "--duration", duration, "--quiet"])
+                       "--speed-profile", prof, "--duration", duration, "--quiet"] + (["--with", groups] if groups else []))
                 lb.sh([BIN / "can", "--replay", d / "drive.lcm", "--out", d / "speed.lcm"])
                 lb.sh([BIN / "log-merge", "--quiet", "--out", merged, d / "drive.lcm", d / "speed.lcm"])
             out, stats = d / "out.lcm", d / "stats.csv"
             p = lb.run_localizer(merged, out, ["--site", ROOT / "maps" / site], stats)
             if p.returncode != 0:
-                rows.append({"site": site, "profile": prof, "seed": seed, "error": p.stderr[-300:]})
+                rows.append({"site": spec, "profile": prof, "seed": seed, "error": p.stderr[-300:]})
                 continue
             r = lb.score_run(d / "drive.lcm", out, stats)
-            rows.append({"site": site, "profile": prof, "seed": seed,
+            rows.append({"site": spec, "profile": prof, "seed": seed,
                          **{k: r.get(k) for k in ("t_median", "t_p99", "t_max", "yaw_p99", "lost_after_tracking",
                                                   "first_tracking_s")}})
+    return rows
+
+
+def twin_run(site, seed, work):
+    sys.path.insert(0, str(ROOT / "modules" / "localizer" / "bench"))
+    sys.path.insert(0, str(ROOT / "build" / "python"))
+    import lcm
+    import locbench as lb
+    import portobello
+    sdir = ROOT / "maps" / site
+    d = work / f"twin-{site}-{seed}"
+    merged, out, road = d / "input.lcm", d / "loc.lcm", d / "road.lcm"
+    if not road.exists():
+        lb.sh([BIN / "simdrive", "--site", sdir, "--out", d, "--seed", seed, "--duration", 110, "--quiet"])
+        lb.sh([BIN / "can", "--replay", d / "drive.lcm", "--out", d / "speed.lcm"])
+        lb.sh([BIN / "log-merge", "--quiet", "--out", merged, d / "drive.lcm", d / "speed.lcm"])
+        p = lb.run_localizer(merged, out, ["--site", sdir])
+        if p.returncode != 0:
+            raise SystemExit(f"localizer failed: {p.stderr[-500:]}")
+        lb.sh([BIN / "log-merge", "--quiet", "--out", road, d / "drive.lcm", out])
+    lab = d / "lab.lcm"
+    if not lab.exists():
+        lb.sh([BIN / "lab_vehicle", "--site", sdir, "--out", lab, "--auto-proceed", 2.0, "--duration", 115])
+
+    def events(log):
+        return [portobello.scenario_event_t.decode(ev.data) for ev in lcm.EventLog(str(log), "r")
+                if ev.channel == "SCENARIO_EVENT"]
+    rows = []
+    for f in sorted((sdir / "scenarios").glob("cw*.yaml")):
+        seqs, where = {}, {}
+        for side, log, ch in (("lab", lab, "POSE"), ("road", road, "POSE"), ("pred", road, "POSE_PREDICTED"),
+                              ("truth", d / "drive.lcm", "GROUND_TRUTH")):
+            o = d / f"{side}_{f.stem}.lcm"
+            lb.sh([BIN / "director", "--site", sdir, "--scenario", f, "--replay", log, "--out", o, "--pose-channel", ch])
+            ev = events(o)
+            seqs[side] = [(e.kind, e.event_id, e.agent_id) for e in ev]
+            where[side] = {e.event_id: np.array(e.vehicle.position[:2]) for e in ev if e.kind == "trigger"}
+        gap = lambda a, b: max([float(np.hypot(*(where[a][k] - where[b][k]))) for k in where[a] if k in where[b]] or [np.nan])
+        rows.append({"scenario": f.stem, "triggers": len(where["lab"]),
+                     "same_road": seqs["lab"] == seqs["road"], "same_truth": seqs["lab"] == seqs["truth"],
+                     "same_pred": seqs["lab"] == seqs["pred"], "max_trigger_gap_pred_m": gap("lab", "pred"),
+                     "max_trigger_gap_road_m": gap("lab", "road"), "max_trigger_gap_truth_m": gap("lab", "truth"),
+                     "per_trigger_pred_m": {k: float(np.hypot(*(where["lab"][k] - where["pred"][k])))
+                                            for k in where["lab"] if k in where["pred"]},
+                     "per_trigger_road_m": {k: float(np.hypot(*(where["lab"][k] - where["road"][k])))
+                                            for k in where["lab"] if k in where["road"]}})
     return rows
 
 
@@ -131,14 +190,17 @@ def main():
     ap.add_argument("--work")
     ap.add_argument("--localizer", action="store_true", help="also run the localizer on the sites' drives")
     ap.add_argument("--loc-seeds", default="1")
+    ap.add_argument("--loc-sites", default=None, help="sites for --localizer (default: --sites), NAME[:GROUP+GROUP]")
     ap.add_argument("--skip-ground", action="store_true")
+    ap.add_argument("--twin", action="store_true", help="lab twin vs road (localizer POSE) on the first of --sites")
+    ap.add_argument("--twin-seed", type=int, default=3)
     args = ap.parse_args()
     work = pathlib.Path(args.work or tempfile.mkdtemp(prefix="bench-terrain-"))
     work.mkdir(parents=True, exist_ok=True)
     result = {}
     if args.localizer:
         loc = []
-        for site in args.sites.split(","):
+        for site in (args.loc_sites or args.sites).split(","):
             loc += localizer_runs(site, [int(x) for x in args.loc_seeds.split(",")], work)
         print("current localizer (GNSS start) vs GROUND_TRUTH; targets: median <= 0.03 m, p99 <= 0.15 m, "
               "yaw p99 <= 0.3 deg, no LOST")
@@ -152,8 +214,25 @@ def main():
                   f"{f(r['t_max']):>7} {f(r['yaw_p99']):>6} {str(r['lost_after_tracking']):>5} {f(r['first_tracking_s'], 1):>6}")
         result["localizer"] = loc
         print()
+    if args.twin:
+        site = args.sites.split(",")[0]
+        tw = twin_run(site, args.twin_seed, work)
+        print(f"lab twin vs road on {site} (seed {args.twin_seed}, 110 s, normal): SCENARIO_EVENT sequences and the "
+              f"car's position at each trigger; road = the localizer's POSE (10 Hz, as stacks/road.yaml) or "
+              f"POSE_PREDICTED (200 Hz); baseline = GROUND_TRUTH (100 Hz). Target: same, <= 0.2 m")
+        print(f"{'scenario':22} {'trig':>4} | {'POSE same':>9} {'gap m':>6} | {'PREDICTED same':>14} {'gap m':>6} | "
+              f"{'GT same':>7} {'gap m':>6}")
+        for r in tw:
+            print(f"{r['scenario']:22} {r['triggers']:4d} | {str(r['same_road']):>9} {r['max_trigger_gap_road_m']:6.3f} | "
+                  f"{str(r['same_pred']):>14} {r['max_trigger_gap_pred_m']:6.3f} | {str(r['same_truth']):>7} "
+                  f"{r['max_trigger_gap_truth_m']:6.3f}")
+        result["twin"] = tw
+        print()
     if args.skip_ground:
-        print(json.dumps(result, indent=1, default=str))
+        (ROOT / "build" / "bench").mkdir(parents=True, exist_ok=True)
+        out = ROOT / "build" / "bench" / ("terrain-twin.json" if args.twin and not args.localizer else "terrain-localizer.json")
+        out.write_text(json.dumps(result, indent=1, default=str))
+        print(f"wrote {out}")
         return 0
     rows = [ground_accuracy(s, work) for s in args.sites.split(",")]
     print("ground model vs true height field (drivable + walkable cells); baseline: flat z = 0")
@@ -162,11 +241,12 @@ def main():
         print(f"{r['site']:8} {r['cells']:9d} {100 * r['covered']:7.1f}% {100 * r['model_median_m']:7.2f} "
               f"{100 * r['model_p95_m']:7.2f} {100 * r['model_max_m']:7.1f} | {100 * r['flat_median_m']:8.1f} "
               f"{100 * r['flat_p95_m']:8.1f}")
-    times = [drive_time("hills", work), drive_time("default", work)]
+    times = [drive_time("hills", work), drive_time("default", work),
+             drive_time("default", work, "lead,crossing,pedestrians,roof")]
     print("\nsimdrive, 60 s drive with LiDAR (seed 3); baseline: default site (flat plane)")
-    print(f"{'site':8} {'wall s':>7} {'cpu s':>7}")
+    print(f"{'site':42} {'wall s':>7} {'cpu s':>7}")
     for t in times:
-        print(f"{t['site']:8} {t['wall_s']:7.1f} {t['cpu_s']:7.1f}")
+        print(f"{t['site']:42} {t['wall_s']:7.1f} {t['cpu_s']:7.1f}")
     print(f"ratio hills/default: wall {times[0]['wall_s'] / times[1]['wall_s']:.2f}, cpu {times[0]['cpu_s'] / times[1]['cpu_s']:.2f}")
     (ROOT / "build" / "bench").mkdir(parents=True, exist_ok=True)
     out = ROOT / "build" / "bench" / "terrain.json"

@@ -6,20 +6,21 @@
 #include <string>
 #include <vector>
 
-#include "map_tiles.h"
+#include "map_source.h"
 #include "pb_arg.h"
 #include "pb_err.h"
-#include "regmap.h"
 
 static void usage(FILE *f)
 {
     std::fprintf(f,
         "usage: map-tiles --map SITE/map.pcd --out SITE/map.tiles [--tile 32] [--quiet]\n"
         "\n"
-        "Prepares the whole map once (planes and lines at 0.5 m and 2 m, as the localizer\n"
-        "does when it loads map.pcd) and writes every cell into the square tile of --tile\n"
-        "metres it falls in. A site folder with map.tiles is paged by the localizer: only\n"
-        "the tiles within 120 m of the car are held, so memory does not grow with the map.\n"
+        "Prepares the whole map once (planes and lines at 0.5 m and 2 m, and the rough cells\n"
+        "of structure that fits neither) and writes every cell into the square tile of --tile\n"
+        "metres it falls in, followed by the place descriptors of the whole map (for a start\n"
+        "with no prior) and the size and CRC-32 of map.pcd (tiles of another map are refused).\n"
+        "The localizer pages the tiles: only those within 120 m of the car are held, so memory\n"
+        "does not grow with the map.\n"
         "The output is written to OUT.tmp and renamed, so a failed run leaves no half file.\n"
         "  --tile M   tile edge in metres, a multiple of 2 (default 32)\n"
         "  --quiet    no summary line\n");
@@ -45,14 +46,13 @@ int main(int argc, char **argv)
     }
     if (!map_path || !out_path || optind < argc) { usage(stderr); return 2; }
     pb_err_t err;
-    pb_regmap_t *map = pb_regmap_load(map_path, nullptr, nullptr, &err);
-    if (!map) { std::fprintf(stderr, "map-tiles: %s\n", err.msg); return 1; }
     std::vector<uint8_t> bytes;
-    int rc = pb_tiles_encode(map, tile, &bytes, &err);
     pb_regmap_info_t info;
-    pb_regmap_info(map, &info);
-    pb_regmap_destroy(map);
-    if (rc != 0) { std::fprintf(stderr, "map-tiles: %s: %s\n", map_path, err.msg); return 1; }
+    size_t places = 0;
+    if (map_source_prepare(map_path, tile, &bytes, &info, &places, &err) != 0) {
+        std::fprintf(stderr, "map-tiles: %s\n", err.msg);
+        return 1;
+    }
     std::string tmp = std::string(out_path) + ".tmp";
     FILE *f = std::fopen(tmp.c_str(), "wb");
     if (!f || std::fwrite(bytes.data(), 1, bytes.size(), f) != bytes.size() || std::fclose(f) != 0 ||
@@ -62,8 +62,8 @@ int main(int argc, char **argv)
         return 1;
     }
     if (!quiet)
-        std::printf("map-tiles: %s: %lld points -> %lld fine + %lld coarse cells in %.0f m tiles, %s (%.1f MB)\n",
-                    map_path, (long long)info.points, (long long)info.cells, (long long)info.coarse_cells, tile,
-                    out_path, bytes.size() / 1e6);
+        std::printf("map-tiles: %s: %lld points -> %lld fine + %lld coarse cells in %.0f m tiles, %zu places, %s "
+                    "(%.1f MB)\n", map_path, (long long)info.points, (long long)info.cells, (long long)info.coarse_cells,
+                    tile, places, out_path, bytes.size() / 1e6);
     return 0;
 }

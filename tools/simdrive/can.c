@@ -48,3 +48,11 @@ void can_encode_speed(double kmh, uint8_t encoder, uint8_t out[8])
     put_be16(out + 5, lround(kmh / 0.01));
     out[7] = can_toyota_checksum(CAN_ID_SPEED, out, 8);
 }
+
+void can_encode_gear(int gear, uint8_t out[8])
+{
+    /* GEAR 13|6@0+ = bits 5..0 of byte 1; DRIVE_ENGAGED 47|1@0+ = bit 7 of byte 5 */
+    memset(out, 0, 8);
+    out[1] = (uint8_t)(gear & 0x3F);
+    if (gear == CAN_GEAR_D) out[5] = 0x80;
+}

@@ -99,8 +99,13 @@ static void *worker(void *arg)
                 int32_t mm = 0;
                 uint8_t refl = 0;
                 uint64_t h = rng_u64(seed, RNG_LIDAR_DROP, scan, (uint64_t)px);
-                if (world_raycast(ls->world, o, d, maxr, mov, j->nmov, mail, ls->stamp[j->tid], &hit) &&
-                    hit.t > MIN_RANGE_M &&
+                int seen = world_raycast(ls->world, o, d, maxr, mov, j->nmov, mail, ls->stamp[j->tid], &hit);
+                if (ls->body_range && ls->body_range[px] < (seen ? hit.t : INFINITY)) {   /* the car's own body */
+                    seen = 1;
+                    hit.t = ls->body_range[px];
+                    hit.cls = ls->body_cls;
+                }
+                if (seen && hit.t > MIN_RANGE_M &&
                     (double)(h >> 11) * (1.0 / 9007199254740992.0) >= v->lidar_dropout) {
                     /* range counts from the axis: R = n + distance from the beam origin */
                     double range = n + hit.t + sigma * rng_gauss(seed, RNG_LIDAR_NOISE, scan, (uint64_t)px);

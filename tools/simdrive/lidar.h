@@ -33,6 +33,8 @@ typedef struct {
     const lidar_model_t *model;
     uint64_t seed;
     int traffic;                /* simulate moving traffic */
+    const double *body_range;   /* per pixel, range to the car's own body (actors_body_ranges); NULL: not seen */
+    uint8_t body_cls;
     uint32_t *mail[LIDAR_THREADS];  /* per-thread mailboxes */
     uint32_t stamp[LIDAR_THREADS];
 } lidar_sim_t;

@@ -9,6 +9,7 @@
 #include <string.h>
 #include <sys/stat.h>
 
+#include "actors.h"
 #include "pb_arg.h"
 #include "pb_ground.h"
 #include "can.h"
@@ -48,7 +49,8 @@ static void usage(FILE *f)
         "usage: simdrive --out DIR [--seed N] [--duration S] [--speed-profile cautious|normal|aggressive]\n"
         "                [--site SITE_DIR] [--vehicle FILE] [--mapping] [--no-lidar] [--quiet]\n"
         "                [--scenario FILE [--head]]\n"
-        "                [--driver-spread F] [--without GROUPS] [--dwell S]...\n"
+        "                [--driver-spread F] [--without GROUPS] [--with GROUPS] [--dwell S]...\n"
+        "                [--reverse M]\n"
         "       simdrive --terrain-out GROUND.yaml [--site SITE_DIR]\n"
         "\n"
         "Simulates a drive around a site's route and writes DIR/drive.lcm (LCM log) and\n"
@@ -57,7 +59,8 @@ static void usage(FILE *f)
         "dwell times and traffic phase.\n"
         "\n"
         "Channels: LIDAR_SCAN (OS1-64 range image, 10 Hz), IMU (vehicle rate), CAN_FRAME\n"
-        "(Prius 0x0AA WHEEL_SPEEDS ~83 Hz, 0x0B4 SPEED ~41.7 Hz), GNSS_FIX (10 Hz),\n"
+        "(Prius 0x0AA WHEEL_SPEEDS ~83 Hz, 0x0B4 SPEED ~41.7 Hz, both magnitudes; 0x3BC\n"
+        "GEAR_PACKET 1 Hz and at every shift), GNSS_FIX (10 Hz),\n"
         "GROUND_TRUTH (base in map, 100 Hz).\n"
         "\n"
         "  --out DIR             output folder (created)\n"
@@ -73,6 +76,13 @@ static void usage(FILE *f)
         "                        (default 0: the planner's own speed curve)\n"
         "  --without G1,G2       leave out these object groups of world.yaml (the drive day's\n"
         "                        changes, e.g. fence,bus: each switchable)\n"
+        "  --with G1,G2          switch on road users and returns that are off by default:\n"
+        "                        lead (a lead car in the car's lane, world.yaml lead_car:; the\n"
+        "                        car follows it and stops behind it), crossing (cars crossing at\n"
+        "                        junctions), pedestrians (people on sidewalks and crosswalks;\n"
+        "                        both world.yaml crossers:, yielding to the car), roof (LiDAR\n"
+        "                        returns from the car's own body, where the mount lets beams\n"
+        "                        reach it); not with --mapping\n"
         "  --no-lidar            skip LIDAR_SCAN (fast drives for IMU, CAN and GNSS studies)\n"
         "  --scenario FILE       stage the scenario's agents (the director's core on ground\n"
         "                        truth): AGENTS (~33 Hz) and OCCLUSION_TRUTH at every sweep end\n"
@@ -83,6 +93,9 @@ static void usage(FILE *f)
         "  --dwell S             rest S s (1.5 to 3600) at the next stop met, instead of the\n"
         "                        seed's 2-3 s (repeatable: the 1st, 2nd... stop; a participant\n"
         "                        who presses proceed, as study-synth does)\n"
+        "  --reverse M           at the first stop met, shift to R, back M metres (1 to 500)\n"
+        "                        along the route at 2.5 m/s, shift to D and drive back to\n"
+        "                        the stop line (a reversing manoeuvre; deterministic)\n"
         "  --quiet               no progress bar\n"
         "  --terrain-out FILE    write the site's true ground (the terrain's drivable and\n"
         "                        walkable cells; others unknown) as a ground model and exit\n"
@@ -124,7 +137,7 @@ static int write_terrain(const terrain_t *T, const char *path, pb_err_t *err)
     return rc;
 }
 
-enum { S_GT, S_IMU, S_LIDAR, S_GNSS, S_CAN_WS, S_CAN_SPD, S_TRUTH, S_COUNT };
+enum { S_GT, S_IMU, S_LIDAR, S_GNSS, S_CAN_WS, S_CAN_SPD, S_TRUTH, S_CAN_GEAR, S_COUNT };
 
 int main(int argc, char **argv)
 {
@@ -136,16 +149,16 @@ int main(int argc, char **argv)
     double dwells[256];
     const char *scenario = NULL;
     const char *terrain_out = NULL;
-    double driver_spread = 0;
-    char without[256] = "";
+    double driver_spread = 0, reverse_m = 0;
+    char without[256] = "", with[256] = "";
     static const struct option opts[] = {
         { "out", required_argument, 0, 'o' }, { "seed", required_argument, 0, 's' },
         { "duration", required_argument, 0, 'd' }, { "speed-profile", required_argument, 0, 'p' },
         { "site", required_argument, 0, 'S' }, { "vehicle", required_argument, 0, 'v' },
         { "mapping", no_argument, 0, 'm' }, { "terrain-out", required_argument, 0, 'T' },
-        { "driver-spread", required_argument, 0, 'D' }, { "without", required_argument, 0, 'W' }, { "no-lidar", no_argument, 0, 'L' }, { "quiet", no_argument, 0, 'q' },
+        { "driver-spread", required_argument, 0, 'D' }, { "without", required_argument, 0, 'W' }, { "with", required_argument, 0, 'A' }, { "no-lidar", no_argument, 0, 'L' }, { "quiet", no_argument, 0, 'q' },
         { "scenario", required_argument, 0, 'c' }, { "head", no_argument, 0, 'H' },
-        { "dwell", required_argument, 0, 'w' },
+        { "dwell", required_argument, 0, 'w' }, { "reverse", required_argument, 0, 'R' },
         { "help", no_argument, 0, 'h' }, { 0, 0, 0, 0 } };
     int c;
     while ((c = getopt_long(argc, argv, "h", opts, NULL)) != -1) {
@@ -166,6 +179,7 @@ int main(int argc, char **argv)
         case 'm': mapping = 1; break;
         case 'T': terrain_out = optarg; break;
         case 'W': snprintf(without, sizeof without, "%s", optarg); break;
+        case 'A': snprintf(with, sizeof with, "%s", optarg); break;
         case 'D':
             if (pb_arg_double("simdrive", "driver-spread", optarg, 0, 0.5, &driver_spread)) return 2;
             break;
@@ -180,6 +194,9 @@ int main(int argc, char **argv)
             }
             if (pb_arg_double("simdrive", "dwell", optarg, 1.5, 3600, &dwells[ndwells])) return 2;
             ndwells++;
+            break;
+        case 'R':
+            if (pb_arg_double("simdrive", "reverse", optarg, 1, 500, &reverse_m)) return 2;
             break;
         case 'h': usage(stdout); return 0;
         default: usage(stderr); return 2;
@@ -224,6 +241,12 @@ int main(int argc, char **argv)
             pb_route_free(&route);
             return 2;
         }
+    if (with[0] && (mapping || actors_switch_on(world.actors, with, &err))) {
+        fprintf(stderr, "simdrive: %s\n", mapping ? "--with: the mapping day has no traffic" : err.msg);
+        world_free(&world);
+        pb_route_free(&route);
+        return 2;
+    }
     world_build_grid(&world, mapping ? DAY_MAP : DAY_DRIVE, GRID_CELL_M);
     sim_occ_t *occ = NULL;
     if (scenario) {
@@ -239,11 +262,20 @@ int main(int argc, char **argv)
     /* The base origin (rear axle) halts so that the front bumper is 0.5 m behind the line. */
     double stop_offset = (veh.length - veh.rear_overhang) + 0.5;
     trajectory_t traj;
-    traj_driver_t driver = { mapping ? 0 : driver_spread, dwells, ndwells };
+    traj_driver_t driver = { mapping ? 0 : driver_spread, dwells, ndwells, mapping ? 0 : reverse_m, 0 };
     if (traj_plan(&traj, &route, &route.profiles[prof], mapping ? 0 : duration, stop_offset, &driver, seed, &err)) {
         fprintf(stderr, "simdrive: %s\n", err.msg);
         return 1;
     }
+    if (world.actors->on & ACT_LEAD) {     /* behind a lead car: its speed, not the planner's */
+        double front = veh.length - veh.rear_overhang;
+        if (actors_plan_follow(world.actors, &traj, &route, &route.profiles[prof], duration, front, stop_offset, &driver,
+                               seed, &err)) {
+            fprintf(stderr, "simdrive: %s\n", err.msg);
+            return 1;
+        }
+    }
+    actors_schedule(world.actors, &route, &traj, &veh, duration, seed);
     if (mapping) duration = traj.t_end;
     int64_t end_us = (int64_t)llround(duration * 1e6);
 
@@ -265,6 +297,13 @@ int main(int argc, char **argv)
     lidar_sim_t ls = { .world = &world, .route = &route, .traj = &traj, .body = &body, .veh = &veh, .model = &lm,
                        .seed = seed, .traffic = !mapping };
     lidar_sim_init(&ls);
+    double *body_range = NULL;
+    if (world.actors->on & ACT_ROOF) {
+        body_range = malloc(LIDAR_ROWS * LIDAR_COLS * sizeof *body_range);
+        actors_body_ranges(&veh, lm.alt, lm.az, lm.origin_m, LIDAR_ROWS, LIDAR_COLS, body_range);
+        ls.body_range = body_range;
+        ls.body_cls = world.actors->body_cls;
+    }
     imu_sim_t imu;
     imu_sim_init(&imu, &veh, seed);
     gnss_sim_t gnss;
@@ -283,9 +322,11 @@ int main(int argc, char **argv)
     /* Streams: period, phase; CAN frames carry a small receive-time jitter. */
     const int64_t period[S_COUNT] = { GT_PERIOD_US, (int64_t)llround(1e6 / veh.imu_rate_hz),
                                       mapping ? MAPPING_LIDAR_PERIOD_US : LIDAR_PERIOD_US, GNSS_PERIOD_US,
-                                      CAN_WHEEL_SPEEDS_PERIOD_US, CAN_SPEED_PERIOD_US, LIDAR_PERIOD_US };
+                                      CAN_WHEEL_SPEEDS_PERIOD_US, CAN_SPEED_PERIOD_US, LIDAR_PERIOD_US,
+                                      CAN_GEAR_TICK_US };
     /* OCCLUSION_TRUTH at the end of each sweep (its last column) */
-    const int64_t phase[S_COUNT] = { 0, 0, 0, 0, 2000, 5000, lm.col_off_us[LIDAR_COLS - 1] };
+    const int64_t phase[S_COUNT] = { 0, 0, 0, 0, 2000, 5000, lm.col_off_us[LIDAR_COLS - 1], 7000 };
+    int gear_sent = -1;     /* the gear of the last GEAR_PACKET (sent at 1 Hz and at every shift) */
     int64_t k[S_COUNT] = { 0 };
     int64_t counts[S_COUNT] = { 0 };
     pb_progress_t prog;
@@ -295,7 +336,7 @@ int main(int argc, char **argv)
         int64_t tb = 0;
         for (int s = 0; s < S_COUNT; s++) {
             int64_t t = phase[s] + k[s] * period[s];
-            if (s == S_CAN_WS || s == S_CAN_SPD)
+            if (s == S_CAN_WS || s == S_CAN_SPD || s == S_CAN_GEAR)
                 t += (int64_t)llround((rng_uniform(seed, RNG_CAN_JITTER, (uint64_t)s, (uint64_t)k[s]) - 0.5) * 2 * CAN_JITTER_US);
             if (s == S_LIDAR && no_lidar) continue;
             if (s == S_TRUTH && (!occ || mapping)) continue;
@@ -349,6 +390,20 @@ int main(int argc, char **argv)
             PB_LOG_WRITE_MSG(&out, "GNSS_FIX", portobello_gnss_fix_t, &fix);
             break;
         }
+        case S_CAN_GEAR: {
+            int gear = t >= traj.reverse_t0 && t < traj.reverse_t1 ? CAN_GEAR_R : CAN_GEAR_D;
+            if (gear == gear_sent && k[best] % (CAN_GEAR_PERIOD_US / CAN_GEAR_TICK_US) != 0) break;
+            gear_sent = gear;
+            uint8_t data[8];
+            portobello_can_frame_t f = { 0 };
+            f.utime = utime;
+            f.len = 8;
+            f.data = data;
+            f.id = CAN_ID_GEAR;
+            can_encode_gear(gear, data);
+            PB_LOG_WRITE_MSG(&out, "CAN_FRAME", portobello_can_frame_t, &f);
+            break;
+        }
         case S_CAN_WS:
         case S_CAN_SPD: {
             uint8_t data[8];
@@ -368,7 +423,7 @@ int main(int argc, char **argv)
                 f.id = CAN_ID_WHEEL_SPEEDS;
             } else {
                 uint8_t enc = (uint8_t)((int64_t)floor(st.dist / TYRE_CIRCUMFERENCE_M) & 0xFF);
-                can_encode_speed(sw.v * 3.6, enc, data);
+                can_encode_speed(fabs(sw.v) * 3.6, enc, data);   /* a magnitude, as the car sends it */
                 f.id = CAN_ID_SPEED;
             }
             PB_LOG_WRITE_MSG(&out, "CAN_FRAME", portobello_can_frame_t, &f);
@@ -387,9 +442,10 @@ int main(int argc, char **argv)
         fprintf(stderr, "simdrive: %s, %.1f s, %.0f m, %d stops planned: %lld scans, %lld imu, %lld can, %lld gnss, %lld gt -> %s\n",
                 site.name, duration, st_dist_or_zero(&traj, duration), traj.stops_made,
                 (long long)counts[S_LIDAR], (long long)counts[S_IMU],
-                (long long)(counts[S_CAN_WS] + counts[S_CAN_SPD]), (long long)counts[S_GNSS],
+                (long long)(counts[S_CAN_WS] + counts[S_CAN_SPD] + counts[S_CAN_GEAR]), (long long)counts[S_GNSS],
                 (long long)counts[S_GT], out_dir);
     lidar_sim_free(&ls);
+    free(body_range);
     sim_occ_destroy(occ);
     body_model_free(&body);
     free(out.buf);

@@ -83,15 +83,33 @@ static void plan_laps(trajectory_t *tr, const pb_route_t *r, const pb_speed_prof
     }
 
     /* Knots (t, v): constant acceleration between grid points, so v is linear in t. */
-    double *kt = malloc((2 * N + 1) * sizeof *kt), *kv = malloc((2 * N + 1) * sizeof *kv);
-    int nk = 0, stops = 0;
+    double *kt = malloc((2 * N + 13) * sizeof *kt), *kv = malloc((2 * N + 13) * sizeof *kv);
+    int nk = 0, stops = 0, reversed = driver->reverse_m <= 0;
     double t = 0;
+    tr->reverse_t0 = tr->reverse_t1 = 0;
     for (int i = 0; i < N; i++) {
         if (i > 0) {
             double vs = vmax[i - 1] + vmax[i];
             t += vs > 1e-9 ? 2 * ds / vs : 0;
         }
         kt[nk] = t; kv[nk++] = vmax[i];
+        if (i > 0 && dwell[i] > 0 && !reversed && t >= driver->reverse_after_s && i * ds >= driver->reverse_m + 5) {
+            /* the reversing manoeuvre: rests of 2 s (longer than the smoothing window, so
+             * the car is exactly at rest while the gear changes), back reverse_m, forward
+             * reverse_m to the stop line again */
+            const double vr = TRAJ_REVERSE_MPS, ta = vr / TRAJ_REVERSE_ACCEL;
+            const double tc = fmax(driver->reverse_m - vr * ta, 0) / vr;
+            reversed = 1;
+            for (int dir = -1; dir <= 1; dir += 2) {
+                t += 2.0;
+                kt[nk] = t; kv[nk++] = 0;
+                if (dir < 0) tr->reverse_t0 = t - 1.0;
+                else tr->reverse_t1 = t - 1.0;
+                t += ta; kt[nk] = t; kv[nk++] = dir * vr;
+                t += tc; kt[nk] = t; kv[nk++] = dir * vr;
+                t += ta; kt[nk] = t; kv[nk++] = 0;
+            }
+        }
         if (dwell[i] > 0 || i == 0) {
             double d = i == 0 ? 1.0 : dwell[i];   /* 1 s at rest before moving off */
             if (i) stops++;

@@ -16,6 +16,7 @@ typedef struct {
     double *v, *s;      /* speed (m/s) and distance travelled (m) at k*dt */
     double t_end;       /* last time with a valid profile, s */
     int stops_made;     /* stops planned within t_end */
+    double reverse_t0, reverse_t1;  /* the gear is R in [t0, t1) (both 0: no reversing) */
 } trajectory_t;
 
 typedef struct {
@@ -39,7 +40,14 @@ typedef struct {
     double spread;
     const double *dwells;   /* may be NULL: the rest at the first ndwells stops met, s */
     int ndwells;
+    /* reverse_m > 0: at the first stop met after reverse_after_s (and at least reverse_m + 5 m
+     * into the route) the driver shifts to R, backs reverse_m along the route at
+     * TRAJ_REVERSE_MPS, stops, shifts to D, drives back to the stop line, then dwells */
+    double reverse_m, reverse_after_s;
 } traj_driver_t;
+
+#define TRAJ_REVERSE_MPS 2.5     /* reversing speed (9 km/h, a parking manoeuvre) */
+#define TRAJ_REVERSE_ACCEL 1.0   /* m/s^2, speeding up and slowing down in the manoeuvre */
 
 /* Plans a drive from rest at the start of the route. duration > 0: long enough
  * for duration seconds (laps repeat). duration <= 0: exactly one lap, ending at

@@ -7,6 +7,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "actors.h"
 #include "pb_config.h"
 #include "rng.h"
 
@@ -127,15 +128,17 @@ int world_load(const char *path, const pb_route_t *route, world_t *w, pb_err_t *
     pb_cfg_t *cfg = pb_cfg_load(path, err);
     if (!cfg) return -1;
     int rc = -1;
-    struct { const pb_cfg_node_t *classes, *traffic, *objects, *terrain; char ground[24], paint[24]; } top =
-        { 0, 0, 0, 0, "", "" };
+    struct { const pb_cfg_node_t *classes, *traffic, *objects, *terrain, *lead, *crossers; char ground[24], paint[24]; } top =
+        { 0, 0, 0, 0, 0, 0, "", "" };
     const pb_cfg_field_t f[] = {
         { "classes", PB_CFG_NODE, offsetof(typeof(top), classes), 0, 1 },
         { "ground_class", PB_CFG_STRING, offsetof(typeof(top), ground), sizeof top.ground, 1 },
         { "paint_class", PB_CFG_STRING, offsetof(typeof(top), paint), sizeof top.paint, 0 },
         { "traffic", PB_CFG_NODE, offsetof(typeof(top), traffic), 0, 0 },
         { "objects", PB_CFG_NODE, offsetof(typeof(top), objects), 0, 1 },
-        { "terrain", PB_CFG_NODE, offsetof(typeof(top), terrain), 0, 0 }, PB_CFG_END };
+        { "terrain", PB_CFG_NODE, offsetof(typeof(top), terrain), 0, 0 },
+        { "lead_car", PB_CFG_NODE, offsetof(typeof(top), lead), 0, 0 },
+        { "crossers", PB_CFG_NODE, offsetof(typeof(top), crossers), 0, 0 }, PB_CFG_END };
     const pb_cfg_node_t *root = pb_cfg_root(cfg);
     if (pb_cfg_read(root, f, &top, err)) goto out;
     if (pb_node_kind(top.classes) != PB_NODE_MAP) {
@@ -169,6 +172,8 @@ int world_load(const char *path, const pb_route_t *route, world_t *w, pb_err_t *
             if (read_traffic(w, pb_node_at(top.traffic, i), &w->traffic[i], err)) goto out;
     }
     if (terrain_load(&w->terrain, top.terrain, route, WORLD_TERRAIN_MARGIN_M, err)) goto out;
+    w->actors = calloc(1, sizeof *w->actors);
+    if (actors_load(w->actors, w, top.lead, top.crossers, err)) goto out;
     w->nprims = pb_node_count(top.objects);
     w->prims = calloc(w->nprims ? w->nprims : 1, sizeof *w->prims);
     for (int i = 0; i < w->nprims; i++) {
@@ -206,6 +211,8 @@ int world_group_off(world_t *w, const char *name, pb_err_t *err)
 
 void world_free(world_t *w)
 {
+    if (w->actors) actors_free(w->actors);
+    free(w->actors);
     terrain_free(&w->terrain);
     free(w->prims); free(w->cw); free(w->cell_start); free(w->cell_items); free(w->cell_maxz);
     memset(w, 0, sizeof *w);
@@ -285,7 +292,7 @@ int world_movers(const world_t *w, const pb_route_t *route, double t, uint64_t s
         m->z0 = hg + tr->z0; m->z1 = hg + tr->z0 + tr->size[2];
         m->cls = tr->cls;
     }
-    return w->ntraffic;
+    return w->ntraffic + (w->actors ? actors_movers(w->actors, w, t, out + w->ntraffic, WORLD_MAX_TRAFFIC - w->ntraffic) : 0);
 }
 
 /* ---------------------------------------------------------------- intersections */

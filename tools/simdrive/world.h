@@ -39,12 +39,15 @@ typedef struct {                /* a mover placed at one instant */
     uint8_t cls;
 } mover_t;
 
+struct actors_s;
+
 typedef struct {
     int nclasses;
     char class_name[WORLD_MAX_CLASSES][24];
     double albedo[WORLD_MAX_CLASSES];
     uint8_t ground_cls, paint_cls;
     terrain_t terrain;          /* the ground; objects' z0 and traffic stand on it */
+    struct actors_s *actors;    /* lead car, crossers, the car's body (actors.h) */
     int nprims;
     prim_t *prims;
     int ngroups;                /* named changes of the drive day (object key `group`) */
@@ -74,7 +77,8 @@ int world_group_off(world_t *w, const char *name, pb_err_t *err);
 void world_build_grid(world_t *w, int day, double cell_m);
 void world_free(world_t *w);
 
-/* Places traffic at time t (s since start, seed-dependent phase). Returns the count. */
+/* Places traffic at time t (s since start, seed-dependent phase), then the actors
+ * switched on (actors.h; the same count and order at every t). Returns the count. */
 int world_movers(const world_t *w, const pb_route_t *route, double t, uint64_t seed, mover_t *out);
 
 typedef struct { double t; int cls; } hit_t;

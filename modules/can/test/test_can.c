@@ -113,6 +113,9 @@ static void test_dbc_errors(void)
     expect_error("BO_ 1 A: 8 X\n SG_ S : 0|8@1+ (1,nan) [0|0] \"\" X\n", "2:", "offset");
     expect_error(" SG_ S : 0|8@1+ (1,0) [0|0] \"\" X\n", "1:", "signal outside a message");
     expect_error("BO_ 1 A: 8 X\n SG_ S : 0|8@1+ (1,0) [0|0] \"\" X\n SG_ S : 8|8@1+ (1,0) [0|0] \"\" X\n", "3:1:", "duplicate signal");
+    expect_error("BO_ 1 A: 8 X\nVAL_ 1 S 0 \"D\" 16 \"R\"\n", "2:", "';' expected");
+    expect_error("BO_ 1 A: 8 X\nVAL_ 1 S 0 D ;\n", "2:", "quoted label expected");
+    expect_error("BO_ 1 A: 8 X\nVAL_ 1 S 0 \"D ;\n", "2:", "unterminated");
     static const char nul[] = "BO_ 1 A: 8 X\n BO_\0\n";
     pb_err_t err = { "" };
     CHECK(can_dbc_parse(nul, sizeof nul - 1, &err) == NULL);
@@ -130,6 +133,17 @@ static void test_real_dbcs(void)
         const can_message_t *ws = can_dbc_find(db, 0x0AA, 0), *sp = can_dbc_find(db, 0x0B4, 0);
         CHECK(ws && !strcmp(ws->name, "WHEEL_SPEEDS") && ws->nsignals == 4);
         CHECK(sp && !strcmp(sp->name, "SPEED") && can_message_signal(sp, "CHECKSUM"));
+        can_dbc_destroy(db);
+    }
+    /* the value tables: GEAR_PACKET.GEAR "R" is 16 in both, GEAR_PACKET_HYBRID's 1 (Prius) */
+    for (int k = 0; k < 2; k++) {
+        can_dbc_t *db = can_dbc_load(paths[k], &err);
+        if (!db) continue;
+        int64_t raw = -1;
+        CHECK(can_dbc_value_raw(db, can_dbc_find_name(db, "GEAR_PACKET"), "GEAR", "R", &raw) == 0 && raw == 16);
+        CHECK(can_dbc_value_raw(db, can_dbc_find_name(db, "GEAR_PACKET"), "GEAR", "X", &raw) == -1);
+        const can_message_t *h = can_dbc_find_name(db, "GEAR_PACKET_HYBRID");
+        CHECK(k == 1 || (h && can_dbc_value_raw(db, h, "GEAR", "R", &raw) == 0 && raw == 1));
         can_dbc_destroy(db);
     }
     CHECK(can_dbc_load("/nonexistent.dbc", &err) == NULL);
@@ -214,6 +228,21 @@ static void test_decoder(void)
     f.rtr = 1;
     CHECK(can_speed_decode(d, &f, &s, &back) == CAN_V_REMOTE_FRAME);
     CHECK(!strcmp(can_verdict_name(CAN_V_BAD_CHECKSUM), "bad_checksum"));
+    /* GEAR_PACKET of the RAV4 sample (1533226489.239759): GEAR 0 = "D"; speeds stay
+     * magnitudes. In R (16 by the DBC's value table) the speed turns negative; a gear
+     * older than 5 s is no longer used. */
+    f = frame(1533226489239759, 0, 0x3BC, "000000DE00800000");
+    CHECK(can_speed_decode(d, &f, &s, &back) == CAN_V_DECODED);
+    f = frame(1533226489250000, 0, 0x0B4, "000000001D0B7A5E");
+    CHECK(can_speed_decode(d, &f, &s, &back) == CAN_V_SPEED && s.has_gear && !s.reverse && s.speed_mps > 0);
+    f = frame(1533226489260000, 0, 0x3BC, "0010000000000000");
+    CHECK(can_speed_decode(d, &f, &s, &back) == CAN_V_DECODED);
+    f = frame(1533226489270000, 0, 0x0AA, "25B525B525A0258D");
+    CHECK(can_speed_decode(d, &f, &s, &back) == CAN_V_SPEED && s.has_gear && s.reverse);
+    CHECK_NEAR(s.speed_mps, -7.974306, 1e-6);
+    CHECK(s.wheel_speed_mps[0] > 0);
+    f = frame(1533226495270000, 0, 0x0AA, "25B525B525A0258D");
+    CHECK(can_speed_decode(d, &f, &s, &back) == CAN_V_SPEED && !s.has_gear && s.speed_mps > 0);
     can_speed_destroy(d);
 
     cfg.speed_msg = "NO_SUCH";

@@ -188,6 +188,10 @@ double dir_predict_arrival(double d, double v, double a, double decel, double ea
     if (d <= 0.3 && v < STANDSTILL_V) return 0;
     if (d <= 0) return 0;
     if (v < 0.3) return INFINITY;           /* standing short of the line: it has not set off yet */
+    /* Braking at a, the car stops within v^2 / |a| (twice the constant-deceleration
+     * distance: the jerk-limited ending's bound). Well short of the line it is stopping
+     * behind something (a queue, a car ahead): when it will arrive is unknown. */
+    if (a < -0.2 && v * v / -a < d - 1.0) return INFINITY;
     /* Drivers (and simdrive's smoothed speed profile) ease off the brake before the
      * car comes to rest; constant deceleration misses that by `ease` seconds. In the
      * last metres the ending itself is modelled: v falling like tau^2 (jerk-limited)
@@ -312,8 +316,15 @@ static void sync_speed(director_t *d, int i, const sc_behaviour_t *b, int64_t t)
     /* Holding agents set off on a late-biased prediction (the car may brake more
      * gently than sync decel): early is only repaired by waiting, late by walking faster. */
     double T = car_arrival(d, b, t, a->holding ? b->sync_decel * 0.6 : b->sync_decel);
-    if (!isfinite(T)) {             /* car standing short of the line: wait for it to set off */
-        if (!a->holding) a->speed = b->speed_min;
+    if (!isfinite(T)) {
+        /* car standing or stopping short of the line: pause while the mark stays within
+         * reach at speed_max once the car sets off (its quickest pull-up: accelerating,
+         * then braking, both at sync decel), else walk on slowly */
+        if (a->holding) return;
+        const sc_stop_t *st = &d->sc->stops[b->sync_stop];
+        double dist = route_delta(d->route, d->s_base, st->s - d->front - d->sc->stop_gap_m);
+        double t_go = dist > 0 ? 2 * sqrt(dist / b->sync_decel) : 0;
+        a->speed = D / b->speed_max + W < t_go ? 0 : b->speed_min;
         return;
     }
     double avail = T - W;
@@ -322,6 +333,11 @@ static void sync_speed(director_t *d, int i, const sc_behaviour_t *b, int64_t t)
         if (v < b->speed_min) return;
         a->holding = 0;
     }
+    /* Early even at speed_min (the car slowed down: a lead car, a late braker): pause
+     * once that would be more than 0.5 s early, and set off again at speed_min when it
+     * would be 0.25 s early (the car usually comes sooner than a slow approach predicts). */
+    double slack = avail - D / b->speed_min;
+    if (slack > (a->speed == 0 ? 0.25 : 0.5)) { a->speed = 0; return; }
     a->speed = v < b->speed_min ? b->speed_min : v > b->speed_max ? b->speed_max : v;
 }
 
@@ -339,7 +355,10 @@ static void advance_agent(director_t *d, int i, int64_t t_from, int64_t t_to)
     int synced = b->sync && !a->mark_done && a->wp <= b->sync_mark;
     if (synced && d->stale) { set_anim(d, a, "idle", t_to); return; }   /* held: no trustworthy car time */
     if (synced && d->have_pose) sync_speed(d, i, b, t_to);
-    if (synced && a->holding) { if (!a->anim_override) set_anim(d, a, "idle", t_to); return; }
+    if (synced && (a->holding || a->speed == 0)) {   /* holding, or paused for a car stopping short */
+        if (!a->anim_override) set_anim(d, a, "idle", t_to);
+        return;
+    }
     double moved = 0;
     while (dt > 1e-9 && a->beh >= 0) {
         if (a->wait_left > 0) {

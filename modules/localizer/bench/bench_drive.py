@@ -18,7 +18,9 @@ of issue 9: a 30 s LiDAR outage, a GNSS clock 2 s off, a clock step back of 10 s
 live bus. Everything printed is also written to build/bench/localizer-drive.json.
   BENCH_QUICK=1  only seed 1 (three profiles) and the faults
   BENCH_FAULTS_ONLY=1  only the fault scenarios (and the starts)
-  BENCH_STARTS=N  N guesses per start mode instead of 100 (and N/5 GNSS and no-prior starts)
+  BENCH_STARTS=N  N guesses per start mode instead of 100 (and N/5 GNSS and no-prior starts;
+                  0: no starts)
+  BENCH_JOBS=N    localizer runs at a time for the starts (default 2)
 """
 import math
 import os
@@ -220,15 +222,26 @@ def main():
     print(f"{'GNSS clock 2 s off, GNSS-only start':<34} reported: {o.get('reported')}; tracking "
           f"{fmt(o.get('first_tracking_s'), '{:.1f}')} s after the first sweep; median {fmt(o.get('t_median'))} m   "
           f"(targets: reported, start-up within 3 s)")
-    report["faults"]["live_clock_step_10s"] = fault_live_clock_step(d, log)
-    o = report["faults"]["live_clock_step_10s"]
-    print(f"{'clock step back 10 s, live bus':<34} POSE_PREDICTED {fmt(o.get('rate_before_hz'), '{:.0f}')} Hz in the 3 s "
-          f"before, {fmt(o.get('rate_after_hz'), '{:.0f}')} Hz in the 3 s after; longest pause {fmt(o.get('max_pause_s'))} s; "
-          f"tracking at the end: {o.get('tracking_at_end')}   (target: POSE_PREDICTED keeps its rate)")
+    for sec, label in ((10, "clock step back 10 s, live bus"), (0, "  baseline: no step, same run")):
+        report["faults"][f"live_clock_step_{sec}s"] = o = fault_live_clock_step(d, log, sec)
+        print(f"{label:<34} POSE_PREDICTED {fmt(o.get('rate_before_hz'), '{:.0f}')} Hz in the 3 s before, "
+              f"{fmt(o.get('rate_after_hz'), '{:.0f}')} Hz in the 3 s after; longest pause {fmt(o.get('max_pause_s'))} s; "
+              f"tracking at the end: {o.get('tracking_at_end')}")
+    print(f"{'':<34} (target: POSE_PREDICTED keeps its rate: as without the step)")
+    report["faults"]["reversing_50m"] = fault_reverse()
+    for mode, o in report["faults"]["reversing_50m"].items():
+        print(f"{'reversing 50 m, ' + mode:<34} {o.get('reverse_poses', 0)} POSE while reversing "
+              f"({o.get('reverse_s', 0):.1f} s, {o.get('reverse_m', 0):.1f} m): median {fmt(o.get('t_median'))} m, p99 "
+              f"{fmt(o.get('t_p99'))} m, yaw p99 {fmt(o.get('yaw_p99'), '{:.2f}')} deg; not tracking {o.get('not_tracking')}, "
+              f"LOST {o.get('lost')}   (target: tracking, no LOST)")
     print()
     n = int(os.environ.get("BENCH_STARTS", "100"))
-    report["starts"] = bench_starts.run_starts(d, log, lb.ROOT / "maps" / "default", n_guesses=n,
-                                               n_gnss=max(2, n // 5), n_global=max(2, n // 5))
+    if n > 0:
+        d2 = OUT / "s2_aggressive_30"
+        drives = [(d, log), (d2, lb.make_drive(d2, 2, "aggressive", 30))]
+        report["starts"] = bench_starts.run_starts(drives, lb.ROOT / "maps" / "default", n_guesses=n,
+                                                   n_gnss=max(2, n // 5), n_global=max(2, n // 5),
+                                                   jobs=int(os.environ.get("BENCH_JOBS", "2")))
     bench_starts.write_json(lb.ROOT / "build" / "bench" / "localizer-drive.json", report)
     print(f"written: {lb.ROOT / 'build' / 'bench' / 'localizer-drive.json'}")
 
@@ -261,18 +274,60 @@ def fault_outage(d, log):
     return r
 
 
-def fault_live_clock_step(d, log, url="udpm://239.255.76.67:7901?ttl=0&recv_buf_size=8388608"):
+def fault_reverse():
+    """A drive (seed 5, normal, 70 s) that backs 50 m at its first stop (simdrive --reverse
+    50; the gear in GEAR_PACKET, the speeds magnitudes), started from an --initial-pose at
+    the true start, no GNSS. Modes: IMU + CAN with the gear decoded (signed speed), IMU +
+    CAN without GEAR_PACKET (unsigned speed: the direction from the IMU at the departure), LiDAR
+    alone. Errors over the POSE while the car reverses (GROUND_TRUTH speed along its
+    heading below -0.3 m/s)."""
+    d = OUT / "s5_normal_70_reverse50"
+    log = lb.make_drive(d, 5, "normal", 70, ["--reverse", "50"])
+    nogear = d / "input_nogear.lcm"
+    if not nogear.exists():
+        lb.add_speed_without_gear(d / "drive.lcm", nogear, d)
+    gt, fwd = lb.forward_speed(d / "drive.lcm")
+    rev = fwd < -0.3
+    t_rev = gt[rev, 0]
+    x, y, z, yaw = gt[0, 1], gt[0, 2], gt[0, 3], gt[0, 4] * 180 / math.pi
+    start = ["--no-gnss", f"--initial-pose={x},{y},{z},0,0,{yaw}"]
+    out = {}
+    for mode, tag, inp, extra in (("IMU + CAN with gear", "gear", log, []), ("IMU + CAN, no gear", "nogear", nogear, []),
+                                  ("LiDAR only", "lidar", log, ["--no-imu", "--no-speed"])):
+        o = d / f"out_{tag}.lcm"
+        p = lb.run_localizer(inp, o, start + extra)
+        if p.returncode != 0:
+            out[mode] = {"error": p.stderr[-300:]}
+            continue
+        poses = lb.read_poses(o, "POSE")
+        during = poses[(poses[:, 0] >= t_rev[0]) & (poses[:, 0] <= t_rev[-1])]
+        _, et, ey = lb.errors_vs_truth(during[during[:, 5] == 1], gt)
+        first = np.nonzero(poses[:, 5] == 1)[0]
+        after = poses[first[0]:] if len(first) else poses[:0]
+        out[mode] = {"reverse_s": float(t_rev[-1] - t_rev[0]) * 1e-6,
+                     "reverse_m": float(np.sum(np.abs(fwd[rev])) * 0.01),
+                     "reverse_poses": int(len(during)),
+                     "not_tracking": int(np.sum(during[:, 5] != 1)),
+                     "lost": int(np.sum(after[:, 5] == 3)),
+                     "t_median": float(np.median(et)) if len(et) else None,
+                     "t_p99": float(np.percentile(et, 99)) if len(et) else None,
+                     "yaw_p99": float(np.percentile(ey, 99)) if len(ey) else None}
+    return out
+
+
+def fault_live_clock_step(d, log, seconds=10, url="udpm://239.255.76.67:7901?ttl=0&recv_buf_size=8388608"):
     """The drive published live (12 s from 3 s in) on a private bus; 6 s in, every sensor
-    time steps back 10 s (an NTP or GNSS time sync on the car). POSE_PREDICTED as received."""
+    time steps back `seconds` (an NTP or GNSS time sync on the car; 0: the baseline, the
+    same run without a step). POSE_PREDICTED as received."""
     import subprocess
     import threading
     import time
 
     import lcm
     from portobello import pose_t
-    flog = d / "fault_time_step.lcm"
+    flog = d / f"fault_time_step_{seconds}.lcm"
     subprocess.run([sys.executable, lb.ROOT / "tools/log-fault/log_fault.py", "time-step", "--in", log, "--out", flog,
-                    "--at", "9", "--seconds", "10"], check=True, capture_output=True)
+                    "--at", "9", "--seconds", str(seconds)], check=True, capture_output=True)
     chans = ["IMU", "LIDAR_SCAN", "GNSS_FIX", "VEHICLE_SPEED"]
     # paced by the original event times (the wall clock runs on); the data carry the stepped times
     events = [(o[0], o[1], f[2]) for o, f in zip(lb.read_events(log, chans), lb.read_events(flog, chans))]

@@ -1,7 +1,7 @@
 """Starts like real life, for make bench-localizer-drive (see bench_drive.py).
 
-Every start cuts a simdrive drive in the middle (the car moving at about 10 m/s) and
-replays the next few seconds through the localizer:
+Every start cuts a simdrive drive where the car moves (faster than 3 m/s; cut points
+spread evenly over two drives) and replays the next few seconds through the localizer:
   prior, fused       IMU + CAN + LiDAR, an --initial-pose drawn uniformly within 3 m
                      (horizontal disc) and 15 degrees of the truth, z off by up to 1 m
   prior, LiDAR-only  the same cuts and guesses, LIDAR_SCAN alone
@@ -110,76 +110,105 @@ def print_row(s):
           f"{s['lost']:>5}")
 
 
-def run_starts(drive_dir, log, site, n_guesses=100, n_frames=10, n_gnss=20, n_global=20, seconds=6.0):
-    """All start cases on one drive; returns the summaries (and prints them)."""
+def moving_cut_points(log, gt, n, seconds, min_speed=3.0):
+    """n cut times (s after the log's first event) spread evenly over the part of the
+    drive where the car moves faster than min_speed at the cut."""
+    t0 = first_event(log)
+    dur = (gt[-1, 0] - t0) * 1e-6
+    ts = np.arange(2.0, dur - seconds - 0.5, 0.5)
+    v = np.hypot(np.gradient(gt[:, 1], gt[:, 0] * 1e-6), np.gradient(gt[:, 2], gt[:, 0] * 1e-6))
+    moving = [t for t in ts if np.interp(t0 + t * 1e6, gt[:, 0], v) > min_speed]
+    idx = np.linspace(0, len(moving) - 1, n).round().astype(int)
+    return [float(moving[i]) for i in idx]
+
+
+def run_all(jobs, tasks, label):
+    """Runs fn() of every task on `jobs` threads (each one localizer process); results in order."""
+    from concurrent.futures import ThreadPoolExecutor
+    done = [0]
+
+    def one(fn):
+        r = fn()
+        done[0] += 1
+        progress(label, done[0], len(tasks))
+        return r
+
+    with ThreadPoolExecutor(max_workers=jobs) as ex:
+        return list(ex.map(one, tasks))
+
+
+def localize_and_judge(gt, inp, out, extra):
+    p = lb.run_localizer(inp, out, extra)
+    if p.returncode != 0:
+        return {"tracking_s": None, "converged": False, "errors": [], "yaw_errors": [], "lost": 0}
+    return judge(gt, out)
+
+
+def run_starts(drives, site, n_guesses=100, n_frames=10, n_gnss=20, n_global=20, seconds=6.0, jobs=2):
+    """All start cases on the drives [(drive_dir, log)], n_frames cut points on each, the
+    localizer runs `jobs` at a time; returns the summaries (and prints them)."""
     rng = np.random.default_rng(9)
-    gt = lb.read_poses(drive_dir / "drive.lcm", "GROUND_TRUTH")
-    crop = crop_site(site, gt, drive_dir)
-    work = drive_dir / "starts"
-    work.mkdir(exist_ok=True)
-    frames = [25.0 + 0.5 * k for k in range(n_frames)]
-    print(f"starts like real life (drive {drive_dir.name}, cut at {frames[0]:.1f}-{frames[-1]:.1f} s, car moving; "
-          f"{seconds:.0f} s each; converged = every tracking POSE within {CONVERGED_M} m)")
+    cuts = []   # (gt, cropped site, {mode: cut log}, cut time)
+    for drive_dir, log in drives:
+        gt = lb.read_poses(drive_dir / "drive.lcm", "GROUND_TRUTH")
+        crop = crop_site(site, gt, drive_dir)
+        work = drive_dir / "starts"
+        work.mkdir(exist_ok=True)
+        frames = moving_cut_points(log, gt, n_frames, seconds)
+        print(f"starts on drive {drive_dir.name}: cut at {', '.join(f'{a:.1f}' for a in frames)} s (car moving)")
+        for k, at in enumerate(frames):
+            c = {}
+            for mode, keep in (("fused", "LIDAR_SCAN,IMU,VEHICLE_SPEED,GROUND_TRUTH"), ("lidar", "LIDAR_SCAN,GROUND_TRUTH"),
+                               ("gnss", "LIDAR_SCAN,IMU,VEHICLE_SPEED,GNSS_FIX,GROUND_TRUTH")):
+                c[mode] = work / f"cut_{mode}_{at:.1f}.lcm"
+                if not c[mode].exists():
+                    cut(log, c[mode], at, seconds, keep)
+            cuts.append((gt, crop, c, work))
+    print(f"starts like real life ({len(cuts)} cut points, {seconds:.0f} s each, {jobs} at a time; "
+          f"converged = every tracking POSE within {CONVERGED_M} m)")
     print(f"{'case':<34} {'starts':>6} {'conv %':>7} {'trk s50':>7} {'trk max':>7} {'h med m':>7} {'h p99 m':>7} "
           f"{'yaw99°':>7} {'LOST':>5}")
-    cuts = {}
-    for mode, keep in (("fused", "LIDAR_SCAN,IMU,VEHICLE_SPEED,GROUND_TRUTH"), ("lidar", "LIDAR_SCAN,GROUND_TRUTH"),
-                       ("gnss", "LIDAR_SCAN,IMU,VEHICLE_SPEED,GNSS_FIX,GROUND_TRUTH")):
-        for k, at in enumerate(frames):
-            p = work / f"cut_{mode}_{k}.lcm"
-            if not p.exists():
-                cut(log, p, at, seconds, keep)
-            cuts[(mode, k)] = p
     out = []
     guesses = []
     for i in range(n_guesses):
-        k = i % n_frames
-        first_scan = lb.read_channel_times(cuts[("lidar", k)], "LIDAR_SCAN")[0]
+        gt, _, c, _ = cuts[i % len(cuts)]
+        first_scan = lb.read_channel_times(c["lidar"], "LIDAR_SCAN")[0]
         g = gt_at(gt, first_scan)
         r, a = 3.0 * math.sqrt(rng.uniform()), rng.uniform(0, 2 * math.pi)
-        guesses.append((k, g[1] + r * math.cos(a), g[2] + r * math.sin(a), g[3] + rng.uniform(-1, 1),
+        guesses.append((i % len(cuts), g[1] + r * math.cos(a), g[2] + r * math.sin(a), g[3] + rng.uniform(-1, 1),
                         math.degrees(g[4]) + rng.uniform(-15, 15)))
     for mode, label in (("fused", "prior 3 m/15°, IMU+CAN, moving"), ("lidar", "prior 3 m/15°, LiDAR-only, moving")):
-        runs = []
+        tasks = []
         for i, (k, x, y, z, yaw) in enumerate(guesses):
-            o = work / f"out_{mode}_{i}.lcm"
-            p = lb.run_localizer(cuts[(mode, k)], o, ["--site", crop, "--no-gnss",
-                                                       f"--initial-pose={x:.3f},{y:.3f},{z:.3f},0,0,{yaw:.3f}"])
-            runs.append(judge(gt, o) if p.returncode == 0 else {"tracking_s": None, "converged": False,
-                                                                  "errors": [], "yaw_errors": [], "lost": 0})
-            progress(label, i + 1, len(guesses))
-        s = summary(label, runs)
+            gt, crop, c, work = cuts[k]
+            extra = ["--site", crop, "--no-gnss", f"--initial-pose={x:.3f},{y:.3f},{z:.3f},0,0,{yaw:.3f}"]
+            tasks.append(lambda gt=gt, i_=c[mode], o=work / f"out_{mode}_{i}.lcm", e=extra: localize_and_judge(gt, i_, o, e))
+        s = summary(label, run_all(jobs, tasks, label))
         print_row(s)
         out.append(s)
-    runs = []
+    tasks = []
     for i in range(n_gnss):
-        k = i % n_frames
-        g_in = cuts[("gnss", k)]
+        gt, crop, c, work = cuts[i % len(cuts)]
         moved = work / f"gnss_moved_{i}.lcm"
         shifted = work / f"gnss_{i}.lcm"
         ang = rng.uniform(0, 360)
         east, north = 5.0 * math.cos(math.radians(ang)), 5.0 * math.sin(math.radians(ang))
-        move_gnss(g_in, moved, east, north)
+        move_gnss(c["gnss"], moved, east, north)
         subprocess.run([sys.executable, str(FAULT), "gnss-clock", "--in", str(moved), "--out", str(shifted),
                         "--seconds", "2"], check=True, capture_output=True)
-        o = work / f"out_gnss_{i}.lcm"
-        p = lb.run_localizer(shifted, o, ["--site", crop])
-        runs.append(judge(gt, o) if p.returncode == 0 else {"tracking_s": None, "converged": False,
-                                                              "errors": [], "yaw_errors": [], "lost": 0})
-        progress("GNSS", i + 1, n_gnss)
-    s = summary("GNSS 5 m off, clock +2 s, no prior", runs)
+        tasks.append(lambda gt=gt, i_=shifted, o=work / f"out_gnss_{i}.lcm", e=["--site", crop]:
+                     localize_and_judge(gt, i_, o, e))
+    s = summary("GNSS 5 m off, clock +2 s, no prior", run_all(jobs, tasks, "GNSS"))
     print_row(s)
     out.append(s)
-    runs = []
+    tasks = []
     for i in range(n_global):
-        k = i % n_frames
-        o = work / f"out_global_{i}.lcm"
-        src = cuts[("lidar", k)] if i < n_frames else cuts[("fused", k)]
-        p = lb.run_localizer(src, o, ["--site", site, "--no-gnss"])
-        runs.append(judge(gt, o) if p.returncode == 0 else {"tracking_s": None, "converged": False,
-                                                              "errors": [], "yaw_errors": [], "lost": 0})
-        progress("no prior", i + 1, n_global)
-    s = summary("no prior (global search, full map)", runs, within_s=5.0)
+        gt, _, c, work = cuts[i % len(cuts)]
+        # LiDAR alone and fused alternate over the cut points
+        src = c["lidar"] if i % 2 == 0 else c["fused"]
+        tasks.append(lambda gt=gt, i_=src, o=work / f"out_global_{i}.lcm": localize_and_judge(
+            gt, i_, o, ["--site", site, "--no-gnss"]))
+    s = summary("no prior (global search, full map)", run_all(jobs, tasks, "no prior"), within_s=5.0)
     print_row(s)
     out.append(s)
     print("targets: >= 99% of perturbed starts converge within 0.2 m; tracking median <= 0.03 m, p99 <= 0.15 m, "

@@ -27,16 +27,40 @@ def sh(args, **kw):
     return p
 
 
-def make_drive(out_dir, seed, profile, duration):
-    """simdrive drive + VEHICLE_SPEED merged in: returns the path of the merged log (cached)."""
+def make_drive(out_dir, seed, profile, duration, extra=()):
+    """simdrive drive + VEHICLE_SPEED merged in: returns the path of the merged log (cached).
+    extra: more simdrive options (e.g. --reverse 50)."""
     out_dir = pathlib.Path(out_dir)
     merged = out_dir / "input.lcm"
     if merged.exists():
         return merged
-    sh([BIN / "simdrive", "--out", out_dir, "--seed", seed, "--speed-profile", profile, "--duration", duration, "--quiet"])
+    sh([BIN / "simdrive", "--out", out_dir, "--seed", seed, "--speed-profile", profile, "--duration", duration, "--quiet",
+        *extra])
     sh([BIN / "can", "--replay", out_dir / "drive.lcm", "--out", out_dir / "speed.lcm"])
     sh([BIN / "log-merge", "--quiet", "--out", merged, out_dir / "drive.lcm", out_dir / "speed.lcm"])
     return merged
+
+
+def add_speed_without_gear(drive, out, work):
+    """The drive with VEHICLE_SPEED decoded after dropping GEAR_PACKET (0x3BC): a car whose
+    DBC has no gear, whose speeds are magnitudes. Returns out."""
+    from portobello import can_frame_t
+    raw = pathlib.Path(work) / "drive_nogear.lcm"
+    w = lcm.EventLog(str(raw), "w", overwrite=True)
+    for ev in lcm.EventLog(str(drive), "r"):
+        if not (ev.channel == "CAN_FRAME" and can_frame_t.decode(ev.data).id == 0x3BC):
+            w.write_event(ev.timestamp, ev.channel, ev.data)
+    w.close()
+    sh([BIN / "can", "--replay", raw, "--out", pathlib.Path(work) / "speed_nogear.lcm"])
+    sh([BIN / "log-merge", "--quiet", "--out", out, raw, pathlib.Path(work) / "speed_nogear.lcm"])
+    return out
+
+
+def forward_speed(drive):
+    """(GROUND_TRUTH rows as read_poses, their speed along the car's heading)."""
+    gt = read_poses(drive, "GROUND_TRUTH")
+    vel = np.array([pose_t.decode(e[2]).velocity[:2] for e in read_events(drive, ["GROUND_TRUTH"])])
+    return gt, vel[:, 0] * np.cos(gt[:, 4]) + vel[:, 1] * np.sin(gt[:, 4])
 
 
 def run_localizer(inp, out, extra=(), stats=None, timeout=1800):

@@ -61,6 +61,19 @@ localizer_t *localizer_create(const localizer_config_t &cfg, const extrinsics_t 
     return L;
 }
 
+void localizer_set_pager(localizer_t *L, localizer_pager_fn pager, void *user)
+{
+    L->pager = pager;
+    L->pager_user = user;
+}
+
+void localizer_set_places(localizer_t *L, places_t *places)
+{
+    places_destroy(L->places);
+    L->places = places;
+    L->places_failed = false;
+}
+
 void localizer_destroy(localizer_t *L)
 {
     if (L) places_destroy(L->places);
@@ -82,8 +95,12 @@ static void restart(localizer_t *L, bool keep_pose, outputs_t *out, const char *
     pb_georef_t geo = L->geo;
     int status = L->status;
     places_t *places = L->places;
+    localizer_pager_fn pager = L->pager;
+    void *pager_user = L->pager_user;
     *L = localizer();
     L->places = places;
+    L->pager = pager;
+    L->pager_user = pager_user;
     L->cfg = cfg; L->ex = ex; L->map = map; L->has_geo = has_geo; L->geo = geo;
     filter_create(&L->kf, cfg.filter, ex.base_from_imu);
     L->pred = L->kf;
@@ -92,9 +109,31 @@ static void restart(localizer_t *L, bool keep_pose, outputs_t *out, const char *
     set_status(L, ST_INITIALIZING, out, why);
 }
 
+/* The sensors' clock stepped back by `step` (an NTP or GNSS time sync on the car) while
+ * the car went on moving: every time the core holds moves back with it, so the state is
+ * continuous in the new clock. No search and no restart: POSE_PREDICTED goes on at its
+ * rate, and the next sweep is matched against the prediction as after a LiDAR gap
+ * (degraded until a match is accepted). GNSS keeps its own clock: its offset to the
+ * sensors is measured afresh. */
+static void rebase_clock(localizer_t *L, int64_t step, outputs_t *out, const char *why)
+{
+    auto back = [step](int64_t &t) { if (t != 0) t -= step; };
+    back(L->kf.utime); back(L->pred.utime);
+    for (input_ev_t &e : L->buf) e.t -= step;
+    back(L->newest_t); back(L->last_imu_t); back(L->last_speed_t); back(L->last_scan_t);
+    back(L->last_pose_out_t); back(L->last_pred_out_t); back(L->pend_utime); back(L->pend_t_ref);
+    back(L->cand_t); back(L->hint_t); back(L->last_match_t); back(L->prev_pose_t); back(L->last_structure_t);
+    L->gnss_res.clear();
+    L->gnss_lag.clear();
+    L->has_fix = false;
+    if (L->status == ST_TRACKING) set_status(L, ST_DEGRADED, out, why);
+}
+
 /* A time far behind the newest input (the clock stepped back) or far after it (a gap in
- * the log): start again rather than drop everything as out of order or dead-reckon across. */
-static void check_clock(localizer_t *L, int64_t t, const char *channel, outputs_t *out)
+ * the log): carry the state over to the new clock, or start again, rather than drop
+ * everything as out of order or dead-reckon across. `expected` is the time this input
+ * would have had without a step (its channel's last time plus its last interval). */
+static void check_clock(localizer_t *L, int64_t t, int64_t expected, const char *channel, outputs_t *out)
 {
     /* one stray old message is out of order, not a clock step: the step is taken when
      * cfg.time_jump_inputs successive inputs agree on the earlier time */
@@ -104,6 +143,7 @@ static void check_clock(localizer_t *L, int64_t t, const char *channel, outputs_
     } else if (L->jump_count == 0 || std::llabs(t - L->jump_last_t) > L->cfg.time_jump_us) {
         L->jump_count = 1;
         L->jump_last_t = t;
+        L->jump_step = (expected != 0 ? expected : L->newest_t) - t;
     } else {
         L->jump_count++;
         L->jump_last_t = std::max(L->jump_last_t, t);
@@ -111,10 +151,17 @@ static void check_clock(localizer_t *L, int64_t t, const char *channel, outputs_
     if (behind && L->jump_count >= L->cfg.time_jump_inputs) {
         L->jump_count = 0;
         char why[160];
-        snprintf(why, sizeof why, "%s: time stepped back %.1f s; starting again from the last pose", channel,
-                 (L->newest_t - t) * 1e-6);
-        event(out, "time_jump", "%s", why);
-        restart(L, true, out, why);
+        if (L->pred.initialized && (L->status == ST_TRACKING || L->status == ST_DEGRADED)) {
+            snprintf(why, sizeof why, "%s: time stepped back %.3f s; the pose carries over to the new clock", channel,
+                     L->jump_step * 1e-6);
+            event(out, "time_jump", "%s", why);
+            rebase_clock(L, L->jump_step, out, why);
+        } else {
+            snprintf(why, sizeof why, "%s: time stepped back %.1f s; starting again from the last pose", channel,
+                     (L->newest_t - t) * 1e-6);
+            event(out, "time_jump", "%s", why);
+            restart(L, true, out, why);
+        }
     } else if (L->newest_t != 0 && t - L->newest_t > L->cfg.reinit_gap_us) {
         char why[160];
         snprintf(why, sizeof why, "%s: no input for %.1f s; starting again", channel, (t - L->newest_t) * 1e-6);
@@ -147,7 +194,8 @@ static void apply_input(const localizer_t *L, filter_t *f, const input_ev_t &e)
             if (e.t > f->utime && !imu_fresh(L, e.t)) filter_predict_cv(f, e.t);
             /* many cars report the speed's magnitude only (Toyota wheel speeds): when the
              * scan matches clearly move backwards, so does the car */
-            double v = e.speed >= 0 && L->match_fwd_mps < -L->cfg.reverse_detect_mps ? -e.speed : e.speed;
+            double v = !L->speed_signed && e.speed >= 0 && L->match_fwd_mps < -L->cfg.reverse_detect_mps ? -e.speed
+                                                                                                   : e.speed;
             filter_update_speed(f, v);
         }
     }
@@ -248,7 +296,7 @@ void localizer_imu(localizer_t *L, int64_t utime, const Vec3 &accel, const Vec3 
         event(out, "imu_nonfinite", "IMU: non-finite sample at %lld dropped", (long long)utime);
         return;
     }
-    check_clock(L, utime, "IMU", out);
+    check_clock(L, utime, L->last_imu_t + L->imu_dt, "IMU", out);
     if (utime <= L->last_imu_t) {
         if (utime == L->last_imu_t) event(out, "imu_duplicate");
         else event(out, "imu_out_of_order", "IMU: sample %lld us older than the last one dropped",
@@ -257,7 +305,17 @@ void localizer_imu(localizer_t *L, int64_t utime, const Vec3 &accel, const Vec3 
     }
     if (L->last_imu_t != 0 && utime - L->last_imu_t > L->cfg.imu_gap_us)
         event(out, "imu_gap", "IMU: gap of %.0f ms before %lld", (utime - L->last_imu_t) * 1e-3, (long long)utime);
+    L->imu_dt = L->last_imu_t != 0 ? utime - L->last_imu_t : 0;
     L->last_imu_t = utime;
+    if (L->pred.initialized && L->imu_dt > 0 && L->imu_dt < L->cfg.imu_gap_us) {
+        /* the direction of a departure: the IMU's forward acceleration (gravity and bias
+         * taken out with the filter's attitude) integrated since the car last stood */
+        const Eigen::Matrix3d R = L->pred.q.toRotationMatrix();
+        Vec3 a = R * (accel - L->pred.ba) - Vec3(0, 0, L->cfg.filter.gravity);
+        Vec3 fwd = R * (L->ex.base_from_imu.linear().transpose() * Vec3::UnitX());
+        L->depart_v += a.dot(fwd) * (L->imu_dt * 1e-6);
+        if (L->depart_dir == 0 && std::fabs(L->depart_v) > L->cfg.depart_detect_mps) L->depart_dir = L->depart_v > 0 ? 1 : -1;
+    }
     L->last_accel = accel;
     L->last_gyro = gyro;
     input_ev_t e;
@@ -285,12 +343,17 @@ void localizer_speed(localizer_t *L, int64_t utime, double speed_mps, outputs_t 
         event(out, "speed_invalid", "VEHICLE_SPEED: %g m/s at %lld dropped", speed_mps, (long long)utime);
         return;
     }
-    check_clock(L, utime, "VEHICLE_SPEED", out);
+    check_clock(L, utime, L->last_speed_t + L->speed_dt, "VEHICLE_SPEED", out);
     if (utime <= L->last_speed_t) {
         event(out, utime == L->last_speed_t ? "speed_duplicate" : "speed_out_of_order");
         return;
     }
+    L->speed_dt = L->last_speed_t != 0 ? utime - L->last_speed_t : 0;
     L->last_speed_t = utime;
+    /* an unsigned speed takes the direction the IMU saw at the departure */
+    if (speed_mps < 0) L->speed_signed = true;
+    if (std::fabs(speed_mps) < L->cfg.standstill_mps) { L->depart_v = 0; L->depart_dir = 0; }
+    if (!L->speed_signed && L->depart_dir < 0) speed_mps = -speed_mps;
     input_ev_t e;
     e.t = utime; e.kind = EV_SPEED; e.speed = speed_mps; e.accel.setZero(); e.gyro.setZero();
     /* keep the buffer in time order (IMU and CAN interleave within a few ms) */
@@ -611,13 +674,14 @@ void localizer_scan(localizer_t *L, int64_t utime, const pb_points_t *pts, outpu
         event(out, "scan_invalid", "LIDAR_SCAN: point times span %.1f s (more than a sweep); dropped", max_off * 1e-6);
         return;
     }
-    check_clock(L, t_ref, "LIDAR_SCAN", out);
+    check_clock(L, t_ref, L->last_scan_t + L->scan_dt, "LIDAR_SCAN", out);
     if (L->last_scan_t != 0 && t_ref <= L->last_scan_t) {
         if (t_ref == L->last_scan_t) event(out, "scan_duplicate", "LIDAR_SCAN: sweep at %lld repeated, dropped", (long long)utime);
         else event(out, "scan_out_of_order", "LIDAR_SCAN: sweep %.0f ms older than the last one dropped",
                    (L->last_scan_t - t_ref) * 1e-3);
         return;
     }
+    L->scan_dt = L->last_scan_t != 0 ? t_ref - L->last_scan_t : 0;
     L->last_scan_t = t_ref;
     process_pending(L, out);
     /* A sweep published before its last point was measured (simdrive stamps the log

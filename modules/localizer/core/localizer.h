@@ -68,6 +68,8 @@ struct localizer_config_t {
     int64_t gap_pose_period_us = 100000;   /* POSE period while the LiDAR is missing */
     int64_t speed_timeout_us = 500000;     /* VEHICLE_SPEED older than this is not used */
     double reverse_detect_mps = 0.5;       /* matches moving backwards faster: an unsigned CAN speed is negated */
+    double standstill_mps = 0.05;          /* CAN speed below this: the car stands (a departure follows) */
+    double depart_detect_mps = 0.15;       /* IMU-integrated speed since standing that fixes its direction */
     int min_scan_points = 500;             /* fewer valid points: the sweep is not matched */
     /* match acceptance */
     /* of downsampled points within reg.inlier_m of a plane: a sanity floor only (the
@@ -163,6 +165,18 @@ typedef struct localizer localizer_t;
 localizer_t *localizer_create(const localizer_config_t &cfg, const extrinsics_t &ex, const pb_regmap_t *map,
                               const pb_georef_t *geo /* NULL: GNSS is ignored */);
 void localizer_destroy(localizer_t *L);
+
+/* The map is paged by the caller (core/map_tiles): before the core searches far from
+ * the car (a start with no prior tries places all over the map), it asks for the tiles
+ * around map (x, y) with pager(user, x, y). Without a pager the map is taken as whole. */
+typedef void (*localizer_pager_fn)(void *user, double x, double y);
+void localizer_set_pager(localizer_t *L, localizer_pager_fn pager, void *user);
+
+/* The place descriptors of the whole map (core/places, stored with the map tiles) for a
+ * start with no prior; L takes ownership. Without them, the first global search builds
+ * them from the map it has (the whole map when there is no pager). */
+struct places;
+void localizer_set_places(localizer_t *L, struct places *places);
 
 void localizer_imu(localizer_t *L, int64_t utime, const Vec3 &accel, const Vec3 &gyro, outputs_t *out);
 void localizer_speed(localizer_t *L, int64_t utime, double speed_mps, outputs_t *out);

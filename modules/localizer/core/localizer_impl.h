@@ -47,7 +47,9 @@ struct localizer {
     int64_t newest_t = 0;      /* newest IMU, CAN or LiDAR time: the clock of the sensors */
     int jump_count = 0;        /* successive inputs far behind newest_t, the newest of them */
     int64_t jump_last_t = 0;
+    int64_t jump_step = 0;     /* how far the clock stepped back, from the first input of the run */
     int64_t last_imu_t = 0, last_speed_t = 0, last_scan_t = 0, last_pose_out_t = 0, last_pred_out_t = 0;
+    int64_t imu_dt = 0, speed_dt = 0, scan_dt = 0;   /* the last interval of each input */
     int status = ST_INITIALIZING;
     bool candidate = false;     /* kf holds a pose still being verified */
     bool cand_vel_unknown = false;   /* ... whose velocity is not known yet */
@@ -56,7 +58,9 @@ struct localizer {
     int verify_count = 0, reject_count = 0;
     bool lidar_gap_reported = false;
 
-    places_t *places = nullptr;     /* place descriptors of the map, built at the first global search */
+    places_t *places = nullptr;     /* place descriptors of the map (given, or built at the first global search) */
+    localizer_pager_fn pager = nullptr;   /* pages the map around a place (NULL: a whole map) */
+    void *pager_user = nullptr;
     bool places_failed = false;
     int64_t global_round = 0;
     bool has_hint = false;
@@ -75,6 +79,10 @@ struct localizer {
     int64_t gnss_offset = 0, gnss_offset_reported = 0;
     std::deque<gnss_res_t> gnss_res;
 
+    /* the direction of travel an unsigned CAN speed lacks (Toyota without the gear) */
+    bool speed_signed = false;  /* a negative VEHICLE_SPEED came: the car reports reverse itself */
+    double depart_v = 0;        /* forward speed from the IMU alone since the car last stood */
+    int depart_dir = 0;         /* its sign once clear (+1 forwards, -1 backwards), 0 at rest */
     /* forward speed from successive accepted matches (the direction of travel) */
     Eigen::Isometry3d last_match_pose = Eigen::Isometry3d::Identity();
     int64_t last_match_t = 0;

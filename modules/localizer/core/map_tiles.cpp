@@ -19,8 +19,8 @@ using namespace pb_loc;
 namespace {
 
 const char kMagic[8] = {'P', 'B', 'T', 'I', 'L', 'E', 'S', '1'};
-const uint32_t kVersion = 1;
-const size_t kHeaderBytes = 128, kTableBytes = 32, kCellBytes = 48;
+const uint32_t kVersion = 2;
+const size_t kHeaderBytes = 192, kTableBytes = 32, kCellBytes = 48, kRoughBytes = 8;
 
 int64_t floor_div(int64_t a, int64_t b) { return a / b - ((a % b != 0) && ((a < 0) != (b < 0))); }
 
@@ -46,7 +46,7 @@ template <class T> T get(const uint8_t *p) { T v; std::memcpy(&v, p, sizeof v); 
 struct TileEntry {
     int32_t tx, ty;
     uint64_t offset;
-    uint32_t fine, coarse;
+    uint32_t fine, coarse, rough;
 };
 
 uint64_t tile_id(int32_t tx, int32_t ty) { return ((uint64_t)(uint32_t)tx << 32) | (uint32_t)ty; }
@@ -61,7 +61,8 @@ void pb_tiles_config_default(pb_tiles_config_t *cfg)
     cfg->keep_radius_m = 160;
 }
 
-int pb_tiles_encode(const pb_regmap_t *map, double tile_m, std::vector<uint8_t> *out, pb_err_t *err)
+int pb_tiles_encode(const pb_regmap_t *map, double tile_m, const pb_tiles_source_t &source,
+                    const std::vector<uint8_t> &places, std::vector<uint8_t> *out, pb_err_t *err)
 {
     const Level *lv[2] = {&map->fine, &map->coarse};
     int64_t per[2] = {voxels_per_tile(tile_m, map->fine.voxel), 0};
@@ -69,16 +70,27 @@ int pb_tiles_encode(const pb_regmap_t *map, double tile_m, std::vector<uint8_t> 
     if (!(tile_m > 0) || per[0] == 0 || per[1] == 0)
         return pb_err_set(err, "tile edge %g m is not a whole multiple of the voxel sizes %g and %g m", tile_m,
                           map->fine.voxel, map->coarse.voxel);
-    /* cells of each tile, fine then coarse, in the map's own order (deterministic) */
-    std::map<std::pair<int32_t, int32_t>, std::array<std::vector<uint32_t>, 2>> tiles;
+    /* cells of each tile, fine then coarse, in the map's own order (deterministic);
+     * then the fine rough cells, sorted by key */
+    struct TileCells { std::array<std::vector<uint32_t>, 2> cells; std::vector<uint64_t> rough; };
+    std::map<std::pair<int32_t, int32_t>, TileCells> tiles;
     for (int l = 0; l < 2; l++)
         for (size_t i = 0; i < lv[l]->cells.size(); i++) {
             int32_t tx, ty;
             tile_of_key(lv[l]->keys[i], per[l], &tx, &ty);
-            tiles[{tx, ty}][l].push_back((uint32_t)i);
+            tiles[{tx, ty}].cells[l].push_back((uint32_t)i);
         }
+    size_t nrough = 0;
+    map->fine.rough.for_each([&](uint64_t key, int32_t) {
+        int32_t tx, ty;
+        tile_of_key(key, per[0], &tx, &ty);
+        tiles[{tx, ty}].rough.push_back(key);
+        nrough++;
+    });
+    for (auto &t : tiles) std::sort(t.second.rough.begin(), t.second.rough.end());
     size_t ncells = map->fine.cells.size() + map->coarse.cells.size();
-    out->assign(kHeaderBytes + kTableBytes * tiles.size() + kCellBytes * ncells, 0);
+    size_t places_at = kHeaderBytes + kTableBytes * tiles.size() + kCellBytes * ncells + kRoughBytes * nrough;
+    out->assign(places_at + places.size(), 0);
     std::memcpy(out->data(), kMagic, 8);
     put<uint32_t>(out, 8, kVersion);
     put<uint32_t>(out, 12, (uint32_t)tiles.size());
@@ -94,16 +106,22 @@ int pb_tiles_encode(const pb_regmap_t *map, double tile_m, std::vector<uint8_t> 
         put<double>(out, 80 + 8 * a, map->info.min[a]);
         put<double>(out, 104 + 8 * a, map->info.max[a]);
     }
+    put<uint64_t>(out, 128, source.bytes);
+    put<uint32_t>(out, 136, source.crc32);
+    put<uint64_t>(out, 144, places.empty() ? 0 : (uint64_t)places_at);
+    put<uint64_t>(out, 152, (uint64_t)places.size());
+    if (!places.empty()) std::memcpy(out->data() + places_at, places.data(), places.size());
     size_t row = kHeaderBytes, at = kHeaderBytes + kTableBytes * tiles.size();
     for (const auto &t : tiles) {
         put<int32_t>(out, row, t.first.first);
         put<int32_t>(out, row + 4, t.first.second);
         put<uint64_t>(out, row + 8, (uint64_t)at);
-        put<uint32_t>(out, row + 16, (uint32_t)t.second[0].size());
-        put<uint32_t>(out, row + 20, (uint32_t)t.second[1].size());
+        put<uint32_t>(out, row + 16, (uint32_t)t.second.cells[0].size());
+        put<uint32_t>(out, row + 20, (uint32_t)t.second.cells[1].size());
+        put<uint32_t>(out, row + 24, (uint32_t)t.second.rough.size());
         row += kTableBytes;
         for (int l = 0; l < 2; l++)
-            for (uint32_t i : t.second[l]) {
+            for (uint32_t i : t.second.cells[l]) {
                 const Cell &c = lv[l]->cells[i];
                 put<uint64_t>(out, at, lv[l]->keys[i]);
                 std::memcpy(out->data() + at + 8, c.mean, 12);
@@ -112,6 +130,10 @@ int pb_tiles_encode(const pb_regmap_t *map, double tile_m, std::vector<uint8_t> 
                 (*out)[at + 44] = c.kind;
                 at += kCellBytes;
             }
+        for (uint64_t key : t.second.rough) {
+            put<uint64_t>(out, at, key);
+            at += kRoughBytes;
+        }
     }
     return 0;
 }
@@ -127,6 +149,9 @@ struct pb_tiles {
     std::vector<TileEntry> table;
     std::unordered_map<uint64_t, size_t> by_id;   /* tile id -> table row */
     std::vector<char> loaded;                     /* per table row */
+    std::vector<uint64_t> rough;                  /* rough keys of the loaded tiles */
+    pb_tiles_source_t source;
+    uint64_t places_offset = 0, places_bytes = 0;
     int tiles_loaded = 0;
     int64_t loads = 0, drops = 0;
     pb_regmap_t *map = nullptr;
@@ -187,14 +212,24 @@ pb_tiles_t *pb_tiles_open(pb_tiles_read_fn read, void *user, uint64_t file_size,
         TileEntry &e = t->table[i];
         e.tx = get<int32_t>(r); e.ty = get<int32_t>(r + 4);
         e.offset = get<uint64_t>(r + 8);
-        e.fine = get<uint32_t>(r + 16); e.coarse = get<uint32_t>(r + 20);
-        uint64_t bytes = ((uint64_t)e.fine + e.coarse) * kCellBytes;
+        e.fine = get<uint32_t>(r + 16); e.coarse = get<uint32_t>(r + 20); e.rough = get<uint32_t>(r + 24);
+        uint64_t bytes = ((uint64_t)e.fine + e.coarse) * kCellBytes + (uint64_t)e.rough * kRoughBytes;
         if (e.offset < kHeaderBytes || e.offset > file_size || bytes > file_size - e.offset ||
             !t->by_id.emplace(tile_id(e.tx, e.ty), i).second) {
             pb_err_set(err, "%s: byte %zu: tile (%d, %d) is out of the file or repeated", name,
                        kHeaderBytes + (size_t)i * kTableBytes, e.tx, e.ty);
             return nullptr;
         }
+    }
+    t->source.bytes = get<uint64_t>(h + 128);
+    t->source.crc32 = get<uint32_t>(h + 136);
+    t->places_offset = get<uint64_t>(h + 144);
+    t->places_bytes = get<uint64_t>(h + 152);
+    if (t->places_bytes && (t->places_offset < kHeaderBytes || t->places_offset > file_size ||
+                            t->places_bytes > file_size - t->places_offset)) {
+        pb_err_set(err, "%s: byte 144: the place descriptors (%" PRIu64 " bytes at %" PRIu64 ") are out of the file",
+                   name, t->places_bytes, t->places_offset);
+        return nullptr;
     }
     t->loaded.assign(ntiles, 0);
     t->map = new (std::nothrow) pb_regmap_t();
@@ -219,6 +254,26 @@ void pb_tiles_destroy(pb_tiles_t *t)
 }
 
 const pb_regmap_t *pb_tiles_map(const pb_tiles_t *t) { return t->map; }
+
+pb_tiles_source_t pb_tiles_source(const pb_tiles_t *t) { return t->source; }
+
+int pb_tiles_read_places(const pb_tiles_t *t, std::vector<uint8_t> *out, pb_err_t *err)
+{
+    out->clear();
+    if (t->places_bytes == 0) return 0;
+    try {
+        out->resize((size_t)t->places_bytes);
+    } catch (const std::bad_alloc &) {
+        return pb_err_set(err, "%s: out of memory for %" PRIu64 " bytes of place descriptors", t->name.c_str(),
+                          t->places_bytes);
+    }
+    if (t->read(t->user, t->places_offset, out->data(), out->size()) != 0) {
+        out->clear();
+        return pb_err_set(err, "%s: byte %" PRIu64 ": cannot read the place descriptors", t->name.c_str(),
+                          t->places_offset);
+    }
+    return 0;
+}
 
 namespace {
 
@@ -248,11 +303,28 @@ void compact(const pb_tiles_t *t, int l, Level *lv)
     lv->keys.resize(w);
 }
 
-void reindex(Level *lv)
+/* Drops the rough keys of unloaded tiles. */
+void compact_rough(pb_tiles_t *t)
+{
+    size_t w = 0;
+    for (uint64_t key : t->rough) {
+        int32_t tx, ty;
+        tile_of_key(key, t->per_tile[0], &tx, &ty);
+        auto it = t->by_id.find(tile_id(tx, ty));
+        if (it == t->by_id.end() || !t->loaded[it->second]) continue;
+        t->rough[w++] = key;
+    }
+    t->rough.resize(w);
+}
+
+void reindex(Level *lv, const std::vector<uint64_t> *rough)
 {
     lv->index.reset(lv->cells.size());
     bool inserted;
     for (size_t i = 0; i < lv->keys.size(); i++) lv->index.insert(lv->keys[i], (int32_t)i, &inserted);
+    lv->rough.reset(rough ? rough->size() : 0);
+    if (rough)
+        for (uint64_t key : *rough) lv->rough.insert(key, 0, &inserted);
 }
 
 /* Reads one tile and appends its cells; on error nothing is appended. */
@@ -260,8 +332,8 @@ int load_tile(pb_tiles_t *t, size_t row, pb_err_t *err)
 {
     const TileEntry &e = t->table[row];
     size_t n = (size_t)e.fine + e.coarse;
-    t->buf.resize(n * kCellBytes);
-    if (n && t->read(t->user, e.offset, t->buf.data(), t->buf.size()) != 0)
+    t->buf.resize(n * kCellBytes + (size_t)e.rough * kRoughBytes);
+    if (!t->buf.empty() && t->read(t->user, e.offset, t->buf.data(), t->buf.size()) != 0)
         return pb_err_set(err, "%s: byte %" PRIu64 ": cannot read tile (%d, %d)", t->name.c_str(), e.offset, e.tx, e.ty);
     /* check everything first, so a corrupt tile leaves the map as it was */
     for (size_t i = 0; i < n; i++) {
@@ -276,6 +348,15 @@ int load_tile(pb_tiles_t *t, size_t row, pb_err_t *err)
             return pb_err_set(err, "%s: byte %" PRIu64 ": corrupt cell in tile (%d, %d)", t->name.c_str(),
                               e.offset + i * kCellBytes, e.tx, e.ty);
     }
+    const uint8_t *rough = t->buf.data() + n * kCellBytes;
+    for (size_t i = 0; i < e.rough; i++) {
+        int32_t tx, ty;
+        tile_of_key(get<uint64_t>(rough + i * kRoughBytes), t->per_tile[0], &tx, &ty);
+        if (tx != e.tx || ty != e.ty)
+            return pb_err_set(err, "%s: byte %" PRIu64 ": rough cell of another tile in tile (%d, %d)", t->name.c_str(),
+                              e.offset + n * kCellBytes + i * kRoughBytes, e.tx, e.ty);
+    }
+    for (size_t i = 0; i < e.rough; i++) t->rough.push_back(get<uint64_t>(rough + i * kRoughBytes));
     for (size_t i = 0; i < n; i++) {
         const uint8_t *r = t->buf.data() + i * kCellBytes;
         Level &lv = i < e.fine ? t->map->fine : t->map->coarse;
@@ -300,7 +381,13 @@ int pb_tiles_page(pb_tiles_t *t, double x, double y, pb_err_t *err)
         if (t->loaded[i] && tile_distance(t, t->table[i], x, y) > t->cfg.keep_radius_m) drop.push_back(i);
     int64_t reach = (int64_t)std::ceil(t->cfg.load_radius_m / t->tile_m) + 1;
     int64_t cx = (int64_t)std::floor(x / t->tile_m), cy = (int64_t)std::floor(y / t->tile_m);
-    if (std::isfinite(x) && std::isfinite(y) && std::fabs(x) < 1e9 && std::fabs(y) < 1e9)
+    if (!(std::isfinite(x) && std::isfinite(y) && std::fabs(x) < 1e9 && std::fabs(y) < 1e9)) {
+        /* no position: nothing to load */
+    } else if ((double)(2 * reach + 1) * (2 * reach + 1) > (double)t->table.size()) {
+        /* a radius wider than the map: look at every tile instead of every square */
+        for (size_t i = 0; i < t->table.size(); i++)
+            if (!t->loaded[i] && tile_distance(t, t->table[i], x, y) <= t->cfg.load_radius_m) load.push_back(i);
+    } else
         for (int64_t ty = cy - reach; ty <= cy + reach; ty++)
             for (int64_t tx = cx - reach; tx <= cx + reach; tx++) {
                 auto it = t->by_id.find(tile_id((int32_t)tx, (int32_t)ty));
@@ -310,7 +397,7 @@ int pb_tiles_page(pb_tiles_t *t, double x, double y, pb_err_t *err)
     if (drop.empty() && load.empty()) return 0;
     /* 2. drop: remove their cells, keeping the order of the others */
     for (size_t i : drop) t->loaded[i] = 0;
-    if (!drop.empty()) { compact(t, 0, &t->map->fine); compact(t, 1, &t->map->coarse); }
+    if (!drop.empty()) { compact(t, 0, &t->map->fine); compact(t, 1, &t->map->coarse); compact_rough(t); }
     /* 3. load: append the new tiles' cells */
     int rc = 0;
     int changed = (int)drop.size();
@@ -320,8 +407,8 @@ int pb_tiles_page(pb_tiles_t *t, double x, double y, pb_err_t *err)
         changed++;
     }
     /* 4. rebuild both hash indexes over what is loaded */
-    reindex(&t->map->fine);
-    reindex(&t->map->coarse);
+    reindex(&t->map->fine, &t->rough);
+    reindex(&t->map->coarse, nullptr);
     t->tiles_loaded += changed - 2 * (int)drop.size();
     t->loads += changed - (int64_t)drop.size();
     t->drops += (int64_t)drop.size();
@@ -341,6 +428,7 @@ void pb_tiles_stats(const pb_tiles_t *t, pb_tiles_stats_t *st)
     st->tiles_loaded = t->tiles_loaded;
     st->fine_cells = (int64_t)t->map->fine.cells.size();
     st->coarse_cells = (int64_t)t->map->coarse.cells.size();
+    st->rough_cells = (int64_t)t->rough.size();
     st->loads = t->loads;
     st->drops = t->drops;
     st->tile_m = t->tile_m;

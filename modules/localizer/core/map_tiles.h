@@ -10,14 +10,24 @@
  * have there: where the loaded tiles cover the scan, registration gives
  * bit-identical poses with and without paging.
  *
+ * Each tile also holds the keys of its rough cells (fine voxels of structure that
+ * fits no plane or line: trees, bushes, fences), which the structure test counts
+ * as map evidence. The place descriptors of the whole map (core/places, for a
+ * start with no prior) are stored once after the tiles: they are small (about
+ * 3 MB for the default site) and a global search needs all of them.
+ *
  * File (little-endian, written and read by this code only):
- *   header, 128 bytes: "PBTILES1", u32 version (1), u32 tiles, f64 voxel_m,
+ *   header, 192 bytes: "PBTILES1", u32 version (2), u32 tiles, f64 voxel_m,
  *     coarse_voxel_m, planarity_max, tile_m, i32 min_points, i32 0,
- *     i64 map points, fine cells, coarse cells, f64 min[3], max[3]
+ *     i64 map points, fine cells, coarse cells, f64 min[3], max[3],
+ *     (128) u64 source bytes, u32 source CRC-32, u32 0 (the map.pcd it was
+ *     prepared from), u64 places offset, u64 places bytes, 32 bytes 0
  *   tile table, 32 bytes a tile: i32 tx, ty (tile = floor(x / tile_m)),
- *     u64 byte offset, u32 fine cells, u32 coarse cells, u64 0
- *   cells, 48 bytes each, a tile's fine cells then its coarse cells: u64 voxel
- *     key, f32 mean[3], u1[3], u2[3], u8 kind (1 plane, 2 line), 3 bytes 0
+ *     u64 byte offset, u32 fine cells, u32 coarse cells, u32 rough cells, u32 0
+ *   a tile: its fine cells then its coarse cells, 48 bytes each: u64 voxel
+ *     key, f32 mean[3], u1[3], u2[3], u8 kind (1 plane, 2 line), 3 bytes 0;
+ *     then its rough cells, u64 voxel key each
+ *   places: the bytes of places_encode (core/places.h)
  *
  * Pure: reading is through a callback the caller provides (the shell does the
  * file I/O); no clocks.
@@ -41,9 +51,18 @@ typedef struct {
 
 void pb_tiles_config_default(pb_tiles_config_t *cfg);
 
+/* The map file the tiles were prepared from: a tile file that does not match the
+ * site's map.pcd must not be used. */
+typedef struct {
+    uint64_t bytes;
+    uint32_t crc32;
+} pb_tiles_source_t;
+
 /* Encodes a whole prepared map into the tile file format (out is replaced).
- * tile_m must be a whole multiple of both voxel sizes of the map. */
-int pb_tiles_encode(const pb_regmap_t *map, double tile_m, std::vector<uint8_t> *out, pb_err_t *err);
+ * tile_m must be a whole multiple of both voxel sizes of the map. places: the
+ * place descriptors' bytes (may be empty: no global search with this file). */
+int pb_tiles_encode(const pb_regmap_t *map, double tile_m, const pb_tiles_source_t &source,
+                    const std::vector<uint8_t> &places, std::vector<uint8_t> *out, pb_err_t *err);
 
 /* Reads len bytes at offset into buf; returns 0, or -1 when they cannot all be read. */
 typedef int (*pb_tiles_read_fn)(void *user, uint64_t offset, void *buf, size_t len);
@@ -55,6 +74,13 @@ typedef struct pb_tiles pb_tiles_t;
 pb_tiles_t *pb_tiles_open(pb_tiles_read_fn read, void *user, uint64_t file_size, const char *name,
                           const pb_tiles_config_t *cfg, pb_err_t *err);
 void pb_tiles_destroy(pb_tiles_t *t);
+
+/* The map file the tiles were prepared from (from the header). */
+pb_tiles_source_t pb_tiles_source(const pb_tiles_t *t);
+
+/* Reads the stored place descriptors' bytes (out replaced; empty when the file has
+ * none). Returns 0, or -1 when they cannot be read. */
+int pb_tiles_read_places(const pb_tiles_t *t, std::vector<uint8_t> *out, pb_err_t *err);
 
 /* The paged map (empty until the first pb_tiles_page). */
 const pb_regmap_t *pb_tiles_map(const pb_tiles_t *t);
@@ -68,7 +94,7 @@ int pb_tiles_page(pb_tiles_t *t, double x, double y, pb_err_t *err);
 
 typedef struct {
     int tiles_total, tiles_loaded;
-    int64_t fine_cells, coarse_cells;   /* loaded */
+    int64_t fine_cells, coarse_cells, rough_cells;   /* loaded */
     int64_t loads, drops;               /* tiles, since open */
     double tile_m;
 } pb_tiles_stats_t;

@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdio>
 #include <cstring>
 
 namespace loc {
@@ -74,6 +75,20 @@ static void finish(const places_config_t &cfg, place_desc_t *d)
     }
 }
 
+/* The polar grid of a place as column offsets. */
+static void make_offsets(places_t *p)
+{
+    int R = (int)std::ceil(PLACE_RINGS * p->cfg.ring_m / kColumn);
+    p->offsets.clear();
+    for (int dy = -R; dy <= R; dy++)
+        for (int dx = -R; dx <= R; dx++) {
+            double r = std::hypot(dx, dy) * kColumn;
+            int ring = (int)(r / p->cfg.ring_m);
+            if (ring >= PLACE_RINGS || r < 1e-9) continue;
+            p->offsets.push_back({ dx, dy, ring, sector_of(dx, dy) });
+        }
+}
+
 places_t *places_build(const pb_regmap_t *map, const places_config_t &cfg)
 {
     std::vector<float> xyz;
@@ -135,14 +150,7 @@ places_t *places_build(const pb_regmap_t *map, const places_config_t &cfg)
     places_t *p = new places();
     p->cfg = cfg;
     /* 2. the polar grid as column offsets (no trigonometry per place) */
-    int R = (int)std::ceil(PLACE_RINGS * cfg.ring_m / kColumn);
-    for (int dy = -R; dy <= R; dy++)
-        for (int dx = -R; dx <= R; dx++) {
-            double r = std::hypot(dx, dy) * kColumn;
-            int ring = (int)(r / cfg.ring_m);
-            if (ring >= PLACE_RINGS || r < 1e-9) continue;
-            p->offsets.push_back({ dx, dy, ring, sector_of(dx, dy) });
-        }
+    make_offsets(p);
     p->W = W; p->H = H; p->lo[0] = lo[0]; p->lo[1] = lo[1];
     p->height.resize(col.size());
     for (size_t i = 0; i < col.size(); i++) p->height[i] = col[i].height;
@@ -167,6 +175,101 @@ places_t *places_build(const pb_regmap_t *map, const places_config_t &cfg)
 }
 
 void places_destroy(places_t *p) { delete p; }
+
+/* Serialised form (little-endian): "PBPLACE1", f64 ring_m, place_step_m, min_height_m,
+ * tall_m, clip_m, car_clearance_m, i32 shortlist, W, H, u32 places, f64 lo[2], then
+ * f32 height[W * H], then per place i32 column, f64 x, y, z, f32 ring_key[PLACE_RINGS]. */
+static const char kPlacesMagic[8] = { 'P', 'B', 'P', 'L', 'A', 'C', 'E', '1' };
+static const size_t kPlacesHeader = 8 + 6 * 8 + 4 * 4 + 2 * 8, kPlaceBytes = 4 + 3 * 8 + 4 * PLACE_RINGS;
+
+template <class T> static void put_le(std::vector<uint8_t> *o, T v)
+{
+    const uint8_t *b = (const uint8_t *)&v;
+    o->insert(o->end(), b, b + sizeof v);
+}
+template <class T> static T get_le(const uint8_t *p) { T v; std::memcpy(&v, p, sizeof v); return v; }
+
+void places_encode(const places_t *p, std::vector<uint8_t> *out)
+{
+    out->clear();
+    out->reserve(kPlacesHeader + 4 * p->height.size() + kPlaceBytes * p->spot.size());
+    out->insert(out->end(), kPlacesMagic, kPlacesMagic + 8);
+    const places_config_t &c = p->cfg;
+    for (double v : { c.ring_m, c.place_step_m, c.min_height_m, c.tall_m, c.clip_m, c.car_clearance_m }) put_le(out, v);
+    put_le<int32_t>(out, c.shortlist);
+    put_le<int32_t>(out, p->W);
+    put_le<int32_t>(out, p->H);
+    put_le<uint32_t>(out, (uint32_t)p->spot.size());
+    put_le(out, p->lo[0]);
+    put_le(out, p->lo[1]);
+    for (float h : p->height) put_le(out, h);
+    for (size_t i = 0; i < p->spot.size(); i++) {
+        put_le<int32_t>(out, p->spot_col[i]);
+        put_le(out, p->spot[i].x);
+        put_le(out, p->spot[i].y);
+        put_le(out, p->spot[i].z);
+        for (float k : p->ring_key[i]) put_le(out, k);
+    }
+}
+
+places_t *places_decode(const uint8_t *b, size_t n, char *msg, size_t msg_len)
+{
+    if (n < kPlacesHeader || std::memcmp(b, kPlacesMagic, 8) != 0) {
+        snprintf(msg, msg_len, "byte 0: not place descriptors (no PBPLACE1 header)");
+        return nullptr;
+    }
+    places_config_t c;
+    double *cd[6] = { &c.ring_m, &c.place_step_m, &c.min_height_m, &c.tall_m, &c.clip_m, &c.car_clearance_m };
+    for (int i = 0; i < 6; i++) *cd[i] = get_le<double>(b + 8 + 8 * i);
+    c.shortlist = get_le<int32_t>(b + 56);
+    int32_t W = get_le<int32_t>(b + 60), H = get_le<int32_t>(b + 64);
+    uint32_t np = get_le<uint32_t>(b + 68);
+    double lo[2] = { get_le<double>(b + 72), get_le<double>(b + 80) };
+    bool ok = c.ring_m >= 0.5 && c.ring_m <= 100 && c.shortlist >= 1 && c.shortlist <= 100000 && c.clip_m > 0 &&
+              c.clip_m < 1000 && std::isfinite(c.min_height_m) && std::isfinite(c.tall_m) && W > 0 && H > 0 &&
+              (double)W * H <= 4e7 && std::isfinite(lo[0]) && std::isfinite(lo[1]) &&
+              n == kPlacesHeader + 4 * (size_t)W * H + kPlaceBytes * (size_t)np;
+    if (!ok) {
+        snprintf(msg, msg_len, "byte 8: bad place header (ring %g m, %d x %d columns, %u places, %zu bytes)", c.ring_m,
+                 W, H, np, n);
+        return nullptr;
+    }
+    places_t *p = new places();
+    p->cfg = c;
+    p->W = W; p->H = H; p->lo[0] = lo[0]; p->lo[1] = lo[1];
+    const uint8_t *q = b + kPlacesHeader;
+    p->height.resize((size_t)W * H);
+    for (size_t i = 0; i < p->height.size(); i++, q += 4) p->height[i] = get_le<float>(q);
+    p->spot.resize(np);
+    p->spot_col.resize(np);
+    p->ring_key.resize(np);
+    for (size_t i = 0; i < np; i++, q += kPlaceBytes) {
+        p->spot_col[i] = get_le<int32_t>(q);
+        p->spot[i] = { get_le<double>(q + 4), get_le<double>(q + 12), get_le<double>(q + 20), 0, 0 };
+        for (int r = 0; r < PLACE_RINGS; r++) p->ring_key[i][r] = get_le<float>(q + 28 + 4 * r);
+        bool good = p->spot_col[i] >= 0 && p->spot_col[i] < W * H && std::isfinite(p->spot[i].x) &&
+                    std::isfinite(p->spot[i].y) && std::isfinite(p->spot[i].z);
+        for (int r = 0; r < PLACE_RINGS; r++) good &= std::isfinite(p->ring_key[i][r]);
+        if (!good) {
+            snprintf(msg, msg_len, "byte %zu: place %zu is damaged", (size_t)(q - b), i);
+            delete p;
+            return nullptr;
+        }
+    }
+    for (float h : p->height)
+        if (!std::isfinite(h)) {
+            snprintf(msg, msg_len, "byte %zu: a column height is not finite", kPlacesHeader);
+            delete p;
+            return nullptr;
+        }
+    if (np == 0) {
+        snprintf(msg, msg_len, "byte 68: no places");
+        delete p;
+        return nullptr;
+    }
+    make_offsets(p);
+    return p;
+}
 size_t places_count(const places_t *p) { return p ? p->spot.size() : 0; }
 
 void places_describe(const places_t *p, const float *xyz, size_t n, place_desc_t *d)

@@ -19,6 +19,7 @@
 #define LOC_PLACES_H
 
 #include <cstddef>
+#include <cstdint>
 #include <vector>
 
 #include "regmap.h"
@@ -56,6 +57,13 @@ typedef struct places places_t;
 places_t *places_build(const pb_regmap_t *map, const places_config_t &cfg);
 void places_destroy(places_t *p);
 size_t places_count(const places_t *p);
+
+/* Serialises the places (out replaced), to be stored with the map (core/map_tiles):
+ * a start with no prior then needs neither the whole map nor the build. */
+void places_encode(const places_t *p, std::vector<uint8_t> *out);
+/* Reads places_encode's bytes; NULL with msg (one line, byte offset named) when they are
+ * damaged. */
+places_t *places_decode(const uint8_t *bytes, size_t n, char *msg, size_t msg_len);
 
 /* The descriptor of a sweep (points in base, metres; base z = 0 on the ground). */
 void places_describe(const places_t *p, const float *xyz, size_t n, place_desc_t *d);

@@ -27,6 +27,7 @@ void pb_reg_config_default(pb_reg_config_t *cfg)
     cfg->inlier_m = 0.1;
     cfg->planar_only = 0;
     cfg->coarse_iterations = 16;
+    for (double &b : cfg->body_box) b = 0;
 }
 
 Eigen::Isometry3d pb_reg_from_transform(const pb_transform_t *t)
@@ -327,6 +328,8 @@ void pb_reg_downsample(const float *xyz, size_t n, const pb_reg_config_t *cfg, s
     for (size_t i = 0; i < n; i++) {
         const float *p = xyz + 3 * i;
         float r2 = p[0] * p[0] + p[1] * p[1] + p[2] * p[2];
+        const double *b = cfg->body_box;
+        if (p[0] >= b[0] && p[1] >= b[1] && p[2] >= b[2] && p[0] <= b[3] && p[1] <= b[4] && p[2] <= b[5]) continue;
         if (r2 >= r2min && r2 <= r2max) {   /* false for NaN */
             kept[3 * nk] = p[0]; kept[3 * nk + 1] = p[1]; kept[3 * nk + 2] = p[2];
             nk++;

@@ -54,6 +54,8 @@ typedef struct {
     int planar_only;          /* 1 = never use line (pole) cells (default 0) */
     int coarse_iterations;    /* Gauss-Newton steps on the coarse level in step 3, 0 = never (default 16);
                                * added after the first API commit (appended, defaults unchanged) */
+    double body_box[6];       /* drop points inside this box of base (the car's own body: xmin, ymin, zmin,
+                               * xmax, ymax, zmax); all 0 = none (default) */
 } pb_reg_config_t;
 
 void pb_reg_config_default(pb_reg_config_t *cfg);

@@ -96,6 +96,13 @@ static bool choose_start(localizer_t *L, int64_t t_ref, start_t *s)
  * sweeps try successive ranks, so a start keeps trying until a place is verified. */
 bool global_search(localizer_t *L, pb_reg_result_t *res, outputs_t *out)
 {
+    if (!L->places && !L->places_failed && L->pager) {
+        /* a paged map holds only the tiles around one place: descriptors built from it
+         * would search there alone */
+        event(out, "no_start", "no pose: waiting for INITIAL_POSE or a GNSS fix (the map tiles carry no place "
+              "descriptors for a global search: rebuild them with map-tiles)");
+        return false;
+    }
     if (!L->places && !L->places_failed) {
         places_config_t pc;
         L->places = places_build(L->map, pc);
@@ -118,6 +125,7 @@ bool global_search(localizer_t *L, pb_reg_result_t *res, outputs_t *out)
         Eigen::Isometry3d seed = Eigen::Isometry3d::Identity();
         seed.linear() = Eigen::AngleAxisd(pm[i].yaw, Vec3::UnitZ()).toRotationMatrix();
         seed.translation() = Vec3(pm[i].x, pm[i].y, pm[i].z);
+        if (L->pager) L->pager(L->pager_user, pm[i].x, pm[i].y);   /* the map around this place */
         pb_reg_result_t r;
         pb_err_t err;
         if (pb_reg_align_global(L->map, L->xyz.data(), L->xyz.size() / 3, seed, 2.0, 12 * M_PI / 180, 1.0,
@@ -128,6 +136,7 @@ bool global_search(localizer_t *L, pb_reg_result_t *res, outputs_t *out)
         double fit = std::isfinite(si) ? si : 0.0;
         if (fit > best_fit) { best_fit = fit; *res = r; have = true; }
     }
+    if (have && L->pager) L->pager(L->pager_user, res->pose.translation().x(), res->pose.translation().y());
     if (!have) {
         event(out, "no_start", "no pose: no INITIAL_POSE or GNSS fix, and none of %zu likely places in the map fits "
               "this sweep; still searching", std::min(pm.size() - std::min(pm.size(), first), (size_t)k));

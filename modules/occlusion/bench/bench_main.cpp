@@ -10,6 +10,7 @@
  * OCCLUSION_STOCK for those sweeps, so one agreement script scores both.
  * Prints one JSON object of timings on stdout. */
 #include <getopt.h>
+#include <sys/resource.h>
 #include <time.h>
 
 #include <octomap/OcTree.h>
@@ -283,11 +284,13 @@ int main(int argc, char **argv)
     occlusion_finish(occ, &res, &ev);
     int64_t leaves, bytes;
     occ_map_size(occlusion_map(occ), &leaves, &bytes);
-    printf("{\"sweeps\": %zu, \"integrate_ms_p50\": %.3f, \"integrate_ms_p99\": %.3f, \"query100_ms_p50\": %.4f, "
+    struct rusage ru;
+    getrusage(RUSAGE_SELF, &ru);     /* peak resident memory of the whole run (stock tree included) */
+    printf("{\"rss_max_kb\": %ld, \"rss_end_kb\": %ld, \"sweeps\": %zu, \"integrate_ms_p50\": %.3f, \"integrate_ms_p99\": %.3f, \"query100_ms_p50\": %.4f, "
            "\"query100_ms_p99\": %.4f, \"ours_us_per_ray_p50\": %.4f, \"stock_sweeps\": %zu, \"stock_insert_ms_p50\": %.1f, "
            "\"stock_insert_ms_p99\": %.1f, \"stock_query100_ms_p50\": %.3f, \"stock_us_per_ray_p50\": %.3f, "
            "\"map_leaves_end\": %lld, \"map_bytes_end\": %lld, \"memory_per_minute\": [%s]}\n",
-           integ.size(), pct(integ, 0.5), pct(integ, 0.99), pct(query100, 0.5), pct(query100, 0.99), pct(ours_rays_us, 0.5),
+           (long)ru.ru_maxrss, rss_kb(), integ.size(), pct(integ, 0.5), pct(integ, 0.99), pct(query100, 0.5), pct(query100, 0.99), pct(ours_rays_us, 0.5),
            stock_insert.size(), pct(stock_insert, 0.5), pct(stock_insert, 0.99), pct(stock_query100, 0.5),
            pct(stock_rays_us, 0.5), (long long)leaves, (long long)bytes, mem_rows.c_str());
     pb_log_close(out.log, &err);

@@ -17,7 +17,7 @@ TOP = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", "..", ".."))
 BUILD = os.path.join(TOP, "build")
 sys.path.insert(0, os.path.join(BUILD, "python"))
 sys.path.insert(0, os.path.dirname(__file__))
-from occ_agreement import agreement, read  # noqa: E402
+from occ_agreement import agreement, read_states, read_truth  # noqa: E402
 
 DURATION = int(os.environ.get("OCC_BENCH_DURATION", "600"))
 STOCK_FROM = int(os.environ.get("OCC_BENCH_STOCK_FROM", "300"))
@@ -40,10 +40,14 @@ def main():
                         "--stock-from", str(STOCK_FROM), "--stock-count", str(STOCK_COUNT)],
                        check=True, stdout=subprocess.PIPE, text=True)
     cost = json.loads(r.stdout)
-    ours_all = agreement(drive, out, "OCCLUSION")
-    stock_times = set(read(out, "OCCLUSION_STOCK")[0])
-    ours_sub = agreement(drive, out, "OCCLUSION", utimes=stock_times)
-    stock_sub = agreement(drive, out, "OCCLUSION_STOCK", utimes=stock_times)
+    print("bench-occlusion: agreement with the truth ...", flush=True)
+    truth = read_truth(drive)
+    ours = read_states(out, "OCCLUSION")
+    stock = read_states(out, "OCCLUSION_STOCK")
+    ours_all = agreement(truth, ours)
+    stock_times = set(stock)
+    ours_sub = agreement(truth, ours, utimes=stock_times)
+    stock_sub = agreement(truth, stock, utimes=stock_times)
     mem = cost.pop("memory_per_minute")
     memory = [dict(sweep=mem[i], leaves=mem[i + 1], map_bytes=mem[i + 2], rss_kb=mem[i + 3]) for i in range(0, len(mem), 4)]
     res = dict(cost=cost, agreement_ours_drive=ours_all, agreement_ours_stock_sweeps=ours_sub,
@@ -85,6 +89,8 @@ def main():
     print("memory over the drive: minute, map leaves, map MB, process RSS MB")
     for m in memory:
         print(f"  {m['sweep'] / 600:4.0f}  {m['leaves']:9d}  {m['map_bytes'] / 1e6:7.1f}  {m['rss_kb'] / 1e3:7.1f}")
+    print(f"  process RSS: max {c['rss_max_kb'] / 1e3:.1f} MB, end {c['rss_end_kb'] / 1e3:.1f} MB "
+          f"(the stock tree of sweeps {STOCK_FROM - 10}..{STOCK_FROM + STOCK_COUNT - 1} is in it from then on)")
     print(f"\nwritten: {os.path.join(BUILD, 'bench', 'occlusion.json')}")
 
 

@@ -2,9 +2,13 @@
 
 Messages are paired by utime (the sweep's end) and agents by id; a sample counts when
 it lies within RANGE_M of the truth's eye and its agent is in render range (the module
-evaluates only those). Returns the confusion matrix (truth visible/hidden x module
-visible/hidden/unknown), the agreement, the "visible when truly hidden" rate, and how
-many truth state changes the module followed within one sweep.
+evaluates only those; the newest AGENTS at or before the sweep says). Returns the
+confusion matrix (truth visible/hidden x module visible/hidden/unknown), the agreement,
+the "visible when truly hidden" rate, and how many truth state changes the module
+followed within one sweep.
+
+Logs are read once, streaming, and only the states are kept (a 10-minute drive's truth
+decoded whole would not fit in memory).
 
     python occ_agreement.py TRUTH.lcm OCCLUSION.lcm   (prints the figures as JSON)
 """
@@ -16,47 +20,66 @@ RANGE_M = 45.0
 STATES = ("visible", "hidden", "unknown")
 
 
-def read(path, channel, extra=None):
+def read_truth(path):
+    """[(utime, {agent_id: ((sample index, truth state), ...)})] in log order: the samples
+    that count (agent in render range, sample within RANGE_M of the eye)."""
     import lcm
     from portobello import occlusion_t, agents_t
-    out, in_range = {}, {}
+    out, in_range = [], {}
+    for ev in lcm.EventLog(path, "r"):
+        if ev.channel == "AGENTS":
+            a = agents_t.decode(ev.data)
+            in_range = {g.id: g.in_render_range for g in a.agents}
+        elif ev.channel == "OCCLUSION_TRUTH":
+            m = occlusion_t.decode(ev.data)
+            ags = {}
+            for a in m.agents:
+                if not in_range.get(a.agent_id, False):
+                    continue
+                keep = tuple((s, a.state[s]) for s in range(a.nsamples)
+                             if math.dist((a.sample_x[s], a.sample_y[s], a.sample_z[s]), m.viewer) <= RANGE_M)
+                if keep:
+                    ags[a.agent_id] = keep
+            out.append((m.utime, ags))
+    return out
+
+
+def read_states(path, channel):
+    """{utime: {agent_id: bytes of per-sample states}} of one channel."""
+    import lcm
+    from portobello import occlusion_t
+    out = {}
     for ev in lcm.EventLog(path, "r"):
         if ev.channel == channel:
             m = occlusion_t.decode(ev.data)
-            out[m.utime] = m
-        elif extra is not None and ev.channel == "AGENTS":
-            a = agents_t.decode(ev.data)
-            in_range[a.utime] = {g.id: g.in_render_range for g in a.agents}
-    return out, in_range
+            out[m.utime] = {a.agent_id: bytes(s & 0xff for s in a.state) for a in m.agents}
+    return out
 
 
-def agreement(truth_path, out_path, out_channel="OCCLUSION", utimes=None):
-    truth, agents = read(truth_path, "OCCLUSION_TRUTH", extra=True)
-    mod, _ = read(out_path, out_channel)
-    agent_times = sorted(agents)
+def read(path, channel):
+    """({utime: states by agent}, None): the utimes a channel has (kept for the bench's callers)."""
+    return read_states(path, channel), None
+
+
+def agreement(truth, out, out_channel="OCCLUSION", utimes=None):
+    """truth: a log path or read_truth's result; out: a log path or read_states's result."""
+    if isinstance(truth, (str, bytes)) or hasattr(truth, "__fspath__"):
+        truth = read_truth(truth)
+    mod = read_states(out, out_channel) if isinstance(out, (str, bytes)) or hasattr(out, "__fspath__") else out
     conf = [[0, 0, 0], [0, 0, 0]]
     series = {}         # (agent, sample) -> [(sweep index, truth, module)]
     paired = 0
-    import bisect
-    for i, t in enumerate(sorted(truth)):
+    for i, (t, ags) in enumerate(truth):
         if t not in mod or (utimes is not None and t not in utimes):
             continue
         paired += 1
-        tm, mm = truth[t], mod[t]
-        k = bisect.bisect_right(agent_times, t) - 1
-        rng = agents[agent_times[k]] if k >= 0 else {}
-        by_id = {a.agent_id: a for a in mm.agents}
-        for a in tm.agents:
-            b = by_id.get(a.agent_id)
-            if not rng.get(a.agent_id, False):
-                continue
-            for s in range(a.nsamples):
-                d = math.dist((a.sample_x[s], a.sample_y[s], a.sample_z[s]), tm.viewer)
-                if d > RANGE_M:
-                    continue
-                ms = b.state[s] if b is not None and s < b.nsamples else 2
-                conf[a.state[s]][ms] += 1
-                series.setdefault((a.agent_id, s), []).append((i, a.state[s], ms))
+        mm = mod[t]
+        for aid, samples in ags.items():
+            b = mm.get(aid)
+            for s, ts in samples:
+                ms = b[s] if b is not None and s < len(b) else 2
+                conf[ts][ms] += 1
+                series.setdefault((aid, s), []).append((i, ts, ms))
     # state changes of the truth (visible <-> hidden between consecutive sweeps) and
     # whether the module shows the new state at that sweep or the next
     changes = followed = 0

@@ -32,36 +32,6 @@ struct ground_cell_t { int32_t cx, cy, sweep; float minz; };
 inline uint64_t pack(const OcTreeKey &k) { return (uint64_t)k[0] | (uint64_t)k[1] << 16 | (uint64_t)k[2] << 32; }
 inline OcTreeKey unpack(uint64_t p) { return OcTreeKey((uint16_t)p, (uint16_t)(p >> 16), (uint16_t)(p >> 32)); }
 
-/* A set of 64-bit keys cleared in O(1) per sweep (generation stamps). */
-struct key_set_t {
-    std::vector<uint64_t> key;
-    std::vector<uint32_t> gen;
-    uint32_t g = 1;
-    size_t mask;
-    explicit key_set_t(int log2) : key((size_t)1 << log2), gen((size_t)1 << log2, 0), mask(((size_t)1 << log2) - 1) {}
-    void clear() { if (++g == 0) { std::fill(gen.begin(), gen.end(), 0); g = 1; } }
-    static size_t mix(uint64_t k) {     /* murmur3's finalizer: keys differ in few bits */
-        k ^= k >> 33; k *= 0xff51afd7ed558ccdull; k ^= k >> 33; k *= 0xc4ceb9fe1a85ec53ull; k ^= k >> 33;
-        return (size_t)k;
-    }
-    bool insert(uint64_t k) {   /* true if new; silently full (never here: sized for a sweep) */
-        size_t h = mix(k) & mask;
-        for (size_t i = 0; i <= mask; i++, h = (h + 1) & mask) {
-            if (gen[h] != g) { gen[h] = g; key[h] = k; return true; }
-            if (key[h] == k) return false;
-        }
-        return false;
-    }
-    bool has(uint64_t k) const {
-        size_t h = mix(k) & mask;
-        for (size_t i = 0; i <= mask; i++, h = (h + 1) & mask) {
-            if (gen[h] != g) return false;
-            if (key[h] == k) return true;
-        }
-        return false;
-    }
-};
-
 }  // namespace
 
 struct occ_map_t {
@@ -74,13 +44,18 @@ struct occ_map_t {
     std::vector<uint64_t> any_bits;         /* observed-size cells that may hold an occupied fine voxel (queries skip the rest) */
     std::vector<ground_cell_t> ground;
     int32_t sweep = 0;
-    key_set_t hits{17};
+    std::vector<uint64_t> hit_bits;         /* fine voxels hit this sweep (same ring as fine_bits) */
+    std::vector<uint32_t> hit_list;         /* their bit indices (cleared at the next sweep) */
+    std::vector<uint64_t> sat_bits;         /* fine voxels at clamp_max (a hit would not change them) */
     std::vector<uint64_t> listed_bits;      /* fine voxels in `occupied` (same ring as fine_bits) */
     std::vector<float> bin_min;             /* NEL x NAZ, +inf = no return in the bin */
     std::unordered_map<uint64_t, char> blocks;   /* live 6.4 m blocks (packed block keys) */
     octomap::KeyRay ray;
     std::vector<uint64_t> to_clear;
     std::vector<uint64_t> occupied;         /* keys whose bit went 0 -> 1 (stale ones dropped lazily) */
+    std::vector<uint64_t> fill_bits;        /* this sweep's columns below objects that reach under the lowest beam */
+    std::vector<uint32_t> fill_list;        /* their bit indices (cleared at the next sweep) */
+    std::vector<int> low_candidates;        /* scratch: non-ground returns near the car */
 
     explicit occ_map_t(const occ_config_t &c) : cfg(c), fine(c.resolution), observed(c.observed_resolution) {}
 };
@@ -90,6 +65,11 @@ static inline size_t obs_bit(const OcTreeKey &k) { return ((size_t)(k[2] & (CZ -
 static inline bool get_bit(const std::vector<uint64_t> &b, size_t i) { return (b[i >> 6] >> (i & 63)) & 1; }
 static inline void set_bit(std::vector<uint64_t> &b, size_t i) { b[i >> 6] |= 1ull << (i & 63); }
 static inline void clr_bit(std::vector<uint64_t> &b, size_t i) { b[i >> 6] &= ~(1ull << (i & 63)); }
+/* Clears n bits from i (n a power of 2 <= 64, i a multiple of n: within one word). */
+static inline void clear_run(std::vector<uint64_t> &b, size_t i, int n)
+{
+    b[i >> 6] &= ~((n == 64 ? ~0ull : ((1ull << n) - 1)) << (i & 63));
+}
 
 occ_map_t *occ_map_create(const occ_config_t *cfg)
 {
@@ -110,6 +90,9 @@ occ_map_t *occ_map_create(const occ_config_t *cfg)
     m->any_bits.assign((size_t)CX * CX * CZ / 64, 0);
     m->ground.assign((size_t)GN * GN, ground_cell_t{ 0, 0, -1000000, 0 });
     m->bin_min.assign((size_t)NAZ * NEL, INFINITY);
+    m->fill_bits.assign((size_t)FX * FX * FZ / 64, 0);
+    m->hit_bits.assign((size_t)FX * FX * FZ / 64, 0);
+    m->sat_bits.assign((size_t)FX * FX * FZ / 64, 0);
     return m;
 }
 
@@ -123,6 +106,11 @@ void occ_map_clear(occ_map_t *m)
     std::fill(m->listed_bits.begin(), m->listed_bits.end(), 0);
     std::fill(m->obs_bits.begin(), m->obs_bits.end(), 0);
     std::fill(m->any_bits.begin(), m->any_bits.end(), 0);
+    std::fill(m->fill_bits.begin(), m->fill_bits.end(), 0);
+    std::fill(m->sat_bits.begin(), m->sat_bits.end(), 0);
+    std::fill(m->hit_bits.begin(), m->hit_bits.end(), 0);
+    m->hit_list.clear();
+    m->fill_list.clear();
     for (ground_cell_t &g : m->ground) g.sweep = -1000000;
     m->blocks.clear();
     m->occupied.clear();
@@ -242,19 +230,77 @@ static int roll_window(occ_map_t *m, const double car[3])
         int s = m->cshift, o = m->coff;
         OcTreeKey c0((f0[0] >> s) + o, (f0[1] >> s) + o, (f0[2] >> s) + o);
         delete_block(m->observed, c0, obs_depth);
+        /* the block's voxels are runs of nf (nc) bits in x, aligned: cleared a run at a time */
         const int nf = 1 << BLOCK_FINE_LOG2, nc = nf >> s;
         for (int z = 0; z < nf; z++)
             for (int y = 0; y < nf; y++)
-                for (int x = 0; x < nf; x++)
-                    clr_bit(m->fine_bits, fine_bit(OcTreeKey(f0[0] + x, f0[1] + y, f0[2] + z)));
+                { size_t b0 = fine_bit(OcTreeKey(f0[0], f0[1] + y, f0[2] + z)); clear_run(m->fine_bits, b0, nf); clear_run(m->sat_bits, b0, nf); }
         for (int z = 0; z < nc; z++)
-            for (int y = 0; y < nc; y++)
-                for (int x = 0; x < nc; x++)
-                    { clr_bit(m->obs_bits, obs_bit(OcTreeKey(c0[0] + x, c0[1] + y, c0[2] + z))); clr_bit(m->any_bits, obs_bit(OcTreeKey(c0[0] + x, c0[1] + y, c0[2] + z))); }
+            for (int y = 0; y < nc; y++) {
+                size_t b0 = obs_bit(OcTreeKey(c0[0], c0[1] + y, c0[2] + z));
+                clear_run(m->obs_bits, b0, nc);
+                clear_run(m->any_bits, b0, nc);
+            }
         it = m->blocks.erase(it);
         n++;
     }
     return n;
+}
+
+/* Ground under (x, y) near the car, h metres from the sensor: the ground grid's, unless
+ * that is unknown or well above the car's own ground (within 6 m the roof LiDAR does not
+ * see the ground, so a cell's lowest return may be the bottom of what stands on it). */
+static float near_ground_z(occ_map_t *m, const occ_sweep_t *sw, float x, float y, double h)
+{
+    float g = ground_z(m, x, y), car = (float)sw->car[2] + (float)(0.1 * h);   /* 10 % slope */
+    return std::isfinite(g) && g < car + 0.3f ? g : (float)sw->car[2];
+}
+
+/* Objects beside the car that reach below the LiDAR's lowest beam (a passing car whose
+ * roof and upper doors a roof LiDAR sees, not its lower body): the space under them may
+ * have been seen free before they came, and the LiDAR cannot see it now. Objects stand on
+ * the ground, so the column below such a return, down to the ground, counts as occupied
+ * for this sweep's queries (only this sweep: it is inferred, not seen). */
+static void fill_below_view(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_t *s)
+{
+    const occ_config_t &c = m->cfg;
+    for (uint32_t b : m->fill_list) clr_bit(m->fill_bits, b);
+    m->fill_list.clear();
+    const double *R = sw->mid_rot, r2 = c.fill_radius_m * c.fill_radius_m;
+    /* 1. the lowest beam: the least elevation (as a sine, in the sensor frame) of the returns near the car */
+    double sin_min = INFINITY;
+    m->low_candidates.clear();
+    for (int i = 0; i < sw->n; i++) {
+        const double *o = sw->origins[sw->origin_index[i]];
+        double dx = sw->x[i] - o[0], dy = sw->y[i] - o[1], dz = sw->z[i] - o[2], h2 = dx * dx + dy * dy;
+        if (!(h2 <= r2)) continue;      /* also drops NaN */
+        double sn = (R[2] * dx + R[5] * dy + R[8] * dz) / std::sqrt(h2 + dz * dz);
+        if (sn < sin_min) sin_min = sn;
+        m->low_candidates.push_back(i);
+    }
+    if (!std::isfinite(sin_min)) return;
+    const double sin_tol = std::sin(std::asin(std::max(-1.0, sin_min)) + c.fill_elevation_tol_rad);
+    /* 2. returns of the lowest beams above the ground: fill down to the ground */
+    for (int i : m->low_candidates) {
+        const double *o = sw->origins[sw->origin_index[i]];
+        double dx = sw->x[i] - o[0], dy = sw->y[i] - o[1], dz = sw->z[i] - o[2], h2 = dx * dx + dy * dy;
+        if ((R[2] * dx + R[5] * dy + R[8] * dz) / std::sqrt(h2 + dz * dz) > sin_tol) continue;
+        float gz = near_ground_z(m, sw, sw->x[i], sw->y[i], std::sqrt(h2));
+        if (sw->z[i] < gz + c.ground_clearance_m) continue;
+        OcTreeKey top, bot;
+        if (!key_of(m->inv_res, sw->x[i], sw->y[i], sw->z[i], top) ||
+            !key_of(m->inv_res, sw->x[i], sw->y[i], gz + c.ground_clearance_m, bot))
+            continue;
+        for (int kz = top[2]; kz >= bot[2]; kz--) {
+            OcTreeKey k(top[0], top[1], (uint16_t)kz);
+            size_t bi = fine_bit(k);
+            if (get_bit(m->fill_bits, bi)) continue;
+            set_bit(m->fill_bits, bi);
+            m->fill_list.push_back((uint32_t)bi);
+            set_bit(m->any_bits, obs_bit(OcTreeKey((k[0] >> m->cshift) + m->coff, (k[1] >> m->cshift) + m->coff, (k[2] >> m->cshift) + m->coff)));
+            s->filled++;
+        }
+    }
 }
 
 void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_t *st)
@@ -283,7 +329,12 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
     }
 
     /* 2. hits: returns above the ground, one update per voxel */
-    m->hits.clear();
+    for (uint32_t b : m->hit_list) clr_bit(m->hit_bits, b);
+    m->hit_list.clear();
+    /* the bitmaps are rings of FZ voxels in z: exact for the FZ around the car's height
+     * (everything the eye rays cross); returns beyond that band skip the per-sweep shortcuts */
+    OcTreeKey car_key;
+    const int car_kz = key_of(m->inv_res, sw->car[0], sw->car[1], sw->car[2], car_key) ? car_key[2] : -1000000;
     for (int i = p0; i < sw->n; i += ps) {
         float x = sw->x[i], y = sw->y[i], z = sw->z[i];
         if (!std::isfinite(x) || !std::isfinite(y) || !std::isfinite(z)) continue;
@@ -293,16 +344,24 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
         s.points++;
         if (z < ground_z(m, x, y) + c.ground_clearance_m) { s.ground++; continue; }
         OcTreeKey k;
-        if (!key_of(m->inv_res, x, y, z, k) || !m->hits.insert(pack(k))) continue;
-        octomap::OcTreeNode *nd = m->fine.updateNode(k, true, true);
-        s.hit_voxels++;
+        if (!key_of(m->inv_res, x, y, z, k)) continue;
         size_t bi = fine_bit(k);
+        bool band = std::abs((int)k[2] - car_kz) < FZ / 2;
+        if (band) {
+            if (get_bit(m->hit_bits, bi)) continue;        /* one update per voxel and sweep */
+            set_bit(m->hit_bits, bi);
+            m->hit_list.push_back((uint32_t)bi);
+            s.hit_voxels++;
+            if (get_bit(m->sat_bits, bi)) continue;        /* at clamp_max: OctoMap would not change it */
+        }
+        octomap::OcTreeNode *nd = m->fine.updateNode(k, true, true);
         if (nd && m->fine.isNodeOccupied(nd)) {
             set_bit(m->fine_bits, bi);
+            if (band && nd->getLogOdds() >= m->fine.getClampingThresMaxLog()) set_bit(m->sat_bits, bi);
             set_bit(m->any_bits, obs_bit(OcTreeKey((k[0] >> m->cshift) + m->coff, (k[1] >> m->cshift) + m->coff, (k[2] >> m->cshift) + m->coff)));
             if (!get_bit(m->listed_bits, bi)) { set_bit(m->listed_bits, bi); m->occupied.push_back(pack(k)); }
         }
-        m->blocks.emplace(block_of(k), 1);
+        m->blocks.try_emplace(block_of(k), 1);
     }
 
     /* 3. misses: occupied voxels in view whose surrounding beams all went on past them */
@@ -320,7 +379,7 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
             continue;
         }
         j++;
-        if (m->hits.has(pk)) continue;
+        if (get_bit(m->hit_bits, bi)) continue;
         s.occupied_checked++;
         octomap::point3d p = m->fine.keyToCoord(k);
         double r;
@@ -328,8 +387,8 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
         if (b < 0 || r > c.range_m) continue;
         int e = b / NAZ, a = b % NAZ, seen = 0;
         bool past = true;
-        for (int de = -1; de <= 1 && past; de++)
-            for (int da = -1; da <= 1; da++) {
+        for (int de = -c.clear_bins_el; de <= c.clear_bins_el && past; de++)
+            for (int da = -c.clear_bins_az; da <= c.clear_bins_az; da++) {
                 if (e + de < 0 || e + de >= NEL) continue;
                 float rb = m->bin_min[(size_t)(e + de) * NAZ + ((a + da) & (NAZ - 1))];
                 if (!std::isfinite(rb)) continue;
@@ -341,6 +400,7 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
     for (uint64_t p : m->to_clear) {
         OcTreeKey k = unpack(p);
         octomap::OcTreeNode *nd = m->fine.updateNode(k, false, true);
+        clr_bit(m->sat_bits, fine_bit(k));
         if (!nd || !m->fine.isNodeOccupied(nd)) { clr_bit(m->fine_bits, fine_bit(k)); s.cleared++; }
     }
 
@@ -366,11 +426,14 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
             m->observed.updateNode(k, false, true);
             s.observed_new++;
             int sh = m->cshift, o = m->coff;
-            m->blocks.emplace(block_of(OcTreeKey((k[0] - o) << sh, (k[1] - o) << sh, (k[2] - o) << sh)), 1);
+            m->blocks.try_emplace(block_of(OcTreeKey((k[0] - o) << sh, (k[1] - o) << sh, (k[2] - o) << sh)), 1);
         }
     }
 
-    /* 5. the rolling window */
+    /* 5. what stands beside the car below the lowest beam (this sweep only) */
+    fill_below_view(m, sw, &s);
+
+    /* 6. the rolling window */
     s.blocks_deleted = roll_window(m, sw->car);
     if (st) *st = s;
 }
@@ -407,37 +470,63 @@ static int8_t query_one(const occ_map_t *m, const double e[3], const double bp[3
     for (int i = 0; i < 3; i++) d[i] /= len;
     double t = ego_exit(c, e, d, bp, yaw);
     if (t >= tend) return OCC_VISIBLE;
-    /* 3-D DDA over the fine voxels from t to tend (Amanatides & Woo) */
-    const double res = c.resolution;
-    int key[3], step[3];
-    double tmax[3], tdelta[3];
+    /* Two-level 3-D DDA (Amanatides & Woo) in units of fine voxels from t to tend: over the
+     * observed-size cells (4 x 4 x 4 fine voxels), and over the fine voxels only inside
+     * cells that may hold an occupied one (most of a ray crosses empty cells). */
+    double u0[3], du[3], step[3];
+    int ck[3], cstep[3];
+    double ctmax[3], ctdelta[3], tdelta[3];
+    const int sh = m->cshift, cw = 1 << sh, co = m->coff;
     for (int i = 0; i < 3; i++) {
-        double p = e[i] + d[i] * t;
-        double f = std::floor(p * m->inv_res);
-        key[i] = (int)f + KEY_ORIGIN;
-        if (d[i] > 1e-12) { step[i] = 1; tmax[i] = t + ((f + 1) * res - p) / d[i]; tdelta[i] = res / d[i]; }
-        else if (d[i] < -1e-12) { step[i] = -1; tmax[i] = t + (f * res - p) / d[i]; tdelta[i] = -res / d[i]; }
-        else { step[i] = 0; tmax[i] = INFINITY; tdelta[i] = INFINITY; }
+        u0[i] = e[i] * m->inv_res + KEY_ORIGIN;
+        du[i] = d[i] * m->inv_res;
+        double u = u0[i] + du[i] * t;
+        if (!(u >= 0 && u < 2 * KEY_ORIGIN)) return OCC_UNKNOWN;
+        ck[i] = (int)u >> sh;
+        if (du[i] > 1e-12) { cstep[i] = 1; ctmax[i] = t + ((ck[i] + 1) * cw - u) / du[i]; ctdelta[i] = cw / du[i]; tdelta[i] = 1 / du[i]; }
+        else if (du[i] < -1e-12) { cstep[i] = -1; ctmax[i] = t + (ck[i] * cw - u) / du[i]; ctdelta[i] = -cw / du[i]; tdelta[i] = -1 / du[i]; }
+        else { cstep[i] = 0; ctmax[i] = INFINITY; ctdelta[i] = INFINITY; tdelta[i] = INFINITY; }
+        step[i] = cstep[i];
     }
     bool unknown = false;
-    const int sh = m->cshift, co = m->coff;
     for (;;) {
-        if (key[0] < 0 || key[1] < 0 || key[2] < 0 || key[0] >= 2 * KEY_ORIGIN || key[1] >= 2 * KEY_ORIGIN ||
-            key[2] >= 2 * KEY_ORIGIN)
+        if (ck[0] < 0 || ck[1] < 0 || ck[2] < 0 || ck[0] >= (2 * KEY_ORIGIN >> sh) || ck[1] >= (2 * KEY_ORIGIN >> sh) ||
+            ck[2] >= (2 * KEY_ORIGIN >> sh))
             return OCC_UNKNOWN;
-        OcTreeKey k((uint16_t)key[0], (uint16_t)key[1], (uint16_t)key[2]);
-        OcTreeKey ck((uint16_t)((key[0] >> sh) + co), (uint16_t)((key[1] >> sh) + co), (uint16_t)((key[2] >> sh) + co));
-        size_t cb = obs_bit(ck);
-        if (get_bit(m->any_bits, cb) && get_bit(m->fine_bits, fine_bit(k))) {
-            const octomap::OcTreeNode *nd = m->fine.search(k);
-            if (nd && m->fine.isNodeOccupied(nd)) { *occ = (float)t; return OCC_HIDDEN; }
+        size_t cb = obs_bit(OcTreeKey((uint16_t)(ck[0] + co), (uint16_t)(ck[1] + co), (uint16_t)(ck[2] + co)));
+        int ca = ctmax[0] < ctmax[1] ? (ctmax[0] < ctmax[2] ? 0 : 2) : (ctmax[1] < ctmax[2] ? 1 : 2);
+        double tout = std::min(ctmax[ca], tend);
+        if (get_bit(m->any_bits, cb)) {
+            /* the fine voxels of this cell from t to tout; keys clamped into the cell (rounding at its faces) */
+            int key[3];
+            double tmax[3];
+            for (int i = 0; i < 3; i++) {
+                double u = u0[i] + du[i] * t;
+                key[i] = std::min(ck[i] * cw + cw - 1, std::max(ck[i] * cw, (int)u));
+                tmax[i] = step[i] > 0 ? t + (key[i] + 1 - u) / du[i] : step[i] < 0 ? t + (key[i] - u) / du[i] : INFINITY;
+            }
+            double tf = t;
+            for (;;) {
+                OcTreeKey k((uint16_t)key[0], (uint16_t)key[1], (uint16_t)key[2]);
+                size_t fb = fine_bit(k);
+                if (get_bit(m->fill_bits, fb)) { *occ = (float)tf; return OCC_HIDDEN; }
+                if (get_bit(m->fine_bits, fb)) {
+                    const octomap::OcTreeNode *nd = m->fine.search(k);
+                    if (nd && m->fine.isNodeOccupied(nd)) { *occ = (float)tf; return OCC_HIDDEN; }
+                }
+                int a = tmax[0] < tmax[1] ? (tmax[0] < tmax[2] ? 0 : 2) : (tmax[1] < tmax[2] ? 1 : 2);
+                tf = tmax[a];
+                if (tf >= tout) break;
+                key[a] += (int)step[a];
+                if ((key[a] >> sh) != ck[a]) break;
+                tmax[a] += tdelta[a];
+            }
         }
         if (!unknown && !get_bit(m->obs_bits, cb)) unknown = true;
-        int a = tmax[0] < tmax[1] ? (tmax[0] < tmax[2] ? 0 : 2) : (tmax[1] < tmax[2] ? 1 : 2);
-        t = tmax[a];
-        if (t >= tend) break;
-        key[a] += step[a];
-        tmax[a] += tdelta[a];
+        if (ctmax[ca] >= tend) break;
+        t = ctmax[ca];
+        ck[ca] += cstep[ca];
+        ctmax[ca] += ctdelta[ca];
     }
     return unknown ? OCC_UNKNOWN : OCC_VISIBLE;
 }

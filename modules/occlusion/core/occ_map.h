@@ -12,12 +12,16 @@
  *    observed_ray_stride-th beam traced): what is not in it is unknown, not free.
  * Ground returns (below the local ground + ground_clearance_m, from a 1 m grid of
  * the lowest return) are not occluders: the eye looks along the ground at feet.
+ * Returns of the lowest beams above the ground within fill_radius_m mark an object
+ * reaching under the LiDAR's view (a car alongside): its column down to the ground
+ * counts as occupied for this sweep's queries only (not written to the trees).
  * Blocks of 6.4 m farther than window_m from the car are deleted from both trees.
  *
- * Queries walk the fine voxels from the eye to a sample (skipping the car's own
- * box) through a bitmap index of the occupied voxels, confirmed in the tree:
- * hidden if an occupied voxel lies before the sample, else unknown if any part of
- * the way was never observed, else visible.
+ * Queries walk the observed-size cells from the eye to a sample (skipping the car's
+ * own box), and the fine voxels only in cells that may hold an occupied one, through
+ * bitmap indexes (occupied voxels confirmed in the tree): hidden if an occupied voxel
+ * lies before the sample, else unknown if any part of the way was never observed,
+ * else visible.
  *
  * Pure: no I/O, no clocks. Ownership: occ_map_create returns a map freed with
  * occ_map_destroy; inputs are only read during the calls. */
@@ -33,9 +37,12 @@ struct occ_config_t {
     double window_m = 46.0;           /* rolling window: blocks whose centre is farther from the car go */
     double ground_clearance_m = 0.25; /* returns this close to the local ground are ground */
     double clear_margin_m = 0.4;      /* a beam that ends this far past a voxel clears it */
-    int point_stride = 2;             /* every Nth return per sweep for hits and ground (alternating) */
+    int point_stride = 1;             /* every Nth return per sweep for hits and ground (alternating) */
+    int clear_bins_el = 1, clear_bins_az = 0;  /* a voxel is cleared by the beams of its direction bin and this many bins either side */
     int observed_ray_stride = 8;      /* every Nth return's beam marks observed space (the next N-1 sweeps trace the others) */
-    double prob_hit = 0.7, prob_miss = 0.12, clamp_min = 0.12, clamp_max = 0.88;  /* one clear miss frees any voxel */
+    double prob_hit = 0.7, prob_miss = 0.1, clamp_min = 0.12, clamp_max = 0.88;  /* one clear miss frees any voxel */
+    double fill_radius_m = 10.0;      /* returns of the lowest beams this close (horizontally) are checked for objects reaching under the view */
+    double fill_elevation_tol_rad = 0.021;  /* "lowest beams": within 1.2 deg of the sweep's least elevation */
     double stop_short_m = 0.3;        /* eye rays stop this far before the sample (the agent's own spot) */
     /* the car's own box in base (the eye looks out through it): x from, x to, half width, height */
     double ego_x0 = -1.04, ego_x1 = 3.50, ego_half_width = 0.88, ego_height = 1.47;
@@ -54,7 +61,7 @@ struct occ_sweep_t {
 };
 
 struct occ_integrate_stats_t {
-    int points, ground, hit_voxels, cleared, occupied_checked, observed_new, blocks_deleted;
+    int points, ground, hit_voxels, cleared, occupied_checked, observed_new, blocks_deleted, filled;
 };
 
 enum { OCC_VISIBLE = 0, OCC_HIDDEN = 1, OCC_UNKNOWN = 2 };
