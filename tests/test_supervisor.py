@@ -11,6 +11,7 @@
 import collections
 import html.parser
 import os
+import pathlib
 import signal
 import subprocess
 import threading
@@ -171,6 +172,9 @@ def test_bad_stack_file_names_file_and_line(tmp_path):
     f.write_text("name: s\ngroups:\n  - name: g\n    commands:\n      - name: a\n        run: [no/such/program]\n")
     p = run([BIN / "supervisor", "--config", f, "--check"], check=False)
     assert p.returncode == 1 and "a: program 'no/such/program' not found" in p.stderr
+    f.write_text("name: s\ngroups:\n  - name: g\n    commands:\n      - name: a\n        run: [x]\n        nice: 25\n")
+    p = run([BIN / "supervisor", "--config", f], check=False)
+    assert p.returncode == 1 and f"{f}:5" in p.stderr and "nice: expected a number in [0, 19], got 25" in p.stderr, p.stderr
     p = run([BIN / "supervisor", "--help"])
     assert "usage: supervisor" in p.stdout
     p = run([BIN / "supervisorctl", "--help"])
@@ -188,6 +192,10 @@ def test_fault_kill_hang_recording_and_no_trigger_twice(drive, tmp_path):
         bus.wait(lambda: (c := bus.cmd("player")) and c.state in (CS.STATE_RUNNING, CS.STATE_EXITED), 240,
                  "every module up and the player started")  # map load: 6-60 s
         t_play = time.monotonic()
+        # occlusion runs niced (stacks/replay.yaml nice: 10), the others at the default 0
+        niceness = {n: int(pathlib.Path(f"/proc/{bus.cmd(n).pid}/stat").read_text().rsplit(")", 1)[1].split()[16])
+                    for n in ("occlusion", "localizer")}
+        assert niceness == {"occlusion": 10, "localizer": 0}, niceness
         restarts = {}
         for name in ("can", "localizer", "director"):
             time.sleep(1.5)

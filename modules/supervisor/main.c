@@ -15,6 +15,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/prctl.h>
+#include <sys/resource.h>
 #include <sys/stat.h>
 #include <sys/wait.h>
 #include <time.h>
@@ -249,6 +250,11 @@ static pid_t spawn(app_t *a, cmd_t *c, char *why, size_t whylen)
             setenv("LCM_DEFAULT_URL", a->url, 1);
             setenv("PB_SUPERVISOR_STACK", a->stack.name, 1);
             for (int i = 0; i < c->cmd->nenv; i++) putenv(c->cmd->env[i]);
+            if (c->cmd->policy.nice > 0 && setpriority(PRIO_PROCESS, 0, (int)c->cmd->policy.nice) != 0) {
+                e = errno;
+                if (write(errp[1], &e, sizeof e) < 0) { /* the parent sees EOF and reports it */ }
+                _exit(127);
+            }
             execvp(c->cmd->argv[0], c->cmd->argv);
             e = errno;
         }

@@ -60,7 +60,7 @@ typedef struct {
     const pb_cfg_node_t *run, *env;
     char restart[16], ready[16];
     double heartbeat_s, start_grace_s, stop_timeout_s, backoff_initial_s, backoff_max_s, stable_s;
-    long max_failures;
+    long max_failures, nice;
 } raw_cmd_t;
 
 #define POLICY_FIELDS \
@@ -72,7 +72,8 @@ typedef struct {
     { "backoff_initial_s", PB_CFG_DOUBLE, offsetof(raw_cmd_t, backoff_initial_s), 0, 0 }, \
     { "backoff_max_s", PB_CFG_DOUBLE, offsetof(raw_cmd_t, backoff_max_s), 0, 0 }, \
     { "stable_s", PB_CFG_DOUBLE, offsetof(raw_cmd_t, stable_s), 0, 0 }, \
-    { "max_failures", PB_CFG_INT, offsetof(raw_cmd_t, max_failures), 0, 0 }
+    { "max_failures", PB_CFG_INT, offsetof(raw_cmd_t, max_failures), 0, 0 }, \
+    { "nice", PB_CFG_INT, offsetof(raw_cmd_t, nice), 0, 0 }
 
 static const pb_cfg_field_t default_fields[] = { POLICY_FIELDS, PB_CFG_END };
 static const pb_cfg_field_t command_fields[] = {
@@ -147,7 +148,7 @@ static int to_policy(const raw_cmd_t *r, const pb_cfg_node_t *n, sv_policy_t *p,
         { "heartbeat_s", r->heartbeat_s, 0, 3600 }, { "start_grace_s", r->start_grace_s, 0, 3600 },
         { "stop_timeout_s", r->stop_timeout_s, 0.01, 600 }, { "backoff_initial_s", r->backoff_initial_s, 0, 3600 },
         { "backoff_max_s", r->backoff_max_s, 0, 86400 }, { "stable_s", r->stable_s, 0, 86400 },
-        { "max_failures", (double)r->max_failures, 1, 1000 },
+        { "max_failures", (double)r->max_failures, 1, 1000 }, { "nice", (double)r->nice, 0, 19 },
     };
     for (size_t i = 0; i < sizeof num / sizeof num[0]; i++)
         if (!(num[i].v >= num[i].lo && num[i].v <= num[i].hi)) {
@@ -159,6 +160,7 @@ static int to_policy(const raw_cmd_t *r, const pb_cfg_node_t *n, sv_policy_t *p,
     p->heartbeat_s = r->heartbeat_s; p->start_grace_s = r->start_grace_s; p->stop_timeout_s = r->stop_timeout_s;
     p->backoff_initial_s = r->backoff_initial_s; p->backoff_max_s = r->backoff_max_s; p->stable_s = r->stable_s;
     p->max_failures = r->max_failures;
+    p->nice = r->nice;
     return 0;
 }
 
@@ -214,7 +216,8 @@ int sv_stack_load(const char *path, sv_lookup_fn lk, void *u, sv_stack_t *s, pb_
     sv_policy_default(&defp);
     raw_cmd_t dflt = { .heartbeat_s = defp.heartbeat_s, .start_grace_s = defp.start_grace_s,
                        .stop_timeout_s = defp.stop_timeout_s, .backoff_initial_s = defp.backoff_initial_s,
-                       .backoff_max_s = defp.backoff_max_s, .stable_s = defp.stable_s, .max_failures = defp.max_failures };
+                       .backoff_max_s = defp.backoff_max_s, .stable_s = defp.stable_s, .max_failures = defp.max_failures,
+                       .nice = defp.nice };
     snprintf(dflt.restart, sizeof dflt.restart, "always");
     snprintf(dflt.ready, sizeof dflt.ready, "status");
     int rc = -1;

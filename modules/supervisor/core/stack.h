@@ -11,6 +11,7 @@
  *         - name: logger
  *           run: [.venv/bin/lcm-logger, ...]
  *           ready: started | status
+ *           nice: 10                   lower CPU priority (0..19)
  *           env: { KEY: value }
  *
  * Strings may use ${VAR} and ${VAR:-default}, looked up through the caller's
@@ -44,6 +45,8 @@ typedef struct {
     double backoff_max_s;       /* delays double up to this (default 30) */
     double stable_s;            /* a run this long resets the backoff (default 10) */
     long max_failures;          /* this many failures in a row -> FAILED (default 5) */
+    long nice;                  /* scheduling niceness 0..19 of the process (default 0): what
+                                 * may wait when the CPU is short, e.g. occlusion behind the localizer */
 } sv_policy_t;
 
 typedef struct {
