@@ -10,6 +10,7 @@
 """
 import collections
 import html.parser
+import math
 import os
 import pathlib
 import signal
@@ -377,8 +378,10 @@ def test_demo_report_renders_and_its_tables_match_the_logs(drive, live, tmp_path
     sweeps, visible = {}, 0
     for m in occ:
         for a in m.agents:
-            sweeps[a.agent_id] = sweeps.get(a.agent_id, 0) + 1
-            visible += sum(1 for v in a.state if v == portobello.agent_occlusion_t.STATE_VISIBLE)
+            near = [s for x, y, z, s in zip(a.sample_x, a.sample_y, a.sample_z, a.state)
+                    if all(map(math.isfinite, m.viewer)) and math.dist((x, y, z), m.viewer) <= 45.0]
+            sweeps[a.agent_id] = sweeps.get(a.agent_id, 0) + (len(near) > 0)
+            visible += sum(1 for v in near if v == portobello.agent_occlusion_t.STATE_VISIBLE)
     assert visible > 0, "no agent sample was ever visible from the seat"
     rows = t.tables["occlusion"][1:]
     assert {r[0]: int(r[1]) for r in rows} == sweeps

@@ -53,6 +53,22 @@ def read_events(path):
         i += 28 + ch + ln
 
 
+OCCLUSION_RANGE_M = 45.0   # the module's default --range and the scenarios' render distance
+
+
+def occlusion_counts(m, a):
+    """(visible, hidden, unknown) samples of one agent within OCCLUSION_RANGE_M of the eye; beyond
+    it every sample is unknown by definition, which says nothing about occlusion."""
+    n = [0, 0, 0]
+    vx, vy, vz = m.viewer
+    if not all(math.isfinite(v) for v in (vx, vy, vz)):
+        return tuple(n)    # no usable pose: the module said unknown for all, counted as none in range
+    for x, y, z, s in zip(a.sample_x, a.sample_y, a.sample_z, a.state):
+        if math.dist((x, y, z), (vx, vy, vz)) <= OCCLUSION_RANGE_M and 0 <= s <= 2:
+            n[s] += 1
+    return tuple(n)
+
+
 class Platform:
     """What one platform's logs hold, decoded."""
 
@@ -82,8 +98,7 @@ class Platform:
                     self.supervisor = portobello.supervisor_t.decode(d)
                 elif ch == "OCCLUSION":
                     m = portobello.occlusion_t.decode(d)
-                    self.occlusion.append((m.utime, m.eye_source, {
-                        a.agent_id: tuple(sum(1 for v in a.state if v == k) for k in range(3)) for a in m.agents}))
+                    self.occlusion.append((m.utime, m.eye_source, {a.agent_id: occlusion_counts(m, a) for a in m.agents}))
         self.pose.sort()
         self.truth.sort()
         self.events.sort(key=lambda e: e.utime)
@@ -342,25 +357,26 @@ def section_occlusion(s):
             per.setdefault(aid, [0, 0, 0, 0])
             for k in range(3):
                 per[aid][k] += counts[k]
-            per[aid][3] += 1
+            per[aid][3] += sum(counts) > 0      # sweeps with the agent in range
     tot = [sum(v[k] for v in per.values()) for k in range(3)]
     n = sum(tot) or 1
-    summary = (f"{len(occ)} OCCLUSION sweeps, eye from {', '.join(used)}; samples of agents in range: "
+    summary = (f"{len(occ)} OCCLUSION sweeps, eye from {', '.join(used)}; samples within "
+               f"{OCCLUSION_RANGE_M:.0f} m of the eye: "
                f"visible {tot[0] / n * 100:.1f}%, hidden by real objects {tot[1] / n * 100:.1f}%, "
                f"unknown {tot[2] / n * 100:.1f}%")
     text, rows = [summary], []
     for aid in sorted(per):
         v, h, u, sweeps = per[aid]
         m = (v + h + u) or 1
-        text.append(f"  {aid:<14} {sweeps:5d} sweeps  visible {v / m * 100:5.1f}%  hidden {h / m * 100:5.1f}%  "
+        text.append(f"  {aid:<14} {sweeps:5d} sweeps in range  visible {v / m * 100:5.1f}%  hidden {h / m * 100:5.1f}%  "
                     f"unknown {u / m * 100:5.1f}%")
         rows.append(f"<tr><td class=id>{html.escape(aid)}</td><td>{sweeps}</td><td>{v / m * 100:.1f}</td>"
                     f"<td>{h / m * 100:.1f}</td><td>{u / m * 100:.1f}</td></tr>")
     return ("Occlusion", "\n".join(text),
-            f'<p id="occ-summary">{html.escape(summary)}</p><p>Per agent, the share of its body samples that the '
-            'occlusion module found visible from the eye, hidden behind something the LiDAR sees, or unknown '
-            '(never observed, out of range, or no tracking pose).</p><table id="occlusion"><thead><tr><th>agent</th>'
-            '<th>sweeps</th><th>visible %</th><th>hidden %</th><th>unknown %</th></tr></thead><tbody>'
+            f'<p id="occ-summary">{html.escape(summary)}</p><p>Per agent, over the sweeps it was within '
+            f'{OCCLUSION_RANGE_M:.0f} m of the eye, the share of its body samples that the occlusion module found '
+            'visible, hidden behind something the LiDAR sees, or unknown (space the LiDAR has not observed).</p><table id="occlusion"><thead><tr><th>agent</th>'
+            '<th>sweeps in range</th><th>visible %</th><th>hidden %</th><th>unknown %</th></tr></thead><tbody>'
             + "".join(rows) + "</tbody></table>")
 
 
