@@ -249,6 +249,9 @@ static bool frame_matches(app_t *a, const portobello_lidar_scan_t *s)
     return false;
 }
 
+/* a sweep older than this on arrival at the handler is stale while searching (one 10 Hz period and a half) */
+static const int64_t kStaleScanUs = 150000;
+
 static void on_scan(const pb_msg_t *m, void *user)
 {
     app_t *a = (app_t *)user;
@@ -260,6 +263,16 @@ static void on_scan(const pb_msg_t *m, void *user)
     for (int i = 0; i < s.cols; i++) last_off = std::max(last_off, s.col_offset_us[i]);
     for (int i = 0; i < s.npoints; i++) last_off = std::max(last_off, s.point_offset_us[i]);
     if (last_off < 1000000) input_time(a, m->channel, s.utime + last_off);
+    /* Live, without a pose, a search costs up to ~0.7 s a sweep: sweeps that waited in
+     * the queue longer than a sweep period are stale, and searching on each would leave
+     * the car seconds behind (and the queue holding megabytes). Search on the newest
+     * instead. A replay never skips (its receive time is the event's time). */
+    int st = localizer_status(a->L);
+    if ((st == ST_INITIALIZING || st == ST_LOST) && pb_bus_now(a->bus) - m->recv_utime > kStaleScanUs) {
+        pb_status_count(a->status, "scan_stale_skipped", 1);
+        portobello_lidar_scan_t_decode_cleanup(&s);
+        return;
+    }
     pb_err_t err;
     /* every column_stride-th column of a range image: the beam model is exact for the
      * reduced image (encoder angle c/cols is unchanged), and registration keeps only

@@ -1,8 +1,8 @@
 #!/usr/bin/env python3
 """bench-bus: the live bus under the car's load, for 10 minutes.
 
-A publisher puts 10 Hz LiDAR sweeps (64 x 1024 range images from a simulated drive,
-re-stamped to the wall clock), 200 Hz POSE_PREDICTED and 60 Hz AGENTS (12 agents) on a
+A publisher puts 10 Hz LiDAR sweeps (64 x 1024 range images of one closed lap of a
+simulated drive, cycled and re-stamped to the wall clock), 200 Hz POSE_PREDICTED and 60 Hz AGENTS (12 agents) on a
 private bus. A supervised stack listens: the session recorder (build/bin/recorder), the
 localizer (LIDAR_SCAN), lab_vehicle (AGENTS) and log-summary (every channel). Measured:
 - every message sent is in the recording (counted per channel, the files read strictly);
@@ -77,16 +77,35 @@ def now_us():
 
 
 def load_scans(run):
-    d = run / "drive"
+    """One closed lap of the default site's drive: from the middle of the car's rest at
+    its first stop line to the middle of its rest there a lap later. Cycled, the scans
+    run on without a jump (the car at rest at the same place), so the localizer tracks
+    the whole time as on a real drive instead of being teleported back and searching."""
+    d = run / "lap"
     if not (d / "drive.lcm").exists():
-        subprocess.run([str(BIN / "simdrive"), "--seed", "3", "--duration", "20", "--quiet", "--out", str(d)], check=True)
-    scans, first_gt = [], None
+        subprocess.run([str(BIN / "simdrive"), "--seed", "3", "--duration", "290", "--out", str(d)], check=True)
+    gts, scans = [], []
     for ev in lcm.EventLog(str(d / "drive.lcm"), "r"):
-        if ev.channel == "LIDAR_SCAN":
-            scans.append(ev.data)
-        elif ev.channel == "GROUND_TRUTH" and first_gt is None:
-            first_gt = portobello.pose_t.decode(ev.data)
-    return scans, first_gt
+        if ev.channel == "GROUND_TRUTH":
+            gts.append(portobello.pose_t.decode(ev.data))
+        elif ev.channel == "LIDAR_SCAN":
+            scans.append((struct.unpack(">q", ev.data[8:16])[0], ev.data))
+    rests, first = [], None          # (start, end, x, y) of each rest after the start
+    for a, b in zip(gts, gts[1:]):
+        still = abs(b.position[0] - a.position[0]) + abs(b.position[1] - a.position[1]) < 1e-4
+        if still and first is None:
+            first = a
+        elif not still and first is not None:
+            if first.utime > gts[0].utime + 5e6:
+                rests.append((first.utime, a.utime, first.position[0], first.position[1]))
+            first = None
+    again = [r for r in rests[1:] if abs(r[2] - rests[0][2]) + abs(r[3] - rests[0][3]) < 0.05] if rests else []
+    if not again:
+        raise SystemExit(f"bench-bus: {d}/drive.lcm holds no lap from a stop line back to it")
+    t0, t1 = (rests[0][0] + rests[0][1]) // 2, (again[0][0] + again[0][1]) // 2
+    lap = [buf for t, buf in scans if t0 <= t < t1]
+    start = min(gts, key=lambda g: abs(g.utime - t0))
+    return lap, start
 
 
 def templates():
