@@ -25,6 +25,7 @@ const int CX = 128, CZ = 16;
 const int GN = 256, GROUND_TTL = 50;
 /* direction bins of a sweep for clearing */
 const int NAZ = 1024, NEL = 128;
+const int SORT_EVERY = 16;                  /* sweeps between sorts of the occupied list */
 const double EL_MIN = -0.55, EL_MAX = 0.55;  /* rad (+-31.5 deg) */
 
 struct ground_cell_t { int32_t cx, cy, sweep; float minz; };
@@ -50,7 +51,6 @@ struct occ_map_t {
     std::vector<uint64_t> listed_bits;      /* fine voxels in `occupied` (same ring as fine_bits) */
     std::vector<float> bin_min;             /* NEL x NAZ, +inf = no return in the bin */
     std::unordered_map<uint64_t, char> blocks;   /* live 6.4 m blocks (packed block keys) */
-    octomap::KeyRay ray;
     std::vector<uint64_t> to_clear;
     std::vector<uint64_t> occupied;         /* keys whose bit went 0 -> 1 (stale ones dropped lazily) */
     std::vector<uint64_t> fill_bits;        /* this sweep's columns below objects that reach under the lowest beam */
@@ -303,6 +303,40 @@ static void fill_below_view(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_s
     }
 }
 
+/* Marks the observed cells from o to pe (both ends included) by a 3-D DDA (Amanatides &
+ * Woo) over the observed-size cells: the bitmap says which are known already, and only
+ * new ones go to the tree. (OctoMap's computeRayKeys visits the same cells, but builds a
+ * key list per ray: it was the largest single cost of a sweep.) */
+static void trace_observed(occ_map_t *m, const double o[3], const double pe[3], occ_integrate_stats_t *s)
+{
+    int k[3], step[3], cells = 1;
+    double tmax[3], tdelta[3];
+    for (int i = 0; i < 3; i++) {
+        double u0 = o[i] * m->inv_cres + KEY_ORIGIN, u1 = pe[i] * m->inv_cres + KEY_ORIGIN, du = u1 - u0;
+        if (!(u0 >= 0 && u0 < 2 * KEY_ORIGIN && u1 >= 0 && u1 < 2 * KEY_ORIGIN)) return;
+        k[i] = (int)u0;
+        int kend = (int)u1;
+        cells += std::abs(kend - k[i]);
+        if (kend > k[i]) { step[i] = 1; tmax[i] = (k[i] + 1 - u0) / du; tdelta[i] = 1 / du; }
+        else if (kend < k[i]) { step[i] = -1; tmax[i] = (k[i] - u0) / du; tdelta[i] = -1 / du; }
+        else { step[i] = 0; tmax[i] = INFINITY; tdelta[i] = INFINITY; }
+    }
+    const int sh = m->cshift, co = m->coff;
+    for (int c = 0; c < cells; c++) {
+        OcTreeKey key((uint16_t)k[0], (uint16_t)k[1], (uint16_t)k[2]);
+        size_t bi = obs_bit(key);
+        if (!get_bit(m->obs_bits, bi)) {
+            set_bit(m->obs_bits, bi);
+            m->observed.updateNode(key, false, true);
+            s->observed_new++;
+            m->blocks.try_emplace(block_of(OcTreeKey((k[0] - co) << sh, (k[1] - co) << sh, (k[2] - co) << sh)), 1);
+        }
+        int a = tmax[0] < tmax[1] ? (tmax[0] < tmax[2] ? 0 : 2) : (tmax[1] < tmax[2] ? 1 : 2);
+        k[a] += step[a];
+        tmax[a] += tdelta[a];
+    }
+}
+
 void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_t *st)
 {
     const occ_config_t &c = m->cfg;
@@ -367,7 +401,12 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
     /* 3. misses: occupied voxels in view whose surrounding beams all went on past them */
     m->to_clear.clear();
     /* the occupied voxels come from a list kept beside the tree (iterating the tree's
-     * leaves costs more than the rest of the sweep); entries whose bit went are dropped */
+     * leaves costs more than the rest of the sweep); entries whose bit went are dropped.
+     * The list is put in bitmap order now and then, so the bitmaps are read in order
+     * (in the order voxels were found, every look-up was a cache miss) */
+    if (m->sweep % SORT_EVERY == 0)
+        std::sort(m->occupied.begin(), m->occupied.end(),
+                  [](uint64_t a, uint64_t b) { return fine_bit(unpack(a)) < fine_bit(unpack(b)); });
     for (size_t j = 0; j < m->occupied.size();) {
         uint64_t pk = m->occupied[j];
         OcTreeKey k = unpack(pk);
@@ -404,7 +443,7 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
         if (!nd || !m->fine.isNodeOccupied(nd)) { clr_bit(m->fine_bits, fine_bit(k)); s.cleared++; }
     }
 
-    /* 4. observed space: every Nth beam traced through the coarse tree (new voxels only) */
+    /* 4. observed space: every Nth beam traced through the coarse cells (new cells only) */
     int stride = std::max(1, c.observed_ray_stride);
     for (int i = m->sweep % stride; i < sw->n; i += stride) {     /* other beams next sweep */
         float x = sw->x[i], y = sw->y[i], z = sw->z[i];
@@ -414,20 +453,8 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
         double len = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
         if (len < 1e-3) continue;
         double f = std::min(1.0, c.range_m / len);
-        octomap::point3d po((float)o[0], (float)o[1], (float)o[2]);
-        octomap::point3d pe((float)(o[0] + d[0] * f), (float)(o[1] + d[1] * f), (float)(o[2] + d[2] * f));
-        if (!m->observed.computeRayKeys(po, pe, m->ray)) continue;
-        OcTreeKey ke;
-        if (m->observed.coordToKeyChecked(pe, ke)) m->ray.addKey(ke);
-        for (const OcTreeKey &k : m->ray) {
-            size_t bi = obs_bit(k);
-            if (get_bit(m->obs_bits, bi)) continue;
-            set_bit(m->obs_bits, bi);
-            m->observed.updateNode(k, false, true);
-            s.observed_new++;
-            int sh = m->cshift, o = m->coff;
-            m->blocks.try_emplace(block_of(OcTreeKey((k[0] - o) << sh, (k[1] - o) << sh, (k[2] - o) << sh)), 1);
-        }
+        double pe[3] = { o[0] + d[0] * f, o[1] + d[1] * f, o[2] + d[2] * f };
+        trace_observed(m, o, pe, &s);
     }
 
     /* 5. what stands beside the car below the lowest beam (this sweep only) */
