@@ -146,3 +146,24 @@ def test_nan_points_are_dropped_and_counted(drive, tmp_path):
     st = statuses(out)
     assert counter(st[-1], "scan_nonfinite_points") > 0
     assert agreement(drive, out)["agreement"] >= 0.846   # measured 0.949, as without the fault (error 0.051, bound 3x)
+
+
+def test_changes_followed_causes():
+    """The bench's "every change within one scan" count on hand-made series of
+    (sweep, truth, module): which changes are judged and why the others are not followed."""
+    from occ_agreement import changes_followed
+    series = {
+        0: [(0, 0, 0), (1, 1, 1), (2, 1, 1)],                        # followed at once
+        1: [(0, 0, 0), (1, 1, 0), (2, 0, 0)],                        # truth hidden for one sweep only
+        2: [(0, 1, 1), (1, 0, 1), (2, 0, 1), (3, 0, 0)],             # visible two sweeps late
+        3: [(0, 1, 1), (1, 0, 2), (2, 0, 2)],                        # module unknown
+        4: [(0, 1, 1), (1, 0, 1)],                                   # sample leaves range
+        5: [(0, 1, 1), (1, 0, 1), (2, 0, 1), (3, 0, 1), (4, 0, 0)],  # three sweeps late
+        6: [(0, 1, 1), (1, 0, 1), (2, 0, 1), (3, 1, 1)],             # never, then followed
+    }
+    c = changes_followed(series)
+    assert (c["changes"], c["followed"], c["followable"], c["followed_followable"]) == (9, 3, 5, 1)
+    nf = c["not_followed"]
+    assert nf["truth_flicker"] == {"to_visible": 0, "to_hidden": 1}
+    for cause in ("late_by_1", "module_unknown", "sample_leaves", "late_by_2_or_more", "never"):
+        assert nf[cause] == {"to_visible": 1, "to_hidden": 0}, cause

@@ -17,7 +17,7 @@ TOP = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", "..", ".."))
 BUILD = os.path.join(TOP, "build")
 sys.path.insert(0, os.path.join(BUILD, "python"))
 sys.path.insert(0, os.path.dirname(__file__))
-from occ_agreement import agreement, read_states, read_truth  # noqa: E402
+from occ_agreement import CAUSES, agreement, read_states, read_truth  # noqa: E402
 
 DURATION = int(os.environ.get("OCC_BENCH_DURATION", "600"))
 STOCK_FROM = int(os.environ.get("OCC_BENCH_STOCK_FROM", "300"))
@@ -79,6 +79,17 @@ def main():
     row(f"ours, the {STOCK_COUNT} stock sweeps", ours_sub)
     row(f"stock OctoMap, same sweeps", stock_sub)
     print("targets: agree >= 97%, visible when truly hidden <= 1%, every change within one sweep")
+    a = ours_all
+    print()
+    print(f"truth changes (visible <-> hidden), ours, whole drive: {a['state_changes']}, followed within one sweep "
+          f"{100 * a['changes_within_one_sweep']:.1f}% (raw); of the {a['changes_followable']} whose new state lasts "
+          f"two sweeps or more and whose sample stays in range: {100 * a['followable_within_one_sweep']:.1f}%")
+    print(f"  not followed, by cause          {'to visible':>10s} {'to hidden':>10s}")
+    for cause in CAUSES:
+        n = a["changes_not_followed"][cause]
+        print(f"  {cause:30s} {n['to_visible']:10d} {n['to_hidden']:10d}")
+    print("  (truth_flicker: the truth's new state lasts one sweep; sample_leaves: no next sweep in range;"
+          " late_by_1: two sweeps after the truth)")
     print()
     print("confusion, ours, whole drive (rows truth, columns module)")
     print(f"{'':16s}{'visible':>10s}{'hidden':>10s}{'unknown':>10s}")

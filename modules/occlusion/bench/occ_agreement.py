@@ -5,7 +5,8 @@ it lies within RANGE_M of the truth's eye and its agent is in render range (the 
 evaluates only those; the newest AGENTS at or before the sweep says). Returns the
 confusion matrix (truth visible/hidden x module visible/hidden/unknown), the agreement,
 the "visible when truly hidden" rate, and how many truth state changes the module
-followed within one sweep.
+followed within one sweep (raw, and of those a one-sweep answer can follow; the rest by
+cause: see changes_followed).
 
 Logs are read once, streaming, and only the states are kept (a 10-minute drive's truth
 decoded whole would not fit in memory).
@@ -80,18 +81,7 @@ def agreement(truth, out, out_channel="OCCLUSION", utimes=None):
                 ms = b[s] if b is not None and s < len(b) else 2
                 conf[ts][ms] += 1
                 series.setdefault((aid, s), []).append((i, ts, ms))
-    # state changes of the truth (visible <-> hidden between consecutive sweeps) and
-    # whether the module shows the new state at that sweep or the next
-    changes = followed = 0
-    for seq in series.values():
-        for j in range(1, len(seq)):
-            (i0, t0, _), (i1, t1, m1) = seq[j - 1], seq[j]
-            if i1 != i0 + 1 or t0 == t1:
-                continue
-            changes += 1
-            nxt = seq[j + 1] if j + 1 < len(seq) and seq[j + 1][0] == i1 + 1 else None
-            if m1 == t1 or (nxt is not None and nxt[2] == t1):
-                followed += 1
+    ch = changes_followed(series)
     total = sum(map(sum, conf))
     hidden = sum(conf[1])
     return {
@@ -102,9 +92,63 @@ def agreement(truth, out, out_channel="OCCLUSION", utimes=None):
         "visible_when_hidden_of_hidden": conf[1][0] / hidden if hidden else float("nan"),
         "visible_when_hidden_of_all": conf[1][0] / total if total else float("nan"),
         "unknown_fraction": (conf[0][2] + conf[1][2]) / total if total else float("nan"),
-        "state_changes": changes,
-        "changes_within_one_sweep": followed / changes if changes else float("nan"),
+        "state_changes": ch["changes"],
+        "changes_within_one_sweep": ch["followed"] / ch["changes"] if ch["changes"] else float("nan"),
+        "changes_followable": ch["followable"],
+        "followable_within_one_sweep": ch["followed_followable"] / ch["followable"] if ch["followable"] else float("nan"),
+        "changes_not_followed": ch["not_followed"],
     }
+
+
+# Why a truth change was not followed within one sweep (see changes_followed).
+CAUSES = ("truth_flicker", "sample_leaves", "module_unknown", "late_by_1", "late_by_2_or_more", "never")
+
+
+def changes_followed(series):
+    """Truth state changes (visible <-> hidden between consecutive sweeps) and whether the
+    module shows the new state at that sweep or the next ("within one scan").
+
+    Two kinds of change cannot be judged that way, and are counted apart (the raw figure
+    keeps them): the truth's new state lasts a single sweep (at the next sweep it is back:
+    a system answering one sweep later, as any does that sees the occluder move in the
+    sweep that shows it, can follow it only by chance), and the sample has no next sweep
+    (it leaves the 45 m range or the render range). Unfollowed changes get a cause:
+    truth_flicker, sample_leaves, module_unknown (unknown at both sweeps), late_by_1 (the
+    new state two sweeps after the change), late_by_2_or_more, never (the truth changed
+    again first); each split by the new state (to_visible / to_hidden)."""
+    changes = followed = followable = followed_followable = 0
+    causes = {c: {"to_visible": 0, "to_hidden": 0} for c in CAUSES}
+    for seq in series.values():
+        pos = {e[0]: j for j, e in enumerate(seq)}
+        for j in range(1, len(seq)):
+            (i0, t0, _), (i1, t1, m1) = seq[j - 1], seq[j]
+            if i1 != i0 + 1 or t0 == t1:
+                continue
+            changes += 1
+            nxt = seq[pos[i1 + 1]] if i1 + 1 in pos else None
+            ok = m1 == t1 or (nxt is not None and nxt[2] == t1)
+            judged = nxt is not None and nxt[1] == t1
+            followed += ok
+            followable += judged
+            followed_followable += ok and judged
+            if ok:
+                continue
+            if nxt is None:
+                cause = "sample_leaves"
+            elif nxt[1] != t1:
+                cause = "truth_flicker"
+            elif m1 == 2 and nxt[2] == 2:
+                cause = "module_unknown"
+            else:
+                cause, k = "never", j + 2
+                while k < len(seq) and seq[k][0] == seq[k - 1][0] + 1 and seq[k][1] == t1:
+                    if seq[k][2] == t1:
+                        cause = "late_by_1" if seq[k][0] == i1 + 2 else "late_by_2_or_more"
+                        break
+                    k += 1
+            causes[cause]["to_hidden" if t1 == 1 else "to_visible"] += 1
+    return dict(changes=changes, followed=followed, followable=followable,
+                followed_followable=followed_followable, not_followed=causes)
 
 
 if __name__ == "__main__":
