@@ -15,6 +15,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 BUILD = ROOT / "build"
 BIN = BUILD / "bin"
 SHARED_DATA = ROOT.parent / "shared" / "data"
+VEHICLE = ROOT / "vehicles" / "prius2017.yaml"   # the default vehicle (simdrive, lab_vehicle)
 sys.path.insert(0, str(BUILD / "python"))
 
 
@@ -29,6 +30,19 @@ def pytest_collection_modifyitems(config, items):
     for item in items:
         if "real" in item.keywords:
             item.add_marker(skip)
+
+
+@pytest.fixture(scope="module")
+def tmp(request, tmp_path_factory):
+    """A scratch folder shared by one test module's fixtures (named after the module)."""
+    return tmp_path_factory.mktemp(request.module.__name__.removeprefix("test_"))
+
+
+@pytest.fixture(scope="module")
+def vehicle():
+    """The default vehicle's parameters (vehicles/prius2017.yaml) as a dict."""
+    import yaml
+    return yaml.safe_load(VEHICLE.read_text())
 
 
 def read_log(path, channels=None):
