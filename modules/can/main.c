@@ -15,10 +15,10 @@
 #include <time.h>
 #include <unistd.h>
 
-#include "can_dbc.h"
-#include "can_kernel.h"
+#include "core/can_dbc.h"
+#include "core/can_kernel.h"
 #include "can_socket.h"
-#include "can_speed.h"
+#include "core/can_speed.h"
 #include "pb_arg.h"
 #include "pb_bus.h"
 #include "pb_candump.h"

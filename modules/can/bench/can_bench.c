@@ -3,14 +3,14 @@
  *   MODE signals: every signal of every bus-0 frame whose id and length the DBC knows
  *                 (what cantools' decode_message does per frame: the baseline's work)
  *   MODE speed:   can_speed_decode on every frame (the module's per-frame work)
- * Run by `make bench-can` (modules/can/bench_can.py), which prints the table. */
+ * Run by `make bench-can` (modules/can/bench/bench_can.py), which prints the table. */
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
 
-#include "../can_dbc.h"
-#include "../can_speed.h"
+#include "can/core/can_dbc.h"
+#include "can/core/can_speed.h"
 #include "pb_candump.h"
 
 static double cpu_s(void)
