@@ -6,6 +6,7 @@ and skip with a message when the data is absent.
 """
 import os
 import pathlib
+import signal
 import subprocess
 import sys
 
@@ -52,6 +53,13 @@ def read_log(path, channels=None):
     for ev in log:
         if channels is None or ev.channel in channels:
             yield ev.channel, ev.timestamp, ev.data
+
+
+def interrupt(proc, timeout=10):
+    """Stops a live process as Ctrl-C does (SIGINT) and waits for it; returns its
+    (stdout, stderr). The caller still kills it in a `finally` if anything failed before."""
+    proc.send_signal(signal.SIGINT)
+    return proc.communicate(timeout=timeout)
 
 
 def run(args, check=True, **kw):
