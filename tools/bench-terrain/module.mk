@@ -13,8 +13,8 @@ bench-terrain-localizer: $(BIN)/simdrive $(BIN)/localizer $(BIN)/can $(BIN)/log-
 	@$(VPY) tools/bench-terrain/bench.py --localizer --skip-ground --loc-seeds 1,2 \
 		--loc-sites hills,default:lead+crossing+pedestrians+roof --work $(BUILD)/bench-terrain-loc
 
-# Lab twin vs road with the localizer's POSE on the hills: build/bench/terrain-twin.json.
+# Lab twin vs road with the localizer's POSE on the hills and the default site: build/bench/terrain-twin.json.
 BENCH_TARGETS += bench-terrain-twin
 .PHONY: bench-terrain-twin
 bench-terrain-twin: $(BIN)/simdrive $(BIN)/localizer $(BIN)/can $(BIN)/log-merge $(BIN)/lab_vehicle $(BIN)/director maps
-	@$(VPY) tools/bench-terrain/bench.py --twin --skip-ground --sites hills --work $(BUILD)/bench-terrain-twin
+	@$(VPY) tools/bench-terrain/bench.py --twin --skip-ground --sites hills,default --work $(BUILD)/bench-terrain-twin
