@@ -136,11 +136,6 @@ def write_log(path, evs):
 
 # ---------------------------------------------------------------- fixtures
 @pytest.fixture(scope="module")
-def tmp(tmp_path_factory):
-    return tmp_path_factory.mktemp("director")
-
-
-@pytest.fixture(scope="module")
 def road(tmp):
     d = tmp / "road"
     run([BIN / "simdrive", "--no-lidar", "--quiet", "--seed", 3, "--duration", 75, "--out", d])

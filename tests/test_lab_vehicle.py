@@ -96,11 +96,6 @@ def lab(*args, check=True):
 
 
 @pytest.fixture(scope="module")
-def tmp(tmp_path_factory):
-    return tmp_path_factory.mktemp("lab_vehicle")
-
-
-@pytest.fixture(scope="module")
 def lap(tmp):
     """One lap, normal profile, proceed 2.0 s after each stop."""
     lab("--out", tmp / "lap.lcm", "--auto-proceed", 2.0, "--quiet")
