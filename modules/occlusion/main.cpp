@@ -19,6 +19,7 @@
 #include "pb_status.h"
 #include "pb_vehicle.h"
 #include "portobello_agents_t.h"
+#include "pb_clock.h"
 #include "portobello_head_pose_t.h"
 #include "portobello_lidar_scan_t.h"
 #include "portobello_occlusion_t.h"
@@ -37,14 +38,6 @@ struct app_t {
     std::vector<double> integrate_ms, query_ms;
     bool degraded = false;
 };
-
-/* CPU time of this thread: the work a sweep costs on one core, whatever else the machine runs. */
-static double cpu_ms()
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-    return ts.tv_sec * 1e3 + ts.tv_nsec * 1e-6;
-}
 
 static void usage(FILE *f)
 {
@@ -259,7 +252,7 @@ int main(int argc, char **argv)
     ov.has_seat_eye = veh.has_seat_eye;
     ov.length = veh.length; ov.width = veh.width; ov.height = veh.height; ov.rear_overhang = veh.rear_overhang;
     a.occ = occlusion_create(&cfg, &ov);
-    occlusion_set_clock(a.occ, cpu_ms);
+    occlusion_set_clock(a.occ, pb_clock_thread_cpu_ms);
     a.status = pb_status_create(bus, "occlusion", 1000000);
     if (!veh.has_seat_eye) pb_status_error(a.status, "%s: no seat.eye_xyz: without HEAD_POSE the eye is the LiDAR", vehicle.c_str());
     pb_signal_install();

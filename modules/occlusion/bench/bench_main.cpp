@@ -27,17 +27,11 @@
 #include "pb_scan.h"
 #include "pb_vehicle.h"
 #include "portobello_agents_t.h"
+#include "pb_clock.h"
 #include "portobello_head_pose_t.h"
 #include "portobello_lidar_scan_t.h"
 #include "portobello_occlusion_t.h"
 #include "portobello_pose_t.h"
-
-static double cpu_ms()
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-    return ts.tv_sec * 1e3 + ts.tv_nsec * 1e-6;
-}
 
 /* Resident memory of this process, kB (Linux /proc/self/statm). */
 static long rss_kb()
@@ -153,7 +147,7 @@ int main(int argc, char **argv)
     ov.has_seat_eye = veh.has_seat_eye;
     ov.length = veh.length; ov.width = veh.width; ov.height = veh.height; ov.rear_overhang = veh.rear_overhang;
     occlusion_t *occ = occlusion_create(&cfg, &ov);
-    occlusion_set_clock(occ, cpu_ms);
+    occlusion_set_clock(occ, pb_clock_thread_cpu_ms);
     octomap::OcTree stock(cfg.resolution);
 
     std::vector<double> integ, query100, stock_insert, stock_query100, ours_rays_us, stock_rays_us;
@@ -222,13 +216,13 @@ int main(int argc, char **argv)
             float om[PB_BODY_MAX_SAMPLES];
             int rays = 0;
             if (!inr.empty()) {
-                double t0 = cpu_ms();
+                double t0 = pb_clock_thread_cpu_ms();
                 for (int k = 0; k < 100; k++) {
                     const occ_agent_out_t *g = inr[k % inr.size()];
                     occ_map_query(map, o.viewer, last_pose, yaw, g->x, g->y, g->z, g->n, st, om);
                     rays += g->n;
                 }
-                double dt = cpu_ms() - t0;
+                double dt = pb_clock_thread_cpu_ms() - t0;
                 query100.push_back(dt);
                 ours_rays_us.push_back(dt * 1e3 / rays);
             }
@@ -241,9 +235,9 @@ int main(int argc, char **argv)
                     octomap::point3d p(sw.x[i], sw.y[i], sw.z[i]);
                     if (std::isfinite(sw.x[i]) && (p - so).norm() <= cfg.range_m) cloud.push_back(p);
                 }
-                double t0 = cpu_ms();
+                double t0 = pb_clock_thread_cpu_ms();
                 stock.insertPointCloud(cloud, so, cfg.range_m);
-                double t1 = cpu_ms();
+                double t1 = pb_clock_thread_cpu_ms();
                 occ_output_t so_out = o;
                 auto ask = [&](const occ_agent_out_t &g, int8_t *state, float *occm) {
                     for (int k = 0; k < g.n; k++) {
@@ -258,9 +252,9 @@ int main(int argc, char **argv)
                     stock_insert.push_back(t1 - t0);
                     if (!inr.empty()) {
                         int rays2 = 0;
-                        double q0 = cpu_ms();
+                        double q0 = pb_clock_thread_cpu_ms();
                         for (int k = 0; k < 100; k++) { ask(*inr[k % inr.size()], st, om); rays2 += inr[k % inr.size()]->n; }
-                        double dq = cpu_ms() - q0;
+                        double dq = pb_clock_thread_cpu_ms() - q0;
                         stock_query100.push_back(dq);
                         stock_rays_us.push_back(dq * 1e3 / rays2);
                     }
