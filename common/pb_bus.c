@@ -12,6 +12,7 @@
 #include <string.h>
 #include <time.h>
 
+#include "pb_clock.h"
 #include "pb_log.h"
 #include "pb_signal.h"
 
@@ -59,22 +60,6 @@ const char *pb_lcm_url(const char *cli_url)
     const char *env = getenv("LCM_DEFAULT_URL");
     if (env && *env) return env;
     return PB_DEFAULT_LCM_URL;
-}
-
-static int64_t wall_utime(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_REALTIME, &ts);
-    return (int64_t)ts.tv_sec * 1000000 + ts.tv_nsec / 1000;
-}
-
-/* Live timers are scheduled on this clock: a step of the wall clock (NTP, GNSS time
- * sync) neither stalls nor bursts them. */
-static int64_t mono_utime(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (int64_t)ts.tv_sec * 1000000 + ts.tv_nsec / 1000;
 }
 
 pb_bus_t *pb_bus_create_live(const char *url, pb_err_t *err)
@@ -136,8 +121,8 @@ void pb_bus_destroy(pb_bus_t *bus)
 }
 
 int pb_bus_is_replay(const pb_bus_t *bus) { return bus->replay; }
-int64_t pb_bus_now(const pb_bus_t *bus) { return bus->replay ? bus->now : wall_utime(); }
-int64_t pb_bus_monotonic(const pb_bus_t *bus) { return bus->replay ? bus->now : mono_utime(); }
+int64_t pb_bus_now(const pb_bus_t *bus) { return bus->replay ? bus->now : pb_clock_wall_utime(); }
+int64_t pb_bus_monotonic(const pb_bus_t *bus) { return bus->replay ? bus->now : pb_clock_monotonic_utime(); }
 int64_t pb_bus_events_read(const pb_bus_t *bus) { return bus->events; }
 void pb_bus_stop(pb_bus_t *bus) { bus->stop = 1; }
 
@@ -229,7 +214,7 @@ int pb_bus_add_timer(pb_bus_t *bus, int64_t period_us, pb_timer_fn fn, void *use
  * periodic timer's times stay on an exact grid; a wall-clock step moves it at once. */
 static int64_t wall_offset(pb_bus_t *bus, int64_t t)
 {
-    int64_t off = wall_utime() - t;
+    int64_t off = pb_clock_wall_utime() - t;
     if (!bus->wall_off_set || llabs(off - bus->wall_off) > 50000) {
         bus->wall_off = off;
         bus->wall_off_set = 1;
@@ -262,7 +247,7 @@ int pb_bus_advance(pb_bus_t *bus, int64_t t, pb_err_t *err)
         bus->now = t;
         if (bus->publish_failed) { if (err) *err = bus->publish_err; return -1; }
     } else {
-        fire_timers(bus, mono_utime());
+        fire_timers(bus, pb_clock_monotonic_utime());
     }
     return 0;
 }
@@ -293,7 +278,7 @@ static int run_live(pb_bus_t *bus, pb_err_t *err)
         /* Wait for a message at most until the next timer deadline (and 50 ms), so a
          * 100 Hz timer fires on time instead of in bursts after each 50 ms wait. */
         int wait_ms = 50;
-        int64_t now = mono_utime();
+        int64_t now = pb_clock_monotonic_utime();
         for (int i = 0; i < bus->ntimers; i++) {
             int64_t next = bus->timers[i].next;
             if (next == 0) continue;
@@ -303,7 +288,7 @@ static int run_live(pb_bus_t *bus, pb_err_t *err)
         int r = wait_ms > 0 ? lcm_handle_timeout(bus->lcm, wait_ms) : 0;
         if (r < 0 && pb_signal_stop_requested()) break;   /* a signal interrupted the wait */
         if (r < 0) return pb_err_set(err, "lcm_handle failed");
-        fire_timers(bus, mono_utime());
+        fire_timers(bus, pb_clock_monotonic_utime());
     }
     return 0;
 }
@@ -318,7 +303,7 @@ int pb_bus_dispatch(pb_bus_t *bus, pb_err_t *err)
         if (r == 0) break;
         if (r < 0) return pb_err_set(err, "lcm_handle failed");
     }
-    fire_timers(bus, mono_utime());
+    fire_timers(bus, pb_clock_monotonic_utime());
     return 0;
 }
 

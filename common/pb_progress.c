@@ -1,15 +1,9 @@
 #include "pb_progress.h"
 
 #include <stdio.h>
-#include <time.h>
 #include <unistd.h>
 
-static double mono_s(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return ts.tv_sec + ts.tv_nsec * 1e-9;
-}
+#include "pb_clock.h"
 
 void pb_progress_start(pb_progress_t *p, const char *label, int64_t total, int quiet)
 {
@@ -19,14 +13,14 @@ void pb_progress_start(pb_progress_t *p, const char *label, int64_t total, int q
     p->last_permille = -1;
     p->tty = isatty(2);
     p->quiet = quiet;
-    p->t_start = mono_s();
+    p->t_start = pb_clock_monotonic_ms() * 1e-3;
 }
 
 static void draw(pb_progress_t *p, int final)
 {
     int permille = (int)(1000 * p->done / p->total);
     if (permille > 1000) permille = 1000;
-    double el = mono_s() - p->t_start;
+    double el = pb_clock_monotonic_ms() * 1e-3 - p->t_start;
     if (p->tty) {
         int width = 30, fill = permille * width / 1000;
         char bar[64];

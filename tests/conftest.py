@@ -6,6 +6,7 @@ and skip with a message when the data is absent.
 """
 import os
 import pathlib
+import signal
 import subprocess
 import sys
 
@@ -15,6 +16,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 BUILD = ROOT / "build"
 BIN = BUILD / "bin"
 SHARED_DATA = ROOT.parent / "shared" / "data"
+VEHICLE = ROOT / "vehicles" / "prius2017.yaml"   # the default vehicle (simdrive, lab_vehicle)
 sys.path.insert(0, str(BUILD / "python"))
 
 
@@ -31,6 +33,19 @@ def pytest_collection_modifyitems(config, items):
             item.add_marker(skip)
 
 
+@pytest.fixture(scope="module")
+def tmp(request, tmp_path_factory):
+    """A scratch folder shared by one test module's fixtures (named after the module)."""
+    return tmp_path_factory.mktemp(request.module.__name__.removeprefix("test_"))
+
+
+@pytest.fixture(scope="module")
+def vehicle():
+    """The default vehicle's parameters (vehicles/prius2017.yaml) as a dict."""
+    import yaml
+    return yaml.safe_load(VEHICLE.read_text())
+
+
 def read_log(path, channels=None):
     """Yields (channel, timestamp_us, data) for every event of an LCM log."""
     import lcm
@@ -38,6 +53,13 @@ def read_log(path, channels=None):
     for ev in log:
         if channels is None or ev.channel in channels:
             yield ev.channel, ev.timestamp, ev.data
+
+
+def interrupt(proc, timeout=10):
+    """Stops a live process as Ctrl-C does (SIGINT) and waits for it; returns its
+    (stdout, stderr). The caller still kills it in a `finally` if anything failed before."""
+    proc.send_signal(signal.SIGINT)
+    return proc.communicate(timeout=timeout)
 
 
 def run(args, check=True, **kw):

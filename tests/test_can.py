@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import portobello
-from conftest import BIN, BUILD, ROOT, SHARED_DATA, read_log, run
+from conftest import BIN, BUILD, ROOT, SHARED_DATA, interrupt, read_log, run
 
 DATA = ROOT / "tests" / "data" / "can_rav4"
 SAMPLE = DATA / "rav4_seg40_first2s.candump.log"
@@ -294,7 +294,6 @@ def test_live_bus_from_stdin():
     published on the live bus (real UDP multicast, private port, ttl=0) at its own pace
     and counted by log-summary listening on the bus. (lcm-logger is not used: LCM's
     default 30-deep subscription queue drops bursts; pb_bus subscribes 1000 deep.)"""
-    import signal
     import subprocess
     import time
     url = "udpm://239.255.76.67:7791?ttl=0&recv_buf_size=8388608"
@@ -306,8 +305,7 @@ def test_live_bus_from_stdin():
             p = run([BIN / "can", "--candump", "-", "--realtime", "--lcm-url", url, "--vehicle", RAV4],
                     stdin=f, timeout=60)
         time.sleep(0.5)
-        listener.send_signal(signal.SIGINT)
-        out, err = listener.communicate(timeout=10)
+        out, err = interrupt(listener)
     finally:
         if listener.poll() is None:
             listener.kill()

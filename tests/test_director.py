@@ -136,11 +136,6 @@ def write_log(path, evs):
 
 # ---------------------------------------------------------------- fixtures
 @pytest.fixture(scope="module")
-def tmp(tmp_path_factory):
-    return tmp_path_factory.mktemp("director")
-
-
-@pytest.fixture(scope="module")
 def road(tmp):
     d = tmp / "road"
     run([BIN / "simdrive", "--no-lidar", "--quiet", "--seed", 3, "--duration", 75, "--out", d])
@@ -240,7 +235,37 @@ def test_road_drive_fires_every_trigger_once_where_the_footprint_first_touches(t
             contact = first_contact(track, vols[w["volume"]], after)
             assert contact is not None
             err = math.hypot(ev.vehicle.position[0] - contact[0], ev.vehicle.position[1] - contact[1])
-            assert err <= 0.2, f"{name}/{t['id']}: fired {err:.3f} m from the first contact"
+            # the event carries the contact interpolated between poses: measured 0.1 mm at 100 Hz
+            assert err <= 0.0005, f"{name}/{t['id']}: fired {err:.4f} m from the first contact"
+
+
+def test_a_10_hz_pose_places_triggers_where_100_hz_does(tmp, road):
+    """The localizer's POSE comes at 10 Hz: at 10 m/s a trigger tested only at each pose
+    would fire up to 1 m late. Every 10th GROUND_TRUTH pose alone gives the same events,
+    every enter trigger at the first contact on the full 100 Hz track."""
+    evs = list(read_log(road))
+    gt = [e for e in evs if e[0] == "GROUND_TRUTH"]
+    keep = {e[1] for e in gt[::10]}
+    sparse = tmp / "sparse_10hz.lcm"
+    write_log(sparse, [e for e in evs if e[0] != "GROUND_TRUTH" or e[1] in keep])
+    track = poses(road, "GROUND_TRUTH")
+    for name in FOUR:
+        full, thin = tmp / f"full_{name}.lcm", tmp / f"thin_{name}.lcm"
+        director(road, full, name)
+        director(sparse, thin, name)
+        kinds = {"trigger", "action", "mark"}
+        assert [(e.kind, e.event_id) for e in events(full, kinds)] == [(e.kind, e.event_id) for e in events(thin, kinds)]
+        doc = yaml.safe_load(open(SCEN / f"{name}.yaml"))
+        vols = {v["id"]: v for v in doc["volumes"]}
+        for t in doc["triggers"]:
+            w = t["when"]
+            if w.get("type") != "enter":
+                continue
+            ev = next(e for e in events(thin, {"trigger"}) if e.event_id == t["id"])
+            c = first_contact(track, vols[w["volume"]], track[0][0] + 1 if w.get("edge") == "rising" else 0)
+            # measured 0.9 mm (interpolation between poses 1 m apart); at the pose alone up to 1 m
+            assert math.hypot(ev.vehicle.position[0] - c[0], ev.vehicle.position[1] - c[1]) <= 0.003, (name, t["id"])
+            assert ev.utime == ev.vehicle.utime
 
 
 def test_replay_is_deterministic_and_agents_are_flagged_not_dropped(tmp, road):
@@ -379,7 +404,8 @@ def test_same_scenario_same_event_sequence_in_the_lab_and_on_the_road(tmp, road,
             if t["when"].get("type") == "enter":
                 ev = next(e for e in events(lo, {"trigger"}) if e.event_id == t["id"])
                 c = first_contact(track, vols[t["when"]["volume"]])
-                assert math.hypot(ev.vehicle.position[0] - c[0], ev.vehicle.position[1] - c[1]) <= 0.2
+                # measured 0.6 mm (the interpolated contact; at the pose it was up to 0.14 m)
+                assert math.hypot(ev.vehicle.position[0] - c[0], ev.vehicle.position[1] - c[1]) <= 0.002
 
 
 # ---------------------------------------------------------------- live bus

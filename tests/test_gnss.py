@@ -11,13 +11,12 @@ import json
 import math
 import os
 import random
-import signal
 import subprocess
 import time
 
 import pytest
 
-from conftest import BIN, ROOT, SHARED_DATA, read_log, run
+from conftest import BIN, ROOT, SHARED_DATA, interrupt, read_log, run
 
 import portobello
 
@@ -313,8 +312,7 @@ def test_live_serial_pty_to_bus():
         while len(got) < 40 and time.time() < deadline:   # the 41st (an NMEA fill) comes at the stop
             lc.handle_timeout(100)
         time.sleep(0.3)
-        proc.send_signal(signal.SIGINT)
-        _, err = proc.communicate(timeout=10)
+        _, err = interrupt(proc)
         for _ in range(20):
             lc.handle_timeout(50)
     finally:

@@ -327,56 +327,50 @@ def test_pose_to_tum(drive, tmp_path):
 LIVE_URL = "udpm://239.255.76.67:7760?ttl=0&recv_buf_size=8388608"
 
 
+def live_handlers(got):
+    """Decoders for the POSE-like and STATUS channels of `got` (channel -> list)."""
+    from portobello import pose_t, status_t
+
+    def handler(ch, data):
+        got[ch].append(status_t.decode(data) if ch == "STATUS" else pose_t.decode(data))
+    return {ch: handler for ch in got}
+
+
+def wait_heartbeat(got):
+    deadline = time.time() + 60   # map loaded, heartbeat running
+    while not got["STATUS"] and time.time() < deadline:
+        time.sleep(0.1)
+    assert got["STATUS"], "no STATUS heartbeat"
+
+
 def test_live_bus(drive, tmp_path):
     """Live: the first 3 s of the drive published on a private bus; POSE, POSE_PREDICTED and
     STATUS come back, and SIGINT stops the localizer cleanly. Counts are loose (UDP)."""
     import signal
-    import threading
-    import time
 
-    import lcm
-    from portobello import pose_t, status_t
-    lc = lcm.LCM(LIVE_URL)
+    from portobello import pose_t
     got = {"POSE": [], "POSE_PREDICTED": [], "STATUS": []}
-
-    def handler(ch, data):
-        got[ch].append(status_t.decode(data) if ch == "STATUS" else pose_t.decode(data))
-
-    for ch in got:
-        lc.subscribe(ch, handler)
-    stop = threading.Event()
-
-    def spin():
-        while not stop.is_set():
-            lc.handle_timeout(50)
-
-    th = threading.Thread(target=spin, daemon=True)
-    th.start()
-    proc = subprocess.Popen([str(BIN / "localizer"), "--site", str(drive["site"]), "--lcm-url", LIVE_URL],
-                            stderr=subprocess.PIPE, text=True)
-    try:
-        deadline = time.time() + 60
-        while not got["STATUS"] and time.time() < deadline:   # map loaded, heartbeat running
-            time.sleep(0.1)
-        assert got["STATUS"], "no STATUS heartbeat"
-        events = [e for e in read_log(drive["log"], {"IMU", "LIDAR_SCAN", "GNSS_FIX", "VEHICLE_SPEED"})]
-        t_first = events[0][1]
-        start = time.time()
-        for ch, ts, data in events:
-            if ts - t_first > 3e6:
-                break
-            delay = (ts - t_first) * 1e-6 - (time.time() - start)
-            if delay > 0:
-                time.sleep(delay)
-            lc.publish(ch, data)
-        time.sleep(1.0)
-        proc.send_signal(signal.SIGINT)
-        assert proc.wait(timeout=10) == 0
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-        stop.set()
-        th.join()
+    with lb.Listener(LIVE_URL, live_handlers(got)) as lc:
+        proc = subprocess.Popen([str(BIN / "localizer"), "--site", str(drive["site"]), "--lcm-url", LIVE_URL],
+                                stderr=subprocess.PIPE, text=True)
+        try:
+            wait_heartbeat(got)
+            events = [e for e in read_log(drive["log"], {"IMU", "LIDAR_SCAN", "GNSS_FIX", "VEHICLE_SPEED"})]
+            t_first = events[0][1]
+            start = time.time()
+            for ch, ts, data in events:
+                if ts - t_first > 3e6:
+                    break
+                delay = (ts - t_first) * 1e-6 - (time.time() - start)
+                if delay > 0:
+                    time.sleep(delay)
+                lc.publish(ch, data)
+            time.sleep(1.0)
+            proc.send_signal(signal.SIGINT)
+            assert proc.wait(timeout=10) == 0
+        finally:
+            if proc.poll() is None:
+                proc.kill()
     assert len(got["POSE"]) >= 10
     assert len(got["POSE_PREDICTED"]) >= 200
     assert any(p.status == pose_t.STATUS_TRACKING for p in got["POSE"]), [p.status for p in got["POSE"]]
@@ -387,70 +381,68 @@ STALE_URL = "udpm://239.255.76.67:7761?ttl=0&recv_buf_size=8388608"
 
 
 def test_live_search_skips_sweeps_that_went_stale_in_the_queue(drive, tmp_path):
-    """Live with no prior, LiDAR alone: a global search can cost hundreds of ms a sweep, and
-    sweeps queue meanwhile. Searching each queued sweep in turn would leave the car seconds
-    behind; the stale ones are skipped (counted in STATUS) and the fresh ones searched.
-    The stall is made certain here: the localizer is stopped (SIGSTOP) while 10 sweeps
-    arrive, then continued; sweeps then come at 10 Hz and are searched and tracked."""
+    """Live with no prior, LiDAR alone: a global search can cost hundreds of ms a sweep (a
+    second on a loaded machine), and sweeps queue meanwhile. Searching each queued sweep in
+    turn would leave the car ever further behind; the stale ones are skipped (counted in
+    STATUS) and the newest searched, so no POSE comes much later than its sweep. The stall
+    is made certain: the localizer is stopped (SIGSTOP) while 10 sweeps arrive, then
+    continued; then sweeps come at 10 Hz for 8 s and are searched until tracked."""
     import signal
 
-    import lcm
-    from portobello import lidar_scan_t, pose_t, status_t
-    lc = lcm.LCM(STALE_URL)
+    from portobello import lidar_scan_t, pose_t
     got = {"POSE": [], "STATUS": []}
+    arrived = {}                      # POSE utime -> wall time received
+    handlers = live_handlers(got)
+    pose_handler = handlers["POSE"]
 
-    def handler(ch, data):
-        got[ch].append(status_t.decode(data) if ch == "STATUS" else pose_t.decode(data))
-
-    for ch in got:
-        lc.subscribe(ch, handler).set_queue_capacity(1000)
-    stop = threading.Event()
-
-    def spin():
-        while not stop.is_set():
-            lc.handle_timeout(50)
-
-    th = threading.Thread(target=spin, daemon=True)
-    th.start()
-    proc = subprocess.Popen([str(BIN / "localizer"), "--site", str(drive["site"]), "--lcm-url", STALE_URL,
-                             "--no-imu", "--no-speed", "--no-gnss", "--verbose"], stderr=open(tmp_path / "err.txt", "w"), text=True)
-    scans = [d for _, _, d in read_log(drive["log"], {"LIDAR_SCAN"})]
-    try:
-        deadline = time.time() + 60
-        while not got["STATUS"] and time.time() < deadline:
-            time.sleep(0.1)
-        assert got["STATUS"], "no STATUS heartbeat"
-        proc.send_signal(signal.SIGSTOP)
-        for d in scans[:10]:          # they wait in the socket while the localizer stalls
-            lc.publish("LIDAR_SCAN", d)
-            time.sleep(0.01)
-        time.sleep(0.5)
-        proc.send_signal(signal.SIGCONT)
-        for d in scans[10:50]:        # then the sensor's own rate
-            lc.publish("LIDAR_SCAN", d)
-            time.sleep(0.1)
-        time.sleep(1.5)
-        proc.send_signal(signal.SIGINT)
-        assert proc.wait(timeout=10) == 0
-    finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGCONT)
-            proc.kill()
-        stop.set()
-        th.join()
+    def on_pose(ch, data):
+        pose_handler(ch, data)
+        arrived[got["POSE"][-1].utime] = time.monotonic()
+    handlers["POSE"] = on_pose
+    scans = [d for _, _, d in read_log(drive["log"], {"LIDAR_SCAN"})][:90]
+    sent = []                         # (sweep utime, wall time published)
+    err = tmp_path / "err.txt"
+    with lb.Listener(STALE_URL, handlers) as lc, open(err, "w") as errf:
+        proc = subprocess.Popen([str(BIN / "localizer"), "--site", str(drive["site"]), "--lcm-url", STALE_URL,
+                                 "--no-imu", "--no-speed", "--no-gnss", "--verbose"], stderr=errf)
+        try:
+            wait_heartbeat(got)
+            proc.send_signal(signal.SIGSTOP)
+            for i, d in enumerate(scans):
+                if i == 10:           # the first 10 waited in the socket while the localizer stalled
+                    time.sleep(0.5)
+                    proc.send_signal(signal.SIGCONT)
+                sent.append((lidar_scan_t.decode(d).utime, time.monotonic()))
+                lc.publish("LIDAR_SCAN", d)
+                time.sleep(0.01 if i < 10 else 0.1)
+            time.sleep(1.5)
+            proc.send_signal(signal.SIGINT)
+            assert proc.wait(timeout=10) == 0
+        finally:
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGCONT)
+                proc.kill()
     c = counters(got["STATUS"][-1])
-    stalled_end = lidar_scan_t.decode(scans[9]).utime + 100000
+    stalled_end = sent[9][0] + 100000
     searched = sum(1 for p in got["POSE"] if p.utime <= stalled_end)
+    # how late each sweep's POSE came: from the sweep's publication (the stall included)
+    late = [arrived[p.utime] - max(w for u, w in sent if u <= p.utime) for p in got["POSE"]
+            if p.utime in arrived and any(u <= p.utime for u, _ in sent)]
     trk = [p.utime for p in got["POSE"] if p.status == pose_t.STATUS_TRACKING]
     print(f"skipped {c.get('scan_stale_skipped', 0)} stale sweeps; {searched} of the 10 stalled searched; "
-          f"tracking {(trk[0] - stalled_end) * 1e-6 if trk else -1:.1f} s after them")
-    # measured (machine loaded by 4 builds, 6 runs): 11-20 skipped (the stalled ones, and a
-    # 10 Hz sweep that came during a slower search), 0-1 of the stalled searched (LCM stamps
-    # a message when its thread reads it: the first read after SIGCONT is fresh), tracking
-    # 1.0-1.7 s after the stalled ones
-    assert c.get("scan_stale_skipped", 0) >= 10, c
-    assert searched <= 1, searched
-    assert trk and trk[0] - stalled_end < 4.5e6, ([p.status for p in got["POSE"]], (tmp_path / "err.txt").read_text())
+          f"POSE late by at most {max(late):.2f} s; tracking {(trk[0] - stalled_end) * 1e-6 if trk else -1:.1f} s "
+          f"after the stalled sweeps")
+    # measured (machine loaded by other builds and tests, 4 runs): 15-19 skipped (the stalled
+    # ones and 10 Hz sweeps that came during a search), 1-2 of the stalled searched (LCM
+    # stamps a message when its thread reads it: the first read after SIGCONT is fresh), POSE
+    # late by at most 1.5-1.8 s (one search); tracking 0.8-1.2 s after the stall when the
+    # machine was less loaded (the search's speed, not the skip, sets that). The lateness
+    # bound is under 2x the measured figure on purpose: searching the 10 stalled sweeps in
+    # turn (no skip) makes the last of them 10 searches late, 5-10 s here.
+    assert c.get("scan_stale_skipped", 0) >= 5, c
+    assert searched <= 2, searched
+    assert max(late) < 3.0, late
+    assert trk, ([p.status for p in got["POSE"]], err.read_text())
 
 
 # ---------------------------------------------------------------- starts like real life, honest failure

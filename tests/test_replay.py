@@ -7,7 +7,7 @@ import shutil
 import pytest
 
 import portobello
-from conftest import BIN, read_log, run
+from conftest import BIN, interrupt, read_log, run
 
 T0 = 1_714_572_000_000_000  # 2024-05-01 14:00 UTC
 
@@ -144,7 +144,6 @@ def test_live_bus_and_clean_stop_on_signal():
     """log-summary on the live bus (real UDP multicast, private port, ttl=0): it counts
     what Python publishes and prints the summary after SIGINT."""
     import lcm
-    import signal
     import subprocess
     import time
     url = "udpm://239.255.76.67:7742?ttl=0&recv_buf_size=8388608"
@@ -161,8 +160,7 @@ def test_live_bus_and_clean_stop_on_signal():
             lc.publish("IMU", m.encode())
             time.sleep(0.002)
         time.sleep(0.5)
-        proc.send_signal(signal.SIGINT)
-        out, err = proc.communicate(timeout=10)
+        out, err = interrupt(proc)
     finally:
         if proc.poll() is None:
             proc.kill()

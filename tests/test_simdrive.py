@@ -14,10 +14,11 @@ import numpy as np
 import pytest
 import yaml
 
+from conftest import VEHICLE
+
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 BIN = ROOT / "build" / "bin" / "simdrive"
 SITE = ROOT / "maps" / "default"
-VEHICLE = ROOT / "vehicles" / "prius2017.yaml"
 DBC = ROOT / "vehicles" / "dbc" / "toyota_prius_2017_pt_generated.dbc"
 sys.path.insert(0, str(ROOT / "build" / "python"))
 
@@ -79,16 +80,6 @@ class Drive:
 
     def can(self, can_id):
         return [m for m in self.msgs["CAN_FRAME"] if m.id == can_id]
-
-
-@pytest.fixture(scope="module")
-def tmp(tmp_path_factory):
-    return tmp_path_factory.mktemp("simdrive")
-
-
-@pytest.fixture(scope="module")
-def vehicle():
-    return yaml.safe_load(VEHICLE.read_text())
 
 
 @pytest.fixture(scope="module")

@@ -34,16 +34,6 @@ def read_ground(path):
 
 
 @pytest.fixture(scope="module")
-def tmp(tmp_path_factory):
-    return tmp_path_factory.mktemp("terrain")
-
-
-@pytest.fixture(scope="module")
-def vehicle():
-    return yaml.safe_load(ts.VEHICLE.read_text())
-
-
-@pytest.fixture(scope="module")
 def truth(tmp):
     """The simulator's true ground on drivable and walkable cells, as a ground model."""
     run([BIN / "simdrive", "--site", HILLS, "--terrain-out", tmp / "truth.yaml"])

@@ -23,16 +23,6 @@ WORLD = yaml.safe_load((SITE / "world.yaml").read_text())
 ROUTE = yaml.safe_load((SITE / "route.yaml").read_text())
 
 
-@pytest.fixture(scope="module")
-def tmp(tmp_path_factory):
-    return tmp_path_factory.mktemp("actors")
-
-
-@pytest.fixture(scope="module")
-def vehicle():
-    return yaml.safe_load(ts.VEHICLE.read_text())
-
-
 def stop_points(vehicle):
     """Where the base origin rests at each stop line (front bumper 0.5 m behind it)."""
     d = vehicle["dimensions"]

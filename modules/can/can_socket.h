@@ -10,7 +10,7 @@
 #ifndef CAN_SOCKET_H
 #define CAN_SOCKET_H
 
-#include "can_kernel.h"
+#include "core/can_kernel.h"
 #include "pb_err.h"
 
 /* Opens a CAN_RAW socket bound to iface with CAN FD frames, error frames,

@@ -15,13 +15,14 @@
 #include <time.h>
 #include <unistd.h>
 
-#include "can_dbc.h"
-#include "can_kernel.h"
+#include "core/can_dbc.h"
+#include "core/can_kernel.h"
 #include "can_socket.h"
-#include "can_speed.h"
+#include "core/can_speed.h"
 #include "pb_arg.h"
 #include "pb_bus.h"
 #include "pb_candump.h"
+#include "pb_clock.h"
 #include "pb_signal.h"
 #include "pb_status.h"
 #include "pb_vehicle.h"
@@ -201,18 +202,11 @@ static int bus_of(app_t *a, const char *iface)
     return NAMED_BUS_BASE + a->nnames++;
 }
 
-static int64_t wall_utime(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_REALTIME, &ts);
-    return (int64_t)ts.tv_sec * 1000000 + ts.tv_nsec / 1000;
-}
-
 /* --realtime: waits until the frame's time, counted from the first frame. */
 static void pace(app_t *a, int64_t frame_utime)
 {
-    if (!a->rt_wall0) { a->rt_wall0 = wall_utime(); a->rt_frame0 = frame_utime; return; }
-    int64_t due = a->rt_wall0 + (frame_utime - a->rt_frame0), now = wall_utime();
+    if (!a->rt_wall0) { a->rt_wall0 = pb_clock_wall_utime(); a->rt_frame0 = frame_utime; return; }
+    int64_t due = a->rt_wall0 + (frame_utime - a->rt_frame0), now = pb_clock_wall_utime();
     if (due > now + 1000000) due = now + 1000000;     /* a gap in the capture: at most 1 s */
     if (due > now) {
         struct timespec ts = { (time_t)((due - now) / 1000000), (long)((due - now) % 1000000) * 1000 };
@@ -289,7 +283,7 @@ static int run_socket(app_t *a, const char *iface, pb_err_t *err)
         if (r == -100) { rc = -1; break; }
         if (r < 0) { problem(a, "bad_kernel_frame", "%s: %s", iface, can_kernel_strerror(r)); continue; }
         if (r == CAN_K_NO_TIMESTAMP) {
-            f.utime = wall_utime();
+            f.utime = pb_clock_wall_utime();
             problem(a, "no_kernel_timestamp", "%s: frame without a kernel timestamp: wall clock used", iface);
         }
         if (ex.has_dropped && ex.dropped != a->last_dropped) {

@@ -20,6 +20,7 @@
 #include "gnss_driver.h"
 #include "pb_arg.h"
 #include "pb_bus.h"
+#include "pb_clock.h"
 #include "pb_log.h"
 #include "pb_signal.h"
 #include "pb_status.h"
@@ -70,13 +71,6 @@ static void usage(FILE *f)
         "  --status-period S    STATUS every S seconds (default 1)\n"
         "  --quiet              no summary on stderr\n"
         "  -h, --help           this text\n", PB_DEFAULT_LCM_URL);
-}
-
-static int64_t wall_utime(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_REALTIME, &ts);
-    return (int64_t)ts.tv_sec * 1000000 + ts.tv_nsec / 1000;
 }
 
 static void note_error(app_t *a, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
@@ -155,7 +149,7 @@ static void on_fix(void *user, const gnss_fix_out_t *f)
                        (long long)f->offset, f->source == GNSS_SRC_NMEA ? "NMEA" : "NAV-PVT");
             return;
         }
-        utime = wall_utime();   /* live: the host's receive time is the best there is */
+        utime = pb_clock_wall_utime();   /* live: the host's receive time is the best there is */
     }
     portobello_gnss_fix_t m = {
         .utime = utime, .fix_type = f->fix_type, .num_sv = f->num_sv,
@@ -272,7 +266,7 @@ static void print_summary(app_t *a, const char *where)
 static int run_fd(app_t *a, int fd, int is_tty)
 {
     uint8_t buf[65536];
-    int64_t next_beat = wall_utime() + a->status_period;
+    int64_t next_beat = pb_clock_wall_utime() + a->status_period;
     for (;;) {
         if (pb_signal_stop_requested()) return 0;
         if (is_tty) {
@@ -289,7 +283,7 @@ static int run_fd(app_t *a, int fd, int is_tty)
             return -1;
         }
         if (a->status) {
-            int64_t now = wall_utime();
+            int64_t now = pb_clock_wall_utime();
             if (now >= next_beat) {
                 sync_status(a);
                 pb_status_publish(a->status);

@@ -18,6 +18,7 @@
 #include "map_source.h"
 #include "pb_arg.h"
 #include "pb_bus.h"
+#include "pb_clock.h"
 #include "pb_signal.h"
 #include "pb_site.h"
 #include "pb_status.h"
@@ -94,13 +95,6 @@ static void input_time(app_t *a, const char *channel, int64_t utime)
         a->input_utime = utime;
         a->input_bus_time = pb_bus_monotonic(a->bus);
     }
-}
-
-static double wall_ms()
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return ts.tv_sec * 1e3 + ts.tv_nsec * 1e-6;
 }
 
 static void usage(FILE *f)
@@ -200,7 +194,7 @@ static void flush(app_t *a, double t0 = -1)
     a->out.clear();
     if (diag && t0 >= 0) {
         a->diag = d;
-        record_sweep(a, wall_ms() - t0);
+        record_sweep(a, pb_clock_monotonic_ms() - t0);
     }
 }
 
@@ -255,7 +249,7 @@ static const int64_t kStaleScanUs = 150000;
 static void on_scan(const pb_msg_t *m, void *user)
 {
     app_t *a = (app_t *)user;
-    double t0 = wall_ms();
+    double t0 = pb_clock_monotonic_ms();
     portobello_lidar_scan_t s;
     if (portobello_lidar_scan_t_decode(m->data, 0, m->len, &s) < 0) { undecodable(a, m); return; }
     /* the sweep's time is its end: the newest measurement in it */
@@ -320,7 +314,7 @@ static void on_scan(const pb_msg_t *m, void *user)
         int32_t last = 0;
         for (int i = 0; i < a->pts.n; i++) last = std::max(last, a->pts.offset_us[i]);
         a->pending_utime = utime + last;
-        a->pending_prep_ms = wall_ms() - t0;
+        a->pending_prep_ms = pb_clock_monotonic_ms() - t0;
     }
     flush(a, t0);
 }
@@ -328,7 +322,7 @@ static void on_scan(const pb_msg_t *m, void *user)
 static void on_imu(const pb_msg_t *m, void *user)
 {
     app_t *a = (app_t *)user;
-    double t0 = wall_ms();
+    double t0 = pb_clock_monotonic_ms();
     portobello_imu_t s;
     if (portobello_imu_t_decode(m->data, 0, m->len, &s) < 0) { undecodable(a, m); return; }
     input_time(a, m->channel, s.utime);
@@ -341,7 +335,7 @@ static void on_imu(const pb_msg_t *m, void *user)
 static void on_speed(const pb_msg_t *m, void *user)
 {
     app_t *a = (app_t *)user;
-    double t0 = wall_ms();
+    double t0 = pb_clock_monotonic_ms();
     portobello_vehicle_speed_t s;
     if (portobello_vehicle_speed_t_decode(m->data, 0, m->len, &s) < 0) { undecodable(a, m); return; }
     input_time(a, m->channel, s.utime);
@@ -353,7 +347,7 @@ static void on_speed(const pb_msg_t *m, void *user)
 static void on_gnss(const pb_msg_t *m, void *user)
 {
     app_t *a = (app_t *)user;
-    double t0 = wall_ms();
+    double t0 = pb_clock_monotonic_ms();
     portobello_gnss_fix_t s;
     if (portobello_gnss_fix_t_decode(m->data, 0, m->len, &s) < 0) { undecodable(a, m); return; }
     input_time(a, m->channel, s.utime);
@@ -376,7 +370,7 @@ static void on_gnss(const pb_msg_t *m, void *user)
 static void on_initial_pose(const pb_msg_t *m, void *user)
 {
     app_t *a = (app_t *)user;
-    double t0 = wall_ms();
+    double t0 = pb_clock_monotonic_ms();
     portobello_pose_t s;
     if (portobello_pose_t_decode(m->data, 0, m->len, &s) < 0) { undecodable(a, m); return; }
     input_time(a, m->channel, s.utime);
@@ -399,7 +393,7 @@ static void on_tick(int64_t now, void *user)
 {
     app_t *a = (app_t *)user;
     if (a->input_utime == 0) return;
-    double t0 = wall_ms();
+    double t0 = pb_clock_monotonic_ms();
     /* message time now: the newest input's time plus the monotonic time since it came */
     localizer_tick(a->L, a->input_utime + (pb_bus_monotonic(a->bus) - a->input_bus_time), &a->out);
     flush(a, t0);
@@ -551,7 +545,7 @@ int main(int argc, char **argv)
     } else {
         fprintf(stderr, "localizer: %s: no site.yaml, so no geo-reference: GNSS_FIX is not used\n", site.c_str());
     }
-    double t0 = wall_ms();
+    double t0 = pb_clock_monotonic_ms();
     a.map = map_source_open(site, &tiles_cfg, &err);
     if (!a.map) return fail_start(bus, a.status, err.msg);
     const pb_regmap_t *map = map_source_map(a.map);
@@ -565,7 +559,7 @@ int main(int argc, char **argv)
     map_source_stats(a.map, &ts);
     fprintf(stderr, "localizer: map %s: %lld points in %d tiles of %.0f m, paged within %.0f m of the car; %zu places "
             "for a global search; ready in %.1f s\n", map_source_path(a.map), (long long)info.points, ts.tiles_total,
-            ts.tile_m, tiles_cfg.load_radius_m, places_count(places), (wall_ms() - t0) * 1e-3);
+            ts.tile_m, tiles_cfg.load_radius_m, places_count(places), (pb_clock_monotonic_ms() - t0) * 1e-3);
 
     if (stats) {
         a.stats = fopen(stats, "w");
@@ -586,7 +580,7 @@ int main(int argc, char **argv)
     if (!in) fprintf(stderr, "localizer: listening on %s\n", pb_lcm_url(url));
 
     int rc = pb_bus_run(bus, &err);
-    double tf = wall_ms();
+    double tf = pb_clock_monotonic_ms();
     if (!a.frame_error) {
         localizer_finish(a.L, &a.out);
         flush(&a, tf);

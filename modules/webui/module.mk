@@ -37,4 +37,4 @@ $(BIN)/webui: modules/webui/bridge.py modules/webui/module.mk
 .PHONY: bench-webui
 BENCH_TARGETS += bench-webui
 bench-webui: all
-	@$(VPY) tools/bench-webui/bench.py $(BENCH_WEBUI_ARGS)
+	@$(VPY) modules/webui/bench/bench_webui.py $(BENCH_WEBUI_ARGS)

@@ -16,6 +16,19 @@ static int pb_checks, pb_failures;
 #define CHECK_CONTAINS(s, sub) do { pb_checks++; if (!strstr((s), (sub))) { pb_failures++; \
     fprintf(stderr, "%s:%d: check failed: \"%s\" does not contain \"%s\"\n", __FILE__, __LINE__, (s), (sub)); } } while (0)
 
+/* Writes text to DIR/NAME, a test's scratch file; returns its path (a static buffer,
+ * valid until the next call). */
+static inline const char *pb_check_write_file(const char *dir, const char *name, const char *text)
+{
+    static char path[256];
+    snprintf(path, sizeof path, "%s/%s", dir, name);
+    FILE *f = fopen(path, "w");
+    if (!f) { perror(path); return path; }
+    fputs(text, f);
+    fclose(f);
+    return path;
+}
+
 static int pb_check_report(const char *name)
 {
     printf("%s: %d checks, %d failed\n", name, pb_checks, pb_failures);

@@ -27,20 +27,10 @@ static const pb_cfg_field_t THING[] = {
 
 static char dir[] = "/tmp/pb_test_config_XXXXXX";
 
-static const char *write_file(const char *name, const char *text)
-{
-    static char path[256];
-    snprintf(path, sizeof path, "%s/%s", dir, name);
-    FILE *f = fopen(path, "w");
-    fputs(text, f);
-    fclose(f);
-    return path;
-}
-
 /* Loads text and reads it through THING; returns rc and leaves the error in err. */
 static int load(const char *text, thing_t *t, pb_err_t *err)
 {
-    const char *path = write_file("c.yaml", text);
+    const char *path = pb_check_write_file(dir, "c.yaml", text);
     pb_cfg_t *cfg = pb_cfg_load(path, err);
     if (!cfg) return -1;
     int rc = pb_cfg_read(pb_cfg_root(cfg), THING, t, err);
@@ -94,7 +84,7 @@ int main(void)
     CHECK_CONTAINS(err.msg, "/nonexistent/x.yaml: cannot open");
 
     /* Tree access for lists of maps (routes, scenarios). */
-    const char *path = write_file("l.yaml", "points:\n  - {x: 1, y: 2}\n  - {x: 3, y: 4}\n");
+    const char *path = pb_check_write_file(dir, "l.yaml", "points:\n  - {x: 1, y: 2}\n  - {x: 3, y: 4}\n");
     pb_cfg_t *cfg = pb_cfg_load(path, &err);
     CHECK(cfg != NULL);
     if (cfg) {

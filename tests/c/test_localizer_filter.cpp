@@ -3,7 +3,7 @@
  * rigid-body motion. */
 #include <cmath>
 
-#include "../../modules/localizer/core/filter.h"
+#include "localizer/core/filter.h"
 #include "pb_check.h"
 
 using namespace loc;

@@ -10,16 +10,6 @@
 
 static char dir[] = "/tmp/pb_test_supervisor_XXXXXX";
 
-static const char *write_file(const char *name, const char *text)
-{
-    static char path[256];
-    snprintf(path, sizeof path, "%s/%s", dir, name);
-    FILE *f = fopen(path, "w");
-    fputs(text, f);
-    fclose(f);
-    return path;
-}
-
 static const char *lookup(const char *name, void *user)
 {
     (void)user;
@@ -30,7 +20,7 @@ static const char *lookup(const char *name, void *user)
 
 static int load(const char *text, sv_stack_t *s, pb_err_t *err)
 {
-    return sv_stack_load(write_file("stack.yaml", text), lookup, NULL, s, err);
+    return sv_stack_load(pb_check_write_file(dir, "stack.yaml", text), lookup, NULL, s, err);
 }
 
 #define S(x) ((int64_t)((x) * 1e6))

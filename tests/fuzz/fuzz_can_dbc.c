@@ -2,13 +2,13 @@
  * self-consistent: every signal inside its message, lookups find every message,
  * and decoding every signal of every message (and the speed decoder, when the
  * text defines its messages) stays inside the frame.
- * fuzz-sources: modules/can/can_dbc.c modules/can/can_speed.c common/pb_err.c */
+ * fuzz-sources: modules/can/core/can_dbc.c modules/can/core/can_speed.c common/pb_err.c */
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
 
-#include "../../modules/can/can_dbc.h"
-#include "../../modules/can/can_speed.h"
+#include "can/core/can_dbc.h"
+#include "can/core/can_speed.h"
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 {

@@ -3,16 +3,16 @@
  * remaining bytes' count when byte 0 >= 0xF0), then the frame bytes, then the
  * control buffer. A frame it converts must be self-consistent, and then goes
  * through the speed decoder with a Toyota DBC excerpt.
- * fuzz-sources: modules/can/can_kernel.c modules/can/can_dbc.c modules/can/can_speed.c common/pb_err.c */
+ * fuzz-sources: modules/can/core/can_kernel.c modules/can/core/can_dbc.c modules/can/core/can_speed.c common/pb_err.c */
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
 #include <sys/socket.h>
 #include <linux/can.h>
 
-#include "../../modules/can/can_dbc.h"
-#include "../../modules/can/can_kernel.h"
-#include "../../modules/can/can_speed.h"
+#include "can/core/can_dbc.h"
+#include "can/core/can_kernel.h"
+#include "can/core/can_speed.h"
 
 static const char dbc_text[] =
     "BO_ 36 KINEMATICS: 8 XXX\n"

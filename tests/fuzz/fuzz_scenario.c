@@ -1,7 +1,7 @@
 /* libFuzzer target: the scenario loader on arbitrary bytes, then the director core
  * on whatever loads (a short drive through the scenario's volumes, inputs, a state
  * round trip). Every loader error must name the file.
- * fuzz-sources: modules/director/core/scenario.c modules/director/core/director.c modules/director/core/geom.c common/pb_config.c common/pb_err.c common/pb_route.c
+ * fuzz-sources: modules/director/core/scenario.c modules/director/core/director.c modules/director/core/geom.c common/pb_config.c common/pb_err.c common/pb_route.c common/pb_ground.c
  * fuzz-libs: -lccd */
 #include <math.h>
 #include <stddef.h>

@@ -19,7 +19,6 @@
 #include <cstring>
 #include <getopt.h>
 #include <random>
-#include <time.h>
 #include <string>
 #include <vector>
 
@@ -30,6 +29,7 @@
 
 #include "deskew.h"
 #include "pb_arg.h"
+#include "pb_clock.h"
 #include "pb_err.h"
 #include "pb_log.h"
 #include "pb_map_build.h"
@@ -120,14 +120,6 @@ static void json_run(FILE *f, const char *name, const Run &r, bool last)
                  "\"t_p99\": %.5f, \"yaw_p99\": %.5f, \"converged\": %.4f}%s\n", name, r.ms.size(),
                  pct(r.ms, 50), pct(r.ms, 99), pct(r.terr, 50), pct(r.terr, 99), pct(r.yerr, 99),
                  share_below(r.terr, g_converge), last ? "" : ",");
-}
-
-// CPU time of this thread: the machine is shared, and the target is cost on one core.
-static double now_ms()
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-    return ts.tv_sec * 1e3 + ts.tv_nsec * 1e-6;
 }
 
 int main(int argc, char **argv)
@@ -257,7 +249,7 @@ int main(int argc, char **argv)
         sc.index = (int)k;
         sc.utime = ut;
         sc.gt = pb_reg_from_transform(&gt_t);
-        double t0 = now_ms();
+        double t0 = pb_clock_thread_cpu_ms();
         sc.pts.resize(3 * (size_t)np);
         for (int i = 0; i < np; i++) {
             Eigen::Vector3d p = B * Eigen::Vector3d(pts.x[i], pts.y[i], pts.z[i]);
@@ -265,7 +257,7 @@ int main(int argc, char **argv)
         }
         Eigen::Vector3d v_base = sc.gt.linear().transpose() * Eigen::Vector3d(it->velocity[0], it->velocity[1], it->velocity[2]);
         pb_deskew(sc.pts.data(), pts.offset_us, (size_t)np, 0, v_base.data(), it->angular_velocity);
-        ms_prep += now_ms() - t0;
+        ms_prep += pb_clock_thread_cpu_ms() - t0;
         raw_points_max = std::max(raw_points_max, np);
         if (global) {
             for (long k = 0; k < nstarts; k++) {
@@ -290,10 +282,10 @@ int main(int argc, char **argv)
     pb_regmap_config_t mcfg;
     pb_regmap_config_default(&mcfg);
     mcfg.voxel_m = voxel;
-    double t0 = now_ms();
+    double t0 = pb_clock_thread_cpu_ms();
     pb_regmap_t *map = pb_regmap_load(map_path, &mcfg, nullptr, &err);
     if (!map) { std::fprintf(stderr, "bench-localizer: %s\n", err.msg); return 1; }
-    double ms_load = now_ms() - t0;
+    double ms_load = pb_clock_thread_cpu_ms() - t0;
     pb_regmap_info_t info;
     pb_regmap_info(map, &info);
     pb_reg_config_t rcfg;
@@ -307,9 +299,9 @@ int main(int argc, char **argv)
         bool sub = base_every > 0 && k % (size_t)base_every == 0;
         pb_reg_result_t r;
         {
-            double c0 = now_ms();
+            double c0 = pb_clock_thread_cpu_ms();
             pb_reg_align(map, sc.pts.data(), sc.pts.size() / 3, sc.track_start, &rcfg, &r, &err);
-            double ms = now_ms() - c0;
+            double ms = pb_clock_thread_cpu_ms() - c0;
             ours_track.add(ms, r.pose, sc.gt);
             if (verbose) {
                 // the same scores at the reference pose itself: which pose fits the map better?
@@ -327,13 +319,13 @@ int main(int argc, char **argv)
             }
             if (sub) ours_track_sub.add(ms, r.pose, sc.gt);
             for (const Eigen::Isometry3d &start : sc.off_starts) {
-                c0 = now_ms();
+                c0 = pb_clock_thread_cpu_ms();
                 if (global)
                     pb_reg_align_global(map, sc.pts.data(), sc.pts.size() / 3, start, g_radius, g_yaw_deg * deg, 0, 0,
                                         &rcfg, &r, &err);
                 else
                     pb_reg_align(map, sc.pts.data(), sc.pts.size() / 3, start, &rcfg, &r, &err);
-                ms = now_ms() - c0;
+                ms = pb_clock_thread_cpu_ms() - c0;
                 ours_off.add(ms, r.pose, sc.gt);
                 if (sub) ours_off_sub.add(ms, r.pose, sc.gt);
             }
@@ -343,16 +335,16 @@ int main(int argc, char **argv)
             pb_reg_downsample(sc.pts.data(), sc.pts.size() / 3, &rcfg, &reduced[k]);
             const std::vector<float> &rp = reduced[k];
             for (const Eigen::Isometry3d &start : sc.off_starts) {
-                double c0 = now_ms();
+                double c0 = pb_clock_thread_cpu_ms();
                 if (global)
                     pb_reg_align_global(map, rp.data(), rp.size() / 3, start, g_radius, g_yaw_deg * deg, 0, 0, &rcfg, &r, &err);
                 else
                     pb_reg_align(map, rp.data(), rp.size() / 3, start, &rcfg, &r, &err);
-                ours_off_red.add(now_ms() - c0, r.pose, sc.gt);
+                ours_off_red.add(pb_clock_thread_cpu_ms() - c0, r.pose, sc.gt);
             }
-            double c0 = now_ms();
+            double c0 = pb_clock_thread_cpu_ms();
             pb_reg_align(map, rp.data(), rp.size() / 3, sc.track_start, &rcfg, &r, &err);
-            ours_track_red.add(now_ms() - c0, r.pose, sc.gt);
+            ours_track_red.add(pb_clock_thread_cpu_ms() - c0, r.pose, sc.gt);
         }
     }
     pb_regmap_destroy(map);
@@ -388,9 +380,9 @@ int main(int argc, char **argv)
             ndt.setTransformationEpsilon(1e-4);   // PCL 1.13 compares it with the squared step
             ndt.setStepSize(0.1);
             ndt.setMaximumIterations(35);
-            t0 = now_ms();
+            t0 = pb_clock_thread_cpu_ms();
             ndt.setInputTarget(crop);
-            ms_ndt_target[ri] = now_ms() - t0;
+            ms_ndt_target[ri] = pb_clock_thread_cpu_ms() - t0;
             for (size_t k = 0; k < scans.size(); k += (size_t)base_every) {
                 const Scan &sc = scans[k];
                 pcl::PointCloud<pcl::PointXYZ>::Ptr src(new pcl::PointCloud<pcl::PointXYZ>);
@@ -399,9 +391,9 @@ int main(int argc, char **argv)
                 ndt.setInputSource(src);
                 pcl::PointCloud<pcl::PointXYZ> out;
                 auto run = [&](const Eigen::Isometry3d &start, Run *into) {
-                    double c0 = now_ms();
+                    double c0 = pb_clock_thread_cpu_ms();
                     ndt.align(out, start.matrix().cast<float>());
-                    double ms = now_ms() - c0;
+                    double ms = pb_clock_thread_cpu_ms() - c0;
                     into->add(ms, Eigen::Isometry3d(ndt.getFinalTransformation().cast<double>()), sc.gt);
                 };
                 run(sc.track_start, &ndt_track[ri]);

@@ -56,6 +56,22 @@ def msg_utime(data):
     return int.from_bytes(data[8:16], "big", signed=True)
 
 
+def edit_fixes(events, pick, change):
+    """The events with each GNSS_FIX that pick(event) selects decoded, changed in place
+    by change(fix) and encoded again; returns (events, how many fixes were changed)."""
+    from portobello import gnss_fix_t
+    out, n = [], 0
+    for e in events:
+        if e[1] == "GNSS_FIX" and pick(e):
+            f = gnss_fix_t.decode(e[2])
+            change(f)
+            out.append((e[0], e[1], f.encode()))
+            n += 1
+        else:
+            out.append(e)
+    return out, n
+
+
 def ground_truth_at(events, t):
     best = None
     for ts, ch, data in events:
@@ -182,32 +198,18 @@ def main():
                 out.append(e)
         note = f"{a.fault}: {n} sweeps from {t_at}"
     elif a.fault == "gnss-jump":
-        from portobello import gnss_fix_t
-        n = 0
-        for e in ev:
-            if e[1] == "GNSS_FIX" and t_at <= msg_utime(e[2]) < t_end:
-                f = gnss_fix_t.decode(e[2])
-                f.lon_deg += a.metres / (111320.0 * math.cos(math.radians(f.lat_deg)))
-                out.append((e[0], e[1], f.encode()))
-                n += 1
-            else:
-                out.append(e)
+        def east(f):
+            f.lon_deg += a.metres / (111320.0 * math.cos(math.radians(f.lat_deg)))
+        out, n = edit_fixes(ev, lambda e: t_at <= msg_utime(e[2]) < t_end, east)
         note = f"moved {n} GNSS fixes {a.metres:.0f} m east"
     elif a.fault == "cut":
         keep = set(c for c in a.keep.split(",") if c)
         out = [e for e in ev if t_at <= e[0] < t_end and (not keep or e[1] in keep)]
         note = f"kept {len(out)} events in [{t_at}, {t_end})" + (f" of {', '.join(sorted(keep))}" if keep else "")
     elif a.fault == "gnss-clock":
-        from portobello import gnss_fix_t
-        n = 0
-        for e in ev:
-            if e[1] == "GNSS_FIX":
-                f = gnss_fix_t.decode(e[2])
-                f.utime += int(round(a.seconds * 1e6))
-                out.append((e[0], e[1], f.encode()))
-                n += 1
-            else:
-                out.append(e)
+        def later(f):
+            f.utime += int(round(a.seconds * 1e6))
+        out, n = edit_fixes(ev, lambda e: True, later)
         note = f"{n} GNSS_FIX utimes moved by {a.seconds:+.3f} s"
     elif a.fault == "time-step":
         shift = int(round(a.seconds * 1e6))

@@ -16,6 +16,7 @@
 
 typedef struct {
     int prev;                   /* previous raw value, -1 = unknown (start, after restore) */
+    int was;                    /* the condition's value at the previous evaluation */
     int nimp;                   /* pending delayed impulses (edge conditions) */
     int64_t imp[DELAY_RING];
     int ntr;                    /* level transitions for delayed level conditions */
@@ -57,6 +58,7 @@ struct director {
     geom_shape_t foot, prev_foot;
     double car_r;               /* radius of the footprint's bounding circle */
     double speed, accel, s_base;
+    double prev_speed, prev_s_base;
     int64_t still_since;        /* -1 when moving */
     double front;               /* rear axle to front bumper */
     /* the ground model (NULL: the plane z = 0) and each volume's ground height */
@@ -76,32 +78,44 @@ static double ground_z(const director_t *d, double x, double y)
     return z;
 }
 
-static void emit(director_t *d, const char *kind, const char *event_id, int agent, const char *fmt, ...)
-    __attribute__((format(printf, 5, 6)));
-static void emit(director_t *d, const char *kind, const char *event_id, int agent, const char *fmt, ...)
+/* An event of the car at pose `at` (NULL: the latest pose); its time is the pose's. */
+static void vemit(director_t *d, const dir_pose_t *at, const char *kind, const char *event_id, int agent, const char *fmt,
+                  va_list ap)
 {
     if (!d->on_event) return;
     dir_event_t ev;
     memset(&ev, 0, sizeof ev);
-    ev.utime = d->have_pose ? d->pose.utime : d->t_agents;
+    ev.utime = at ? at->utime : d->have_pose ? d->pose.utime : d->t_agents;
     ev.kind = kind;
     snprintf(ev.event_id, sizeof ev.event_id, "%s", event_id);
-    ev.vehicle = d->pose;
+    ev.vehicle = at ? *at : d->pose;
     if (agent >= 0) {
         snprintf(ev.agent_id, sizeof ev.agent_id, "%s", d->sc->agents[agent].id);
         ev.agent_pos[0] = d->ag[agent].x; ev.agent_pos[1] = d->ag[agent].y;
         ev.agent_pos[2] = ground_z(d, d->ag[agent].x, d->ag[agent].y);
     }
-    va_list ap;
-    va_start(ap, fmt);
     vsnprintf(ev.detail, sizeof ev.detail, fmt, ap);
-    va_end(ap);
     d->on_event(&ev, d->user);
 }
 
-static double yaw_of(const double q[4])
+static void emit(director_t *d, const char *kind, const char *event_id, int agent, const char *fmt, ...)
+    __attribute__((format(printf, 5, 6)));
+static void emit(director_t *d, const char *kind, const char *event_id, int agent, const char *fmt, ...)
 {
-    return atan2(2 * (q[0] * q[3] + q[1] * q[2]), 1 - 2 * (q[2] * q[2] + q[3] * q[3]));
+    va_list ap;
+    va_start(ap, fmt);
+    vemit(d, NULL, kind, event_id, agent, fmt, ap);
+    va_end(ap);
+}
+
+static void emit_at(director_t *d, const dir_pose_t *at, const char *kind, const char *event_id, int agent, const char *fmt, ...)
+    __attribute__((format(printf, 6, 7)));
+static void emit_at(director_t *d, const dir_pose_t *at, const char *kind, const char *event_id, int agent, const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    vemit(d, at, kind, event_id, agent, fmt, ap);
+    va_end(ap);
 }
 
 /* The car's box at a pose: centre ahead of the rear axle by length/2 - rear_overhang. */
@@ -429,11 +443,14 @@ void dir_set_stale(director_t *d, int stale, int64_t utime, double age_s)
 }
 
 /* ---------------------------------------------------------------- actions */
-static void run_action(director_t *d, const sc_trigger_t *tr, const sc_action_t *ac)
+/* An action of a trigger that fired at pose `at` (between the previous pose and the
+ * latest one): its events carry that pose, and a behaviour it starts has walked
+ * since then, so agents move alike whatever the pose rate. */
+static void run_action(director_t *d, const sc_trigger_t *tr, const sc_action_t *ac, const dir_pose_t *at)
 {
     const sc_scenario_t *sc = d->sc;
     char id[SC_ID_LEN * 2 + 16];
-    int64_t t = d->pose.utime;
+    int64_t t = at->utime;
     switch (ac->type) {
     case SC_ACT_START: {
         const sc_behaviour_t *b = &sc->behaviours[ac->behaviour];
@@ -443,7 +460,8 @@ static void run_action(director_t *d, const sc_trigger_t *tr, const sc_action_t 
         a->holding = b->sync;
         a->speed = b->sync ? b->speed_min : 0;
         snprintf(id, sizeof id, "start:%s", b->id);
-        emit(d, "action", id, b->agent, "trigger %s starts behaviour %s%s", tr->id, b->id, b->sync ? " (arrival-synchronised)" : "");
+        emit_at(d, at, "action", id, b->agent, "trigger %s starts behaviour %s%s", tr->id, b->id, b->sync ? " (arrival-synchronised)" : "");
+        if (t < d->t_agents) advance_agent(d, b->agent, t, d->t_agents);
         break;
     }
     case SC_ACT_STOP: {
@@ -451,7 +469,7 @@ static void run_action(director_t *d, const sc_trigger_t *tr, const sc_action_t 
         agent_rt_t *a = &d->ag[b->agent];
         if (a->beh == ac->behaviour) { a->beh = -1; a->wait_left = 0; set_anim(d, a, "idle", t); }
         snprintf(id, sizeof id, "stop:%s", b->id);
-        emit(d, "action", id, b->agent, "trigger %s stops behaviour %s", tr->id, b->id);
+        emit_at(d, at, "action", id, b->agent, "trigger %s stops behaviour %s", tr->id, b->id);
         break;
     }
     case SC_ACT_ANIMATE: {
@@ -459,45 +477,51 @@ static void run_action(director_t *d, const sc_trigger_t *tr, const sc_action_t 
         set_anim(d, a, ac->name, t);
         a->anim_override = strcmp(ac->name, "auto") != 0;
         snprintf(id, sizeof id, "animate:%s", sc->agents[ac->agent].id);
-        emit(d, "action", id, ac->agent, "trigger %s sets animation %s", tr->id, ac->name);
+        emit_at(d, at, "action", id, ac->agent, "trigger %s sets animation %s", tr->id, ac->name);
         break;
     }
     case SC_ACT_PLACE: {
         agent_rt_t *a = &d->ag[ac->agent];
         a->x = ac->xy[0]; a->y = ac->xy[1]; a->yaw = ac->yaw;
         snprintf(id, sizeof id, "place:%s", sc->agents[ac->agent].id);
-        emit(d, "action", id, ac->agent, "trigger %s places the agent at %.2f %.2f", tr->id, ac->xy[0], ac->xy[1]);
+        emit_at(d, at, "action", id, ac->agent, "trigger %s places the agent at %.2f %.2f", tr->id, ac->xy[0], ac->xy[1]);
         break;
     }
     case SC_ACT_EMIT:
         snprintf(id, sizeof id, "emit:%s", ac->name);
-        emit(d, "action", id, -1, "trigger %s emits %s", tr->id, ac->name);
+        emit_at(d, at, "action", id, -1, "trigger %s emits %s", tr->id, ac->name);
         break;
     }
 }
 
 /* ---------------------------------------------------------------- conditions */
-static double stop_distance(const director_t *d, int stop)
+/* What the car-motion conditions look at: the car at a pose or between two. */
+typedef struct {
+    geom_shape_t foot;
+    double speed, s_base;
+} car_state_t;
+
+static double stop_distance(const director_t *d, int stop, double s_base)
 {   /* along the route from the front bumper to the stop line (negative once past it) */
-    return route_delta(d->route, d->s_base + d->front, d->sc->stops[stop].s);
+    return route_delta(d->route, s_base + d->front, d->sc->stops[stop].s);
 }
 
-static int raw_value(director_t *d, const sc_cond_t *c, int64_t t)
+static int raw_value(director_t *d, const sc_cond_t *c, int64_t t, const car_state_t *car)
 {
     switch (c->type) {
-    case SC_COND_ENTER: return foot_touches_volume(d, &d->foot, &d->sc->volumes[c->volume]);
+    case SC_COND_ENTER: return foot_touches_volume(d, &car->foot, &d->sc->volumes[c->volume]);
     case SC_COND_DISTANCE: {
         /* unsigned, like a distance to a point: "below 3" must not hold half a lap past the line */
-        double dist = c->stop_line >= 0 ? fabs(stop_distance(d, c->stop_line)) : foot_distance(&d->foot, c->point);
+        double dist = c->stop_line >= 0 ? fabs(stop_distance(d, c->stop_line, car->s_base)) : foot_distance(&car->foot, c->point);
         return c->has_below ? dist < c->below : dist > c->above;
     }
     case SC_COND_TTA: {
-        double dist = c->stop_line >= 0 ? stop_distance(d, c->stop_line) : foot_distance(&d->foot, c->point);
+        double dist = c->stop_line >= 0 ? stop_distance(d, c->stop_line, car->s_base) : foot_distance(&car->foot, c->point);
         if (dist < 0) return 0;
-        double tta = d->speed > STANDSTILL_V ? dist / d->speed : INFINITY;
+        double tta = car->speed > STANDSTILL_V ? dist / car->speed : INFINITY;
         return tta < c->below;
     }
-    case SC_COND_SPEED: return c->has_below ? d->speed < c->below : d->speed > c->above;
+    case SC_COND_SPEED: return c->has_below ? car->speed < c->below : car->speed > c->above;
     case SC_COND_STANDSTILL: return d->still_since >= 0 && (t - d->still_since) * 1e-6 >= c->duration_s;
     case SC_COND_AFTER: {
         const trig_rt_t *o = &d->trig[c->after_trigger];
@@ -514,8 +538,10 @@ static int raw_value(director_t *d, const sc_cond_t *c, int64_t t)
 
 /* OpenSCENARIO semantics: the edge is taken on the raw value, then the result is
  * delayed by delay_s. An edge needs a known previous value, so nothing rises on
- * the first pose (or the first after a restore). */
-static int cond_value(director_t *d, const sc_cond_t *c, cond_rt_t *cr, int raw, int64_t t)
+ * the first pose (or the first after a restore). t_raw: when the raw value took
+ * its current value (<= t); delays count from it. *onset: when the result
+ * became true. */
+static int cond_delayed(const sc_cond_t *c, cond_rt_t *cr, int raw, int64_t t_raw, int64_t t, int64_t *onset)
 {
     int v;
     if (c->edge == SC_EDGE_NONE) v = raw;
@@ -524,11 +550,13 @@ static int cond_value(director_t *d, const sc_cond_t *c, cond_rt_t *cr, int raw,
     else if (c->edge == SC_EDGE_FALLING) v = !raw && cr->prev;
     else v = raw != cr->prev;
     cr->prev = raw;
+    *onset = t_raw;
     if (c->delay_s <= 0) return v;
     int64_t delay = (int64_t)llround(c->delay_s * 1e6);
     if (c->edge != SC_EDGE_NONE) {
-        if (v && cr->nimp < DELAY_RING) cr->imp[cr->nimp++] = t;
+        if (v && cr->nimp < DELAY_RING) cr->imp[cr->nimp++] = t_raw;
         if (cr->nimp && cr->imp[0] + delay <= t) {
+            *onset = cr->imp[0] + delay;
             memmove(cr->imp, cr->imp + 1, (cr->nimp - 1) * sizeof cr->imp[0]);
             cr->nimp--;
             return 1;
@@ -542,10 +570,11 @@ static int cond_value(director_t *d, const sc_cond_t *c, cond_rt_t *cr, int raw,
             memmove(cr->tr_v, cr->tr_v + 1, (DELAY_RING - 1) * sizeof cr->tr_v[0]);
             cr->ntr--;
         }
-        cr->tr_t[cr->ntr] = t; cr->tr_v[cr->ntr] = v; cr->ntr++;
+        cr->tr_t[cr->ntr] = t_raw; cr->tr_v[cr->ntr] = v; cr->ntr++;
     }
     int out = 0, k = 0;
     while (k < cr->ntr && cr->tr_t[k] + delay <= t) out = cr->tr_v[k++];
+    if (k > 0) *onset = cr->tr_t[k - 1] + delay;
     if (k > 1) {   /* keep the newest transition already in effect */
         memmove(cr->tr_t, cr->tr_t + k - 1, (cr->ntr - k + 1) * sizeof cr->tr_t[0]);
         memmove(cr->tr_v, cr->tr_v + k - 1, (cr->ntr - k + 1) * sizeof cr->tr_v[0]);
@@ -554,27 +583,74 @@ static int cond_value(director_t *d, const sc_cond_t *c, cond_rt_t *cr, int raw,
     return out;
 }
 
-/* Pose interpolated between the previous and the current one (yaw-only heading blend). */
-static void lerp_foot(const director_t *d, double f, geom_shape_t *g)
+/* The condition's value now; *onset as above, INT64_MIN when a level already held at
+ * the previous evaluation (an edge is a new event each time). */
+static int cond_value(const sc_cond_t *c, cond_rt_t *cr, int raw, int64_t t_raw, int64_t t, int64_t *onset)
 {
-    double pos[3], y0 = yaw_of(d->prev_pose.q), y1 = yaw_of(d->pose.q);
-    double dy = remainder(y1 - y0, 2 * M_PI), yaw = y0 + f * dy;
-    for (int i = 0; i < 3; i++) pos[i] = d->prev_pose.pos[i] + f * (d->pose.pos[i] - d->prev_pose.pos[i]);
-    double q[4] = { cos(yaw / 2), 0, 0, sin(yaw / 2) };
-    footprint(d, pos, q, g);
+    int out = cond_delayed(c, cr, raw, t_raw, t, onset);
+    if (out && cr->was && c->edge == SC_EDGE_NONE) *onset = INT64_MIN;
+    cr->was = out;
+    return out;
 }
 
-/* The fraction of the last step at which the footprint first touched v (bisection). */
-static double first_contact(const director_t *d, const sc_volume_t *v)
+/* The car at fraction f (0..1) of the way from the previous pose to the latest:
+ * position, velocity, speed and route position linear, orientation by normalised
+ * quaternion blend (poses are close: at most jump_m apart). */
+static void car_between(const director_t *d, double f, dir_pose_t *p, car_state_t *car)
 {
-    double lo = 0, hi = 1;
-    for (int it = 0; it < 10; it++) {
-        double mid = (lo + hi) / 2;
-        geom_shape_t g;
-        lerp_foot(d, mid, &g);
-        if (foot_touches_volume(d, &g, v)) hi = mid; else lo = mid;
+    const dir_pose_t *a = &d->prev_pose, *b = &d->pose;
+    double dot = 0, n = 0;
+    for (int i = 0; i < 4; i++) dot += a->q[i] * b->q[i];
+    p->utime = a->utime + llround(f * (double)(b->utime - a->utime));
+    for (int i = 0; i < 3; i++) {
+        p->pos[i] = a->pos[i] + f * (b->pos[i] - a->pos[i]);
+        p->vel[i] = a->vel[i] + f * (b->vel[i] - a->vel[i]);
     }
-    return hi;
+    for (int i = 0; i < 4; i++) {
+        p->q[i] = (1 - f) * a->q[i] + f * (dot < 0 ? -b->q[i] : b->q[i]);
+        n += p->q[i] * p->q[i];
+    }
+    for (int i = 0; i < 4; i++) p->q[i] /= sqrt(n);
+    footprint(d, p->pos, p->q, &car->foot);
+    car->speed = d->prev_speed + f * (d->speed - d->prev_speed);
+    car->s_base = d->route ? d->prev_s_base + f * route_delta(d->route, d->prev_s_base, d->s_base) : 0;
+}
+
+/* When, since the previous pose, a condition's raw value became `raw`: a car
+ * condition by bisection on the motion between the two poses (12 halvings: a 1 m
+ * step to 0.25 mm), a condition of time from its own clock. Within the two poses. */
+static int64_t raw_change_time(director_t *d, const sc_cond_t *c, int raw, int64_t t)
+{
+    int64_t t0 = d->prev_pose.utime, on = t;
+    switch (c->type) {
+    case SC_COND_ENTER: case SC_COND_DISTANCE: case SC_COND_TTA: case SC_COND_SPEED: {
+        double lo = 0, hi = 1;
+        for (int it = 0; it < 12; it++) {
+            double mid = (lo + hi) / 2;
+            dir_pose_t p;
+            car_state_t car;
+            car_between(d, mid, &p, &car);
+            if (raw_value(d, c, t, &car) == raw) hi = mid; else lo = mid;
+        }
+        on = t0 + llround(hi * (double)(t - t0));
+        break;
+    }
+    case SC_COND_STANDSTILL:
+        if (raw) on = d->still_since + llround(c->duration_s * 1e6);
+        break;
+    case SC_COND_AFTER:
+        if (raw) on = d->trig[c->after_trigger].fired_utime + llround(c->after_s * 1e6);
+        break;
+    case SC_COND_TIME:
+        if (raw) on = d->t0 + llround(c->above * 1e6);
+        break;
+    case SC_COND_INPUT:
+        for (int k = 0; raw && k < d->ninputs; k++)
+            if (d->inputs[k].utime <= t && strcmp(d->inputs[k].input, c->input) == 0 && d->inputs[k].utime < on)
+                on = d->inputs[k].utime;
+        break;
+    }
+    return on < t0 ? t0 : on > t ? t : on;
 }
 
 /* After a jump: did the straight line between the two poses sweep the footprint through v? */
@@ -589,28 +665,34 @@ static int swept_through(const director_t *d, const sc_volume_t *v, double jump)
     int n = (int)ceil(jump / 0.25);
     if (n > 40000) n = 40000;
     for (int k = 1; k < n; k++) {
-        geom_shape_t g;
-        lerp_foot(d, (double)k / n, &g);
-        if (foot_touches_volume(d, &g, v)) return 1;
+        dir_pose_t p;
+        car_state_t car;
+        car_between(d, (double)k / n, &p, &car);
+        if (foot_touches_volume(d, &car.foot, v)) return 1;
     }
     return 0;
 }
 
-static void eval_triggers(director_t *d, int64_t t, int jumped, double jump)
+/* Triggers fire at the instant their conditions were met, interpolated between the
+ * previous pose and this one (not at the pose that shows it: at 10 m/s a 10 Hz
+ * POSE would place a trigger up to 1 m late, differently on each platform). The
+ * event is still published now, at this pose, carrying that earlier instant. */
+static void eval_triggers(director_t *d, int64_t t, int first, int jumped, double jump)
 {
     const sc_scenario_t *sc = d->sc;
+    car_state_t now = { .foot = d->foot, .speed = d->speed, .s_base = d->s_base };
     for (int ti = 0; ti < sc->ntriggers; ti++) {
         trig_rt_t *tr = &d->trig[ti];
         if (tr->fired) continue;
         const sc_trigger_t *st = &sc->triggers[ti];
         int group_ok[64];
+        int64_t group_on[64];   /* when the group's last condition became true */
         int ng = st->ngroups < 64 ? st->ngroups : 64;
-        for (int g = 0; g < ng; g++) group_ok[g] = 1;
-        int contact_cond = -1;
+        for (int g = 0; g < ng; g++) { group_ok[g] = 1; group_on[g] = INT64_MIN; }
         for (int k = 0; k < st->nconds; k++) {
             const sc_cond_t *c = &st->conds[k];
             cond_rt_t *cr = &tr->conds[k];
-            int raw = raw_value(d, c, t);
+            int raw = raw_value(d, c, t, &now);
             if (c->type == SC_COND_ENTER && jumped && !raw && cr->prev == 0 && swept_through(d, &sc->volumes[c->volume], jump)) {
                 char id[SC_ID_LEN * 2 + 8];
                 snprintf(id, sizeof id, "pose_jump:%s", st->id);
@@ -618,25 +700,33 @@ static void eval_triggers(director_t *d, int64_t t, int jumped, double jump)
                      sc->volumes[c->volume].id, st->id, sc->on_jump == SC_JUMP_FIRE ? "counted as entered (on_pose_jump: fire)" : "not counted as entered (on_pose_jump: skip)");
                 if (sc->on_jump == SC_JUMP_FIRE) raw = 1;
             }
-            if (c->type == SC_COND_ENTER && raw && cr->prev == 0 && !jumped) contact_cond = k;
-            int v = cond_value(d, c, cr, raw, t);
-            if (c->group < ng && !v) group_ok[c->group] = 0;
+            /* across a jump the motion between the poses is unknown: the change counts at this pose */
+            int64_t t_raw = !first && !jumped && cr->prev >= 0 && raw != cr->prev ? raw_change_time(d, c, raw, t) : t, on;
+            int v = cond_value(c, cr, raw, t_raw, t, &on);
+            if (c->group >= ng) continue;
+            if (!v) group_ok[c->group] = 0;
+            else if (on > group_on[c->group]) group_on[c->group] = on;
         }
-        int fire = 0;
-        for (int g = 0; g < ng; g++) fire |= group_ok[g];
-        if (!fire) continue;
+        /* the trigger fired when its first group was complete */
+        int64_t t_fire = INT64_MAX;
+        for (int g = 0; g < ng; g++)
+            if (group_ok[g] && group_on[g] < t_fire) t_fire = group_on[g];
+        if (t_fire == INT64_MAX) continue;
+        int64_t t_prev = first ? t : d->prev_pose.utime;
+        if (jumped || t_fire > t) t_fire = t;
+        if (t_fire < t_prev) t_fire = t_prev;
+        dir_pose_t at = d->pose;
+        if (t_fire < t) {
+            car_state_t car;
+            car_between(d, (double)(t_fire - t_prev) / (double)(t - t_prev), &at, &car);
+            at.utime = t_fire;
+        }
         tr->fired = 1;
-        tr->fired_utime = t;
+        tr->fired_utime = t_fire;
         d->nfired++;
-        if (contact_cond >= 0) {
-            const sc_volume_t *v = &sc->volumes[st->conds[contact_cond].volume];
-            double f = first_contact(d, v);
-            double back = (1 - f) * hypot(d->pose.pos[0] - d->prev_pose.pos[0], d->pose.pos[1] - d->prev_pose.pos[1]);
-            emit(d, "trigger", st->id, -1, "footprint entered %s %.3f m before this pose", v->id, back);
-        } else {
-            emit(d, "trigger", st->id, -1, "conditions met");
-        }
-        for (int a = 0; a < st->nactions; a++) run_action(d, st, &st->actions[a]);
+        emit_at(d, &at, "trigger", st->id, -1, "conditions met %.3f s (%.2f m) before the pose that showed them",
+                (t - t_fire) * 1e-6, hypot(d->pose.pos[0] - at.pos[0], d->pose.pos[1] - at.pos[1]));
+        for (int a = 0; a < st->nactions; a++) run_action(d, st, &st->actions[a], &at);
     }
 }
 
@@ -687,15 +777,24 @@ int dir_pose(director_t *d, const dir_pose_t *p, pb_err_t *err)
         double k = dt / (dt + 0.2);     /* 0.2 s smoothing of the measured acceleration */
         d->accel = jumped ? 0 : d->accel + k * (a - d->accel);
     }
+    d->prev_speed = first ? v : d->speed;
     d->speed = v;
-    if (v < STANDSTILL_V) { if (d->still_since < 0) d->still_since = t; }
-    else d->still_since = -1;
+    /* at rest since the speed fell below STANDSTILL_V, interpolated between the poses */
+    if (v < STANDSTILL_V) {
+        if (d->still_since < 0)
+            d->still_since = first || jumped || d->prev_speed < STANDSTILL_V
+                                 ? t : d->t_pose + llround((d->prev_speed - STANDSTILL_V) / (d->prev_speed - v) * (double)(t - d->t_pose));
+    } else {
+        d->still_since = -1;
+    }
+    d->prev_s_base = d->s_base;
     if (d->route) d->s_base = (first || jumped) ? pb_route_project(d->route, p->pos[0], p->pos[1])
                                                 : project_near(d->route, p->pos[0], p->pos[1], d->s_base);
     d->t_pose = t;
     d->have_pose = 1;
     if (jumped) emit(d, "warning", "pose_jump", -1, "vehicle pose jumped %.2f m in %.3f s", step, (t - d->prev_pose.utime) * 1e-6);
-    eval_triggers(d, t, jumped, step);
+    if (first) d->prev_s_base = d->s_base;
+    eval_triggers(d, t, first, jumped, step);
     /* inputs are consumed at the pose that evaluated them */
     int keep = 0;
     for (int k = 0; k < d->ninputs; k++)

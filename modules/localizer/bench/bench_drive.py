@@ -320,7 +320,6 @@ def fault_live_clock_step(d, log, seconds=10, url="udpm://239.255.76.67:7901?ttl
     time steps back `seconds` (an NTP or GNSS time sync on the car; 0: the baseline, the
     same run without a step). POSE_PREDICTED as received."""
     import subprocess
-    import threading
     import time
 
     import lcm
@@ -331,17 +330,10 @@ def fault_live_clock_step(d, log, seconds=10, url="udpm://239.255.76.67:7901?ttl
     chans = ["IMU", "LIDAR_SCAN", "GNSS_FIX", "VEHICLE_SPEED"]
     # paced by the original event times (the wall clock runs on); the data carry the stepped times
     events = [(o[0], o[1], f[2]) for o, f in zip(lb.read_events(log, chans), lb.read_events(flog, chans))]
-    lc = lcm.LCM(url)
     got = []
-    lc.subscribe("POSE_PREDICTED", lambda ch, data: got.append((time.monotonic(), pose_t.decode(data).status)))
-    stop = threading.Event()
-
-    def spin():
-        while not stop.is_set():
-            lc.handle_timeout(20)
-
-    th = threading.Thread(target=spin, daemon=True)
-    th.start()
+    listener = lb.Listener(url, {"POSE_PREDICTED": lambda ch, data: got.append((time.monotonic(),
+                                                                              pose_t.decode(data).status))})
+    listener.start()
     proc = subprocess.Popen([str(lb.BIN / "localizer"), "--site", str(lb.ROOT / "maps" / "default"), "--lcm-url", url,
                              "--no-gnss"], stderr=subprocess.PIPE, text=True)
     try:
@@ -379,8 +371,7 @@ def fault_live_clock_step(d, log, seconds=10, url="udpm://239.255.76.67:7901?ttl
             proc.wait(timeout=10)
         except subprocess.TimeoutExpired:
             proc.kill()
-        stop.set()
-        th.join()
+        listener.close()
     if step_wall is None or len(got) < 10:
         return {"error": "no POSE_PREDICTED received"}
     t = np.array([g[0] for g in got])

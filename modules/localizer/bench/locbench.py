@@ -142,3 +142,35 @@ def score_run(drive_log, out_log, stats_path=None):
             r["lat_p50"] = float(np.percentile(lat, 50))
             r["lat_p99"] = float(np.percentile(lat, 99))
     return r
+
+
+class Listener:
+    """Handles a live bus on a thread: for each channel, a function of (channel, data);
+    `with Listener(url, {"POSE": fn}) as lc:` (lc publishes too), the thread stops at exit;
+    or start() and close()."""
+
+    def __init__(self, url, handlers, queue=1000):
+        import threading
+        self.lc = lcm.LCM(url)
+        for ch, fn in handlers.items():
+            self.lc.subscribe(ch, fn).set_queue_capacity(queue)
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._spin, daemon=True)
+
+    def _spin(self):
+        while not self.stop.is_set():
+            self.lc.handle_timeout(20)
+
+    def start(self):
+        self.thread.start()
+        return self.lc
+
+    def close(self):
+        self.stop.set()
+        self.thread.join()
+
+    def __enter__(self):
+        return self.start()
+
+    def __exit__(self, *exc):
+        self.close()

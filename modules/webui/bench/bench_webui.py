@@ -21,7 +21,7 @@ import sys
 import threading
 import time
 
-ROOT = pathlib.Path(__file__).resolve().parents[2]
+ROOT = pathlib.Path(__file__).resolve().parents[3]
 sys.path.insert(0, str(ROOT / "tests"))
 sys.path.insert(0, str(ROOT / "build" / "python"))
 
@@ -145,7 +145,7 @@ def main():
     site = site_copy(tmp)
     lcm_url = LCM.format(8030)
     bridge = Bridge(site, 18010, lcm_url)
-    sdk = subprocess.Popen([sys.executable, str(ROOT / "tools/bench-webui/sdk_relay.py"), lcm_url, "18011"],
+    sdk = subprocess.Popen([sys.executable, str(ROOT / "modules/webui/bench/sdk_relay.py"), lcm_url, "18011"],
                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     feed = Feeder(lcm_url, pose_hz=200, agents_hz=60)
     feed.start()

@@ -9,10 +9,10 @@
 #include <linux/can.h>
 #include <linux/errqueue.h>     /* after <time.h>: it needs struct timespec */
 
-#include "../can_dbc.h"
-#include "../can_kernel.h"
-#include "../can_speed.h"
-#include "../../../tests/c/pb_check.h"
+#include "can/core/can_dbc.h"
+#include "can/core/can_kernel.h"
+#include "can/core/can_speed.h"
+#include "pb_check.h"
 
 #define DBC_PRIUS PB_SOURCE_DIR "/vehicles/dbc/toyota_prius_2017_pt_generated.dbc"
 #define DBC_RAV4 PB_SOURCE_DIR "/vehicles/dbc/toyota_rav4_hybrid_2017_pt_generated.dbc"

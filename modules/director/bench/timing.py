@@ -14,7 +14,7 @@ Target: p95 <= 0.3 s with synchronisation. Seeds change simdrive's stop dwells
 (and sensor noise), not its speed curve, so the first stop of a drive repeats
 across seeds; the later ones follow different dwells.
 
-    tools/bench-director/timing.py [--seeds 1,2,3,4,5] [--work DIR]
+    modules/director/bench/timing.py [--seeds 1,2,3,4,5] [--work DIR]
 """
 import argparse
 import math
@@ -27,7 +27,7 @@ import tempfile
 import numpy as np
 import yaml
 
-ROOT = pathlib.Path(__file__).resolve().parents[2]
+ROOT = pathlib.Path(__file__).resolve().parents[3]
 BIN = ROOT / "build" / "bin"
 SITE = ROOT / "maps" / "default"
 sys.path.insert(0, str(ROOT / "build" / "python"))

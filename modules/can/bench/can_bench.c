@@ -3,22 +3,15 @@
  *   MODE signals: every signal of every bus-0 frame whose id and length the DBC knows
  *                 (what cantools' decode_message does per frame: the baseline's work)
  *   MODE speed:   can_speed_decode on every frame (the module's per-frame work)
- * Run by `make bench-can` (modules/can/bench_can.py), which prints the table. */
+ * Run by `make bench-can` (modules/can/bench/bench_can.py), which prints the table. */
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <time.h>
 
-#include "../can_dbc.h"
-#include "../can_speed.h"
+#include "can/core/can_dbc.h"
+#include "can/core/can_speed.h"
 #include "pb_candump.h"
-
-static double cpu_s(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
-    return ts.tv_sec + ts.tv_nsec * 1e-9;
-}
+#include "pb_clock.h"
 
 int main(int argc, char **argv)
 {
@@ -52,7 +45,7 @@ int main(int argc, char **argv)
     if (!dec) { fprintf(stderr, "%s\n", err.msg); return 1; }
     volatile double sink = 0;
     long done = 0;
-    double t0 = cpu_s();
+    double t0 = pb_clock_process_cpu_ms() * 1e-3;
     for (int p = 0; p < passes; p++) {
         for (size_t i = 0; i < n; i++) {
             const can_rx_t *fr = &frames[i];
@@ -70,7 +63,7 @@ int main(int argc, char **argv)
             }
         }
     }
-    double dt = cpu_s() - t0;
+    double dt = pb_clock_process_cpu_ms() * 1e-3 - t0;
     printf("%ld %.9f\n", done, dt);
     can_speed_destroy(dec);
     can_dbc_destroy(dbc);

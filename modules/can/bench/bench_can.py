@@ -25,7 +25,7 @@ import time
 
 import cantools
 
-ROOT = pathlib.Path(__file__).resolve().parents[2]
+ROOT = pathlib.Path(__file__).resolve().parents[3]
 BUILD = ROOT / "build"
 SAMPLE = ROOT / "tests" / "data" / "can_rav4" / "rav4_seg40_first2s.candump.log"
 DBC = ROOT / "vehicles" / "dbc" / "toyota_rav4_hybrid_2017_pt_generated.dbc"

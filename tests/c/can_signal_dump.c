@@ -5,7 +5,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 
-#include "../can_dbc.h"
+#include "can/core/can_dbc.h"
 #include "pb_candump.h"
 
 int main(int argc, char **argv)

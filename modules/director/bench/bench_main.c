@@ -20,6 +20,7 @@
 #include <unistd.h>
 
 #include "director/core/director.h"
+#include "pb_clock.h"
 #include "pb_route.h"
 #include "pb_site.h"
 #include "pb_vehicle.h"
@@ -30,13 +31,6 @@ static int cmp_d(const void *a, const void *b)
 {
     double x = *(const double *)a, y = *(const double *)b;
     return (x > y) - (x < y);
-}
-
-static double now_us(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-    return ts.tv_sec * 1e6 + ts.tv_nsec * 1e-3;
 }
 
 /* The synthetic worst case. */
@@ -109,9 +103,9 @@ static int run(const char *path, const pb_route_t *r, const dir_vehicle_t *veh, 
         pb_route_eval(r, i * v * dt, &p);
         dir_pose_t pose = { .utime = t0 + (int64_t)i * 10000, .pos = { p.x, p.y, 0 },
                             .q = { cos(p.yaw / 2), 0, 0, sin(p.yaw / 2) }, .vel = { v * cos(p.yaw), v * sin(p.yaw), 0 } };
-        double a = now_us();
+        double a = pb_clock_thread_cpu_ms() * 1e3;
         dir_pose(d, &pose, &err);
-        t[i] = now_us() - a;
+        t[i] = pb_clock_thread_cpu_ms() * 1e3 - a;
     }
     qsort(t, n, sizeof *t, cmp_d);
     res->median = t[n / 2];

@@ -16,7 +16,7 @@ recording beside the recorder), and a subscriber with LCM's default 30-message q
 (what a module gets without pb_bus raising it to 1000).
 Writes build/bench/bus.json and prints the table.
 
-    tools/bench-bus/bench.py [--duration S] [--port N]
+    modules/supervisor/bench/bench_bus.py [--duration S] [--port N]
 """
 import argparse
 import collections
@@ -30,7 +30,7 @@ import sys
 import threading
 import time
 
-ROOT = pathlib.Path(__file__).resolve().parents[2]
+ROOT = pathlib.Path(__file__).resolve().parents[3]
 sys.path.insert(0, str(ROOT / "build" / "python"))
 import lcm  # noqa: E402
 
@@ -43,7 +43,7 @@ CHANNELS = {"LIDAR_SCAN": 10.0, "POSE_PREDICTED": 200.0, "AGENTS": 60.0}
 # publishes; the recorder and the baseline tell the bench's POSE_PREDICTED by its bytes.
 CONSUMERS = {"localizer": ["LIDAR_SCAN"], "lab_vehicle": ["AGENTS"], "log-summary": ["LIDAR_SCAN", "AGENTS"]}
 
-STACK = """# bench-bus: written by tools/bench-bus/bench.py
+STACK = """# bench-bus: written by modules/supervisor/bench/bench_bus.py
 name: bench-bus
 workdir: {root}
 output_dir: {run}/output
