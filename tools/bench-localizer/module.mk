@@ -43,6 +43,9 @@ MULRAN := $(abspath $(TOP)/../shared/data/lidar_seq_mulran_riverside02_part1)
 LOCREG_REAL := $(BUILD)/bench/localizer-real
 LOCREAL_STARTS ?= 20
 LOCREAL_BASE_EVERY ?= 3
+LOCREAL_CUTS ?= 10
+LOCREAL_GUESSES ?= 30
+LOCREAL_GLOBAL ?= 10
 LOCREAL_BENCH = --global 3,15 --converge 0.2 --ndt-res 1,2
 bench-localizer-real: $(BIN)/bench-localizer $(BIN)/import-scans $(DEPS)
 	@mkdir -p $(LOCREG_REAL)/hdl32/scans && \
@@ -59,8 +62,9 @@ bench-localizer-real: $(BIN)/bench-localizer $(BIN)/import-scans $(DEPS)
 	    --dump $(LOCREG_REAL)/hdl32/baseline.bin --json $(LOCREG_REAL)/hdl32-results.json && \
 	$(VPY) tools/bench-localizer/bench.py $(LOCREG_REAL)/hdl32/baseline.bin $(LOCREG_REAL)/hdl32-results.json
 	@if [ ! -d "$(MULRAN)" ]; then echo "bench-localizer-real: MulRan part skipped, $(MULRAN) is absent"; exit 0; fi; \
-	echo "== MulRan Riverside02: refining the dataset's SLAM poses" && \
+	echo "== MulRan Riverside02: reference = LiDAR odometry + pose graph over the dataset's keyframes" && \
 	$(VPY) tools/bench-localizer/reference.py --scans $(MULRAN)/Scans --poses $(MULRAN)/optimized_poses.txt \
+	    --times $(MULRAN)/times.txt --threads 2 \
 	    --out $(LOCREG_REAL)/refined_poses.txt --report $(LOCREG_REAL)/reference-report.json && \
 	$(BIN)/import-scans --scans $(MULRAN)/Scans --poses $(LOCREG_REAL)/refined_poses.txt --times $(MULRAN)/times.txt \
 	    --every 2 --map-out $(LOCREG_REAL)/map.pcd --voxel 0.15 --out $(LOCREG_REAL)/even.lcm --quiet && \
@@ -70,4 +74,17 @@ bench-localizer-real: $(BIN)/bench-localizer $(BIN)/import-scans $(DEPS)
 	$(BIN)/bench-localizer --log $(LOCREG_REAL)/all.lcm --map $(LOCREG_REAL)/map.pcd --odd --every 2 \
 	    $(LOCREAL_BENCH) --starts $(LOCREAL_STARTS) --baseline-every $(LOCREAL_BASE_EVERY) --seed 1 \
 	    --dump $(LOCREG_REAL)/baseline.bin --json $(LOCREG_REAL)/results.json && \
-	$(VPY) tools/bench-localizer/bench.py $(LOCREG_REAL)/baseline.bin $(LOCREG_REAL)/results.json
+	$(VPY) tools/bench-localizer/bench.py $(LOCREG_REAL)/baseline.bin $(LOCREG_REAL)/results.json && \
+	echo "== MulRan Riverside02, the whole localizer: the odd scans replayed, LiDAR alone, site = the even scans" && \
+	rm -rf $(LOCREG_REAL)/odd $(LOCREG_REAL)/site && mkdir -p $(LOCREG_REAL)/odd/scans $(LOCREG_REAL)/site && \
+	for f in $$(ls $(MULRAN)/Scans | awk 'NR % 2 == 0'); do ln -s $(MULRAN)/Scans/$$f $(LOCREG_REAL)/odd/scans/; done && \
+	awk 'NR % 2 == 0' $(LOCREG_REAL)/refined_poses.txt > $(LOCREG_REAL)/odd/poses.txt && \
+	awk 'NR % 2 == 0' $(MULRAN)/times.txt > $(LOCREG_REAL)/odd/times.txt && \
+	$(BIN)/import-scans --scans $(MULRAN)/Scans --poses $(LOCREG_REAL)/refined_poses.txt --times $(MULRAN)/times.txt \
+	    --vehicle vehicles/lidar_mast.yaml --every 2 --map-out $(LOCREG_REAL)/site/map.pcd --voxel 0.15 \
+	    --out $(LOCREG_REAL)/site/even.lcm --quiet && \
+	$(BIN)/import-scans --scans $(LOCREG_REAL)/odd/scans --poses $(LOCREG_REAL)/odd/poses.txt \
+	    --times $(LOCREG_REAL)/odd/times.txt --vehicle vehicles/lidar_mast.yaml --out $(LOCREG_REAL)/odd/odd.lcm --quiet && \
+	nice $(VPY) tools/bench-localizer/real_starts.py --log $(LOCREG_REAL)/odd/odd.lcm --site $(LOCREG_REAL)/site \
+	    --vehicle vehicles/lidar_mast.yaml --cuts $(LOCREAL_CUTS) --guesses $(LOCREAL_GUESSES) --global $(LOCREAL_GLOBAL) \
+	    --json $(LOCREG_REAL)/starts.json

@@ -1,26 +1,35 @@
 #!/usr/bin/env python3
-"""Reference poses for bench-localizer-real: a pose-graph refinement of a LiDAR
-sequence's SLAM poses, built with small_gicp (GICP), not with the localizer's own
-registration, so the benchmark does not judge our registration against itself.
+"""Reference poses for bench-localizer-real: a LiDAR-odometry and pose-graph
+refinement of a LiDAR sequence's SLAM poses, built with small_gicp (GICP), not with
+the localizer's own registration, so the benchmark does not judge our registration
+against itself.
 
 usage: reference.py --scans DIR --poses POSES.txt --out REFINED.txt [--report R.json]
 
+Why not the input's relative poses: on MulRan Riverside02 the keyframe poses move the
+car sideways by metres between keyframes 0.5 s apart (a car cannot), or at a third of
+the speed the scans show, so a registration started from them falls into the wrong
+minimum along the road. The scans themselves are consistent: steps proportional to
+the time between them.
+
 Steps, each printed as it runs:
- 1. every scan is downsampled (0.5 m voxels) and its covariances estimated once;
- 2. pairs: each scan with the next --pair-span scans; scan j is aligned to scan i
-    with GICP, started from the input's relative pose and from starts 2 m
-    ahead and behind along it (a SLAM estimate can be metres off between neighbours);
-    the start with the most inliers wins; a pair whose inlier share (points within
-    --corr of the other scan) is below --min-fit gives no edge;
- 3. all poses are solved at once by robust least squares over the edges (Cauchy
-    loss on the translation / rotation residual in units of 5 cm / 0.2 deg, scale
-    15 cm), the
-    input's frame kept (the best rigid motion onto the input is removed);
- 4. with --rounds > 1, rounds repeat from the solved poses (one GICP start per pair, the pair dropped if
-    it lands more than 0.5 m from the solution) until no pose moves 1 cm.
-Quality, printed and in the report: pair residuals at the solution, the share of
-pairs kept, and the spread of independent registrations (each consecutive pair
-aligned from 4 starts 1 m off the solution: the largest distance between results).
+ 1. every scan is downsampled (--voxel) and its covariances estimated once;
+ 2. odometry: scan j is aligned (GICP) to the local map of the previous --window scans
+    at their solved poses, from the input's relative pose, from constant velocity (the
+    last step scaled by the time between scans) and from +-2 m along the motion; the
+    start with the most inliers within 0.3 m wins;
+ 3. check edges: scan j against scan j-2 and j-3 alone (GICP from the odometry's
+    relative pose); an edge that lands more than --gate m from the odometry or has
+    too few inliers is dropped and counted;
+ 4. all poses are solved by robust least squares (Cauchy) over the odometry and skip-2
+    edges, pose 0 held at the input's; skip-3 edges are held out and only evaluated;
+ 5. the result is levelled (turned about pose 0 so that the scans' ground is z up), as
+    the localizer's maps are; the input's poses are tilted with the LiDAR's mount.
+Quality, printed and in the report: agreement of skip edges with the chained
+odometry before the solve, held-out residuals, the spread of independent
+registrations (every 3rd consecutive pair aligned from 4 starts 1 m off the solution), and
+the map crispness with the input and the refined poses (each scan against the scans
+within 4 of it: share of points within 0.2 m, median distance).
 Writes one KITTI line (3x4 row-major) per scan, for import-scans --poses.
 """
 import argparse
@@ -33,6 +42,7 @@ import numpy as np
 import small_gicp
 from scipy.optimize import least_squares
 from scipy.sparse import lil_matrix
+from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "modules", "webui"))
@@ -49,16 +59,23 @@ def read_pcd(path):
     return a[np.isfinite(a).all(axis=1)]
 
 
-def read_kitti(path):
-    poses = []
+def read_lines(path, width):
+    rows = []
     for ln, line in enumerate(open(path), 1):
         v = line.split()
         if not v or v[0].startswith("#"):
             continue
-        if len(v) != 12:
-            sys.exit(f"reference.py: {path}:{ln}: {len(v)} numbers, a KITTI pose line has 12")
-        poses.append(np.vstack([np.array(v, float).reshape(3, 4), [0, 0, 0, 1]]))
-    return poses
+        if len(v) != width:
+            sys.exit(f"reference.py: {path}:{ln}: {len(v)} numbers, expected {width}")
+        try:
+            rows.append([float(s) for s in v])
+        except ValueError:
+            sys.exit(f"reference.py: {path}:{ln}: not a number")
+    return rows
+
+
+def read_kitti(path):
+    return [np.vstack([np.array(v).reshape(3, 4), [0, 0, 0, 1]]) for v in read_lines(path, 12)]
 
 
 def to_vec(T):
@@ -72,6 +89,16 @@ def to_mat(v):
     return T
 
 
+def transform(T, p):
+    return p @ T[:3, :3].T + T[:3, 3]
+
+
+def rel_error(Z, Ti, Tj):
+    """(metres, degrees) between the measured relative pose Z and Ti^-1 Tj."""
+    D = np.linalg.inv(Z) @ np.linalg.inv(Ti) @ Tj
+    return float(np.linalg.norm(D[:3, 3])), float(np.degrees(np.linalg.norm(Rotation.from_matrix(D[:3, :3]).as_rotvec())))
+
+
 SIG_T, SIG_R = 0.05, np.radians(0.2)
 
 
@@ -81,56 +108,83 @@ def solve(poses, edges):
     x0 = np.concatenate([to_vec(T) for T in poses[1:]])
     T0 = poses[0]
 
-    def pose(x, k):
-        return T0 if k == 0 else to_mat(x[6 * (k - 1):6 * k])
+    ii = np.array([i for i, _, _ in edges])
+    jj = np.array([j for _, j, _ in edges])
+    Rz = np.array([Z[:3, :3] for _, _, Z in edges])
+    tz = np.array([Z[:3, 3] for _, _, Z in edges])
 
     def resid(x):
-        r = np.empty(6 * len(edges))
-        for e, (i, j, Z) in enumerate(edges):
-            D = np.linalg.inv(Z) @ np.linalg.inv(pose(x, i)) @ pose(x, j)
-            r[6 * e:6 * e + 3] = D[:3, 3] / SIG_T
-            r[6 * e + 3:6 * e + 6] = Rotation.from_matrix(D[:3, :3]).as_rotvec() / SIG_R
-        return r
+        v = np.vstack([to_vec(T0), x.reshape(-1, 6)])
+        R = Rotation.from_rotvec(v[:, 3:]).as_matrix()
+        t = v[:, :3]
+        # D = Z^-1 T_i^-1 T_j, all edges at once
+        Rij = np.einsum("eba,ebc->eac", R[ii], R[jj])
+        tij = np.einsum("eba,eb->ea", R[ii], t[jj] - t[ii])
+        RD = np.einsum("eba,ebc->eac", Rz, Rij)
+        tD = np.einsum("eba,eb->ea", Rz, tij - tz)
+        return np.hstack([tD / SIG_T, Rotation.from_matrix(RD).as_rotvec() / SIG_R]).ravel()
 
     sp = lil_matrix((6 * len(edges), 6 * (n - 1)), dtype=int)
     for e, (i, j, _) in enumerate(edges):
         for k in (i, j):
             if k > 0:
                 sp[6 * e:6 * e + 6, 6 * (k - 1):6 * k] = 1
-    # Cauchy at 15 cm. Measured on MulRan: every pair then looks like an outlier and the
-    # poses stay the input's; a graduated scale (2 m, then 15 cm) moved a pose 16 m instead
+    # Cauchy at 3 sigma (15 cm, 0.6 deg): a skip edge that disagrees by metres is an outlier
     x = least_squares(resid, x0, jac_sparsity=sp, loss="cauchy", f_scale=3.0, x_scale="jac", max_nfev=50).x
-    out = [T0] + [to_mat(x[6 * k:6 * k + 6]) for k in range(n - 1)]
-    return out
+    return [T0] + [to_mat(x[6 * k:6 * k + 6]) for k in range(n - 1)]
 
 
-def back_to_input_frame(poses, ref):
-    """The rigid motion that best maps the solved positions onto the input's (Kabsch)."""
-    a = np.array([T[:3, 3] for T in poses])
-    b = np.array([T[:3, 3] for T in ref])
-    ca, cb = a.mean(0), b.mean(0)
-    U, _, Vt = np.linalg.svd((a - ca).T @ (b - cb))
-    d = np.sign(np.linalg.det(Vt.T @ U.T))
-    R = Vt.T @ np.diag([1, 1, d]) @ U.T
+def level(poses, raw):
+    """The solution turned about pose 0 so that the ground is level (z up): the mean of
+    the scans' ground normals in the map becomes z. The localizer's maps are
+    gravity-aligned; the input's frame is the first LiDAR frame, tilted with the mount.
+    Ground of a scan: its lowest points within 25 m (5th height percentile + 0.4 m), a
+    plane fitted by least squares."""
+    ups = []
+    for T, p in zip(poses, raw):
+        near = p[np.linalg.norm(p[:, :2], axis=1) < 25.0]
+        if len(near) < 100:
+            continue
+        g = near[near[:, 2] < np.percentile(near[:, 2], 5) + 0.4]
+        if len(g) < 50:
+            continue
+        nrm = np.linalg.svd(g - g.mean(0))[2][2]
+        ups.append(T[:3, :3] @ (nrm if nrm[2] > 0 else -nrm))
+    up = np.mean(ups, axis=0)
+    R, _ = Rotation.align_vectors([[0.0, 0.0, 1.0]], [up / np.linalg.norm(up)])
     A = np.eye(4)
-    A[:3, :3] = R
-    A[:3, 3] = cb - R @ ca
-    return [A @ T for T in poses]
+    A[:3, :3] = R.as_matrix()
+    A[:3, 3] = poses[0][:3, 3] - A[:3, :3] @ poses[0][:3, 3]
+    tilt = float(np.degrees(np.arccos(np.clip(up[2] / np.linalg.norm(up), -1, 1))))
+    return [A @ T for T in poses], tilt
+
+
+def crispness(raw, poses, span=4, stride=3):
+    """Each scan (every stride-th) against the others within span at the poses: share of
+    its points within 0.2 m of theirs, and the median distance of those within 1 m."""
+    share, dist = [], []
+    for k in range(0, len(raw), stride):
+        others = [transform(poses[m], raw[m]) for m in range(max(0, k - span), min(len(raw), k + span + 1)) if m != k]
+        d, _ = cKDTree(np.vstack(others)).query(transform(poses[k], raw[k]), distance_upper_bound=1.0)
+        share.append(float(np.mean(d < 0.2)))
+        near = d[np.isfinite(d)]
+        dist.append(float(np.median(near)) if len(near) else 1.0)
+    return float(np.median(share)), float(np.median(dist))
 
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scans", required=True, help="folder of .pcd scans (file-name order; scan k goes with pose k)")
     ap.add_argument("--poses", required=True, help="KITTI poses (map <- LiDAR), one line per scan")
+    ap.add_argument("--times", help="one UNIX second a line per scan (constant-velocity starts); default 0.5 s apart")
     ap.add_argument("--out", required=True)
     ap.add_argument("--report")
-    ap.add_argument("--pair-span", type=int, default=3, help="each scan is paired with the next N (default 3)")
-    ap.add_argument("--voxel", type=float, default=0.5)
-    ap.add_argument("--corr", type=float, default=1.0, help="GICP correspondence distance, m (default 1)")
-    ap.add_argument("--min-fit", type=float, default=0.5, help="inlier share a pair needs (default 0.5)")
-    ap.add_argument("--rounds", type=int, default=1,
-                    help="rounds (default 1: on MulRan a 2nd round re-registering from the solution kept "
-                         "218 of 492 pairs and moved a pose 0.9 m, so more rounds do not converge there)")
+    ap.add_argument("--window", type=int, default=4, help="odometry local map: the previous N scans (default 4)")
+    ap.add_argument("--voxel", type=float, default=0.3)
+    ap.add_argument("--gate", type=float, default=0.5, help="skip edge kept within M of the odometry (default 0.5)")
+    ap.add_argument("--min-fit", type=float, default=0.15,
+                    help="inlier share within 0.3 m a skip edge needs (default 0.15; consecutive keyframes "
+                         "of MulRan share 0.2-0.5 of their points at that distance)")
     ap.add_argument("--threads", type=int, default=1)
     args = ap.parse_args()
     files = sorted(f for f in os.listdir(args.scans) if f.endswith(".pcd"))
@@ -138,92 +192,127 @@ def main():
     n = min(len(files), len(ref))
     if len(files) != len(ref):
         print(f"reference.py: {len(files)} scans and {len(ref)} poses: the first {n} are used", file=sys.stderr)
+    stamps = np.array([v[0] for v in read_lines(args.times, 1)][:n]) if args.times else 0.5 * np.arange(n)
+    if len(stamps) < n:
+        sys.exit(f"reference.py: {args.times}: {len(stamps)} times for {n} scans")
     t0 = time.time()
-    clouds = []
+    raw, clouds = [], []
     for k in range(n):
         pts = read_pcd(os.path.join(args.scans, files[k]))
         r = np.linalg.norm(pts[:, :2], axis=1)
-        clouds.append(small_gicp.preprocess_points(pts[(r > 2.0) & (r < 80)], args.voxel, num_threads=args.threads))
+        pts = pts[(r > 3.0) & (r < 80)]
+        c = small_gicp.preprocess_points(pts, args.voxel, num_threads=args.threads)
+        clouds.append(c)
+        raw.append(np.asarray(c[0].points())[:, :3])
     print(f"reference.py: {n} scans read and prepared in {time.time() - t0:.1f} s", flush=True)
 
-    def align(i, j, guess):
-        tgt, tree = clouds[i]
+    def align(tgt, tree, j, guess, corr=1.0):
         src = clouds[j][0]
         r = small_gicp.align(tgt, src, tree, init_T_target_source=guess, registration_type="GICP",
-                             max_correspondence_distance=args.corr, num_threads=args.threads, max_iterations=30)
-        return r.T_target_source, r.num_inliers / max(1, src.size()), r.converged
+                             max_correspondence_distance=corr, num_threads=args.threads, max_iterations=30)
+        r = small_gicp.align(tgt, src, tree, init_T_target_source=r.T_target_source, registration_type="GICP",
+                             max_correspondence_distance=0.3, num_threads=args.threads, max_iterations=20)
+        return r.T_target_source, r.num_inliers / max(1, src.size())
 
-    pairs = [(i, j) for i in range(n) for j in range(i + 1, min(n, i + 1 + args.pair_span))]
-    poses = list(ref)
-    history, edges = [], []
-    for rnd in range(args.rounds):
-        t1 = time.time()
-        edges, fits = [], []
-        for p, (i, j) in enumerate(pairs):
-            if p and p % 100 == 0:
-                print(f"reference.py: round {rnd + 1}: {p}/{len(pairs)} pairs ({time.time() - t1:.0f} s)", flush=True)
-            rel = np.linalg.inv(poses[i]) @ poses[j]
-            starts = [rel]
-            if rnd == 0:
-                fwd = rel[:3, 3] / max(np.linalg.norm(rel[:3, 3]), 1e-6)
-                for s in (-2.0, 2.0):
-                    g = rel.copy()
-                    g[:3, 3] += s * fwd
-                    starts.append(g)
-            best = max((align(i, j, g) for g in starts), key=lambda t: t[1])
-            T, fit, _ = best
-            if fit < args.min_fit:
+    # 2. odometry against a local map of the previous scans
+    t1 = time.time()
+    poses = [ref[0]]
+    odo, odo_fit, picked = [], [], {"input": 0, "constant velocity": 0, "along +-2 m": 0}
+    for j in range(1, n):
+        lo = max(0, j - args.window)
+        base = poses[j - 1]
+        local = np.vstack([transform(np.linalg.inv(base) @ poses[m], raw[m]) for m in range(lo, j)])
+        tgt, tree = small_gicp.preprocess_points(local, args.voxel, num_threads=args.threads)
+        guesses = [("input", np.linalg.inv(ref[j - 1]) @ ref[j])]
+        if j >= 2:
+            last = odo[-1]
+            s = (stamps[j] - stamps[j - 1]) / max(1e-3, stamps[j - 1] - stamps[j - 2])
+            cv = to_mat(np.concatenate([last[:3, 3] * s, to_vec(last)[3:] * s]))
+            guesses.append(("constant velocity", cv))
+            ahead = cv[:3, 3] / max(np.linalg.norm(cv[:3, 3]), 1e-6)
+            for d in (-2.0, 2.0):
+                g = cv.copy()
+                g[:3, 3] += d * ahead
+                guesses.append(("along +-2 m", g))
+        best = max(((name,) + align(tgt, tree, j, g) for name, g in guesses), key=lambda t: t[2])
+        picked[best[0]] += 1
+        odo.append(best[1])
+        odo_fit.append(best[2])
+        poses.append(base @ best[1])
+        if j % 20 == 0:
+            print(f"reference.py: odometry {j}/{n - 1} ({time.time() - t1:.0f} s)", flush=True)
+    print(f"reference.py: odometry done ({time.time() - t1:.0f} s): inlier share within 0.3 m median "
+          f"{np.median(odo_fit):.2f} p10 {np.percentile(odo_fit, 10):.2f}; winning start {picked}", flush=True)
+
+    # 3. skip edges, scan to scan, checked against the chained odometry
+    edges = [(j - 1, j + 0, odo[j - 1]) for j in range(1, n)]
+    skip = {2: [], 3: []}
+    agree = {2: [], 3: []}
+    dropped = {2: 0, 3: 0}
+    for k in (2, 3):
+        for j in range(k, n):
+            chained = np.linalg.inv(poses[j - k]) @ poses[j]
+            T, fit = align(clouds[j - k][0], clouds[j - k][1], j, chained)
+            dt, _ = rel_error(T, np.eye(4), chained)
+            agree[k].append(dt)
+            if dt > args.gate or fit < args.min_fit:
+                dropped[k] += 1
                 continue
-            if rnd > 0 and np.linalg.norm((np.linalg.inv(rel) @ T)[:3, 3]) > 0.5:
-                continue
-            edges.append((i, j, T))
-            fits.append(fit)
-        deg = np.zeros(n, int)
-        for i, j, _ in edges:
-            deg[i] += 1
-            deg[j] += 1
-        new = back_to_input_frame(solve(poses, edges), ref)
-        moved = max(np.linalg.norm(a[:3, 3] - b[:3, 3]) for a, b in zip(new, poses))
-        poses = new
-        history.append({"round": rnd + 1, "edges": len(edges), "pairs": len(pairs), "no_edge": int((deg == 0).sum()),
-                        "largest_move_m": float(moved), "s": round(time.time() - t1, 1)})
-        print(f"reference.py: round {rnd + 1}: {len(edges)}/{len(pairs)} pairs kept (inlier share median "
-              f"{np.median(fits):.2f}), {int((deg == 0).sum())} scans without one, largest move {moved:.3f} m "
-              f"({time.time() - t1:.0f} s)", flush=True)
-        if moved < 0.01:
-            break
-    # quality: residuals of the kept pairs at the solution; spread of independent registrations
-    res_t, res_r = [], []
-    for i, j, Z in edges:
-        D = np.linalg.inv(Z) @ np.linalg.inv(poses[i]) @ poses[j]
-        res_t.append(float(np.linalg.norm(D[:3, 3])))
-        res_r.append(float(np.degrees(np.linalg.norm(Rotation.from_matrix(D[:3, :3]).as_rotvec()))))
+            skip[k].append((j - k, j, T))
+    q = lambda v, p: float(np.percentile(v, p)) if len(v) else float("nan")
+    for k in (2, 3):
+        print(f"  skip-{k} edges vs chained odometry: median {q(agree[k], 50):.3f} m p90 {q(agree[k], 90):.3f} m; "
+              f"{dropped[k]} of {len(agree[k])} dropped (> {args.gate} m or inliers < {args.min_fit})")
+
+    # 4. robust solve over odometry + skip-2; skip-3 held out
+    t2 = time.time()
+    solved, tilt = level(solve(poses, edges + skip[2]), raw)
+    print(f"reference.py: map levelled (ground normal was {tilt:.2f} deg off z)", flush=True)
+    held = [rel_error(Z, solved[i], solved[j]) for i, j, Z in skip[3]]
+    used = [rel_error(Z, solved[i], solved[j]) for i, j, Z in edges + skip[2]]
+    held_in = [rel_error(Z, ref[i], ref[j]) for i, j, Z in skip[3]]
+    print(f"reference.py: pose graph solved ({time.time() - t2:.0f} s)", flush=True)
+
     spread = []
-    for i in range(n - 1):
-        rel = np.linalg.inv(poses[i]) @ poses[i + 1]
+    for i in range(0, n - 1, 3):
+        rel = np.linalg.inv(solved[i]) @ solved[i + 1]
         ends = []
         for dx, dy in ((1, 0), (-1, 0), (0, 1), (0, -1)):
             g = rel.copy()
-            g[:3, 3] += rel[:3, :3] @ np.array([dx, dy, 0.0])
-            T, fit, _ = align(i, i + 1, g)
-            ends.append(T[:3, 3])
+            g[:3, 3] += np.array([dx, dy, 0.0])
+            ends.append(align(clouds[i][0], clouds[i][1], i + 1, g)[0][:3, 3])
         ends = np.array(ends)
         spread.append(float(np.max(np.linalg.norm(ends[:, None] - ends[None], axis=2))))
-    change = [float(np.linalg.norm(a[:3, 3] - b[:3, 3])) for a, b in zip(poses, ref)]
-    q = lambda v, p: float(np.percentile(v, p)) if len(v) else float("nan")
-    rep = {"scans": n, "rounds": history, "pairs_kept": len(edges), "pairs": len(pairs),
-           "pair_resid_m_median": q(res_t, 50), "pair_resid_m_p90": q(res_t, 90), "pair_resid_deg_p90": q(res_r, 90),
+    crisp_in, crisp_out = crispness(raw, ref), crispness(raw, solved)
+    change = [float(np.linalg.norm(a[:3, 3] - b[:3, 3])) for a, b in zip(solved, ref)]
+    rep = {"scans": n, "levelled_deg": tilt, "odometry_fit_median": float(np.median(odo_fit)), "odometry_start": picked,
+           "skip2_vs_odometry_m_median": q(agree[2], 50), "skip2_vs_odometry_m_p90": q(agree[2], 90),
+           "skip3_vs_odometry_m_median": q(agree[3], 50), "skip3_vs_odometry_m_p90": q(agree[3], 90),
+           "skip2_dropped": dropped[2], "skip3_dropped": dropped[3], "skip2_edges": len(skip[2]),
+           "edge_resid_m_median": q([u[0] for u in used], 50), "edge_resid_m_p90": q([u[0] for u in used], 90),
+           "heldout_skip3_resid_m_median": q([h[0] for h in held], 50),
+           "heldout_skip3_resid_m_p90": q([h[0] for h in held], 90),
+           "heldout_skip3_resid_deg_p90": q([h[1] for h in held], 90),
+           "heldout_skip3_at_input_m_median": q([h[0] for h in held_in], 50),
+           "heldout_skip3_at_input_m_p90": q([h[0] for h in held_in], 90),
            "spread_m_median": q(spread, 50), "spread_m_p90": q(spread, 90),
+           "crisp_share_0.2m_input": crisp_in[0], "crisp_median_m_input": crisp_in[1],
+           "crisp_share_0.2m_refined": crisp_out[0], "crisp_median_m_refined": crisp_out[1],
            "change_m_median": q(change, 50), "change_m_p90": q(change, 90), "change_m_max": max(change),
-           "spread_m": spread, "pair_resid_m": res_t}
-    print(f"  pair residuals at the solution ({len(edges)} pairs): median {rep['pair_resid_m_median']:.3f} m "
-          f"p90 {rep['pair_resid_m_p90']:.3f} m, rotation p90 {rep['pair_resid_deg_p90']:.3f} deg")
-    print(f"  spread of consecutive-pair registrations from 4 starts 1 m off: median {rep['spread_m_median']:.3f} m "
+           "spread_m": spread}
+    print(f"  held-out skip-3 edges: residual median {rep['heldout_skip3_resid_m_median']:.3f} m "
+          f"p90 {rep['heldout_skip3_resid_m_p90']:.3f} m, rotation p90 {rep['heldout_skip3_resid_deg_p90']:.3f} deg "
+          f"(at the input poses: median {rep['heldout_skip3_at_input_m_median']:.3f} m "
+          f"p90 {rep['heldout_skip3_at_input_m_p90']:.3f} m)")
+    print(f"  used edges: residual median {rep['edge_resid_m_median']:.3f} m p90 {rep['edge_resid_m_p90']:.3f} m")
+    print(f"  spread of every 3rd consecutive-pair registration from 4 starts 1 m off: median {rep['spread_m_median']:.3f} m "
           f"p90 {rep['spread_m_p90']:.3f} m")
+    print(f"  map crispness (scan vs its 8 neighbours, share within 0.2 m / median distance): input "
+          f"{crisp_in[0]:.2f} / {crisp_in[1]:.3f} m, refined {crisp_out[0]:.2f} / {crisp_out[1]:.3f} m")
     print(f"  refined minus input position: median {rep['change_m_median']:.2f} m p90 {rep['change_m_p90']:.2f} m "
           f"max {rep['change_m_max']:.2f} m")
     with open(args.out, "w") as f:
-        for T in poses:
+        for T in solved:
             f.write(" ".join(f"{v:.9g}" for v in T[:3, :].ravel()) + "\n")
     if args.report:
         with open(args.report, "w") as f:

@@ -600,8 +600,11 @@ int main(int argc, char **argv)
         if (map && np > 0) {
             pb_points_t pts = {np, np, s.x.data(), s.y.data(), s.z.data(), s.intensity.data(), s.offset_us.data(),
                                s.ring.data()};
-            pb_transform_t x = {{P.translation().x(), P.translation().y(), P.translation().z()},
-                                {q.w(), q.x(), q.y(), q.z()}};
+            // the points are the LiDAR's: placed with the LiDAR pose (P is the base's with --vehicle)
+            const Eigen::Isometry3d &L = poses[k];
+            Eigen::Quaterniond ql(L.linear());
+            pb_transform_t x = {{L.translation().x(), L.translation().y(), L.translation().z()},
+                                {ql.w(), ql.x(), ql.y(), ql.z()}};
             int r = s.has_time ? pb_map_builder_add_timed(map, &pts, utime, track, nullptr, &err) : 0;
             if (r == 0) {   // no per-point time, or times beyond the poses: the scan's own pose
                 if (s.has_time) timed_fallback++;
