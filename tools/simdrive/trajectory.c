@@ -8,7 +8,7 @@
 #include "pb_profile.h"
 #include "rng.h"
 
-#define PLAN_DS 0.25        /* m, grid of the speed plan */
+#define PLAN_DS 0.05        /* m, grid of the speed plan: a stop lands on it, so within 2.5 cm of its line */
 #define PROFILE_DT 0.002    /* s, grid of the time profile */
 #define BOX_S 0.5           /* s, width of each of the two box filters (a 1 s triangle) */
 
