@@ -10,7 +10,9 @@ localizer (LIDAR_SCAN), lab_vehicle (AGENTS) and log-summary (every channel). Me
 - resident memory of every process (the supervisor's 1 Hz figures per process group, and
   the supervisor's own) is flat: after one lap of the drive (the localizer pages the map's
   tiles around the car, so its memory follows the route until it has seen all of it),
-  max and last within 5% of the value at that time.
+  the largest and the last 30 s median within 5% of the first (a module holds one 332 KB
+  sweep more or fewer at any instant, so one 1 Hz sample is no trend; the largest raw
+  sample is printed beside it).
 Baselines, measured in the same run on the same stream: lcm-logger (from the lcm wheel,
 recording beside the recorder), and a subscriber with LCM's default 30-message queue
 (what a module gets without pb_bus raising it to 1000).
@@ -24,6 +26,7 @@ import json
 import os
 import pathlib
 import signal
+import statistics
 import struct
 import subprocess
 import sys
@@ -227,18 +230,21 @@ def read_strict(path, pose_tail):
     return counts
 
 
-def flatness(samples, warmup_s):
+def flatness(samples, warmup_s, window_s=30):
+    """Growth after the warm-up, judged on medians over window_s: a module that receives
+    332 KB sweeps holds one more or one fewer at any instant (8% of a 4 MB process), so a
+    single 1 Hz sample is no trend. The raw max is kept beside it."""
     if not samples:
         return None
     t_first = samples[0][0]
     after = [(t, v) for t, v in samples if t - t_first >= warmup_s]
     if len(after) < 2:
         return None
-    ref = after[0][1]
-    mx = max(v for _, v in after)
-    return {"ref_mb": ref / 1e6, "max_mb": mx / 1e6, "last_mb": after[-1][1] / 1e6,
-            "max_growth_pct": (mx - ref) / ref * 100, "last_growth_pct": (after[-1][1] - ref) / ref * 100,
-            "samples": len(after)}
+    med = [statistics.median(v for u, v in after if t - window_s / 2 <= u <= t + window_s / 2) for t, _ in after]
+    ref, mx, raw = med[0], max(med), max(v for _, v in after)
+    return {"ref_mb": ref / 1e6, "max_mb": mx / 1e6, "last_mb": med[-1] / 1e6, "raw_max_mb": raw / 1e6,
+            "max_growth_pct": (mx - ref) / ref * 100, "last_growth_pct": (med[-1] - ref) / ref * 100,
+            "raw_max_growth_pct": (raw - ref) / ref * 100, "window_s": window_s, "samples": len(after)}
 
 
 def main():
@@ -320,14 +326,16 @@ def main():
     print(f"{'receiver':<44} {'sent':>8} {'received':>9} {'lost':>6}")
     for r in rows:
         print(f"{r['what']:<44} {r['sent']:>8} {r['got']:>9} {r['sent'] - r['got']:>6}")
-    print(f"\n{'process (group)':<14} {'RSS at ' + str(int(a.warmup)) + ' s':>12} {'max MB':>8} {'last MB':>8} {'max growth':>11} {'flat':>5}")
+    print(f"\nresident memory, medians over 30 s (raw: the largest 1 Hz sample)")
+    print(f"{'process (group)':<14} {'RSS at ' + str(int(a.warmup)) + ' s':>12} {'max MB':>8} {'last MB':>8} {'max growth':>11} {'raw max':>8} {'flat':>5}")
     flat_all = True
     for name, m in mem.items():
         if m is None or name == "lcm-logger":
             continue
         ok = m["max_growth_pct"] <= 5
         flat_all &= ok
-        print(f"{name:<14} {m['ref_mb']:>10.1f} MB {m['max_mb']:>8.1f} {m['last_mb']:>8.1f} {m['max_growth_pct']:>+10.2f}% {'yes' if ok else 'NO':>5}")
+        print(f"{name:<14} {m['ref_mb']:>10.1f} MB {m['max_mb']:>8.1f} {m['last_mb']:>8.1f} {m['max_growth_pct']:>+10.2f}% "
+              f"{m['raw_max_growth_pct']:>+7.1f}% {'yes' if ok else 'NO':>5}")
     lost_ours = sum(r["sent"] - r["got"] for r in rows if not r["what"].startswith("baseline"))
     print(f"\nrestarts during the run: {restarts}")
     print(f"verdict: {'no message lost' if lost_ours == 0 else f'{lost_ours} messages lost'} by the recorder and the "
