@@ -1,6 +1,6 @@
 // bench-localizer: time and accuracy of the localizer's scan-to-map registration
 // (modules/localizer/core) against PCL's NDT on the same scans and starts.
-// small_gicp GICP / VGICP run in bench.py on the scans this program dumps.
+// small_gicp GICP / VGICP run in bench_gicp.py on the scans this program dumps.
 //
 // Input: an LCM log with LIDAR_SCAN and GROUND_TRUTH (simdrive, or import-scans of
 // real scans), the site's prior map, the vehicle file (base <- lidar).
@@ -61,7 +61,7 @@ static void usage(FILE *f)
         "  --starts K       K such starts per scan (default 1)\n"
         "  --converge M     'converged' = final error below M metres (default 0.3)\n"
         "  --ndt-res LIST   PCL NDT resolutions, comma-separated (default: the --voxel)\n"
-        "  --dump FILE      write the baseline scans, starts and truth for bench.py, and the\n"
+        "  --dump FILE      write the baseline scans, starts and truth for bench_gicp.py, and the\n"
         "                   map points near them as FILE.map (float32 xyz)\n"
         "  --json FILE      write the per-method results as JSON\n"
         "  --seed N         starts RNG seed (default 1)\n"
