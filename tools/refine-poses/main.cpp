@@ -103,10 +103,8 @@ int main(int argc, char **argv)
     while ((rc = pb_log_next(log, &ev, &err)) == 1) {
         if (!std::strcmp(ev.channel, "GROUND_TRUTH")) {
             portobello_pose_t p;
-            if (portobello_pose_t_decode(ev.data, 0, ev.datalen, &p) < 0) continue;
             pb_transform_t T;
-            std::memcpy(T.t, p.position, sizeof T.t);
-            std::memcpy(T.q, p.orientation, sizeof T.q);
+            if (pb_log_pose(&ev, &p, &T, &err)) { std::fprintf(stderr, "refine-poses: %s: %s\n", log_path, err.msg); return 1; }
             truth[p.utime] = pb_reg_from_transform(&T);
         } else if (!std::strcmp(ev.channel, "LIDAR_SCAN")) {
             portobello_lidar_scan_t s;
