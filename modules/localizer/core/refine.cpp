@@ -11,14 +11,7 @@
 
 void refine_config_default(refine_config_t *cfg)
 {
-    cfg->neighbour_radius_m = 40;
-    cfg->max_neighbours = 30;
-    cfg->max_rounds = 8;
-    cfg->stop_m = 0.005;
-    cfg->voxel_m = 0.5;
-    cfg->min_points_used = 200;
-    cfg->coarse_iterations = 0;
-    cfg->min_pair_inliers = 0.3;
+    *cfg = refine_config_t();
 }
 
 namespace {

@@ -32,16 +32,17 @@
 #include <Eigen/Geometry>
 #include "pb_err.h"
 
+/* The defaults stand beside each field (a value-initialised struct holds them). */
 typedef struct {
-    double neighbour_radius_m;  /* scans within this distance form a scan's map (default 40) */
-    int max_neighbours;         /* the nearest this many (default 30) */
-    int max_rounds;             /* (default 8) */
-    double stop_m;              /* stop when no scan moves more than this in a round (default 0.005) */
-    double voxel_m;             /* map cell of the neighbour maps (default 0.5) */
-    int min_points_used;        /* a scan whose match uses fewer points keeps its pose (default 200) */
-    double min_pair_inliers;    /* a pair registration with a smaller inlier share gives no edge (default 0.3) */
-    int coarse_iterations;      /* pb_reg_config_t's coarse retry; 0 = fine level only (default 0: the input
-                                 * is within a metre, and the coarse level can alias repeated structure) */
+    double neighbour_radius_m = 40;  /* scans within this distance form a scan's map */
+    int max_neighbours = 30;         /* the nearest this many */
+    int max_rounds = 8;
+    double stop_m = 0.005;           /* stop when no scan moves more than this in a round */
+    double voxel_m = 0.5;            /* map cell of the neighbour maps */
+    int min_points_used = 200;       /* a scan whose match uses fewer points keeps its pose */
+    double min_pair_inliers = 0.3;   /* a pair registration with a smaller inlier share gives no edge */
+    int coarse_iterations = 0;       /* pb_reg_config_t's coarse retry; 0 = fine level only (the input
+                                      * is within a metre, and the coarse level can alias repeated structure) */
 } refine_config_t;
 
 void refine_config_default(refine_config_t *cfg);
