@@ -24,32 +24,9 @@ import locbench as lb  # noqa: E402
 FAULT = ROOT / "tools" / "log-fault" / "log_fault.py"
 
 
-def write_pcd(path, pts):
-    with open(path, "wb") as f:
-        f.write(("# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\nFIELDS x y z intensity\nSIZE 4 4 4 4\n"
-                 "TYPE F F F F\nCOUNT 1 1 1 1\nWIDTH %d\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS %d\nDATA binary\n"
-                 % (len(pts), len(pts))).encode())
-        f.write(pts.astype("<f4").tobytes())
-
-
-def read_pcd_binary(path):
-    with open(path, "rb") as f:
-        n = 0
-        while True:
-            line = f.readline()
-            if line.startswith(b"POINTS"):
-                n = int(line.split()[1])
-            if line.startswith(b"DATA"):
-                assert b"binary" in line
-                break
-        return np.frombuffer(f.read(n * 16), dtype="<f4").reshape(n, 4)
-
-
 def write_cropped_map(gt, path, margin=70):
     """The default map cropped to the drive's surroundings: it loads in about a second."""
-    pts = read_pcd_binary(ROOT / "maps" / "default" / "map.pcd")
-    lo, hi = gt[:, 1:3].min(0) - margin, gt[:, 1:3].max(0) + margin
-    write_pcd(path, pts[(pts[:, 0] > lo[0]) & (pts[:, 0] < hi[0]) & (pts[:, 1] > lo[1]) & (pts[:, 1] < hi[1])])
+    lb.crop_map(ROOT / "maps" / "default" / "map.pcd", gt, path, margin)
 
 
 @pytest.fixture(scope="module")
@@ -220,8 +197,8 @@ def test_tiles_of_another_map_are_refused(drive, tmp_path):
     site.mkdir()
     for name in ("site.yaml", "map.tiles"):
         shutil.copy(drive["site"] / name, site / name)
-    pts = read_pcd_binary(drive["site"] / "map.pcd")
-    write_pcd(site / "map.pcd", pts[:-1])   # one point less: another map
+    pts = lb.read_pcd(drive["site"] / "map.pcd")
+    lb.write_pcd(site / "map.pcd", pts[:-1])   # one point less: another map
     out = tmp_path / "o.lcm"
     p = run([BIN / "localizer", "--site", site, "--replay", drive["log"], "--out", out], check=False, timeout=60)
     assert p.returncode == 1
