@@ -13,7 +13,7 @@
  * inconsistency, not the frame). Rounds repeat until the largest move is
  * below stop_m or max_rounds.
  *
- * How good the result is, measured by pb_refine_poses itself (refine_report_t):
+ * How good the result is, measured by pb_refine_poses itself (pb_refine_report_t):
  *   edge residuals: how far each pair's registration disagrees with the
  *     solved poses (translation, m);
  *   leave-one-out: each scan registered to a map of all the other scans near
@@ -43,9 +43,9 @@ typedef struct {
     double min_pair_inliers = 0.3;   /* a pair registration with a smaller inlier share gives no edge */
     int coarse_iterations = 0;       /* pb_reg_config_t's coarse retry; 0 = fine level only (the input
                                       * is within a metre, and the coarse level can alias repeated structure) */
-} refine_config_t;
+} pb_refine_config_t;
 
-void refine_config_default(refine_config_t *cfg);
+void pb_refine_config_default(pb_refine_config_t *cfg);
 
 typedef struct {
     int rounds;
@@ -56,12 +56,12 @@ typedef struct {
     int kept;                           /* scans with no edge in the last round (left where the graph puts them) */
     int edges;                          /* pair registrations used in the last round */
     std::vector<double> edge_resid_m;   /* per edge: translation residual at the solution */
-} refine_report_t;
+} pb_refine_report_t;
 
 /* Refines poses (n of them, in/out) of scans[k] (xyz interleaved, sensor frame).
  * progress (may be NULL) is called after each round with (round, largest move). */
-int refine_poses(const std::vector<std::vector<float>> &scans, std::vector<Eigen::Isometry3d> *poses,
-                 const refine_config_t *cfg, refine_report_t *report, void (*progress)(int, double, void *),
-                 void *user, pb_err_t *err);
+int pb_refine_poses(const std::vector<std::vector<float>> &scans, std::vector<Eigen::Isometry3d> *poses,
+                    const pb_refine_config_t *cfg, pb_refine_report_t *report, void (*progress)(int, double, void *),
+                    void *user, pb_err_t *err);
 
 #endif
