@@ -116,6 +116,11 @@ static void print_row(const char *method, const char *start, int nscans, const R
 
 static void json_run(FILE *f, const char *name, const Run &r, bool last)
 {
+    if (r.ms.empty()) {   /* a run that did not happen (e.g. --baseline-every 0): no figures, valid JSON */
+        std::fprintf(f, "  \"%s\": {\"n\": 0, \"ms_median\": null, \"ms_p99\": null, \"t_median\": null, "
+                     "\"t_p99\": null, \"yaw_p99\": null, \"converged\": null}%s\n", name, last ? "" : ",");
+        return;
+    }
     std::fprintf(f, "  \"%s\": {\"n\": %zu, \"ms_median\": %.4f, \"ms_p99\": %.4f, \"t_median\": %.5f, "
                  "\"t_p99\": %.5f, \"yaw_p99\": %.5f, \"converged\": %.4f}%s\n", name, r.ms.size(),
                  pct(r.ms, 50), pct(r.ms, 99), pct(r.terr, 50), pct(r.terr, 99), pct(r.yerr, 99),
