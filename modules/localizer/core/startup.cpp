@@ -175,7 +175,7 @@ bool global_search(localizer_t *L, pb_reg_result_t *res, outputs_t *out)
     }
     /* rows of trees, parallel carriageways, a road alike both ways: a place that another
      * one far from it (or the other way round) fits about as well is not known yet */
-    if (rival > L->cfg.rival_ratio * fit) {
+    if (fit >= L->cfg.min_structure_inliers && rival > L->cfg.rival_ratio * fit) {
         event(out, "global_ambiguous", "global search: two places %.0f+ m or %.0f+ deg apart fit this sweep alike "
               "(%.0f%% and %.0f%% of the structure); still searching", L->cfg.rival_m, L->cfg.rival_yaw_deg, 100 * fit,
               100 * rival);
