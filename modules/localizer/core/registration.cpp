@@ -236,8 +236,6 @@ void fill_result(const Level &lv, const float *pts, size_t n, const Eigen::Isome
         double lo = std::max(et.eigenvalues()(0), 1e-12);
         res->condition = et.eigenvalues()(2) / lo;
         double sigma2 = std::max(ss / std::max(acc.matched - 6, 1), 1e-6);
-        double wmean = acc.wsum / acc.matched;   /* IRLS weights shrink H; undo their mean */
-        (void)wmean;
         H.diagonal().array() += 1e-6 * H.trace() / 6.0 + 1e-9;
         res->covariance = sigma2 * H.inverse();
     } else {
