@@ -75,6 +75,15 @@ static int torn_end(pb_log_t *log, int64_t at, int64_t have, int64_t need)
 
 const char *pb_log_torn(const pb_log_t *log) { return log && log->torn[0] ? log->torn : NULL; }
 
+int pb_log_pose(const pb_event_t *ev, portobello_pose_t *msg, pb_transform_t *pose, pb_err_t *err)
+{
+    if (portobello_pose_t_decode(ev->data, 0, ev->datalen, msg) < 0)
+        return pb_err_set(err, "byte %lld: %s does not decode as pose_t", (long long)ev->offset, ev->channel);
+    memcpy(pose->t, msg->position, sizeof pose->t);
+    memcpy(pose->q, msg->orientation, sizeof pose->q);
+    return 0;
+}
+
 int pb_log_next(pb_log_t *log, pb_event_t *ev, pb_err_t *err)
 {
     if (log && log->torn[0]) return 0;

@@ -13,6 +13,8 @@
 #include <stdint.h>
 #include <stdlib.h>
 #include "pb_err.h"
+#include "pb_math.h"
+#include "portobello_pose_t.h"
 
 #ifdef __cplusplus
 extern "C" {
@@ -37,6 +39,10 @@ pb_log_t *pb_log_open_write(const char *path, pb_err_t *err);
  * (a torn event: a recording cut by a power loss) ends there: 0, with a warning naming
  * the byte offset printed to stderr and kept for pb_log_torn. */
 int pb_log_next(pb_log_t *log, pb_event_t *ev, pb_err_t *err);
+/* A pose_t event (GROUND_TRUTH, POSE...): the message, and its pose (map <- the message's
+ * frame) as a transform. Returns 0, or -1 if it does not decode (err: "byte N: CHANNEL
+ * does not decode as pose_t"). */
+int pb_log_pose(const pb_event_t *ev, portobello_pose_t *msg, pb_transform_t *pose, pb_err_t *err);
 /* The torn-event warning once pb_log_next met one, else NULL. */
 const char *pb_log_torn(const pb_log_t *log);
 

@@ -1,5 +1,6 @@
-"""Localizer integration tests on a short simulated drive (loose bounds; the figures
-are measured by `make bench-localizer-drive`).
+"""Localizer integration tests on a short simulated drive (bounds about three times the
+figures these tests measured, each commented; the module's figures are measured by
+`make bench-localizer-drive`).
 
 The site is the default site with its prior map cropped to the drive's surroundings
 (so each run loads in about a second); the drive is simdrive (12 s, normal profile)
@@ -24,32 +25,9 @@ import locbench as lb  # noqa: E402
 FAULT = ROOT / "tools" / "log-fault" / "log_fault.py"
 
 
-def write_pcd(path, pts):
-    with open(path, "wb") as f:
-        f.write(("# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\nFIELDS x y z intensity\nSIZE 4 4 4 4\n"
-                 "TYPE F F F F\nCOUNT 1 1 1 1\nWIDTH %d\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS %d\nDATA binary\n"
-                 % (len(pts), len(pts))).encode())
-        f.write(pts.astype("<f4").tobytes())
-
-
-def read_pcd_binary(path):
-    with open(path, "rb") as f:
-        n = 0
-        while True:
-            line = f.readline()
-            if line.startswith(b"POINTS"):
-                n = int(line.split()[1])
-            if line.startswith(b"DATA"):
-                assert b"binary" in line
-                break
-        return np.frombuffer(f.read(n * 16), dtype="<f4").reshape(n, 4)
-
-
 def write_cropped_map(gt, path, margin=70):
     """The default map cropped to the drive's surroundings: it loads in about a second."""
-    pts = read_pcd_binary(ROOT / "maps" / "default" / "map.pcd")
-    lo, hi = gt[:, 1:3].min(0) - margin, gt[:, 1:3].max(0) + margin
-    write_pcd(path, pts[(pts[:, 0] > lo[0]) & (pts[:, 0] < hi[0]) & (pts[:, 1] > lo[1]) & (pts[:, 1] < hi[1])])
+    lb.crop_map(ROOT / "maps" / "default" / "map.pcd", gt, path, margin)
 
 
 @pytest.fixture(scope="module")
@@ -108,9 +86,11 @@ def test_gnss_start_tracks_accurately_and_deterministically(drive, tmp_path):
     r = lb.score_run(drive["drive"], out1)
     n_scans = sum(1 for _ in read_log(drive["drive"], {"LIDAR_SCAN"}))
     assert r["poses"] == n_scans, "one POSE per sweep"
-    assert r["first_tracking_s"] <= 3.0
+    # bounds ~3x the figures measured on this drive (23 Nov 2026; replay is deterministic):
+    # tracking after 0.2 s, median 0.011 m, p99 0.020 m, yaw p99 0.006 deg
+    assert r["first_tracking_s"] <= 0.6, r
     assert r["lost_after_tracking"] == 0 and r["not_tracking_after"] == 0
-    assert r["t_median"] < 0.05 and r["t_p99"] < 0.3 and r["yaw_p99"] < 1.0, r
+    assert r["t_median"] < 0.033 and r["t_p99"] < 0.06 and r["yaw_p99"] < 0.02, r
     assert r["pred_rate_hz"] >= 190, r
     st = last_status_msg(out1)
     assert st.module == "localizer"
@@ -127,8 +107,9 @@ def test_site_with_only_a_map_and_lidar_alone(drive, tmp_path):
                  f"--initial-pose={x},{y},{z},0,0,{math.degrees(yaw)}", site=drive["only_map"])
     assert "no site.yaml" in p.stderr
     r = lb.score_run(drive["drive"], out)
-    assert r["first_tracking_s"] <= 1.0 and r["lost_after_tracking"] == 0
-    assert r["t_median"] < 0.1 and r["t_p99"] < 0.5, r
+    # measured: tracking after 0.2 s, median 0.010 m, p99 0.040 m (LiDAR alone)
+    assert r["first_tracking_s"] <= 0.6 and r["lost_after_tracking"] == 0, r
+    assert r["t_median"] < 0.03 and r["t_p99"] < 0.12, r
     # without IMU, POSE_PREDICTED still comes at 200 Hz from the timer
     assert r["pred_rate_hz"] >= 190
 
@@ -143,7 +124,7 @@ def test_lidar_gap_runs_on_prediction(drive, tmp_path):
     assert len(gap) >= 20, "POSE goes on during the gap"
     assert set(gap[:, 5]) == {2}, "degraded while the LiDAR is missing"
     _, et, _ = lb.errors_vs_truth(gap, drive["gt"])
-    assert et[-1] < 1.0
+    assert et[-1] < 0.25, et[-1]     # measured 0.085 m after the gap
     after = poses[poses[:, 0] >= t0 + 7e6]
     assert after[1, 5] == 1 or after[0, 5] == 1, "tracking again within 2 sweeps"
     assert counters(last_status_msg(out)).get("lidar_gap") == 1
@@ -157,11 +138,11 @@ def test_wrong_initial_pose_is_reported_lost_and_relocalized(drive, tmp_path):
     poses = lb.read_poses(out, "POSE")
     after = poses[poses[:, 0] >= tj]
     lost = np.nonzero(after[:, 5] == 3)[0]
-    assert len(lost) and (after[lost[0], 0] - tj) <= 1e6, "lost within 1 s"
+    assert len(lost) and (after[lost[0], 0] - tj) <= 0.3e6, "lost within 0.3 s (measured 0.1 s)"
     back = np.nonzero(after[lost[0]:, 5] == 1)[0]
-    assert len(back) and (after[lost[0] + back[0], 0] - tj) <= 5e6, "relocalized within 5 s"
+    assert len(back) and (after[lost[0] + back[0], 0] - tj) <= 1e6, "relocalized within 1 s (measured 0.3 s)"
     _, et, _ = lb.errors_vs_truth(after[after[:, 5] == 1], drive["gt"])
-    assert et.max() < 0.5, "never tracking at the wrong pose"
+    assert et.max() < 0.06, ("never tracking at the wrong pose (measured max 0.020 m)", et.max())
 
 
 def test_gnss_jump_is_not_followed(drive, tmp_path):
@@ -171,7 +152,7 @@ def test_gnss_jump_is_not_followed(drive, tmp_path):
     localize(drive, flog, out)
     r = lb.score_run(drive["drive"], out)
     assert r["lost_after_tracking"] == 0 and r["not_tracking_after"] == 0
-    assert r["t_p99"] < 0.3, r
+    assert r["t_p99"] < 0.06, r      # measured 0.020 m
     assert counters(last_status_msg(out)).get("gnss_outlier", 0) > 0
 
 
@@ -194,7 +175,7 @@ def test_bad_input_is_counted_not_fatal(drive, tmp_path):
     s = statuses(out)
     assert s[-1] == 1 and 3 not in s, "keeps tracking through bad input"
     r = lb.score_run(drive["drive"], out)
-    assert r["t_p99"] < 0.3, r
+    assert r["t_p99"] < 0.06, r      # measured 0.021 m
 
 
 @pytest.mark.parametrize("what", ["missing", "corrupt", "no-site"])
@@ -220,8 +201,8 @@ def test_tiles_of_another_map_are_refused(drive, tmp_path):
     site.mkdir()
     for name in ("site.yaml", "map.tiles"):
         shutil.copy(drive["site"] / name, site / name)
-    pts = read_pcd_binary(drive["site"] / "map.pcd")
-    write_pcd(site / "map.pcd", pts[:-1])   # one point less: another map
+    pts = lb.read_pcd(drive["site"] / "map.pcd")
+    lb.write_pcd(site / "map.pcd", pts[:-1])   # one point less: another map
     out = tmp_path / "o.lcm"
     p = run([BIN / "localizer", "--site", site, "--replay", drive["log"], "--out", out], check=False, timeout=60)
     assert p.returncode == 1
@@ -232,7 +213,7 @@ def test_tiles_of_another_map_are_refused(drive, tmp_path):
     (site / "map.tiles").unlink()
     p = localize(drive, drive["log"], out, site=site)
     assert "no map.tiles" in p.stderr
-    assert lb.score_run(drive["drive"], out)["t_p99"] < 0.3
+    assert lb.score_run(drive["drive"], out)["t_p99"] < 0.06     # measured 0.020 m
 
 
 def run_rss(args):
@@ -274,8 +255,9 @@ def test_default_site_is_paged(drive, tmp_path):
     c = counters(last_status_msg(out))
     assert c.get("map_tile_loaded", 0) > 0, c
     r = lb.score_run(drive["drive"], out)
-    assert r["first_tracking_s"] <= 3.0 and r["lost_after_tracking"] == 0
-    assert r["t_median"] < 0.05 and r["t_p99"] < 0.3, r
+    # measured: tracking after 0.2 s, median 0.011 m, p99 0.020 m
+    assert r["first_tracking_s"] <= 0.6 and r["lost_after_tracking"] == 0, r
+    assert r["t_median"] < 0.033 and r["t_p99"] < 0.06, r
     # measured: peak RSS 52 MB on this 12 s drive, 59-64 MB on the 232 s lap (the whole map
     # held: about 167 MB, 356 MB peak while loading map.pcd); 150 MB is the target
     print(f"default site, GNSS start, 12 s: peak RSS {peak:.1f} MB")
@@ -292,8 +274,8 @@ def test_no_prior_start_on_the_paged_default_site(drive, tmp_path):
     assert rc == 0, err
     poses = lb.read_poses(out, "POSE")
     k = first_tracking(poses)
-    # measured: tracking after 0.2 s (3rd sweep), peak RSS 63 MB; 150 MB is the target
-    assert k is not None and (poses[k, 0] - poses[0, 0]) <= 5.0e6, "tracking within 5 s"
+    # measured: tracking after 0.2 s (3rd sweep), max error 0.067 m, peak RSS 63 MB; 150 MB is the target
+    assert k is not None and (poses[k, 0] - poses[0, 0]) <= 0.6e6, "tracking within 0.6 s"
     _, et, _ = lb.errors_vs_truth(poses[k:][poses[k:, 5] == 1], drive["gt"])
     assert et.max() < 0.2, et.max()
     c = counters(last_status_msg(out))
@@ -371,8 +353,8 @@ def test_live_bus(drive, tmp_path):
         finally:
             if proc.poll() is None:
                 proc.kill()
-    assert len(got["POSE"]) >= 10
-    assert len(got["POSE_PREDICTED"]) >= 200
+    assert len(got["POSE"]) >= 12, len(got["POSE"])                          # measured 38
+    assert len(got["POSE_PREDICTED"]) >= 240, len(got["POSE_PREDICTED"])      # measured 716
     assert any(p.status == pose_t.STATUS_TRACKING for p in got["POSE"]), [p.status for p in got["POSE"]]
     assert got["STATUS"][-1].module == "localizer"
 
@@ -439,7 +421,7 @@ def test_live_search_skips_sweeps_that_went_stale_in_the_queue(drive, tmp_path):
     # machine was less loaded (the search's speed, not the skip, sets that). The lateness
     # bound is under 2x the measured figure on purpose: searching the 10 stalled sweeps in
     # turn (no skip) makes the last of them 10 searches late, 5-10 s here.
-    assert c.get("scan_stale_skipped", 0) >= 5, c
+    assert c.get("scan_stale_skipped", 0) >= 6, c     # measured 18
     assert searched <= 2, searched
     assert max(late) < 3.0, late
     assert trk, ([p.status for p in got["POSE"]], err.read_text())
@@ -475,7 +457,7 @@ def test_moving_lidar_only_start_from_a_rough_prior(drive, tmp_path):
     # measured: tracking at the 3rd sweep (0.2 s), worst error while tracking 0.0xx m
     assert k is not None and (poses[k, 0] - poses[0, 0]) <= 1.0e6, "tracking within 1 s"
     _, et, ey = lb.errors_vs_truth(poses[k:][poses[k:, 5] == 1], drive["gt"])
-    assert et.max() < 0.2 and ey.max() < 1.0, (et.max(), ey.max())
+    assert et.max() < 0.12 and ey.max() < 0.2, (et.max(), ey.max())     # measured 0.041 m, 0.069 deg
     assert 3 not in poses[k:, 5]
 
 
@@ -520,8 +502,8 @@ def test_no_prior_start_searches_the_map(drive, tmp_path):
     p = localize(drive, log, out)
     poses = lb.read_poses(out, "POSE")
     k = first_tracking(poses)
-    # measured: tracking after x.x s
-    assert k is not None and (poses[k, 0] - poses[0, 0]) <= 5.0e6, "tracking within 5 s"
+    # measured: tracking after 0.2 s, max error 0.067 m
+    assert k is not None and (poses[k, 0] - poses[0, 0]) <= 0.6e6, "tracking within 0.6 s"
     _, et, _ = lb.errors_vs_truth(poses[k:][poses[k:, 5] == 1], drive["gt"])
     assert et.max() < 0.2, et.max()
     # with the search switched off there is no pose: STATUS says why, and every POSE says it is
@@ -555,9 +537,9 @@ def test_lidar_outage_is_lost_by_time_then_recovers(drive, tmp_path):
     assert 1.9e6 <= lost[0, 0] - last_before <= 2.3e6, (lost[0, 0] - last_before) * 1e-6
     back = poses[poses[:, 0] >= t0 + 8e6]
     k = first_tracking(back)
-    assert k is not None and back[k, 0] - (t0 + 8e6) <= 5e6, "tracking within 5 s of the return"
+    assert k is not None and back[k, 0] - (t0 + 8e6) <= 1e6, "tracking within 1 s of the return (measured 0.3 s)"
     _, et, _ = lb.errors_vs_truth(back[k:][back[k:, 5] == 1], drive["gt"])
-    assert et.max() < 0.2
+    assert et.max() < 0.06, et.max()     # measured 0.020 m
     assert counters(last_status_msg(out)).get("lidar_outage") == 1
     assert len(scans) > 0
 
@@ -568,8 +550,8 @@ def test_gnss_clock_offset_is_found_reported_and_taken_out(drive, tmp_path):
     localize(drive, flog, out)
     r = lb.score_run(drive["drive"], out)
     # measured: tracking 0.x s after the first sweep
-    assert r["first_tracking_s"] <= 3.0, r
-    assert r["lost_after_tracking"] == 0 and r["t_p99"] < 0.3, r
+    assert r["first_tracking_s"] <= 0.6, r     # measured 0.2 s
+    assert r["lost_after_tracking"] == 0 and r["t_p99"] < 0.06, r     # measured 0.020 m
     st = last_status_msg(out)
     assert counters(st).get("gnss_clock_offset", 0) >= 1
     from portobello import status_t
@@ -673,5 +655,5 @@ def test_reversing_keeps_tracking(reverse_drive, tmp_path, mode):
     # measured while backing (51 POSE): IMU + CAN without gear p99 0.074 m (the first
     # 0.2 s of the departure, before the IMU has told the direction), LiDAR-only p99
     # 0.009 m; yaw p99 0.003-0.004 degrees in both
-    bound = 0.2 if mode == "imu_can_no_gear" else 0.03
-    assert np.percentile(et, 99) < bound and np.percentile(ey, 99) < 0.015, (np.percentile(et, 99), np.percentile(ey, 99))
+    bound = 0.2 if mode == "imu_can_no_gear" else 0.026
+    assert np.percentile(et, 99) < bound and np.percentile(ey, 99) < 0.011, (np.percentile(et, 99), np.percentile(ey, 99))

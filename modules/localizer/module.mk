@@ -18,3 +18,95 @@ bench-localizer-memory: $(BIN)/localizer $(BIN)/simdrive $(BIN)/can $(BIN)/log-m
 
 # Unit tests of the filter (run by tests/test_c_units.py).
 $(eval $(call cxx_test,test_localizer_filter,modules/localizer/core/filter.cpp tests/c/test_localizer_filter.cpp))
+
+# bench-localizer: the localizer's scan-to-map registration vs PCL NDT and small_gicp
+# (bench/bench_main.cpp; bench/bench_gicp.py runs the small_gicp half).
+$(eval $(call cxx_program,bench-localizer,modules/localizer/bench modules/localizer/core,$(shell pkg-config --libs pcl_registration pcl_kdtree pcl_search 2>/dev/null)))
+$(OBJ)/modules/localizer/bench/%.o: CPPFLAGS += -I$(TOP)/modules/localizer/core
+
+.PHONY: bench-localizer bench-localizer-real
+BENCH_TARGETS += bench-localizer
+
+# A 60 s drive on the default site (drive day: other parked cars, traffic), every 2nd
+# scan (~300) for ours, every 15th of those (~20) for the baselines as well.
+LOCREG_BENCH := $(BUILD)/bench/localizer
+$(LOCREG_BENCH)/drive.lcm: $(BIN)/simdrive maps/default/map.pcd vehicles/prius2017.yaml
+	@echo "  SIM     $(@D) (60 s, seed 11)"
+	@rm -rf $(@D).tmp && $(BIN)/simdrive --seed 11 --duration 60 --speed-profile normal --quiet \
+	    --site maps/default --vehicle vehicles/prius2017.yaml --out $(@D).tmp && \
+	  mkdir -p $(@D) && mv $(@D).tmp/drive.lcm $@ && rm -rf $(@D).tmp
+
+bench-localizer: $(BIN)/bench-localizer $(LOCREG_BENCH)/drive.lcm $(DEPS)
+	@$(BIN)/bench-localizer --log $(LOCREG_BENCH)/drive.lcm --map maps/default/map.pcd \
+	    --vehicle vehicles/prius2017.yaml --every 2 --baseline-every 15 \
+	    --dump $(LOCREG_BENCH)/baseline.bin --json $(LOCREG_BENCH)/results.json
+	@$(VPY) modules/localizer/bench/bench_gicp.py $(LOCREG_BENCH)/baseline.bin $(LOCREG_BENCH)/results.json
+
+# Unit tests of the registration core (run by make test through tests/test_c_units.py).
+LOCREG_CORE := modules/localizer/core/registration.cpp modules/localizer/core/regmap.cpp modules/localizer/core/deskew.cpp \
+               modules/localizer/core/map_tiles.cpp modules/localizer/core/refine.cpp \
+               modules/localizer/core/places.cpp
+$(eval $(call cxx_test,test_registration,tests/c/test_registration.cpp $(LOCREG_CORE)))
+$(OBJ)/tests/c/test_registration.o: CPPFLAGS += -I$(TOP)/modules/localizer/core
+
+# Real LiDAR (optional; reads ../shared/data, never copied into the project).
+# 1. MulRan Riverside02 keyframes: the dataset's SLAM poses are refined first
+#    (reference.py: a pose graph over pairwise small_gicp GICP registrations, so the
+#    reference does not come from the registration under test), the map is built
+#    from the even scans at the refined poses, and every 2nd odd scan is localized
+#    against the refined reference: from tracking starts (5 cm) and from
+#    LOCREAL_STARTS starts per scan drawn uniformly within 3 m / 15 deg (ours: the
+#    relocalisation search pb_reg_align_global around the start; baselines: aligned
+#    from the start). Baselines (PCL NDT at 1 and 2 m, small_gicp GICP and VGICP) on
+#    every LOCREAL_BASE_EVERY-th of those scans, same reduced points and starts.
+# 2. The HDL-32E pair (tests/data, BSD-3): the first scan is the map, the second is
+#    localized from 100 starts within 3 m / 15 deg; reference = relative.txt.
+MULRAN := $(abspath $(TOP)/../shared/data/lidar_seq_mulran_riverside02_part1)
+LOCREG_REAL := $(BUILD)/bench/localizer-real
+LOCREAL_STARTS ?= 20
+LOCREAL_BASE_EVERY ?= 3
+LOCREAL_CUTS ?= 10
+LOCREAL_GUESSES ?= 30
+LOCREAL_GLOBAL ?= 10
+LOCREAL_BENCH = --global 3,15 --converge 0.2 --ndt-res 1,2
+bench-localizer-real: $(BIN)/bench-localizer $(BIN)/import-scans $(DEPS)
+	@mkdir -p $(LOCREG_REAL)/hdl32/scans && \
+	echo "== HDL-32E pair (tests/data/lidar_pair_hdl32): map = first scan, second localized from 100 starts" && \
+	ln -sf $(TOP)/tests/data/lidar_pair_hdl32/251370668.pcd $(TOP)/tests/data/lidar_pair_hdl32/251371071.pcd $(LOCREG_REAL)/hdl32/scans/ && \
+	{ echo "1 0 0 0 0 1 0 0 0 0 1 0"; awk 'NR<=3{printf "%s %s %s %s%s", $$1, $$2, $$3, $$4, NR<3?" ":"\n"}' \
+	    tests/data/lidar_pair_hdl32/relative.txt; } > $(LOCREG_REAL)/hdl32/poses.txt && \
+	$(BIN)/import-scans --scans $(LOCREG_REAL)/hdl32/scans --poses $(LOCREG_REAL)/hdl32/poses.txt --every 2 \
+	    --map-out $(LOCREG_REAL)/hdl32/map.pcd --voxel 0 --out $(LOCREG_REAL)/hdl32/even.lcm --quiet && \
+	$(BIN)/import-scans --scans $(LOCREG_REAL)/hdl32/scans --poses $(LOCREG_REAL)/hdl32/poses.txt \
+	    --out $(LOCREG_REAL)/hdl32/all.lcm --quiet && \
+	$(BIN)/bench-localizer --log $(LOCREG_REAL)/hdl32/all.lcm --map $(LOCREG_REAL)/hdl32/map.pcd --odd \
+	    $(LOCREAL_BENCH) --starts 100 --baseline-every 1 --seed 1 \
+	    --dump $(LOCREG_REAL)/hdl32/baseline.bin --json $(LOCREG_REAL)/hdl32-results.json && \
+	$(VPY) modules/localizer/bench/bench_gicp.py $(LOCREG_REAL)/hdl32/baseline.bin $(LOCREG_REAL)/hdl32-results.json
+	@if [ ! -d "$(MULRAN)" ]; then echo "bench-localizer-real: MulRan part skipped, $(MULRAN) is absent"; exit 0; fi; \
+	echo "== MulRan Riverside02: reference = LiDAR odometry + pose graph over the dataset's keyframes" && \
+	$(VPY) modules/localizer/bench/reference.py --scans $(MULRAN)/Scans --poses $(MULRAN)/optimized_poses.txt \
+	    --times $(MULRAN)/times.txt --threads 2 \
+	    --out $(LOCREG_REAL)/refined_poses.txt --report $(LOCREG_REAL)/reference-report.json && \
+	$(BIN)/import-scans --scans $(MULRAN)/Scans --poses $(LOCREG_REAL)/refined_poses.txt --times $(MULRAN)/times.txt \
+	    --every 2 --map-out $(LOCREG_REAL)/map.pcd --voxel 0.15 --out $(LOCREG_REAL)/even.lcm --quiet && \
+	$(BIN)/import-scans --scans $(MULRAN)/Scans --poses $(LOCREG_REAL)/refined_poses.txt --times $(MULRAN)/times.txt \
+	    --out $(LOCREG_REAL)/all.lcm --quiet && \
+	echo "== MulRan Riverside02 against the refined reference: every 2nd odd scan, $(LOCREAL_STARTS) starts each" && \
+	$(BIN)/bench-localizer --log $(LOCREG_REAL)/all.lcm --map $(LOCREG_REAL)/map.pcd --odd --every 2 \
+	    $(LOCREAL_BENCH) --starts $(LOCREAL_STARTS) --baseline-every $(LOCREAL_BASE_EVERY) --seed 1 \
+	    --dump $(LOCREG_REAL)/baseline.bin --json $(LOCREG_REAL)/results.json && \
+	$(VPY) modules/localizer/bench/bench_gicp.py $(LOCREG_REAL)/baseline.bin $(LOCREG_REAL)/results.json && \
+	echo "== MulRan Riverside02, the whole localizer: the odd scans replayed, LiDAR alone, site = the even scans" && \
+	rm -rf $(LOCREG_REAL)/odd $(LOCREG_REAL)/site && mkdir -p $(LOCREG_REAL)/odd/scans $(LOCREG_REAL)/site && \
+	for f in $$(ls $(MULRAN)/Scans | awk 'NR % 2 == 0'); do ln -s $(MULRAN)/Scans/$$f $(LOCREG_REAL)/odd/scans/; done && \
+	awk 'NR % 2 == 0' $(LOCREG_REAL)/refined_poses.txt > $(LOCREG_REAL)/odd/poses.txt && \
+	awk 'NR % 2 == 0' $(MULRAN)/times.txt > $(LOCREG_REAL)/odd/times.txt && \
+	$(BIN)/import-scans --scans $(MULRAN)/Scans --poses $(LOCREG_REAL)/refined_poses.txt --times $(MULRAN)/times.txt \
+	    --vehicle vehicles/lidar_mast.yaml --every 2 --map-out $(LOCREG_REAL)/site/map.pcd --voxel 0.15 \
+	    --out $(LOCREG_REAL)/site/even.lcm --quiet && \
+	$(BIN)/import-scans --scans $(LOCREG_REAL)/odd/scans --poses $(LOCREG_REAL)/odd/poses.txt \
+	    --times $(LOCREG_REAL)/odd/times.txt --vehicle vehicles/lidar_mast.yaml --out $(LOCREG_REAL)/odd/odd.lcm --quiet && \
+	nice $(VPY) modules/localizer/bench/real_starts.py --log $(LOCREG_REAL)/odd/odd.lcm --site $(LOCREG_REAL)/site \
+	    --vehicle vehicles/lidar_mast.yaml --cuts $(LOCREAL_CUTS) --guesses $(LOCREAL_GUESSES) --global $(LOCREAL_GLOBAL) \
+	    --json $(LOCREG_REAL)/starts.json

@@ -114,6 +114,24 @@ int main(void)
     n = read_all(tpath, &rc, &err, NULL);
     CHECK(n == 0 && rc == 0);
 
+    /* A pose_t event: message and transform; one that does not decode names channel and byte. */
+    portobello_pose_t pose = {0};
+    pose.utime = 42;
+    pose.position[0] = 1.5; pose.position[2] = -2;
+    pose.orientation[0] = 0.5; pose.orientation[3] = 0.25;
+    uint8_t pbuf[1024];
+    int plen = portobello_pose_t_encode(pbuf, 0, sizeof pbuf, &pose);
+    CHECK(plen > 0);
+    pb_event_t pev = { .channel = "GROUND_TRUTH", .data = pbuf, .datalen = plen, .offset = 4096 };
+    portobello_pose_t got;
+    pb_transform_t T;
+    CHECK(pb_log_pose(&pev, &got, &T, &err) == 0);
+    CHECK(got.utime == 42 && T.t[0] == 1.5 && T.t[1] == 0 && T.t[2] == -2);
+    CHECK(T.q[0] == 0.5 && T.q[1] == 0 && T.q[3] == 0.25);
+    pev.datalen = plen - 1;
+    CHECK(pb_log_pose(&pev, &got, &T, &err) == -1);
+    CHECK_CONTAINS(err.msg, "byte 4096: GROUND_TRUTH does not decode as pose_t");
+
     CHECK(pb_log_open_read("/nonexistent/x.lcm", &err) == NULL);
     CHECK_CONTAINS(err.msg, "/nonexistent/x.lcm: cannot open");
     CHECK(pb_log_open_write("/nonexistent/dir/x.lcm", &err) == NULL);

@@ -488,9 +488,9 @@ static void test_refine(void)
         poses.push_back(P);
     }
     double before = rms_after_rigid(poses, truth);
-    refine_report_t rep;
+    pb_refine_report_t rep;
     pb_err_t err;
-    CHECK(refine_poses(scans, &poses, nullptr, &rep, nullptr, nullptr, &err) == 0);
+    CHECK(pb_refine_poses(scans, &poses, nullptr, &rep, nullptr, nullptr, &err) == 0);
     double after = rms_after_rigid(poses, truth);
     std::vector<double> loo = rep.loo_m;
     std::sort(loo.begin(), loo.end());
@@ -506,7 +506,7 @@ static void test_refine(void)
     CHECK(rep.fit_after[10] > rep.fit_before[10]);
     /* bad input: named */
     std::vector<Eigen::Isometry3d> two(2);
-    CHECK(refine_poses(scans, &two, nullptr, &rep, nullptr, nullptr, &err) == -1);
+    CHECK(pb_refine_poses(scans, &two, nullptr, &rep, nullptr, nullptr, &err) == -1);
     CHECK_CONTAINS(err.msg, "refine");
 }
 

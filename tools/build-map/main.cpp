@@ -109,17 +109,13 @@ int main(int argc, char **argv)
         if (std::strcmp(ev.channel, scan_ch) == 0) { nscans_total++; continue; }
         if (std::strcmp(ev.channel, pose_ch) != 0) continue;
         portobello_pose_t p;
-        if (portobello_pose_t_decode(ev.data, 0, ev.datalen, &p) < 0) {
-            std::fprintf(stderr, "build-map: %s: byte %lld: cannot decode %s as pose_t\n", log_path,
-                         (long long)ev.offset, ev.channel);
+        pb_transform_t x;
+        if (pb_log_pose(&ev, &p, &x, &err)) {
+            std::fprintf(stderr, "build-map: %s: %s\n", log_path, err.msg);
             pb_log_close(log, nullptr);
             return 1;
         }
-        pb_transform_t x;
-        for (int k = 0; k < 3; k++) x.t[k] = p.position[k];
-        for (int k = 0; k < 4; k++) x.q[k] = p.orientation[k];
         pb_pose_track_add(track, p.utime, &x);
-        portobello_pose_t_decode_cleanup(&p);
     }
     pb_log_close(log, nullptr);
     if (rc < 0) {

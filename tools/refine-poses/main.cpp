@@ -70,8 +70,8 @@ static void json_array(FILE *f, const char *name, const std::vector<double> &v, 
 int main(int argc, char **argv)
 {
     const char *log_path = nullptr, *out_path = nullptr, *report_path = nullptr;
-    refine_config_t cfg;
-    refine_config_default(&cfg);
+    pb_refine_config_t cfg;
+    pb_refine_config_default(&cfg);
     bool quiet = false;
     static const struct option opts[] = {{"log", 1, 0, 'l'}, {"out", 1, 0, 'o'}, {"report", 1, 0, 'r'},
                                          {"rounds", 1, 0, 'n'}, {"radius", 1, 0, 'R'}, {"neighbours", 1, 0, 'N'},
@@ -103,10 +103,8 @@ int main(int argc, char **argv)
     while ((rc = pb_log_next(log, &ev, &err)) == 1) {
         if (!std::strcmp(ev.channel, "GROUND_TRUTH")) {
             portobello_pose_t p;
-            if (portobello_pose_t_decode(ev.data, 0, ev.datalen, &p) < 0) continue;
             pb_transform_t T;
-            std::memcpy(T.t, p.position, sizeof T.t);
-            std::memcpy(T.q, p.orientation, sizeof T.q);
+            if (pb_log_pose(&ev, &p, &T, &err)) { std::fprintf(stderr, "refine-poses: %s: %s\n", log_path, err.msg); return 1; }
             truth[p.utime] = pb_reg_from_transform(&T);
         } else if (!std::strcmp(ev.channel, "LIDAR_SCAN")) {
             portobello_lidar_scan_t s;
@@ -139,8 +137,8 @@ int main(int argc, char **argv)
         scans.push_back(std::move(r.second));
         poses.push_back(it->second);
     }
-    refine_report_t rep;
-    if (refine_poses(scans, &poses, &cfg, &rep, progress, &quiet, &err) != 0) {
+    pb_refine_report_t rep;
+    if (pb_refine_poses(scans, &poses, &cfg, &rep, progress, &quiet, &err) != 0) {
         std::fprintf(stderr, "refine-poses: %s: %s\n", log_path, err.msg);
         return 1;
     }

@@ -65,15 +65,22 @@ def header():
           f"{'lat50ms':>7} {'lat99ms':>7} {'pred Hz':>6} {'pred p99':>7}")
 
 
-def fault_gap(d, log, extra=(), tag="gap"):
+def faulted(d, log, fault, tag, extra=()):
+    """log_fault.py FAULT... on log (written to d/fault_TAG.lcm), then the localizer on the
+    result (d/out_TAG.lcm). Returns (faulted log, output log, the localizer's stderr tail if it
+    failed else None)."""
     import subprocess
-    flog = d / "fault_gap.lcm"
-    subprocess.run([sys.executable, lb.ROOT / "tools/log-fault/log_fault.py", "lidar-gap", "--in", log, "--out", flog,
-                    "--at", "15", "--for", "3"], check=True, capture_output=True)
-    out = d / f"out_{tag}.lcm"
+    flog, out = d / f"fault_{tag}.lcm", d / f"out_{tag}.lcm"
+    subprocess.run([sys.executable, lb.ROOT / "tools/log-fault/log_fault.py", *fault, "--in", log, "--out", flog],
+                   check=True, capture_output=True)
     p = lb.run_localizer(flog, out, extra)
-    if p.returncode != 0:
-        return {"error": p.stderr[-300:]}
+    return flog, out, (p.stderr[-300:] if p.returncode != 0 else None)
+
+
+def fault_gap(d, log, extra=(), tag="gap"):
+    flog, out, error = faulted(d, log, ["lidar-gap", "--at", "15", "--for", "3"], tag, extra)
+    if error:
+        return {"error": error}
     gt = lb.read_poses(d / "drive.lcm", "GROUND_TRUTH")
     poses = lb.read_poses(out, "POSE")
     t0 = lb.read_channel_times(flog, "IMU")[0]
@@ -94,14 +101,9 @@ def fault_gap(d, log, extra=(), tag="gap"):
 
 
 def fault_jump(d, log, extra=(), tag="jump"):
-    import subprocess
-    flog = d / "fault_jump.lcm"
-    subprocess.run([sys.executable, lb.ROOT / "tools/log-fault/log_fault.py", "jump", "--in", log, "--out", flog,
-                    "--at", "15", "--metres", "20"], check=True, capture_output=True)
-    out = d / f"out_{tag}.lcm"
-    p = lb.run_localizer(flog, out, extra)
-    if p.returncode != 0:
-        return {"error": p.stderr[-300:]}
+    flog, out, error = faulted(d, log, ["jump", "--at", "15", "--metres", "20"], tag, extra)
+    if error:
+        return {"error": error}
     gt = lb.read_poses(d / "drive.lcm", "GROUND_TRUTH")
     tj = lb.read_events(flog, ["INITIAL_POSE"])[0][0]
     poses = lb.read_poses(out, "POSE")
@@ -248,16 +250,12 @@ def main():
 
 def fault_outage(d, log):
     """30 s without LIDAR_SCAN (IMU and CAN go on), no GNSS, default limit 10 s."""
-    import subprocess
-    flog = d / "fault_outage.lcm"
-    subprocess.run([sys.executable, lb.ROOT / "tools/log-fault/log_fault.py", "lidar-gap", "--in", log, "--out", flog,
-                    "--at", "5", "--for", "30"], check=True, capture_output=True)
     gt = lb.read_poses(d / "drive.lcm", "GROUND_TRUTH")
     x, y, z, yaw = gt[0, 1], gt[0, 2], gt[0, 3], gt[0, 4] * 180 / math.pi
-    out = d / "out_outage.lcm"
-    p = lb.run_localizer(flog, out, ["--no-gnss", f"--initial-pose={x},{y},{z},0,0,{yaw}"])
-    if p.returncode != 0:
-        return {"error": p.stderr[-300:]}
+    flog, out, error = faulted(d, log, ["lidar-gap", "--at", "5", "--for", "30"], "outage",
+                               ["--no-gnss", f"--initial-pose={x},{y},{z},0,0,{yaw}"])
+    if error:
+        return {"error": error}
     poses = lb.read_poses(out, "POSE")
     scans = lb.read_channel_times(flog, "LIDAR_SCAN")
     t0 = lb.read_channel_times(flog, "IMU")[0]
@@ -384,15 +382,10 @@ def fault_live_clock_step(d, log, seconds=10, url="udpm://239.255.76.67:7901?ttl
 
 
 def fault_gnss_clock(d, log):
-    import subprocess
     from portobello import status_t
-    flog = d / "fault_gnss_clock.lcm"
-    subprocess.run([sys.executable, lb.ROOT / "tools/log-fault/log_fault.py", "gnss-clock", "--in", log, "--out", flog,
-                    "--seconds", "2"], check=True, capture_output=True)
-    out = d / "out_gnss_clock.lcm"
-    p = lb.run_localizer(flog, out)
-    if p.returncode != 0:
-        return {"error": p.stderr[-300:]}
+    _, out, error = faulted(d, log, ["gnss-clock", "--seconds", "2"], "gnss_clock")
+    if error:
+        return {"error": error}
     r = lb.score_run(d / "drive.lcm", out)
     msgs = [status_t.decode(data) for _, _, data in lb.read_events(out, ["STATUS"])]
     r["reported"] = next((m.last_error for m in msgs if "clock" in m.last_error), None)

@@ -41,22 +41,7 @@ def crop_site(src_site, gt, out_dir, margin=90.0):
     for name in ("site.yaml",):
         if (src_site / name).exists():
             shutil.copy(src_site / name, site / name)
-    with open(src_site / "map.pcd", "rb") as f:
-        n = 0
-        while True:
-            line = f.readline()
-            if line.startswith(b"POINTS"):
-                n = int(line.split()[1])
-            if line.startswith(b"DATA"):
-                break
-        pts = np.frombuffer(f.read(n * 16), dtype="<f4").reshape(n, 4)
-    lo, hi = gt[:, 1:3].min(0) - margin, gt[:, 1:3].max(0) + margin
-    keep = pts[(pts[:, 0] > lo[0]) & (pts[:, 0] < hi[0]) & (pts[:, 1] > lo[1]) & (pts[:, 1] < hi[1])]
-    with open(site / "map.pcd", "wb") as f:
-        f.write(("# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\nFIELDS x y z intensity\nSIZE 4 4 4 4\n"
-                 "TYPE F F F F\nCOUNT 1 1 1 1\nWIDTH %d\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS %d\nDATA binary\n"
-                 % (len(keep), len(keep))).encode())
-        f.write(keep.astype("<f4").tobytes())
+    lb.crop_map(src_site / "map.pcd", gt, site / "map.pcd", margin)
     return site
 
 

@@ -200,21 +200,6 @@ double filter_update_speed(filter_t *f, double speed_mps)
     return kf_update<3>(f, r, H, Rn, true);
 }
 
-double filter_update_position_xy(filter_t *f, const Vec3 &base_point, double x, double y, double sigma)
-{
-    if (!f->initialized) return -1;
-    Eigen::Matrix3d R = f->q.toRotationMatrix();
-    Vec3 l = f->base_from_imu.inverse() * base_point;    /* the point in the imu frame */
-    Vec3 pm = f->p + R * l;
-    Eigen::Matrix<double, 2, 1> r(x - pm.x(), y - pm.y());
-    Eigen::Matrix<double, 3, 15> H3 = Eigen::Matrix<double, 3, 15>::Zero();
-    H3.block<3, 3>(0, IP).setIdentity();
-    H3.block<3, 3>(0, ITH) = -R * skew(l);
-    Eigen::Matrix<double, 2, 15> H = H3.topRows<2>();
-    Eigen::Matrix2d Rn = Eigen::Matrix2d::Identity() * sigma * sigma;
-    return kf_update<2>(f, r, H, Rn, true);
-}
-
 Eigen::Isometry3d filter_base_pose(const filter_t *f)
 {
     Eigen::Isometry3d mi = Eigen::Isometry3d::Identity();
@@ -242,12 +227,6 @@ Mat6 filter_base_covariance(const filter_t *f)
     c.block<3, 3>(0, 3) = f->P.block<3, 3>(IP, ITH) * R.transpose();
     c.block<3, 3>(3, 0) = c.block<3, 3>(0, 3).transpose();
     return c;
-}
-
-void filter_set_motion(filter_t *f, const Vec3 &v_map, const Vec3 &omega_imu)
-{
-    f->v = v_map;
-    f->omega = omega_imu;
 }
 
 } // namespace loc

@@ -85,19 +85,12 @@ double filter_pose_innovation(const filter_t *f, const Eigen::Isometry3d &map_fr
  * non-holonomic constraint. Returns the squared Mahalanobis distance (3 dof). */
 double filter_update_speed(filter_t *f, double speed_mps);
 
-/* Fuses a horizontal position (x, y in map) of a point at base_point (base frame),
- * sigma in metres per axis. */
-double filter_update_position_xy(filter_t *f, const Vec3 &base_point, double x, double y, double sigma);
-
 /* Outputs: base pose, base-origin velocity in map, angular rate in base. */
 Eigen::Isometry3d filter_base_pose(const filter_t *f);
 Vec3 filter_base_velocity(const filter_t *f);
 Vec3 filter_base_rate(const filter_t *f);
 /* 6x6 covariance over (x, y, z, roll, pitch, yaw) of the base, approximated from P. */
 Mat6 filter_base_covariance(const filter_t *f);
-
-/* Replaces the LiDAR-only state's velocity and turn rate (from two successive poses). */
-void filter_set_motion(filter_t *f, const Vec3 &v_map, const Vec3 &omega_imu);
 
 } // namespace loc
 #endif

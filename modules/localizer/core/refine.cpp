@@ -9,22 +9,15 @@
 #include "registration.h"
 #include "regmap.h"
 
-void refine_config_default(refine_config_t *cfg)
+void pb_refine_config_default(pb_refine_config_t *cfg)
 {
-    cfg->neighbour_radius_m = 40;
-    cfg->max_neighbours = 30;
-    cfg->max_rounds = 8;
-    cfg->stop_m = 0.005;
-    cfg->voxel_m = 0.5;
-    cfg->min_points_used = 200;
-    cfg->coarse_iterations = 0;
-    cfg->min_pair_inliers = 0.3;
+    *cfg = pb_refine_config_t();
 }
 
 namespace {
 
 /* The scans near scan i (not i itself), nearest first. */
-std::vector<size_t> neighbours(const std::vector<Eigen::Isometry3d> &poses, size_t i, const refine_config_t *cfg)
+std::vector<size_t> neighbours(const std::vector<Eigen::Isometry3d> &poses, size_t i, const pb_refine_config_t *cfg)
 {
     std::vector<std::pair<double, size_t>> d;
     for (size_t j = 0; j < poses.size(); j++) {
@@ -49,7 +42,7 @@ struct Match {
 };
 
 Match match_to_others(const std::vector<std::vector<float>> &scans, const std::vector<Eigen::Isometry3d> &poses,
-                      size_t i, const refine_config_t *cfg)
+                      size_t i, const pb_refine_config_t *cfg)
 {
     Match m = {poses[i], NAN, false};
     std::vector<size_t> nb = neighbours(poses, i, cfg);
@@ -133,7 +126,7 @@ Vec6 edge_residual(const Edge &e, const Eigen::Isometry3d &Ti, const Eigen::Isom
 
 /* Measures the edges between each scan and its neighbours (j > i) at the current poses. */
 std::vector<Edge> measure_edges(const std::vector<std::vector<float>> &scans, const std::vector<pb_regmap_t *> &maps,
-                                const std::vector<Eigen::Isometry3d> &poses, const refine_config_t *cfg)
+                                const std::vector<Eigen::Isometry3d> &poses, const pb_refine_config_t *cfg)
 {
     pb_reg_config_t rc;
     pb_reg_config_default(&rc);
@@ -197,17 +190,17 @@ void solve_graph(const std::vector<Edge> &edges, std::vector<Eigen::Isometry3d> 
 
 }  // namespace
 
-int refine_poses(const std::vector<std::vector<float>> &scans, std::vector<Eigen::Isometry3d> *poses,
-                 const refine_config_t *cfg_in, refine_report_t *rep, void (*progress)(int, double, void *),
-                 void *user, pb_err_t *err)
+int pb_refine_poses(const std::vector<std::vector<float>> &scans, std::vector<Eigen::Isometry3d> *poses,
+                    const pb_refine_config_t *cfg_in, pb_refine_report_t *rep, void (*progress)(int, double, void *),
+                    void *user, pb_err_t *err)
 {
-    refine_config_t cfg;
-    refine_config_default(&cfg);
+    pb_refine_config_t cfg;
+    pb_refine_config_default(&cfg);
     if (cfg_in) cfg = *cfg_in;
     const size_t n = poses->size();
     if (scans.size() != n || n < 3) return pb_err_set(err, "refine: %zu scans and %zu poses (need >= 3 of each, equal)", scans.size(), n);
     const std::vector<Eigen::Isometry3d> input = *poses;
-    *rep = refine_report_t();
+    *rep = pb_refine_report_t();
     rep->fit_before.assign(n, NAN);
     rep->fit_after.assign(n, NAN);
     /* each scan's own map, for the pairwise registrations */

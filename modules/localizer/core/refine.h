@@ -13,7 +13,7 @@
  * inconsistency, not the frame). Rounds repeat until the largest move is
  * below stop_m or max_rounds.
  *
- * How good the result is, measured by pb_refine_poses itself (refine_report_t):
+ * How good the result is, measured by pb_refine_poses itself (pb_refine_report_t):
  *   edge residuals: how far each pair's registration disagrees with the
  *     solved poses (translation, m);
  *   leave-one-out: each scan registered to a map of all the other scans near
@@ -32,19 +32,20 @@
 #include <Eigen/Geometry>
 #include "pb_err.h"
 
+/* The defaults stand beside each field (a value-initialised struct holds them). */
 typedef struct {
-    double neighbour_radius_m;  /* scans within this distance form a scan's map (default 40) */
-    int max_neighbours;         /* the nearest this many (default 30) */
-    int max_rounds;             /* (default 8) */
-    double stop_m;              /* stop when no scan moves more than this in a round (default 0.005) */
-    double voxel_m;             /* map cell of the neighbour maps (default 0.5) */
-    int min_points_used;        /* a scan whose match uses fewer points keeps its pose (default 200) */
-    double min_pair_inliers;    /* a pair registration with a smaller inlier share gives no edge (default 0.3) */
-    int coarse_iterations;      /* pb_reg_config_t's coarse retry; 0 = fine level only (default 0: the input
-                                 * is within a metre, and the coarse level can alias repeated structure) */
-} refine_config_t;
+    double neighbour_radius_m = 40;  /* scans within this distance form a scan's map */
+    int max_neighbours = 30;         /* the nearest this many */
+    int max_rounds = 8;
+    double stop_m = 0.005;           /* stop when no scan moves more than this in a round */
+    double voxel_m = 0.5;            /* map cell of the neighbour maps */
+    int min_points_used = 200;       /* a scan whose match uses fewer points keeps its pose */
+    double min_pair_inliers = 0.3;   /* a pair registration with a smaller inlier share gives no edge */
+    int coarse_iterations = 0;       /* pb_reg_config_t's coarse retry; 0 = fine level only (the input
+                                      * is within a metre, and the coarse level can alias repeated structure) */
+} pb_refine_config_t;
 
-void refine_config_default(refine_config_t *cfg);
+void pb_refine_config_default(pb_refine_config_t *cfg);
 
 typedef struct {
     int rounds;
@@ -55,12 +56,12 @@ typedef struct {
     int kept;                           /* scans with no edge in the last round (left where the graph puts them) */
     int edges;                          /* pair registrations used in the last round */
     std::vector<double> edge_resid_m;   /* per edge: translation residual at the solution */
-} refine_report_t;
+} pb_refine_report_t;
 
 /* Refines poses (n of them, in/out) of scans[k] (xyz interleaved, sensor frame).
  * progress (may be NULL) is called after each round with (round, largest move). */
-int refine_poses(const std::vector<std::vector<float>> &scans, std::vector<Eigen::Isometry3d> *poses,
-                 const refine_config_t *cfg, refine_report_t *report, void (*progress)(int, double, void *),
-                 void *user, pb_err_t *err);
+int pb_refine_poses(const std::vector<std::vector<float>> &scans, std::vector<Eigen::Isometry3d> *poses,
+                    const pb_refine_config_t *cfg, pb_refine_report_t *report, void (*progress)(int, double, void *),
+                    void *user, pb_err_t *err);
 
 #endif

@@ -14,20 +14,7 @@ using namespace pb_loc;
 
 void pb_reg_config_default(pb_reg_config_t *cfg)
 {
-    cfg->scan_voxel_m = 0.5;
-    cfg->target_points = 2000;
-    cfg->min_range_m = 2.0;
-    cfg->max_range_m = 80.0;
-    cfg->max_iterations = 12;
-    cfg->max_corr_m = 1.0;
-    cfg->min_corr_m = 0.3;
-    cfg->kernel_m = 0.1;
-    cfg->step_eps_m = 5e-4;
-    cfg->step_eps_rad = 5e-5;
-    cfg->inlier_m = 0.1;
-    cfg->planar_only = 0;
-    cfg->coarse_iterations = 16;
-    for (double &b : cfg->body_box) b = 0;
+    *cfg = pb_reg_config_t();
 }
 
 Eigen::Isometry3d pb_reg_from_transform(const pb_transform_t *t)
@@ -249,8 +236,6 @@ void fill_result(const Level &lv, const float *pts, size_t n, const Eigen::Isome
         double lo = std::max(et.eigenvalues()(0), 1e-12);
         res->condition = et.eigenvalues()(2) / lo;
         double sigma2 = std::max(ss / std::max(acc.matched - 6, 1), 1e-6);
-        double wmean = acc.wsum / acc.matched;   /* IRLS weights shrink H; undo their mean */
-        (void)wmean;
         H.diagonal().array() += 1e-6 * H.trace() / 6.0 + 1e-9;
         res->covariance = sigma2 * H.inverse();
     } else {

@@ -38,24 +38,24 @@
 
 /* max_iterations 0 (and coarse_iterations 0) only evaluates the guess: the
  * result's scores then describe the given pose (e.g. the filter's), for a
- * divergence test. */
+ * divergence test. The defaults stand beside each field (a value-initialised
+ * struct holds them). */
 typedef struct {
-    double scan_voxel_m;      /* first downsampling cell, metres (default 0.5) */
-    int target_points;        /* adaptive downsampling aims for this many points (default 2000; 0 = fixed voxel) */
-    double min_range_m;       /* drop points nearer than this to base (the car itself) (default 2.0) */
-    double max_range_m;       /* and farther than this (default 80) */
-    int max_iterations;       /* Gauss-Newton iterations (default 12) */
-    double max_corr_m;        /* initial correspondence gate, metres (default 1.0) */
-    double min_corr_m;        /* the gate shrinks to this as steps get small (default 0.3) */
-    double kernel_m;          /* Geman-McClure scale, metres (default 0.1) */
-    double step_eps_m;        /* stop when translation step < this (default 5e-4: 0.5 mm, a tenth of the error) ... */
-    double step_eps_rad;      /* ... and rotation step < this (default 5e-5) */
-    double inlier_m;          /* |point-to-plane| for the inlier fraction (default 0.1) */
-    int planar_only;          /* 1 = never use line (pole) cells (default 0) */
-    int coarse_iterations;    /* Gauss-Newton steps on the coarse level in step 3, 0 = never (default 16);
-                               * added after the first API commit (appended, defaults unchanged) */
-    double body_box[6];       /* drop points inside this box of base (the car's own body: xmin, ymin, zmin,
-                               * xmax, ymax, zmax); all 0 = none (default) */
+    double scan_voxel_m = 0.5;    /* first downsampling cell, metres */
+    int target_points = 2000;     /* adaptive downsampling aims for this many points (0 = fixed voxel) */
+    double min_range_m = 2.0;     /* drop points nearer than this to base (the car itself) */
+    double max_range_m = 80;      /* and farther than this */
+    int max_iterations = 12;      /* Gauss-Newton iterations */
+    double max_corr_m = 1.0;      /* initial correspondence gate, metres */
+    double min_corr_m = 0.3;      /* the gate shrinks to this as steps get small */
+    double kernel_m = 0.1;        /* Geman-McClure scale, metres */
+    double step_eps_m = 5e-4;     /* stop when translation step < this (0.5 mm, a tenth of the error) ... */
+    double step_eps_rad = 5e-5;   /* ... and rotation step < this */
+    double inlier_m = 0.1;        /* |point-to-plane| for the inlier fraction */
+    int planar_only = 0;          /* 1 = never use line (pole) cells */
+    int coarse_iterations = 16;   /* Gauss-Newton steps on the coarse level in step 3, 0 = never */
+    double body_box[6] = {};      /* drop points inside this box of base (the car's own body: xmin, ymin, zmin,
+                                   * xmax, ymax, zmax); all 0 = none */
 } pb_reg_config_t;
 
 void pb_reg_config_default(pb_reg_config_t *cfg);

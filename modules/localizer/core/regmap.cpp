@@ -16,11 +16,7 @@ using namespace pb_loc;
 
 void pb_regmap_config_default(pb_regmap_config_t *cfg)
 {
-    cfg->voxel_m = 0.5;
-    cfg->coarse_voxel_m = 2.0;
-    cfg->min_points = 6;
-    cfg->planarity_max = 0.1;
-    cfg->load_radius_m = 0;
+    *cfg = pb_regmap_config_t();
 }
 
 namespace {

@@ -28,12 +28,13 @@
 #include <Eigen/Core>
 #include "pb_err.h"
 
+/* The defaults stand beside each field (a value-initialised struct holds them). */
 typedef struct {
-    double voxel_m;          /* fine cell edge, metres (default 0.5) */
-    double coarse_voxel_m;   /* coarse level for global alignment; 0 = none (default 2.0) */
-    int min_points;          /* map points a neighbourhood needs for a plane (default 6) */
-    double planarity_max;    /* smallest/middle eigenvalue ratio up to which a cell is a plane (default 0.1) */
-    double load_radius_m;    /* 0 = load every point (default); else only within this horizontal radius */
+    double voxel_m = 0.5;         /* fine cell edge, metres */
+    double coarse_voxel_m = 2.0;  /* coarse level for global alignment; 0 = none */
+    int min_points = 6;           /* map points a neighbourhood needs for a plane */
+    double planarity_max = 0.1;   /* smallest/middle eigenvalue ratio up to which a cell is a plane */
+    double load_radius_m = 0;     /* 0 = load every point; else only within this horizontal radius */
 } pb_regmap_config_t;
 
 /* Fills *cfg with the defaults above. */

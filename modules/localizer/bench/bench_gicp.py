@@ -3,7 +3,7 @@
 that build/bin/bench-localizer dumped (--dump FILE, FILE.map), single thread, and
 the combined table with the ratios the issue asks for.
 
-usage: bench.py DUMP RESULTS.json [--voxel 0.5]
+usage: bench_gicp.py DUMP RESULTS.json [--voxel 0.5]
 DUMP holds, per baseline scan: int32 n, float32 xyz[n] (base frame, the localizer's
 own downsampling), int32 k, float64 4x4 row-major truth, tracking start, k offset starts.
 PCL NDT comes from RESULTS.json (one entry per resolution); the ratios are taken

@@ -23,7 +23,7 @@ import sys
 
 import numpy as np
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[2] / "modules" / "localizer" / "bench"))
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 import bench_starts as bs  # noqa: E402
 import locbench as lb  # noqa: E402
 

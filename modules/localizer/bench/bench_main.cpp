@@ -1,6 +1,6 @@
 // bench-localizer: time and accuracy of the localizer's scan-to-map registration
 // (modules/localizer/core) against PCL's NDT on the same scans and starts.
-// small_gicp GICP / VGICP run in bench.py on the scans this program dumps.
+// small_gicp GICP / VGICP run in bench_gicp.py on the scans this program dumps.
 //
 // Input: an LCM log with LIDAR_SCAN and GROUND_TRUTH (simdrive, or import-scans of
 // real scans), the site's prior map, the vehicle file (base <- lidar).
@@ -61,7 +61,7 @@ static void usage(FILE *f)
         "  --starts K       K such starts per scan (default 1)\n"
         "  --converge M     'converged' = final error below M metres (default 0.3)\n"
         "  --ndt-res LIST   PCL NDT resolutions, comma-separated (default: the --voxel)\n"
-        "  --dump FILE      write the baseline scans, starts and truth for bench.py, and the\n"
+        "  --dump FILE      write the baseline scans, starts and truth for bench_gicp.py, and the\n"
         "                   map points near them as FILE.map (float32 xyz)\n"
         "  --json FILE      write the per-method results as JSON\n"
         "  --seed N         starts RNG seed (default 1)\n"
@@ -116,6 +116,11 @@ static void print_row(const char *method, const char *start, int nscans, const R
 
 static void json_run(FILE *f, const char *name, const Run &r, bool last)
 {
+    if (r.ms.empty()) {   /* a run that did not happen (e.g. --baseline-every 0): no figures, valid JSON */
+        std::fprintf(f, "  \"%s\": {\"n\": 0, \"ms_median\": null, \"ms_p99\": null, \"t_median\": null, "
+                     "\"t_p99\": null, \"yaw_p99\": null, \"converged\": null}%s\n", name, last ? "" : ",");
+        return;
+    }
     std::fprintf(f, "  \"%s\": {\"n\": %zu, \"ms_median\": %.4f, \"ms_p99\": %.4f, \"t_median\": %.5f, "
                  "\"t_p99\": %.5f, \"yaw_p99\": %.5f, \"converged\": %.4f}%s\n", name, r.ms.size(),
                  pct(r.ms, 50), pct(r.ms, 99), pct(r.terr, 50), pct(r.terr, 99), pct(r.yerr, 99),
@@ -202,10 +207,8 @@ int main(int argc, char **argv)
     while ((rc = pb_log_next(log, &ev, &err)) == 1) {
         if (!std::strcmp(ev.channel, "GROUND_TRUTH")) {
             portobello_pose_t p;
-            if (portobello_pose_t_decode(ev.data, 0, ev.datalen, &p) < 0) continue;
             pb_transform_t T;
-            std::memcpy(T.t, p.position, sizeof T.t);
-            std::memcpy(T.q, p.orientation, sizeof T.q);
+            if (pb_log_pose(&ev, &p, &T, &err)) { std::fprintf(stderr, "bench-localizer: %s: %s\n", log_path, err.msg); return 1; }
             pb_pose_track_add(track, p.utime, &T);
             gts.push_back(p);
         } else if (!std::strcmp(ev.channel, "LIDAR_SCAN")) {
