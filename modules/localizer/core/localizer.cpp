@@ -307,9 +307,11 @@ void localizer_imu(localizer_t *L, int64_t utime, const Vec3 &accel, const Vec3 
         event(out, "imu_gap", "IMU: gap of %.0f ms before %lld", (utime - L->last_imu_t) * 1e-3, (long long)utime);
     L->imu_dt = L->last_imu_t != 0 ? utime - L->last_imu_t : 0;
     L->last_imu_t = utime;
-    if (L->pred.initialized && L->imu_dt > 0 && L->imu_dt < L->cfg.imu_gap_us) {
+    if (L->pred.initialized && L->stood && L->imu_dt > 0 && L->imu_dt < L->cfg.imu_gap_us) {
         /* the direction of a departure: the IMU's forward acceleration (gravity and bias
-         * taken out with the filter's attitude) integrated since the car last stood */
+         * taken out with the filter's attitude) integrated since the car last stood (only
+         * then: on a start while moving it would be the change of speed, and braking
+         * would read as reversing) */
         const Eigen::Matrix3d R = L->pred.q.toRotationMatrix();
         Vec3 a = R * (accel - L->pred.ba) - Vec3(0, 0, L->cfg.filter.gravity);
         Vec3 fwd = R * (L->ex.base_from_imu.linear().transpose() * Vec3::UnitX());
@@ -352,7 +354,7 @@ void localizer_speed(localizer_t *L, int64_t utime, double speed_mps, outputs_t 
     L->last_speed_t = utime;
     /* an unsigned speed takes the direction the IMU saw at the departure */
     if (speed_mps < 0) L->speed_signed = true;
-    if (std::fabs(speed_mps) < L->cfg.standstill_mps) { L->depart_v = 0; L->depart_dir = 0; }
+    if (std::fabs(speed_mps) < L->cfg.standstill_mps) { L->depart_v = 0; L->depart_dir = 0; L->stood = true; }
     if (!L->speed_signed && L->depart_dir < 0) speed_mps = -speed_mps;
     input_ev_t e;
     e.t = utime; e.kind = EV_SPEED; e.speed = speed_mps; e.accel.setZero(); e.gyro.setZero();
@@ -483,20 +485,27 @@ static void restart_from_two_matches(localizer_t *L, filter_t *f, const Eigen::I
     L->cand_vel_unknown = false;
 }
 
-/* A match whose structure does not fit the map (tracking, or verifying a candidate whose
- * motion is known): the prediction may be off
- * by more than one registration pulls in (a turn between sparse sweeps). Searched again
- * around it, as far as its covariance says; true with the result when that fits. */
+/* A match whose structure does not fit the map while tracking, or while verifying a
+ * candidate whose motion was unknown at its start (LiDAR alone: its speed comes from two
+ * matches): the prediction may be off by more than one registration pulls in (a
+ * turn between sparse sweeps). Searched again around it, as far as its covariance says;
+ * true with the result when that fits and agrees with the prediction (the motion gate). */
 static bool research(localizer_t *L, const filter_t &prior, const Eigen::Isometry3d &guess, pb_reg_result_t *res,
                      double *si)
 {
     Mat6 P = filter_base_covariance(&prior);
-    double radius = std::min(std::max(3 * std::sqrt(std::max(P(0, 0), P(1, 1))), 1.0), 4.0);
-    double yaw = std::min(std::max(3 * std::sqrt(P(5, 5)), 5 * M_PI / 180), 20 * M_PI / 180);
+    double radius = std::min(3 * std::sqrt(std::max(P(0, 0), P(1, 1))), 4.0);
+    double yaw = std::min(3 * std::sqrt(P(5, 5)), 20 * M_PI / 180);
+    if (radius < 1.0 && yaw < 5 * M_PI / 180) return false;   /* a sure prediction: one registration pulls it in */
     pb_reg_result_t r;
     double fit;
-    if (!search_seeds(L, { guess }, radius, yaw, 1.0, 5 * M_PI / 180, false, &r, &fit, nullptr) ||
+    if (!search_seeds(L, { guess }, std::max(radius, 1.0), std::max(yaw, 5 * M_PI / 180), 1.0, 5 * M_PI / 180, false,
+                      &r, &fit, nullptr) ||
         fit < L->cfg.min_structure_inliers)
+        return false;
+    Eigen::Matrix<double, 6, 1> d;
+    double chi2 = filter_pose_innovation(&prior, r.pose, floored(L, r.covariance), &d);
+    if (chi2 > L->cfg.gate_chi2 && (d.head<3>().norm() > L->cfg.gate_min_m || d.tail<3>().norm() > 2 * M_PI / 180))
         return false;
     *res = r;
     *si = fit;
@@ -638,7 +647,7 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
         } else {
             double si = structure_inliers(L, res.pose);
             if (std::isfinite(si) && si < L->cfg.min_structure_inliers && !free_motion &&
-                research(L, prior, guess, &res, &si)) {
+                (!L->candidate || L->cand_no_speed) && research(L, prior, guess, &res, &si)) {
                 cov = floored(L, res.covariance);
                 d.inlier_fraction = res.inlier_fraction;
                 d.score = res.score;
@@ -690,9 +699,11 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
         ++L->reject_count;
         if (L->candidate) {
             /* a candidate that fails is dropped: search again on the next sweep, around
-             * where it would be now when it came from a prior that has tries left */
+             * where it would be now when it came from a prior with tries left and the
+             * car's speed unknown (then its motion, not the place, may have failed it;
+             * otherwise the global search follows, as it did) */
             L->candidate = false;
-            if (L->cand_from_hint && L->hint_tries < L->cfg.hint_retries) {
+            if (L->cand_retry_hint && L->hint_tries < L->cfg.hint_retries) {
                 L->has_hint = true;
                 L->hint = filter_base_pose(&L->kf);
                 L->hint_t = t_ref;

@@ -53,8 +53,9 @@ struct localizer {
     int status = ST_INITIALIZING;
     bool candidate = false;     /* kf holds a pose still being verified */
     bool cand_vel_unknown = false;   /* ... whose velocity is not known yet */
-    bool cand_from_hint = false;     /* ... found around an initial pose (a prior), which a failed
-                                      * verification falls back on */
+    bool cand_no_speed = false;      /* ... started with the speed unknown (LiDAR alone) */
+    bool cand_retry_hint = false;    /* ... found around an initial pose (a prior) with the speed
+                                      * unknown: a failed verification searches there again */
     Eigen::Isometry3d cand_pose = Eigen::Isometry3d::Identity();
     int64_t cand_t = 0;
     int verify_count = 0, reject_count = 0;
@@ -83,6 +84,7 @@ struct localizer {
 
     /* the direction of travel an unsigned CAN speed lacks (Toyota without the gear) */
     bool speed_signed = false;  /* a negative VEHICLE_SPEED came: the car reports reverse itself */
+    bool stood = false;         /* the car was seen standing (CAN speed under standstill_mps) */
     double depart_v = 0;        /* forward speed from the IMU alone since the car last stood */
     int depart_dir = 0;         /* its sign once clear (+1 forwards, -1 backwards), 0 at rest */
     /* forward speed from successive accepted matches (the direction of travel) */

@@ -246,7 +246,12 @@ bool try_initialize(localizer_t *L, int64_t t_ref, outputs_t *out)
     L->reject_count = 0;
     L->gnss_res.clear();
     L->has_prev_pose = false;
-    L->cand_from_hint = s.how && std::strcmp(s.how, "initial pose") == 0;
+    /* the direction of travel from matches starts afresh: the step from an earlier
+     * (wrong or old) pose to this one is no motion of the car */
+    L->last_match_t = 0;
+    L->match_fwd_mps = 0;
+    L->cand_no_speed = !s.vel_known;
+    L->cand_retry_hint = s.how && std::strcmp(s.how, "initial pose") == 0 && !s.vel_known;
     L->has_hint = false;
     event(out, "init_candidate", "%s: candidate at (%.1f, %.1f, %.1f) yaw %.1f deg, inliers %.0f%%%s", how,
           pose.translation().x(), pose.translation().y(), pose.translation().z(),
