@@ -393,7 +393,8 @@ def test_can_frames_decode_to_ground_truth(drive60, vehicle):
     d = drive60
     dims = vehicle["dimensions"]
     L, hf, hr = dims["wheelbase"], dims["track_front"] / 2, dims["track_rear"] / 2
-    v, w = d.gt_speed, d.gt_w[:, 2]
+    # the wheels roll the 3-D path (on a grade longer than its map projection)
+    v, w = np.linalg.norm(d.gt_vel, axis=1), d.gt_w[:, 2]
     # wheel contact points move with v + w x r: rear (0, +-hr), front (L, +-hf)
     wheel_gt = {
         "WHEEL_SPEED_FL": np.hypot(v - w * hf, w * L), "WHEEL_SPEED_FR": np.hypot(v + w * hf, w * L),
