@@ -28,6 +28,16 @@ import bench_starts as bs  # noqa: E402
 import locbench as lb  # noqa: E402
 
 
+def reference_plausible(gt, max_accel=5.0):
+    """False when the reference poses imply an acceleration no car makes between keyframes."""
+    if len(gt) < 3:
+        return True
+    t = gt[:, 0] * 1e-6
+    v = np.hypot(np.diff(gt[:, 1]), np.diff(gt[:, 2])) / np.maximum(np.diff(t), 1e-3)
+    tm = 0.5 * (t[1:] + t[:-1])
+    return bool(np.all(np.abs(np.diff(v)) / np.maximum(np.diff(tm), 1e-3) <= max_accel))
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--log", required=True)
@@ -54,6 +64,11 @@ def main():
         if not c.exists():
             bs.cut(log, c, at, a.seconds, "LIDAR_SCAN,GROUND_TRUTH")
         cuts.append(c)
+    # The reference is a pose graph without loop edges, over keyframes whose times are the
+    # dataset's: where it implies an acceleration no car makes (over 5 m/s^2 between
+    # keyframes), the reference (or the keyframe times) is wrong there, not the localizer
+    # alone. Starts on such cuts are counted in every row and reported apart as well.
+    plausible = [reference_plausible(lb.read_poses(c, "GROUND_TRUTH")) for c in cuts]
     print(f"real_starts: {len(cuts)} cuts of {a.seconds:.0f} s at {', '.join(f'{t:.1f}' for t in frames)} s "
           f"(car moving), LiDAR alone, {a.jobs} at a time")
     print(f"{'case':<34} {'starts':>6} {'conv %':>7} {'trk s50':>7} {'trk max':>7} {'h med m':>7} {'h p99 m':>7} "
@@ -69,12 +84,20 @@ def main():
         yaw = math.degrees(g[4]) + rng.uniform(-15, 15)
         extra = veh + [f"--initial-pose={x:.3f},{y:.3f},{z:.3f},0,0,{yaw:.3f}"]
         tasks.append(lambda c=c, o=work / f"out_prior_{i}.lcm", e=extra: bs.localize_and_judge(gt, c, o, e))
-    rows = [bs.summary("prior 3 m/15°, LiDAR-only, moving", bs.run_all(a.jobs, tasks, "prior"))]
-    bs.print_row(rows[-1])
+    runs = bs.run_all(a.jobs, tasks, "prior")
+    ok = [plausible[i % len(cuts)] for i in range(len(runs))]
+    rows = [bs.summary("prior 3 m/15°, LiDAR-only, moving", runs),
+            bs.summary("  ... where the reference is plausible", [r for r, k in zip(runs, ok) if k])]
     tasks = [lambda c=cuts[i % len(cuts)], o=work / f"out_global_{i}.lcm": bs.localize_and_judge(gt, c, o, veh)
              for i in range(a.n_global)]
-    rows.append(bs.summary("no prior (global search)", bs.run_all(a.jobs, tasks, "no prior"), within_s=5.0))
-    bs.print_row(rows[-1])
+    runs = bs.run_all(a.jobs, tasks, "no prior")
+    ok = [plausible[i % len(cuts)] for i in range(len(runs))]
+    rows += [bs.summary("no prior (global search)", runs, within_s=5.0),
+             bs.summary("  ... where the reference is plausible", [r for r, k in zip(runs, ok) if k], within_s=5.0)]
+    for r in rows:
+        bs.print_row(r)
+    print(f"reference implausible (over 5 m/s^2 between keyframes) on {plausible.count(False)} of {len(cuts)} cuts: "
+          + ", ".join(f"{c.stem}" for c, k in zip(cuts, plausible) if not k))
     print("targets: >= 99% of perturbed starts within 0.2 m; tracking median <= 0.05 m, p99 <= 0.15 m, "
           "yaw p99 <= 0.5 deg; no prior: tracking within 5 s on >= 95%; no LOST")
     bs.write_json(pathlib.Path(a.json), rows)

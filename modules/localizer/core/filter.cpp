@@ -99,12 +99,22 @@ void filter_predict_cv(filter_t *f, int64_t utime)
     double dt = (utime - f->utime) * 1e-6;
     if (dt <= 0) return;
     f->p += f->v * dt;
+    Eigen::Quaterniond q0 = f->q;
     f->q = (f->q * so3_exp(f->omega * dt)).normalized();
+    /* a car's velocity turns with it (constant turn rate): in a curve between sparse sweeps
+     * a fixed velocity would leave the road by metres */
+    f->v = f->q * (q0.conjugate() * f->v);
     Mat15 F = Mat15::Identity();
     F.block<3, 3>(IP, IV) = Eigen::Matrix3d::Identity() * dt;
     Mat15 Q = Mat15::Zero();
     const filter_config_t &c = f->cfg;
-    Q.block<3, 3>(IV, IV).diagonal().setConstant(c.cv_accel_noise * c.cv_accel_noise * dt);
+    /* white-noise acceleration over the step: the position spreads within it too, so one
+     * long step (sparse or skipped sweeps) is as uncertain as many short ones */
+    const double qa = c.cv_accel_noise * c.cv_accel_noise;
+    Q.block<3, 3>(IP, IP).diagonal().setConstant(qa * dt * dt * dt / 3);
+    Q.block<3, 3>(IP, IV).diagonal().setConstant(qa * dt * dt / 2);
+    Q.block<3, 3>(IV, IP).diagonal().setConstant(qa * dt * dt / 2);
+    Q.block<3, 3>(IV, IV).diagonal().setConstant(qa * dt);
     Q.block<3, 3>(ITH, ITH).diagonal().setConstant(c.cv_yaw_accel_noise * c.cv_yaw_accel_noise * dt * dt * dt);
     f->P = F * f->P * F.transpose() + Q;
     f->utime = utime;

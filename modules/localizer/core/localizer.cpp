@@ -483,6 +483,26 @@ static void restart_from_two_matches(localizer_t *L, filter_t *f, const Eigen::I
     L->cand_vel_unknown = false;
 }
 
+/* A match whose structure does not fit the map (tracking, or verifying a candidate whose
+ * motion is known): the prediction may be off
+ * by more than one registration pulls in (a turn between sparse sweeps). Searched again
+ * around it, as far as its covariance says; true with the result when that fits. */
+static bool research(localizer_t *L, const filter_t &prior, const Eigen::Isometry3d &guess, pb_reg_result_t *res,
+                     double *si)
+{
+    Mat6 P = filter_base_covariance(&prior);
+    double radius = std::min(std::max(3 * std::sqrt(std::max(P(0, 0), P(1, 1))), 1.0), 4.0);
+    double yaw = std::min(std::max(3 * std::sqrt(P(5, 5)), 5 * M_PI / 180), 20 * M_PI / 180);
+    pb_reg_result_t r;
+    double fit;
+    if (!search_seeds(L, { guess }, radius, yaw, 1.0, 5 * M_PI / 180, false, &r, &fit, nullptr) ||
+        fit < L->cfg.min_structure_inliers)
+        return false;
+    *res = r;
+    *si = fit;
+    return true;
+}
+
 /* Matches one complete sweep (t_ref: its end) and updates the state machine. */
 static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_points_t *pts, outputs_t *out)
 {
@@ -547,12 +567,43 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
     pb_reg_result_t res;
     Eigen::Isometry3d guess = filter_base_pose(&prior);
     /* a candidate whose speed is not known yet (no CAN, GNSS or earlier track: a moving
-     * start from a prior or a search): the car may have moved anywhere a car can since */
+     * start from a prior or a search): the car may have moved as far along its axis as a
+     * car can since (sweeps may be sparse: skipped while searching, or keyframes), either
+     * way (reversing, or a LiDAR mounted facing backwards) */
     bool free_motion = L->candidate && L->cand_vel_unknown;
-    double reach = free_motion ? std::min(L->cfg.max_speed_mps * (t_ref - L->cand_t) * 1e-6, 8.0) : 0;
-    int rc = reach > 1.0 ? pb_reg_align_global(L->map, L->xyz.data(), L->xyz.size() / 3, guess, reach, 5 * M_PI / 180,
-                                               1.0, 5 * M_PI / 180, &L->cfg.reg, &res, &err)
-                         : pb_reg_align(L->map, L->xyz.data(), L->xyz.size() / 3, guess, &L->cfg.reg, &res, &err);
+    double reach = free_motion ? std::min(L->cfg.max_speed_mps * (t_ref - L->cand_t) * 1e-6, 40.0) : 0;
+    int rc;
+    if (reach > 1.0) {
+        /* seeds along arcs that turn by up to max_yaw_rate * dt (a turn between sparse
+         * sweeps), 10 degrees apart, each searched 1.5 m and 5 degrees around */
+        double dt = (t_ref - L->cand_t) * 1e-6;
+        double turn = std::min(L->cfg.max_yaw_rate_dps * dt, 60.0) * M_PI / 180;
+        int nturn = int(std::floor(turn / (10 * M_PI / 180)));
+        /* at most ~40 seeds (a few hundred ms: live, the sweeps keep coming): a longer gap
+         * spaces them wider */
+        double step = std::max(2.0, 2 * reach * (2 * nturn + 1) / 40.0);
+        std::vector<Eigen::Isometry3d> seeds;
+        for (int k = -nturn; k <= nturn; k++)
+            for (double along = -std::floor(reach / step) * step; along <= reach + 1e-9; along += step) {
+                double phi = k * 10 * M_PI / 180, sgn = along < 0 ? -1 : 1;
+                /* an arc of length |along| turning by phi: its chord, at half the turn */
+                double chord = std::fabs(phi) > 1e-9 ? 2 * std::fabs(along) / std::fabs(phi) * std::sin(std::fabs(phi) / 2)
+                                                     : std::fabs(along);
+                Eigen::AngleAxisd half(sgn * phi / 2, Vec3::UnitZ()), full(sgn * phi, Vec3::UnitZ());
+                Eigen::Isometry3d T = guess;
+                T.translation() += (half * guess.linear().col(0)) * (sgn * chord);
+                T.linear() = full * guess.linear();
+                seeds.push_back(T);
+                if (k != 0 && std::fabs(along) < 1e-9) seeds.pop_back();   /* no distance, no turn */
+            }
+        double fit;
+        rc = search_seeds(L, seeds, std::max(1.5, 0.75 * step), 5 * M_PI / 180, std::max(1.0, 0.5 * step), 5 * M_PI / 180,
+                          false, &res, &fit, nullptr) ? res.status
+                                                                                               : PB_REG_FEW_POINTS;
+        if (rc == PB_REG_FEW_POINTS) { res.points_matched = 0; res.points_used = int(L->xyz.size() / 3); }
+    } else {
+        rc = pb_reg_align(L->map, L->xyz.data(), L->xyz.size() / 3, guess, &L->cfg.reg, &res, &err);
+    }
     bool accept = false;
     const char *why = nullptr;
     char whybuf[1200];
@@ -586,6 +637,13 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
             event(out, "match_inconsistent", "%s", whybuf);
         } else {
             double si = structure_inliers(L, res.pose);
+            if (std::isfinite(si) && si < L->cfg.min_structure_inliers && !free_motion &&
+                research(L, prior, guess, &res, &si)) {
+                cov = floored(L, res.covariance);
+                d.inlier_fraction = res.inlier_fraction;
+                d.score = res.score;
+                event(out, "match_researched", "match off the map's structure: found again around the prediction");
+            }
             d.structure_inliers = si;
             if (std::isfinite(si) && si < L->cfg.min_structure_inliers) {
                 snprintf(whybuf, sizeof whybuf, "only %.0f%% of the structure above the ground fits the map (need %.0f%%)",
@@ -631,8 +689,16 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
     } else {
         ++L->reject_count;
         if (L->candidate) {
-            /* a candidate that fails is dropped: search again on the next sweep */
+            /* a candidate that fails is dropped: search again on the next sweep, around
+             * where it would be now when it came from a prior that has tries left */
             L->candidate = false;
+            if (L->cand_from_hint && L->hint_tries < L->cfg.hint_retries) {
+                L->has_hint = true;
+                L->hint = filter_base_pose(&L->kf);
+                L->hint_t = t_ref;
+                L->hint_body_vel = L->cand_vel_unknown ? Vec3::Zero()
+                                                       : Vec3(L->hint.linear().transpose() * filter_base_velocity(&L->kf));
+            }
             if (L->status == ST_INITIALIZING) { L->kf.initialized = false; L->pred.initialized = false; }
             event(out, "candidate_dropped", "candidate pose dropped: %s", why ? why : "?");
         } else if (L->status == ST_LOST) {

@@ -116,9 +116,17 @@ struct localizer_config_t {
     double lost_search_max_m = 12.0;       /* the dead-reckoned search when lost grows with the covariance to this */
     int lost_searches = 20;                /* ... and runs on this many sweeps, then the global search */
     double max_speed_mps = 25.0;           /* how far a car may have moved between a start's first two sweeps */
+    double max_yaw_rate_dps = 30.0;        /* ... and turned (a 20 m radius at 10 m/s) */
     /* no prior at all: global relocalisation in the whole map (place descriptor, see startup.cpp) */
     bool global_search = true;
     int global_candidates = 8;             /* places verified by registration per sweep */
+    /* a place is taken only when no other place further than rival_m (or turned more than
+     * rival_yaw_deg) from it fits the sweep's structure within rival_ratio of it (MulRan:
+     * a tree-lined road fits 0.75-0.8 at 180 degrees and 13 m to the side, the true pose
+     * 0.7-0.9) */
+    double rival_m = 5.0;
+    double rival_yaw_deg = 30.0;
+    double rival_ratio = 0.9;
     /* --initial-pose, applied to the first sweep if nothing better came */
     bool has_initial_pose = false;
     double initial_pose[6] = { 0 };        /* x, y, z, roll, pitch, yaw (m, rad) */

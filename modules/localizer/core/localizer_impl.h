@@ -53,6 +53,8 @@ struct localizer {
     int status = ST_INITIALIZING;
     bool candidate = false;     /* kf holds a pose still being verified */
     bool cand_vel_unknown = false;   /* ... whose velocity is not known yet */
+    bool cand_from_hint = false;     /* ... found around an initial pose (a prior), which a failed
+                                      * verification falls back on */
     Eigen::Isometry3d cand_pose = Eigen::Isometry3d::Identity();
     int64_t cand_t = 0;
     int verify_count = 0, reject_count = 0;
@@ -112,6 +114,8 @@ void rebuild_pred(localizer_t *L);
 Eigen::Isometry3d imu_pose(const filter_t &f);
 
 /* startup.cpp: start-up or relocalisation on this sweep; true with kf reset at a candidate */
+bool search_seeds(localizer_t *L, const std::vector<Eigen::Isometry3d> &seeds, double radius, double yaw_range,
+                  double pos_step, double yaw_step, bool page, pb_reg_result_t *res, double *fit, double *rival);
 bool global_search(localizer_t *L, pb_reg_result_t *res, outputs_t *out);
 bool try_initialize(localizer_t *L, int64_t t_ref, outputs_t *out);
 

@@ -2,6 +2,8 @@
  * may become a candidate (see localizer.h, docs/localizer.md "Start-up"). */
 #include <algorithm>
 #include <cmath>
+#include <cstring>
+#include <vector>
 
 #include "localizer_impl.h"
 #include "places.h"
@@ -91,6 +93,45 @@ static bool choose_start(localizer_t *L, int64_t t_ref, start_t *s)
     return false;
 }
 
+/* The best of several seeds: each searched within radius / yaw_range by registration,
+ * kept when the map explains enough of the sweep, ranked by the structure fit (the
+ * inlier share alone favours the ground, which fits almost anywhere on a road).
+ * page: ask the pager for the map around each seed first (seeds far apart).
+ * *rival: the best fit of a result more than cfg.rival_m or cfg.rival_yaw_deg from the
+ * best one (-1: none). */
+bool search_seeds(localizer_t *L, const std::vector<Eigen::Isometry3d> &seeds, double radius, double yaw_range,
+                  double pos_step, double yaw_step, bool page, pb_reg_result_t *res, double *fit, double *rival)
+{
+    bool have = false;
+    *fit = -1;
+    std::vector<std::pair<double, Eigen::Isometry3d>> found;
+    for (const Eigen::Isometry3d &seed : seeds) {
+        if (page && L->pager) L->pager(L->pager_user, seed.translation().x(), seed.translation().y());
+        pb_reg_result_t r;
+        pb_err_t err;
+        if (pb_reg_align_global(L->map, L->xyz.data(), L->xyz.size() / 3, seed, radius, yaw_range, pos_step, yaw_step,
+                                &L->cfg.reg, &r, &err) < 0 ||
+            r.status == PB_REG_FEW_POINTS || r.inlier_fraction < L->cfg.min_inlier_fraction)
+            continue;
+        double si = structure_inliers(L, r.pose);
+        double f = std::isfinite(si) ? si : 0.0;
+        found.push_back({ f, r.pose });
+        if (f > *fit) { *fit = f; *res = r; have = true; }
+    }
+    if (rival) {
+        *rival = -1;
+        for (const auto &o : found) {
+            if (!have) break;
+            Eigen::Isometry3d D = res->pose.inverse() * o.second;
+            double dyaw = std::fabs(std::atan2(D.linear()(1, 0), D.linear()(0, 0)));
+            if (D.translation().head<2>().norm() > L->cfg.rival_m || dyaw > L->cfg.rival_yaw_deg * M_PI / 180)
+                *rival = std::max(*rival, o.first);
+        }
+    }
+    if (have && page && L->pager) L->pager(L->pager_user, res->pose.translation().x(), res->pose.translation().y());
+    return have;
+}
+
 /* No prior at all: the places most like this sweep (places.h), each verified by a small
  * registration search; returns the one whose structure fits the map best. Successive
  * sweeps try successive ranks, so a start keeps trying until a place is verified. */
@@ -119,27 +160,25 @@ bool global_search(localizer_t *L, pb_reg_result_t *res, outputs_t *out)
     std::vector<place_match_t> pm;
     places_query(L->places, d, k * rounds, &pm);
     size_t first = (size_t)(L->global_round++ % rounds) * k;
-    bool have = false;
-    double best_fit = -1;
+    std::vector<Eigen::Isometry3d> seeds;
     for (size_t i = first; i < pm.size() && i < first + k; i++) {
         Eigen::Isometry3d seed = Eigen::Isometry3d::Identity();
         seed.linear() = Eigen::AngleAxisd(pm[i].yaw, Vec3::UnitZ()).toRotationMatrix();
         seed.translation() = Vec3(pm[i].x, pm[i].y, pm[i].z);
-        if (L->pager) L->pager(L->pager_user, pm[i].x, pm[i].y);   /* the map around this place */
-        pb_reg_result_t r;
-        pb_err_t err;
-        if (pb_reg_align_global(L->map, L->xyz.data(), L->xyz.size() / 3, seed, 2.0, 12 * M_PI / 180, 1.0,
-                                6 * M_PI / 180, &L->cfg.reg, &r, &err) < 0 ||
-            r.status == PB_REG_FEW_POINTS || r.inlier_fraction < L->cfg.min_inlier_fraction)
-            continue;
-        double si = structure_inliers(L, r.pose);
-        double fit = std::isfinite(si) ? si : 0.0;
-        if (fit > best_fit) { best_fit = fit; *res = r; have = true; }
+        seeds.push_back(seed);
     }
-    if (have && L->pager) L->pager(L->pager_user, res->pose.translation().x(), res->pose.translation().y());
-    if (!have) {
+    double fit, rival;
+    if (!search_seeds(L, seeds, 2.0, 12 * M_PI / 180, 1.0, 6 * M_PI / 180, true, res, &fit, &rival)) {
         event(out, "no_start", "no pose: no INITIAL_POSE or GNSS fix, and none of %zu likely places in the map fits "
-              "this sweep; still searching", std::min(pm.size() - std::min(pm.size(), first), (size_t)k));
+              "this sweep; still searching", seeds.size());
+        return false;
+    }
+    /* rows of trees, parallel carriageways, a road alike both ways: a place that another
+     * one far from it (or the other way round) fits about as well is not known yet */
+    if (fit >= L->cfg.min_structure_inliers && rival > L->cfg.rival_ratio * fit) {
+        event(out, "global_ambiguous", "global search: two places %.0f+ m or %.0f+ deg apart fit this sweep alike "
+              "(%.0f%% and %.0f%% of the structure); still searching", L->cfg.rival_m, L->cfg.rival_yaw_deg, 100 * fit,
+              100 * rival);
         return false;
     }
     return true;
@@ -207,6 +246,7 @@ bool try_initialize(localizer_t *L, int64_t t_ref, outputs_t *out)
     L->reject_count = 0;
     L->gnss_res.clear();
     L->has_prev_pose = false;
+    L->cand_from_hint = s.how && std::strcmp(s.how, "initial pose") == 0;
     L->has_hint = false;
     event(out, "init_candidate", "%s: candidate at (%.1f, %.1f, %.1f) yaw %.1f deg, inliers %.0f%%%s", how,
           pose.translation().x(), pose.translation().y(), pose.translation().z(),
