@@ -4,6 +4,7 @@ Drives come from simdrive (road car, GROUND_TRUTH, no LiDAR) and lab_vehicle (th
 in-lab twin, POSE), shared by module-scoped fixtures. Each test decodes what the
 director wrote and checks it against geometry computed here independently.
 """
+import importlib.util
 import math
 import os
 import pathlib
@@ -236,7 +237,9 @@ def test_road_drive_fires_every_trigger_once_where_the_footprint_first_touches(t
             assert contact is not None
             err = math.hypot(ev.vehicle.position[0] - contact[0], ev.vehicle.position[1] - contact[1])
             # the event carries the contact interpolated between poses: measured 0.1 mm at 100 Hz
-            assert err <= 0.0005, f"{name}/{t['id']}: fired {err:.4f} m from the first contact"
+            # on the flat site, 3.9 mm on the default site's relief (the director tests the car's
+            # pitched and rolled box in 3-D, this check its flat footprint): bound ~3x
+            assert err <= 0.012, f"{name}/{t['id']}: fired {err:.4f} m from the first contact"
 
 
 def test_a_10_hz_pose_places_triggers_where_100_hz_does(tmp, road):
@@ -263,8 +266,9 @@ def test_a_10_hz_pose_places_triggers_where_100_hz_does(tmp, road):
                 continue
             ev = next(e for e in events(thin, {"trigger"}) if e.event_id == t["id"])
             c = first_contact(track, vols[w["volume"]], track[0][0] + 1 if w.get("edge") == "rising" else 0)
-            # measured 0.9 mm (interpolation between poses 1 m apart); at the pose alone up to 1 m
-            assert math.hypot(ev.vehicle.position[0] - c[0], ev.vehicle.position[1] - c[1]) <= 0.003, (name, t["id"])
+            # measured 0.9 mm flat (interpolation between poses 1 m apart; at the pose alone up to
+            # 1 m), 3.9 mm on the default site's relief (3-D box vs this flat footprint): bound ~3x
+            assert math.hypot(ev.vehicle.position[0] - c[0], ev.vehicle.position[1] - c[1]) <= 0.012, (name, t["id"])
             assert ev.utime == ev.vehicle.utime
 
 
@@ -309,9 +313,19 @@ def test_virtual_collision_carries_both_poses(tmp, road):
     col = events(out, {"collision"})
     assert len(col) == 1 and col[0].agent_id == "ped_a_main"
     e = col[0]
-    foot = footprint(e.vehicle.position[0], e.vehicle.position[1],
-                     2 * math.atan2(e.vehicle.orientation[3], e.vehicle.orientation[0]))
-    assert poly_circle_touch(foot, np.array(e.agent_position[:2]), 0.3 + 1e-6)
+    # the car's box in 3-D (pitched and rolled on the terrain) touches the pedestrian's
+    # cylinder (radius 0.3 m, 1.8 m tall from its feet): the nearest point of the
+    # cylinder's axis to the box is within the radius
+    w, x, y, z = e.vehicle.orientation
+    R = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                  [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                  [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+    axis = np.array(e.agent_position) + np.outer(np.linspace(0, 1.8, 721), [0, 0, 1])
+    local = (axis - np.array(e.vehicle.position)) @ R      # base frame (rows: R^T p)
+    lo = np.array([-VEH["rear_overhang"], -VEH["width"] / 2, 0.0])
+    hi = np.array([VEH["length"] - VEH["rear_overhang"], VEH["width"] / 2, VEH["height"]])
+    dist = np.linalg.norm(np.maximum(np.maximum(lo - local, local - hi), 0), axis=1).min()
+    assert dist <= 0.3 + 1e-3, dist
 
 
 # ---------------------------------------------------------------- restart, jumps, stale poses
@@ -404,8 +418,9 @@ def test_same_scenario_same_event_sequence_in_the_lab_and_on_the_road(tmp, road,
             if t["when"].get("type") == "enter":
                 ev = next(e for e in events(lo, {"trigger"}) if e.event_id == t["id"])
                 c = first_contact(track, vols[t["when"]["volume"]])
-                # measured 0.6 mm (the interpolated contact; at the pose it was up to 0.14 m)
-                assert math.hypot(ev.vehicle.position[0] - c[0], ev.vehicle.position[1] - c[1]) <= 0.002
+                # measured 0.6 mm flat (the interpolated contact; at the pose it was up to 0.14 m),
+                # 3.6 mm on the default site's relief (3-D box vs this flat footprint): bound ~3x
+                assert math.hypot(ev.vehicle.position[0] - c[0], ev.vehicle.position[1] - c[1]) <= 0.011
 
 
 # ---------------------------------------------------------------- live bus
@@ -427,12 +442,17 @@ def test_live_bus_poses_in_agents_and_events_out():
         doc = yaml.safe_load(open(SCEN / "cw02_stop_at_kerb.yaml"))
         vol = next(v for v in doc["volumes"] if v["id"] == "approach")
         yaw = math.radians(vol["yaw_deg"])
+        spec = importlib.util.spec_from_file_location("bench_terrain", ROOT / "tools" / "bench-terrain" / "bench.py")
+        gm = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(gm)
+        ground = gm.read_ground(SITE / "ground.yaml")     # the poses ride the site's ground
         t0 = int(time.time() * 1e6)
         for i in range(150):            # 1.5 s at 100 Hz, driving through the approach volume at 10 m/s
             m = portobello.pose_t()
             m.utime = t0 + i * 10000
             s = -8.0 + 0.1 * i
-            m.position = [vol["center"][0] + s * math.cos(yaw), vol["center"][1] + s * math.sin(yaw), 0.0]
+            px, py = vol["center"][0] + s * math.cos(yaw), vol["center"][1] + s * math.sin(yaw)
+            m.position = [px, py, float(gm.sample(ground, np.array([px]), np.array([py]))[0])]
             m.orientation = [math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)]
             m.velocity = [10 * math.cos(yaw), 10 * math.sin(yaw), 0.0]
             m.status = portobello.pose_t.STATUS_TRACKING

@@ -55,11 +55,18 @@ class Drive:
         self.t = np.array([m.utime for m in p], dtype=np.int64)
         self.xy = np.array([m.position[:2] for m in p])
         q = np.array([m.orientation for m in p])
-        self.yaw = np.unwrap(2 * np.arctan2(q[:, 3], q[:, 0])) if len(p) else np.zeros(0)
+        # ZYX angles of map <- base (the twin pitches and rolls on the ground model)
+        w_, x_, y_, z_ = (q.T if len(p) else np.zeros((4, 0)))
+        self.yaw = np.unwrap(np.arctan2(2 * (w_ * z_ + x_ * y_), 1 - 2 * (y_ * y_ + z_ * z_)))
+        self.roll = np.arctan2(2 * (w_ * x_ + y_ * z_), 1 - 2 * (x_ * x_ + y_ * y_))
+        self.pitch = np.arcsin(np.clip(2 * (w_ * y_ - z_ * x_), -1, 1))
         vel = np.array([m.velocity for m in p])
         self.v = np.hypot(vel[:, 0], vel[:, 1]) if len(p) else np.zeros(0)
         self.vel = vel
-        self.w = np.array([m.angular_velocity[2] for m in p])
+        self.wb = np.array([m.angular_velocity for m in p]).reshape(-1, 3)     # base frame
+        self.w = self.wb[:, 2]
+        # the yaw rate (map z) the base-frame rates give: ZYX kinematics
+        self.yaw_rate = (np.sin(self.roll) * self.wb[:, 1] + np.cos(self.roll) * self.wb[:, 2]) / np.cos(self.pitch)
 
     def rests(self):
         """(first, last) pose index of every stretch at rest."""
@@ -124,7 +131,7 @@ def test_velocities_match_the_motion(lap):
     vmid = 0.5 * (lap.vel[1:, :2] + lap.vel[:-1, :2])
     assert np.max(np.abs(vfd - vmid)) < 0.01
     wfd = np.diff(lap.yaw) / dt
-    assert np.max(np.abs(wfd - 0.5 * (lap.w[1:] + lap.w[:-1]))) < 0.002
+    assert np.max(np.abs(wfd - 0.5 * (lap.yaw_rate[1:] + lap.yaw_rate[:-1]))) < 0.002
 
 
 def test_stops_at_every_stop_line_with_the_bumper_behind_the_line(lap):

@@ -151,21 +151,49 @@ def scan_to_map(drive, scan, vehicle, per_column_time=True):
     return out, rows
 
 
-def world_primitives(day="drive"):
+@pytest.fixture(scope="module")
+def ground(tmp):
+    """The default site's true ground (its terrain), as heights at points: simdrive
+    --terrain-out gives the road and sidewalk band; beyond it the simulator keeps the
+    sidewalk's outer height, so the nearest band cell's height is the ground there."""
+    from scipy import ndimage
+    run_out = tmp / "truth.yaml"
+    subprocess.run([str(BIN), "--site", str(SITE), "--terrain-out", str(run_out)], check=True, capture_output=True)
+    import importlib.util
+    spec = importlib.util.spec_from_file_location("bench_terrain", ROOT / "tools" / "bench-terrain" / "bench.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    x0, y0, c, z = mod.read_ground(run_out)
+    idx = ndimage.distance_transform_edt(np.isnan(z), return_distances=False, return_indices=True)
+    z = z[tuple(idx)]
+    return lambda x, y: mod.sample((x0, y0, c, z), np.asarray(x, dtype=float), np.asarray(y, dtype=float))
+
+
+def world_primitives(ground, day="drive"):
+    """Static primitives as simdrive stands them on the terrain (tools/simdrive/world.c):
+    a box or cylinder reaches down to the lowest ground under its footprint (z0 = 0) and
+    up to its height above the ground at its centre; a sphere rises with the ground."""
     w = yaml.safe_load((SITE / "world.yaml").read_text())
     boxes, cyls, sphs = [], [], []
     for o in w["objects"]:
         if o.get("day", "both") not in ("both", day):
             continue
+        cx, cy = o["center"][:2]
+        hc = float(ground(cx, cy))
         if o["type"] == "box":
             yaw = math.radians(o.get("yaw_deg", 0))
+            hx, hy = o["size"][0] / 2, o["size"][1] / 2
+            u, v = np.array([1, -1, 1, -1]) * hx, np.array([1, 1, -1, -1]) * hy
+            lo = min(hc, ground(cx + np.cos(yaw) * u - np.sin(yaw) * v, cy + np.sin(yaw) * u + np.cos(yaw) * v).min())
             z0 = o.get("z0", 0)
-            boxes.append([*o["center"], yaw, o["size"][0] / 2, o["size"][1] / 2, z0, z0 + o["size"][2]])
+            boxes.append([cx, cy, yaw, hx, hy, lo if z0 == 0 else z0 + hc, hc + z0 + o["size"][2]])
         elif o["type"] == "cylinder":
+            r = o["radius"]
+            lo = min(hc, ground(cx + np.array([r, -r, r, -r]), cy + np.array([r, r, -r, -r])).min())
             z0 = o.get("z0", 0)
-            cyls.append([*o["center"], o["radius"], z0, z0 + o["height"]])
+            cyls.append([cx, cy, r, lo if z0 == 0 else z0 + hc, hc + z0 + o["height"]])
         else:
-            sphs.append([*o["center"], o["radius"]])
+            sphs.append([cx, cy, o["center"][2] + hc, o["radius"]])
     return np.array(boxes), np.array(cyls), np.array(sphs)
 
 
@@ -365,7 +393,8 @@ def test_can_frames_decode_to_ground_truth(drive60, vehicle):
     d = drive60
     dims = vehicle["dimensions"]
     L, hf, hr = dims["wheelbase"], dims["track_front"] / 2, dims["track_rear"] / 2
-    v, w = d.gt_speed, d.gt_w[:, 2]
+    # the wheels roll the 3-D path (on a grade longer than its map projection)
+    v, w = np.linalg.norm(d.gt_vel, axis=1), d.gt_w[:, 2]
     # wheel contact points move with v + w x r: rear (0, +-hr), front (L, +-hf)
     wheel_gt = {
         "WHEEL_SPEED_FL": np.hypot(v - w * hf, w * L), "WHEEL_SPEED_FR": np.hypot(v + w * hf, w * L),
@@ -408,7 +437,7 @@ def _moving_scans(d, vmin=6.0, count=6):
     return idx[:: max(1, len(idx) // count)][:count]
 
 
-def test_lidar_ground_points_on_ground_plane(drive60, vehicle):
+def test_lidar_ground_points_on_the_ground(drive60, vehicle, ground):
     d = drive60
     route = np.array(yaml.safe_load((SITE / "route.yaml").read_text())["points"])
     for i in _moving_scans(d):
@@ -418,32 +447,34 @@ def test_lidar_ground_points_on_ground_plane(drive60, vehicle):
         pts, rows = scan_to_map(d, scan, vehicle)
         alt = np.degrees(np.array(scan.beam_altitude_rad))[rows]
         # downward beams landing within 1.2 m of the driven lane's centreline and within
-        # 15 m of the car: the lane ahead and behind is empty road (z = 0).
+        # 15 m of the car: the lane ahead and behind is empty road (on the terrain).
         car = d.interp(scan.utime, d.gt_pos[:, 0]), d.interp(scan.utime, d.gt_pos[:, 1])
         near = np.hypot(pts[:, 0] - car[0], pts[:, 1] - car[1]) < 15
         sel = pts[(alt < -5) & near]
         dl = np.min(np.hypot(sel[:, None, 0] - route[None, :, 0], sel[:, None, 1] - route[None, :, 1]), axis=1)
-        z = sel[dl < 1.2, 2]
+        sel = sel[dl < 1.2]
+        z = sel[:, 2] - ground(sel[:, 0], sel[:, 1])
         assert len(z) > 200
         # noise 2 cm along the ray projects to < 1 cm in z for beams 5-17 deg down
         assert np.percentile(np.abs(z), 99) < 0.03, np.percentile(np.abs(z), 99)
         assert abs(np.median(z)) < 0.005
 
 
-def test_lidar_per_column_time_matters(drive60, vehicle):
+def test_lidar_per_column_time_matters(drive60, vehicle, ground):
     """Moving at > 6 m/s the car travels 0.6+ m during a sweep: points moved with the
     pose at their column's time land on the world's surfaces; moved with the sweep
     start's pose, they are measurably off."""
     d = drive60
-    prims = world_primitives("drive")
+    prims = world_primitives(ground, "drive")
     good, bad = [], []
     for i in _moving_scans(d):
         scan = d.scan(i)
         car = d.interp(scan.utime, d.gt_pos[:, 0]), d.interp(scan.utime, d.gt_pos[:, 1])
         for per_col, acc in ((True, good), (False, bad)):
             pts, _ = scan_to_map(d, scan, vehicle, per_column_time=per_col)
-            # above the curbs (not ground) and within 40 m: buildings, trees, poles, cars
-            keep = (pts[:, 2] > 0.4) & (np.hypot(pts[:, 0] - car[0], pts[:, 1] - car[1]) < 40)
+            # above the kerbs (not ground) and within 40 m: buildings, trees, poles, cars
+            keep = ((pts[:, 2] - ground(pts[:, 0], pts[:, 1]) > 0.4)
+                    & (np.hypot(pts[:, 0] - car[0], pts[:, 1] - car[1]) < 40))
             dist = distance_to_world(pts[keep], prims, car)
             acc.append(dist[dist < 2.0])     # farther: moving traffic, not in the static list
     good, bad = np.concatenate(good), np.concatenate(bad)
@@ -570,7 +601,7 @@ def test_bad_site_and_vehicle_files(tmp):
 
 # ---------------------------------------------------------------- the default site's prior map
 
-def test_default_prior_map_is_the_mapping_day():
+def test_default_prior_map_is_the_mapping_day(ground):
     """maps/default/map.pcd (built by make from a --mapping drive) lies on the
     mapping-day surfaces: map-only parked cars are in it, drive-only ones are not."""
     pcd = SITE / "map.pcd"
@@ -580,15 +611,15 @@ def test_default_prior_map_is_the_mapping_day():
     assert "FIELDS x y z intensity" in head and "TYPE F F F F" in head
     pts = np.frombuffer(raw[raw.index(b"DATA binary\n") + 12:], dtype=np.float32).reshape(-1, 4)[:, :3]
     pts = pts.astype(np.float64)
-    ground = pts[np.abs(pts[:, 2]) < 0.05]
-    assert len(ground) > 0.3 * len(pts)
-    above = pts[pts[:, 2] > 0.4]
+    h = pts[:, 2] - ground(pts[:, 0], pts[:, 1])     # height above the terrain
+    assert np.mean(np.abs(h) < 0.05) > 0.3
+    above, h_above = pts[h > 0.4], h[h > 0.4]
     sample = above[np.random.default_rng(0).choice(len(above), 20000, replace=False)]
-    dist = distance_to_world(sample, world_primitives("map"), (300.0, 90.0), radius=1e9)
+    dist = distance_to_world(sample, world_primitives(ground, "map"), (300.0, 90.0), radius=1e9)
     # 15 cm voxel centroids of 2 cm-noise points on smooth surfaces
     assert np.median(dist) < 0.03 and np.mean(dist < 0.15) > 0.97, (np.median(dist), np.mean(dist < 0.15))
     w = yaml.safe_load((SITE / "world.yaml").read_text())
-    low = above[above[:, 2] < 1.8]      # car height, below tree crowns
+    low = above[h_above < 1.8]          # car height, below tree crowns
     for day, present in (("map", True), ("drive", False)):
         cars = [o for o in w["objects"] if o.get("day") == day and o["size"][2] > 0.7]   # car bodies
         assert len(cars) >= 3

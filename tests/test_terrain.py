@@ -12,6 +12,7 @@ road, kerbs and raised sidewalks), its ground model, and height-aware staging.
   within 0.2 m of the footprint's first contact; agents' feet are on the ground.
 """
 import math
+import sys
 
 import numpy as np
 import pytest
@@ -33,12 +34,21 @@ def read_ground(path):
     return mod, mod.read_ground(path)
 
 
+SITES = ["hills", "default"]       # both bundled sites have terrain (the default: gentle relief)
+_truths = {}
+
+
+def site_truth(tmp, site):
+    """The simulator's true ground of maps/SITE on drivable and walkable cells, as a ground model."""
+    if site not in _truths:
+        run([BIN / "simdrive", "--site", ROOT / "maps" / site, "--terrain-out", tmp / f"truth-{site}.yaml"])
+        _truths[site] = read_ground(tmp / f"truth-{site}.yaml")
+    return _truths[site]
+
+
 @pytest.fixture(scope="module")
 def truth(tmp):
-    """The simulator's true ground on drivable and walkable cells, as a ground model."""
-    run([BIN / "simdrive", "--site", HILLS, "--terrain-out", tmp / "truth.yaml"])
-    mod, t = read_ground(tmp / "truth.yaml")
-    return mod, t
+    return site_truth(tmp, "hills")
 
 
 @pytest.fixture(scope="module")
@@ -165,9 +175,10 @@ def test_gnss_height_follows_the_terrain(hills_imu, vehicle):
     assert np.abs(err).max() < 4 * 1.5 * sim["gnss_noise"] + 0.05, np.abs(err).max()
 
 
-def test_ground_model_matches_the_true_terrain(truth):
-    mod, tg = truth
-    model = mod.read_ground(HILLS / "ground.yaml")
+@pytest.mark.parametrize("site", SITES)
+def test_ground_model_matches_the_true_terrain(tmp, site):
+    mod, tg = site_truth(tmp, site)
+    model = mod.read_ground(ROOT / "maps" / site / "ground.yaml")
     x0, y0, c, zt = tg
     jj, ii = np.nonzero(~np.isnan(zt))
     pick = np.arange(0, len(jj), 7)         # a seventh of the cells is plenty
@@ -175,16 +186,18 @@ def test_ground_model_matches_the_true_terrain(truth):
     zm = mod.sample(model, x, y)
     assert np.mean(~np.isnan(zm)) > 0.99
     e = np.abs(zm - z)[~np.isnan(zm)]
-    # measured (make bench-terrain): p95 1.5 cm, median 0.36 cm; bounds ~3x
+    # measured (make bench-terrain): hills p95 1.5 cm, median 0.36 cm; default p95 1.0 cm,
+    # median 0.24 cm; bounds ~3x the hills' (the larger)
     assert np.percentile(e, 95) < 0.045, np.percentile(e, 95)
     assert np.median(e) < 0.012
 
 
-@pytest.fixture(scope="module")
-def road_lab(tmp):
-    run([BIN / "simdrive", "--site", HILLS, "--no-lidar", "--quiet", "--seed", 3, "--duration", 110, "--out", tmp / "road"])
-    run([BIN / "lab_vehicle", "--site", HILLS, "--out", tmp / "lab.lcm", "--auto-proceed", 2.0, "--duration", 115])
-    return tmp / "road" / "drive.lcm", tmp / "lab.lcm"
+def road_lab(tmp, site):
+    sdir = ROOT / "maps" / site
+    run([BIN / "simdrive", "--site", sdir, "--no-lidar", "--quiet", "--seed", 3, "--duration", 110,
+         "--out", tmp / f"road-{site}"])
+    run([BIN / "lab_vehicle", "--site", sdir, "--out", tmp / f"lab-{site}.lcm", "--auto-proceed", 2.0, "--duration", 115])
+    return tmp / f"road-{site}" / "drive.lcm", tmp / f"lab-{site}.lcm"
 
 
 def director(site, drive, out, scenario, channel):
@@ -192,18 +205,20 @@ def director(site, drive, out, scenario, channel):
          "--pose-channel", channel])
 
 
-def test_lab_and_road_same_events_on_the_hills(tmp, road_lab, truth):
-    road, lab = road_lab
-    mod, tg = truth
-    ground = mod.read_ground(HILLS / "ground.yaml")
-    scen = HILLS / "scenarios"
+@pytest.mark.parametrize("site", SITES)
+def test_lab_and_road_same_events(tmp, site):
+    sdir = ROOT / "maps" / site
+    road, lab = road_lab(tmp, site)
+    mod, tg = site_truth(tmp, site)
+    ground = mod.read_ground(sdir / "ground.yaml")
+    scen = sdir / "scenarios"
     names = sorted(p.stem for p in scen.glob("cw*.yaml"))
     assert len(names) == 4
     worst_trigger, worst_feet_model, feet_truth, nfeet = 0.0, 0.0, [], 0
     for name in names:
-        lo, ro = tmp / f"lab_{name}.lcm", tmp / f"road_{name}.lcm"
-        director(HILLS, lab, lo, name, "POSE")
-        director(HILLS, road, ro, name, "GROUND_TRUTH")
+        lo, ro = tmp / f"lab_{site}_{name}.lcm", tmp / f"road_{site}_{name}.lcm"
+        director(sdir, lab, lo, name, "POSE")
+        director(sdir, road, ro, name, "GROUND_TRUTH")
         seq_lab = [(e.kind, e.event_id, e.agent_id) for e in td.events(lo)]
         seq_road = [(e.kind, e.event_id, e.agent_id) for e in td.events(ro)]
         assert seq_lab == seq_road, name
@@ -239,6 +254,9 @@ def test_lab_and_road_same_events_on_the_hills(tmp, road_lab, truth):
     # sits on its ramp (max 9.6 cm measured); elsewhere within millimetres. Measured:
     # median 0.4 cm, p95 2.2 cm, p99 2.2 cm; bounds ~3x (median) and the 5 cm target (p95).
     ft = np.concatenate(feet_truth)
+    print(f"{site}: triggers within {worst_trigger:.3f} m of first contact; feet vs true ground median "
+          f"{100 * np.median(ft):.2f} cm, p95 {100 * np.percentile(ft, 95):.2f} cm, max {100 * ft.max():.1f} cm "
+          f"({nfeet} feet)")
     assert np.median(ft) < 0.012, np.median(ft)
     assert np.percentile(ft, 95) < 0.05, np.percentile(ft, 95)
 
@@ -255,3 +273,64 @@ def test_world_changes_are_switchable_groups(tmp):
     assert p.returncode == 2 and "'sheep'" in p.stderr and "fence, bus, row, foliage" in p.stderr
     assert ts.simdrive(tmp / "allgroups", "--site", HILLS, "--duration", 1, "--no-lidar",
                        "--without", "fence,bus,row,foliage").returncode == 0
+
+
+@pytest.mark.parametrize("site", ["default", "hills"])
+def test_site_files_are_their_generators_output(tmp, site):
+    """maps/SITE/{site,route,world}.yaml are what tools/make-SITE-site writes (the relief
+    lives in the script): make rebuilds map.pcd and ground.yaml from these committed
+    files, so a script edited but not re-run would leave the map behind."""
+    out = tmp / f"gen-{site}"
+    run([sys.executable, ROOT / "tools" / f"make-{site}-site", "--out", out])
+    for name in ("site.yaml", "route.yaml", "world.yaml"):
+        assert (out / name).read_bytes() == (ROOT / "maps" / site / name).read_bytes(), \
+            f"maps/{site}/{name} differs from tools/make-{site}-site's output: re-run it and commit both"
+
+
+def test_staged_agents_and_the_eye_stand_on_the_default_relief(tmp, vehicle):
+    """simdrive --scenario on the default site's relief: the staged agents' feet are on the
+    true terrain (OCCLUSION_TRUTH is ray-cast to them) and the eye rides the car's 3-D pose."""
+    from conftest import read_log
+    import portobello
+    site = ROOT / "maps" / "default"
+    mod, tg = site_truth(tmp, "default")
+    out = tmp / "occ-default"
+    run([BIN / "simdrive", "--site", site, "--out", out, "--duration", 12, "--seed", 5, "--no-lidar", "--quiet",
+         "--scenario", site / "scenes" / "occlusion_scene.yaml"])
+    # OCCLUSION_TRUTH comes at sweep ends: without the LiDAR there are none, so feet from AGENTS
+    xs, ys, zs = [], [], []
+    for _, _, data in read_log(out / "drive.lcm", {"AGENTS"}):
+        for a in portobello.agents_t.decode(data).agents:
+            xs.append(a.position[0]); ys.append(a.position[1]); zs.append(a.position[2])
+    xs, ys, zs = map(np.array, (xs, ys, zs))
+    zt = mod.sample(tg, xs, ys)
+    ok = ~np.isnan(zt)
+    assert len(zs) > 1000 and ok.mean() > 0.9 and np.ptp(zs) > 0.5, (len(zs), ok.mean(), np.ptp(zs))
+    # they stand on the raster itself (the flat plane would be metres off): measured 0.5 mm
+    # worst (the truth file's 1 mm height steps); bound ~3x
+    print(f"staged feet vs the true terrain: {1000 * np.abs(zs[ok] - zt[ok]).max():.2f} mm worst")
+    assert np.abs(zs[ok] - zt[ok]).max() < 0.0015, np.abs(zs[ok] - zt[ok]).max()
+    # the eye (no --head: the seat's eye point) in map is the car's 3-D pose applied to it
+    gts = [portobello.pose_t.decode(d) for _, _, d in read_log(out / "drive.lcm", {"GROUND_TRUTH"})]
+    gt_t = np.array([m.utime for m in gts], dtype=np.float64)
+    gt_p = np.array([m.position for m in gts])
+    gt_q = np.array([m.orientation for m in gts])
+    eye = np.array(vehicle["seat"]["eye_xyz"])
+    worst, n = 0.0, 0
+    for _, _, data in read_log(out / "drive.lcm", {"OCCLUSION_TRUTH"}):
+        o = portobello.occlusion_t.decode(data)
+        if not gt_t[0] <= o.utime <= gt_t[-1]:
+            continue
+        # the pose at the sweep's end, interpolated between the 100 Hz samples
+        pos = np.array([np.interp(o.utime, gt_t, gt_p[:, k]) for k in range(3)])
+        q = np.array([np.interp(o.utime, gt_t, gt_q[:, k]) for k in range(4)])
+        w, x, y, z = q / np.linalg.norm(q)
+        R = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                      [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                      [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+        worst = max(worst, np.abs(np.array(o.viewer) - (pos + R @ eye)).max())
+        n += 1
+    print(f"eye vs the 3-D pose: {1000 * worst:.3f} mm worst over {n} sweeps")
+    # measured 1 um (the pose interpolated between 100 Hz samples); bound ~3x (the plane
+    # z = 0 would put the eye metres off)
+    assert n > 50 and worst < 3e-6, (n, worst)

@@ -128,10 +128,7 @@ static double st_dist_or_zero(const trajectory_t *tr, double t)
 static int write_terrain(const terrain_t *T, const char *path, pb_err_t *err)
 {
     if (!T->enabled) return pb_err_set(err, "--terrain-out: the site has no terrain (its ground is the plane z = 0)");
-    pb_ground_t *g = pb_ground_create(T->x0, T->y0, T->cell, T->nx, T->ny);
-    for (int j = 0; j < T->ny; j++)
-        for (int i = 0; i < T->nx; i++)
-            if (T->walk[(size_t)j * T->nx + i]) pb_ground_set(g, i, j, T->h[(size_t)j * T->nx + i]);
+    pb_ground_t *g = terrain_ground(T, 1);
     int rc = pb_ground_save(g, path, err);
     pb_ground_destroy(g);
     return rc;
@@ -364,7 +361,7 @@ int main(int argc, char **argv)
             p.match_score = NAN;
             PB_LOG_WRITE_MSG(&out, "GROUND_TRUTH", portobello_pose_t, &p);
             if (k[best] % 50 == 0) pb_progress_update(&prog, tb);
-            if (occ) sim_occ_pose(occ, &st, utime, &out);
+            if (occ) sim_occ_pose(occ, &b, utime, &out);
             fprintf(tum, "%.6f %.6f %.6f %.6f %.9f %.9f %.9f %.9f\n", utime * 1e-6, p.position[0], p.position[1],
                     p.position[2], p.orientation[1], p.orientation[2], p.orientation[3], p.orientation[0]);
             break;
@@ -378,7 +375,7 @@ int main(int argc, char **argv)
             break;
         }
         case S_TRUTH:
-            sim_occ_truth(occ, &st, utime, &out);
+            sim_occ_truth(occ, &b, utime, &out);
             break;
         case S_LIDAR:
             lidar_simulate(&ls, (int32_t)k[best], t, utime, &scan);

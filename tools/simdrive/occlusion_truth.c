@@ -20,6 +20,7 @@ struct sim_occ {
     const pb_route_t *route;
     const pb_vehicle_t *veh;
     const world_t *world;
+    pb_ground_t *ground;        /* the terrain's raster (NULL: the plane z = 0) */
     sc_scenario_t sc;
     director_t *dir;
     dir_agent_out_t *agents;
@@ -49,6 +50,8 @@ sim_occ_t *sim_occ_create(const char *scenario_path, const pb_route_t *route, co
     dir_vehicle_t dv = { veh->length, veh->width, veh->height, veh->rear_overhang };
     so->dir = dir_create(&so->sc, route, &dv, no_events, NULL, err);
     if (!so->dir) { sc_free(&so->sc); free(so); return NULL; }
+    so->ground = terrain_ground(&world->terrain, 0);
+    dir_set_ground(so->dir, so->ground);
     int n = so->sc.nagents ? so->sc.nagents : 1;
     so->agents = calloc(n, sizeof *so->agents);
     so->msg_agents = calloc(n, sizeof *so->msg_agents);
@@ -64,6 +67,7 @@ void sim_occ_destroy(sim_occ_t *so)
 {
     if (!so) return;
     dir_destroy(so->dir);
+    pb_ground_destroy(so->ground);
     sc_free(&so->sc);
     free(so->agents); free(so->msg_agents); free(so->occ); free(so->xyz); free(so->state); free(so->occ_m);
     free(so->mail);
@@ -80,12 +84,13 @@ static void head_at(const sim_occ_t *so, double t, double h[3])
     h[2] = e[2] + (so->head ? 0.02 * sin(2 * M_PI * 0.31 * t + 2.0) : 0);
 }
 
-void sim_occ_pose(sim_occ_t *so, const traj_state_t *st, int64_t utime, pb_log_out_t *out)
+void sim_occ_pose(sim_occ_t *so, const body_state_t *b, int64_t utime, pb_log_out_t *out)
 {
+    const traj_state_t *st = &b->st;
     dir_pose_t p = { .utime = utime };
-    p.pos[0] = st->x; p.pos[1] = st->y;
-    p.q[0] = cos(st->yaw / 2); p.q[3] = sin(st->yaw / 2);
-    p.vel[0] = st->v * cos(st->yaw); p.vel[1] = st->v * sin(st->yaw);
+    memcpy(p.pos, b->p, sizeof p.pos);
+    memcpy(p.q, b->q, sizeof p.q);
+    memcpy(p.vel, b->v, sizeof p.vel);
     pb_err_t err;
     dir_pose(so->dir, &p, &err);    /* ground truth is finite and in order: never refused */
     if (so->head) {
@@ -101,16 +106,18 @@ void sim_occ_pose(sim_occ_t *so, const traj_state_t *st, int64_t utime, pb_log_o
     PB_LOG_WRITE_MSG(out, "AGENTS", portobello_agents_t, &m);
 }
 
-void sim_occ_truth(sim_occ_t *so, const traj_state_t *st, int64_t utime, pb_log_out_t *out)
+void sim_occ_truth(sim_occ_t *so, const body_state_t *b, int64_t utime, pb_log_out_t *out)
 {
+    const traj_state_t *st = &b->st;
     /* the agents and the traffic at this instant, the eye in map */
     dir_tick(so->dir, utime);
     int n = dir_agents(so->dir, so->agents);
     mover_t mov[WORLD_MAX_TRAFFIC];
     int nmov = world_movers(so->world, so->route, st->t, so->seed, mov);
-    double h[3], c = cos(st->yaw), s = sin(st->yaw);
+    double h[3], eye[3];
     head_at(so, st->t, h);
-    double eye[3] = { st->x + c * h[0] - s * h[1], st->y + s * h[0] + c * h[1], h[2] };
+    for (int r = 0; r < 3; r++)     /* map <- base: the body's 3-D pose on the terrain */
+        eye[r] = b->p[r] + b->R[3 * r] * h[0] + b->R[3 * r + 1] * h[1] + b->R[3 * r + 2] * h[2];
     for (int i = 0; i < n; i++) {
         const dir_agent_out_t *a = &so->agents[i];
         portobello_agent_occlusion_t *o = &so->occ[i];

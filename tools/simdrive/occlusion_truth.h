@@ -7,7 +7,9 @@
  * the end of every LiDAR sweep OCCLUSION_TRUTH gives, for every sample point of
  * every agent (common/pb_body), whether the straight segment from the eye to it
  * meets the world (static objects, the traffic at that instant, the ground):
- * state hidden with the distance to the first surface, else visible.
+ * state hidden with the distance to the first surface, else visible. On a site
+ * with terrain the agents stand on the true height field (the director's core with
+ * the terrain's raster as its ground model) and the eye rides the body's 3-D pose.
  *
  * Ownership: sim_occ_create keeps pointers to route, vehicle and world (they must
  * outlive it); sim_occ_destroy frees the rest. */
@@ -19,7 +21,7 @@
 #include "pb_log.h"
 #include "pb_route.h"
 #include "pb_vehicle.h"
-#include "trajectory.h"
+#include "body.h"
 #include "world.h"
 
 typedef struct sim_occ sim_occ_t;
@@ -28,11 +30,11 @@ sim_occ_t *sim_occ_create(const char *scenario_path, const pb_route_t *route, co
                           const world_t *world, int head, uint64_t seed, pb_err_t *err);
 void sim_occ_destroy(sim_occ_t *so);
 
-/* A ground-truth pose at time t (s since start): advances the agents; writes
+/* A ground-truth pose of the body (on the terrain): advances the agents; writes
  * HEAD_POSE (with --head) and, every third pose, AGENTS. */
-void sim_occ_pose(sim_occ_t *so, const traj_state_t *st, int64_t utime, pb_log_out_t *out);
+void sim_occ_pose(sim_occ_t *so, const body_state_t *b, int64_t utime, pb_log_out_t *out);
 
 /* OCCLUSION_TRUTH for the instant t (the end of a sweep). */
-void sim_occ_truth(sim_occ_t *so, const traj_state_t *st, int64_t utime, pb_log_out_t *out);
+void sim_occ_truth(sim_occ_t *so, const body_state_t *b, int64_t utime, pb_log_out_t *out);
 
 #endif

@@ -348,3 +348,13 @@ double terrain_raycast(const terrain_t *T, const double o[3], const double d[3],
     double t = march(T, T->nlevels - 1, o, d, 0, tmax, step);
     return t > EPS ? t : INFINITY;
 }
+
+pb_ground_t *terrain_ground(const terrain_t *T, int walk_only)
+{
+    if (!T->enabled) return NULL;
+    pb_ground_t *g = pb_ground_create(T->x0, T->y0, T->cell, T->nx, T->ny);
+    for (int j = 0; j < T->ny; j++)
+        for (int i = 0; i < T->nx; i++)
+            if (!walk_only || T->walk[(size_t)j * T->nx + i]) pb_ground_set(g, i, j, T->h[(size_t)j * T->nx + i]);
+    return g;
+}

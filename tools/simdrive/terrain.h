@@ -19,6 +19,7 @@
 
 #include "pb_config.h"
 #include "pb_err.h"
+#include "pb_ground.h"
 #include "pb_route.h"
 
 typedef struct {
@@ -49,6 +50,10 @@ double terrain_height(const terrain_t *T, double x, double y);
 double terrain_height_near(const terrain_t *T, double x, double y, double s_guess);
 /* 1 if (x, y) is on the road, kerb or sidewalk band (drivable or walkable). */
 int terrain_walkable(const terrain_t *T, double x, double y);
+/* The raster as a ground model (pb_ground, caller destroys): every sample, or with
+ * walk_only the drivable and walkable band only (what a map-built model is measured
+ * on). NULL without a terrain. */
+pb_ground_t *terrain_ground(const terrain_t *T, int walk_only);
 /* First intersection t in (0, tmax] of o + t d with the ground, or INFINITY. */
 double terrain_raycast(const terrain_t *T, const double o[3], const double d[3], double tmax);
 
