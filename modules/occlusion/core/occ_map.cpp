@@ -27,8 +27,34 @@ const int GN = 256, GROUND_TTL = 50;
 const int NAZ = 1024, NEL = 128;
 const int SORT_EVERY = 16;                  /* sweeps between sorts of the occupied list */
 const double EL_MIN = -0.55, EL_MAX = 0.55;  /* rad (+-31.5 deg) */
+/* where this sweep's returns lie inside each voxel hit: 4 x 4 x 4 sub-cells (5 cm at 0.2 m)
+ * as the bits of a uint64 (x + 4 y + 16 z), in an open-addressed table by fine bit index */
+const int SUB = 4, SUB_TABLE = 1 << 16;
+const uint64_t SUB_FULL = ~0ull;
+const uint64_t SUB_X0 = 0x1111111111111111ull, SUB_X3 = SUB_X0 << 3;     /* sub-cells with x = 0, x = 3 */
+const uint64_t SUB_Y0 = 0x000f000f000f000full, SUB_Y3 = SUB_Y0 << 12;    /* y = 0, y = 3 */
+const uint64_t SUB_Z0 = 0xffffull, SUB_Z3 = SUB_Z0 << 48;                /* z = 0, z = 3 */
 
 struct ground_cell_t { int32_t cx, cy, sweep; float minz; };
+
+/* Extends a sub-cell mask to the voxel's far side along one axis (dir +1 / -1 along x, y or z):
+ * an object is solid behind the surface the beam met. */
+inline uint64_t sub_extrude(uint64_t b, int axis, int dir)
+{
+    static const uint64_t lo[3] = { SUB_X0, SUB_Y0, SUB_Z0 }, hi[3] = { SUB_X3, SUB_Y3, SUB_Z3 };
+    const int sh = axis == 0 ? 1 : axis == 1 ? SUB : SUB * SUB;
+    for (int i = 1; i < SUB; i++) b |= dir > 0 ? (b & ~hi[axis]) << sh : (b & ~lo[axis]) >> sh;
+    return b;
+}
+
+/* Grows a sub-cell mask by one sub-cell in every direction (within the voxel). */
+inline uint64_t sub_dilate(uint64_t b)
+{
+    b |= ((b & ~SUB_X3) << 1) | ((b & ~SUB_X0) >> 1);
+    b |= ((b & ~SUB_Y3) << 4) | ((b & ~SUB_Y0) >> 4);
+    b |= ((b & ~SUB_Z3) << 16) | ((b & ~SUB_Z0) >> 16);
+    return b;
+}
 
 inline uint64_t pack(const OcTreeKey &k) { return (uint64_t)k[0] | (uint64_t)k[1] << 16 | (uint64_t)k[2] << 32; }
 inline OcTreeKey unpack(uint64_t p) { return OcTreeKey((uint16_t)p, (uint16_t)(p >> 16), (uint16_t)(p >> 32)); }
@@ -56,6 +82,9 @@ struct occ_map_t {
     std::vector<uint64_t> fill_bits;        /* this sweep's columns below objects that reach under the lowest beam */
     std::vector<uint32_t> fill_list;        /* their bit indices (cleared at the next sweep) */
     std::vector<int> low_candidates;        /* scratch: non-ground returns near the car */
+    std::vector<uint32_t> sub_key;          /* SUB_TABLE slots: fine bit index + 1 of a voxel hit this sweep (0 free) */
+    std::vector<uint64_t> sub_mask;         /* its returns' sub-cells, grown by the point spacing (SUB_FULL: the whole voxel) */
+    std::vector<uint32_t> sub_used;         /* used slots (freed at the next sweep) */
 
     explicit occ_map_t(const occ_config_t &c) : cfg(c), fine(c.resolution), observed(c.observed_resolution) {}
 };
@@ -93,6 +122,8 @@ occ_map_t *occ_map_create(const occ_config_t *cfg)
     m->fill_bits.assign((size_t)FX * FX * FZ / 64, 0);
     m->hit_bits.assign((size_t)FX * FX * FZ / 64, 0);
     m->sat_bits.assign((size_t)FX * FX * FZ / 64, 0);
+    m->sub_key.assign(SUB_TABLE, 0);
+    m->sub_mask.assign(SUB_TABLE, 0);
     return m;
 }
 
@@ -111,6 +142,8 @@ void occ_map_clear(occ_map_t *m)
     std::fill(m->hit_bits.begin(), m->hit_bits.end(), 0);
     m->hit_list.clear();
     m->fill_list.clear();
+    for (uint32_t u : m->sub_used) m->sub_key[u] = 0;
+    m->sub_used.clear();
     for (ground_cell_t &g : m->ground) g.sweep = -1000000;
     m->blocks.clear();
     m->occupied.clear();
@@ -337,6 +370,51 @@ static void trace_observed(occ_map_t *m, const double o[3], const double pe[3], 
     }
 }
 
+/* The table slot of a voxel hit this sweep (by fine bit index), or -1. */
+static int sub_find(const occ_map_t *m, size_t bi)
+{
+    for (uint32_t h = (uint32_t)(bi * 2654435761u) >> 16, n = 0; n < (uint32_t)SUB_TABLE; h = (h + 1) & (SUB_TABLE - 1), n++) {
+        if (m->sub_key[h] == bi + 1) return (int)h;
+        if (m->sub_key[h] == 0) return -1;
+    }
+    return -1;
+}
+
+/* Adds a return at (x, y, z), range r from the sensor along beam, to its voxel's
+ * sub-cells: its column of cells (the whole voxel height: roofs and hoods are seen at
+ * grazing angles, their returns far apart), those behind it along the beam (objects are
+ * solid), all grown by half the gap between neighbouring beams at r (at least one
+ * sub-cell), so the returns' cells cover the surface between them. A voxel too far for
+ * that (or a full table) is the whole voxel. What is left tight is the side edges:
+ * a pole, a parked car's end, the back of a bus. */
+static void sub_add(occ_map_t *m, size_t bi, const OcTreeKey &k, double x, double y, double z, const double beam[3], double r)
+{
+    const double sub_m = m->cfg.resolution / SUB;
+    const int grow = std::max(1, (int)std::ceil(r * m->cfg.beam_gap_rad / (2 * sub_m)));
+    uint64_t add = SUB_FULL;
+    if (grow < SUB - 1) {
+        int c[3];
+        const double p[3] = { x, y, z };
+        for (int i = 0; i < 3; i++)
+            c[i] = std::min(SUB - 1, std::max(0, (int)((p[i] * m->inv_res + KEY_ORIGIN - k[i]) * SUB)));
+        add = 1ull << (c[0] + SUB * c[1] + SUB * SUB * c[2]);
+        for (int i = 0; i < 2; i++)     /* behind the return, along the beam's main horizontal axes */
+            if (std::fabs(beam[i]) > 0.35 * r) add = sub_extrude(add, i, beam[i] > 0 ? 1 : -1);
+        add = sub_extrude(sub_extrude(add, 2, 1), 2, -1);
+        for (int g = 0; g < grow; g++) add = sub_dilate(add);
+    }
+    for (uint32_t h = (uint32_t)(bi * 2654435761u) >> 16, n = 0; n < (uint32_t)SUB_TABLE; h = (h + 1) & (SUB_TABLE - 1), n++) {
+        if (m->sub_key[h] == bi + 1) { m->sub_mask[h] |= add; return; }
+        if (m->sub_key[h] == 0) {
+            if (m->sub_used.size() * 2 > (size_t)SUB_TABLE) return;   /* table half full: the voxel stays whole */
+            m->sub_key[h] = (uint32_t)bi + 1;
+            m->sub_mask[h] = add;
+            m->sub_used.push_back(h);
+            return;
+        }
+    }
+}
+
 void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_t *st)
 {
     const occ_config_t &c = m->cfg;
@@ -365,6 +443,8 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
     /* 2. hits: returns above the ground, one update per voxel */
     for (uint32_t b : m->hit_list) clr_bit(m->hit_bits, b);
     m->hit_list.clear();
+    for (uint32_t u : m->sub_used) m->sub_key[u] = 0;
+    m->sub_used.clear();
     /* the bitmaps are rings of FZ voxels in z: exact for the FZ around the car's height
      * (everything the eye rays cross); returns beyond that band skip the per-sweep shortcuts */
     OcTreeKey car_key;
@@ -382,6 +462,8 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
         size_t bi = fine_bit(k);
         bool band = std::abs((int)k[2] - car_kz) < FZ / 2;
         if (band) {
+            const double beam[3] = { dx, dy, dz };
+            sub_add(m, bi, k, x, y, z, beam, std::sqrt(dx * dx + dy * dy + dz * dz));
             if (get_bit(m->hit_bits, bi)) continue;        /* one update per voxel and sweep */
             set_bit(m->hit_bits, bi);
             m->hit_list.push_back((uint32_t)bi);
@@ -484,6 +566,26 @@ static double ego_exit(const occ_config_t &c, const double e[3], const double d[
     return std::isfinite(t) ? t : 0;
 }
 
+/* Where the ray (u0 + du t, fine-voxel units) first meets the sub-cells of voxel key
+ * between t0 and t1 that hold this sweep's returns (grown), or t0 for a voxel not hit
+ * this sweep (all of it counts: what it held may still be there); -1 if it passes
+ * them. Sampled every 1/8 sub-cell: a corner clipped by less is not a hit. */
+static double sub_hit(const occ_map_t *m, size_t fb, const int key[3], const double u0[3], const double du[3], double t0,
+                      double t1)
+{
+    int slot = sub_find(m, fb);
+    if (slot < 0 || m->sub_mask[slot] == SUB_FULL) return t0;
+    const uint64_t mask = m->sub_mask[slot];
+    const double dt = m->cfg.resolution / SUB / 8;
+    for (double t = t0; t < t1 + dt; t += dt) {
+        double tt = std::min(t, t1);
+        int c[3];
+        for (int i = 0; i < 3; i++) c[i] = std::min(SUB - 1, std::max(0, (int)((u0[i] + du[i] * tt - key[i]) * SUB)));
+        if ((mask >> (c[0] + SUB * c[1] + SUB * SUB * c[2])) & 1) return tt;
+    }
+    return -1;
+}
+
 static int8_t query_one(const occ_map_t *m, const double e[3], const double bp[3], double yaw, double sx, double sy,
                         double sz, float *occ)
 {
@@ -537,11 +639,14 @@ static int8_t query_one(const occ_map_t *m, const double e[3], const double bp[3
                 OcTreeKey k((uint16_t)key[0], (uint16_t)key[1], (uint16_t)key[2]);
                 size_t fb = fine_bit(k);
                 if (get_bit(m->fill_bits, fb)) { *occ = (float)tf; return OCC_HIDDEN; }
+                int a = tmax[0] < tmax[1] ? (tmax[0] < tmax[2] ? 0 : 2) : (tmax[1] < tmax[2] ? 1 : 2);
                 if (get_bit(m->fine_bits, fb)) {
                     const octomap::OcTreeNode *nd = m->fine.search(k);
-                    if (nd && m->fine.isNodeOccupied(nd)) { *occ = (float)tf; return OCC_HIDDEN; }
+                    if (nd && m->fine.isNodeOccupied(nd)) {
+                        double th = sub_hit(m, fb, key, u0, du, tf, std::min(tmax[a], tend));
+                        if (th >= 0) { *occ = (float)th; return OCC_HIDDEN; }
+                    }
                 }
-                int a = tmax[0] < tmax[1] ? (tmax[0] < tmax[2] ? 0 : 2) : (tmax[1] < tmax[2] ? 1 : 2);
                 tf = tmax[a];
                 if (tf >= tout) break;
                 key[a] += (int)step[a];
