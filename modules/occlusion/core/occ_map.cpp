@@ -27,33 +27,35 @@ const int GN = 256, GROUND_TTL = 50;
 const int NAZ = 1024, NEL = 128;
 const int SORT_EVERY = 16;                  /* sweeps between sorts of the occupied list */
 const double EL_MIN = -0.55, EL_MAX = 0.55;  /* rad (+-31.5 deg) */
-/* where this sweep's returns lie inside each voxel hit: 4 x 4 x 4 sub-cells (5 cm at 0.2 m)
- * as the bits of a uint64 (x + 4 y + 16 z), in an open-addressed table by fine bit index */
+/* where this sweep's returns lie inside each voxel hit, across (x, y): 4 x 4 columns of
+ * sub-cells (5 cm at 0.2 m) as bits 0-15 (x + 4 y), with how to grow them in bits 16-21
+ * (see sub_add), in an open-addressed table by fine bit index */
 const int SUB = 4, SUB_TABLE = 1 << 16;
-const uint64_t SUB_FULL = ~0ull;
-const uint64_t SUB_X0 = 0x1111111111111111ull, SUB_X3 = SUB_X0 << 3;     /* sub-cells with x = 0, x = 3 */
-const uint64_t SUB_Y0 = 0x000f000f000f000full, SUB_Y3 = SUB_Y0 << 12;    /* y = 0, y = 3 */
-const uint64_t SUB_Z0 = 0xffffull, SUB_Z3 = SUB_Z0 << 48;                /* z = 0, z = 3 */
+const uint32_t SUB_XP = 1u << 16, SUB_XN = 1u << 17, SUB_YP = 1u << 18, SUB_YN = 1u << 19;  /* beam along +x, -x, +y, -y */
+const int SUB_GROW_SHIFT = 20;              /* 2 bits: grow by 1 or 2 sub-cells; 3: the whole voxel */
+const uint32_t SUB_X0 = 0x1111, SUB_X3 = 0x8888, SUB_Y0 = 0x000f, SUB_Y3 = 0xf000;   /* cells with x = 0, x = 3, y = 0, y = 3 */
 
 struct ground_cell_t { int32_t cx, cy, sweep; float minz; };
 
-/* Extends a sub-cell mask to the voxel's far side along one axis (dir +1 / -1 along x, y or z):
- * an object is solid behind the surface the beam met. */
-inline uint64_t sub_extrude(uint64_t b, int axis, int dir)
+/* The sub-cells a voxel's returns stand for (16 bits, x + 4 y; 0xffff: all of it): their
+ * cells, those behind them along the beam to the voxel's far side (objects are solid),
+ * all grown by one or two cells in x and y. */
+inline uint32_t sub_cells(uint32_t v)
 {
-    static const uint64_t lo[3] = { SUB_X0, SUB_Y0, SUB_Z0 }, hi[3] = { SUB_X3, SUB_Y3, SUB_Z3 };
-    const int sh = axis == 0 ? 1 : axis == 1 ? SUB : SUB * SUB;
-    for (int i = 1; i < SUB; i++) b |= dir > 0 ? (b & ~hi[axis]) << sh : (b & ~lo[axis]) >> sh;
-    return b;
-}
-
-/* Grows a sub-cell mask by one sub-cell in every direction (within the voxel). */
-inline uint64_t sub_dilate(uint64_t b)
-{
-    b |= ((b & ~SUB_X3) << 1) | ((b & ~SUB_X0) >> 1);
-    b |= ((b & ~SUB_Y3) << 4) | ((b & ~SUB_Y0) >> 4);
-    b |= ((b & ~SUB_Z3) << 16) | ((b & ~SUB_Z0) >> 16);
-    return b;
+    uint32_t b = v & 0xffff;
+    const int grow = (int)(v >> SUB_GROW_SHIFT) & 3;
+    if (grow == 3) return 0xffff;
+    for (int i = 1; i < SUB; i++) {
+        if (v & SUB_XP) b |= (b & ~SUB_X3) << 1;
+        if (v & SUB_XN) b |= (b & ~SUB_X0) >> 1;
+        if (v & SUB_YP) b |= (b & ~SUB_Y3) << SUB;
+        if (v & SUB_YN) b |= (b & ~SUB_Y0) >> SUB;
+    }
+    for (int g = 0; g < grow; g++) {
+        b |= ((b & ~SUB_X3) << 1) | ((b & ~SUB_X0) >> 1);
+        b |= ((b & ~SUB_Y3) << SUB) | ((b & ~SUB_Y0) >> SUB);
+    }
+    return b & 0xffff;
 }
 
 inline uint64_t pack(const OcTreeKey &k) { return (uint64_t)k[0] | (uint64_t)k[1] << 16 | (uint64_t)k[2] << 32; }
@@ -65,6 +67,7 @@ struct occ_map_t {
     occ_config_t cfg;
     OcTree fine, observed;
     double inv_res, inv_cres;
+    double sub_r2[2];                       /* squared ranges within which returns grow by 1, 2 sub-cells */
     int cshift;                             /* observed voxel = 2^cshift fine voxels */
     int coff;                               /* observed key = (fine key >> cshift) + coff */
     std::vector<uint64_t> fine_bits, obs_bits;
@@ -83,8 +86,10 @@ struct occ_map_t {
     std::vector<uint32_t> fill_list;        /* their bit indices (cleared at the next sweep) */
     std::vector<int> low_candidates;        /* scratch: non-ground returns near the car */
     std::vector<uint32_t> sub_key;          /* SUB_TABLE slots: fine bit index + 1 of a voxel hit this sweep (0 free) */
-    std::vector<uint64_t> sub_mask;         /* its returns' sub-cells, grown by the point spacing (SUB_FULL: the whole voxel) */
+    std::vector<uint32_t> sub_mask;         /* its returns' sub-cell columns and how to grow them (sub_cells) */
     std::vector<uint32_t> sub_used;         /* used slots (freed at the next sweep) */
+    size_t sub_last_bi = SIZE_MAX;          /* the voxel of the previous return and its slot (neighbouring returns often share one) */
+    int sub_last_slot = -1;
 
     explicit occ_map_t(const occ_config_t &c) : cfg(c), fine(c.resolution), observed(c.observed_resolution) {}
 };
@@ -111,6 +116,7 @@ occ_map_t *occ_map_create(const occ_config_t *cfg)
     }
     m->inv_res = 1.0 / cfg->resolution;
     m->inv_cres = 1.0 / cfg->observed_resolution;
+    for (int g = 0; g < 2; g++) m->sub_r2[g] = std::pow(2 * (g + 1) * cfg->resolution / SUB / cfg->beam_gap_rad, 2);
     m->cshift = (int)std::lround(std::log2(cfg->observed_resolution / cfg->resolution));
     m->coff = KEY_ORIGIN - (KEY_ORIGIN >> m->cshift);
     m->fine_bits.assign((size_t)FX * FX * FZ / 64, 0);
@@ -144,6 +150,7 @@ void occ_map_clear(occ_map_t *m)
     m->fill_list.clear();
     for (uint32_t u : m->sub_used) m->sub_key[u] = 0;
     m->sub_used.clear();
+    m->sub_last_bi = SIZE_MAX;
     for (ground_cell_t &g : m->ground) g.sweep = -1000000;
     m->blocks.clear();
     m->occupied.clear();
@@ -380,36 +387,33 @@ static int sub_find(const occ_map_t *m, size_t bi)
     return -1;
 }
 
-/* Adds a return at (x, y, z), range r from the sensor along beam, to its voxel's
- * sub-cells: its column of cells (the whole voxel height: roofs and hoods are seen at
- * grazing angles, their returns far apart), those behind it along the beam (objects are
- * solid), all grown by half the gap between neighbouring beams at r (at least one
- * sub-cell), so the returns' cells cover the surface between them. A voxel too far for
- * that (or a full table) is the whole voxel. What is left tight is the side edges:
- * a pole, a parked car's end, the back of a bus. */
-static void sub_add(occ_map_t *m, size_t bi, const OcTreeKey &k, double x, double y, double z, const double beam[3], double r)
+/* Adds a return at (x, y), beam (bx, by, bz) from the sensor with squared length r2, to
+ * its voxel's sub-cell columns. Columns, the whole voxel height: roofs and hoods are seen
+ * at grazing angles, their returns far apart. The cells grow (sub_cells) by half the gap
+ * between neighbouring beams at that range, so the returns' cells cover the surface
+ * between them; beyond two cells' worth (or with a full table) the voxel is whole. What
+ * is tight is the side edges: a pole, a parked car's end, the back of a bus. */
+static void sub_add(occ_map_t *m, size_t bi, const OcTreeKey &k, double x, double y, double bx, double by, double r2)
 {
-    const double sub_m = m->cfg.resolution / SUB;
-    const int grow = std::max(1, (int)std::ceil(r * m->cfg.beam_gap_rad / (2 * sub_m)));
-    uint64_t add = SUB_FULL;
-    if (grow < SUB - 1) {
-        int c[3];
-        const double p[3] = { x, y, z };
-        for (int i = 0; i < 3; i++)
-            c[i] = std::min(SUB - 1, std::max(0, (int)((p[i] * m->inv_res + KEY_ORIGIN - k[i]) * SUB)));
-        add = 1ull << (c[0] + SUB * c[1] + SUB * SUB * c[2]);
-        for (int i = 0; i < 2; i++)     /* behind the return, along the beam's main horizontal axes */
-            if (std::fabs(beam[i]) > 0.35 * r) add = sub_extrude(add, i, beam[i] > 0 ? 1 : -1);
-        add = sub_extrude(sub_extrude(add, 2, 1), 2, -1);
-        for (int g = 0; g < grow; g++) add = sub_dilate(add);
-    }
+    const int grow = r2 < m->sub_r2[0] ? 1 : r2 < m->sub_r2[1] ? 2 : 3;
+    const int cx = std::min(SUB - 1, std::max(0, (int)((x * m->inv_res + KEY_ORIGIN - k[0]) * SUB)));
+    const int cy = std::min(SUB - 1, std::max(0, (int)((y * m->inv_res + KEY_ORIGIN - k[1]) * SUB)));
+    const double main2 = 0.1225 * r2;       /* a beam component above 0.35 of its length */
+    uint32_t v = (1u << (cx + SUB * cy)) | (uint32_t)grow << SUB_GROW_SHIFT;
+    if (bx * bx > main2) v |= bx > 0 ? SUB_XP : SUB_XN;
+    if (by * by > main2) v |= by > 0 ? SUB_YP : SUB_YN;
+    if (bi == m->sub_last_bi) { m->sub_mask[m->sub_last_slot] |= v; return; }
     for (uint32_t h = (uint32_t)(bi * 2654435761u) >> 16, n = 0; n < (uint32_t)SUB_TABLE; h = (h + 1) & (SUB_TABLE - 1), n++) {
-        if (m->sub_key[h] == bi + 1) { m->sub_mask[h] |= add; return; }
         if (m->sub_key[h] == 0) {
             if (m->sub_used.size() * 2 > (size_t)SUB_TABLE) return;   /* table half full: the voxel stays whole */
             m->sub_key[h] = (uint32_t)bi + 1;
-            m->sub_mask[h] = add;
+            m->sub_mask[h] = 0;
             m->sub_used.push_back(h);
+        }
+        if (m->sub_key[h] == bi + 1) {
+            m->sub_mask[h] |= v;
+            m->sub_last_bi = bi;
+            m->sub_last_slot = (int)h;
             return;
         }
     }
@@ -445,6 +449,7 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
     m->hit_list.clear();
     for (uint32_t u : m->sub_used) m->sub_key[u] = 0;
     m->sub_used.clear();
+    m->sub_last_bi = SIZE_MAX;
     /* the bitmaps are rings of FZ voxels in z: exact for the FZ around the car's height
      * (everything the eye rays cross); returns beyond that band skip the per-sweep shortcuts */
     OcTreeKey car_key;
@@ -462,8 +467,7 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
         size_t bi = fine_bit(k);
         bool band = std::abs((int)k[2] - car_kz) < FZ / 2;
         if (band) {
-            const double beam[3] = { dx, dy, dz };
-            sub_add(m, bi, k, x, y, z, beam, std::sqrt(dx * dx + dy * dy + dz * dz));
+            sub_add(m, bi, k, x, y, dx, dy, dx * dx + dy * dy + dz * dz);
             if (get_bit(m->hit_bits, bi)) continue;        /* one update per voxel and sweep */
             set_bit(m->hit_bits, bi);
             m->hit_list.push_back((uint32_t)bi);
@@ -569,19 +573,19 @@ static double ego_exit(const occ_config_t &c, const double e[3], const double d[
 /* Where the ray (u0 + du t, fine-voxel units) first meets the sub-cells of voxel key
  * between t0 and t1 that hold this sweep's returns (grown), or t0 for a voxel not hit
  * this sweep (all of it counts: what it held may still be there); -1 if it passes
- * them. Sampled every 1/8 sub-cell: a corner clipped by less is not a hit. */
+ * them (across x and y: the columns). Sampled every 1/8 sub-cell: a corner clipped by less is not a hit. */
 static double sub_hit(const occ_map_t *m, size_t fb, const int key[3], const double u0[3], const double du[3], double t0,
                       double t1)
 {
     int slot = sub_find(m, fb);
-    if (slot < 0 || m->sub_mask[slot] == SUB_FULL) return t0;
-    const uint64_t mask = m->sub_mask[slot];
+    const uint32_t mask = slot < 0 ? 0xffff : sub_cells(m->sub_mask[slot]);
+    if (mask == 0xffff) return t0;
     const double dt = m->cfg.resolution / SUB / 8;
     for (double t = t0; t < t1 + dt; t += dt) {
         double tt = std::min(t, t1);
-        int c[3];
-        for (int i = 0; i < 3; i++) c[i] = std::min(SUB - 1, std::max(0, (int)((u0[i] + du[i] * tt - key[i]) * SUB)));
-        if ((mask >> (c[0] + SUB * c[1] + SUB * SUB * c[2])) & 1) return tt;
+        int c[2];
+        for (int i = 0; i < 2; i++) c[i] = std::min(SUB - 1, std::max(0, (int)((u0[i] + du[i] * tt - key[i]) * SUB)));
+        if ((mask >> (c[0] + SUB * c[1])) & 1) return tt;
     }
     return -1;
 }
