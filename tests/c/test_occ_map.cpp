@@ -4,7 +4,9 @@
  *    below was seen free from afar before it came; a pedestrian across the street seen
  *    through its lower body must be hidden, not visible (the fill below the lowest beam);
  *  - a wall: hidden behind it, visible beside it, unknown where never observed;
- *  - a box that drives away is cleared at the next sweep. */
+ *  - a box that drives away is cleared at the next sweep;
+ *  - an edge inside a voxel: a ray passing 10 cm beside a wall's edge, through the 0.2 m
+ *    voxel that holds the edge, is visible; 3 cm inside the edge it is hidden. */
 #include <cmath>
 #include <vector>
 
@@ -142,8 +144,25 @@ static void test_moving_box_clears()
     occ_map_destroy(m);
 }
 
+static void test_edge_inside_a_voxel()
+{
+    occ_config_t c = config();
+    occ_map_t *m = occ_map_create(&c);
+    /* a wall ahead whose left edge (y = 1.05) lies inside the voxels y 1.0 .. 1.2 */
+    std::vector<box_t> wall = { { { 10.0, -2.0, 0.0 }, { 10.3, 1.05, 3.0 } } };
+    for (double cx = -6; cx <= 0; cx += 1.0) sweep(m, cx, wall);
+    /* a sample at x = 20 whose eye ray meets the wall's face (x = 10) at y = yt */
+    const double ex = EYE[0], ey = EYE[1];
+    auto sample_y = [&](double yt) { return ey + (yt - ey) * (20 - ex) / (10 - ex); };
+    CHECK(ask(m, 0, 20, sample_y(1.15), 1.2) == OCC_VISIBLE);   /* 10 cm past the edge (the whole voxel would hide it) */
+    CHECK(ask(m, 0, 20, sample_y(1.02), 1.2) == OCC_HIDDEN);    /* 3 cm inside it */
+    CHECK(ask(m, 0, 20, sample_y(0.5), 1.2) == OCC_HIDDEN);     /* well inside */
+    occ_map_destroy(m);
+}
+
 int main()
 {
+    test_edge_inside_a_voxel();
     test_car_alongside(true);
     test_car_alongside(false);
     test_wall_and_unknown();

@@ -27,8 +27,36 @@ const int GN = 256, GROUND_TTL = 50;
 const int NAZ = 1024, NEL = 128;
 const int SORT_EVERY = 16;                  /* sweeps between sorts of the occupied list */
 const double EL_MIN = -0.55, EL_MAX = 0.55;  /* rad (+-31.5 deg) */
+/* where this sweep's returns lie inside each voxel hit, across (x, y): 4 x 4 columns of
+ * sub-cells (5 cm at 0.2 m) as bits 0-15 (x + 4 y), with how to grow them in bits 16-21
+ * (see sub_add), in an open-addressed table by fine bit index */
+const int SUB = 4, SUB_TABLE = 1 << 16;
+const uint32_t SUB_XP = 1u << 16, SUB_XN = 1u << 17, SUB_YP = 1u << 18, SUB_YN = 1u << 19;  /* beam along +x, -x, +y, -y */
+const int SUB_GROW_SHIFT = 20;              /* 2 bits: grow by 1 or 2 sub-cells; 3: the whole voxel */
+const uint32_t SUB_X0 = 0x1111, SUB_X3 = 0x8888, SUB_Y0 = 0x000f, SUB_Y3 = 0xf000;   /* cells with x = 0, x = 3, y = 0, y = 3 */
 
 struct ground_cell_t { int32_t cx, cy, sweep; float minz; };
+
+/* The sub-cells a voxel's returns stand for (16 bits, x + 4 y; 0xffff: all of it): their
+ * cells, those behind them along the beam to the voxel's far side (objects are solid),
+ * all grown by one or two cells in x and y. */
+inline uint32_t sub_cells(uint32_t v)
+{
+    uint32_t b = v & 0xffff;
+    const int grow = (int)(v >> SUB_GROW_SHIFT) & 3;
+    if (grow == 3) return 0xffff;
+    for (int i = 1; i < SUB; i++) {
+        if (v & SUB_XP) b |= (b & ~SUB_X3) << 1;
+        if (v & SUB_XN) b |= (b & ~SUB_X0) >> 1;
+        if (v & SUB_YP) b |= (b & ~SUB_Y3) << SUB;
+        if (v & SUB_YN) b |= (b & ~SUB_Y0) >> SUB;
+    }
+    for (int g = 0; g < grow; g++) {
+        b |= ((b & ~SUB_X3) << 1) | ((b & ~SUB_X0) >> 1);
+        b |= ((b & ~SUB_Y3) << SUB) | ((b & ~SUB_Y0) >> SUB);
+    }
+    return b & 0xffff;
+}
 
 inline uint64_t pack(const OcTreeKey &k) { return (uint64_t)k[0] | (uint64_t)k[1] << 16 | (uint64_t)k[2] << 32; }
 inline OcTreeKey unpack(uint64_t p) { return OcTreeKey((uint16_t)p, (uint16_t)(p >> 16), (uint16_t)(p >> 32)); }
@@ -39,6 +67,7 @@ struct occ_map_t {
     occ_config_t cfg;
     OcTree fine, observed;
     double inv_res, inv_cres;
+    double sub_r2[2];                       /* squared ranges within which returns grow by 1, 2 sub-cells */
     int cshift;                             /* observed voxel = 2^cshift fine voxels */
     int coff;                               /* observed key = (fine key >> cshift) + coff */
     std::vector<uint64_t> fine_bits, obs_bits;
@@ -56,6 +85,11 @@ struct occ_map_t {
     std::vector<uint64_t> fill_bits;        /* this sweep's columns below objects that reach under the lowest beam */
     std::vector<uint32_t> fill_list;        /* their bit indices (cleared at the next sweep) */
     std::vector<int> low_candidates;        /* scratch: non-ground returns near the car */
+    std::vector<uint32_t> sub_key;          /* SUB_TABLE slots: fine bit index + 1 of a voxel hit this sweep (0 free) */
+    std::vector<uint32_t> sub_mask;         /* its returns' sub-cell columns and how to grow them (sub_cells) */
+    std::vector<uint32_t> sub_used;         /* used slots (freed at the next sweep) */
+    size_t sub_last_bi = SIZE_MAX;          /* the voxel of the previous return and its slot (neighbouring returns often share one) */
+    int sub_last_slot = -1;
 
     explicit occ_map_t(const occ_config_t &c) : cfg(c), fine(c.resolution), observed(c.observed_resolution) {}
 };
@@ -82,6 +116,7 @@ occ_map_t *occ_map_create(const occ_config_t *cfg)
     }
     m->inv_res = 1.0 / cfg->resolution;
     m->inv_cres = 1.0 / cfg->observed_resolution;
+    for (int g = 0; g < 2; g++) m->sub_r2[g] = std::pow(2 * (g + 1) * cfg->resolution / SUB / cfg->beam_gap_rad, 2);
     m->cshift = (int)std::lround(std::log2(cfg->observed_resolution / cfg->resolution));
     m->coff = KEY_ORIGIN - (KEY_ORIGIN >> m->cshift);
     m->fine_bits.assign((size_t)FX * FX * FZ / 64, 0);
@@ -93,6 +128,8 @@ occ_map_t *occ_map_create(const occ_config_t *cfg)
     m->fill_bits.assign((size_t)FX * FX * FZ / 64, 0);
     m->hit_bits.assign((size_t)FX * FX * FZ / 64, 0);
     m->sat_bits.assign((size_t)FX * FX * FZ / 64, 0);
+    m->sub_key.assign(SUB_TABLE, 0);
+    m->sub_mask.assign(SUB_TABLE, 0);
     return m;
 }
 
@@ -111,6 +148,9 @@ void occ_map_clear(occ_map_t *m)
     std::fill(m->hit_bits.begin(), m->hit_bits.end(), 0);
     m->hit_list.clear();
     m->fill_list.clear();
+    for (uint32_t u : m->sub_used) m->sub_key[u] = 0;
+    m->sub_used.clear();
+    m->sub_last_bi = SIZE_MAX;
     for (ground_cell_t &g : m->ground) g.sweep = -1000000;
     m->blocks.clear();
     m->occupied.clear();
@@ -337,6 +377,48 @@ static void trace_observed(occ_map_t *m, const double o[3], const double pe[3], 
     }
 }
 
+/* The table slot of a voxel hit this sweep (by fine bit index), or -1. */
+static int sub_find(const occ_map_t *m, size_t bi)
+{
+    for (uint32_t h = (uint32_t)(bi * 2654435761u) >> 16, n = 0; n < (uint32_t)SUB_TABLE; h = (h + 1) & (SUB_TABLE - 1), n++) {
+        if (m->sub_key[h] == bi + 1) return (int)h;
+        if (m->sub_key[h] == 0) return -1;
+    }
+    return -1;
+}
+
+/* Adds a return at (x, y), beam (bx, by, bz) from the sensor with squared length r2, to
+ * its voxel's sub-cell columns. Columns, the whole voxel height: roofs and hoods are seen
+ * at grazing angles, their returns far apart. The cells grow (sub_cells) by half the gap
+ * between neighbouring beams at that range, so the returns' cells cover the surface
+ * between them; beyond two cells' worth (or with a full table) the voxel is whole. What
+ * is tight is the side edges: a pole, a parked car's end, the back of a bus. */
+static void sub_add(occ_map_t *m, size_t bi, const OcTreeKey &k, double x, double y, double bx, double by, double r2)
+{
+    const int grow = r2 < m->sub_r2[0] ? 1 : r2 < m->sub_r2[1] ? 2 : 3;
+    const int cx = std::min(SUB - 1, std::max(0, (int)((x * m->inv_res + KEY_ORIGIN - k[0]) * SUB)));
+    const int cy = std::min(SUB - 1, std::max(0, (int)((y * m->inv_res + KEY_ORIGIN - k[1]) * SUB)));
+    const double main2 = 0.1225 * r2;       /* a beam component above 0.35 of its length */
+    uint32_t v = (1u << (cx + SUB * cy)) | (uint32_t)grow << SUB_GROW_SHIFT;
+    if (bx * bx > main2) v |= bx > 0 ? SUB_XP : SUB_XN;
+    if (by * by > main2) v |= by > 0 ? SUB_YP : SUB_YN;
+    if (bi == m->sub_last_bi) { m->sub_mask[m->sub_last_slot] |= v; return; }
+    for (uint32_t h = (uint32_t)(bi * 2654435761u) >> 16, n = 0; n < (uint32_t)SUB_TABLE; h = (h + 1) & (SUB_TABLE - 1), n++) {
+        if (m->sub_key[h] == 0) {
+            if (m->sub_used.size() * 2 > (size_t)SUB_TABLE) return;   /* table half full: the voxel stays whole */
+            m->sub_key[h] = (uint32_t)bi + 1;
+            m->sub_mask[h] = 0;
+            m->sub_used.push_back(h);
+        }
+        if (m->sub_key[h] == bi + 1) {
+            m->sub_mask[h] |= v;
+            m->sub_last_bi = bi;
+            m->sub_last_slot = (int)h;
+            return;
+        }
+    }
+}
+
 void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_t *st)
 {
     const occ_config_t &c = m->cfg;
@@ -365,6 +447,9 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
     /* 2. hits: returns above the ground, one update per voxel */
     for (uint32_t b : m->hit_list) clr_bit(m->hit_bits, b);
     m->hit_list.clear();
+    for (uint32_t u : m->sub_used) m->sub_key[u] = 0;
+    m->sub_used.clear();
+    m->sub_last_bi = SIZE_MAX;
     /* the bitmaps are rings of FZ voxels in z: exact for the FZ around the car's height
      * (everything the eye rays cross); returns beyond that band skip the per-sweep shortcuts */
     OcTreeKey car_key;
@@ -382,6 +467,7 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
         size_t bi = fine_bit(k);
         bool band = std::abs((int)k[2] - car_kz) < FZ / 2;
         if (band) {
+            sub_add(m, bi, k, x, y, dx, dy, dx * dx + dy * dy + dz * dz);
             if (get_bit(m->hit_bits, bi)) continue;        /* one update per voxel and sweep */
             set_bit(m->hit_bits, bi);
             m->hit_list.push_back((uint32_t)bi);
@@ -484,6 +570,26 @@ static double ego_exit(const occ_config_t &c, const double e[3], const double d[
     return std::isfinite(t) ? t : 0;
 }
 
+/* Where the ray (u0 + du t, fine-voxel units) first meets the sub-cells of voxel key
+ * between t0 and t1 that hold this sweep's returns (grown), or t0 for a voxel not hit
+ * this sweep (all of it counts: what it held may still be there); -1 if it passes
+ * them (across x and y: the columns). Sampled every 1/8 sub-cell: a corner clipped by less is not a hit. */
+static double sub_hit(const occ_map_t *m, size_t fb, const int key[3], const double u0[3], const double du[3], double t0,
+                      double t1)
+{
+    int slot = sub_find(m, fb);
+    const uint32_t mask = slot < 0 ? 0xffff : sub_cells(m->sub_mask[slot]);
+    if (mask == 0xffff) return t0;
+    const double dt = m->cfg.resolution / SUB / 8;
+    for (double t = t0; t < t1 + dt; t += dt) {
+        double tt = std::min(t, t1);
+        int c[2];
+        for (int i = 0; i < 2; i++) c[i] = std::min(SUB - 1, std::max(0, (int)((u0[i] + du[i] * tt - key[i]) * SUB)));
+        if ((mask >> (c[0] + SUB * c[1])) & 1) return tt;
+    }
+    return -1;
+}
+
 static int8_t query_one(const occ_map_t *m, const double e[3], const double bp[3], double yaw, double sx, double sy,
                         double sz, float *occ)
 {
@@ -537,11 +643,14 @@ static int8_t query_one(const occ_map_t *m, const double e[3], const double bp[3
                 OcTreeKey k((uint16_t)key[0], (uint16_t)key[1], (uint16_t)key[2]);
                 size_t fb = fine_bit(k);
                 if (get_bit(m->fill_bits, fb)) { *occ = (float)tf; return OCC_HIDDEN; }
+                int a = tmax[0] < tmax[1] ? (tmax[0] < tmax[2] ? 0 : 2) : (tmax[1] < tmax[2] ? 1 : 2);
                 if (get_bit(m->fine_bits, fb)) {
                     const octomap::OcTreeNode *nd = m->fine.search(k);
-                    if (nd && m->fine.isNodeOccupied(nd)) { *occ = (float)tf; return OCC_HIDDEN; }
+                    if (nd && m->fine.isNodeOccupied(nd)) {
+                        double th = sub_hit(m, fb, key, u0, du, tf, std::min(tmax[a], tend));
+                        if (th >= 0) { *occ = (float)th; return OCC_HIDDEN; }
+                    }
                 }
-                int a = tmax[0] < tmax[1] ? (tmax[0] < tmax[2] ? 0 : 2) : (tmax[1] < tmax[2] ? 1 : 2);
                 tf = tmax[a];
                 if (tf >= tout) break;
                 key[a] += (int)step[a];

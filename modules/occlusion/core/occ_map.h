@@ -43,7 +43,8 @@ struct occ_config_t {
     double prob_hit = 0.7, prob_miss = 0.1, clamp_min = 0.12, clamp_max = 0.88;  /* one clear miss frees any voxel */
     double fill_radius_m = 10.0;      /* returns of the lowest beams this close (horizontally) are checked for objects reaching under the view */
     double fill_elevation_tol_rad = 0.021;  /* "lowest beams": within 1.2 deg of the sweep's least elevation */
-    double stop_short_m = 0.3;        /* eye rays stop this far before the sample (the agent's own spot) */
+    double beam_gap_rad = 0.0092;     /* largest angle between neighbouring beams (0.52 deg between rings): sets how far a return's sub-cells grow */
+    double stop_short_m = 0.2;        /* eye rays stop this far before the sample (the agent's own spot) */
     /* the car's own box in base (the eye looks out through it): x from, x to, half width, height */
     double ego_x0 = -1.04, ego_x1 = 3.50, ego_half_width = 0.88, ego_height = 1.47;
 };
