@@ -275,17 +275,39 @@ size_t places_count(const places_t *p) { return p ? p->spot.size() : 0; }
 void places_describe(const places_t *p, const float *xyz, size_t n, place_desc_t *d)
 {
     const places_config_t &cfg = p->cfg;
+    /* heights above the ground around each bin, as the map's are, not above the car's
+     * base plane: on a grade or a crest that plane is metres off the ground 40 m away */
+    static const float NONE = 1e9f;
+    float lo[PLACE_RINGS][PLACE_SECTORS], hi[PLACE_RINGS][PLACE_SECTORS];
     for (int r = 0; r < PLACE_RINGS; r++)
-        for (int s = 0; s < PLACE_SECTORS; s++) d->h[r][s] = 0;
+        for (int s = 0; s < PLACE_SECTORS; s++) { lo[r][s] = NONE; hi[r][s] = -NONE; }
     for (size_t i = 0; i < n; i++) {
-        double x = xyz[3 * i], y = xyz[3 * i + 1], h = xyz[3 * i + 2];
-        if (h < cfg.min_height_m) continue;
+        double x = xyz[3 * i], y = xyz[3 * i + 1];
+        float z = xyz[3 * i + 2];
         int ring = (int)(std::hypot(x, y) / cfg.ring_m);
         if (ring >= PLACE_RINGS) continue;
-        float v = (float)std::min(h, cfg.clip_m);
         int s = sector_of(x, y);
-        if (v > d->h[ring][s]) d->h[ring][s] = v;
+        lo[ring][s] = std::min(lo[ring][s], z);
+        hi[ring][s] = std::max(hi[ring][s], z);
     }
+    for (int r = 0; r < PLACE_RINGS; r++)
+        for (int s = 0; s < PLACE_SECTORS; s++) {
+            d->h[r][s] = 0;
+            if (hi[r][s] == -NONE) continue;
+            /* the ground is the lowest return nearby (a wall or a bush may hide it in this
+             * very bin) that lies where a road of up to 10 % grade can be; with none, the
+             * base plane stands in */
+            float ground = NONE;
+            for (int dr = -1; dr <= 1; dr++)
+                for (int ds = -2; ds <= 2; ds++) {
+                    int rr = r + dr, ss = (s + ds + PLACE_SECTORS) % PLACE_SECTORS;
+                    if (rr < 0 || rr >= PLACE_RINGS || lo[rr][ss] == NONE) continue;
+                    if (std::fabs(lo[rr][ss]) <= 0.5 + 0.1 * (rr + 0.5) * cfg.ring_m) ground = std::min(ground, lo[rr][ss]);
+                }
+            if (ground == NONE) ground = 0;
+            double h = hi[r][s] - ground;
+            if (h >= cfg.min_height_m) d->h[r][s] = (float)std::min(h, cfg.clip_m);
+        }
     finish(cfg, d);
 }
 
