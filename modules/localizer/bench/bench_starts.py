@@ -22,6 +22,7 @@ import locbench as lb
 
 FAULT = lb.ROOT / "tools" / "log-fault" / "log_fault.py"
 CONVERGED_M = 0.2
+WRONG_M = 1.0      # a tracking POSE this far from the reference: a wrong place, counted apart
 
 
 def cut(log, out, at, dur, keep=""):
@@ -49,17 +50,17 @@ def judge(gt, out):
     """first tracking time (s after the first POSE), converged?, errors of the tracking POSE."""
     poses = lb.read_poses(out, "POSE")
     if len(poses) == 0:
-        return {"tracking_s": None, "converged": False, "errors": [], "yaw_errors": [], "lost": 0}
+        return {"tracking_s": None, "converged": False, "errors": [], "yaw_errors": [], "lost": 0, "max_m": None}
     trk = np.nonzero(poses[:, 5] == 1)[0]
     if len(trk) == 0:
-        return {"tracking_s": None, "converged": False, "errors": [], "yaw_errors": [], "lost": 0}
+        return {"tracking_s": None, "converged": False, "errors": [], "yaw_errors": [], "lost": 0, "max_m": None}
     after = poses[trk[0]:]
     _, et, ey = lb.errors_vs_truth(after[after[:, 5] == 1], gt)
     et_h = horizontal(after[after[:, 5] == 1], gt)
     return {"tracking_s": float(poses[trk[0], 0] - poses[0, 0]) * 1e-6,
             "converged": bool(len(et) and et[0] <= CONVERGED_M and np.max(et) <= CONVERGED_M),
             "errors": et_h.tolist(), "yaw_errors": ey.tolist(),
-            "lost": int(np.sum(after[:, 5] == 3))}
+            "lost": int(np.sum(after[:, 5] == 3)), "max_m": float(np.max(et)) if len(et) else None}
 
 
 def horizontal(p, gt):
@@ -85,14 +86,16 @@ def summary(name, runs, within_s=None):
             "h_median_m": float(np.median(errs)) if len(errs) else None,
             "h_p99_m": float(np.percentile(errs, 99)) if len(errs) else None,
             "yaw_p99_deg": float(np.percentile(yaws, 99)) if len(yaws) else None,
-            "lost": int(sum(r["lost"] for r in runs))}
+            "lost": int(sum(r["lost"] for r in runs)),
+            # tracked somewhere else: a wrong place is worse than no place
+            "wrong": int(sum(1 for r in runs if r.get("max_m") is not None and r["max_m"] > WRONG_M))}
 
 
 def print_row(s):
     f = lambda v, fmt="{:.3f}": "-" if v is None else fmt.format(v)  # noqa: E731
     print(f"{s['case']:<34} {s['starts']:>6} {s['converged_pct']:>7.1f} {f(s['tracking_s_median'], '{:.1f}'):>7} "
           f"{f(s['tracking_s_max'], '{:.1f}'):>7} {f(s['h_median_m']):>7} {f(s['h_p99_m']):>7} {f(s['yaw_p99_deg']):>7} "
-          f"{s['lost']:>5}")
+          f"{s['lost']:>5} {s['wrong']:>5}")
 
 
 def moving_cut_points(log, gt, n, seconds, min_speed=3.0):
@@ -152,7 +155,7 @@ def run_starts(drives, site, n_guesses=100, n_frames=10, n_gnss=20, n_global=20,
     print(f"starts like real life ({len(cuts)} cut points, {seconds:.0f} s each, {jobs} at a time; "
           f"converged = every tracking POSE within {CONVERGED_M} m)")
     print(f"{'case':<34} {'starts':>6} {'conv %':>7} {'trk s50':>7} {'trk max':>7} {'h med m':>7} {'h p99 m':>7} "
-          f"{'yaw99°':>7} {'LOST':>5}")
+          f"{'yaw99°':>7} {'LOST':>5} {'wrong':>5}")
     out = []
     guesses = []
     for i in range(n_guesses):

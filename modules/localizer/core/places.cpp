@@ -12,6 +12,7 @@ namespace loc {
 namespace {
 
 const double kColumn = 1.0;   /* the map is summarised in 1 m columns */
+const int kShifts = 4;        /* sector shifts compared in full per place */
 
 struct column_t {
     float ground = NAN;       /* the ground's height (NaN: none seen, filled from neighbours) */
@@ -65,13 +66,24 @@ static void finish(const places_config_t &cfg, place_desc_t *d)
         }
     }
     for (int r = 0; r < PLACE_RINGS; r++) {
-        int known = 0, full = 0;
+        int known = 0;
+        double sum = 0;
         for (int s = 0; s < PLACE_SECTORS; s++) {
             if (d->h[r][s] < 0) continue;
             known++;
-            full += d->h[r][s] > 0;
+            sum += d->h[r][s];
         }
-        d->ring_key[r] = known ? (float)full / known : 0.f;
+        d->ring_key[r] = known ? (float)(sum / (known * cfg.clip_m)) : 0.f;
+    }
+    for (int s = 0; s < PLACE_SECTORS; s++) {
+        int known = 0;
+        double sum = 0;
+        for (int r = 0; r < PLACE_RINGS; r++) {
+            if (d->h[r][s] < 0) continue;
+            known++;
+            sum += d->h[r][s];
+        }
+        d->sector_key[s] = known ? (float)(sum / (known * cfg.clip_m)) : -1.f;
     }
 }
 
@@ -176,10 +188,10 @@ places_t *places_build(const pb_regmap_t *map, const places_config_t &cfg)
 
 void places_destroy(places_t *p) { delete p; }
 
-/* Serialised form (little-endian): "PBPLACE1", f64 ring_m, place_step_m, min_height_m,
+/* Serialised form (little-endian): "PBPLACE2" (2: ring keys are mean heights), f64 ring_m, place_step_m, min_height_m,
  * tall_m, clip_m, car_clearance_m, i32 shortlist, W, H, u32 places, f64 lo[2], then
  * f32 height[W * H], then per place i32 column, f64 x, y, z, f32 ring_key[PLACE_RINGS]. */
-static const char kPlacesMagic[8] = { 'P', 'B', 'P', 'L', 'A', 'C', 'E', '1' };
+static const char kPlacesMagic[8] = { 'P', 'B', 'P', 'L', 'A', 'C', 'E', '2' };
 static const size_t kPlacesHeader = 8 + 6 * 8 + 4 * 4 + 2 * 8, kPlaceBytes = 4 + 3 * 8 + 4 * PLACE_RINGS;
 
 template <class T> static void put_le(std::vector<uint8_t> *o, T v)
@@ -214,8 +226,13 @@ void places_encode(const places_t *p, std::vector<uint8_t> *out)
 
 places_t *places_decode(const uint8_t *b, size_t n, char *msg, size_t msg_len)
 {
+    if (n >= 8 && std::memcmp(b, kPlacesMagic, 7) == 0 && b[7] != kPlacesMagic[7]) {
+        snprintf(msg, msg_len, "byte 0: place descriptors of another version (PBPLACE%c, this localizer reads "
+                 "PBPLACE2): rebuild the site's map.tiles with map-tiles", b[7]);
+        return nullptr;
+    }
     if (n < kPlacesHeader || std::memcmp(b, kPlacesMagic, 8) != 0) {
-        snprintf(msg, msg_len, "byte 0: not place descriptors (no PBPLACE1 header)");
+        snprintf(msg, msg_len, "byte 0: not place descriptors (no PBPLACE2 header)");
         return nullptr;
     }
     places_config_t c;
@@ -292,8 +309,10 @@ void places_describe(const places_t *p, const float *xyz, size_t n, place_desc_t
     }
     for (int r = 0; r < PLACE_RINGS; r++)
         for (int s = 0; s < PLACE_SECTORS; s++) {
-            d->h[r][s] = 0;
+            /* a bin with no return is unknown (beyond range, hidden by a car), not free */
+            d->h[r][s] = -1;
             if (hi[r][s] == -NONE) continue;
+            d->h[r][s] = 0;
             /* the ground is the lowest return nearby (a wall or a bush may hide it in this
              * very bin) that lies where a road of up to 10 % grade can be; with none, the
              * base plane stands in */
@@ -347,12 +366,29 @@ void places_query(const places_t *p, const place_desc_t &d, int k, std::vector<p
         int c = p->spot_col[rk[j].second];
         describe_column(p, c % p->W, c / p->W, &pd);
         finish(p->cfg, &pd);
+        /* the sector keys name the likely shifts; the full descriptors decide among
+         * them and their neighbours */
+        std::array<std::pair<double, int>, PLACE_SECTORS> sk;
+        for (int sh = 0; sh < PLACE_SECTORS; sh++) {
+            double sum = 0;
+            int k = 0;
+            for (int s = 0; s < PLACE_SECTORS; s++) {
+                float a = d.sector_key[s], b = pd.sector_key[(s + sh) % PLACE_SECTORS];
+                if (a < 0 || b < 0) continue;
+                sum += std::fabs(a - b);
+                k++;
+            }
+            sk[sh] = { k ? sum / k : HUGE_VAL, sh };
+        }
+        std::partial_sort(sk.begin(), sk.begin() + kShifts, sk.end());
         double best = HUGE_VAL;
         int best_shift = 0;
-        for (int sh = 0; sh < PLACE_SECTORS; sh++) {
-            double c = compare(p->cfg, d, pd, sh);
-            if (c < best) { best = c; best_shift = sh; }
-        }
+        for (int i = 0; i < kShifts; i++)
+            for (int ds = -1; ds <= 1; ds++) {
+                int sh = (sk[i].second + ds + PLACE_SECTORS) % PLACE_SECTORS;
+                double c = compare(p->cfg, d, pd, sh);
+                if (c < best) { best = c; best_shift = sh; }
+            }
         place_match_t pm = p->spot[rk[j].second];
         pm.yaw = best_shift * 2 * M_PI / PLACE_SECTORS;
         pm.distance = best;

@@ -35,13 +35,16 @@ struct places_config_t {
     double tall_m = 2.5;          /* a bin this high hides the bins behind it */
     double clip_m = 5.0;          /* heights are clipped here (the sweep sees little higher nearby) */
     double car_clearance_m = 2.0; /* a place needs no structure up to this height at its spot */
-    int shortlist = 60;           /* places compared in full after the ring key */
+    int shortlist = 300;          /* places compared in full after the ring key (MulRan, 83
+                                   * sweeps against 1781 places: the true place in the best 8
+                                   * for 28 at 60, 32 at 300, 33 at 600) */
 };
 
 /* One descriptor: height (m, 0 = free) per bin, -1 unknown (hidden). */
 struct place_desc_t {
     float h[PLACE_RINGS][PLACE_SECTORS];
-    float ring_key[PLACE_RINGS];
+    float ring_key[PLACE_RINGS];      /* mean height per ring over its known bins / clip */
+    float sector_key[PLACE_SECTORS];  /* mean height per sector over its known bins / clip, -1 none */
 };
 
 struct place_match_t {

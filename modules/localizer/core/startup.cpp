@@ -173,6 +173,26 @@ bool global_search(localizer_t *L, pb_reg_result_t *res, outputs_t *out)
               "this sweep; still searching", seeds.size());
         return false;
     }
+    /* a road whose sides repeat (rows of trees, fences) fits the sweep along itself too,
+     * and the place descriptor may not have proposed the true spot: probe the place's own
+     * axis as rivals (MulRan: a place 24 m along the road from the truth was taken) */
+    if (fit >= L->cfg.min_structure_inliers && rival <= L->cfg.rival_ratio * fit) {
+        Vec3 ax = res->pose.linear().col(0);
+        ax.z() = 0;
+        ax.normalize();
+        std::vector<Eigen::Isometry3d> along;
+        for (double a : { -30.0, -20.0, -10.0, 10.0, 20.0, 30.0 }) {
+            Eigen::Isometry3d seed = res->pose;
+            seed.translation() += a * ax;
+            along.push_back(seed);
+        }
+        pb_reg_result_t r2;
+        double f2;
+        if (search_seeds(L, along, 2.0, 4 * M_PI / 180, 1.0, 4 * M_PI / 180, true, &r2, &f2, nullptr) &&
+            (r2.pose.translation() - res->pose.translation()).head<2>().norm() > L->cfg.rival_m)
+            rival = std::max(rival, f2);
+        if (L->pager) L->pager(L->pager_user, res->pose.translation().x(), res->pose.translation().y());
+    }
     /* rows of trees, parallel carriageways, a road alike both ways: a place that another
      * one far from it (or the other way round) fits about as well is not known yet */
     if (fit >= L->cfg.min_structure_inliers && rival > L->cfg.rival_ratio * fit) {

@@ -123,6 +123,8 @@ namespace Portobello
             }
         }
 
+        const long UnixEpochTicks = 621355968000000000L;   // 1970-01-01 in DateTime ticks
+
         void OnMessage(byte[] data)
         {
             uint sub = BitConverter.ToUInt32(data, 1);
@@ -130,7 +132,9 @@ namespace Portobello
             string topic;
             if (!subs.TryGetValue(sub, out topic)) return;
             Interlocked.Increment(ref Messages);
-            double age = (DateTimeOffset.UtcNow.ToUnixTimeMilliseconds() - rxNs / 1e6) / 1000.0;
+            // in 100 ns ticks, not whole milliseconds: truncated to the millisecond, a
+            // message received within the same millisecond had a negative age
+            double age = ((DateTime.UtcNow.Ticks - UnixEpochTicks) * 100.0 - rxNs) / 1e9;
             if (topic == "AGENTS")
             {
                 var m = Json<Agents>(data, 13, data.Length - 13);
