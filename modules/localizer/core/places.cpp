@@ -55,7 +55,8 @@ static int sector_of(double dx, double dy)
     return std::min(std::max(s, 0), PLACE_SECTORS - 1);
 }
 
-/* Bins behind the first tall one along each sector are unknown; then the ring key. */
+/* Bins behind the first tall one along each sector are unknown; then the keys: the mean
+ * height of the known bins of each ring and of each sector, over clip_m (-1: none known). */
 static void finish(const places_config_t &cfg, place_desc_t *d)
 {
     for (int s = 0; s < PLACE_SECTORS; s++) {
@@ -65,26 +66,19 @@ static void finish(const places_config_t &cfg, place_desc_t *d)
             else if (d->h[r][s] >= cfg.tall_m) hidden = true;
         }
     }
-    for (int r = 0; r < PLACE_RINGS; r++) {
-        int known = 0;
-        double sum = 0;
+    double ring_sum[PLACE_RINGS] = {}, sector_sum[PLACE_SECTORS] = {};
+    int ring_n[PLACE_RINGS] = {}, sector_n[PLACE_SECTORS] = {};
+    for (int r = 0; r < PLACE_RINGS; r++)
         for (int s = 0; s < PLACE_SECTORS; s++) {
             if (d->h[r][s] < 0) continue;
-            known++;
-            sum += d->h[r][s];
+            ring_sum[r] += d->h[r][s];
+            ring_n[r]++;
+            sector_sum[s] += d->h[r][s];
+            sector_n[s]++;
         }
-        d->ring_key[r] = known ? (float)(sum / (known * cfg.clip_m)) : 0.f;
-    }
-    for (int s = 0; s < PLACE_SECTORS; s++) {
-        int known = 0;
-        double sum = 0;
-        for (int r = 0; r < PLACE_RINGS; r++) {
-            if (d->h[r][s] < 0) continue;
-            known++;
-            sum += d->h[r][s];
-        }
-        d->sector_key[s] = known ? (float)(sum / (known * cfg.clip_m)) : -1.f;
-    }
+    for (int r = 0; r < PLACE_RINGS; r++) d->ring_key[r] = ring_n[r] ? (float)(ring_sum[r] / (ring_n[r] * cfg.clip_m)) : 0.f;
+    for (int s = 0; s < PLACE_SECTORS; s++)
+        d->sector_key[s] = sector_n[s] ? (float)(sector_sum[s] / (sector_n[s] * cfg.clip_m)) : -1.f;
 }
 
 /* The polar grid of a place as column offsets. */
