@@ -204,7 +204,7 @@ static void record_sweep(app_t *a, double ms)
     if (d.utime == a->pending_utime) ms += a->pending_prep_ms;
     a->latency_ms.push_back(ms);
     if (a->stats)
-        fprintf(a->stats, "%lld,%.3f,%.3f,%d,%d,%d,%.4f,%.4f,%.4f,%.2f,%.2f\n", (long long)d.utime, ms, d.reg_ms, d.status,
+        fprintf(a->stats, "%lld,%.3f,%d,%d,%d,%.4f,%.4f,%.4f,%.2f,%.2f\n", (long long)d.utime, ms, d.status,
                 d.matched, d.accepted, d.inlier_fraction, d.structure_inliers, d.score, d.innovation_chi2,
                 d.gnss_residual_m);
 }
@@ -564,7 +564,7 @@ int main(int argc, char **argv)
     if (stats) {
         a.stats = fopen(stats, "w");
         if (!a.stats) { fprintf(stderr, "localizer: %s: cannot write\n", stats); map_source_close(a.map); pb_bus_destroy(bus); return 1; }
-        fprintf(a.stats, "utime,wall_ms,reg_ms,status,matched,accepted,inlier_fraction,structure_inliers,score,innovation_chi2,gnss_residual_m\n");
+        fprintf(a.stats, "utime,wall_ms,status,matched,accepted,inlier_fraction,structure_inliers,score,innovation_chi2,gnss_residual_m\n");
     }
     a.geo = has_geo && a.use_gnss ? &st.geo : nullptr;
     a.L = localizer_create(cfg, ex, map, a.geo);

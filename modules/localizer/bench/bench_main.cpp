@@ -12,7 +12,6 @@
 //             pb_reg_align_global (the relocalisation path); --starts K of them per scan
 // PCL NDT runs at each resolution of --ndt-res on the same reduced points and starts.
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>

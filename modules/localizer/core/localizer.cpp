@@ -523,7 +523,7 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
     L->lidar_gap_reported = false;
     out->has_scan_diag = true;
     scan_diag_t &d = out->scan_diag;
-    d = scan_diag_t{ t_ref, L->status, false, false, NAN, NAN, NAN, NAN, NAN, NAN };
+    d = scan_diag_t{ t_ref, L->status, false, false, NAN, NAN, NAN, NAN, NAN };
 
     if (pts->n < L->cfg.min_scan_points) {
         event(out, pts->n == 0 ? "scan_empty" : "scan_few_points", "LIDAR_SCAN: %d valid points (need %d); not matched",
@@ -626,7 +626,6 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
     } else {
         d.matched = true;
         d.inlier_fraction = res.inlier_fraction;
-        d.reg_ms = res.time_ms;
         d.score = res.score;
         Mat6 cov = floored(L, res.covariance);
         Eigen::Matrix<double, 6, 1> r;

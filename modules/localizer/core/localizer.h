@@ -153,7 +153,7 @@ struct scan_diag_t {
     int64_t utime;
     int status;
     bool matched, accepted;
-    double inlier_fraction, score, innovation_chi2, gnss_residual_m, structure_inliers, reg_ms;
+    double inlier_fraction, score, innovation_chi2, gnss_residual_m, structure_inliers;
 };
 
 struct outputs_t {

@@ -5,7 +5,6 @@
 #include "regmap_impl.h"
 
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
@@ -283,7 +282,6 @@ void reset_result(pb_reg_result_t *res, const Eigen::Isometry3d &guess)
     res->condition = HUGE_VAL;
     res->iterations = res->points_used = res->points_matched = 0;
     res->overlap = res->inlier_fraction = res->rmse_m = res->median_abs_m = res->score = 0;
-    res->time_ms = 0;
     res->upright_inlier_fraction = NAN;
     res->upright_points = 0;
 }
@@ -295,11 +293,6 @@ bool check_inputs(const pb_regmap_t *map, const float *xyz, size_t n, const Eige
     if (n == 0) return pb_err_set(err, "registration: empty scan"), false;
     if (!guess.matrix().allFinite()) return pb_err_set(err, "registration: non-finite initial guess"), false;
     return true;
-}
-
-double ms_since(std::chrono::steady_clock::time_point t0)
-{
-    return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
 }
 
 }  // namespace
@@ -338,7 +331,6 @@ void pb_reg_downsample(const float *xyz, size_t n, const pb_reg_config_t *cfg, s
 int pb_reg_align(const pb_regmap_t *map, const float *xyz, size_t n, const Eigen::Isometry3d &guess,
                  const pb_reg_config_t *cfg, pb_reg_result_t *res, pb_err_t *err)
 {
-    auto t0 = std::chrono::steady_clock::now();
     pb_reg_config_t def;
     pb_reg_config_default(&def);
     if (!cfg) cfg = &def;
@@ -393,7 +385,6 @@ int pb_reg_align(const pb_regmap_t *map, const float *xyz, size_t n, const Eigen
         res->status = converged ? PB_REG_OK : PB_REG_MAX_ITER;
         res->pose = T;
     }
-    res->time_ms = ms_since(t0);
     return res->status;
 }
 
@@ -401,7 +392,6 @@ int pb_reg_align_global(const pb_regmap_t *map, const float *xyz, size_t n, cons
                         double radius_m, double yaw_range_rad, double pos_step_m, double yaw_step_rad,
                         const pb_reg_config_t *cfg, pb_reg_result_t *res, pb_err_t *err)
 {
-    auto t0 = std::chrono::steady_clock::now();
     pb_reg_config_t def;
     pb_reg_config_default(&def);
     if (!cfg) cfg = &def;
@@ -469,12 +459,10 @@ int pb_reg_align_global(const pb_regmap_t *map, const float *xyz, size_t n, cons
     }
     if (!have) {
         res->status = PB_REG_FEW_POINTS;
-        res->time_ms = ms_since(t0);
         return res->status;
     }
     *res = best;
     res->iterations = total_it;
-    res->time_ms = ms_since(t0);
     return res->status;
 }
 

@@ -90,7 +90,6 @@ typedef struct {
     double rmse_m;               /* RMS residual of matched points */
     double median_abs_m;         /* median |residual| of matched points */
     double score;                /* mean Geman-McClure similarity (1 = perfect), NDT-like */
-    double time_ms;              /* wall time of the call (diagnostic only, not deterministic) */
     /* Appended after the first API commit. The ground is often half the points
      * and fixes only z, roll and pitch, so inlier_fraction stays near 0.5 at a
      * pose 0.5 m off sideways. This one counts only points whose target is
