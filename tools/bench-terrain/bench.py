@@ -121,7 +121,7 @@ def localizer_runs(spec, seeds, work, duration=30):
         for seed in seeds:
             d = work / f"loc-{site}{'-' + groups.replace(',', '-') if groups else ''}-{prof}-{seed}"
             merged = d / "input.lcm"
-            if not merged.exists():
+            if not lb.cached(merged, ROOT / "maps" / site):
                 lb.sh([BIN / "simdrive", "--site", ROOT / "maps" / site, "--out", d, "--seed", seed,
                        "--speed-profile", prof, "--duration", duration, "--quiet"] + (["--with", groups] if groups else []))
                 lb.sh([BIN / "can", "--replay", d / "drive.lcm", "--out", d / "speed.lcm"])
@@ -147,7 +147,7 @@ def twin_run(site, seed, work):
     sdir = ROOT / "maps" / site
     d = work / f"twin-{site}-{seed}"
     merged, out, road = d / "input.lcm", d / "loc.lcm", d / "road.lcm"
-    if not road.exists():
+    if not lb.cached(road, sdir):
         lb.sh([BIN / "simdrive", "--site", sdir, "--out", d, "--seed", seed, "--duration", 110, "--quiet"])
         lb.sh([BIN / "can", "--replay", d / "drive.lcm", "--out", d / "speed.lcm"])
         lb.sh([BIN / "log-merge", "--quiet", "--out", merged, d / "drive.lcm", d / "speed.lcm"])
@@ -156,7 +156,7 @@ def twin_run(site, seed, work):
             raise SystemExit(f"localizer failed: {p.stderr[-500:]}")
         lb.sh([BIN / "log-merge", "--quiet", "--out", road, d / "drive.lcm", out])
     lab = d / "lab.lcm"
-    if not lab.exists():
+    if not lb.cached(lab, sdir):
         lb.sh([BIN / "lab_vehicle", "--site", sdir, "--out", lab, "--auto-proceed", 2.0, "--duration", 115])
 
     def events(log):

@@ -36,7 +36,7 @@ def crop_site(src_site, gt, out_dir, margin=90.0):
     """The site with its map cropped to the drive's surroundings: a start's map loads in a second."""
     import shutil
     site = out_dir / "site_crop"
-    if (site / "map.pcd").exists():
+    if (site / "map.pcd").exists() and (site / "map.pcd").stat().st_mtime >= (src_site / "map.pcd").stat().st_mtime:
         return site
     site.mkdir(parents=True, exist_ok=True)
     for name in ("site.yaml",):
@@ -149,7 +149,7 @@ def run_starts(drives, site, n_guesses=100, n_frames=10, n_gnss=20, n_global=20,
             for mode, keep in (("fused", "LIDAR_SCAN,IMU,VEHICLE_SPEED,GROUND_TRUTH"), ("lidar", "LIDAR_SCAN,GROUND_TRUTH"),
                                ("gnss", "LIDAR_SCAN,IMU,VEHICLE_SPEED,GNSS_FIX,GROUND_TRUTH")):
                 c[mode] = work / f"cut_{mode}_{at:.1f}.lcm"
-                if not c[mode].exists():
+                if not c[mode].exists() or c[mode].stat().st_mtime < log.stat().st_mtime:
                     cut(log, c[mode], at, seconds, keep)
             cuts.append((gt, crop, c, work))
     print(f"starts like real life ({len(cuts)} cut points, {seconds:.0f} s each, {jobs} at a time; "

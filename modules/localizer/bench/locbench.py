@@ -61,12 +61,24 @@ def sh(args, **kw):
     return p
 
 
+def cached(path, site=None):
+    """True when path exists and is newer than what made it: the simdrive, can and
+    log-merge binaries and the site's files (a drive cached before the site changed, e.g.
+    gained relief, would be scored against the new map)."""
+    path = pathlib.Path(path)
+    if not path.exists():
+        return False
+    site = pathlib.Path(site) if site else ROOT / "maps" / "default"
+    inputs = [BIN / "simdrive", BIN / "can", BIN / "log-merge"] + [site / f for f in ("site.yaml", "route.yaml", "world.yaml")]
+    return all(path.stat().st_mtime >= i.stat().st_mtime for i in inputs if i.exists())
+
+
 def make_drive(out_dir, seed, profile, duration, extra=()):
-    """simdrive drive + VEHICLE_SPEED merged in: returns the path of the merged log (cached).
-    extra: more simdrive options (e.g. --reverse 50)."""
+    """simdrive drive + VEHICLE_SPEED merged in: returns the path of the merged log (cached
+    while newer than its inputs). extra: more simdrive options (e.g. --reverse 50)."""
     out_dir = pathlib.Path(out_dir)
     merged = out_dir / "input.lcm"
-    if merged.exists():
+    if cached(merged):
         return merged
     sh([BIN / "simdrive", "--out", out_dir, "--seed", seed, "--speed-profile", profile, "--duration", duration, "--quiet",
         *extra])

@@ -28,10 +28,15 @@ def main():
     d = os.path.join(BUILD, "bench", "occlusion")
     drive = os.path.join(d, "drive", "drive.lcm")
     stamp = os.path.join(d, "drive", f"done-{DURATION}")
-    if not os.path.exists(stamp):
+    scene = os.path.join(TOP, "maps", "default", "scenes", "occlusion_scene.yaml")
+    # made again when simdrive or the site changed since (a cached flat drive would be
+    # scored against the site's relief)
+    inputs = [os.path.join(BUILD, "bin", "simdrive"), scene] + \
+        [os.path.join(TOP, "maps", "default", f) for f in ("site.yaml", "route.yaml", "world.yaml")]
+    if not os.path.exists(stamp) or any(os.path.getmtime(i) > os.path.getmtime(stamp) for i in inputs):
         print(f"bench-occlusion: simulating a {DURATION} s drive with agents and OCCLUSION_TRUTH (once) ...", flush=True)
         subprocess.run([os.path.join(BUILD, "bin", "simdrive"), "--out", os.path.dirname(drive), "--duration",
-                        str(DURATION), "--seed", "3", "--scenario", os.path.join(TOP, "maps", "default", "scenes", "occlusion_scene.yaml"), "--head", "--quiet"], check=True)
+                        str(DURATION), "--seed", "3", "--scenario", scene, "--head", "--quiet"], check=True)
         open(stamp, "w").close()
     out = os.path.join(d, "bench_out.lcm")
     print("bench-occlusion: ours on every sweep, stock OctoMap on "
