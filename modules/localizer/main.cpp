@@ -30,7 +30,7 @@
 #include "portobello_status_t.h"
 #include "portobello_vehicle_speed_t.h"
 
-using namespace loc;
+using namespace pb_loc;
 
 struct app_t {
     pb_bus_t *bus = nullptr;

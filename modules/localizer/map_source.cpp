@@ -58,12 +58,12 @@ int map_source_prepare(const char *pcd, double tile_m, std::vector<uint8_t> *out
     pb_regmap_t *map = pb_regmap_load(pcd, nullptr, nullptr, err);
     if (!map) return -1;
     /* the place descriptors of the whole map, for a start with no prior */
-    loc::places_config_t pc;
-    loc::places_t *p = loc::places_build(map, pc);
+    pb_loc::places_config_t pc;
+    pb_loc::places_t *p = pb_loc::places_build(map, pc);
     std::vector<uint8_t> pbytes;
-    if (p) loc::places_encode(p, &pbytes);
-    if (places) *places = loc::places_count(p);
-    loc::places_destroy(p);
+    if (p) pb_loc::places_encode(p, &pbytes);
+    if (places) *places = pb_loc::places_count(p);
+    pb_loc::places_destroy(p);
     int rc = pb_tiles_encode(map, tile_m, id, pbytes, out, err);
     if (info) pb_regmap_info(map, info);
     pb_regmap_destroy(map);
@@ -145,13 +145,13 @@ void map_source_close(map_source_t *s)
 const pb_regmap_t *map_source_map(const map_source_t *s) { return pb_tiles_map(s->tiles); }
 const char *map_source_path(const map_source_t *s) { return s->path.c_str(); }
 
-loc::places_t *map_source_places(const map_source_t *s, pb_err_t *err)
+pb_loc::places_t *map_source_places(const map_source_t *s, pb_err_t *err)
 {
     err->msg[0] = '\0';
     std::vector<uint8_t> bytes;
     if (pb_tiles_read_places(s->tiles, &bytes, err) != 0 || bytes.empty()) return nullptr;
     char msg[200];
-    loc::places_t *p = loc::places_decode(bytes.data(), bytes.size(), msg, sizeof msg);
+    pb_loc::places_t *p = pb_loc::places_decode(bytes.data(), bytes.size(), msg, sizeof msg);
     if (!p) pb_err_set(err, "%s: place descriptors: %s", s->path.c_str(), msg);
     return p;
 }

@@ -41,7 +41,7 @@ const pb_regmap_t *map_source_map(const map_source_t *s);
 const char *map_source_path(const map_source_t *s);
 /* The stored place descriptors (caller frees with places_destroy), or NULL: with err
  * set when they are damaged, with err.msg empty when the file has none. */
-loc::places_t *map_source_places(const map_source_t *s, pb_err_t *err);
+pb_loc::places_t *map_source_places(const map_source_t *s, pb_err_t *err);
 /* Pages around map (x, y). Returns as pb_tiles_page. */
 int map_source_page(map_source_t *s, double x, double y, pb_err_t *err);
 void map_source_stats(const map_source_t *s, pb_tiles_stats_t *st);

@@ -6,7 +6,7 @@
 #include "localizer/core/filter.h"
 #include "pb_check.h"
 
-using namespace loc;
+using namespace pb_loc;
 
 static const double R0 = 50.0, V = 10.0, W = V / R0, G = 9.80665;
 

@@ -384,12 +384,12 @@ static void test_map_tiles(void)
     pb_tiles_destroy(t);
 
     /* the place descriptors stored with the tiles answer a query as the built ones do */
-    loc::places_config_t pc;
-    loc::places_t *built = loc::places_build(whole, pc);
+    pb_loc::places_config_t pc;
+    pb_loc::places_t *built = pb_loc::places_build(whole, pc);
     CHECK(built != nullptr);
     if (built) {
         std::vector<uint8_t> pbytes;
-        loc::places_encode(built, &pbytes);
+        pb_loc::places_encode(built, &pbytes);
         MemFile pf;
         CHECK(pb_tiles_encode(whole, 32, pb_tiles_source_t{123, 456}, pbytes, &pf.bytes, &err) == 0);
         pb_tiles_t *pt = pb_tiles_open(mem_read, &pf, pf.bytes.size(), "places.tiles", &tc, &err);
@@ -401,15 +401,15 @@ static void test_map_tiles(void)
             pb_tiles_destroy(pt);
         }
         char msg[200];
-        loc::places_t *read = loc::places_decode(back.data(), back.size(), msg, sizeof msg);
-        CHECK(read != nullptr && loc::places_count(read) == loc::places_count(built));
+        pb_loc::places_t *read = pb_loc::places_decode(back.data(), back.size(), msg, sizeof msg);
+        CHECK(read != nullptr && pb_loc::places_count(read) == pb_loc::places_count(built));
         if (read) {
             std::vector<float> scan = scan_of(m, pose(300.3, -0.4, 4));
-            loc::place_desc_t d;
-            loc::places_describe(built, scan.data(), scan.size() / 3, &d);
-            std::vector<loc::place_match_t> qa, qb;
-            loc::places_query(built, d, 8, &qa);
-            loc::places_query(read, d, 8, &qb);
+            pb_loc::place_desc_t d;
+            pb_loc::places_describe(built, scan.data(), scan.size() / 3, &d);
+            std::vector<pb_loc::place_match_t> qa, qb;
+            pb_loc::places_query(built, d, 8, &qa);
+            pb_loc::places_query(read, d, 8, &qb);
             bool same = qa.size() == qb.size() && !qa.empty();
             for (size_t i = 0; same && i < qa.size(); i++)
                 same = qa[i].x == qb[i].x && qa[i].y == qb[i].y && qa[i].yaw == qb[i].yaw && qa[i].distance == qb[i].distance;
@@ -423,11 +423,11 @@ static void test_map_tiles(void)
                 Eigen::Map<Eigen::Vector3f> to(&tilted[3 * i]);
                 to = pitch * Eigen::Map<const Eigen::Vector3f>(&scan[3 * i]);
             }
-            loc::place_desc_t dt;
-            loc::places_describe(built, tilted.data(), tilted.size() / 3, &dt);
+            pb_loc::place_desc_t dt;
+            pb_loc::places_describe(built, tilted.data(), tilted.size() / 3, &dt);
             int bins = 0, off = 0;
-            for (int r = 0; r < loc::PLACE_RINGS; r++)
-                for (int s = 0; s < loc::PLACE_SECTORS; s++) {
+            for (int r = 0; r < pb_loc::PLACE_RINGS; r++)
+                for (int s = 0; s < pb_loc::PLACE_SECTORS; s++) {
                     if (d.h[r][s] <= 0 && dt.h[r][s] <= 0) continue;
                     bins++;
                     off += std::fabs(d.h[r][s] - dt.h[r][s]) > 0.5;
@@ -436,17 +436,17 @@ static void test_map_tiles(void)
             /* measured 8 of 69 (bins whose edge the tilt moves); above the tilted base
              * plane it was 55 of 114 */
             CHECK(bins > 0 && off * 100 <= bins * 30);
-            loc::places_destroy(read);
+            pb_loc::places_destroy(read);
         }
         /* damaged descriptors: refused with the byte named, never a crash */
         std::vector<uint8_t> bad = pbytes;
         bad.resize(bad.size() - 1);
-        CHECK(loc::places_decode(bad.data(), bad.size(), msg, sizeof msg) == nullptr);
+        CHECK(pb_loc::places_decode(bad.data(), bad.size(), msg, sizeof msg) == nullptr);
         CHECK_CONTAINS(msg, "byte");
         bad = pbytes;
         std::memset(bad.data() + 8, 0xff, 8);   /* ring width NaN */
-        CHECK(loc::places_decode(bad.data(), bad.size(), msg, sizeof msg) == nullptr);
-        loc::places_destroy(built);
+        CHECK(pb_loc::places_decode(bad.data(), bad.size(), msg, sizeof msg) == nullptr);
+        pb_loc::places_destroy(built);
     }
 
     /* bad files: named, with the byte offset */

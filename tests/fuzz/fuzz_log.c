@@ -1,6 +1,6 @@
 /* libFuzzer target: the strict event-log reader on arbitrary bytes. Every event it
  * returns must lie inside the file; a damaged file must end in an error, never a crash.
- * fuzz-sources: common/pb_log.c common/pb_err.c */
+ * fuzz-sources: common/pb_log.c common/pb_err.c build/gen/c/portobello_pose_t.c */
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>

@@ -21,13 +21,13 @@ static int mem_read(void *user, uint64_t off, void *buf, size_t len)
     return 0;
 }
 
-static void query(const loc::places_t *p)
+static void query(const pb_loc::places_t *p)
 {
     float scan[9] = { 3, 1, 2, -5, 4, 3, 10, -2, 1 };
-    loc::place_desc_t d;
-    loc::places_describe(p, scan, 3, &d);
-    std::vector<loc::place_match_t> m;
-    loc::places_query(p, d, 4, &m);
+    pb_loc::place_desc_t d;
+    pb_loc::places_describe(p, scan, 3, &d);
+    std::vector<pb_loc::place_match_t> m;
+    pb_loc::places_query(p, d, 4, &m);
 }
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
@@ -41,15 +41,15 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         std::vector<uint8_t> pb;
         if (pb_tiles_read_places(t, &pb, &err) == 0 && !pb.empty()) {
             char msg[200];
-            loc::places_t *p = loc::places_decode(pb.data(), pb.size(), msg, sizeof msg);
+            pb_loc::places_t *p = pb_loc::places_decode(pb.data(), pb.size(), msg, sizeof msg);
             if (p) query(p);
-            loc::places_destroy(p);
+            pb_loc::places_destroy(p);
         }
         pb_tiles_destroy(t);
     }
     char msg[200];
-    loc::places_t *p = loc::places_decode(data, size, msg, sizeof msg);
+    pb_loc::places_t *p = pb_loc::places_decode(data, size, msg, sizeof msg);
     if (p) query(p);
-    loc::places_destroy(p);
+    pb_loc::places_destroy(p);
     return 0;
 }

@@ -5,7 +5,7 @@
 
 #include <cmath>
 
-namespace loc {
+namespace pb_loc {
 
 enum { IP = 0, IV = 3, ITH = 6, IBA = 9, IBG = 12 };
 
@@ -229,4 +229,4 @@ Mat6 filter_base_covariance(const filter_t *f)
     return c;
 }
 
-} // namespace loc
+} // namespace pb_loc

@@ -23,7 +23,7 @@
 #include <Eigen/Geometry>
 #include <cstdint>
 
-namespace loc {
+namespace pb_loc {
 
 typedef Eigen::Matrix<double, 15, 15> Mat15;
 typedef Eigen::Matrix<double, 6, 6> Mat6;
@@ -92,5 +92,5 @@ Vec3 filter_base_rate(const filter_t *f);
 /* 6x6 covariance over (x, y, z, roll, pitch, yaw) of the base, approximated from P. */
 Mat6 filter_base_covariance(const filter_t *f);
 
-} // namespace loc
+} // namespace pb_loc
 #endif

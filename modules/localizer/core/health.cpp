@@ -6,7 +6,7 @@
 
 #include "localizer_impl.h"
 
-namespace loc {
+namespace pb_loc {
 
 Vec3 antenna_map(const localizer_t *L, const Eigen::Isometry3d &map_from_base)
 {
@@ -95,4 +95,4 @@ Mat6 floored(const localizer_t *L, const Mat6 &c)
     return m;
 }
 
-} // namespace loc
+} // namespace pb_loc

@@ -7,7 +7,7 @@
 #include <cstdio>
 #include <deque>
 
-namespace loc {
+namespace pb_loc {
 
 void event(outputs_t *out, const char *counter, const char *fmt, ...)
 {
@@ -840,4 +840,4 @@ void localizer_tick(localizer_t *L, int64_t now, outputs_t *out)
     maybe_gap_pose(L, now, out);
 }
 
-} // namespace loc
+} // namespace pb_loc

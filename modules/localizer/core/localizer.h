@@ -45,7 +45,7 @@
 #include "registration.h"
 #include "regmap.h"
 
-namespace loc {
+namespace pb_loc {
 
 enum { ST_INITIALIZING = 0, ST_TRACKING = 1, ST_DEGRADED = 2, ST_LOST = 3 };
 enum { SRC_LOCALIZER = 0, SRC_PREDICTED = 3 };
@@ -207,5 +207,5 @@ void localizer_finish(localizer_t *L, outputs_t *out);
 int localizer_status(const localizer_t *L);
 const char *localizer_status_name(int status);
 
-} // namespace loc
+} // namespace pb_loc
 #endif

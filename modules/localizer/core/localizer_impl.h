@@ -10,7 +10,7 @@
 #include "localizer.h"
 #include "places.h"
 
-namespace loc {
+namespace pb_loc {
 
 enum { EV_IMU = 0, EV_SPEED = 1 };
 
@@ -130,5 +130,5 @@ int64_t gnss_clock_offset(localizer_t *L, int64_t fix_utime, outputs_t *out);
 double structure_inliers(localizer_t *L, const Eigen::Isometry3d &pose);
 Mat6 floored(const localizer_t *L, const Mat6 &c);
 
-} // namespace loc
+} // namespace pb_loc
 #endif

@@ -7,7 +7,7 @@
 #include <cstdio>
 #include <cstring>
 
-namespace loc {
+namespace pb_loc {
 
 namespace {
 
@@ -394,4 +394,4 @@ void places_query(const places_t *p, const place_desc_t &d, int k, std::vector<p
     if ((int)out->size() > k) out->resize(k);
 }
 
-} // namespace loc
+} // namespace pb_loc

@@ -24,7 +24,7 @@
 
 #include "regmap.h"
 
-namespace loc {
+namespace pb_loc {
 
 enum { PLACE_RINGS = 20, PLACE_SECTORS = 60 };
 
@@ -74,5 +74,5 @@ void places_describe(const places_t *p, const float *xyz, size_t n, place_desc_t
 /* The k most alike places, best first. */
 void places_query(const places_t *p, const place_desc_t &d, int k, std::vector<place_match_t> *out);
 
-} // namespace loc
+} // namespace pb_loc
 #endif

@@ -8,7 +8,7 @@
 #include "localizer_impl.h"
 #include "places.h"
 
-namespace loc {
+namespace pb_loc {
 
 /* Where to search on this sweep, and why. */
 struct start_t {
@@ -299,4 +299,4 @@ void localizer_initial_pose(localizer_t *L, int64_t utime, const Eigen::Isometry
     set_status(L, ST_INITIALIZING, out, "INITIAL_POSE received");
 }
 
-} // namespace loc
+} // namespace pb_loc
