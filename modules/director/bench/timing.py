@@ -17,9 +17,11 @@ across seeds; the later ones follow different dwells.
     modules/director/bench/timing.py [--seeds 1,2,3,4,5] [--work DIR]
 """
 import argparse
+import atexit
 import math
 import os
 import pathlib
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -99,6 +101,8 @@ def main():
     seeds = [int(s) for s in args.seeds.split(",")]
     site = pathlib.Path(args.site)
     work = pathlib.Path(args.work or tempfile.mkdtemp(prefix="bench-director-"))
+    if not args.work:   # its drives are 0.6 GB a run: a scratch folder goes when the run ends
+        atexit.register(shutil.rmtree, work, True)
     work.mkdir(parents=True, exist_ok=True)
     route = yaml.safe_load(open(site / "route.yaml"))
     stops = {s["id"]: s for s in route["stop_lines"]}
