@@ -1,0 +1,39 @@
+"""Every Python script of the benches and tools loads: its imports resolve from where it
+stands (a bench moved into modules/NAME/bench/ once kept a path to modules/modules/webui,
+and `make bench-localizer-real` stopped at its first step with nobody told). Scripts with
+options answer --help; the others are imported under another name, so their main does not
+run (a bench would take minutes)."""
+import subprocess
+import sys
+
+import pytest
+
+from conftest import ROOT
+
+# needs ouster-sdk, which make bench-ouster installs into a virtual environment of its own
+OWN_ENVIRONMENT = {"modules/ouster/bench/sdk_baseline.py"}
+
+SCRIPTS = sorted(str(p.relative_to(ROOT)) for pattern in ("modules/*/bench/*.py", "tools/*/*.py", "tools/*.py")
+                 for p in ROOT.glob(pattern) if str(p.relative_to(ROOT)) not in OWN_ENVIRONMENT)
+
+
+def test_scripts_found():
+    # the glob itself must not come back empty (a moved folder would pass every case below)
+    assert len(SCRIPTS) >= 20, SCRIPTS
+
+
+@pytest.mark.parametrize("script", SCRIPTS)
+def test_script_loads(script):
+    path = ROOT / script
+    text = path.read_text()
+    if "argparse" in text and '__name__ == "__main__"' in text:
+        r = subprocess.run([sys.executable, path, "--help"], capture_output=True, text=True, timeout=120)
+        assert r.returncode == 0 and "usage" in r.stdout, f"{script} --help: rc {r.returncode}\n{r.stdout}\n{r.stderr}"
+    else:
+        # as python does for `python script.py`: the script's folder first on the path
+        probe = ("import importlib.util, sys; sys.path.insert(0, sys.argv[2]); "
+                 "s = importlib.util.spec_from_file_location('script_under_test', sys.argv[1]); "
+                 "s.loader.exec_module(importlib.util.module_from_spec(s))")
+        r = subprocess.run([sys.executable, "-c", probe, path, path.parent], capture_output=True, text=True,
+                           timeout=120, cwd=ROOT)
+        assert r.returncode == 0, f"{script} does not import: rc {r.returncode}\n{r.stderr}"
