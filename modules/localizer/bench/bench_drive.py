@@ -362,6 +362,7 @@ def fault_live_clock_step(d, log, seconds=10, url="udpm://239.255.76.67:7901?ttl
             if step_wall is None and ts >= events[0][0] + 9_000_000:
                 step_wall = time.monotonic()
             lcm_pub.publish(ch, data)
+        play_end = time.monotonic()
         time.sleep(0.5)
     finally:
         proc.terminate()
@@ -378,7 +379,9 @@ def fault_live_clock_step(d, log, seconds=10, url="udpm://239.255.76.67:7901?ttl
     around = t[(t >= step_wall - 1) & (t < step_wall + 3)]
     return {"rate_before_hz": len(before) / 3.0, "rate_after_hz": len(after) / 3.0,
             "max_pause_s": float(np.max(np.diff(around))) if len(around) > 1 else None,
-            "tracking_at_end": bool(got[-1][1] == 1)}
+            # as the last sweep was published (after it the input stops, and the pose is
+            # degraded within lidar_timeout, as it should be)
+            "tracking_at_end": bool([g[1] for g in got if g[0] <= play_end][-1:] == [1])}
 
 
 def fault_gnss_clock(d, log):
