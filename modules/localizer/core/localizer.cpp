@@ -653,21 +653,13 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
                 event(out, "match_researched", "match off the map's structure: found again around the prediction");
             }
             d.structure_inliers = si;
-            const bool pooled = L->candidate && std::isfinite(si) && L->cand_fit_n > 0;
-            const double fit = pooled ? (L->cand_fit_sum + si) / (L->cand_fit_n + 1) : si;
-            if (std::isfinite(fit) && fit < L->cfg.min_structure_inliers) {
-                if (pooled)
-                    snprintf(whybuf, sizeof whybuf, "the candidate's %d sweeps fit %.0f%% of their structure above the ground "
-                             "to the map on average (this one %.0f%%; need %.0f%%)", L->cand_fit_n + 1, 100 * fit, 100 * si,
-                             100 * L->cfg.min_structure_inliers);
-                else
-                    snprintf(whybuf, sizeof whybuf, "only %.0f%% of the structure above the ground fits the map (need %.0f%%)",
-                             100 * si, 100 * L->cfg.min_structure_inliers);
+            if (std::isfinite(si) && si < L->cfg.min_structure_inliers) {
+                snprintf(whybuf, sizeof whybuf, "only %.0f%% of the structure above the ground fits the map (need %.0f%%)",
+                         100 * si, 100 * L->cfg.min_structure_inliers);
                 why = whybuf;
                 event(out, "match_structure_mismatch", "%s", whybuf);
             } else {
                 accept = true;
-                if (L->candidate && std::isfinite(si)) { L->cand_fit_sum += si; L->cand_fit_n++; }
                 if (free_motion) restart_from_two_matches(L, &prior, res.pose, t_ref);
                 else filter_update_pose(&prior, res.pose, cov);
                 if (std::isfinite(si) && si >= L->cfg.structure_trust) {

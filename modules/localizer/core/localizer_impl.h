@@ -59,13 +59,6 @@ struct localizer {
     Eigen::Isometry3d cand_pose = Eigen::Isometry3d::Identity();
     int64_t cand_t = 0;
     int verify_count = 0, reject_count = 0;
-    /* a candidate from a prior is judged on the mean structure fit of its sweeps so far,
-     * not on each alone: real roadside (vegetation, parked cars that moved) fits a true
-     * pose differently from sweep to sweep (MulRan: 69% of sweeps at the reference pose
-     * pass min_structure_inliers, so three in a row pass a true pose a third of the
-     * time) (cand_fit_n 0: each sweep alone) */
-    double cand_fit_sum = 0;
-    int cand_fit_n = 0;
     bool lidar_gap_reported = false;
 
     places_t *places = nullptr;     /* place descriptors of the map (given, or built at the first global search) */

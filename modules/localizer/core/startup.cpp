@@ -263,12 +263,6 @@ bool try_initialize(localizer_t *L, int64_t t_ref, outputs_t *out)
     L->cand_pose = pose;
     L->cand_t = t_ref;
     L->verify_count = 1;
-    /* pooled only where a prior (a hand-placed pose, GNSS, dead reckoning) already bounds
-     * the place: a global search's place stands on its sweeps alone, each over the bar
-     * (pooled, a tree-lined road let a place 50 m back pass on MulRan) */
-    const bool bounded = std::strcmp(how, "global search") != 0;
-    L->cand_fit_sum = bounded && std::isfinite(si) ? si : 0;
-    L->cand_fit_n = bounded && std::isfinite(si) ? 1 : 0;
     L->reject_count = 0;
     L->gnss_res.clear();
     L->has_prev_pose = false;
