@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "core/occlusion.h"
+#include "occ_message.h"
 #include "pb_arg.h"
 #include "pb_bus.h"
 #include "pb_signal.h"
@@ -82,23 +83,8 @@ static void flush(app_t *a)
     }
     a->ev.clear();
     for (occ_output_t &r : a->out) {
-        std::vector<portobello_agent_occlusion_t> ag(r.agents.size());
-        for (size_t i = 0; i < r.agents.size(); i++) {
-            occ_agent_out_t &g = r.agents[i];
-            portobello_agent_occlusion_t &m = ag[i];
-            m.agent_id = (char *)g.id.c_str();
-            m.visible_fraction = g.visible_fraction;
-            m.nsamples = g.n;
-            m.sample_x = g.x; m.sample_y = g.y; m.sample_z = g.z;
-            m.state = g.state;
-            m.occluder_m = g.occluder_m;
-        }
-        portobello_occlusion_t m = {};
-        m.utime = r.utime;
-        memcpy(m.viewer, r.viewer, sizeof m.viewer);
-        m.eye_source = (int8_t)r.eye_source;
-        m.nagents = (int32_t)ag.size();
-        m.agents = ag.data();
+        std::vector<portobello_agent_occlusion_t> ag;
+        portobello_occlusion_t m = occ_message(r, &ag);
         pb_err_t err;
         if (PB_PUBLISH(a->bus, "OCCLUSION", portobello_occlusion_t, &m, &err) != 0) {
             pb_status_count(a->status, "publish_failed", 1);

@@ -23,6 +23,7 @@
 #include <vector>
 
 #include "core/occlusion.h"
+#include "occ_message.h"
 #include "pb_log.h"
 #include "pb_scan.h"
 #include "pb_vehicle.h"
@@ -51,22 +52,8 @@ static double pct(std::vector<double> v, double q)
 
 static void write_occ(pb_log_out_t *o, const char *ch, const occ_output_t &r)
 {
-    std::vector<portobello_agent_occlusion_t> ag(r.agents.size());
-    for (size_t i = 0; i < r.agents.size(); i++) {
-        const occ_agent_out_t &g = r.agents[i];
-        portobello_agent_occlusion_t &m = ag[i];
-        m.agent_id = (char *)g.id.c_str();
-        m.visible_fraction = g.visible_fraction;
-        m.nsamples = g.n;
-        m.sample_x = (float *)g.x; m.sample_y = (float *)g.y; m.sample_z = (float *)g.z;
-        m.state = (int8_t *)g.state; m.occluder_m = (float *)g.occluder_m;
-    }
-    portobello_occlusion_t m = {};
-    m.utime = r.utime;
-    memcpy(m.viewer, r.viewer, sizeof m.viewer);
-    m.eye_source = (int8_t)r.eye_source;
-    m.nagents = (int32_t)ag.size();
-    m.agents = ag.data();
+    std::vector<portobello_agent_occlusion_t> ag;
+    portobello_occlusion_t m = occ_message(r, &ag);
     int n = portobello_occlusion_t_encoded_size(&m);
     std::vector<uint8_t> buf(n);
     portobello_occlusion_t_encode(buf.data(), 0, n, &m);
