@@ -99,8 +99,15 @@ static int split(const gnss_nmea_sentence_t *s, field_t *f, int max)
 }
 
 /* Unsigned decimal "ddd[.ddd]": integer part and fraction kept apart, so that
- * ddmm.mmmm splits exactly. Returns 0 or -1. */
-static int parse_udec(field_t f, int64_t *ipart, double *frac, int *int_digits)
+ * ddmm.mmmm splits exactly. */
+typedef struct {
+    int64_t ip;        /* integer part */
+    double frac;       /* fraction, [0, 1) */
+    int int_digits;    /* digits of the integer part */
+} udec_t;
+
+/* Returns 0 or -1. */
+static int parse_udec(field_t f, udec_t *d)
 {
     size_t i = 0;
     int64_t v = 0;
@@ -111,7 +118,7 @@ static int parse_udec(field_t f, int64_t *ipart, double *frac, int *int_digits)
         nd++;
         i++;
     }
-    double fr = 0, scale = 0.1;
+    double fr = 0;
     int nf = 0;
     if (i < f.len && f.p[i] == '.') {
         i++;
@@ -122,12 +129,11 @@ static int parse_udec(field_t f, int64_t *ipart, double *frac, int *int_digits)
             i++;
         }
         fr = (double)m / (double)div;
-        (void)scale;
     }
     if (i != f.len || nd + nf == 0) return -1;
-    *ipart = v;
-    *frac = fr;
-    if (int_digits) *int_digits = nd;
+    d->ip = v;
+    d->frac = fr;
+    d->int_digits = nd;
     return 0;
 }
 
@@ -137,10 +143,9 @@ static int parse_num(field_t f, double *out)
     if (f.len == 0) { *out = NAN; return 0; }
     int neg = 0;
     if (f.p[0] == '-' || f.p[0] == '+') { neg = f.p[0] == '-'; f.p++; f.len--; }
-    int64_t ip;
-    double fr;
-    if (parse_udec(f, &ip, &fr, NULL) != 0) return -1;
-    double v = (double)ip + fr;
+    udec_t u;
+    if (parse_udec(f, &u) != 0) return -1;
+    double v = (double)u.ip + u.frac;
     *out = neg ? -v : v;
     return 0;
 }
@@ -148,12 +153,10 @@ static int parse_num(field_t f, double *out)
 static int parse_int(field_t f, int *out)
 {
     if (f.len == 0) { *out = -1; return 0; }
-    int64_t ip;
-    double fr;
-    int nd;
-    if (parse_udec(f, &ip, &fr, &nd) != 0 || fr != 0 || ip > 1000000) return -1;
+    udec_t u;
+    if (parse_udec(f, &u) != 0 || u.frac != 0 || u.ip > 1000000) return -1;
     for (size_t i = 0; i < f.len; i++) if (f.p[i] == '.') return -1;
-    *out = (int)ip;
+    *out = (int)u.ip;
     return 0;
 }
 
@@ -161,13 +164,11 @@ static int parse_int(field_t f, int *out)
 static int parse_tod(field_t f, int32_t *ms)
 {
     if (f.len == 0) { *ms = -1; return 0; }
-    int64_t ip;
-    double fr;
-    int nd;
-    if (parse_udec(f, &ip, &fr, &nd) != 0 || nd != 6) return -1;
-    int hh = (int)(ip / 10000), mm = (int)(ip / 100 % 100), ss = (int)(ip % 100);
+    udec_t u;
+    if (parse_udec(f, &u) != 0 || u.int_digits != 6) return -1;
+    int hh = (int)(u.ip / 10000), mm = (int)(u.ip / 100 % 100), ss = (int)(u.ip % 100);
     if (hh > 23 || mm > 59 || ss > 60) return -1;
-    *ms = (int32_t)(((hh * 60 + mm) * 60 + ss) * 1000 + (int32_t)floor(fr * 1000.0 + 0.5));
+    *ms = (int32_t)(((hh * 60 + mm) * 60 + ss) * 1000 + (int32_t)floor(u.frac * 1000.0 + 0.5));
     return 0;
 }
 
@@ -175,13 +176,11 @@ static int parse_tod(field_t f, int32_t *ms)
 static int parse_coord(field_t v, field_t hemi, int deg_digits, char pos, char neg, double *deg, int *has)
 {
     if (v.len == 0 && hemi.len == 0) { *has = 0; return 0; }
-    int64_t ip;
-    double fr;
-    int nd;
-    if (parse_udec(v, &ip, &fr, &nd) != 0 || nd < 3 || nd > deg_digits + 2) return -1;
+    udec_t u;
+    if (parse_udec(v, &u) != 0 || u.int_digits < 3 || u.int_digits > deg_digits + 2) return -1;
     if (hemi.len != 1 || (hemi.p[0] != pos && hemi.p[0] != neg)) return -1;
-    int64_t d = ip / 100;
-    double minutes = (double)(ip % 100) + fr;
+    int64_t d = u.ip / 100;
+    double minutes = (double)(u.ip % 100) + u.frac;
     if (minutes >= 60.0 || d > (deg_digits == 2 ? 90 : 180)) return -1;
     double value = (double)d + minutes / 60.0;
     if (value > (deg_digits == 2 ? 90.0 : 180.0)) return -1;
@@ -235,13 +234,11 @@ int gnss_nmea_parse_rmc(const gnss_nmea_sentence_t *s, gnss_nmea_rmc_t *r, int *
     if (parse_num(f[7], &r->speed_knots) || r->speed_knots < 0) { *bad_field = 7; return -1; }
     if (parse_num(f[8], &r->course_deg) || r->course_deg < 0 || r->course_deg > 360) { *bad_field = 8; return -1; }
     if (f[9].len) {
-        int64_t ip;
-        double fr;
-        int nd;
-        if (parse_udec(f[9], &ip, &fr, &nd) || nd != 6 || fr != 0 || f[9].len != 6) { *bad_field = 9; return -1; }
-        r->day = (int)(ip / 10000);
-        r->month = (int)(ip / 100 % 100);
-        int yy = (int)(ip % 100);
+        udec_t u;
+        if (parse_udec(f[9], &u) || u.int_digits != 6 || u.frac != 0 || f[9].len != 6) { *bad_field = 9; return -1; }
+        r->day = (int)(u.ip / 10000);
+        r->month = (int)(u.ip / 100 % 100);
+        int yy = (int)(u.ip % 100);
         r->year = yy < 80 ? 2000 + yy : 1900 + yy;   /* two-digit year: 1980..2079 */
         if (r->day < 1 || r->day > 31 || r->month < 1 || r->month > 12) { *bad_field = 9; return -1; }
         r->has_date = 1;

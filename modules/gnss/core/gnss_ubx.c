@@ -53,50 +53,16 @@ size_t gnss_ubx_frame_build(uint8_t msg_class, uint8_t msg_id, const uint8_t *pa
     return (size_t)len + GNSS_UBX_OVERHEAD;
 }
 
-static uint16_t u2(const uint8_t *p) { return (uint16_t)(p[0] | (p[1] << 8)); }
-static uint32_t u4(const uint8_t *p)
-{
-    return (uint32_t)p[0] | ((uint32_t)p[1] << 8) | ((uint32_t)p[2] << 16) | ((uint32_t)p[3] << 24);
-}
-static int32_t i4(const uint8_t *p) { return (int32_t)u4(p); }
+/* The struct is the payload: the wire is little-endian, and so is every host we build for. */
+_Static_assert(__BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__, "gnss_nav_pvt_t is copied from a little-endian payload");
+_Static_assert(offsetof(gnss_nav_pvt_t, lon) == 24 && offsetof(gnss_nav_pvt_t, p_dop) == 76, "NAV-PVT offsets");
+_Static_assert(offsetof(gnss_nav_pvt_t, head_veh) == 84 && sizeof(gnss_nav_pvt_t) == GNSS_UBX_NAV_PVT_LEN, "NAV-PVT size");
 
 int gnss_ubx_nav_pvt_decode(const uint8_t *p, size_t len, gnss_nav_pvt_t *v)
 {
     memset(v, 0, sizeof *v);
     if (len < GNSS_UBX_NAV_PVT_LEN_MIN) return -1;
-    v->itow_ms = u4(p + 0);
-    v->year = u2(p + 4);
-    v->month = p[6];
-    v->day = p[7];
-    v->hour = p[8];
-    v->min = p[9];
-    v->sec = p[10];
-    v->valid = p[11];
-    v->t_acc_ns = u4(p + 12);
-    v->nano = i4(p + 16);
-    v->fix_type = p[20];
-    v->flags = p[21];
-    v->flags2 = p[22];
-    v->num_sv = p[23];
-    v->lon = i4(p + 24);
-    v->lat = i4(p + 28);
-    v->height_mm = i4(p + 32);
-    v->hmsl_mm = i4(p + 36);
-    v->h_acc_mm = u4(p + 40);
-    v->v_acc_mm = u4(p + 44);
-    v->vel_n = i4(p + 48);
-    v->vel_e = i4(p + 52);
-    v->vel_d = i4(p + 56);
-    v->g_speed = i4(p + 60);
-    v->head_mot = i4(p + 64);
-    v->s_acc = u4(p + 68);
-    v->head_acc = u4(p + 72);
-    v->p_dop = u2(p + 76);
-    v->flags3 = p[78];
-    if (len >= GNSS_UBX_NAV_PVT_LEN) {
-        v->head_veh = i4(p + 84);
-        v->mag_dec = (int16_t)u2(p + 88);
-        v->mag_acc = u2(p + 90);
-    }
+    /* An 84-byte (u-blox 7) payload leaves head_veh, mag_dec and mag_acc 0. */
+    memcpy(v, p, len < GNSS_UBX_NAV_PVT_LEN ? GNSS_UBX_NAV_PVT_LEN_MIN : GNSS_UBX_NAV_PVT_LEN);
     return 0;
 }

@@ -48,7 +48,8 @@ void gnss_ubx_checksum(const uint8_t *data, size_t n, uint8_t *ck_a, uint8_t *ck
 size_t gnss_ubx_frame_build(uint8_t msg_class, uint8_t msg_id, const uint8_t *payload,
                             uint16_t len, uint8_t *buf);
 
-/* UBX-NAV-PVT, raw fields with their u-blox units. */
+/* UBX-NAV-PVT, raw fields with their u-blox units, laid out as the payload (a
+ * little-endian host decodes it with one copy; gnss_ubx.c checks the offsets). */
 typedef struct {
     uint32_t itow_ms;
     uint16_t year;
@@ -68,6 +69,7 @@ typedef struct {
     uint32_t s_acc, head_acc;  /* mm/s, 1e-5 deg */
     uint16_t p_dop;            /* 0.01 */
     uint8_t flags3;            /* bit0 invalidLlh */
+    uint8_t reserved[5];
     int32_t head_veh;          /* 1e-5 deg (0 in an 84-byte message) */
     int16_t mag_dec;
     uint16_t mag_acc;

@@ -273,7 +273,9 @@ Params coarse_params(const Params &fine, double coarse_voxel, int iterations)
     return pc;
 }
 
-void reset_result(pb_reg_result_t *res, const Eigen::Isometry3d &guess)
+/* Every align starts here: the result says "bad input" at the guess until the inputs pass. */
+bool start_result(const pb_regmap_t *map, const float *xyz, size_t n, const Eigen::Isometry3d &guess,
+                  pb_reg_result_t *res, pb_err_t *err)
 {
     res->status = PB_REG_BAD_INPUT;
     res->pose = guess;
@@ -284,11 +286,6 @@ void reset_result(pb_reg_result_t *res, const Eigen::Isometry3d &guess)
     res->overlap = res->inlier_fraction = res->rmse_m = res->median_abs_m = res->score = 0;
     res->upright_inlier_fraction = NAN;
     res->upright_points = 0;
-}
-
-bool check_inputs(const pb_regmap_t *map, const float *xyz, size_t n, const Eigen::Isometry3d &guess,
-                  pb_err_t *err)
-{
     if (!map || !xyz) return pb_err_set(err, "registration: no map or no points"), false;
     if (n == 0) return pb_err_set(err, "registration: empty scan"), false;
     if (!guess.matrix().allFinite()) return pb_err_set(err, "registration: non-finite initial guess"), false;
@@ -332,10 +329,8 @@ int pb_reg_align(const pb_regmap_t *map, const float *xyz, size_t n, const Eigen
                  const pb_reg_config_t *cfg, pb_reg_result_t *res, pb_err_t *err)
 {
     pb_reg_config_t def;
-    pb_reg_config_default(&def);
-    if (!cfg) cfg = &def;
-    reset_result(res, guess);
-    if (!check_inputs(map, xyz, n, guess, err)) return res->status;
+    if (!cfg) cfg = (pb_reg_config_default(&def), &def);
+    if (!start_result(map, xyz, n, guess, res, err)) return res->status;
     /* 1. downsample the scan (range filter + adaptive voxel grid) */
     std::vector<float> pts;
     pb_reg_downsample(xyz, n, cfg, &pts);
@@ -393,10 +388,8 @@ int pb_reg_align_global(const pb_regmap_t *map, const float *xyz, size_t n, cons
                         const pb_reg_config_t *cfg, pb_reg_result_t *res, pb_err_t *err)
 {
     pb_reg_config_t def;
-    pb_reg_config_default(&def);
-    if (!cfg) cfg = &def;
-    reset_result(res, seed);
-    if (!check_inputs(map, xyz, n, seed, err)) return res->status;
+    if (!cfg) cfg = (pb_reg_config_default(&def), &def);
+    if (!start_result(map, xyz, n, seed, res, err)) return res->status;
     if (pos_step_m <= 0) pos_step_m = 1.0;
     if (yaw_step_rad <= 0) yaw_step_rad = 5.0 * M_PI / 180.0;
     radius_m = std::max(radius_m, 0.0);
