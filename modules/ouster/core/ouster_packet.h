@@ -59,14 +59,29 @@ typedef struct {
 void ouster_column_decode(const ouster_layout_t *L, const uint8_t *packet, int k, uint16_t packet_frame_id,
                           ouster_column_t *c);
 
+/* Where a pixel's fields sit (byte offsets into the pixel) in the profiles whose range
+ * is a 32-bit word; which_return 2 picks the second return of the DUAL profile.
+ * range_mask 0: RNG15_RFL8_NIR8 (a packed 4-byte pixel) or an unknown profile. Inline,
+ * so that a constant profile gives constant offsets. */
 typedef struct {
-    uint32_t range_mm;
-    uint8_t reflectivity;
-    uint16_t signal, near_ir;
-} ouster_pixel_t;
+    uint32_t range_mask;
+    uint8_t range, reflectivity, signal, near_ir;
+} ouster_pixel_fields_t;
 
-/* Pixel r of a column; which_return 2 picks the second return of the DUAL profile. */
-void ouster_pixel_decode(const ouster_layout_t *L, const uint8_t *pixels, int r, int which_return, ouster_pixel_t *p);
+static inline ouster_pixel_fields_t ouster_pixel_fields(ouster_profile_t profile, int which_return)
+{
+    const uint8_t second = which_return == 2;
+    ouster_pixel_fields_t f = { 0, 0, 0, 0, 0 };
+    if (profile == OUSTER_PROFILE_LEGACY || profile == OUSTER_PROFILE_RNG19_RFL8_SIG16_NIR16) {
+        f.range_mask = profile == OUSTER_PROFILE_LEGACY ? 0xFFFFFu : 0x7FFFFu;
+        f.reflectivity = 4; f.signal = 6; f.near_ir = 8;
+    } else if (profile == OUSTER_PROFILE_RNG19_RFL8_SIG16_NIR16_DUAL) {
+        f.range_mask = 0x7FFFFu;
+        f.range = (uint8_t)(4 * second); f.reflectivity = (uint8_t)(3 + 4 * second);
+        f.signal = (uint8_t)(8 + 2 * second); f.near_ir = 12;
+    }
+    return f;
+}
 
 #define OUSTER_IMU_LEGACY_SIZE 48
 #define OUSTER_G 9.80665   /* m/s^2 per g, as ouster-sdk converts */
