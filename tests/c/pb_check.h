@@ -11,6 +11,9 @@ static int pb_checks, pb_failures;
 
 #define CHECK(cond) do { pb_checks++; if (!(cond)) { pb_failures++; \
     fprintf(stderr, "%s:%d: check failed: %s\n", __FILE__, __LINE__, #cond); } } while (0)
+/* CHECK in a loop over a table of cases: a failure names the case. */
+#define CHECK_CASE(name, cond) do { pb_checks++; if (!(cond)) { pb_failures++; \
+    fprintf(stderr, "%s:%d: case \"%s\": check failed: %s\n", __FILE__, __LINE__, (name), #cond); } } while (0)
 #define CHECK_NEAR(a, b, tol) do { pb_checks++; double _a = (a), _b = (b); if (!(fabs(_a - _b) <= (tol))) { pb_failures++; \
     fprintf(stderr, "%s:%d: check failed: %s = %.9g, %s = %.9g, tolerance %g\n", __FILE__, __LINE__, #a, _a, #b, _b, (double)(tol)); } } while (0)
 #define CHECK_CONTAINS(s, sub) do { pb_checks++; if (!strstr((s), (sub))) { pb_failures++; \
