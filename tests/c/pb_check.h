@@ -19,6 +19,16 @@ static int pb_checks, pb_failures;
 #define CHECK_CONTAINS(s, sub) do { pb_checks++; if (!strstr((s), (sub))) { pb_failures++; \
     fprintf(stderr, "%s:%d: check failed: \"%s\" does not contain \"%s\"\n", __FILE__, __LINE__, (s), (sub)); } } while (0)
 
+/* CHECK that a call returned 0; a failure prints msg too (the call's error message). Its
+ * value is the return code, so a test can stop there: if (CHECK_OK(load(...), err.msg)) return; */
+#define CHECK_OK(rc, msg) pb_check_ok((rc), (msg), __FILE__, __LINE__)
+static inline int pb_check_ok(int rc, const char *msg, const char *file, int line)
+{
+    pb_checks++;
+    if (rc != 0) { pb_failures++; fprintf(stderr, "%s:%d: check failed: returned %d: %s\n", file, line, rc, msg); }
+    return rc;
+}
+
 /* Writes text to DIR/NAME, a test's scratch file; returns its path (a static buffer,
  * valid until the next call). */
 static inline const char *pb_check_write_file(const char *dir, const char *name, const char *text)
