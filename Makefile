@@ -107,41 +107,38 @@ $(OBJ)/%.o: %.cpp $(GEN_STAMP)
 dir_c   = $(sort $(foreach d,$(1),$(wildcard $(d)/*.c)))
 dir_cxx = $(sort $(foreach d,$(1),$(wildcard $(d)/*.cpp)))
 
+# link TARGET OBJECTS LINKER ARCHIVES [LIBS]: the link rule of every program and test:
+# the objects, the archives (prerequisites too), LIBS (-l flags), then the base libraries.
+define link
+$(1): $(2) $(4)
+	@mkdir -p $$(@D)
+	@echo "  LD      $$(notdir $$@)"
+	@$(3) -o $$@ $$(filter %.o,$$^) $(4) $(5) $$(BASE_LIBS)
+endef
+
 # c_program NAME DIRS [EXTRA_LIBS]: every .c in DIRS is linked into build/bin/NAME.
 define c_program
 PROGRAMS += $(BIN)/$(1)
-$(BIN)/$(1): $(patsubst %.c,$(OBJ)/%.o,$(call dir_c,$(2))) $(LIB_COMMON) $(LIB_TYPES)
-	@mkdir -p $$(@D)
-	@echo "  LD      $$(notdir $$@)"
-	@$$(CC) $$(CFLAGS) -o $$@ $$(filter %.o,$$^) $(LIB_COMMON) $(LIB_TYPES) $(3) $$(BASE_LIBS)
+$(call link,$(BIN)/$(1),$(patsubst %.c,$(OBJ)/%.o,$(call dir_c,$(2))),$$(CC) $$(CFLAGS),$(LIB_COMMON) $(LIB_TYPES),$(3))
 endef
 
 # cxx_program NAME DIRS [EXTRA_LIBS]: every .c and .cpp in DIRS, linked with PCL.
 define cxx_program
 PROGRAMS += $(BIN)/$(1)
-$(BIN)/$(1): $(patsubst %.c,$(OBJ)/%.o,$(call dir_c,$(2))) $(patsubst %.cpp,$(OBJ)/%.o,$(call dir_cxx,$(2))) $(LIB_COMMON_CXX) $(LIB_COMMON) $(LIB_TYPES)
-	@mkdir -p $$(@D)
-	@echo "  LD      $$(notdir $$@)"
-	@$$(CXX) $$(CXXFLAGS) -o $$@ $$(filter %.o,$$^) $(LIB_COMMON_CXX) $(LIB_COMMON) $(LIB_TYPES) $(3) $$(PCL_LIBS) $$(BASE_LIBS)
+$(call link,$(BIN)/$(1),$(patsubst %.c,$(OBJ)/%.o,$(call dir_c,$(2))) $(patsubst %.cpp,$(OBJ)/%.o,$(call dir_cxx,$(2))),$$(CXX) $$(CXXFLAGS),$(LIB_COMMON_CXX) $(LIB_COMMON) $(LIB_TYPES),$(3) $$(PCL_LIBS))
 endef
 
 # cxx_test NAME FILES [EXTRA_LIBS]: a C++ unit test (.c/.cpp files), linked with PCL; run
 # by tests/test_c_units.py like a C one.
 define cxx_test
 TEST_PROGRAMS += $(BUILD)/tests/$(1)
-$(BUILD)/tests/$(1): $(patsubst %.cpp,$(OBJ)/%.o,$(patsubst %.c,$(OBJ)/%.o,$(2))) $(LIB_COMMON_CXX) $(LIB_COMMON) $(LIB_TYPES)
-	@mkdir -p $$(@D)
-	@echo "  LD      $$(notdir $$@)"
-	@$$(CXX) $$(CXXFLAGS) -o $$@ $$(filter %.o,$$^) $(LIB_COMMON_CXX) $(LIB_COMMON) $(LIB_TYPES) $(3) $$(PCL_LIBS) $$(BASE_LIBS)
+$(call link,$(BUILD)/tests/$(1),$(patsubst %.cpp,$(OBJ)/%.o,$(patsubst %.c,$(OBJ)/%.o,$(2))),$$(CXX) $$(CXXFLAGS),$(LIB_COMMON_CXX) $(LIB_COMMON) $(LIB_TYPES),$(3) $$(PCL_LIBS))
 endef
 
 # c_test NAME FILE: a C unit test, run by tests/test_c_units.py.
 define c_test
 TEST_PROGRAMS += $(BUILD)/tests/$(1)
-$(BUILD)/tests/$(1): $(patsubst %.c,$(OBJ)/%.o,$(2)) $(LIB_COMMON) $(LIB_TYPES)
-	@mkdir -p $$(@D)
-	@echo "  LD      $$(notdir $$@)"
-	@$$(CC) $$(CFLAGS) -o $$@ $$(filter %.o,$$^) $(LIB_COMMON) $(LIB_TYPES) $$(BASE_LIBS)
+$(call link,$(BUILD)/tests/$(1),$(patsubst %.c,$(OBJ)/%.o,$(2)),$$(CC) $$(CFLAGS),$(LIB_COMMON) $(LIB_TYPES))
 endef
 
 # Sites: maps/module.mk adds build rules for generated site data (the default site's prior map).

@@ -9,6 +9,7 @@ import pathlib
 import signal
 import subprocess
 import sys
+import time
 
 import pytest
 
@@ -60,6 +61,18 @@ def interrupt(proc, timeout=10):
     (stdout, stderr). The caller still kills it in a `finally` if anything failed before."""
     proc.send_signal(signal.SIGINT)
     return proc.communicate(timeout=timeout)
+
+
+def wait_for(fn, timeout=20, what="condition", period=0.1, state=None):
+    """Polls fn every period seconds until it returns something true, and returns that; after
+    timeout seconds raises AssertionError naming what (and state(), when given)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        v = fn()
+        if v:
+            return v
+        time.sleep(period)
+    raise AssertionError(f"timed out after {timeout} s waiting for {what}" + (f"; state:\n{state()}" if state else ""))
 
 
 def run(args, check=True, **kw):

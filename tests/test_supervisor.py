@@ -20,7 +20,7 @@ import time
 
 import pytest
 
-from conftest import BIN, ROOT, read_log, run
+from conftest import BIN, ROOT, read_log, run, wait_for
 
 import lcm
 import portobello
@@ -76,13 +76,7 @@ class Bus:
             return next((c for c in self.sup.commands if c.name == name), None)
 
     def wait(self, pred, timeout, what):
-        end = time.monotonic() + timeout
-        while time.monotonic() < end:
-            r = pred()
-            if r:
-                return r
-            time.sleep(0.02)
-        raise AssertionError(f"timed out after {timeout} s waiting for {what}; state:\n{self.table()}")
+        return wait_for(pred, timeout, what, period=0.02, state=self.table)
 
     def table(self):
         with self.lock:

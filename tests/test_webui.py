@@ -3,6 +3,7 @@ pages draw on the default site, Proceed puts exactly one PARTICIPANT_INPUT on th
 press, an agent dragged in the editor and saved moves in the file (which passes
 scenario-check and runs in the director), an illegal edit is shown and saves nothing, and
 pages may publish only what they need. LCM ports 8021-8029, HTTP 18001-18009."""
+import contextlib
 import json
 import re
 import struct
@@ -192,20 +193,27 @@ def _drag(d, canvas, start, dx, dy):
      .click_and_hold().move_by_offset(dx // 2, dy // 2).move_by_offset(dx - dx // 2, dy - dy // 2).release().perform())
 
 
-def _open_editor(d, url, scenario):
-    d.get(f"{url}/editor?scenario={scenario}")
-    wait_for(lambda: d.execute_script("return window.__editor && window.__editor.model() !== null"), 40, "scenario loaded")
-    wait_for(lambda: d.find_element("id", "checkstate").text.startswith("scenario-check:"), 40, "first check")
-    time.sleep(0.5)
+@contextlib.contextmanager
+def _editor(site, http_port, lcm_port, scenario):
+    """The bridge on the site and a browser on its editor, the scenario loaded and checked
+    once; yields the browser and stops both after."""
+    b = start(site, http_port, lcm_port)
+    d = chrome((1280, 800))
+    try:
+        d.get(f"{b.url}/editor?scenario={scenario}")
+        wait_for(lambda: d.execute_script("return window.__editor && window.__editor.model() !== null"), 40, "scenario loaded")
+        wait_for(lambda: d.find_element("id", "checkstate").text.startswith("scenario-check:"), 40, "first check")
+        time.sleep(0.5)
+        yield d
+    finally:
+        d.quit()
+        b.stop()
 
 
 def test_editor_drag_agent_save_check_and_run(site, tmp_path):
     f = site / "scenarios" / "cw01_look_and_cross.yaml"
     before = f.read_text()
-    b = start(site, 18004, 8024)
-    d = chrome((1280, 800))
-    try:
-        _open_editor(d, b.url, "cw01_look_and_cross")
+    with _editor(site, 18004, 8024, "cw01_look_and_cross") as d:
         assert d.find_element("id", "checkstate").text == "scenario-check: ok"
         canvas = d.find_element("id", "vtop")
         at = d.execute_script("return window.__editor.handleAt('agent:ped_a_phone')")
@@ -214,9 +222,6 @@ def test_editor_drag_agent_save_check_and_run(site, tmp_path):
         wait_for(lambda: d.find_element("id", "checkstate").text == "scenario-check: ok", what="check after the drag")
         d.find_element("id", "save").click()
         wait_for(lambda: d.find_element("id", "savestate").text.startswith("saved"), what="saved")
-    finally:
-        d.quit()
-        b.stop()
     after = f.read_text()
     changed = [(a, c) for a, c in zip(before.splitlines(), after.splitlines()) if a != c]
     assert len(before.splitlines()) == len(after.splitlines()) and len(changed) == 1, changed
@@ -247,10 +252,7 @@ def test_editor_drag_agent_save_check_and_run(site, tmp_path):
 def test_editor_illegal_edit_shows_error_and_saves_nothing(site):
     f = site / "scenarios" / "cw01_look_and_cross.yaml"
     before = f.read_bytes()
-    b = start(site, 18005, 8025)
-    d = chrome((1280, 800))
-    try:
-        _open_editor(d, b.url, "cw01_look_and_cross")
+    with _editor(site, 18005, 8025, "cw01_look_and_cross") as d:
         canvas = d.find_element("id", "vtop")
         # select the approach volume in the list: the top-down view centres on it
         next(e for e in d.find_elements("css selector", "#list .item") if e.text == "approach").click()
@@ -265,9 +267,6 @@ def test_editor_illegal_edit_shows_error_and_saves_nothing(site):
         assert "volume approach" in issues and "off the route" in issues, issues
         d.find_element("id", "save").click()
         wait_for(lambda: d.find_element("id", "savestate").text.startswith("not saved"), what="refusal")
-    finally:
-        d.quit()
-        b.stop()
     assert f.read_bytes() == before
     assert sorted(p.name for p in f.parent.iterdir()) == sorted(p.name for p in (ROOT / "maps/default/scenarios").iterdir())
 

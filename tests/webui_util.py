@@ -12,7 +12,7 @@ import threading
 import time
 import urllib.request
 
-from conftest import BIN, ROOT
+from conftest import BIN, ROOT, wait_for  # noqa: F401 (wait_for: for the pages' tests and benches)
 from browser import CHROMIUM
 
 CHROMEDRIVER = shutil.which("chromedriver") or "/usr/bin/chromedriver"
@@ -77,16 +77,6 @@ def chrome(size=(1280, 900)):
               "--disable-dev-shm-usage", "--no-first-run", "--disable-extensions", f"--window-size={size[0]},{size[1]}"):
         opts.add_argument(a)
     return webdriver.Chrome(service=Service(CHROMEDRIVER), options=opts)
-
-
-def wait_for(fn, timeout=20, what="condition"):
-    deadline = time.time() + timeout
-    while time.time() < deadline:
-        v = fn()
-        if v:
-            return v
-        time.sleep(0.1)
-    raise AssertionError(f"timed out after {timeout} s waiting for {what}")
 
 
 # ---------------------------------------------------------------- the bus

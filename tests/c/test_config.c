@@ -1,29 +1,9 @@
 /* pb_config: schema reading, and refusal of bad files with file:line. */
-#include <stddef.h>
 #include <stdlib.h>
 #include <unistd.h>
 
+#include "cfg_thing.h"
 #include "pb_check.h"
-#include "pb_config.h"
-
-typedef struct {
-    double length;
-    long count;
-    int enabled;
-    char name[16];
-    double xyz[3];
-    const pb_cfg_node_t *extra;
-} thing_t;
-
-static const pb_cfg_field_t THING[] = {
-    { "length", PB_CFG_DOUBLE, offsetof(thing_t, length), 0, 1 },
-    { "count", PB_CFG_INT, offsetof(thing_t, count), 0, 0 },
-    { "enabled", PB_CFG_BOOL, offsetof(thing_t, enabled), 0, 0 },
-    { "name", PB_CFG_STRING, offsetof(thing_t, name), 16, 0 },
-    { "xyz", PB_CFG_DOUBLES, offsetof(thing_t, xyz), 3, 0 },
-    { "extra", PB_CFG_NODE, offsetof(thing_t, extra), 0, 0 },
-    PB_CFG_END,
-};
 
 static char dir[] = "/tmp/pb_test_config_XXXXXX";
 
@@ -53,33 +33,26 @@ int main(void)
     CHECK_NEAR(t.xyz[1], 2.5, 0);
     CHECK(t.extra != NULL);   /* node pointers die with the document; lines are checked below */
 
-    /* Unknown key: named, with its line. */
-    CHECK(load("length: 1\nlenght: 2\n", &t, &err) == -1);
-    CHECK_CONTAINS(err.msg, "c.yaml:2: unknown key 'lenght'");
-    /* Wrong types. */
-    CHECK(load("length: long\n", &t, &err) == -1);
-    CHECK_CONTAINS(err.msg, "c.yaml:1: length: expected a number, got 'long'");
-    CHECK(load("length: 1\ncount: 2.5\n", &t, &err) == -1);
-    CHECK_CONTAINS(err.msg, "c.yaml:2: count: expected an integer");
-    CHECK(load("length: \"3\"\n", &t, &err) == -1);   /* a quoted number is a string */
-    CHECK_CONTAINS(err.msg, "c.yaml:1: length: expected a number");
-    CHECK(load("length: 1\nxyz: [1, 2]\n", &t, &err) == -1);
-    CHECK_CONTAINS(err.msg, "c.yaml:2: xyz: expected a list of 3 numbers");
-    CHECK(load("length: 1\nenabled: maybe\n", &t, &err) == -1);
-    CHECK_CONTAINS(err.msg, "c.yaml:2: enabled: expected true or false");
-    CHECK(load("length: [1]\n", &t, &err) == -1);
-    CHECK_CONTAINS(err.msg, "c.yaml:1: length: expected a number, got a list");
-    /* Missing required key, duplicate key, syntax error, non-mapping top level. */
-    CHECK(load("count: 1\n", &t, &err) == -1);
-    CHECK_CONTAINS(err.msg, "missing required key 'length'");
-    CHECK(load("length: 1\nlength: 2\n", &t, &err) == -1);
-    CHECK_CONTAINS(err.msg, "c.yaml:2: duplicate key 'length'");
-    CHECK(load("length: 1\nxyz: [1, 2\nname: x\n", &t, &err) == -1);
-    CHECK_CONTAINS(err.msg, "YAML syntax error");
-    CHECK(load("- 1\n- 2\n", &t, &err) == -1);
-    CHECK_CONTAINS(err.msg, "c.yaml:1: expected a mapping");
-    CHECK(load("", &t, &err) == -1);
-    CHECK_CONTAINS(err.msg, "empty file");
+    /* Refusals: unknown key (named, with its line), wrong types, missing required key,
+     * duplicate key, syntax error, non-mapping top level, empty file. */
+    static const struct { const char *text, *want; } bad[] = {
+        { "length: 1\nlenght: 2\n", "c.yaml:2: unknown key 'lenght'" },
+        { "length: long\n", "c.yaml:1: length: expected a number, got 'long'" },
+        { "length: 1\ncount: 2.5\n", "c.yaml:2: count: expected an integer" },
+        { "length: \"3\"\n", "c.yaml:1: length: expected a number" },   /* a quoted number is a string */
+        { "length: 1\nxyz: [1, 2]\n", "c.yaml:2: xyz: expected a list of 3 numbers" },
+        { "length: 1\nenabled: maybe\n", "c.yaml:2: enabled: expected true or false" },
+        { "length: [1]\n", "c.yaml:1: length: expected a number, got a list" },
+        { "count: 1\n", "missing required key 'length'" },
+        { "length: 1\nlength: 2\n", "c.yaml:2: duplicate key 'length'" },
+        { "length: 1\nxyz: [1, 2\nname: x\n", "YAML syntax error" },
+        { "- 1\n- 2\n", "c.yaml:1: expected a mapping" },
+        { "", "empty file" },
+    };
+    for (size_t i = 0; i < sizeof bad / sizeof bad[0]; i++) {
+        CHECK_CASE(bad[i].want, load(bad[i].text, &t, &err) == -1);
+        CHECK_CONTAINS(err.msg, bad[i].want);
+    }
     CHECK(pb_cfg_load("/nonexistent/x.yaml", &err) == NULL);
     CHECK_CONTAINS(err.msg, "/nonexistent/x.yaml: cannot open");
 

@@ -64,6 +64,17 @@ static int load_text(const char *text, sc_scenario_t *sc, pb_err_t *err)
     return rc;
 }
 
+/* A director on the scenario in text (loaded into *sc; the caller frees both), its events
+ * logged into *l (cleared). NULL, after a failed check with the loader's message, when the
+ * text does not load. */
+static director_t *start(const char *text, sc_scenario_t *sc, log_t *l)
+{
+    pb_err_t err;
+    memset(l, 0, sizeof *l);
+    if (CHECK_OK(load_text(text, sc, &err), err.msg)) return NULL;
+    return dir_create(sc, NULL, &CAR, on_event, l, &err);
+}
+
 /* Car driving along +x at speed v (base origin at x), 100 Hz from t = 0. */
 static dir_pose_t pose_x(double t, double x, double v)
 {
@@ -109,13 +120,11 @@ static void test_enter_contact(void)
 {
     sc_scenario_t sc;
     pb_err_t err;
-    int rc = load_text("scenario: t\nvolumes:\n  - {id: v, type: box, center: [20, 0], size: [1, 4, 3]}\n"
-                       "triggers:\n  - id: in\n    when: {type: enter, volume: v}\n    actions: [{type: emit, event: e}]\n",
-                       &sc, &err);
-    CHECK(rc == 0);
-    if (rc) { fprintf(stderr, "%s\n", err.msg); return; }
-    log_t l = { 0 };
-    director_t *d = dir_create(&sc, NULL, &CAR, on_event, &l, &err);
+    log_t l;
+    director_t *d = start("scenario: t\nvolumes:\n  - {id: v, type: box, center: [20, 0], size: [1, 4, 3]}\n"
+                          "triggers:\n  - id: in\n    when: {type: enter, volume: v}\n    actions: [{type: emit, event: e}]\n",
+                          &sc, &l);
+    if (!d) return;
     /* front bumper at x + 3.5; volume starts at 19.5: contact at x = 16.0 */
     double fired_x = -1;
     for (int i = 0; i < 400 && fired_x < 0; i++) {
@@ -135,7 +144,8 @@ static void test_groups_edges_delay(void)
 {
     sc_scenario_t sc;
     pb_err_t err;
-    int rc = load_text(
+    log_t l;
+    director_t *d = start(
         "scenario: t\n"
         "triggers:\n"
         "  - id: fast_and_late\n    when: {all: [{type: speed, above: 5}, {type: time, above: 2}]}\n    actions: [{type: emit, event: a}]\n"
@@ -143,11 +153,8 @@ static void test_groups_edges_delay(void)
         "  - id: rising_fast\n    when: {type: speed, above: 8, edge: rising, delay_s: 0.5}\n    actions: [{type: emit, event: c}]\n"
         "  - id: after_it\n    when: {type: after, trigger: rising_fast, elapsed_s: 1.0}\n    actions: [{type: emit, event: d}]\n"
         "  - id: stood\n    when: {type: standstill, duration_s: 1.0}\n    actions: [{type: emit, event: s}]\n",
-        &sc, &err);
-    CHECK(rc == 0);
-    if (rc) { fprintf(stderr, "%s\n", err.msg); return; }
-    log_t l = { 0 };
-    director_t *d = dir_create(&sc, NULL, &CAR, on_event, &l, &err);
+        &sc, &l);
+    if (!d) return;
     /* speed profile: 10 m/s (above 8 from the start: no rising edge) for 1 s, 6 m/s to 3 s, 9 m/s to 5 s, 0 after */
     double x = 0, t_c = -1, t_a = -1, t_d = -1, t_s = -1;
     for (int i = 0; i <= 800; i++) {
@@ -171,10 +178,8 @@ static void test_groups_edges_delay(void)
     sc_free(&sc);
 
     /* the input group alone */
-    rc = load_text("scenario: t\ntriggers:\n  - id: b\n    when: {type: input, input: proceed}\n    actions: [{type: emit, event: b}]\n", &sc, &err);
-    CHECK(rc == 0);
-    memset(&l, 0, sizeof l);
-    d = dir_create(&sc, NULL, &CAR, on_event, &l, &err);
+    d = start("scenario: t\ntriggers:\n  - id: b\n    when: {type: input, input: proceed}\n    actions: [{type: emit, event: b}]\n", &sc, &l);
+    if (!d) return;
     dir_pose_t p = pose_x(0, 0, 5);
     dir_pose(d, &p, &err);
     dir_input(d, p.utime + 5000, "proceed", 0);     /* a release: ignored */
@@ -201,7 +206,8 @@ static void test_agents_state_and_jump(void)
 {
     sc_scenario_t sc;
     pb_err_t err;
-    int rc = load_text(
+    log_t l;
+    director_t *d = start(
         "scenario: t\non_pose_jump: skip\npose_jump_m: 3\n"
         "volumes:\n  - {id: v, type: cylinder, center: [50, 0], radius: 1}\n  - {id: w, type: box, center: [100, 0], size: [1, 4, 2]}\n"
         "agents:\n  - {id: p, kind: pedestrian, model: m, start: [10, 5], yaw_deg: 0}\n"
@@ -209,11 +215,8 @@ static void test_agents_state_and_jump(void)
         "triggers:\n  - id: go\n    when: {type: time, above: 0.5}\n    actions: [{type: start, behaviour: walk}]\n"
         "  - id: jumped_over\n    when: {type: enter, volume: v}\n    actions: [{type: emit, event: j}]\n"
         "  - id: later\n    when: {type: enter, volume: w}\n    actions: [{type: emit, event: k}]\n",
-        &sc, &err);
-    CHECK(rc == 0);
-    if (rc) { fprintf(stderr, "%s\n", err.msg); return; }
-    log_t l = { 0 };
-    director_t *d = dir_create(&sc, NULL, &CAR, on_event, &l, &err);
+        &sc, &l);
+    if (!d) return;
     dir_agent_out_t out[1];
     double t = 0, x = 0;
     for (; t < 2.0; t += 0.01) { dir_pose_t p = pose_x(t, x, 0); dir_pose(d, &p, &err); }
@@ -295,8 +298,7 @@ static void test_ground(void)
         "agents:\n  - {id: p, kind: pedestrian, model: m, start: [40, 6], yaw_deg: 0}\n"
         "triggers:\n  - id: hit\n    when: {type: enter, volume: v}\n    actions: [{type: emit, event: e}]\n",
         &sc, &err);
-    CHECK(rc == 0);
-    if (rc) { fprintf(stderr, "%s\n", err.msg); pb_ground_destroy(g); return; }
+    if (CHECK_OK(rc, err.msg)) { pb_ground_destroy(g); return; }
     for (int with_ground = 0; with_ground < 2; with_ground++) {
         log_t l = { 0 };
         director_t *d = dir_create(&sc, NULL, &CAR, on_event, &l, &err);
@@ -369,8 +371,7 @@ static void test_trigger_between_poses(void)
         "  - id: slowed\n    when: {type: speed, below: 5}\n    actions: [{type: emit, event: slow}]\n"
         "  - id: stood\n    when: {type: standstill, duration_s: 0.5}\n    actions: [{type: emit, event: s}]\n",
         &sc, &err);
-    CHECK(rc == 0);
-    if (rc) { fprintf(stderr, "%s\n", err.msg); return; }
+    if (CHECK_OK(rc, err.msg)) return;
     /* where each should fire (x of the base origin): contact of v at 16.0; 0.25 s later at
      * 18.5; w touched at 26.0 but time (2.63 s after the first pose) holds from x = 26.3 + phase;
      * speed below 5 at t = 5.0 (x = 47.5); below 0.1 m/s at t = 5.98, at rest 0.5 s later */
@@ -422,8 +423,7 @@ static void test_started_walk_counts_from_the_trigger(void)
                        "behaviours:\n  - id: walk\n    agent: p\n    path: [{to: [100, 10], speed: 1.0}]\n"
                        "triggers:\n  - id: in\n    when: {type: enter, volume: v}\n    actions: [{type: start, behaviour: walk}]\n",
                        &sc, &err);
-    CHECK(rc == 0);
-    if (rc) { fprintf(stderr, "%s\n", err.msg); return; }
+    if (CHECK_OK(rc, err.msg)) return;
     double ax[2];
     for (int r = 0; r < 2; r++) {
         double hz = r ? 200 : 10;

@@ -83,6 +83,16 @@ static occ_config_t config()
     return c;
 }
 
+/* A map (default configuration) of the sweeps from the car approaching the boxes: at
+ * x = -6, -5, ... 0 m. */
+static occ_map_t *approached(const std::vector<box_t> &boxes)
+{
+    occ_config_t c = config();
+    occ_map_t *m = occ_map_create(&c);
+    for (double cx = -6; cx <= 0; cx += 1.0) sweep(m, cx, boxes);
+    return m;
+}
+
 /* A car alongside (left, 2.2 to 4.0 m out, 0.2 to 1.65 m high) arrives after the road beside
  * was seen free from 15 m back; a pedestrian 15 m across the street behind it. */
 static void test_car_alongside(bool fill)
@@ -112,11 +122,9 @@ static void test_car_alongside(bool fill)
 
 static void test_wall_and_unknown()
 {
-    occ_config_t c = config();
-    occ_map_t *m = occ_map_create(&c);
     /* a wall 10 m ahead, 4 m wide, 3 m high */
     std::vector<box_t> wall = { { { 12.0, -2.0, 0.0 }, { 12.3, 2.0, 3.0 } } };
-    for (double cx = -6; cx <= 0; cx += 1.0) sweep(m, cx, wall);
+    occ_map_t *m = approached(wall);
     CHECK(ask(m, 0, 20, 0, 1.0) == OCC_HIDDEN);       /* behind the wall */
     CHECK(ask(m, 0, 20, 8, 1.0) == OCC_VISIBLE);      /* beside it, seen free */
     CHECK(ask(m, 0, 8, 0, 1.0) == OCC_VISIBLE);       /* in front of it */
@@ -126,6 +134,7 @@ static void test_wall_and_unknown()
     CHECK(ask(m, 0, 60, 20, 1.0) == OCC_UNKNOWN);
     occ_map_destroy(m);
     /* nothing integrated yet: unknown, not visible */
+    occ_config_t c = config();
     m = occ_map_create(&c);
     CHECK(ask(m, 0, 20, 8, 1.0) == OCC_UNKNOWN);
     occ_map_destroy(m);
@@ -146,11 +155,9 @@ static void test_moving_box_clears()
 
 static void test_edge_inside_a_voxel()
 {
-    occ_config_t c = config();
-    occ_map_t *m = occ_map_create(&c);
     /* a wall ahead whose left edge (y = 1.05) lies inside the voxels y 1.0 .. 1.2 */
     std::vector<box_t> wall = { { { 10.0, -2.0, 0.0 }, { 10.3, 1.05, 3.0 } } };
-    for (double cx = -6; cx <= 0; cx += 1.0) sweep(m, cx, wall);
+    occ_map_t *m = approached(wall);
     /* a sample at x = 20 whose eye ray meets the wall's face (x = 10) at y = yt */
     const double ex = EYE[0], ey = EYE[1];
     auto sample_y = [&](double yt) { return ey + (yt - ey) * (20 - ex) / (10 - ex); };

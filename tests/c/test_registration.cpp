@@ -48,6 +48,24 @@ static void street(std::vector<float> *xyz, bool recesses, double x0, double x1)
                 for (double z = 0; z < 10; z += 0.1) { add(xs, y, z); add(xs + 2.0, y, z); }
 }
 
+/* A regmap (default configuration) of the points; nullptr, after a failed check that
+ * prints the error, when it does not build. */
+static pb_regmap_t *regmap_of(const std::vector<float> &m)
+{
+    pb_err_t err;
+    pb_regmap_t *map = pb_regmap_from_points(m.data(), m.size() / 3, nullptr, &err);
+    CHECK(map != nullptr);
+    if (!map) std::fprintf(stderr, "%s\n", err.msg);
+    return map;
+}
+
+/* The street from x = -60 to 60 m (its points into *m) and its regmap, as regmap_of. */
+static pb_regmap_t *street_map(std::vector<float> *m, bool recesses)
+{
+    street(m, recesses, -60, 60);
+    return regmap_of(*m);
+}
+
 /* The scan: map points within 40 m of the vehicle at T (map <- base), in base,
  * every 3rd point, with 1 cm noise. */
 static std::vector<float> scan_of(const std::vector<float> &map, const Eigen::Isometry3d &T)
@@ -81,11 +99,9 @@ static double yaw_err_deg(const Eigen::Isometry3d &a, const Eigen::Isometry3d &b
 static void test_align_street(void)
 {
     std::vector<float> m;
-    street(&m, true, -60, 60);
-    pb_err_t err;
-    pb_regmap_t *map = pb_regmap_from_points(m.data(), m.size() / 3, nullptr, &err);
-    CHECK(map != nullptr);
+    pb_regmap_t *map = street_map(&m, true);
     if (!map) return;
+    pb_err_t err;
     pb_regmap_info_t info;
     pb_regmap_info(map, &info);
     CHECK(info.cells > 1000);
@@ -157,11 +173,9 @@ static void test_degenerate_corridor(void)
 {
     /* plain walls and ground: nothing fixes x; the result must say so */
     std::vector<float> m;
-    street(&m, false, -60, 60);
-    pb_err_t err;
-    pb_regmap_t *map = pb_regmap_from_points(m.data(), m.size() / 3, nullptr, &err);
-    CHECK(map != nullptr);
+    pb_regmap_t *map = street_map(&m, false);
     if (!map) return;
+    pb_err_t err;
     Eigen::Isometry3d truth = pose(0, 0.3, 0);
     std::vector<float> scan = scan_of(m, truth);
     pb_reg_result_t r;
@@ -317,10 +331,9 @@ static void test_map_tiles(void)
             m.push_back((float)(bx + d[0])); m.push_back((float)((bx / 15 - std::floor(bx / 30) * 2 > 0.5 ? 6 : -6) + d[1]));
             m.push_back((float)(1.5 + d[2]));
         }
-    pb_err_t err;
-    pb_regmap_t *whole = pb_regmap_from_points(m.data(), m.size() / 3, nullptr, &err);
-    CHECK(whole != nullptr);
+    pb_regmap_t *whole = regmap_of(m);
     if (!whole) return;
+    pb_err_t err;
     MemFile f;
     CHECK(pb_tiles_encode(whole, 32, pb_tiles_source_t{0, 0}, {}, &f.bytes, &err) == 0);
     CHECK(pb_tiles_encode(whole, 33, pb_tiles_source_t{0, 0}, {}, &f.bytes, &err) == -1);   /* not a multiple of 2 m */

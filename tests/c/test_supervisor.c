@@ -47,8 +47,7 @@ static void test_stack(void)
                   "        env: {A: \"x${PARTICIPANT}\"}\n"
                   "        restart: on-failure\n",
                   &s, &err);
-    CHECK(rc == 0);
-    if (rc) { fprintf(stderr, "%s\n", err.msg); return; }
+    if (CHECK_OK(rc, err.msg)) return;
     CHECK(s.ncommands == 2 && s.ngroups == 2);
     CHECK(!strcmp(s.commands[0].argv[1], "rec/P07_s1.lcm"));
     CHECK(!strcmp(s.commands[1].argv[2], "maps/default"));
@@ -74,7 +73,7 @@ static void test_stack(void)
     };
     for (size_t i = 0; i < sizeof bad / sizeof bad[0]; i++) {
         rc = load(bad[i].text, &s, &err);
-        CHECK(rc == -1);
+        CHECK_CASE(bad[i].want, rc == -1);
         if (rc == -1) CHECK_CONTAINS(err.msg, bad[i].want);
         else sv_stack_free(&s);
     }

@@ -9,6 +9,7 @@
 
 #include "can/core/can_dbc.h"
 #include "can/core/can_speed.h"
+#include "fuzz_common.h"
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 {
@@ -23,8 +24,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     for (int i = 0; i < can_dbc_message_count(db); i++) {
         const can_message_t *m = can_dbc_message_at(db, i);
         if (m->length > 64 || can_dbc_find(db, m->id, m->extended) != m) abort();
-        uint8_t *exact = malloc(m->length ? m->length : 1);
-        memcpy(exact, frame, m->length);
+        uint8_t *exact = fuzz_copy(frame, m->length);
         for (int k = 0; k < m->nsignals; k++) {
             const can_signal_t *s = &m->signals[k];
             if (s->length < 1 || s->length > 64 || s->last_byte >= m->length) abort();

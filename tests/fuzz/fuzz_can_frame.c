@@ -13,6 +13,7 @@
 #include "can/core/can_dbc.h"
 #include "can/core/can_kernel.h"
 #include "can/core/can_speed.h"
+#include "fuzz_common.h"
 
 static const char dbc_text[] =
     "BO_ 36 KINEMATICS: 8 XXX\n"
@@ -45,11 +46,9 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     size_t n = data[0] >= 0xF0 ? size - 1 : (data[0] & 1) ? CANFD_MTU : CAN_MTU;
     if (n > size - 1) n = size - 1;
     /* Exact-size heap copies, aligned as recvmsg's buffers are: ASan sees any overread. */
-    uint8_t *frame = malloc(n ? n : 1);
-    memcpy(frame, data + 1, n);
+    uint8_t *frame = fuzz_copy(data + 1, n);
     size_t clen = size - 1 - n;
-    uint8_t *control = malloc(clen ? clen : 1);
-    memcpy(control, data + 1 + n, clen);
+    uint8_t *control = fuzz_copy(data + 1 + n, clen);
     can_rx_t f;
     can_kernel_extra_t ex;
     int r = can_kernel_frame(frame, n, clen ? control : NULL, clen, data[0] & 2, &f, &ex);

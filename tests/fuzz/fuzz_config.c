@@ -1,29 +1,12 @@
 /* libFuzzer target: the YAML config loader and schema reader on arbitrary bytes.
  * fuzz-sources: common/pb_config.c common/pb_err.c */
-#include <stddef.h>
 #include <stdint.h>
-#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <unistd.h>
 
+#include "../c/cfg_thing.h"
+#include "fuzz_common.h"
 #include "pb_config.h"
-
-typedef struct {
-    double d;
-    long i;
-    int b;
-    char s[8];
-    double v[3];
-    const pb_cfg_node_t *node;
-} cfg_t;
-
-static const pb_cfg_field_t FIELDS[] = {
-    { "d", PB_CFG_DOUBLE, offsetof(cfg_t, d), 0, 0 },   { "i", PB_CFG_INT, offsetof(cfg_t, i), 0, 0 },
-    { "b", PB_CFG_BOOL, offsetof(cfg_t, b), 0, 0 },     { "s", PB_CFG_STRING, offsetof(cfg_t, s), 8, 0 },
-    { "v", PB_CFG_DOUBLES, offsetof(cfg_t, v), 3, 0 },  { "n", PB_CFG_NODE, offsetof(cfg_t, node), 0, 0 },
-    PB_CFG_END,
-};
 
 /* Walks a tree, touching every scalar, as readers of routes and scenarios do. */
 static void walk(const pb_cfg_node_t *n, int depth)
@@ -44,12 +27,8 @@ static void walk(const pb_cfg_node_t *n, int depth)
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 {
-    static char path[64];
-    if (!path[0]) snprintf(path, sizeof path, "/dev/shm/pb_fuzz_cfg_%d.yaml", (int)getpid());
-    FILE *f = fopen(path, "wb");
-    if (!f) return 0;
-    fwrite(data, 1, size, f);
-    fclose(f);
+    const char *path = fuzz_input_file("cfg", ".yaml", data, size);
+    if (!path) return 0;
     pb_err_t err;
     pb_cfg_t *cfg = pb_cfg_load(path, &err);
     if (!cfg) {
@@ -57,8 +36,8 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         return 0;
     }
     walk(pb_cfg_root(cfg), 0);
-    cfg_t c = { 0 };
-    if (pb_cfg_read(pb_cfg_root(cfg), FIELDS, &c, &err) != 0 && !strstr(err.msg, path)) abort();
+    thing_t c = { 0 };
+    if (pb_cfg_read(pb_cfg_root(cfg), THING, &c, &err) != 0 && !strstr(err.msg, path)) abort();
     pb_cfg_free(cfg);
     return 0;
 }

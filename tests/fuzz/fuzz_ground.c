@@ -10,6 +10,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include "fuzz_common.h"
 #include "pb_ground.h"
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
@@ -21,14 +22,10 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         mkdir(dir, 0700);
         snprintf(yaml, sizeof yaml, "%s/g.yaml", dir);
         snprintf(pgm, sizeof pgm, "%s/g.pgm", dir);
-        FILE *f = fopen(yaml, "w");
-        fputs("origin_x: 0\norigin_y: 0\ncell_m: 0.5\nwidth: 4\nheight: 3\nz0_m: 1.0\nscale_m: 0.001\nfile: g.pgm\n", f);
-        fclose(f);
+        static const char text[] = "origin_x: 0\norigin_y: 0\ncell_m: 0.5\nwidth: 4\nheight: 3\nz0_m: 1.0\nscale_m: 0.001\nfile: g.pgm\n";
+        if (fuzz_write_file(yaml, text, sizeof text - 1)) abort();
     }
-    FILE *f = fopen(pgm, "wb");
-    if (!f) return 0;
-    fwrite(data, 1, size, f);
-    fclose(f);
+    if (fuzz_write_file(pgm, data, size)) return 0;
     pb_err_t err;
     pb_ground_t *g = pb_ground_load(yaml, &err);
     if (g) {

@@ -2,21 +2,16 @@
  * returns must lie inside the file; a damaged file must end in an error, never a crash.
  * fuzz-sources: common/pb_log.c common/pb_err.c build/gen/c/portobello_pose_t.c */
 #include <stdint.h>
-#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <unistd.h>
 
+#include "fuzz_common.h"
 #include "pb_log.h"
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 {
-    static char path[64];
-    if (!path[0]) snprintf(path, sizeof path, "/dev/shm/pb_fuzz_log_%d", (int)getpid());
-    FILE *f = fopen(path, "wb");
-    if (!f) return 0;
-    fwrite(data, 1, size, f);
-    fclose(f);
+    const char *path = fuzz_input_file("log", "", data, size);
+    if (!path) return 0;
     pb_err_t err;
     pb_log_t *log = pb_log_open_read(path, &err);
     if (!log) return 0;

@@ -10,6 +10,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "fuzz_common.h"
 #include "ouster/core/ouster_driver.h"
 #include "pb_scan.h"
 
@@ -60,9 +61,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         off += 2;
         size_t n = h & 0x7fff;
         if (n > size - off) n = size - off;
-        /* a private copy, so ASan sees reads past the packet */
-        uint8_t *p = malloc(n ? n : 1);
-        memcpy(p, data + off, n);
+        uint8_t *p = fuzz_copy(data + off, n);     /* a private copy: ASan sees reads past the packet */
         if (h & 0x8000) ouster_driver_imu_packet(d, p, n, t);
         else ouster_driver_lidar_packet(d, p, n, t);
         free(p);

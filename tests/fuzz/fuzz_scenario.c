@@ -6,24 +6,19 @@
 #include <math.h>
 #include <stddef.h>
 #include <stdint.h>
-#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <unistd.h>
 
 #include "director/core/director.h"
 #include "director/core/scenario.h"
+#include "fuzz_common.h"
 
 static void on_event(const dir_event_t *ev, void *user) { (void)ev; (*(int *)user)++; }
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 {
-    static char path[64];
-    if (!path[0]) snprintf(path, sizeof path, "/dev/shm/pb_fuzz_scenario_%d.yaml", (int)getpid());
-    FILE *f = fopen(path, "wb");
-    if (!f) return 0;
-    fwrite(data, 1, size, f);
-    fclose(f);
+    const char *path = fuzz_input_file("scenario", ".yaml", data, size);
+    if (!path) return 0;
     pb_err_t err;
     sc_scenario_t sc;
     if (sc_load(path, NULL, &sc, &err)) {

@@ -8,36 +8,28 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "can/core/can_dbc.h"
+#include "can/bench/can_inputs.h"
 #include "can/core/can_speed.h"
-#include "pb_candump.h"
 #include "pb_clock.h"
 
 int main(int argc, char **argv)
 {
     if (argc != 5) { fprintf(stderr, "usage: can_bench DBC CANDUMP signals|speed PASSES\n"); return 2; }
-    pb_err_t err;
-    can_dbc_t *dbc = can_dbc_load(argv[1], &err);
-    if (!dbc) { fprintf(stderr, "%s\n", err.msg); return 1; }
-    FILE *f = fopen(argv[2], "rb");
-    if (!f) { perror(argv[2]); return 1; }
+    can_dbc_t *dbc;
+    can_frames_t in;
+    if (can_inputs_load(argv[1], argv[2], &dbc, &in)) return 1;
     int passes = atoi(argv[4]), signals = !strcmp(argv[3], "signals");
-    can_rx_t *frames = NULL;
-    size_t n = 0, cap = 0;
-    char *line = NULL;
-    size_t lcap = 0;
-    ssize_t got;
-    while ((got = getline(&line, &lcap, f)) >= 0) {
-        pb_candump_frame_t c;
-        if (pb_candump_parse(line, (size_t)got, &c, NULL) != PB_CANDUMP_FRAME) continue;
-        if (n == cap) frames = realloc(frames, (cap = cap ? cap * 2 : 4096) * sizeof *frames);
-        can_rx_t *r = &frames[n++];
-        *r = (can_rx_t){ .utime = c.utime, .bus = pb_candump_can_index(c.iface), .id = c.id,
-                         .extended = c.extended, .rtr = c.rtr, .error = c.error, .fd = c.fd, .len = c.len };
-        memcpy(r->data, c.data, sizeof r->data);
+    size_t n = in.n;
+    can_rx_t *frames = malloc((n ? n : 1) * sizeof *frames);
+    for (size_t i = 0; i < n; i++) {
+        const pb_candump_frame_t *c = &in.frames[i];
+        frames[i] = (can_rx_t){ .utime = c->utime, .bus = pb_candump_can_index(c->iface), .id = c->id,
+                                .extended = c->extended, .rtr = c->rtr, .error = c->error, .fd = c->fd, .len = c->len };
+        memcpy(frames[i].data, c->data, sizeof frames[i].data);
     }
-    free(line);
-    fclose(f);
+    free(in.frames);
+    free(in.lines);
+    pb_err_t err;
     can_speed_config_t cfg;
     can_speed_config_default(&cfg);
     cfg.checksum = CAN_CHECKSUM_TOYOTA;
