@@ -2,7 +2,6 @@
  *   localizer --site SITE_DIR [--replay IN.lcm --out OUT.lcm] [--initial-pose x,y,z,r,p,y]
  * Thin shell around core/localizer (the pipeline): options, map and vehicle files,
  * subscribe, decode, publish POSE / POSE_PREDICTED, STATUS heartbeat, signals. */
-#include <getopt.h>
 #include <sys/stat.h>
 #include <time.h>
 
@@ -16,9 +15,9 @@
 
 #include "core/localizer.h"
 #include "map_source.h"
-#include "pb_arg.h"
 #include "pb_bus.h"
 #include "pb_clock.h"
+#include "pb_opt.h"
 #include "pb_signal.h"
 #include "pb_site.h"
 #include "pb_status.h"
@@ -443,69 +442,41 @@ static int fail_start(pb_bus_t *bus, pb_status_t *st, const char *msg)
     return 1;
 }
 
+/* --initial-pose x,y,z,roll,pitch,yaw (m, degrees) */
+static int parse_initial_pose(const char *prog, const char *arg, void *var)
+{
+    localizer_config_t *cfg = (localizer_config_t *)var;
+    if (parse_pose(arg, cfg->initial_pose) != 0) {
+        fprintf(stderr, "%s: --initial-pose: expected x,y,z,roll,pitch,yaw (6 numbers), got '%s'\n", prog, arg);
+        return -1;
+    }
+    for (int i = 3; i < 6; i++) cfg->initial_pose[i] *= M_PI / 180;
+    cfg->has_initial_pose = true;
+    return 0;
+}
+
 int main(int argc, char **argv)
 {
     const char *url = nullptr, *in = nullptr, *outp = nullptr, *stats = nullptr;
-    std::string site = std::string(PB_SOURCE_DIR) + "/maps/default";
-    std::string vehicle = std::string(PB_SOURCE_DIR) + "/vehicles/prius2017.yaml";
+    const char *site_arg = PB_SOURCE_DIR "/maps/default", *vehicle_arg = PB_SOURCE_DIR "/vehicles/prius2017.yaml";
     localizer_config_t cfg;
     pb_reg_config_default(&cfg.reg);
     app_t a;
-    static const struct option opts[] = {
-        { "site", required_argument, 0, 's' }, { "vehicle", required_argument, 0, 'v' },
-        { "replay", required_argument, 0, 'r' }, { "out", required_argument, 0, 'o' },
-        { "lcm-url", required_argument, 0, 'u' }, { "initial-pose", required_argument, 0, 'i' },
-        { "no-imu", no_argument, 0, 'I' }, { "no-speed", no_argument, 0, 'S' }, { "no-gnss", no_argument, 0, 'G' },
-        { "stats", required_argument, 0, 't' }, { "column-stride", required_argument, 0, 'k' }, { "verbose", no_argument, 0, 'V' },
-        { "lidar-lost-s", required_argument, 0, 'L' }, { "no-global-search", no_argument, 0, 'g' },
-        { "map-radius", required_argument, 0, 'R' },
-        { "help", no_argument, 0, 'h' }, { 0, 0, 0, 0 },
-    };
-    int c;
     pb_tiles_config_t tiles_cfg;
     pb_tiles_config_default(&tiles_cfg);
-    while ((c = getopt_long(argc, argv, "h", opts, nullptr)) != -1) {
-        switch (c) {
-        case 's': site = optarg; break;
-        case 'v': vehicle = optarg; break;
-        case 'r': in = optarg; break;
-        case 'o': outp = optarg; break;
-        case 'u': url = optarg; break;
-        case 'i':
-            if (parse_pose(optarg, cfg.initial_pose) != 0) {
-                fprintf(stderr, "localizer: --initial-pose: expected x,y,z,roll,pitch,yaw (6 numbers), got '%s'\n", optarg);
-                return 2;
-            }
-            for (int i = 3; i < 6; i++) cfg.initial_pose[i] *= M_PI / 180;
-            cfg.has_initial_pose = true;
-            break;
-        case 'I': a.use_imu = false; break;
-        case 'S': a.use_speed = false; break;
-        case 'G': a.use_gnss = false; break;
-        case 't': stats = optarg; break;
-        case 'k': {
-            long v;
-            if (pb_arg_long("localizer", "--column-stride", optarg, 1, 16, &v) != 0) return 2;
-            a.column_stride = (int)v;
-            break;
-        }
-        case 'V': a.verbose = true; break;
-        case 'L': {
-            double v;
-            if (pb_arg_double("localizer", "--lidar-lost-s", optarg, 0.5, 3600, &v) != 0) return 2;
-            cfg.lidar_lost_us = (int64_t)(v * 1e6);
-            break;
-        }
-        case 'g': cfg.global_search = false; break;
-        case 'R':
-            if (pb_arg_double("localizer", "--map-radius", optarg, 90, 1e6, &tiles_cfg.load_radius_m) != 0) return 2;
-            tiles_cfg.keep_radius_m = tiles_cfg.load_radius_m + 40;   /* hysteresis: no reload at a tile's edge */
-            break;
-        case 'h': usage(stdout); return 0;
-        default: usage(stderr); return 2;
-        }
-    }
-    if (optind < argc) { fprintf(stderr, "localizer: unexpected argument '%s'\n", argv[optind]); usage(stderr); return 2; }
+    const pb_opt_t opts[] = {
+        PB_OPT_STRING("site", &site_arg), PB_OPT_STRING("vehicle", &vehicle_arg), PB_OPT_STRING("replay", &in),
+        PB_OPT_STRING("out", &outp), PB_OPT_STRING("lcm-url", &url), PB_OPT_CALL("initial-pose", parse_initial_pose, &cfg),
+        PB_OPT_BOOL("no-imu", &a.use_imu, 0), PB_OPT_BOOL("no-speed", &a.use_speed, 0), PB_OPT_BOOL("no-gnss", &a.use_gnss, 0),
+        PB_OPT_STRING("stats", &stats), PB_OPT_INT("column-stride", &a.column_stride, 1, 16),
+        PB_OPT_BOOL("verbose", &a.verbose, 1), PB_OPT_MICROS("lidar-lost-s", &cfg.lidar_lost_us, 0.5, 3600, 1000000),
+        PB_OPT_BOOL("no-global-search", &cfg.global_search, 0), PB_OPT_DOUBLE("map-radius", &tiles_cfg.load_radius_m, 90, 1e6),
+        PB_OPT_END,
+    };
+    int parsed = pb_opt_parse("localizer", opts, usage, 0, argc, argv);
+    if (parsed >= 0) return parsed;
+    tiles_cfg.keep_radius_m = tiles_cfg.load_radius_m + 40;   /* hysteresis: no reload at a tile's edge */
+    const std::string site = site_arg, vehicle = vehicle_arg;
     if ((in != nullptr) != (outp != nullptr)) { fprintf(stderr, "localizer: --replay and --out go together\n"); return 2; }
 
     pb_err_t err;

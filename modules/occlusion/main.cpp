@@ -2,7 +2,6 @@
  *   occlusion [--replay IN.lcm --out OUT.lcm] [--pose-channel CH] [--vehicle FILE]
  * Thin shell around core/occlusion: options, vehicle file, subscribe, decode, publish
  * OCCLUSION, STATUS heartbeat, signals. */
-#include <getopt.h>
 #include <time.h>
 
 #include <algorithm>
@@ -14,8 +13,8 @@
 
 #include "core/occlusion.h"
 #include "occ_message.h"
-#include "pb_arg.h"
 #include "pb_bus.h"
+#include "pb_opt.h"
 #include "pb_signal.h"
 #include "pb_status.h"
 #include "pb_vehicle.h"
@@ -192,37 +191,21 @@ static double percentile(std::vector<double> v, double q)
 int main(int argc, char **argv)
 {
     const char *url = nullptr, *in = nullptr, *outp = nullptr, *stats = nullptr, *pose_channel = "POSE";
-    std::string vehicle = std::string(PB_SOURCE_DIR) + "/vehicles/prius2017.yaml";
+    const char *vehicle = PB_SOURCE_DIR "/vehicles/prius2017.yaml";
     occ_config_t cfg;
-    static const struct option opts[] = {
-        { "replay", required_argument, 0, 'r' }, { "out", required_argument, 0, 'o' },
-        { "lcm-url", required_argument, 0, 'u' }, { "pose-channel", required_argument, 0, 'p' },
-        { "vehicle", required_argument, 0, 'v' }, { "range", required_argument, 0, 'R' },
-        { "stats", required_argument, 0, 't' }, { "help", no_argument, 0, 'h' }, { 0, 0, 0, 0 },
+    const pb_opt_t opts[] = {
+        PB_OPT_STRING("replay", &in), PB_OPT_STRING("out", &outp), PB_OPT_STRING("lcm-url", &url),
+        PB_OPT_STRING("pose-channel", &pose_channel), PB_OPT_STRING("vehicle", &vehicle),
+        PB_OPT_DOUBLE("range", &cfg.range_m, 5, 50), PB_OPT_STRING("stats", &stats), PB_OPT_END,
     };
-    int c;
-    while ((c = getopt_long(argc, argv, "h", opts, nullptr)) != -1) {
-        switch (c) {
-        case 'r': in = optarg; break;
-        case 'o': outp = optarg; break;
-        case 'u': url = optarg; break;
-        case 'p': pose_channel = optarg; break;
-        case 'v': vehicle = optarg; break;
-        case 'R':
-            if (pb_arg_double("occlusion", "--range", optarg, 5, 50, &cfg.range_m) != 0) return 2;
-            cfg.window_m = cfg.range_m + 1;
-            break;
-        case 't': stats = optarg; break;
-        case 'h': usage(stdout); return 0;
-        default: usage(stderr); return 2;
-        }
-    }
-    if (optind < argc) { fprintf(stderr, "occlusion: unexpected argument '%s'\n", argv[optind]); usage(stderr); return 2; }
+    int parsed = pb_opt_parse("occlusion", opts, usage, 0, argc, argv);
+    if (parsed >= 0) return parsed;
+    cfg.window_m = cfg.range_m + 1;
     if ((in != nullptr) != (outp != nullptr)) { fprintf(stderr, "occlusion: --replay and --out go together\n"); return 2; }
 
     pb_err_t err;
     pb_vehicle_t veh;
-    if (pb_vehicle_load(vehicle.c_str(), &veh, &err) != 0) { fprintf(stderr, "occlusion: %s\n", err.msg); return 1; }
+    if (pb_vehicle_load(vehicle, &veh, &err) != 0) { fprintf(stderr, "occlusion: %s\n", err.msg); return 1; }
     pb_bus_t *bus = in ? pb_bus_create_replay(in, outp, &err) : pb_bus_create_live(url, &err);
     if (!bus) { fprintf(stderr, "occlusion: %s\n", err.msg); return 1; }
     app_t a;
@@ -240,7 +223,7 @@ int main(int argc, char **argv)
     a.occ = occlusion_create(&cfg, &ov);
     occlusion_set_clock(a.occ, pb_clock_thread_cpu_ms);
     a.status = pb_status_create(bus, "occlusion", 1000000);
-    if (!veh.has_seat_eye) pb_status_error(a.status, "%s: no seat.eye_xyz: without HEAD_POSE the eye is the LiDAR", vehicle.c_str());
+    if (!veh.has_seat_eye) pb_status_error(a.status, "%s: no seat.eye_xyz: without HEAD_POSE the eye is the LiDAR", vehicle);
     pb_signal_install();
     pb_bus_subscribe(bus, "LIDAR_SCAN", on_scan, &a);
     pb_bus_subscribe(bus, pose_channel, on_pose, &a);

@@ -5,17 +5,16 @@
 // logged poses that bracket it. Scans without bracketing poses are skipped and
 // counted. Two passes over the log: poses first (small), then scans.
 #include <cerrno>
-#include <getopt.h>
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <string>
 
-#include "pb_arg.h"
 #include "pb_err.h"
 #include "pb_log.h"
 #include "pb_map_build.h"
+#include "pb_opt.h"
 #include "pb_progress.h"
 #include "pb_scan.h"
 #include "pb_vehicle.h"
@@ -48,40 +47,14 @@ int main(int argc, char **argv)
     double voxel = 0.15;
     long every = 1;
     int quiet = 0;
-    enum { OPT_LOG = 1000, OPT_OUT, OPT_VEHICLE, OPT_POSE_CHANNEL, OPT_SCAN_CHANNEL, OPT_VOXEL, OPT_EVERY };
-    static const struct option opts[] = {
-        {"log", required_argument, nullptr, OPT_LOG},
-        {"out", required_argument, nullptr, OPT_OUT},
-        {"vehicle", required_argument, nullptr, OPT_VEHICLE},
-        {"pose-channel", required_argument, nullptr, OPT_POSE_CHANNEL},
-        {"scan-channel", required_argument, nullptr, OPT_SCAN_CHANNEL},
-        {"voxel", required_argument, nullptr, OPT_VOXEL}, {"every", required_argument, nullptr, OPT_EVERY},
-        {"quiet", no_argument, nullptr, 'q'}, {"help", no_argument, nullptr, 'h'}, {nullptr, 0, nullptr, 0}};
-    int c;
-    while ((c = getopt_long(argc, argv, "h", opts, nullptr)) != -1) {
-        switch (c) {
-        case OPT_LOG: log_path = optarg; break;
-        case OPT_OUT: out_path = optarg; break;
-        case OPT_VEHICLE: vehicle = optarg; break;
-        case OPT_POSE_CHANNEL: pose_ch = optarg; break;
-        case OPT_SCAN_CHANNEL: scan_ch = optarg; break;
-        case OPT_VOXEL: if (pb_arg_double("build-map", "voxel", optarg, 0, 1000, &voxel)) return 2; break;
-        case OPT_EVERY: if (pb_arg_long("build-map", "every", optarg, 1, 1000000, &every)) return 2; break;
-        case 'q': quiet = 1; break;
-        case 'h': usage(stdout); return 0;
-        default: usage(stderr); return 2;
-        }
-    }
-    if (optind < argc) {
-        std::fprintf(stderr, "build-map: unexpected argument '%s'\n", argv[optind]);
-        usage(stderr);
-        return 2;
-    }
-    if (!log_path || !out_path) {
-        std::fprintf(stderr, "build-map: --log and --out are required\n");
-        usage(stderr);
-        return 2;
-    }
+    const pb_opt_t opts[] = {
+        PB_OPT_REQUIRED("log", &log_path), PB_OPT_REQUIRED("out", &out_path), PB_OPT_STRING("vehicle", &vehicle),
+        PB_OPT_STRING("pose-channel", &pose_ch), PB_OPT_STRING("scan-channel", &scan_ch),
+        PB_OPT_DOUBLE("voxel", &voxel, 0, 1000), PB_OPT_LONG("every", &every, 1, 1000000), PB_OPT_FLAG("quiet", &quiet, 1),
+        PB_OPT_END,
+    };
+    int parsed = pb_opt_parse("build-map", opts, usage, 0, argc, argv);
+    if (parsed >= 0) return parsed;
     auto t0 = std::chrono::steady_clock::now();
     pb_err_t err;
 

@@ -5,7 +5,6 @@
 // Input: an import-scans log (LIDAR_SCAN in point form + GROUND_TRUTH, the LiDAR
 // pose, at the same utime). Output: the refined LiDAR poses, one KITTI line
 // (3x4 row-major) per scan in log order, readable by import-scans --poses.
-#include <getopt.h>
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -14,9 +13,9 @@
 #include <string>
 #include <vector>
 
-#include "pb_arg.h"
 #include "pb_err.h"
 #include "pb_log.h"
+#include "pb_opt.h"
 #include "pb_progress.h"
 #include "pb_scan.h"
 #include "portobello_lidar_scan_t.h"
@@ -73,25 +72,13 @@ int main(int argc, char **argv)
     pb_refine_config_t cfg;
     pb_refine_config_default(&cfg);
     bool quiet = false;
-    static const struct option opts[] = {{"log", 1, 0, 'l'}, {"out", 1, 0, 'o'}, {"report", 1, 0, 'r'},
-                                         {"rounds", 1, 0, 'n'}, {"radius", 1, 0, 'R'}, {"neighbours", 1, 0, 'N'},
-                                         {"quiet", 0, 0, 'q'}, {"help", 0, 0, 'h'}, {0, 0, 0, 0}};
-    int c;
-    long v;
-    while ((c = getopt_long(argc, argv, "h", opts, nullptr)) != -1) {
-        switch (c) {
-        case 'l': log_path = optarg; break;
-        case 'o': out_path = optarg; break;
-        case 'r': report_path = optarg; break;
-        case 'n': if (pb_arg_long("refine-poses", "--rounds", optarg, 1, 100, &v)) return 2; cfg.max_rounds = (int)v; break;
-        case 'R': if (pb_arg_double("refine-poses", "--radius", optarg, 1, 1000, &cfg.neighbour_radius_m)) return 2; break;
-        case 'N': if (pb_arg_long("refine-poses", "--neighbours", optarg, 1, 1000, &v)) return 2; cfg.max_neighbours = (int)v; break;
-        case 'q': quiet = true; break;
-        case 'h': usage(stdout); return 0;
-        default: usage(stderr); return 2;
-        }
-    }
-    if (!log_path || !out_path || optind < argc) { usage(stderr); return 2; }
+    const pb_opt_t opts[] = {
+        PB_OPT_REQUIRED("log", &log_path), PB_OPT_REQUIRED("out", &out_path), PB_OPT_STRING("report", &report_path),
+        PB_OPT_INT("rounds", &cfg.max_rounds, 1, 100), PB_OPT_DOUBLE("radius", &cfg.neighbour_radius_m, 1, 1000),
+        PB_OPT_INT("neighbours", &cfg.max_neighbours, 1, 1000), PB_OPT_BOOL("quiet", &quiet, 1), PB_OPT_END,
+    };
+    int parsed = pb_opt_parse("refine-poses", opts, usage, 0, argc, argv);
+    if (parsed >= 0) return parsed;
     pb_err_t err;
     pb_log_t *log = pb_log_open_read(log_path, &err);
     if (!log) { std::fprintf(stderr, "refine-poses: %s\n", err.msg); return 1; }
