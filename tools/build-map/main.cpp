@@ -68,33 +68,18 @@ int main(int argc, char **argv)
         base_from_lidar = veh.base_from_lidar;
     }
 
-    // Pass 1: poses.
-    pb_pose_track_t *track = pb_pose_track_create();
-    pb_log_t *log = pb_log_open_read(log_path, &err);
-    if (!log) {
+    // Pass 1: poses, and the number of scans (for the progress bar).
+    struct Pass1 { pb_pose_track_t *track; long nscans; } pass1 = { pb_pose_track_create(), 0 };
+    auto on_pose = [](const portobello_pose_t *p, const pb_transform_t *T, void *u) {
+        pb_pose_track_add(((Pass1 *)u)->track, p->utime, T);
+    };
+    auto on_scan = [](const pb_event_t *, void *u, pb_err_t *) { ((Pass1 *)u)->nscans++; return 0; };
+    if (pb_log_read_track(log_path, pose_ch, on_pose, scan_ch, on_scan, &pass1, &err)) {
         std::fprintf(stderr, "build-map: %s\n", err.msg);
         return 1;
     }
-    pb_event_t ev;
-    int rc;
-    long nscans_total = 0;
-    while ((rc = pb_log_next(log, &ev, &err)) == 1) {
-        if (std::strcmp(ev.channel, scan_ch) == 0) { nscans_total++; continue; }
-        if (std::strcmp(ev.channel, pose_ch) != 0) continue;
-        portobello_pose_t p;
-        pb_transform_t x;
-        if (pb_log_pose(&ev, &p, &x, &err)) {
-            std::fprintf(stderr, "build-map: %s: %s\n", log_path, err.msg);
-            pb_log_close(log, nullptr);
-            return 1;
-        }
-        pb_pose_track_add(track, p.utime, &x);
-    }
-    pb_log_close(log, nullptr);
-    if (rc < 0) {
-        std::fprintf(stderr, "build-map: %s\n", err.msg);
-        return 1;
-    }
+    pb_pose_track_t *track = pass1.track;
+    long nscans_total = pass1.nscans;
     if (pb_pose_track_count(track) == 0) {
         std::fprintf(stderr, "build-map: %s: no %s poses\n", log_path, pose_ch);
         return 1;
@@ -102,7 +87,7 @@ int main(int argc, char **argv)
 
     // Pass 2: scans.
     pb_map_builder_t *map = pb_map_builder_create(voxel, &err);
-    log = map ? pb_log_open_read(log_path, &err) : nullptr;
+    pb_log_t *log = map ? pb_log_open_read(log_path, &err) : nullptr;
     if (!log) {
         std::fprintf(stderr, "build-map: %s\n", err.msg);
         return 1;
@@ -113,6 +98,8 @@ int main(int argc, char **argv)
     pb_progress_start(&prog, "build-map", nscans_total, quiet);
     long seen = 0, used = 0, skipped = 0, empty = 0;
     int status = 0;
+    pb_event_t ev;
+    int rc;
     while ((rc = pb_log_next(log, &ev, &err)) == 1) {
         if (std::strcmp(ev.channel, scan_ch) != 0) continue;
         pb_progress_update(&prog, seen);

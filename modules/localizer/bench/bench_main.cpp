@@ -126,6 +126,26 @@ static void json_run(FILE *f, const char *name, const Run &r, bool last)
                  share_below(r.terr, g_converge), last ? "" : ",");
 }
 
+/* What the log gives: the GROUND_TRUTH track and poses (for velocities), the LIDAR_SCAN
+ * events as they are (decoded per run). */
+struct LogInput {
+    pb_pose_track_t *track = pb_pose_track_create();
+    std::vector<portobello_pose_t> gts;
+    std::vector<std::vector<uint8_t>> raw_scans;
+
+    static void on_pose(const portobello_pose_t *p, const pb_transform_t *T, void *user)
+    {
+        LogInput *in = (LogInput *)user;
+        pb_pose_track_add(in->track, p->utime, T);
+        in->gts.push_back(*p);
+    }
+    static int on_scan(const pb_event_t *ev, void *user, pb_err_t *)
+    {
+        ((LogInput *)user)->raw_scans.emplace_back(ev->data, ev->data + ev->datalen);
+        return 0;
+    }
+};
+
 /* --global R,DEG: a start searched within R metres and DEG degrees */
 static int parse_global(const char *prog, const char *arg, void *var)
 {
@@ -189,26 +209,14 @@ int main(int argc, char **argv)
     const Eigen::Isometry3d B = pb_reg_from_transform(&base_from_lidar);
 
     // ---- read the log: ground truth track (+ velocities), then scans
-    pb_log_t *log = pb_log_open_read(log_path, &err);
-    if (!log) { std::fprintf(stderr, "bench-localizer: %s\n", err.msg); return 1; }
-    pb_pose_track_t *track = pb_pose_track_create();
-    std::vector<portobello_pose_t> gts;
-    std::vector<std::vector<uint8_t>> raw_scans;
-    pb_event_t ev;
-    int rc;
-    while ((rc = pb_log_next(log, &ev, &err)) == 1) {
-        if (!std::strcmp(ev.channel, "GROUND_TRUTH")) {
-            portobello_pose_t p;
-            pb_transform_t T;
-            if (pb_log_pose(&ev, &p, &T, &err)) { std::fprintf(stderr, "bench-localizer: %s: %s\n", log_path, err.msg); return 1; }
-            pb_pose_track_add(track, p.utime, &T);
-            gts.push_back(p);
-        } else if (!std::strcmp(ev.channel, "LIDAR_SCAN")) {
-            raw_scans.emplace_back(ev.data, ev.data + ev.datalen);
-        }
+    LogInput in;
+    if (pb_log_read_track(log_path, "GROUND_TRUTH", LogInput::on_pose, "LIDAR_SCAN", LogInput::on_scan, &in, &err)) {
+        std::fprintf(stderr, "bench-localizer: %s\n", err.msg);
+        return 1;
     }
-    if (rc < 0) { std::fprintf(stderr, "bench-localizer: %s\n", err.msg); return 1; }
-    pb_log_close(log, nullptr);
+    pb_pose_track_t *track = in.track;
+    std::vector<portobello_pose_t> &gts = in.gts;
+    std::vector<std::vector<uint8_t>> &raw_scans = in.raw_scans;
     std::sort(gts.begin(), gts.end(), [](const portobello_pose_t &a, const portobello_pose_t &b) { return a.utime < b.utime; });
 
     std::mt19937_64 rng((uint64_t)seed);
