@@ -29,8 +29,6 @@
 #include "portobello_status_t.h"
 #include "portobello_vehicle_speed_t.h"
 
-#define NAMED_BUS_BASE 1000     /* as import-candump: interfaces not named canN */
-#define MAX_NAMED 64
 #define PATH_MAX_WHERE 4200
 #define LOUD_ERRORS 20          /* problems printed one by one; later ones are counted */
 
@@ -44,8 +42,7 @@ typedef struct {
     int64_t problems, frames, speeds;
     int64_t verdicts[CAN_V_COUNT];
     int64_t time_backwards;
-    char names[MAX_NAMED][PB_CANDUMP_IFACE_MAX];
-    int nnames;
+    pb_candump_buses_t buses;           /* --candump's interfaces */
     uint32_t last_dropped;
     int realtime;                       /* live --candump: pace frames by their times */
     int64_t rt_frame0, rt_wall0;
@@ -190,17 +187,6 @@ static void on_can_frame(const pb_msg_t *msg, void *user)
     handle_frame(a, &f, where);
 }
 
-static int bus_of(app_t *a, const char *iface)
-{
-    int n = pb_candump_can_index(iface);
-    if (n >= 0) return n;
-    for (int k = 0; k < a->nnames; k++)
-        if (strcmp(a->names[k], iface) == 0) return NAMED_BUS_BASE + k;
-    if (a->nnames == MAX_NAMED) return -1;
-    strcpy(a->names[a->nnames], iface);
-    return NAMED_BUS_BASE + a->nnames++;
-}
-
 /* --realtime: waits until the frame's time, counted from the first frame. */
 static void pace(app_t *a, int64_t frame_utime)
 {
@@ -236,9 +222,9 @@ static int run_candump(app_t *a, const char *path, pb_err_t *err)
             problem(a, -r < 8 ? reasons[-r] : "line_bad", "%s:%ld:%zu: %s", path, lineno, col, pb_candump_strerror(r));
             continue;
         }
-        int bus = bus_of(a, c.iface);
+        int bus = pb_candump_bus(&a->buses, c.iface, NULL);
         if (bus < 0) {
-            problem(a, "too_many_interfaces", "%s:%ld: more than %d interfaces not named canN", path, lineno, MAX_NAMED);
+            problem(a, "too_many_interfaces", "%s:%ld: more than %d interfaces not named canN", path, lineno, PB_CANDUMP_MAX_NAMED);
             continue;
         }
         can_rx_t f = { .utime = c.utime, .bus = bus, .id = c.id, .extended = c.extended, .rtr = c.rtr,
@@ -270,7 +256,7 @@ static int run_socket(app_t *a, const char *iface, pb_err_t *err)
     int fd = can_socket_open(iface, err);
     if (fd < 0) return -1;
     int bus = pb_candump_can_index(iface);
-    if (bus < 0) bus = NAMED_BUS_BASE;
+    if (bus < 0) bus = PB_CANDUMP_NAMED_BUS_BASE;
     fprintf(stderr, "can: reading %s (bus %d), listen-only\n", iface, bus);
     int rc = 0;
     while (!pb_signal_stop_requested()) {
@@ -362,14 +348,7 @@ int main(int argc, char **argv)
     } else {
         rc = run_socket(&a, iface, &err);
     }
-    if (rc != 0) {
-        fprintf(stderr, "can: %s\n", err.msg);
-        pb_status_set_state(a.status, PORTOBELLO_STATUS_T_STATE_ERROR);
-        pb_status_error(a.status, "%s", err.msg);
-    } else {
-        pb_status_set_state(a.status, PORTOBELLO_STATUS_T_STATE_STOPPING);
-    }
-    pb_status_publish(a.status);
+    pb_status_finish(a.status, rc ? err.msg : NULL);
     fprintf(stderr, "can: %lld frames, %lld VEHICLE_SPEED (dbc %s, bus %d, checksum %s): "
             "%lld other bus, %lld unknown id, %lld bad length, %lld bad checksum, %lld error, %lld remote, "
             "%lld time backwards, %lld other problems\n",

@@ -120,12 +120,7 @@ static void on_pose(const pb_msg_t *msg, void *user)
 {
     app_t *a = user;
     portobello_pose_t p;
-    if (portobello_pose_t_decode(msg->data, 0, msg->len, &p) < 0) {
-        pb_status_count(a->status, "undecodable_pose", 1);
-        pb_status_error(a->status, "%s: message of %d bytes does not decode", msg->channel, msg->len);
-        return;
-    }
-    pb_status_input_time(a->status, msg->channel, p.utime);
+    if (PB_STATUS_DECODE(a->status, msg, portobello_pose_t, &p, "undecodable_pose")) return;
     if (p.status == PORTOBELLO_POSE_T_STATUS_LOST || p.status == PORTOBELLO_POSE_T_STATUS_INITIALIZING) {
         pb_status_count(a->status, "pose_not_tracking", 1);
         return;     /* not a usable pose: it does not refresh the staleness clock either */
@@ -152,12 +147,7 @@ static void on_input(const pb_msg_t *msg, void *user)
 {
     app_t *a = user;
     portobello_participant_input_t in;
-    if (portobello_participant_input_t_decode(msg->data, 0, msg->len, &in) < 0) {
-        pb_status_count(a->status, "undecodable_input", 1);
-        pb_status_error(a->status, "%s: message of %d bytes does not decode", msg->channel, msg->len);
-        return;
-    }
-    pb_status_input_time(a->status, msg->channel, in.utime);
+    if (PB_STATUS_DECODE(a->status, msg, portobello_participant_input_t, &in, "undecodable_input")) return;
     dir_input(a->dir, in.utime, in.input, in.value);
     pb_status_count(a->status, "inputs", 1);
     portobello_participant_input_t_decode_cleanup(&in);
@@ -283,15 +273,8 @@ int main(int argc, char **argv)
     if (!in) fprintf(stderr, "director: scenario %s on %s, pose from %s\n", a.sc.id, pb_lcm_url(url), a.pose_channel);
 
     int rc = pb_bus_run(a.bus, &err);
-    if (rc != 0) {
-        fprintf(stderr, "director: %s\n", err.msg);
-        pb_status_set_state(a.status, PORTOBELLO_STATUS_T_STATE_ERROR);
-        pb_status_error(a.status, "%s", err.msg);
-    } else {
-        pb_status_set_state(a.status, PORTOBELLO_STATUS_T_STATE_STOPPING);
-    }
     write_state(&a);
-    pb_status_publish(a.status);
+    pb_status_finish(a.status, rc ? err.msg : NULL);
     if (in) fprintf(stderr, "director: %d of %d triggers fired\n", dir_triggers_fired(a.dir), a.sc.ntriggers);
     pb_status_destroy(a.status);
     pb_bus_destroy(a.bus);

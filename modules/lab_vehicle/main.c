@@ -225,12 +225,7 @@ static void on_input(const pb_msg_t *msg, void *user)
 {
     app_t *a = user;
     portobello_participant_input_t in;
-    if (portobello_participant_input_t_decode(msg->data, 0, msg->len, &in) < 0) {
-        pb_status_count(a->status, "undecodable_PARTICIPANT_INPUT", 1);
-        pb_status_error(a->status, "PARTICIPANT_INPUT: message of %d bytes does not decode", msg->len);
-        return;
-    }
-    pb_status_input_time(a->status, msg->channel, in.utime);
+    if (PB_STATUS_DECODE(a->status, msg, portobello_participant_input_t, &in, "undecodable_PARTICIPANT_INPUT")) return;
     int r = lv_on_input(a->lv, in.utime, in.input, in.value);
     if (r != LV_INPUT_ACCEPTED) {
         char name[64];
@@ -248,12 +243,7 @@ static void on_agents(const pb_msg_t *msg, void *user)
 {
     app_t *a = user;
     portobello_agents_t m;
-    if (portobello_agents_t_decode(msg->data, 0, msg->len, &m) < 0) {
-        pb_status_count(a->status, "undecodable_AGENTS", 1);
-        pb_status_error(a->status, "AGENTS: message of %d bytes does not decode", msg->len);
-        return;
-    }
-    pb_status_input_time(a->status, msg->channel, m.utime);
+    if (PB_STATUS_DECODE(a->status, msg, portobello_agents_t, &m, "undecodable_AGENTS")) return;
     lv_agent_t *ag = calloc(m.nagents + 1, sizeof *ag);
     for (int i = 0; i < m.nagents; i++) {
         ag[i].id = m.agents[i].id;
@@ -292,14 +282,8 @@ static int run_bus(lab_vehicle_t *lv, const char *url, const char *in, const cha
     if (!in) fprintf(stderr, PROG ": driving on %s; POSE at 100 Hz;%s Ctrl-C stops\n", pb_lcm_url(url),
                      keyboard ? " Enter = proceed;" : "");
     int rc = pb_bus_run(bus, &err);
-    if (rc) {
-        fprintf(stderr, PROG ": %s\n", err.msg);
-        pb_status_set_state(a.status, PORTOBELLO_STATUS_T_STATE_ERROR);
-        pb_status_error(a.status, "%s", err.msg);
-    } else if (!a.failed) {
-        pb_status_set_state(a.status, PORTOBELLO_STATUS_T_STATE_STOPPING);
-    }
-    pb_status_publish(a.status);
+    if (rc || !a.failed) pb_status_finish(a.status, rc ? err.msg : NULL);
+    else pb_status_publish(a.status);   /* the failure's STATUS is set */
     pb_status_destroy(a.status);
     pb_bus_destroy(bus);
     return rc || a.failed ? 1 : 0;

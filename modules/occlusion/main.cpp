@@ -64,12 +64,6 @@ static void usage(FILE *f)
             PB_DEFAULT_LCM_URL, PB_SOURCE_DIR);
 }
 
-static void undecodable(app_t *a, const pb_msg_t *m)
-{
-    pb_status_count(a->status, "undecodable", 1);
-    pb_status_error(a->status, "%s: message of %d bytes does not decode", m->channel, m->len);
-}
-
 /* Publishes what the core produced and reports its events. */
 static void flush(app_t *a)
 {
@@ -105,80 +99,61 @@ static void flush(app_t *a)
 static void on_scan(const pb_msg_t *m, void *user)
 {
     app_t *a = (app_t *)user;
-    portobello_lidar_scan_t s;
-    if (portobello_lidar_scan_t_decode(m->data, 0, m->len, &s) < 0) { undecodable(a, m); return; }
-    pb_status_input_time(a->status, m->channel, s.utime);
-    pb_err_t err;
-    int n = pb_scan_points(&s, &a->pts, &err);
-    if (n < 0) {
-        pb_status_count(a->status, "scan_invalid", 1);
-        pb_status_error(a->status, "%s (seq %d)", err.msg, s.seq);
-    } else {
-        int bad = 0;
-        for (int i = 0; i < s.npoints; i++)
-            if (!std::isfinite(s.x[i]) || !std::isfinite(s.y[i]) || !std::isfinite(s.z[i])) bad++;
-        if (bad) {
-            pb_status_count(a->status, "scan_nonfinite_points", bad);
-            pb_status_error(a->status, "LIDAR_SCAN seq %d: %d NaN/inf points dropped", s.seq, bad);
-        }
-        occlusion_scan(a->occ, s.utime, &a->pts, &a->out, &a->ev);
-    }
-    portobello_lidar_scan_t_decode_cleanup(&s);
-    flush(a);
+    pb_status_take(a->status, m, portobello_lidar_scan_t_decode, portobello_lidar_scan_t_decode_cleanup,
+                   [a](const portobello_lidar_scan_t &s) {
+                       if (pb_status_scan_points(a->status, &s, &a->pts) >= 0)
+                           occlusion_scan(a->occ, s.utime, &a->pts, &a->out, &a->ev);
+                       flush(a);
+                   });
 }
 
 static void on_pose(const pb_msg_t *m, void *user)
 {
     app_t *a = (app_t *)user;
-    portobello_pose_t s;
-    if (portobello_pose_t_decode(m->data, 0, m->len, &s) < 0) { undecodable(a, m); return; }
-    pb_status_input_time(a->status, m->channel, s.utime);
-    occ_pose_in_t p;
-    p.utime = s.utime;
-    memcpy(p.pos, s.position, sizeof p.pos);
-    memcpy(p.q, s.orientation, sizeof p.q);
-    memcpy(p.vel, s.velocity, sizeof p.vel);
-    p.usable = s.status == PORTOBELLO_POSE_T_STATUS_TRACKING || s.status == PORTOBELLO_POSE_T_STATUS_DEGRADED;
-    if (!p.usable) pb_status_count(a->status, "pose_not_tracking", 1);
-    occlusion_pose(a->occ, &p, &a->out, &a->ev);
-    portobello_pose_t_decode_cleanup(&s);
-    flush(a);
+    pb_status_take(a->status, m, portobello_pose_t_decode, portobello_pose_t_decode_cleanup, [a](const portobello_pose_t &s) {
+        occ_pose_in_t p;
+        p.utime = s.utime;
+        memcpy(p.pos, s.position, sizeof p.pos);
+        memcpy(p.q, s.orientation, sizeof p.q);
+        memcpy(p.vel, s.velocity, sizeof p.vel);
+        p.usable = s.status == PORTOBELLO_POSE_T_STATUS_TRACKING || s.status == PORTOBELLO_POSE_T_STATUS_DEGRADED;
+        if (!p.usable) pb_status_count(a->status, "pose_not_tracking", 1);
+        occlusion_pose(a->occ, &p, &a->out, &a->ev);
+        flush(a);
+    });
 }
 
 static void on_head(const pb_msg_t *m, void *user)
 {
     app_t *a = (app_t *)user;
-    portobello_head_pose_t s;
-    if (portobello_head_pose_t_decode(m->data, 0, m->len, &s) < 0) { undecodable(a, m); return; }
-    pb_status_input_time(a->status, m->channel, s.utime);
-    if (!s.tracking) pb_status_count(a->status, "head_not_tracking", 1);
-    occlusion_head(a->occ, s.utime, s.position, s.tracking);
-    portobello_head_pose_t_decode_cleanup(&s);
+    pb_status_take(a->status, m, portobello_head_pose_t_decode, portobello_head_pose_t_decode_cleanup,
+                   [a](const portobello_head_pose_t &s) {
+                       if (!s.tracking) pb_status_count(a->status, "head_not_tracking", 1);
+                       occlusion_head(a->occ, s.utime, s.position, s.tracking);
+                   });
 }
 
 static void on_agents(const pb_msg_t *m, void *user)
 {
     app_t *a = (app_t *)user;
-    portobello_agents_t s;
-    if (portobello_agents_t_decode(m->data, 0, m->len, &s) < 0) { undecodable(a, m); return; }
-    pb_status_input_time(a->status, m->channel, s.utime);
-    std::vector<occ_agent_in_t> ag(s.nagents);
-    for (int i = 0; i < s.nagents; i++) {
-        const portobello_agent_t &g = s.agents[i];
-        occ_agent_in_t &o = ag[i];
-        o.id = g.id; o.kind = g.kind;
-        memcpy(o.pos, g.position, sizeof o.pos);
-        memcpy(o.vel, g.velocity, sizeof o.vel);
-        o.yaw = g.yaw_rad;
-        o.in_render_range = g.in_render_range;
-        if (!std::isfinite(o.pos[0]) || !std::isfinite(o.pos[1]) || !std::isfinite(o.pos[2])) {
-            pb_status_count(a->status, "agent_not_finite", 1);
-            pb_status_error(a->status, "AGENTS: agent %s has a NaN/inf position: no samples", g.id);
+    pb_status_take(a->status, m, portobello_agents_t_decode, portobello_agents_t_decode_cleanup, [a](const portobello_agents_t &s) {
+        std::vector<occ_agent_in_t> ag(s.nagents);
+        for (int i = 0; i < s.nagents; i++) {
+            const portobello_agent_t &g = s.agents[i];
+            occ_agent_in_t &o = ag[i];
+            o.id = g.id; o.kind = g.kind;
+            memcpy(o.pos, g.position, sizeof o.pos);
+            memcpy(o.vel, g.velocity, sizeof o.vel);
+            o.yaw = g.yaw_rad;
+            o.in_render_range = g.in_render_range;
+            if (!std::isfinite(o.pos[0]) || !std::isfinite(o.pos[1]) || !std::isfinite(o.pos[2])) {
+                pb_status_count(a->status, "agent_not_finite", 1);
+                pb_status_error(a->status, "AGENTS: agent %s has a NaN/inf position: no samples", g.id);
+            }
+            for (double &v : o.vel) if (!std::isfinite(v)) v = 0;
         }
-        for (double &v : o.vel) if (!std::isfinite(v)) v = 0;
-    }
-    occlusion_agents(a->occ, s.utime, ag);
-    portobello_agents_t_decode_cleanup(&s);
+        occlusion_agents(a->occ, s.utime, ag);
+    });
 }
 
 static double percentile(std::vector<double> v, double q)
@@ -234,14 +209,7 @@ int main(int argc, char **argv)
     int rc = pb_bus_run(bus, &err);
     occlusion_finish(a.occ, &a.out, &a.ev);
     flush(&a);
-    if (rc != 0) {
-        fprintf(stderr, "occlusion: %s\n", err.msg);
-        pb_status_set_state(a.status, PORTOBELLO_STATUS_T_STATE_ERROR);
-        pb_status_error(a.status, "%s", err.msg);
-    } else {
-        pb_status_set_state(a.status, PORTOBELLO_STATUS_T_STATE_STOPPING);
-    }
-    pb_status_publish(a.status);
+    pb_status_finish(a.status, rc ? err.msg : NULL);
     int64_t leaves, bytes;
     occ_map_size(occlusion_map(a.occ), &leaves, &bytes);
     fprintf(stderr, "occlusion: %lld OCCLUSION, integrate p50 %.1f ms p99 %.1f ms, query p50 %.2f ms, map %lld leaves %.1f MB\n",

@@ -302,8 +302,7 @@ static int run_live(app_t *a, const char *url, int lidar_port, int imu_port, int
     }
     ouster_driver_flush(a->drv, wall_utime());
     live_sync_status(a);
-    pb_status_set_state(a->status, PORTOBELLO_STATUS_T_STATE_STOPPING);
-    pb_status_publish(a->status);
+    pb_status_finish(a->status, NULL);
     if (!quiet)
         fprintf(stderr, PROG ": %lld LIDAR_SCAN, %lld IMU published; %lld lidar and %lld IMU packets, %lld rejected\n",
                 (long long)a->scans, (long long)a->imus, (long long)ouster_driver_counter(a->drv, "lidar_packets"),

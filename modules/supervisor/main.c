@@ -721,9 +721,8 @@ int main(int argc, char **argv)
     for (int i = 0; i < a.ncmds; i++) sv_proc_start(&a.cmds[i].p, now);
     a.gate[0] = 1;
     int rc = run(&a);
-    pb_status_set_state(a.status, PORTOBELLO_STATUS_T_STATE_STOPPING);
     publish_state(&a, pb_bus_monotonic(a.bus));
-    pb_status_publish(a.status);
+    pb_status_finish(a.status, NULL);
     for (int i = 0; i < a.ncmds; i++) if (a.cmds[i].log_fd >= 0) close(a.cmds[i].log_fd);
     fprintf(stderr, "supervisor: every command stopped\n");
     pb_status_destroy(a.status);

@@ -71,8 +71,7 @@ static void on_message(const pb_msg_t *m, void *user)
     pb_status_input_time(a->status, m->channel, utime);
     return;
 bad:
-    pb_status_count(a->status, "undecodable", 1);
-    pb_status_error(a->status, "%s: message of %d bytes does not decode", m->channel, m->len);
+    pb_status_undecodable(a->status, "undecodable", m);
     summary_message(&a->sum, m->channel, utime, m->len);
 }
 
@@ -99,16 +98,10 @@ int main(int argc, char **argv)
     if (!in) fprintf(stderr, "log-summary: listening on %s; Ctrl-C prints the summary\n", pb_lcm_url(url));
 
     int rc = pb_bus_run(bus, &err);
-    if (rc != 0) {
-        fprintf(stderr, "log-summary: %s\n", err.msg);
+    pb_status_finish(a.status, rc ? err.msg : NULL);
+    if (rc != 0)
         fprintf(stderr, "log-summary: stopped after %lld events; the summary below covers them\n",
                 (long long)pb_bus_events_read(bus));
-        pb_status_set_state(a.status, PORTOBELLO_STATUS_T_STATE_ERROR);
-        pb_status_error(a.status, "%s", err.msg);
-    } else {
-        pb_status_set_state(a.status, PORTOBELLO_STATUS_T_STATE_STOPPING);
-    }
-    pb_status_publish(a.status);
     summary_print(&a.sum, stdout);
     pb_status_destroy(a.status);
     pb_bus_destroy(bus);
