@@ -1,6 +1,7 @@
 /* pb_candump: see pb_candump.h. Every read is bounds-checked against len. */
 #include "pb_candump.h"
 
+#include <stdio.h>
 #include <string.h>
 
 static int is_space(char c) { return c == ' ' || c == '\t' || c == '\r' || c == '\n'; }
@@ -184,6 +185,19 @@ const char *pb_candump_strerror(int code)
     case PB_CANDUMP_E_XL:    return "CAN XL frames are not supported";
     default:                 return "unknown candump parse result";
     }
+}
+
+int pb_candump_bus(pb_candump_buses_t *b, const char *iface, int *added)
+{
+    if (added) *added = 0;
+    int n = pb_candump_can_index(iface);
+    if (n >= 0) return n;
+    for (int k = 0; k < b->n; k++)
+        if (strcmp(b->names[k], iface) == 0) return PB_CANDUMP_NAMED_BUS_BASE + k;
+    if (b->n == PB_CANDUMP_MAX_NAMED) return -1;
+    snprintf(b->names[b->n], sizeof b->names[b->n], "%s", iface);
+    if (added) *added = 1;
+    return PB_CANDUMP_NAMED_BUS_BASE + b->n++;
 }
 
 int pb_candump_can_index(const char *iface)

@@ -78,6 +78,19 @@ const char *pb_candump_strerror(int code);
 /* N for an interface named "canN" (N decimal, 0..32767), else -1. */
 int pb_candump_can_index(const char *iface);
 
+/* Bus numbers of a log's interfaces: N for canN; other names get
+ * PB_CANDUMP_NAMED_BUS_BASE, +1, ... in order of first appearance. */
+#define PB_CANDUMP_NAMED_BUS_BASE 1000
+#define PB_CANDUMP_MAX_NAMED 64
+typedef struct {
+    char names[PB_CANDUMP_MAX_NAMED][PB_CANDUMP_IFACE_MAX];
+    int n;
+} pb_candump_buses_t;
+
+/* The bus of iface, or -1 for a name past the first PB_CANDUMP_MAX_NAMED. *added (if
+ * not NULL) is 1 when iface is a name met for the first time. */
+int pb_candump_bus(pb_candump_buses_t *b, const char *iface, int *added);
+
 #ifdef __cplusplus
 }
 #endif

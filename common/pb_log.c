@@ -84,6 +84,28 @@ int pb_log_pose(const pb_event_t *ev, portobello_pose_t *msg, pb_transform_t *po
     return 0;
 }
 
+int pb_log_read_track(const char *path, const char *pose_channel, pb_log_pose_fn pose, const char *scan_channel,
+                      pb_log_event_fn scan, void *user, pb_err_t *err)
+{
+    pb_log_t *log = pb_log_open_read(path, err);
+    if (!log) return -1;
+    pb_event_t ev;
+    int rc;
+    while ((rc = pb_log_next(log, &ev, err)) == 1) {
+        if (pose && strcmp(ev.channel, pose_channel) == 0) {
+            portobello_pose_t msg;
+            pb_transform_t T;
+            if (pb_log_pose(&ev, &msg, &T, err)) break;
+            pose(&msg, &T, user);
+        } else if (scan && strcmp(ev.channel, scan_channel) == 0 && scan(&ev, user, err)) {
+            break;
+        }
+    }
+    pb_log_close(log, NULL);
+    if (rc == 1) pb_err_prefix(err, "%s", path);   /* stopped at a pose or a scan */
+    return rc < 0 || rc == 1 ? -1 : 0;
+}
+
 int pb_log_next(pb_log_t *log, pb_event_t *ev, pb_err_t *err)
 {
     if (log && log->torn[0]) return 0;

@@ -43,6 +43,15 @@ int pb_log_next(pb_log_t *log, pb_event_t *ev, pb_err_t *err);
  * frame) as a transform. Returns 0, or -1 if it does not decode (err: "byte N: CHANNEL
  * does not decode as pose_t"). */
 int pb_log_pose(const pb_event_t *ev, portobello_pose_t *msg, pb_transform_t *pose, pb_err_t *err);
+/* A log's poses and scans in one pass, in log order: pose(message, its transform, user)
+ * for each pose_t on pose_channel, scan(event, user, err) for each event on scan_channel
+ * (a NULL function: the channel is skipped). Returns 0, or -1 with err "PATH: ..." for a
+ * log that does not open or is damaged, a pose that does not decode, or the err a scan
+ * call returned -1 with. */
+typedef void (*pb_log_pose_fn)(const portobello_pose_t *msg, const pb_transform_t *pose, void *user);
+typedef int (*pb_log_event_fn)(const pb_event_t *ev, void *user, pb_err_t *err);
+int pb_log_read_track(const char *path, const char *pose_channel, pb_log_pose_fn pose, const char *scan_channel,
+                      pb_log_event_fn scan, void *user, pb_err_t *err);
 /* The torn-event warning once pb_log_next met one, else NULL. */
 const char *pb_log_torn(const pb_log_t *log);
 

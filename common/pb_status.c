@@ -1,6 +1,7 @@
 /* STATUS heartbeat: per-input counts, ages and rates, named counters, last error. */
 #include "pb_status.h"
 
+#include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -131,6 +132,42 @@ void pb_status_error(pb_status_t *st, const char *fmt, ...)
 }
 
 void pb_status_set_state(pb_status_t *st, int8_t state) { st->state = state; }
+
+void pb_status_undecodable(pb_status_t *st, const char *counter, const pb_msg_t *msg)
+{
+    pb_status_count(st, counter, 1);
+    pb_status_error(st, "%s: message of %d bytes does not decode", msg->channel, msg->len);
+}
+
+int pb_status_scan_points(pb_status_t *st, const portobello_lidar_scan_t *s, pb_points_t *pts)
+{
+    pb_err_t err;
+    int n = pb_scan_points(s, pts, &err);
+    if (n < 0) {
+        pb_status_count(st, "scan_invalid", 1);
+        pb_status_error(st, "%s (seq %d)", err.msg, s->seq);
+        return -1;
+    }
+    if (n == s->npoints || s->npoints == 0) return n;
+    int bad = 0;
+    for (int i = 0; i < s->npoints; i++)
+        if (!isfinite(s->x[i]) || !isfinite(s->y[i]) || !isfinite(s->z[i])) bad++;
+    if (bad) {
+        pb_status_count(st, "scan_nonfinite_points", bad);
+        pb_status_error(st, "LIDAR_SCAN seq %d: %d NaN/inf points dropped", s->seq, bad);
+    }
+    return n;
+}
+
+int pb_status_finish(pb_status_t *st, const char *error)
+{
+    st->state = error ? PORTOBELLO_STATUS_T_STATE_ERROR : PORTOBELLO_STATUS_T_STATE_STOPPING;
+    if (error) {
+        fprintf(stderr, "%s: %s\n", st->module, error);
+        snprintf(st->last_error, sizeof st->last_error, "%s", error);
+    }
+    return pb_status_publish(st);
+}
 
 int pb_status_publish(pb_status_t *st)
 {

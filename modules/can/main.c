@@ -7,7 +7,6 @@
  * layout can_kernel.c, the DBC can_dbc.c. */
 #include <errno.h>
 #include <stdarg.h>
-#include <getopt.h>
 #include <libgen.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -19,10 +18,10 @@
 #include "core/can_kernel.h"
 #include "can_socket.h"
 #include "core/can_speed.h"
-#include "pb_arg.h"
 #include "pb_bus.h"
 #include "pb_candump.h"
 #include "pb_clock.h"
+#include "pb_opt.h"
 #include "pb_signal.h"
 #include "pb_status.h"
 #include "pb_vehicle.h"
@@ -30,8 +29,6 @@
 #include "portobello_status_t.h"
 #include "portobello_vehicle_speed_t.h"
 
-#define NAMED_BUS_BASE 1000     /* as import-candump: interfaces not named canN */
-#define MAX_NAMED 64
 #define PATH_MAX_WHERE 4200
 #define LOUD_ERRORS 20          /* problems printed one by one; later ones are counted */
 
@@ -45,8 +42,7 @@ typedef struct {
     int64_t problems, frames, speeds;
     int64_t verdicts[CAN_V_COUNT];
     int64_t time_backwards;
-    char names[MAX_NAMED][PB_CANDUMP_IFACE_MAX];
-    int nnames;
+    pb_candump_buses_t buses;           /* --candump's interfaces */
     uint32_t last_dropped;
     int realtime;                       /* live --candump: pace frames by their times */
     int64_t rt_frame0, rt_wall0;
@@ -191,17 +187,6 @@ static void on_can_frame(const pb_msg_t *msg, void *user)
     handle_frame(a, &f, where);
 }
 
-static int bus_of(app_t *a, const char *iface)
-{
-    int n = pb_candump_can_index(iface);
-    if (n >= 0) return n;
-    for (int k = 0; k < a->nnames; k++)
-        if (strcmp(a->names[k], iface) == 0) return NAMED_BUS_BASE + k;
-    if (a->nnames == MAX_NAMED) return -1;
-    strcpy(a->names[a->nnames], iface);
-    return NAMED_BUS_BASE + a->nnames++;
-}
-
 /* --realtime: waits until the frame's time, counted from the first frame. */
 static void pace(app_t *a, int64_t frame_utime)
 {
@@ -237,9 +222,9 @@ static int run_candump(app_t *a, const char *path, pb_err_t *err)
             problem(a, -r < 8 ? reasons[-r] : "line_bad", "%s:%ld:%zu: %s", path, lineno, col, pb_candump_strerror(r));
             continue;
         }
-        int bus = bus_of(a, c.iface);
+        int bus = pb_candump_bus(&a->buses, c.iface, NULL);
         if (bus < 0) {
-            problem(a, "too_many_interfaces", "%s:%ld: more than %d interfaces not named canN", path, lineno, MAX_NAMED);
+            problem(a, "too_many_interfaces", "%s:%ld: more than %d interfaces not named canN", path, lineno, PB_CANDUMP_MAX_NAMED);
             continue;
         }
         can_rx_t f = { .utime = c.utime, .bus = bus, .id = c.id, .extended = c.extended, .rtr = c.rtr,
@@ -271,7 +256,7 @@ static int run_socket(app_t *a, const char *iface, pb_err_t *err)
     int fd = can_socket_open(iface, err);
     if (fd < 0) return -1;
     int bus = pb_candump_can_index(iface);
-    if (bus < 0) bus = NAMED_BUS_BASE;
+    if (bus < 0) bus = PB_CANDUMP_NAMED_BUS_BASE;
     fprintf(stderr, "can: reading %s (bus %d), listen-only\n", iface, bus);
     int rc = 0;
     while (!pb_signal_stop_requested()) {
@@ -303,53 +288,27 @@ int main(int argc, char **argv)
 {
     const char *url = NULL, *in = NULL, *out = NULL, *candump = NULL, *iface = NULL;
     int from_bus = 0;
-    const char *vehicle_path = PB_SOURCE_DIR "/vehicles/prius2017.yaml", *dbc_path = NULL, *checksum = "auto";
+    const char *vehicle_path = PB_SOURCE_DIR "/vehicles/prius2017.yaml", *dbc_path = NULL;
+    static const char *const checksums[] = { "auto", "toyota", "none" };
+    int checksum = 0;
     app_t a = { .frame_channel = "CAN_FRAME", .speed_channel = "VEHICLE_SPEED" };
     can_speed_config_t cfg;
     can_speed_config_default(&cfg);
-    static const struct option opts[] = {
-        { "replay", required_argument, 0, 'r' }, { "out", required_argument, 0, 'o' },
-        { "candump", required_argument, 0, 'c' }, { "iface", required_argument, 0, 'i' },
-        { "vehicle", required_argument, 0, 'v' }, { "dbc", required_argument, 0, 'd' },
-        { "bus", required_argument, 0, 'b' }, { "checksum", required_argument, 0, 'k' },
-        { "yaw-max-age-ms", required_argument, 0, 'y' }, { "lcm-url", required_argument, 0, 'u' },
-        { "realtime", no_argument, 0, 'R' }, { "from-bus", no_argument, 0, 'B' }, { "frame-channel", required_argument, 0, 'F' }, { "speed-channel", required_argument, 0, 'S' },
-        { "help", no_argument, 0, 'h' }, { 0, 0, 0, 0 },
+    const pb_opt_t opts[] = {
+        PB_OPT_STRING("replay", &in), PB_OPT_STRING("out", &out), PB_OPT_STRING("candump", &candump),
+        PB_OPT_STRING("iface", &iface), PB_OPT_STRING("vehicle", &vehicle_path), PB_OPT_STRING("dbc", &dbc_path),
+        PB_OPT_INT("bus", &cfg.bus, -1, 32767), PB_OPT_CHOICE("checksum", &checksum, checksums, 3),
+        PB_OPT_MICROS("yaw-max-age-ms", &cfg.yaw_max_age_us, 0, 1e6, 1000), PB_OPT_STRING("lcm-url", &url),
+        PB_OPT_FLAG("realtime", &a.realtime, 1), PB_OPT_FLAG("from-bus", &from_bus, 1),
+        PB_OPT_STRING("frame-channel", &a.frame_channel), PB_OPT_STRING("speed-channel", &a.speed_channel), PB_OPT_END,
     };
-    int c;
-    long lv;
-    double dv;
-    while ((c = getopt_long(argc, argv, "h", opts, NULL)) != -1) {
-        switch (c) {
-        case 'r': in = optarg; break;
-        case 'o': out = optarg; break;
-        case 'c': candump = optarg; break;
-        case 'i': iface = optarg; break;
-        case 'v': vehicle_path = optarg; break;
-        case 'd': dbc_path = optarg; break;
-        case 'b': if (pb_arg_long("can", "--bus", optarg, -1, 32767, &lv)) return 2; cfg.bus = (int)lv; break;
-        case 'k': checksum = optarg; break;
-        case 'y': if (pb_arg_double("can", "--yaw-max-age-ms", optarg, 0, 1e6, &dv)) return 2;
-                  cfg.yaw_max_age_us = (int64_t)(dv * 1000); break;
-        case 'u': url = optarg; break;
-        case 'R': a.realtime = 1; break;
-        case 'B': from_bus = 1; break;
-        case 'F': a.frame_channel = optarg; break;
-        case 'S': a.speed_channel = optarg; break;
-        case 'h': usage(stdout); return 0;
-        default: usage(stderr); return 2;
-        }
-    }
-    if (optind < argc) { fprintf(stderr, "can: unexpected argument '%s'\n", argv[optind]); usage(stderr); return 2; }
+    int parsed = pb_opt_parse("can", opts, usage, 0, argc, argv);
+    if (parsed >= 0) return parsed;
     if (!!in + !!candump + !!iface + from_bus != 1) { fprintf(stderr, "can: give exactly one of --iface, --candump, --replay, --from-bus\n"); usage(stderr); return 2; }
     if (from_bus && out) { fprintf(stderr, "can: --from-bus publishes to the live bus; --out goes with --candump or --replay\n"); return 2; }
     if (a.realtime && (!candump || out)) { fprintf(stderr, "can: --realtime goes with --candump to the live bus (no --out)\n"); return 2; }
     if (in && !out) { fprintf(stderr, "can: --replay needs --out OUT.lcm\n"); return 2; }
     if (iface && out) { fprintf(stderr, "can: --out goes with --candump or --replay, not --iface\n"); return 2; }
-    if (strcmp(checksum, "auto") && strcmp(checksum, "toyota") && strcmp(checksum, "none")) {
-        fprintf(stderr, "can: --checksum: expected auto, toyota or none, got '%s'\n", checksum);
-        return 2;
-    }
 
     pb_err_t err;
     static pb_vehicle_t veh;
@@ -360,8 +319,8 @@ int main(int argc, char **argv)
     }
     can_dbc_t *dbc = can_dbc_load(dbc_path, &err);
     if (!dbc) { fprintf(stderr, "can: %s\n", err.msg); return 1; }
-    if (!strcmp(checksum, "toyota")) cfg.checksum = CAN_CHECKSUM_TOYOTA;
-    else if (!strcmp(checksum, "auto")) {
+    if (checksum == 1) cfg.checksum = CAN_CHECKSUM_TOYOTA;
+    else if (checksum == 0) {
         char tmp[512];
         snprintf(tmp, sizeof tmp, "%s", dbc_path);
         cfg.checksum = strncmp(basename(tmp), "toyota_", 7) == 0 ? CAN_CHECKSUM_TOYOTA : CAN_CHECKSUM_NONE;
@@ -389,14 +348,7 @@ int main(int argc, char **argv)
     } else {
         rc = run_socket(&a, iface, &err);
     }
-    if (rc != 0) {
-        fprintf(stderr, "can: %s\n", err.msg);
-        pb_status_set_state(a.status, PORTOBELLO_STATUS_T_STATE_ERROR);
-        pb_status_error(a.status, "%s", err.msg);
-    } else {
-        pb_status_set_state(a.status, PORTOBELLO_STATUS_T_STATE_STOPPING);
-    }
-    pb_status_publish(a.status);
+    pb_status_finish(a.status, rc ? err.msg : NULL);
     fprintf(stderr, "can: %lld frames, %lld VEHICLE_SPEED (dbc %s, bus %d, checksum %s): "
             "%lld other bus, %lld unknown id, %lld bad length, %lld bad checksum, %lld error, %lld remote, "
             "%lld time backwards, %lld other problems\n",

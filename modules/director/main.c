@@ -3,7 +3,6 @@
  * POSE (or --pose-channel) + PARTICIPANT_INPUT in; AGENTS (--rate Hz) and
  * SCENARIO_EVENT out; STATUS heartbeat. See docs/director.md. */
 #include <errno.h>
-#include <getopt.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -13,8 +12,8 @@
 
 #include "core/director.h"
 #include "core/agents_msg.h"
-#include "pb_arg.h"
 #include "pb_bus.h"
+#include "pb_opt.h"
 #include "pb_route.h"
 #include "pb_signal.h"
 #include "pb_site.h"
@@ -121,12 +120,7 @@ static void on_pose(const pb_msg_t *msg, void *user)
 {
     app_t *a = user;
     portobello_pose_t p;
-    if (portobello_pose_t_decode(msg->data, 0, msg->len, &p) < 0) {
-        pb_status_count(a->status, "undecodable_pose", 1);
-        pb_status_error(a->status, "%s: message of %d bytes does not decode", msg->channel, msg->len);
-        return;
-    }
-    pb_status_input_time(a->status, msg->channel, p.utime);
+    if (PB_STATUS_DECODE(a->status, msg, portobello_pose_t, &p, "undecodable_pose")) return;
     if (p.status == PORTOBELLO_POSE_T_STATUS_LOST || p.status == PORTOBELLO_POSE_T_STATUS_INITIALIZING) {
         pb_status_count(a->status, "pose_not_tracking", 1);
         return;     /* not a usable pose: it does not refresh the staleness clock either */
@@ -153,12 +147,7 @@ static void on_input(const pb_msg_t *msg, void *user)
 {
     app_t *a = user;
     portobello_participant_input_t in;
-    if (portobello_participant_input_t_decode(msg->data, 0, msg->len, &in) < 0) {
-        pb_status_count(a->status, "undecodable_input", 1);
-        pb_status_error(a->status, "%s: message of %d bytes does not decode", msg->channel, msg->len);
-        return;
-    }
-    pb_status_input_time(a->status, msg->channel, in.utime);
+    if (PB_STATUS_DECODE(a->status, msg, portobello_participant_input_t, &in, "undecodable_input")) return;
     dir_input(a->dir, in.utime, in.input, in.value);
     pb_status_count(a->status, "inputs", 1);
     portobello_participant_input_t_decode_cleanup(&in);
@@ -209,39 +198,19 @@ static int file_exists(const char *p)
 int main(int argc, char **argv)
 {
     const char *url = NULL, *in = NULL, *out = NULL, *site_dir = NULL, *scenario = NULL;
-    char vehicle_path[1100];
-    snprintf(vehicle_path, sizeof vehicle_path, "%s/vehicles/prius2017.yaml", PB_SOURCE_DIR);
+    const char *vehicle_path = PB_SOURCE_DIR "/vehicles/prius2017.yaml";
     app_t a = { .pose_channel = "POSE", .stale_s = 0.5 };
     double rate = 60;
     int check_only = 0;
-    static const struct option opts[] = {
-        { "site", required_argument, 0, 's' }, { "scenario", required_argument, 0, 'c' },
-        { "vehicle", required_argument, 0, 'v' }, { "pose-channel", required_argument, 0, 'p' },
-        { "rate", required_argument, 0, 'R' }, { "stale-s", required_argument, 0, 'S' },
-        { "state", required_argument, 0, 'T' }, { "replay", required_argument, 0, 'r' },
-        { "out", required_argument, 0, 'o' }, { "lcm-url", required_argument, 0, 'u' },
-        { "check", no_argument, 0, 'k' }, { "help", no_argument, 0, 'h' }, { 0, 0, 0, 0 },
+    const pb_opt_t opts[] = {
+        PB_OPT_REQUIRED("site", &site_dir), PB_OPT_REQUIRED("scenario", &scenario),
+        PB_OPT_STRING("vehicle", &vehicle_path), PB_OPT_STRING("pose-channel", &a.pose_channel),
+        PB_OPT_DOUBLE("rate", &rate, 30, 90), PB_OPT_DOUBLE("stale-s", &a.stale_s, 0.05, 60),
+        PB_OPT_STRING("state", &a.state_path), PB_OPT_STRING("replay", &in), PB_OPT_STRING("out", &out),
+        PB_OPT_STRING("lcm-url", &url), PB_OPT_FLAG("check", &check_only, 1), PB_OPT_END,
     };
-    int c;
-    while ((c = getopt_long(argc, argv, "h", opts, NULL)) != -1) {
-        switch (c) {
-        case 's': site_dir = optarg; break;
-        case 'c': scenario = optarg; break;
-        case 'v': snprintf(vehicle_path, sizeof vehicle_path, "%s", optarg); break;
-        case 'p': a.pose_channel = optarg; break;
-        case 'R': if (pb_arg_double("director", "--rate", optarg, 30, 90, &rate)) return 2; break;
-        case 'S': if (pb_arg_double("director", "--stale-s", optarg, 0.05, 60, &a.stale_s)) return 2; break;
-        case 'T': a.state_path = optarg; break;
-        case 'r': in = optarg; break;
-        case 'o': out = optarg; break;
-        case 'u': url = optarg; break;
-        case 'k': check_only = 1; break;
-        case 'h': usage(stdout); return 0;
-        default: usage(stderr); return 2;
-        }
-    }
-    if (optind < argc) { fprintf(stderr, "director: unexpected argument '%s'\n", argv[optind]); usage(stderr); return 2; }
-    if (!site_dir || !scenario) { fprintf(stderr, "director: --site and --scenario are required\n"); usage(stderr); return 2; }
+    int parsed = pb_opt_parse("director", opts, usage, 0, argc, argv);
+    if (parsed >= 0) return parsed;
     if ((in != NULL) != (out != NULL)) { fprintf(stderr, "director: --replay and --out go together\n"); return 2; }
 
     /* Everything is loaded and checked before the bus opens: nothing starts half-configured. */
@@ -304,15 +273,8 @@ int main(int argc, char **argv)
     if (!in) fprintf(stderr, "director: scenario %s on %s, pose from %s\n", a.sc.id, pb_lcm_url(url), a.pose_channel);
 
     int rc = pb_bus_run(a.bus, &err);
-    if (rc != 0) {
-        fprintf(stderr, "director: %s\n", err.msg);
-        pb_status_set_state(a.status, PORTOBELLO_STATUS_T_STATE_ERROR);
-        pb_status_error(a.status, "%s", err.msg);
-    } else {
-        pb_status_set_state(a.status, PORTOBELLO_STATUS_T_STATE_STOPPING);
-    }
     write_state(&a);
-    pb_status_publish(a.status);
+    pb_status_finish(a.status, rc ? err.msg : NULL);
     if (in) fprintf(stderr, "director: %d of %d triggers fired\n", dir_triggers_fired(a.dir), a.sc.ntriggers);
     pb_status_destroy(a.status);
     pb_bus_destroy(a.bus);

@@ -6,7 +6,6 @@
  * rule are in core/gnss_driver.c. */
 #include <errno.h>
 #include <fcntl.h>
-#include <getopt.h>
 #include <math.h>
 #include <poll.h>
 #include <stdarg.h>
@@ -18,10 +17,10 @@
 #include <unistd.h>
 
 #include "gnss_driver.h"
-#include "pb_arg.h"
 #include "pb_bus.h"
 #include "pb_clock.h"
 #include "pb_log.h"
+#include "pb_opt.h"
 #include "pb_signal.h"
 #include "pb_status.h"
 #include "portobello_gnss_fix_t.h"
@@ -299,38 +298,18 @@ int main(int argc, char **argv)
     long baud = 38400, max_payload = 8192;
     double holdoff_s = 2.0, status_s = 1.0;
     app_t a = { .channel = "GNSS_FIX" };
-    static const struct option opts[] = {
-        { "file", required_argument, 0, 'f' }, { "out", required_argument, 0, 'o' },
-        { "device", required_argument, 0, 'd' }, { "baud", required_argument, 0, 'b' },
-        { "lcm-url", required_argument, 0, 'u' }, { "channel", required_argument, 0, 'c' },
-        { "nmea-holdoff", required_argument, 0, 'n' }, { "max-ubx-payload", required_argument, 0, 'm' },
-        { "status-period", required_argument, 0, 's' }, { "quiet", no_argument, 0, 'q' },
-        { "help", no_argument, 0, 'h' }, { 0, 0, 0, 0 },
+    const pb_opt_t opts[] = {
+        PB_OPT_STRING("file", &file), PB_OPT_STRING("out", &out), PB_OPT_STRING("device", &device),
+        PB_OPT_LONG("baud", &baud, 1, 4000000), PB_OPT_STRING("lcm-url", &url), PB_OPT_STRING("channel", &a.channel),
+        PB_OPT_DOUBLE("nmea-holdoff", &holdoff_s, 0, 3600), PB_OPT_LONG("max-ubx-payload", &max_payload, 92, 65535),
+        PB_OPT_DOUBLE("status-period", &status_s, 0.01, 3600), PB_OPT_FLAG("quiet", &a.quiet, 1), PB_OPT_END,
     };
-    int c;
-    while ((c = getopt_long(argc, argv, "h", opts, NULL)) != -1) {
-        switch (c) {
-        case 'f': file = optarg; break;
-        case 'o': out = optarg; break;
-        case 'd': device = optarg; break;
-        case 'b':
-            if (pb_arg_long(PROG, "--baud", optarg, 1, 4000000, &baud)) return 2;
-            if (!baud_constant(baud)) {
-                fprintf(stderr, PROG ": --baud: %ld is not one of 4800 9600 19200 38400 57600 115200 230400 460800 921600\n", baud);
-                return 2;
-            }
-            break;
-        case 'u': url = optarg; break;
-        case 'c': a.channel = optarg; break;
-        case 'n': if (pb_arg_double(PROG, "--nmea-holdoff", optarg, 0, 3600, &holdoff_s)) return 2; break;
-        case 'm': if (pb_arg_long(PROG, "--max-ubx-payload", optarg, 92, 65535, &max_payload)) return 2; break;
-        case 's': if (pb_arg_double(PROG, "--status-period", optarg, 0.01, 3600, &status_s)) return 2; break;
-        case 'q': a.quiet = 1; break;
-        case 'h': usage(stdout); return 0;
-        default: usage(stderr); return 2;
-        }
+    int parsed = pb_opt_parse(PROG, opts, usage, 0, argc, argv);
+    if (parsed >= 0) return parsed;
+    if (!baud_constant(baud)) {
+        fprintf(stderr, PROG ": --baud: %ld is not one of 4800 9600 19200 38400 57600 115200 230400 460800 921600\n", baud);
+        return 2;
     }
-    if (optind < argc) { fprintf(stderr, PROG ": unexpected argument '%s'\n", argv[optind]); usage(stderr); return 2; }
     if (!!file + !!device != 1) { fprintf(stderr, PROG ": give exactly one of --file and --device\n"); usage(stderr); return 2; }
     if (out && !file) { fprintf(stderr, PROG ": --out goes with --file\n"); return 2; }
 

@@ -1,6 +1,5 @@
 /* lab_vehicle: the in-lab twin of the study car. The shell: options, site and
  * vehicle files, the live / replay bus or the offline log writer. */
-#include <getopt.h>
 #include <limits.h>
 #include <math.h>
 #include <poll.h>
@@ -10,9 +9,9 @@
 #include <unistd.h>
 
 #include "lab_vehicle/core/lab_vehicle.h"
-#include "pb_arg.h"
 #include "pb_bus.h"
 #include "pb_log.h"
+#include "pb_opt.h"
 #include "pb_route.h"
 #include "pb_signal.h"
 #include "pb_site.h"
@@ -226,12 +225,7 @@ static void on_input(const pb_msg_t *msg, void *user)
 {
     app_t *a = user;
     portobello_participant_input_t in;
-    if (portobello_participant_input_t_decode(msg->data, 0, msg->len, &in) < 0) {
-        pb_status_count(a->status, "undecodable_PARTICIPANT_INPUT", 1);
-        pb_status_error(a->status, "PARTICIPANT_INPUT: message of %d bytes does not decode", msg->len);
-        return;
-    }
-    pb_status_input_time(a->status, msg->channel, in.utime);
+    if (PB_STATUS_DECODE(a->status, msg, portobello_participant_input_t, &in, "undecodable_PARTICIPANT_INPUT")) return;
     int r = lv_on_input(a->lv, in.utime, in.input, in.value);
     if (r != LV_INPUT_ACCEPTED) {
         char name[64];
@@ -249,12 +243,7 @@ static void on_agents(const pb_msg_t *msg, void *user)
 {
     app_t *a = user;
     portobello_agents_t m;
-    if (portobello_agents_t_decode(msg->data, 0, msg->len, &m) < 0) {
-        pb_status_count(a->status, "undecodable_AGENTS", 1);
-        pb_status_error(a->status, "AGENTS: message of %d bytes does not decode", msg->len);
-        return;
-    }
-    pb_status_input_time(a->status, msg->channel, m.utime);
+    if (PB_STATUS_DECODE(a->status, msg, portobello_agents_t, &m, "undecodable_AGENTS")) return;
     lv_agent_t *ag = calloc(m.nagents + 1, sizeof *ag);
     for (int i = 0; i < m.nagents; i++) {
         ag[i].id = m.agents[i].id;
@@ -293,14 +282,8 @@ static int run_bus(lab_vehicle_t *lv, const char *url, const char *in, const cha
     if (!in) fprintf(stderr, PROG ": driving on %s; POSE at 100 Hz;%s Ctrl-C stops\n", pb_lcm_url(url),
                      keyboard ? " Enter = proceed;" : "");
     int rc = pb_bus_run(bus, &err);
-    if (rc) {
-        fprintf(stderr, PROG ": %s\n", err.msg);
-        pb_status_set_state(a.status, PORTOBELLO_STATUS_T_STATE_ERROR);
-        pb_status_error(a.status, "%s", err.msg);
-    } else if (!a.failed) {
-        pb_status_set_state(a.status, PORTOBELLO_STATUS_T_STATE_STOPPING);
-    }
-    pb_status_publish(a.status);
+    if (rc || !a.failed) pb_status_finish(a.status, rc ? err.msg : NULL);
+    else pb_status_publish(a.status);   /* the failure's STATUS is set */
     pb_status_destroy(a.status);
     pb_bus_destroy(bus);
     return rc || a.failed ? 1 : 0;
@@ -360,83 +343,51 @@ static int run_offline(lab_vehicle_t *lv, const char *path, int64_t start_utime,
     return rc;
 }
 
+/* --proceed-input: a word that fits lv_config_t.proceed_input */
+static int parse_proceed_input(const char *prog, const char *arg, void *var)
+{
+    size_t cap = sizeof ((lv_config_t *)0)->proceed_input;
+    if (!*arg || strlen(arg) >= cap) {
+        fprintf(stderr, "%s: --proceed-input: expected 1 to %zu characters, got '%s'\n", prog, cap - 1, arg);
+        return -1;
+    }
+    snprintf(var, cap, "%s", arg);
+    return 0;
+}
+
 int main(int argc, char **argv)
 {
     const char *site_dir = PB_SOURCE_DIR "/maps/default", *veh_path = PB_SOURCE_DIR "/vehicles/prius2017.yaml";
-    const char *profile = "normal", *out = NULL, *in = NULL, *url = NULL;
-    double auto_proceed = 2.0, duration = 0;
+    const char *out = NULL, *in = NULL, *url = NULL;
+    double auto_proceed = -1, duration = 0;   /* auto_proceed < 0: not given (2 s offline) */
     long laps = -1, start_utime = DEFAULT_START_UTIME;
     int ground_truth = 1, quiet = 0, keyboard = 0;
     lv_config_t cfg;
     lv_config_default(&cfg);
-    double stop_gap = cfg.stop_gap_m;
-    enum { O_SITE = 256, O_VEH, O_PROF, O_OUT, O_AUTO, O_DUR, O_LAPS, O_UTIME, O_START_S, O_DELAY, O_GAP,
-           O_PROCEED, O_MARGIN, O_ATIMEOUT, O_REQ, O_NOGT, O_REPLAY, O_URL, O_QUIET, O_KEYBOARD, O_HORIZON };
-    static const struct option opts[] = {
-        { "site", required_argument, 0, O_SITE }, { "vehicle", required_argument, 0, O_VEH },
-        { "speed-profile", required_argument, 0, O_PROF }, { "out", required_argument, 0, O_OUT },
-        { "auto-proceed", required_argument, 0, O_AUTO }, { "duration", required_argument, 0, O_DUR },
-        { "laps", required_argument, 0, O_LAPS }, { "start-utime", required_argument, 0, O_UTIME },
-        { "start-s", required_argument, 0, O_START_S }, { "depart-delay", required_argument, 0, O_DELAY },
-        { "stop-gap", required_argument, 0, O_GAP }, { "proceed-input", required_argument, 0, O_PROCEED },
-        { "crossing-margin", required_argument, 0, O_MARGIN }, { "agents-timeout", required_argument, 0, O_ATIMEOUT },
-        { "require-agents", no_argument, 0, O_REQ }, { "no-ground-truth", no_argument, 0, O_NOGT },
-        { "replay", required_argument, 0, O_REPLAY }, { "lcm-url", required_argument, 0, O_URL },
-        { "quiet", no_argument, 0, O_QUIET }, { "keyboard", no_argument, 0, O_KEYBOARD },
-        { "crossing-horizon", required_argument, 0, O_HORIZON }, { "help", no_argument, 0, 'h' }, { 0, 0, 0, 0 } };
-    int c, auto_given = 0;
-    while ((c = getopt_long(argc, argv, "h", opts, NULL)) != -1) {
-        switch (c) {
-        case O_SITE: site_dir = optarg; break;
-        case O_VEH: veh_path = optarg; break;
-        case O_PROF: profile = optarg; break;
-        case O_OUT: out = optarg; break;
-        case O_AUTO:
-            if (pb_arg_double(PROG, "auto-proceed", optarg, 0, 86400, &auto_proceed)) return 2;
-            auto_given = 1;
-            break;
-        case O_DUR: if (pb_arg_double(PROG, "duration", optarg, 0.01, 7 * 86400, &duration)) return 2; break;
-        case O_LAPS: if (pb_arg_long(PROG, "laps", optarg, 0, 100000, &laps)) return 2; break;
-        case O_UTIME: if (pb_arg_long(PROG, "start-utime", optarg, 0, LONG_MAX / 2, &start_utime)) return 2; break;
-        case O_START_S: if (pb_arg_double(PROG, "start-s", optarg, -1e7, 1e7, &cfg.start_s)) return 2; break;
-        case O_DELAY: if (pb_arg_double(PROG, "depart-delay", optarg, 0, 86400, &cfg.depart_delay_s)) return 2; break;
-        case O_GAP: if (pb_arg_double(PROG, "stop-gap", optarg, -2, 20, &stop_gap)) return 2; break;
-        case O_PROCEED:
-            if (!*optarg || strlen(optarg) >= sizeof cfg.proceed_input) {
-                fprintf(stderr, PROG ": --proceed-input: expected 1 to %zu characters, got '%s'\n", sizeof cfg.proceed_input - 1, optarg);
-                return 2;
-            }
-            snprintf(cfg.proceed_input, sizeof cfg.proceed_input, "%s", optarg);
-            break;
-        case O_MARGIN: if (pb_arg_double(PROG, "crossing-margin", optarg, 0, 100, &cfg.crossing_margin_m)) return 2; break;
-        case O_ATIMEOUT: if (pb_arg_double(PROG, "agents-timeout", optarg, 0.001, 86400, &cfg.agents_timeout_s)) return 2; break;
-        case O_REQ: cfg.require_agents = 1; break;
-        case O_NOGT: ground_truth = 0; break;
-        case O_REPLAY: in = optarg; break;
-        case O_URL: url = optarg; break;
-        case O_QUIET: quiet = 1; break;
-        case O_KEYBOARD: keyboard = 1; break;
-        case O_HORIZON: if (pb_arg_double(PROG, "crossing-horizon", optarg, 0, 60, &cfg.crossing_horizon_s)) return 2; break;
-        case 'h': usage(stdout); return 0;
-        default: usage(stderr); return 2;
-        }
-    }
-    if (optind < argc) { fprintf(stderr, PROG ": unexpected argument '%s' (see --help)\n", argv[optind]); return 2; }
+    const pb_opt_t opts[] = {
+        PB_OPT_STRING("site", &site_dir), PB_OPT_STRING("vehicle", &veh_path), PB_OPT_CHOICE("speed-profile", &cfg.profile, pb_profile_names, PB_PROFILE_COUNT),
+        PB_OPT_STRING("out", &out), PB_OPT_DOUBLE("auto-proceed", &auto_proceed, 0, 86400),
+        PB_OPT_DOUBLE("duration", &duration, 0.01, 7 * 86400), PB_OPT_LONG("laps", &laps, 0, 100000),
+        PB_OPT_LONG("start-utime", &start_utime, 0, LONG_MAX / 2), PB_OPT_DOUBLE("start-s", &cfg.start_s, -1e7, 1e7),
+        PB_OPT_DOUBLE("depart-delay", &cfg.depart_delay_s, 0, 86400), PB_OPT_DOUBLE("stop-gap", &cfg.stop_gap_m, -2, 20),
+        PB_OPT_CALL("proceed-input", parse_proceed_input, cfg.proceed_input),
+        PB_OPT_DOUBLE("crossing-margin", &cfg.crossing_margin_m, 0, 100),
+        PB_OPT_DOUBLE("agents-timeout", &cfg.agents_timeout_s, 0.001, 86400),
+        PB_OPT_FLAG("require-agents", &cfg.require_agents, 1), PB_OPT_FLAG("no-ground-truth", &ground_truth, 0),
+        PB_OPT_STRING("replay", &in), PB_OPT_STRING("lcm-url", &url), PB_OPT_FLAG("quiet", &quiet, 1),
+        PB_OPT_FLAG("keyboard", &keyboard, 1), PB_OPT_DOUBLE("crossing-horizon", &cfg.crossing_horizon_s, 0, 60),
+        PB_OPT_END,
+    };
+    int parsed = pb_opt_parse(PROG, opts, usage, 0, argc, argv);
+    if (parsed >= 0) return parsed;
     if (in && !out) { fprintf(stderr, PROG ": --replay needs --out OUT.lcm\n"); return 2; }
     int offline = out && !in;
-    if (auto_given && !offline) { fprintf(stderr, PROG ": --auto-proceed is for the offline drive (--out LOG without --replay)\n"); return 2; }
+    if (auto_proceed >= 0 && !offline) { fprintf(stderr, PROG ": --auto-proceed is for the offline drive (--out LOG without --replay)\n"); return 2; }
     if (keyboard && (offline || in)) { fprintf(stderr, PROG ": --keyboard is for the live bus\n"); return 2; }
     if (offline && url) { fprintf(stderr, PROG ": --lcm-url has no effect offline (--out without --replay)\n"); return 2; }
     if (offline && duration > 0 && laps >= 0) { fprintf(stderr, PROG ": --duration and --laps exclude each other offline\n"); return 2; }
     if (offline && laps == 0 && duration <= 0) { fprintf(stderr, PROG ": --laps 0 offline never ends; give --duration S\n"); return 2; }
-    cfg.profile = -1;
-    for (int i = 0; i < PB_PROFILE_COUNT; i++)
-        if (!strcmp(profile, pb_profile_names[i])) cfg.profile = i;
-    if (cfg.profile < 0) {
-        fprintf(stderr, PROG ": --speed-profile: expected cautious, normal or aggressive, got '%s'\n", profile);
-        return 2;
-    }
-    cfg.stop_gap_m = stop_gap;
+    if (auto_proceed < 0) auto_proceed = 2.0;
     cfg.laps = laps >= 0 ? (int)laps : offline && duration <= 0 ? 1 : 0;
 
     pb_err_t err;

@@ -2,7 +2,6 @@
  *   localizer --site SITE_DIR [--replay IN.lcm --out OUT.lcm] [--initial-pose x,y,z,r,p,y]
  * Thin shell around core/localizer (the pipeline): options, map and vehicle files,
  * subscribe, decode, publish POSE / POSE_PREDICTED, STATUS heartbeat, signals. */
-#include <getopt.h>
 #include <sys/stat.h>
 #include <time.h>
 
@@ -16,9 +15,9 @@
 
 #include "core/localizer.h"
 #include "map_source.h"
-#include "pb_arg.h"
 #include "pb_bus.h"
 #include "pb_clock.h"
+#include "pb_opt.h"
 #include "pb_signal.h"
 #include "pb_site.h"
 #include "pb_status.h"
@@ -209,12 +208,6 @@ static void record_sweep(app_t *a, double ms)
                 d.gnss_residual_m);
 }
 
-static void undecodable(app_t *a, const pb_msg_t *m)
-{
-    pb_status_count(a->status, "undecodable", 1);
-    pb_status_error(a->status, "%s: message of %d bytes does not decode", m->channel, m->len);
-}
-
 /* A sensor string "VEHICLE:NAME" (import-scans) says whose base frame the scans and
  * GROUND_TRUTH are in: another vehicle than ours is an error naming both, not a silent
  * misfit; the run stops. A plain name (drivers, simdrive) is taken as ours. */
@@ -251,7 +244,7 @@ static void on_scan(const pb_msg_t *m, void *user)
     app_t *a = (app_t *)user;
     double t0 = pb_clock_monotonic_ms();
     portobello_lidar_scan_t s;
-    if (portobello_lidar_scan_t_decode(m->data, 0, m->len, &s) < 0) { undecodable(a, m); return; }
+    if (portobello_lidar_scan_t_decode(m->data, 0, m->len, &s) < 0) { pb_status_undecodable(a->status, "undecodable", m); return; }
     /* the sweep's time is its end: the newest measurement in it */
     int32_t last_off = 0;
     for (int i = 0; i < s.cols; i++) last_off = std::max(last_off, s.col_offset_us[i]);
@@ -267,7 +260,6 @@ static void on_scan(const pb_msg_t *m, void *user)
         portobello_lidar_scan_t_decode_cleanup(&s);
         return;
     }
-    pb_err_t err;
     /* every column_stride-th column of a range image: the beam model is exact for the
      * reduced image (encoder angle c/cols is unchanged), and registration keeps only
      * ~2000 voxel centroids of a sweep anyway */
@@ -291,20 +283,7 @@ static void on_scan(const pb_msg_t *m, void *user)
         red.col_offset_us = a->red_off.data();
         red.nsignal = 0;
     }
-    int n = pb_scan_points(&red, &a->pts, &err);
-    if (n < 0) {
-        pb_status_count(a->status, "scan_invalid", 1);
-        pb_status_error(a->status, "%s (seq %d)", err.msg, s.seq);
-        a->pts.n = 0;
-    } else if (s.npoints > 0 && n < s.npoints) {
-        int bad = 0;
-        for (int i = 0; i < s.npoints; i++)
-            if (!std::isfinite(s.x[i]) || !std::isfinite(s.y[i]) || !std::isfinite(s.z[i])) bad++;
-        if (bad) {
-            pb_status_count(a->status, "scan_nonfinite_points", bad);
-            pb_status_error(a->status, "LIDAR_SCAN seq %d: %d NaN/inf points dropped", s.seq, bad);
-        }
-    }
+    if (pb_status_scan_points(a->status, &red, &a->pts) < 0) a->pts.n = 0;
     int64_t utime = s.utime;
     if (!frame_matches(a, &s)) { portobello_lidar_scan_t_decode_cleanup(&s); return; }
     portobello_lidar_scan_t_decode_cleanup(&s);
@@ -319,74 +298,66 @@ static void on_scan(const pb_msg_t *m, void *user)
     flush(a, t0);
 }
 
-static void on_imu(const pb_msg_t *m, void *user)
+/* The handlers of small messages: pb_status_take, the input clock, and what came of the
+ * message published (with its cost). */
+template <typename T, typename Use>
+static void take(const pb_msg_t *m, void *user, int (*decode)(const void *, int, int, T *), int (*cleanup)(T *), Use use)
 {
     app_t *a = (app_t *)user;
     double t0 = pb_clock_monotonic_ms();
-    portobello_imu_t s;
-    if (portobello_imu_t_decode(m->data, 0, m->len, &s) < 0) { undecodable(a, m); return; }
-    input_time(a, m->channel, s.utime);
-    if (a->use_imu)
-        localizer_imu(a->L, s.utime, Vec3(s.accel[0], s.accel[1], s.accel[2]), Vec3(s.gyro[0], s.gyro[1], s.gyro[2]), &a->out);
-    portobello_imu_t_decode_cleanup(&s);
-    flush(a, t0);
+    auto clocked = [&](const T &s) { input_time(a, m->channel, s.utime); use(a, s); };
+    if (pb_status_take(a->status, m, decode, cleanup, clocked) == 0) flush(a, t0);
+}
+
+static void on_imu(const pb_msg_t *m, void *user)
+{
+    take(m, user, portobello_imu_t_decode, portobello_imu_t_decode_cleanup, [](app_t *a, const portobello_imu_t &s) {
+        if (a->use_imu)
+            localizer_imu(a->L, s.utime, Vec3(s.accel[0], s.accel[1], s.accel[2]), Vec3(s.gyro[0], s.gyro[1], s.gyro[2]), &a->out);
+    });
 }
 
 static void on_speed(const pb_msg_t *m, void *user)
 {
-    app_t *a = (app_t *)user;
-    double t0 = pb_clock_monotonic_ms();
-    portobello_vehicle_speed_t s;
-    if (portobello_vehicle_speed_t_decode(m->data, 0, m->len, &s) < 0) { undecodable(a, m); return; }
-    input_time(a, m->channel, s.utime);
-    if (a->use_speed) localizer_speed(a->L, s.utime, s.speed_mps, &a->out);
-    portobello_vehicle_speed_t_decode_cleanup(&s);
-    flush(a, t0);
+    take(m, user, portobello_vehicle_speed_t_decode, portobello_vehicle_speed_t_decode_cleanup,
+         [](app_t *a, const portobello_vehicle_speed_t &s) {
+             if (a->use_speed) localizer_speed(a->L, s.utime, s.speed_mps, &a->out);
+         });
 }
 
 static void on_gnss(const pb_msg_t *m, void *user)
 {
-    app_t *a = (app_t *)user;
-    double t0 = pb_clock_monotonic_ms();
-    portobello_gnss_fix_t s;
-    if (portobello_gnss_fix_t_decode(m->data, 0, m->len, &s) < 0) { undecodable(a, m); return; }
-    input_time(a, m->channel, s.utime);
-    if (a->use_gnss) {
-        gnss_in_t g;
-        g.utime = s.utime; g.fix_type = s.fix_type; g.lat_deg = s.lat_deg; g.lon_deg = s.lon_deg; g.alt_m = s.alt_m;
-        g.h_acc_m = s.h_acc_m; g.speed_mps = s.speed_mps; g.heading_deg = s.heading_deg; g.heading_acc_deg = s.heading_acc_deg;
-        if (a->geo && s.fix_type > 0 && std::isfinite(s.lat_deg) && std::isfinite(s.lon_deg)) {
-            double xyz[3];
-            pb_geo_wgs84_to_map(a->geo, s.lat_deg, s.lon_deg, s.alt_m, xyz);
-            int st = localizer_status(a->L);
-            if (st == ST_INITIALIZING || st == ST_LOST) page_map(a, xyz[0], xyz[1]);
+    take(m, user, portobello_gnss_fix_t_decode, portobello_gnss_fix_t_decode_cleanup, [](app_t *a, const portobello_gnss_fix_t &s) {
+        if (a->use_gnss) {
+            gnss_in_t g;
+            g.utime = s.utime; g.fix_type = s.fix_type; g.lat_deg = s.lat_deg; g.lon_deg = s.lon_deg; g.alt_m = s.alt_m;
+            g.h_acc_m = s.h_acc_m; g.speed_mps = s.speed_mps; g.heading_deg = s.heading_deg; g.heading_acc_deg = s.heading_acc_deg;
+            if (a->geo && s.fix_type > 0 && std::isfinite(s.lat_deg) && std::isfinite(s.lon_deg)) {
+                double xyz[3];
+                pb_geo_wgs84_to_map(a->geo, s.lat_deg, s.lon_deg, s.alt_m, xyz);
+                int st = localizer_status(a->L);
+                if (st == ST_INITIALIZING || st == ST_LOST) page_map(a, xyz[0], xyz[1]);
+            }
+            localizer_gnss(a->L, g, &a->out);
         }
-        localizer_gnss(a->L, g, &a->out);
-    }
-    portobello_gnss_fix_t_decode_cleanup(&s);
-    flush(a, t0);
+    });
 }
 
 static void on_initial_pose(const pb_msg_t *m, void *user)
 {
-    app_t *a = (app_t *)user;
-    double t0 = pb_clock_monotonic_ms();
-    portobello_pose_t s;
-    if (portobello_pose_t_decode(m->data, 0, m->len, &s) < 0) { undecodable(a, m); return; }
-    input_time(a, m->channel, s.utime);
-    Eigen::Quaterniond q(s.orientation[0], s.orientation[1], s.orientation[2], s.orientation[3]);
-    if (!(q.norm() > 0.5 && q.norm() < 1.5)) {
-        pb_status_count(a->status, "initial_pose_invalid", 1);
-        pb_status_error(a->status, "INITIAL_POSE: orientation is not a unit quaternion; ignored");
-    } else {
-        Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-        T.linear() = q.normalized().toRotationMatrix();
-        T.translation() = Vec3(s.position[0], s.position[1], s.position[2]);
-        page_map(a, T.translation().x(), T.translation().y());
-        localizer_initial_pose(a->L, s.utime, T, &a->out);
-    }
-    portobello_pose_t_decode_cleanup(&s);
-    flush(a, t0);
+    take(m, user, portobello_pose_t_decode, portobello_pose_t_decode_cleanup, [](app_t *a, const portobello_pose_t &s) {
+        Eigen::Quaterniond q(s.orientation[0], s.orientation[1], s.orientation[2], s.orientation[3]);
+        if (!(q.norm() > 0.5 && q.norm() < 1.5)) {
+            pb_status_count(a->status, "initial_pose_invalid", 1);
+            pb_status_error(a->status, "INITIAL_POSE: orientation is not a unit quaternion; ignored");
+        } else {
+            Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+            T.linear() = q.normalized().toRotationMatrix();
+            T.translation() = Vec3(s.position[0], s.position[1], s.position[2]);
+            page_map(a, T.translation().x(), T.translation().y());
+            localizer_initial_pose(a->L, s.utime, T, &a->out);
+        }
+    });
 }
 
 static void on_tick(int64_t now, void *user)
@@ -443,69 +414,41 @@ static int fail_start(pb_bus_t *bus, pb_status_t *st, const char *msg)
     return 1;
 }
 
+/* --initial-pose x,y,z,roll,pitch,yaw (m, degrees) */
+static int parse_initial_pose(const char *prog, const char *arg, void *var)
+{
+    localizer_config_t *cfg = (localizer_config_t *)var;
+    if (parse_pose(arg, cfg->initial_pose) != 0) {
+        fprintf(stderr, "%s: --initial-pose: expected x,y,z,roll,pitch,yaw (6 numbers), got '%s'\n", prog, arg);
+        return -1;
+    }
+    for (int i = 3; i < 6; i++) cfg->initial_pose[i] *= M_PI / 180;
+    cfg->has_initial_pose = true;
+    return 0;
+}
+
 int main(int argc, char **argv)
 {
     const char *url = nullptr, *in = nullptr, *outp = nullptr, *stats = nullptr;
-    std::string site = std::string(PB_SOURCE_DIR) + "/maps/default";
-    std::string vehicle = std::string(PB_SOURCE_DIR) + "/vehicles/prius2017.yaml";
+    const char *site_arg = PB_SOURCE_DIR "/maps/default", *vehicle_arg = PB_SOURCE_DIR "/vehicles/prius2017.yaml";
     localizer_config_t cfg;
     pb_reg_config_default(&cfg.reg);
     app_t a;
-    static const struct option opts[] = {
-        { "site", required_argument, 0, 's' }, { "vehicle", required_argument, 0, 'v' },
-        { "replay", required_argument, 0, 'r' }, { "out", required_argument, 0, 'o' },
-        { "lcm-url", required_argument, 0, 'u' }, { "initial-pose", required_argument, 0, 'i' },
-        { "no-imu", no_argument, 0, 'I' }, { "no-speed", no_argument, 0, 'S' }, { "no-gnss", no_argument, 0, 'G' },
-        { "stats", required_argument, 0, 't' }, { "column-stride", required_argument, 0, 'k' }, { "verbose", no_argument, 0, 'V' },
-        { "lidar-lost-s", required_argument, 0, 'L' }, { "no-global-search", no_argument, 0, 'g' },
-        { "map-radius", required_argument, 0, 'R' },
-        { "help", no_argument, 0, 'h' }, { 0, 0, 0, 0 },
-    };
-    int c;
     pb_tiles_config_t tiles_cfg;
     pb_tiles_config_default(&tiles_cfg);
-    while ((c = getopt_long(argc, argv, "h", opts, nullptr)) != -1) {
-        switch (c) {
-        case 's': site = optarg; break;
-        case 'v': vehicle = optarg; break;
-        case 'r': in = optarg; break;
-        case 'o': outp = optarg; break;
-        case 'u': url = optarg; break;
-        case 'i':
-            if (parse_pose(optarg, cfg.initial_pose) != 0) {
-                fprintf(stderr, "localizer: --initial-pose: expected x,y,z,roll,pitch,yaw (6 numbers), got '%s'\n", optarg);
-                return 2;
-            }
-            for (int i = 3; i < 6; i++) cfg.initial_pose[i] *= M_PI / 180;
-            cfg.has_initial_pose = true;
-            break;
-        case 'I': a.use_imu = false; break;
-        case 'S': a.use_speed = false; break;
-        case 'G': a.use_gnss = false; break;
-        case 't': stats = optarg; break;
-        case 'k': {
-            long v;
-            if (pb_arg_long("localizer", "--column-stride", optarg, 1, 16, &v) != 0) return 2;
-            a.column_stride = (int)v;
-            break;
-        }
-        case 'V': a.verbose = true; break;
-        case 'L': {
-            double v;
-            if (pb_arg_double("localizer", "--lidar-lost-s", optarg, 0.5, 3600, &v) != 0) return 2;
-            cfg.lidar_lost_us = (int64_t)(v * 1e6);
-            break;
-        }
-        case 'g': cfg.global_search = false; break;
-        case 'R':
-            if (pb_arg_double("localizer", "--map-radius", optarg, 90, 1e6, &tiles_cfg.load_radius_m) != 0) return 2;
-            tiles_cfg.keep_radius_m = tiles_cfg.load_radius_m + 40;   /* hysteresis: no reload at a tile's edge */
-            break;
-        case 'h': usage(stdout); return 0;
-        default: usage(stderr); return 2;
-        }
-    }
-    if (optind < argc) { fprintf(stderr, "localizer: unexpected argument '%s'\n", argv[optind]); usage(stderr); return 2; }
+    const pb_opt_t opts[] = {
+        PB_OPT_STRING("site", &site_arg), PB_OPT_STRING("vehicle", &vehicle_arg), PB_OPT_STRING("replay", &in),
+        PB_OPT_STRING("out", &outp), PB_OPT_STRING("lcm-url", &url), PB_OPT_CALL("initial-pose", parse_initial_pose, &cfg),
+        PB_OPT_BOOL("no-imu", &a.use_imu, 0), PB_OPT_BOOL("no-speed", &a.use_speed, 0), PB_OPT_BOOL("no-gnss", &a.use_gnss, 0),
+        PB_OPT_STRING("stats", &stats), PB_OPT_INT("column-stride", &a.column_stride, 1, 16),
+        PB_OPT_BOOL("verbose", &a.verbose, 1), PB_OPT_MICROS("lidar-lost-s", &cfg.lidar_lost_us, 0.5, 3600, 1000000),
+        PB_OPT_BOOL("no-global-search", &cfg.global_search, 0), PB_OPT_DOUBLE("map-radius", &tiles_cfg.load_radius_m, 90, 1e6),
+        PB_OPT_END,
+    };
+    int parsed = pb_opt_parse("localizer", opts, usage, 0, argc, argv);
+    if (parsed >= 0) return parsed;
+    tiles_cfg.keep_radius_m = tiles_cfg.load_radius_m + 40;   /* hysteresis: no reload at a tile's edge */
+    const std::string site = site_arg, vehicle = vehicle_arg;
     if ((in != nullptr) != (outp != nullptr)) { fprintf(stderr, "localizer: --replay and --out go together\n"); return 2; }
 
     pb_err_t err;
@@ -587,14 +530,10 @@ int main(int argc, char **argv)
     }
     if (a.frame_error) {
         rc = -1;   /* the STATUS saying why is set */
-    } else if (rc != 0) {
-        fprintf(stderr, "localizer: %s\n", err.msg);
-        pb_status_set_state(a.status, PORTOBELLO_STATUS_T_STATE_ERROR);
-        pb_status_error(a.status, "%s", err.msg);
+        pb_status_publish(a.status);
     } else {
-        pb_status_set_state(a.status, PORTOBELLO_STATUS_T_STATE_STOPPING);
+        pb_status_finish(a.status, rc ? err.msg : NULL);
     }
-    pb_status_publish(a.status);
     fprintf(stderr, "localizer: %zu sweeps, %lld POSE, %lld POSE_PREDICTED, sweep latency p50 %.1f ms p99 %.1f ms, final status %s\n",
             a.latency_ms.size(), (long long)a.poses, (long long)a.predicted, percentile(a.latency_ms, 0.5),
             percentile(a.latency_ms, 0.99), localizer_status_name(localizer_status(a.L)));

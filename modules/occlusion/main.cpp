@@ -2,7 +2,6 @@
  *   occlusion [--replay IN.lcm --out OUT.lcm] [--pose-channel CH] [--vehicle FILE]
  * Thin shell around core/occlusion: options, vehicle file, subscribe, decode, publish
  * OCCLUSION, STATUS heartbeat, signals. */
-#include <getopt.h>
 #include <time.h>
 
 #include <algorithm>
@@ -14,8 +13,8 @@
 
 #include "core/occlusion.h"
 #include "occ_message.h"
-#include "pb_arg.h"
 #include "pb_bus.h"
+#include "pb_opt.h"
 #include "pb_signal.h"
 #include "pb_status.h"
 #include "pb_vehicle.h"
@@ -65,12 +64,6 @@ static void usage(FILE *f)
             PB_DEFAULT_LCM_URL, PB_SOURCE_DIR);
 }
 
-static void undecodable(app_t *a, const pb_msg_t *m)
-{
-    pb_status_count(a->status, "undecodable", 1);
-    pb_status_error(a->status, "%s: message of %d bytes does not decode", m->channel, m->len);
-}
-
 /* Publishes what the core produced and reports its events. */
 static void flush(app_t *a)
 {
@@ -106,80 +99,61 @@ static void flush(app_t *a)
 static void on_scan(const pb_msg_t *m, void *user)
 {
     app_t *a = (app_t *)user;
-    portobello_lidar_scan_t s;
-    if (portobello_lidar_scan_t_decode(m->data, 0, m->len, &s) < 0) { undecodable(a, m); return; }
-    pb_status_input_time(a->status, m->channel, s.utime);
-    pb_err_t err;
-    int n = pb_scan_points(&s, &a->pts, &err);
-    if (n < 0) {
-        pb_status_count(a->status, "scan_invalid", 1);
-        pb_status_error(a->status, "%s (seq %d)", err.msg, s.seq);
-    } else {
-        int bad = 0;
-        for (int i = 0; i < s.npoints; i++)
-            if (!std::isfinite(s.x[i]) || !std::isfinite(s.y[i]) || !std::isfinite(s.z[i])) bad++;
-        if (bad) {
-            pb_status_count(a->status, "scan_nonfinite_points", bad);
-            pb_status_error(a->status, "LIDAR_SCAN seq %d: %d NaN/inf points dropped", s.seq, bad);
-        }
-        occlusion_scan(a->occ, s.utime, &a->pts, &a->out, &a->ev);
-    }
-    portobello_lidar_scan_t_decode_cleanup(&s);
-    flush(a);
+    pb_status_take(a->status, m, portobello_lidar_scan_t_decode, portobello_lidar_scan_t_decode_cleanup,
+                   [a](const portobello_lidar_scan_t &s) {
+                       if (pb_status_scan_points(a->status, &s, &a->pts) >= 0)
+                           occlusion_scan(a->occ, s.utime, &a->pts, &a->out, &a->ev);
+                       flush(a);
+                   });
 }
 
 static void on_pose(const pb_msg_t *m, void *user)
 {
     app_t *a = (app_t *)user;
-    portobello_pose_t s;
-    if (portobello_pose_t_decode(m->data, 0, m->len, &s) < 0) { undecodable(a, m); return; }
-    pb_status_input_time(a->status, m->channel, s.utime);
-    occ_pose_in_t p;
-    p.utime = s.utime;
-    memcpy(p.pos, s.position, sizeof p.pos);
-    memcpy(p.q, s.orientation, sizeof p.q);
-    memcpy(p.vel, s.velocity, sizeof p.vel);
-    p.usable = s.status == PORTOBELLO_POSE_T_STATUS_TRACKING || s.status == PORTOBELLO_POSE_T_STATUS_DEGRADED;
-    if (!p.usable) pb_status_count(a->status, "pose_not_tracking", 1);
-    occlusion_pose(a->occ, &p, &a->out, &a->ev);
-    portobello_pose_t_decode_cleanup(&s);
-    flush(a);
+    pb_status_take(a->status, m, portobello_pose_t_decode, portobello_pose_t_decode_cleanup, [a](const portobello_pose_t &s) {
+        occ_pose_in_t p;
+        p.utime = s.utime;
+        memcpy(p.pos, s.position, sizeof p.pos);
+        memcpy(p.q, s.orientation, sizeof p.q);
+        memcpy(p.vel, s.velocity, sizeof p.vel);
+        p.usable = s.status == PORTOBELLO_POSE_T_STATUS_TRACKING || s.status == PORTOBELLO_POSE_T_STATUS_DEGRADED;
+        if (!p.usable) pb_status_count(a->status, "pose_not_tracking", 1);
+        occlusion_pose(a->occ, &p, &a->out, &a->ev);
+        flush(a);
+    });
 }
 
 static void on_head(const pb_msg_t *m, void *user)
 {
     app_t *a = (app_t *)user;
-    portobello_head_pose_t s;
-    if (portobello_head_pose_t_decode(m->data, 0, m->len, &s) < 0) { undecodable(a, m); return; }
-    pb_status_input_time(a->status, m->channel, s.utime);
-    if (!s.tracking) pb_status_count(a->status, "head_not_tracking", 1);
-    occlusion_head(a->occ, s.utime, s.position, s.tracking);
-    portobello_head_pose_t_decode_cleanup(&s);
+    pb_status_take(a->status, m, portobello_head_pose_t_decode, portobello_head_pose_t_decode_cleanup,
+                   [a](const portobello_head_pose_t &s) {
+                       if (!s.tracking) pb_status_count(a->status, "head_not_tracking", 1);
+                       occlusion_head(a->occ, s.utime, s.position, s.tracking);
+                   });
 }
 
 static void on_agents(const pb_msg_t *m, void *user)
 {
     app_t *a = (app_t *)user;
-    portobello_agents_t s;
-    if (portobello_agents_t_decode(m->data, 0, m->len, &s) < 0) { undecodable(a, m); return; }
-    pb_status_input_time(a->status, m->channel, s.utime);
-    std::vector<occ_agent_in_t> ag(s.nagents);
-    for (int i = 0; i < s.nagents; i++) {
-        const portobello_agent_t &g = s.agents[i];
-        occ_agent_in_t &o = ag[i];
-        o.id = g.id; o.kind = g.kind;
-        memcpy(o.pos, g.position, sizeof o.pos);
-        memcpy(o.vel, g.velocity, sizeof o.vel);
-        o.yaw = g.yaw_rad;
-        o.in_render_range = g.in_render_range;
-        if (!std::isfinite(o.pos[0]) || !std::isfinite(o.pos[1]) || !std::isfinite(o.pos[2])) {
-            pb_status_count(a->status, "agent_not_finite", 1);
-            pb_status_error(a->status, "AGENTS: agent %s has a NaN/inf position: no samples", g.id);
+    pb_status_take(a->status, m, portobello_agents_t_decode, portobello_agents_t_decode_cleanup, [a](const portobello_agents_t &s) {
+        std::vector<occ_agent_in_t> ag(s.nagents);
+        for (int i = 0; i < s.nagents; i++) {
+            const portobello_agent_t &g = s.agents[i];
+            occ_agent_in_t &o = ag[i];
+            o.id = g.id; o.kind = g.kind;
+            memcpy(o.pos, g.position, sizeof o.pos);
+            memcpy(o.vel, g.velocity, sizeof o.vel);
+            o.yaw = g.yaw_rad;
+            o.in_render_range = g.in_render_range;
+            if (!std::isfinite(o.pos[0]) || !std::isfinite(o.pos[1]) || !std::isfinite(o.pos[2])) {
+                pb_status_count(a->status, "agent_not_finite", 1);
+                pb_status_error(a->status, "AGENTS: agent %s has a NaN/inf position: no samples", g.id);
+            }
+            for (double &v : o.vel) if (!std::isfinite(v)) v = 0;
         }
-        for (double &v : o.vel) if (!std::isfinite(v)) v = 0;
-    }
-    occlusion_agents(a->occ, s.utime, ag);
-    portobello_agents_t_decode_cleanup(&s);
+        occlusion_agents(a->occ, s.utime, ag);
+    });
 }
 
 static double percentile(std::vector<double> v, double q)
@@ -192,37 +166,21 @@ static double percentile(std::vector<double> v, double q)
 int main(int argc, char **argv)
 {
     const char *url = nullptr, *in = nullptr, *outp = nullptr, *stats = nullptr, *pose_channel = "POSE";
-    std::string vehicle = std::string(PB_SOURCE_DIR) + "/vehicles/prius2017.yaml";
+    const char *vehicle = PB_SOURCE_DIR "/vehicles/prius2017.yaml";
     occ_config_t cfg;
-    static const struct option opts[] = {
-        { "replay", required_argument, 0, 'r' }, { "out", required_argument, 0, 'o' },
-        { "lcm-url", required_argument, 0, 'u' }, { "pose-channel", required_argument, 0, 'p' },
-        { "vehicle", required_argument, 0, 'v' }, { "range", required_argument, 0, 'R' },
-        { "stats", required_argument, 0, 't' }, { "help", no_argument, 0, 'h' }, { 0, 0, 0, 0 },
+    const pb_opt_t opts[] = {
+        PB_OPT_STRING("replay", &in), PB_OPT_STRING("out", &outp), PB_OPT_STRING("lcm-url", &url),
+        PB_OPT_STRING("pose-channel", &pose_channel), PB_OPT_STRING("vehicle", &vehicle),
+        PB_OPT_DOUBLE("range", &cfg.range_m, 5, 50), PB_OPT_STRING("stats", &stats), PB_OPT_END,
     };
-    int c;
-    while ((c = getopt_long(argc, argv, "h", opts, nullptr)) != -1) {
-        switch (c) {
-        case 'r': in = optarg; break;
-        case 'o': outp = optarg; break;
-        case 'u': url = optarg; break;
-        case 'p': pose_channel = optarg; break;
-        case 'v': vehicle = optarg; break;
-        case 'R':
-            if (pb_arg_double("occlusion", "--range", optarg, 5, 50, &cfg.range_m) != 0) return 2;
-            cfg.window_m = cfg.range_m + 1;
-            break;
-        case 't': stats = optarg; break;
-        case 'h': usage(stdout); return 0;
-        default: usage(stderr); return 2;
-        }
-    }
-    if (optind < argc) { fprintf(stderr, "occlusion: unexpected argument '%s'\n", argv[optind]); usage(stderr); return 2; }
+    int parsed = pb_opt_parse("occlusion", opts, usage, 0, argc, argv);
+    if (parsed >= 0) return parsed;
+    cfg.window_m = cfg.range_m + 1;
     if ((in != nullptr) != (outp != nullptr)) { fprintf(stderr, "occlusion: --replay and --out go together\n"); return 2; }
 
     pb_err_t err;
     pb_vehicle_t veh;
-    if (pb_vehicle_load(vehicle.c_str(), &veh, &err) != 0) { fprintf(stderr, "occlusion: %s\n", err.msg); return 1; }
+    if (pb_vehicle_load(vehicle, &veh, &err) != 0) { fprintf(stderr, "occlusion: %s\n", err.msg); return 1; }
     pb_bus_t *bus = in ? pb_bus_create_replay(in, outp, &err) : pb_bus_create_live(url, &err);
     if (!bus) { fprintf(stderr, "occlusion: %s\n", err.msg); return 1; }
     app_t a;
@@ -240,7 +198,7 @@ int main(int argc, char **argv)
     a.occ = occlusion_create(&cfg, &ov);
     occlusion_set_clock(a.occ, pb_clock_thread_cpu_ms);
     a.status = pb_status_create(bus, "occlusion", 1000000);
-    if (!veh.has_seat_eye) pb_status_error(a.status, "%s: no seat.eye_xyz: without HEAD_POSE the eye is the LiDAR", vehicle.c_str());
+    if (!veh.has_seat_eye) pb_status_error(a.status, "%s: no seat.eye_xyz: without HEAD_POSE the eye is the LiDAR", vehicle);
     pb_signal_install();
     pb_bus_subscribe(bus, "LIDAR_SCAN", on_scan, &a);
     pb_bus_subscribe(bus, pose_channel, on_pose, &a);
@@ -251,14 +209,7 @@ int main(int argc, char **argv)
     int rc = pb_bus_run(bus, &err);
     occlusion_finish(a.occ, &a.out, &a.ev);
     flush(&a);
-    if (rc != 0) {
-        fprintf(stderr, "occlusion: %s\n", err.msg);
-        pb_status_set_state(a.status, PORTOBELLO_STATUS_T_STATE_ERROR);
-        pb_status_error(a.status, "%s", err.msg);
-    } else {
-        pb_status_set_state(a.status, PORTOBELLO_STATUS_T_STATE_STOPPING);
-    }
-    pb_status_publish(a.status);
+    pb_status_finish(a.status, rc ? err.msg : NULL);
     int64_t leaves, bytes;
     occ_map_size(occlusion_map(a.occ), &leaves, &bytes);
     fprintf(stderr, "occlusion: %lld OCCLUSION, integrate p50 %.1f ms p99 %.1f ms, query p50 %.2f ms, map %lld leaves %.1f MB\n",

@@ -5,7 +5,6 @@
  * own beyond the pcap file; this shell owns sockets, the bus, the log and STATUS. */
 #include <arpa/inet.h>
 #include <errno.h>
-#include <getopt.h>
 #include <netinet/in.h>
 #include <poll.h>
 #include <stdio.h>
@@ -18,9 +17,9 @@
 #include "core/ouster_driver.h"
 #include "core/ouster_meta.h"
 #include "core/ouster_pcap.h"
-#include "pb_arg.h"
 #include "pb_bus.h"
 #include "pb_log.h"
+#include "pb_opt.h"
 #include "pb_signal.h"
 #include "pb_status.h"
 #include "portobello_status_t.h"
@@ -303,8 +302,7 @@ static int run_live(app_t *a, const char *url, int lidar_port, int imu_port, int
     }
     ouster_driver_flush(a->drv, wall_utime());
     live_sync_status(a);
-    pb_status_set_state(a->status, PORTOBELLO_STATUS_T_STATE_STOPPING);
-    pb_status_publish(a->status);
+    pb_status_finish(a->status, NULL);
     if (!quiet)
         fprintf(stderr, PROG ": %lld LIDAR_SCAN, %lld IMU published; %lld lidar and %lld IMU packets, %lld rejected\n",
                 (long long)a->scans, (long long)a->imus, (long long)ouster_driver_counter(a->drv, "lidar_packets"),
@@ -319,48 +317,25 @@ static int run_live(app_t *a, const char *url, int lidar_port, int imu_port, int
 int main(int argc, char **argv)
 {
     const char *meta_path = NULL, *pcap_path = NULL, *out_path = NULL, *url = NULL;
-    long lidar_port = -1, imu_port = -1, ret = 1;
+    long lidar_port = -1, imu_port = -1;
     int quiet = 0;
     app_t a = { .lidar_channel = "LIDAR_SCAN", .imu_channel = "IMU" };
     ouster_config_t cfg;
     ouster_config_default(&cfg);
-    static const struct option opts[] = {
-        { "metadata", required_argument, 0, 'm' }, { "pcap", required_argument, 0, 'p' },
-        { "out", required_argument, 0, 'o' }, { "lidar-port", required_argument, 0, 'L' },
-        { "imu-port", required_argument, 0, 'I' }, { "return", required_argument, 0, 'r' },
-        { "signal", required_argument, 0, 's' }, { "no-sensor-check", no_argument, 0, 'n' },
-        { "lidar-channel", required_argument, 0, 'c' }, { "imu-channel", required_argument, 0, 'i' },
-        { "lcm-url", required_argument, 0, 'u' }, { "quiet", no_argument, 0, 'q' },
-        { "help", no_argument, 0, 'h' }, { 0, 0, 0, 0 },
+    static const char *const signals[] = { "auto", "on", "off" };   /* ouster_signal_mode_t */
+    int signal = cfg.signal;
+    const pb_opt_t opts[] = {
+        PB_OPT_REQUIRED("metadata", &meta_path), PB_OPT_STRING("pcap", &pcap_path), PB_OPT_STRING("out", &out_path),
+        PB_OPT_LONG("lidar-port", &lidar_port, 1, 65535), PB_OPT_LONG("imu-port", &imu_port, 1, 65535),
+        PB_OPT_INT("return", &cfg.which_return, 1, 2), PB_OPT_CHOICE("signal", &signal, signals, 3),
+        PB_OPT_FLAG("no-sensor-check", &cfg.check_sensor_id, 0), PB_OPT_STRING("lidar-channel", &a.lidar_channel),
+        PB_OPT_STRING("imu-channel", &a.imu_channel), PB_OPT_STRING("lcm-url", &url), PB_OPT_FLAG("quiet", &quiet, 1),
+        PB_OPT_END,
     };
-    int c;
-    while ((c = getopt_long(argc, argv, "h", opts, NULL)) != -1) {
-        switch (c) {
-        case 'm': meta_path = optarg; break;
-        case 'p': pcap_path = optarg; break;
-        case 'o': out_path = optarg; break;
-        case 'L': if (pb_arg_long(PROG, "--lidar-port", optarg, 1, 65535, &lidar_port)) return 2; break;
-        case 'I': if (pb_arg_long(PROG, "--imu-port", optarg, 1, 65535, &imu_port)) return 2; break;
-        case 'r': if (pb_arg_long(PROG, "--return", optarg, 1, 2, &ret)) return 2; break;
-        case 's':
-            if (!strcmp(optarg, "auto")) cfg.signal = OUSTER_SIGNAL_AUTO;
-            else if (!strcmp(optarg, "on")) cfg.signal = OUSTER_SIGNAL_ON;
-            else if (!strcmp(optarg, "off")) cfg.signal = OUSTER_SIGNAL_OFF;
-            else { fprintf(stderr, PROG ": --signal: expected auto, on or off, got '%s'\n", optarg); return 2; }
-            break;
-        case 'n': cfg.check_sensor_id = 0; break;
-        case 'c': a.lidar_channel = optarg; break;
-        case 'i': a.imu_channel = optarg; break;
-        case 'u': url = optarg; break;
-        case 'q': quiet = 1; break;
-        case 'h': usage(stdout); return 0;
-        default: usage(stderr); return 2;
-        }
-    }
-    if (optind < argc) { fprintf(stderr, PROG ": unexpected argument '%s'\n", argv[optind]); usage(stderr); return 2; }
-    if (!meta_path) { fprintf(stderr, PROG ": --metadata is required\n"); usage(stderr); return 2; }
+    int parsed = pb_opt_parse(PROG, opts, usage, 0, argc, argv);
+    if (parsed >= 0) return parsed;
+    cfg.signal = (ouster_signal_mode_t)signal;
     if ((pcap_path != NULL) != (out_path != NULL)) { fprintf(stderr, PROG ": --pcap and --out go together\n"); return 2; }
-    cfg.which_return = (int)ret;
 
     pb_err_t err;
     ouster_meta_t meta;

@@ -8,16 +8,15 @@
  * pb_bus (1000 deep), flushes every 100 ms, and publishes STATUS (per-channel counts), so
  * the supervisor watches its heartbeat like any module's. See docs/recording.md. */
 #include <errno.h>
-#include <getopt.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
-#include "pb_arg.h"
 #include "pb_bus.h"
 #include "pb_log.h"
+#include "pb_opt.h"
 #include "pb_signal.h"
 #include "pb_status.h"
 #include "portobello_status_t.h"
@@ -110,24 +109,12 @@ int main(int argc, char **argv)
     const char *url = NULL, *participant = NULL, *session = NULL, *dir = "recordings";
     double split_mb = 1024;
     static app_t a;
-    static const struct option opts[] = {
-        { "participant", required_argument, 0, 'p' }, { "session", required_argument, 0, 's' },
-        { "dir", required_argument, 0, 'd' }, { "split-mb", required_argument, 0, 'm' },
-        { "lcm-url", required_argument, 0, 'u' }, { "help", no_argument, 0, 'h' }, { 0, 0, 0, 0 },
+    const pb_opt_t opts[] = {
+        PB_OPT_STRING("participant", &participant), PB_OPT_STRING("session", &session), PB_OPT_STRING("dir", &dir),
+        PB_OPT_DOUBLE("split-mb", &split_mb, 0.01, 1e6), PB_OPT_STRING("lcm-url", &url), PB_OPT_END,
     };
-    int c;
-    while ((c = getopt_long(argc, argv, "h", opts, NULL)) != -1) {
-        switch (c) {
-        case 'p': participant = optarg; break;
-        case 's': session = optarg; break;
-        case 'd': dir = optarg; break;
-        case 'm': if (pb_arg_double("recorder", "--split-mb", optarg, 0.01, 1e6, &split_mb)) return 2; break;
-        case 'u': url = optarg; break;
-        case 'h': usage(stdout); return 0;
-        default: usage(stderr); return 2;
-        }
-    }
-    if (optind < argc) { fprintf(stderr, "recorder: unexpected argument '%s'\n", argv[optind]); usage(stderr); return 2; }
+    int parsed = pb_opt_parse("recorder", opts, usage, 0, argc, argv);
+    if (parsed >= 0) return parsed;
     if (!valid_id(participant) || !valid_id(session)) {
         fprintf(stderr, "recorder: --participant and --session are required: letters, digits, _ or -\n");
         return 2;

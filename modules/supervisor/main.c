@@ -7,7 +7,6 @@
 #include <dirent.h>
 #include <errno.h>
 #include <fcntl.h>
-#include <getopt.h>
 #include <poll.h>
 #include <signal.h>
 #include <stdarg.h>
@@ -24,6 +23,7 @@
 #include "core/proc.h"
 #include "core/stack.h"
 #include "pb_bus.h"
+#include "pb_opt.h"
 #include "pb_status.h"
 #include "portobello_status_t.h"
 #include "portobello_supervisor_command_t.h"
@@ -58,7 +58,7 @@ typedef struct {
     char url[SV_PATH_MAX];
     int64_t next_publish, next_stats;
     int shutting_down;
-    char *sets[MAX_SETS];
+    const char *sets[MAX_SETS];
     int nsets;
 } app_t;
 
@@ -635,35 +635,29 @@ static int mkdirs(const char *path)
     return mkdir(tmp, 0755) == 0 || errno == EEXIST ? 0 : -1;
 }
 
+/* --set NAME=VALUE, repeatable. */
+static int add_set(const char *prog, const char *arg, void *var)
+{
+    app_t *a = var;
+    if (!strchr(arg, '=') || arg[0] == '=' || a->nsets >= MAX_SETS) {
+        fprintf(stderr, "%s: --set: expected NAME=VALUE, got '%s'\n", prog, arg);
+        return -1;
+    }
+    a->sets[a->nsets++] = arg;
+    return 0;
+}
+
 int main(int argc, char **argv)
 {
     static app_t a;
     const char *config = NULL, *cli_url = NULL;
     int check_only = 0;
-    static const struct option opts[] = {
-        { "config", required_argument, 0, 'c' }, { "set", required_argument, 0, 's' },
-        { "lcm-url", required_argument, 0, 'u' }, { "check", no_argument, 0, 'k' },
-        { "help", no_argument, 0, 'h' }, { 0, 0, 0, 0 },
+    const pb_opt_t opts[] = {
+        PB_OPT_REQUIRED("config", &config), PB_OPT_CALL("set", add_set, &a), PB_OPT_STRING("lcm-url", &cli_url),
+        PB_OPT_FLAG("check", &check_only, 1), PB_OPT_END,
     };
-    int c;
-    while ((c = getopt_long(argc, argv, "h", opts, NULL)) != -1) {
-        switch (c) {
-        case 'c': config = optarg; break;
-        case 's':
-            if (!strchr(optarg, '=') || optarg[0] == '=' || a.nsets >= MAX_SETS) {
-                fprintf(stderr, "supervisor: --set: expected NAME=VALUE, got '%s'\n", optarg);
-                return 2;
-            }
-            a.sets[a.nsets++] = optarg;
-            break;
-        case 'u': cli_url = optarg; break;
-        case 'k': check_only = 1; break;
-        case 'h': usage(stdout); return 0;
-        default: usage(stderr); return 2;
-        }
-    }
-    if (optind < argc) { fprintf(stderr, "supervisor: unexpected argument '%s'\n", argv[optind]); usage(stderr); return 2; }
-    if (!config) { fprintf(stderr, "supervisor: --config is required\n"); usage(stderr); return 2; }
+    int parsed = pb_opt_parse("supervisor", opts, usage, 0, argc, argv);
+    if (parsed >= 0) return parsed;
 
     pb_err_t err;
     if (sv_stack_load(config, lookup, &a, &a.stack, &err)) { fprintf(stderr, "supervisor: %s\n", err.msg); return 1; }
@@ -727,9 +721,8 @@ int main(int argc, char **argv)
     for (int i = 0; i < a.ncmds; i++) sv_proc_start(&a.cmds[i].p, now);
     a.gate[0] = 1;
     int rc = run(&a);
-    pb_status_set_state(a.status, PORTOBELLO_STATUS_T_STATE_STOPPING);
     publish_state(&a, pb_bus_monotonic(a.bus));
-    pb_status_publish(a.status);
+    pb_status_finish(a.status, NULL);
     for (int i = 0; i < a.ncmds; i++) if (a.cmds[i].log_fd >= 0) close(a.cmds[i].log_fd);
     fprintf(stderr, "supervisor: every command stopped\n");
     pb_status_destroy(a.status);

@@ -2,7 +2,6 @@
 //
 // The shell: options, the PCD through PCL, the core (ground_build.h), the files
 // (common/pb_ground.h). Works on any prior map, simulated or assembled from real scans.
-#include <getopt.h>
 #include <cstdio>
 #include <vector>
 
@@ -10,9 +9,9 @@
 #include <pcl/point_types.h>
 
 #include "ground_build.h"
-#include "pb_arg.h"
 #include "pb_err.h"
 #include "pb_ground.h"
+#include "pb_opt.h"
 
 static void usage(FILE *f)
 {
@@ -34,32 +33,14 @@ int main(int argc, char **argv)
     gb_config_t cfg;
     gb_config_default(&cfg);
     int quiet = 0;
-    enum { O_MAP = 1000, O_OUT, O_CELL, O_WINDOW, O_STEP, O_GRADE, O_FILL };
-    static const struct option opts[] = {
-        {"map", required_argument, nullptr, O_MAP}, {"out", required_argument, nullptr, O_OUT},
-        {"cell", required_argument, nullptr, O_CELL}, {"window", required_argument, nullptr, O_WINDOW},
-        {"step", required_argument, nullptr, O_STEP}, {"grade", required_argument, nullptr, O_GRADE},
-        {"fill", required_argument, nullptr, O_FILL},
-        {"quiet", no_argument, nullptr, 'q'}, {"help", no_argument, nullptr, 'h'}, {nullptr, 0, nullptr, 0}};
-    int c;
-    while ((c = getopt_long(argc, argv, "h", opts, nullptr)) != -1) {
-        switch (c) {
-        case O_MAP: map_path = optarg; break;
-        case O_OUT: out_path = optarg; break;
-        case O_CELL: if (pb_arg_double("build-ground", "cell", optarg, 0.02, 10, &cfg.cell_m)) return 2; break;
-        case O_WINDOW: if (pb_arg_double("build-ground", "window", optarg, 0.1, 20, &cfg.window_m)) return 2; break;
-        case O_STEP: if (pb_arg_double("build-ground", "step", optarg, 0, 5, &cfg.step_m)) return 2; break;
-        case O_GRADE: if (pb_arg_double("build-ground", "grade", optarg, 0, 2, &cfg.grade)) return 2; break;
-        case O_FILL: if (pb_arg_double("build-ground", "fill", optarg, 0, 50, &cfg.fill_m)) return 2; break;
-        case 'q': quiet = 1; break;
-        case 'h': usage(stdout); return 0;
-        default: usage(stderr); return 2;
-        }
-    }
-    if (optind < argc || !map_path || !out_path) {
-        std::fprintf(stderr, "build-ground: --map and --out are required (see --help)\n");
-        return 2;
-    }
+    const pb_opt_t opts[] = {
+        PB_OPT_REQUIRED("map", &map_path), PB_OPT_REQUIRED("out", &out_path), PB_OPT_DOUBLE("cell", &cfg.cell_m, 0.02, 10),
+        PB_OPT_DOUBLE("window", &cfg.window_m, 0.1, 20), PB_OPT_DOUBLE("step", &cfg.step_m, 0, 5),
+        PB_OPT_DOUBLE("grade", &cfg.grade, 0, 2), PB_OPT_DOUBLE("fill", &cfg.fill_m, 0, 50), PB_OPT_FLAG("quiet", &quiet, 1),
+        PB_OPT_END,
+    };
+    int parsed = pb_opt_parse("build-ground", opts, usage, 0, argc, argv);
+    if (parsed >= 0) return parsed;
     pcl::PointCloud<pcl::PointXYZ> cloud;
     if (pcl::io::loadPCDFile(map_path, cloud) < 0) {
         std::fprintf(stderr, "build-ground: %s: cannot read as PCD\n", map_path);

@@ -5,17 +5,16 @@
 // logged poses that bracket it. Scans without bracketing poses are skipped and
 // counted. Two passes over the log: poses first (small), then scans.
 #include <cerrno>
-#include <getopt.h>
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <string>
 
-#include "pb_arg.h"
 #include "pb_err.h"
 #include "pb_log.h"
 #include "pb_map_build.h"
+#include "pb_opt.h"
 #include "pb_progress.h"
 #include "pb_scan.h"
 #include "pb_vehicle.h"
@@ -48,40 +47,14 @@ int main(int argc, char **argv)
     double voxel = 0.15;
     long every = 1;
     int quiet = 0;
-    enum { OPT_LOG = 1000, OPT_OUT, OPT_VEHICLE, OPT_POSE_CHANNEL, OPT_SCAN_CHANNEL, OPT_VOXEL, OPT_EVERY };
-    static const struct option opts[] = {
-        {"log", required_argument, nullptr, OPT_LOG},
-        {"out", required_argument, nullptr, OPT_OUT},
-        {"vehicle", required_argument, nullptr, OPT_VEHICLE},
-        {"pose-channel", required_argument, nullptr, OPT_POSE_CHANNEL},
-        {"scan-channel", required_argument, nullptr, OPT_SCAN_CHANNEL},
-        {"voxel", required_argument, nullptr, OPT_VOXEL}, {"every", required_argument, nullptr, OPT_EVERY},
-        {"quiet", no_argument, nullptr, 'q'}, {"help", no_argument, nullptr, 'h'}, {nullptr, 0, nullptr, 0}};
-    int c;
-    while ((c = getopt_long(argc, argv, "h", opts, nullptr)) != -1) {
-        switch (c) {
-        case OPT_LOG: log_path = optarg; break;
-        case OPT_OUT: out_path = optarg; break;
-        case OPT_VEHICLE: vehicle = optarg; break;
-        case OPT_POSE_CHANNEL: pose_ch = optarg; break;
-        case OPT_SCAN_CHANNEL: scan_ch = optarg; break;
-        case OPT_VOXEL: if (pb_arg_double("build-map", "voxel", optarg, 0, 1000, &voxel)) return 2; break;
-        case OPT_EVERY: if (pb_arg_long("build-map", "every", optarg, 1, 1000000, &every)) return 2; break;
-        case 'q': quiet = 1; break;
-        case 'h': usage(stdout); return 0;
-        default: usage(stderr); return 2;
-        }
-    }
-    if (optind < argc) {
-        std::fprintf(stderr, "build-map: unexpected argument '%s'\n", argv[optind]);
-        usage(stderr);
-        return 2;
-    }
-    if (!log_path || !out_path) {
-        std::fprintf(stderr, "build-map: --log and --out are required\n");
-        usage(stderr);
-        return 2;
-    }
+    const pb_opt_t opts[] = {
+        PB_OPT_REQUIRED("log", &log_path), PB_OPT_REQUIRED("out", &out_path), PB_OPT_STRING("vehicle", &vehicle),
+        PB_OPT_STRING("pose-channel", &pose_ch), PB_OPT_STRING("scan-channel", &scan_ch),
+        PB_OPT_DOUBLE("voxel", &voxel, 0, 1000), PB_OPT_LONG("every", &every, 1, 1000000), PB_OPT_FLAG("quiet", &quiet, 1),
+        PB_OPT_END,
+    };
+    int parsed = pb_opt_parse("build-map", opts, usage, 0, argc, argv);
+    if (parsed >= 0) return parsed;
     auto t0 = std::chrono::steady_clock::now();
     pb_err_t err;
 
@@ -95,33 +68,18 @@ int main(int argc, char **argv)
         base_from_lidar = veh.base_from_lidar;
     }
 
-    // Pass 1: poses.
-    pb_pose_track_t *track = pb_pose_track_create();
-    pb_log_t *log = pb_log_open_read(log_path, &err);
-    if (!log) {
+    // Pass 1: poses, and the number of scans (for the progress bar).
+    struct Pass1 { pb_pose_track_t *track; long nscans; } pass1 = { pb_pose_track_create(), 0 };
+    auto on_pose = [](const portobello_pose_t *p, const pb_transform_t *T, void *u) {
+        pb_pose_track_add(((Pass1 *)u)->track, p->utime, T);
+    };
+    auto on_scan = [](const pb_event_t *, void *u, pb_err_t *) { ((Pass1 *)u)->nscans++; return 0; };
+    if (pb_log_read_track(log_path, pose_ch, on_pose, scan_ch, on_scan, &pass1, &err)) {
         std::fprintf(stderr, "build-map: %s\n", err.msg);
         return 1;
     }
-    pb_event_t ev;
-    int rc;
-    long nscans_total = 0;
-    while ((rc = pb_log_next(log, &ev, &err)) == 1) {
-        if (std::strcmp(ev.channel, scan_ch) == 0) { nscans_total++; continue; }
-        if (std::strcmp(ev.channel, pose_ch) != 0) continue;
-        portobello_pose_t p;
-        pb_transform_t x;
-        if (pb_log_pose(&ev, &p, &x, &err)) {
-            std::fprintf(stderr, "build-map: %s: %s\n", log_path, err.msg);
-            pb_log_close(log, nullptr);
-            return 1;
-        }
-        pb_pose_track_add(track, p.utime, &x);
-    }
-    pb_log_close(log, nullptr);
-    if (rc < 0) {
-        std::fprintf(stderr, "build-map: %s\n", err.msg);
-        return 1;
-    }
+    pb_pose_track_t *track = pass1.track;
+    long nscans_total = pass1.nscans;
     if (pb_pose_track_count(track) == 0) {
         std::fprintf(stderr, "build-map: %s: no %s poses\n", log_path, pose_ch);
         return 1;
@@ -129,7 +87,7 @@ int main(int argc, char **argv)
 
     // Pass 2: scans.
     pb_map_builder_t *map = pb_map_builder_create(voxel, &err);
-    log = map ? pb_log_open_read(log_path, &err) : nullptr;
+    pb_log_t *log = map ? pb_log_open_read(log_path, &err) : nullptr;
     if (!log) {
         std::fprintf(stderr, "build-map: %s\n", err.msg);
         return 1;
@@ -140,6 +98,8 @@ int main(int argc, char **argv)
     pb_progress_start(&prog, "build-map", nscans_total, quiet);
     long seen = 0, used = 0, skipped = 0, empty = 0;
     int status = 0;
+    pb_event_t ev;
+    int rc;
     while ((rc = pb_log_next(log, &ev, &err)) == 1) {
         if (std::strcmp(ev.channel, scan_ch) != 0) continue;
         pb_progress_update(&prog, seen);

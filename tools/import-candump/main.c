@@ -16,9 +16,6 @@
 #include "pb_progress.h"
 #include "portobello_can_frame_t.h"
 
-#define NAMED_BUS_BASE 1000     /* buses of interfaces not named canN start here */
-#define MAX_NAMED 64
-
 static void usage(FILE *f)
 {
     fprintf(f,
@@ -34,25 +31,7 @@ static void usage(FILE *f)
         "are in OUT, which is closed cleanly.\n"
         "  --channel NAME  LCM channel (default CAN_FRAME)\n"
         "  --quiet         no progress bar or summary\n",
-        NAMED_BUS_BASE, NAMED_BUS_BASE + 1);
-}
-
-typedef struct {
-    char names[MAX_NAMED][PB_CANDUMP_IFACE_MAX];
-    int n;
-} bus_map_t;
-
-/* Returns the bus number of iface, or -1 if too many distinct names. */
-static int bus_of(bus_map_t *m, const char *iface, int quiet)
-{
-    int n = pb_candump_can_index(iface);
-    if (n >= 0) return n;
-    for (int k = 0; k < m->n; k++)
-        if (strcmp(m->names[k], iface) == 0) return NAMED_BUS_BASE + k;
-    if (m->n == MAX_NAMED) return -1;
-    strcpy(m->names[m->n], iface);
-    if (!quiet) fprintf(stderr, "import-candump: interface %s -> bus %d\n", iface, NAMED_BUS_BASE + m->n);
-    return NAMED_BUS_BASE + m->n++;
+        PB_CANDUMP_NAMED_BUS_BASE, PB_CANDUMP_NAMED_BUS_BASE + 1);
 }
 
 int main(int argc, char **argv)
@@ -97,7 +76,7 @@ int main(int argc, char **argv)
     pb_progress_t prog;
     pb_progress_start(&prog, "import-candump", size, quiet);
 
-    bus_map_t buses = { .n = 0 };
+    static pb_candump_buses_t buses;
     char *line = NULL;
     size_t cap = 0;
     ssize_t got;
@@ -118,9 +97,10 @@ int main(int argc, char **argv)
             status = 1;
             break;
         }
-        int bus = bus_of(&buses, f.iface, quiet);
+        int added, bus = pb_candump_bus(&buses, f.iface, &added);
+        if (added && !quiet) fprintf(stderr, "import-candump: interface %s -> bus %d\n", f.iface, bus);
         if (bus < 0) {
-            fprintf(stderr, "%s:%ld: more than %d interfaces not named canN\n", in_path, lineno, MAX_NAMED);
+            fprintf(stderr, "%s:%ld: more than %d interfaces not named canN\n", in_path, lineno, PB_CANDUMP_MAX_NAMED);
             status = 1;
             break;
         }

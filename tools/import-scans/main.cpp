@@ -8,7 +8,6 @@
 #include <algorithm>
 #include <cctype>
 #include <cerrno>
-#include <getopt.h>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -23,10 +22,10 @@
 #include <pcl/PCLPointCloud2.h>
 #include <pcl/io/pcd_io.h>
 
-#include "pb_arg.h"
 #include "pb_err.h"
 #include "pb_log.h"
 #include "pb_map_build.h"
+#include "pb_opt.h"
 #include "pb_progress.h"
 #include "pb_scan.h"
 #include "pb_vehicle.h"
@@ -368,46 +367,14 @@ int main(int argc, char **argv)
     double voxel = 0.15;
     long every = 1;
     int quiet = 0;
-    enum { OPT_SCANS = 1000, OPT_POSES, OPT_CALIB, OPT_TIMES, OPT_OUT, OPT_MAP_OUT, OPT_SENSOR, OPT_VEHICLE, OPT_VOXEL, OPT_EVERY };
-    static const struct option opts[] = {
-        {"scans", required_argument, nullptr, OPT_SCANS},
-        {"poses", required_argument, nullptr, OPT_POSES},
-        {"calib", required_argument, nullptr, OPT_CALIB},
-        {"times", required_argument, nullptr, OPT_TIMES},
-        {"out", required_argument, nullptr, OPT_OUT},
-        {"map-out", required_argument, nullptr, OPT_MAP_OUT},
-        {"sensor", required_argument, nullptr, OPT_SENSOR},
-        {"vehicle", required_argument, nullptr, OPT_VEHICLE},
-        {"voxel", required_argument, nullptr, OPT_VOXEL}, {"every", required_argument, nullptr, OPT_EVERY},
-        {"quiet", no_argument, nullptr, 'q'}, {"help", no_argument, nullptr, 'h'}, {nullptr, 0, nullptr, 0}};
-    int c;
-    while ((c = getopt_long(argc, argv, "h", opts, nullptr)) != -1) {
-        switch (c) {
-        case OPT_SCANS: scans_dir = optarg; break;
-        case OPT_POSES: poses_path = optarg; break;
-        case OPT_CALIB: calib_path = optarg; break;
-        case OPT_TIMES: times_path = optarg; break;
-        case OPT_OUT: out_path = optarg; break;
-        case OPT_MAP_OUT: map_path = optarg; break;
-        case OPT_SENSOR: sensor = optarg; break;
-        case OPT_VEHICLE: vehicle_path = optarg; break;
-        case OPT_VOXEL: if (pb_arg_double("import-scans", "voxel", optarg, 0, 1000, &voxel)) return 2; break;
-        case OPT_EVERY: if (pb_arg_long("import-scans", "every", optarg, 1, 1000000, &every)) return 2; break;
-        case 'q': quiet = 1; break;
-        case 'h': usage(stdout); return 0;
-        default: usage(stderr); return 2;
-        }
-    }
-    if (optind < argc) {
-        std::fprintf(stderr, "import-scans: unexpected argument '%s'\n", argv[optind]);
-        usage(stderr);
-        return 2;
-    }
-    if (!scans_dir || !poses_path || !out_path) {
-        std::fprintf(stderr, "import-scans: --scans, --poses and --out are required\n");
-        usage(stderr);
-        return 2;
-    }
+    const pb_opt_t opts[] = {
+        PB_OPT_REQUIRED("scans", &scans_dir), PB_OPT_REQUIRED("poses", &poses_path), PB_OPT_STRING("calib", &calib_path),
+        PB_OPT_STRING("times", &times_path), PB_OPT_REQUIRED("out", &out_path), PB_OPT_STRING("map-out", &map_path),
+        PB_OPT_STRING("sensor", &sensor), PB_OPT_STRING("vehicle", &vehicle_path), PB_OPT_DOUBLE("voxel", &voxel, 0, 1000),
+        PB_OPT_LONG("every", &every, 1, 1000000), PB_OPT_FLAG("quiet", &quiet, 1), PB_OPT_END,
+    };
+    int parsed = pb_opt_parse("import-scans", opts, usage, 0, argc, argv);
+    if (parsed >= 0) return parsed;
     auto t0 = std::chrono::steady_clock::now();
     pb_err_t err;
 

@@ -5,13 +5,14 @@
  * command line, then each input's own order, so the output is deterministic.
  * Inputs are read strictly: a damaged input stops the merge naming file and byte,
  * and OUT keeps everything merged before it. */
-#include <getopt.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 #include "pb_err.h"
 #include "pb_log.h"
+#include "pb_opt.h"
 #include "pb_progress.h"
 
 #define MAX_INPUTS 32
@@ -47,27 +48,28 @@ static int advance(input_t *in, pb_err_t *err)
     return rc < 0 ? -1 : 0;
 }
 
+typedef struct { const char *names[MAX_DROPS]; int n; } drops_t;
+
+static int add_drop(const char *prog, const char *arg, void *var)
+{
+    drops_t *d = var;
+    if (d->n == MAX_DROPS) { fprintf(stderr, "%s: at most %d --drop\n", prog, MAX_DROPS); return -1; }
+    d->names[d->n++] = arg;
+    return 0;
+}
+
 int main(int argc, char **argv)
 {
-    const char *out_path = NULL, *drops[MAX_DROPS];
-    int ndrops = 0, quiet = 0;
-    static const struct option opts[] = {
-        { "out", required_argument, 0, 'o' }, { "drop", required_argument, 0, 'd' },
-        { "quiet", no_argument, 0, 'q' }, { "help", no_argument, 0, 'h' }, { 0, 0, 0, 0 },
+    const char *out_path = NULL;
+    drops_t drops = { .n = 0 };
+    int quiet = 0;
+    const pb_opt_t opts[] = {
+        PB_OPT_ENTRY("out", 'o', PB_OPT_K_STRING, &out_path, 0, 0, 0, 0, NULL),
+        PB_OPT_ENTRY("drop", 'd', PB_OPT_K_CALL, &drops, 0, 0, 0, 0, add_drop),
+        PB_OPT_ENTRY("quiet", 'q', PB_OPT_K_FLAG, &quiet, 1, 0, 0, 0, NULL), PB_OPT_END,
     };
-    int c;
-    while ((c = getopt_long(argc, argv, "o:d:qh", opts, NULL)) != -1) {
-        switch (c) {
-        case 'o': out_path = optarg; break;
-        case 'd':
-            if (ndrops == MAX_DROPS) { fprintf(stderr, "log-merge: at most %d --drop\n", MAX_DROPS); return 2; }
-            drops[ndrops++] = optarg;
-            break;
-        case 'q': quiet = 1; break;
-        case 'h': usage(stdout); return 0;
-        default: usage(stderr); return 2;
-        }
-    }
+    int parsed = pb_opt_parse("log-merge", opts, usage, PB_OPT_ARGS, argc, argv);
+    if (parsed >= 0) return parsed;
     int nin = argc - optind;
     if (!out_path || nin < 1) {
         fprintf(stderr, "log-merge: need --out and at least one input log\n");
@@ -105,7 +107,7 @@ int main(int argc, char **argv)
         if (best < 0) break;
         const pb_event_t *ev = &in[best].ev;
         int drop = 0;
-        for (int d = 0; d < ndrops; d++) drop |= strcmp(ev->channel, drops[d]) == 0;
+        for (int d = 0; d < drops.n; d++) drop |= strcmp(ev->channel, drops.names[d]) == 0;
         if (drop) dropped++;
         else if (pb_log_write(out, ev->timestamp, ev->channel, ev->data, ev->datalen, &err) < 0) goto done;
         else written++;

@@ -2,12 +2,12 @@
  *   log-summary --replay IN.lcm --out OUT.lcm     a log, as fast as the CPU allows
  *   log-summary [--lcm-url URL]                   the live bus, summary on Ctrl-C
  * Publishes its STATUS heartbeat (to OUT in replay). */
-#include <getopt.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "pb_bus.h"
+#include "pb_opt.h"
 #include "pb_signal.h"
 #include "pb_status.h"
 #include "portobello_can_frame_t.h"
@@ -71,8 +71,7 @@ static void on_message(const pb_msg_t *m, void *user)
     pb_status_input_time(a->status, m->channel, utime);
     return;
 bad:
-    pb_status_count(a->status, "undecodable", 1);
-    pb_status_error(a->status, "%s: message of %d bytes does not decode", m->channel, m->len);
+    pb_status_undecodable(a->status, "undecodable", m);
     summary_message(&a->sum, m->channel, utime, m->len);
 }
 
@@ -80,23 +79,12 @@ int main(int argc, char **argv)
 {
     const char *url = NULL, *in = NULL, *out = NULL;
     app_t a = { .pose_channel = "GROUND_TRUTH" };
-    static const struct option opts[] = {
-        { "replay", required_argument, 0, 'r' }, { "out", required_argument, 0, 'o' },
-        { "lcm-url", required_argument, 0, 'u' }, { "pose-channel", required_argument, 0, 'p' },
-        { "help", no_argument, 0, 'h' }, { 0, 0, 0, 0 },
+    const pb_opt_t opts[] = {
+        PB_OPT_STRING("replay", &in), PB_OPT_STRING("out", &out), PB_OPT_STRING("lcm-url", &url),
+        PB_OPT_STRING("pose-channel", &a.pose_channel), PB_OPT_END,
     };
-    int c;
-    while ((c = getopt_long(argc, argv, "h", opts, NULL)) != -1) {
-        switch (c) {
-        case 'r': in = optarg; break;
-        case 'o': out = optarg; break;
-        case 'u': url = optarg; break;
-        case 'p': a.pose_channel = optarg; break;
-        case 'h': usage(stdout); return 0;
-        default: usage(stderr); return 2;
-        }
-    }
-    if (optind < argc) { fprintf(stderr, "log-summary: unexpected argument '%s'\n", argv[optind]); usage(stderr); return 2; }
+    int parsed = pb_opt_parse("log-summary", opts, usage, 0, argc, argv);
+    if (parsed >= 0) return parsed;
     if ((in != NULL) != (out != NULL)) { fprintf(stderr, "log-summary: --replay and --out go together\n"); return 2; }
 
     pb_err_t err;
@@ -110,16 +98,10 @@ int main(int argc, char **argv)
     if (!in) fprintf(stderr, "log-summary: listening on %s; Ctrl-C prints the summary\n", pb_lcm_url(url));
 
     int rc = pb_bus_run(bus, &err);
-    if (rc != 0) {
-        fprintf(stderr, "log-summary: %s\n", err.msg);
+    pb_status_finish(a.status, rc ? err.msg : NULL);
+    if (rc != 0)
         fprintf(stderr, "log-summary: stopped after %lld events; the summary below covers them\n",
                 (long long)pb_bus_events_read(bus));
-        pb_status_set_state(a.status, PORTOBELLO_STATUS_T_STATE_ERROR);
-        pb_status_error(a.status, "%s", err.msg);
-    } else {
-        pb_status_set_state(a.status, PORTOBELLO_STATUS_T_STATE_STOPPING);
-    }
-    pb_status_publish(a.status);
     summary_print(&a.sum, stdout);
     pb_status_destroy(a.status);
     pb_bus_destroy(bus);

@@ -1,14 +1,13 @@
 // map-tiles: a site's prior map (map.pcd) -> map.tiles, the prepared map cut into
 // square tiles that the localizer pages in around the car (modules/localizer/core/map_tiles.h).
-#include <getopt.h>
 #include <unistd.h>
 #include <cstdio>
 #include <string>
 #include <vector>
 
 #include "map_source.h"
-#include "pb_arg.h"
 #include "pb_err.h"
+#include "pb_opt.h"
 
 static void usage(FILE *f)
 {
@@ -31,20 +30,12 @@ int main(int argc, char **argv)
     const char *map_path = nullptr, *out_path = nullptr;
     double tile = 32;
     bool quiet = false;
-    static const struct option opts[] = {{"map", 1, 0, 'm'}, {"out", 1, 0, 'o'}, {"tile", 1, 0, 't'},
-                                         {"quiet", 0, 0, 'q'}, {"help", 0, 0, 'h'}, {0, 0, 0, 0}};
-    int c;
-    while ((c = getopt_long(argc, argv, "h", opts, nullptr)) != -1) {
-        switch (c) {
-        case 'm': map_path = optarg; break;
-        case 'o': out_path = optarg; break;
-        case 't': if (pb_arg_double("map-tiles", "--tile", optarg, 2, 10000, &tile)) return 2; break;
-        case 'q': quiet = true; break;
-        case 'h': usage(stdout); return 0;
-        default: usage(stderr); return 2;
-        }
-    }
-    if (!map_path || !out_path || optind < argc) { usage(stderr); return 2; }
+    const pb_opt_t opts[] = {
+        PB_OPT_REQUIRED("map", &map_path), PB_OPT_REQUIRED("out", &out_path), PB_OPT_DOUBLE("tile", &tile, 2, 10000),
+        PB_OPT_BOOL("quiet", &quiet, 1), PB_OPT_END,
+    };
+    int parsed = pb_opt_parse("map-tiles", opts, usage, 0, argc, argv);
+    if (parsed >= 0) return parsed;
     pb_err_t err;
     std::vector<uint8_t> bytes;
     pb_regmap_info_t info;

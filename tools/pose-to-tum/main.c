@@ -1,10 +1,10 @@
 /* pose-to-tum: one pose channel of an LCM log as a TUM trajectory file, for evo.
  *   pose-to-tum --log IN.lcm --channel POSE --out FILE.tum [--status tracking|any] */
-#include <getopt.h>
 #include <stdio.h>
 #include <string.h>
 
 #include "pb_log.h"
+#include "pb_opt.h"
 #include "tum.h"
 
 static void usage(FILE *f)
@@ -27,24 +27,12 @@ int main(int argc, char **argv)
 {
     const char *in = NULL, *out = NULL, *channel = "POSE";
     int tracking_only = 0;
-    static const struct option opts[] = {
-        { "log", required_argument, 0, 'l' }, { "channel", required_argument, 0, 'c' },
-        { "out", required_argument, 0, 'o' }, { "tracking-only", no_argument, 0, 't' },
-        { "help", no_argument, 0, 'h' }, { 0, 0, 0, 0 },
+    const pb_opt_t opts[] = {
+        PB_OPT_REQUIRED("log", &in), PB_OPT_STRING("channel", &channel), PB_OPT_REQUIRED("out", &out),
+        PB_OPT_FLAG("tracking-only", &tracking_only, 1), PB_OPT_END,
     };
-    int c;
-    while ((c = getopt_long(argc, argv, "h", opts, NULL)) != -1) {
-        switch (c) {
-        case 'l': in = optarg; break;
-        case 'c': channel = optarg; break;
-        case 'o': out = optarg; break;
-        case 't': tracking_only = 1; break;
-        case 'h': usage(stdout); return 0;
-        default: usage(stderr); return 2;
-        }
-    }
-    if (optind < argc) { fprintf(stderr, "pose-to-tum: unexpected argument '%s'\n", argv[optind]); return 2; }
-    if (!in || !out) { fprintf(stderr, "pose-to-tum: --log and --out are required\n"); usage(stderr); return 2; }
+    int parsed = pb_opt_parse("pose-to-tum", opts, usage, 0, argc, argv);
+    if (parsed >= 0) return parsed;
 
     pb_err_t err;
     pb_log_t *log = pb_log_open_read(in, &err);

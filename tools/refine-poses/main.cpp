@@ -5,7 +5,6 @@
 // Input: an import-scans log (LIDAR_SCAN in point form + GROUND_TRUTH, the LiDAR
 // pose, at the same utime). Output: the refined LiDAR poses, one KITTI line
 // (3x4 row-major) per scan in log order, readable by import-scans --poses.
-#include <getopt.h>
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -14,9 +13,9 @@
 #include <string>
 #include <vector>
 
-#include "pb_arg.h"
 #include "pb_err.h"
 #include "pb_log.h"
+#include "pb_opt.h"
 #include "pb_progress.h"
 #include "pb_scan.h"
 #include "portobello_lidar_scan_t.h"
@@ -67,69 +66,56 @@ static void json_array(FILE *f, const char *name, const std::vector<double> &v, 
     std::fprintf(f, "]%s\n", last ? "" : ",");
 }
 
+/* What the log gives: GROUND_TRUTH by utime, and each LIDAR_SCAN's points with its utime. */
+struct LogInput {
+    std::map<int64_t, Eigen::Isometry3d> truth;
+    std::vector<std::pair<int64_t, std::vector<float>>> raw;
+    pb_points_t pts = {};
+
+    static void on_pose(const portobello_pose_t *p, const pb_transform_t *T, void *user)
+    {
+        ((LogInput *)user)->truth[p->utime] = pb_reg_from_transform(T);
+    }
+    static int on_scan(const pb_event_t *ev, void *user, pb_err_t *err)
+    {
+        LogInput *in = (LogInput *)user;
+        portobello_lidar_scan_t s;
+        if (portobello_lidar_scan_t_decode(ev->data, 0, ev->datalen, &s) < 0)
+            return pb_err_set(err, "LIDAR_SCAN at byte %lld does not decode", (long long)ev->offset);
+        int n = pb_scan_points(&s, &in->pts, err);
+        int64_t ut = s.utime;
+        portobello_lidar_scan_t_decode_cleanup(&s);
+        if (n < 0) return -1;
+        std::vector<float> xyz(3 * (size_t)n);
+        for (int i = 0; i < n; i++) { xyz[3 * i] = in->pts.x[i]; xyz[3 * i + 1] = in->pts.y[i]; xyz[3 * i + 2] = in->pts.z[i]; }
+        in->raw.emplace_back(ut, std::move(xyz));
+        return 0;
+    }
+};
+
 int main(int argc, char **argv)
 {
     const char *log_path = nullptr, *out_path = nullptr, *report_path = nullptr;
     pb_refine_config_t cfg;
     pb_refine_config_default(&cfg);
     bool quiet = false;
-    static const struct option opts[] = {{"log", 1, 0, 'l'}, {"out", 1, 0, 'o'}, {"report", 1, 0, 'r'},
-                                         {"rounds", 1, 0, 'n'}, {"radius", 1, 0, 'R'}, {"neighbours", 1, 0, 'N'},
-                                         {"quiet", 0, 0, 'q'}, {"help", 0, 0, 'h'}, {0, 0, 0, 0}};
-    int c;
-    long v;
-    while ((c = getopt_long(argc, argv, "h", opts, nullptr)) != -1) {
-        switch (c) {
-        case 'l': log_path = optarg; break;
-        case 'o': out_path = optarg; break;
-        case 'r': report_path = optarg; break;
-        case 'n': if (pb_arg_long("refine-poses", "--rounds", optarg, 1, 100, &v)) return 2; cfg.max_rounds = (int)v; break;
-        case 'R': if (pb_arg_double("refine-poses", "--radius", optarg, 1, 1000, &cfg.neighbour_radius_m)) return 2; break;
-        case 'N': if (pb_arg_long("refine-poses", "--neighbours", optarg, 1, 1000, &v)) return 2; cfg.max_neighbours = (int)v; break;
-        case 'q': quiet = true; break;
-        case 'h': usage(stdout); return 0;
-        default: usage(stderr); return 2;
-        }
-    }
-    if (!log_path || !out_path || optind < argc) { usage(stderr); return 2; }
+    const pb_opt_t opts[] = {
+        PB_OPT_REQUIRED("log", &log_path), PB_OPT_REQUIRED("out", &out_path), PB_OPT_STRING("report", &report_path),
+        PB_OPT_INT("rounds", &cfg.max_rounds, 1, 100), PB_OPT_DOUBLE("radius", &cfg.neighbour_radius_m, 1, 1000),
+        PB_OPT_INT("neighbours", &cfg.max_neighbours, 1, 1000), PB_OPT_BOOL("quiet", &quiet, 1), PB_OPT_END,
+    };
+    int parsed = pb_opt_parse("refine-poses", opts, usage, 0, argc, argv);
+    if (parsed >= 0) return parsed;
     pb_err_t err;
-    pb_log_t *log = pb_log_open_read(log_path, &err);
-    if (!log) { std::fprintf(stderr, "refine-poses: %s\n", err.msg); return 1; }
-    std::map<int64_t, Eigen::Isometry3d> truth;
-    std::vector<std::pair<int64_t, std::vector<float>>> raw;
-    pb_points_t pts = {};
-    pb_event_t ev;
-    int rc;
-    while ((rc = pb_log_next(log, &ev, &err)) == 1) {
-        if (!std::strcmp(ev.channel, "GROUND_TRUTH")) {
-            portobello_pose_t p;
-            pb_transform_t T;
-            if (pb_log_pose(&ev, &p, &T, &err)) { std::fprintf(stderr, "refine-poses: %s: %s\n", log_path, err.msg); return 1; }
-            truth[p.utime] = pb_reg_from_transform(&T);
-        } else if (!std::strcmp(ev.channel, "LIDAR_SCAN")) {
-            portobello_lidar_scan_t s;
-            if (portobello_lidar_scan_t_decode(ev.data, 0, ev.datalen, &s) < 0) {
-                std::fprintf(stderr, "refine-poses: %s: LIDAR_SCAN at byte %lld does not decode\n", log_path,
-                             (long long)ev.offset);
-                return 1;
-            }
-            int n = pb_scan_points(&s, &pts, &err);
-            int64_t ut = s.utime;
-            portobello_lidar_scan_t_decode_cleanup(&s);
-            if (n < 0) { std::fprintf(stderr, "refine-poses: %s: %s\n", log_path, err.msg); return 1; }
-            std::vector<float> xyz(3 * (size_t)n);
-            for (int i = 0; i < n; i++) { xyz[3 * i] = pts.x[i]; xyz[3 * i + 1] = pts.y[i]; xyz[3 * i + 2] = pts.z[i]; }
-            raw.emplace_back(ut, std::move(xyz));
-        }
-    }
-    pb_points_free(&pts);
-    pb_log_close(log, nullptr);
-    if (rc < 0) { std::fprintf(stderr, "refine-poses: %s\n", err.msg); return 1; }
+    LogInput in;
+    int rc = pb_log_read_track(log_path, "GROUND_TRUTH", LogInput::on_pose, "LIDAR_SCAN", LogInput::on_scan, &in, &err);
+    pb_points_free(&in.pts);
+    if (rc) { std::fprintf(stderr, "refine-poses: %s\n", err.msg); return 1; }
     std::vector<std::vector<float>> scans;
     std::vector<Eigen::Isometry3d> poses;
-    for (auto &r : raw) {
-        auto it = truth.find(r.first);
-        if (it == truth.end()) {
+    for (auto &r : in.raw) {
+        auto it = in.truth.find(r.first);
+        if (it == in.truth.end()) {
             std::fprintf(stderr, "refine-poses: %s: LIDAR_SCAN at utime %lld has no GROUND_TRUTH at the same utime "
                          "(an import-scans log is expected)\n", log_path, (long long)r.first);
             return 1;

@@ -1,11 +1,12 @@
 /* scenario-check: validates scenario files against their site, with file:line errors.
  *   scenario-check --site SITE_DIR [--vehicle FILE] FILE...   (no FILE: every scenario of the site) */
-#include <getopt.h>
 #include <glob.h>
 #include <stdio.h>
 #include <string.h>
+#include <unistd.h>
 
 #include "check.h"
+#include "pb_opt.h"
 #include "pb_route.h"
 #include "pb_site.h"
 #include "pb_vehicle.h"
@@ -31,21 +32,10 @@ static void print(int is_error, const char *file, int line, const char *msg, voi
 
 int main(int argc, char **argv)
 {
-    const char *site_dir = NULL;
-    char vehicle[1100];
-    snprintf(vehicle, sizeof vehicle, "%s/vehicles/prius2017.yaml", PB_SOURCE_DIR);
-    static const struct option opts[] = { { "site", required_argument, 0, 's' }, { "vehicle", required_argument, 0, 'v' },
-                                          { "help", no_argument, 0, 'h' }, { 0, 0, 0, 0 } };
-    int c;
-    while ((c = getopt_long(argc, argv, "h", opts, NULL)) != -1) {
-        switch (c) {
-        case 's': site_dir = optarg; break;
-        case 'v': snprintf(vehicle, sizeof vehicle, "%s", optarg); break;
-        case 'h': usage(stdout); return 0;
-        default: usage(stderr); return 2;
-        }
-    }
-    if (!site_dir) { fprintf(stderr, "scenario-check: --site is required\n"); usage(stderr); return 2; }
+    const char *site_dir = NULL, *vehicle = PB_SOURCE_DIR "/vehicles/prius2017.yaml";
+    const pb_opt_t opts[] = { PB_OPT_REQUIRED("site", &site_dir), PB_OPT_STRING("vehicle", &vehicle), PB_OPT_END };
+    int parsed = pb_opt_parse("scenario-check", opts, usage, PB_OPT_ARGS, argc, argv);
+    if (parsed >= 0) return parsed;
     pb_err_t err;
     pb_site_t site;
     pb_route_t route;

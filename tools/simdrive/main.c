@@ -1,7 +1,6 @@
 /* simdrive: a simulated study site and drive, deterministic for a seed.
  * The shell: options, file loading, the time-ordered event loop and the log. */
 #include <errno.h>
-#include <getopt.h>
 #include <limits.h>
 #include <math.h>
 #include <stdio.h>
@@ -11,6 +10,7 @@
 
 #include "actors.h"
 #include "pb_arg.h"
+#include "pb_opt.h"
 #include "pb_ground.h"
 #include "can.h"
 #include "gnss.h"
@@ -136,78 +136,47 @@ static int write_terrain(const terrain_t *T, const char *path, pb_err_t *err)
 
 enum { S_GT, S_IMU, S_LIDAR, S_GNSS, S_CAN_WS, S_CAN_SPD, S_TRUTH, S_CAN_GEAR, S_COUNT };
 
+/* --dwell S, repeatable: the 1st, 2nd, ... stop's dwell */
+typedef struct { double s[256]; int n; } dwells_t;
+
+static int add_dwell(const char *prog, const char *arg, void *var)
+{
+    dwells_t *d = var;
+    if (d->n == (int)(sizeof d->s / sizeof *d->s)) {
+        fprintf(stderr, "%s: --dwell: at most %d stops\n", prog, d->n);
+        return -1;
+    }
+    if (pb_arg_double(prog, "dwell", arg, 1.5, 3600, &d->s[d->n])) return -1;
+    d->n++;
+    return 0;
+}
+
 int main(int argc, char **argv)
 {
     const char *out_dir = NULL, *site_dir = PB_SOURCE_DIR "/maps/default";
-    const char *veh_path = PB_SOURCE_DIR "/vehicles/prius2017.yaml", *profile = "normal";
-    uint64_t seed = 1;
+    const char *veh_path = PB_SOURCE_DIR "/vehicles/prius2017.yaml";
+    long seed = 1;
     double duration = 60;
-    int mapping = 0, quiet = 0, no_lidar = 0, head = 0, ndwells = 0;
-    double dwells[256];
+    int mapping = 0, quiet = 0, no_lidar = 0, head = 0, prof = PB_PROFILE_NORMAL;
+    dwells_t dwells = { .n = 0 };
     const char *scenario = NULL;
-    const char *terrain_out = NULL;
+    const char *terrain_out = NULL, *without_arg = "", *with = "";
     double driver_spread = 0, reverse_m = 0;
-    char without[256] = "", with[256] = "";
-    static const struct option opts[] = {
-        { "out", required_argument, 0, 'o' }, { "seed", required_argument, 0, 's' },
-        { "duration", required_argument, 0, 'd' }, { "speed-profile", required_argument, 0, 'p' },
-        { "site", required_argument, 0, 'S' }, { "vehicle", required_argument, 0, 'v' },
-        { "mapping", no_argument, 0, 'm' }, { "terrain-out", required_argument, 0, 'T' },
-        { "driver-spread", required_argument, 0, 'D' }, { "without", required_argument, 0, 'W' }, { "with", required_argument, 0, 'A' }, { "no-lidar", no_argument, 0, 'L' }, { "quiet", no_argument, 0, 'q' },
-        { "scenario", required_argument, 0, 'c' }, { "head", no_argument, 0, 'H' },
-        { "dwell", required_argument, 0, 'w' }, { "reverse", required_argument, 0, 'R' },
-        { "help", no_argument, 0, 'h' }, { 0, 0, 0, 0 } };
-    int c;
-    while ((c = getopt_long(argc, argv, "h", opts, NULL)) != -1) {
-        switch (c) {
-        case 'o': out_dir = optarg; break;
-        case 's': {
-            long v;
-            if (pb_arg_long("simdrive", "seed", optarg, 0, LONG_MAX, &v)) return 2;
-            seed = (uint64_t)v;
-            break;
-        }
-        case 'd':
-            if (pb_arg_double("simdrive", "duration", optarg, 0.001, 24 * 3600, &duration)) return 2;
-            break;
-        case 'p': profile = optarg; break;
-        case 'S': site_dir = optarg; break;
-        case 'v': veh_path = optarg; break;
-        case 'm': mapping = 1; break;
-        case 'T': terrain_out = optarg; break;
-        case 'W': snprintf(without, sizeof without, "%s", optarg); break;
-        case 'A': snprintf(with, sizeof with, "%s", optarg); break;
-        case 'D':
-            if (pb_arg_double("simdrive", "driver-spread", optarg, 0, 0.5, &driver_spread)) return 2;
-            break;
-        case 'q': quiet = 1; break;
-        case 'L': no_lidar = 1; break;
-        case 'c': scenario = optarg; break;
-        case 'H': head = 1; break;
-        case 'w':
-            if (ndwells == (int)(sizeof dwells / sizeof *dwells)) {
-                fprintf(stderr, "simdrive: --dwell: at most %d stops\n", ndwells);
-                return 2;
-            }
-            if (pb_arg_double("simdrive", "dwell", optarg, 1.5, 3600, &dwells[ndwells])) return 2;
-            ndwells++;
-            break;
-        case 'R':
-            if (pb_arg_double("simdrive", "reverse", optarg, 1, 500, &reverse_m)) return 2;
-            break;
-        case 'h': usage(stdout); return 0;
-        default: usage(stderr); return 2;
-        }
-    }
-    if (optind < argc) { fprintf(stderr, "simdrive: unexpected argument '%s'\n", argv[optind]); return 2; }
+    const pb_opt_t opts[] = {
+        PB_OPT_STRING("out", &out_dir), PB_OPT_LONG("seed", &seed, 0, LONG_MAX),
+        PB_OPT_DOUBLE("duration", &duration, 0.001, 24 * 3600),
+        PB_OPT_CHOICE("speed-profile", &prof, pb_profile_names, PB_PROFILE_COUNT), PB_OPT_STRING("site", &site_dir),
+        PB_OPT_STRING("vehicle", &veh_path), PB_OPT_FLAG("mapping", &mapping, 1), PB_OPT_STRING("terrain-out", &terrain_out),
+        PB_OPT_DOUBLE("driver-spread", &driver_spread, 0, 0.5), PB_OPT_STRING("without", &without_arg),
+        PB_OPT_STRING("with", &with), PB_OPT_FLAG("no-lidar", &no_lidar, 1), PB_OPT_FLAG("quiet", &quiet, 1),
+        PB_OPT_STRING("scenario", &scenario), PB_OPT_FLAG("head", &head, 1), PB_OPT_CALL("dwell", add_dwell, &dwells),
+        PB_OPT_DOUBLE("reverse", &reverse_m, 1, 500), PB_OPT_END,
+    };
+    int parsed = pb_opt_parse("simdrive", opts, usage, 0, argc, argv);
+    if (parsed >= 0) return parsed;
     if (!out_dir && !terrain_out) { fprintf(stderr, "simdrive: --out DIR is required (see --help)\n"); return 2; }
-    int prof = -1;
-    for (int i = 0; i < PB_PROFILE_COUNT; i++)
-        if (!strcmp(profile, pb_profile_names[i])) prof = i;
-    if (prof < 0) {
-        fprintf(stderr, "simdrive: --speed-profile: expected cautious, normal or aggressive, got '%s'\n", profile);
-        return 2;
-    }
+    char without[256];
+    snprintf(without, sizeof without, "%s", without_arg);
 
     pb_err_t err = { "" };
     pb_vehicle_t veh;
@@ -259,7 +228,7 @@ int main(int argc, char **argv)
     /* The base origin (rear axle) halts so that the front bumper is 0.5 m behind the line. */
     double stop_offset = (veh.length - veh.rear_overhang) + 0.5;
     trajectory_t traj;
-    traj_driver_t driver = { mapping ? 0 : driver_spread, dwells, ndwells, mapping ? 0 : reverse_m, 0 };
+    traj_driver_t driver = { mapping ? 0 : driver_spread, dwells.s, dwells.n, mapping ? 0 : reverse_m, 0 };
     if (traj_plan(&traj, &route, &route.profiles[prof], mapping ? 0 : duration, stop_offset, &driver, seed, &err)) {
         fprintf(stderr, "simdrive: %s\n", err.msg);
         return 1;

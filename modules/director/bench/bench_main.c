@@ -11,7 +11,6 @@
  * that other processes on a shared machine do not count.
  *
  *   bench-director [--site DIR] [--laps N] [--vehicle FILE] */
-#include <getopt.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -21,6 +20,7 @@
 
 #include "director/core/director.h"
 #include "pb_clock.h"
+#include "pb_opt.h"
 #include "pb_route.h"
 #include "pb_site.h"
 #include "pb_vehicle.h"
@@ -119,25 +119,23 @@ static int run(const char *path, const pb_route_t *r, const dir_vehicle_t *veh, 
     return 0;
 }
 
+static void usage(FILE *f)
+{
+    fprintf(f, "usage: bench-director [--site DIR] [--laps N] [--vehicle FILE]\n"
+               "Cost of one POSE update of the director core: 1,000 triggers and 200 agents\n"
+               "against the shipped cw01 scenario, 100 Hz poses along the route at 10 m/s.\n");
+}
+
 int main(int argc, char **argv)
 {
     const char *site_dir = PB_SOURCE_DIR "/maps/default";
     const char *vehicle = PB_SOURCE_DIR "/vehicles/prius2017.yaml";
     int laps = 1;
-    static const struct option opts[] = { { "site", required_argument, 0, 's' }, { "laps", required_argument, 0, 'l' },
-                                          { "vehicle", required_argument, 0, 'v' }, { "help", no_argument, 0, 'h' }, { 0, 0, 0, 0 } };
-    int c;
-    while ((c = getopt_long(argc, argv, "h", opts, NULL)) != -1) {
-        switch (c) {
-        case 's': site_dir = optarg; break;
-        case 'l': laps = atoi(optarg); if (laps < 1 || laps > 20) { fprintf(stderr, "bench-director: --laps 1..20\n"); return 2; } break;
-        case 'v': vehicle = optarg; break;
-        case 'h': printf("usage: bench-director [--site DIR] [--laps N] [--vehicle FILE]\n"
-                         "Cost of one POSE update of the director core: 1,000 triggers and 200 agents\n"
-                         "against the shipped cw01 scenario, 100 Hz poses along the route at 10 m/s.\n"); return 0;
-        default: return 2;
-        }
-    }
+    const pb_opt_t opts[] = {
+        PB_OPT_STRING("site", &site_dir), PB_OPT_INT("laps", &laps, 1, 20), PB_OPT_STRING("vehicle", &vehicle), PB_OPT_END,
+    };
+    int parsed = pb_opt_parse("bench-director", opts, usage, 0, argc, argv);
+    if (parsed >= 0) return parsed;
     pb_err_t err;
     pb_site_t site;
     pb_route_t r;

@@ -6,30 +6,31 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 #include "gnss_driver.h"
-#include "pb_arg.h"
 #include "pb_clock.h"
+#include "pb_opt.h"
 
 static int64_t fixes;
 static double lat_sum;
 static void on_fix(void *user, const gnss_fix_out_t *f) { fixes++; lat_sum += f->lat_deg == f->lat_deg ? f->lat_deg : 0; }
 
+static void usage(FILE *f)
+{
+    fprintf(f, "usage: gnss-bench [--runs N] [--repeat-to BYTES] FILE...\n"
+               "Times the gnss parser core over FILEs repeated to BYTES; prints JSON.\n");
+}
+
 int main(int argc, char **argv)
 {
     long runs = 5, target = 4 << 20;
-    int i = 1;
-    for (; i < argc && argv[i][0] == '-'; i += 2) {
-        if (!strcmp(argv[i], "-h") || !strcmp(argv[i], "--help")) {
-            printf("usage: gnss-bench [--runs N] [--repeat-to BYTES] FILE...\n"
-                   "Times the gnss parser core over FILEs repeated to BYTES; prints JSON.\n");
-            return 0;
-        }
-        if (i + 1 >= argc) { fprintf(stderr, "gnss-bench: %s needs a value\n", argv[i]); return 2; }
-        if (!strcmp(argv[i], "--runs")) { if (pb_arg_long("gnss-bench", "--runs", argv[i + 1], 1, 1000, &runs)) return 2; }
-        else if (!strcmp(argv[i], "--repeat-to")) { if (pb_arg_long("gnss-bench", "--repeat-to", argv[i + 1], 1, 1L << 31, &target)) return 2; }
-        else { fprintf(stderr, "gnss-bench: unknown option %s\n", argv[i]); return 2; }
-    }
+    const pb_opt_t opts[] = {
+        PB_OPT_LONG("runs", &runs, 1, 1000), PB_OPT_LONG("repeat-to", &target, 1, 1L << 31), PB_OPT_END,
+    };
+    int parsed = pb_opt_parse("gnss-bench", opts, usage, PB_OPT_ARGS, argc, argv);
+    if (parsed >= 0) return parsed;
+    int i = optind;
     if (i >= argc) { fprintf(stderr, "gnss-bench: no input files\n"); return 2; }
     uint8_t *one = NULL;
     size_t n1 = 0;

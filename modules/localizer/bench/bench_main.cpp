@@ -16,7 +16,6 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
-#include <getopt.h>
 #include <random>
 #include <string>
 #include <vector>
@@ -32,6 +31,7 @@
 #include "pb_err.h"
 #include "pb_log.h"
 #include "pb_map_build.h"
+#include "pb_opt.h"
 #include "pb_scan.h"
 #include "pb_vehicle.h"
 #include "portobello_lidar_scan_t.h"
@@ -126,64 +126,77 @@ static void json_run(FILE *f, const char *name, const Run &r, bool last)
                  share_below(r.terr, g_converge), last ? "" : ",");
 }
 
+/* What the log gives: the GROUND_TRUTH track and poses (for velocities), the LIDAR_SCAN
+ * events as they are (decoded per run). */
+struct LogInput {
+    pb_pose_track_t *track = pb_pose_track_create();
+    std::vector<portobello_pose_t> gts;
+    std::vector<std::vector<uint8_t>> raw_scans;
+
+    static void on_pose(const portobello_pose_t *p, const pb_transform_t *T, void *user)
+    {
+        LogInput *in = (LogInput *)user;
+        pb_pose_track_add(in->track, p->utime, T);
+        in->gts.push_back(*p);
+    }
+    static int on_scan(const pb_event_t *ev, void *user, pb_err_t *)
+    {
+        ((LogInput *)user)->raw_scans.emplace_back(ev->data, ev->data + ev->datalen);
+        return 0;
+    }
+};
+
+/* --global R,DEG: a start searched within R metres and DEG degrees */
+static int parse_global(const char *prog, const char *arg, void *var)
+{
+    double *g = (double *)var;
+    if (std::sscanf(arg, "%lf,%lf", &g[0], &g[1]) != 2 || g[0] < 0 || g[1] < 0) {
+        std::fprintf(stderr, "%s: --global wants R,DEG, got '%s'\n", prog, arg);
+        return -1;
+    }
+    return 0;
+}
+
+/* --ndt-res A,B,...: the NDT resolutions to run */
+static int parse_ndt_res(const char *prog, const char *arg, void *var)
+{
+    std::vector<double> *out = (std::vector<double> *)var;
+    std::string list = arg;
+    size_t at = 0;
+    while (at <= list.size()) {
+        size_t e = list.find(',', at);
+        std::string item = list.substr(at, e == std::string::npos ? std::string::npos : e - at);
+        double r;
+        if (pb_arg_double(prog, "ndt-res", item.c_str(), 0.05, 20, &r)) return -1;
+        out->push_back(r);
+        if (e == std::string::npos) break;
+        at = e + 1;
+    }
+    return 0;
+}
+
 int main(int argc, char **argv)
 {
     const char *log_path = nullptr, *map_path = nullptr, *vehicle_path = nullptr, *dump = nullptr, *json = nullptr;
-    double voxel = 0.5, g_radius = 0, g_yaw_deg = 0;
+    double voxel = 0.5, global_search[2] = { -1, -1 };   /* radius, yaw (deg); < 0: no --global */
     long every = 1, base_every = 10, max_scans = 1000000, seed = 1, nstarts = 1;
     std::vector<double> ndt_res;
-    bool odd = false, global = false, verbose = false;
-    static const struct option opts[] = {
-        {"log", 1, 0, 'l'}, {"map", 1, 0, 'm'}, {"vehicle", 1, 0, 'v'}, {"voxel", 1, 0, 'x'},
-        {"every", 1, 0, 'e'}, {"baseline-every", 1, 0, 'b'}, {"max-scans", 1, 0, 'n'}, {"odd", 0, 0, 'o'},
-        {"global", 1, 0, 'g'}, {"dump", 1, 0, 'd'}, {"json", 1, 0, 'j'}, {"seed", 1, 0, 's'},
-        {"verbose", 0, 0, 'V'}, {"starts", 1, 0, 'K'}, {"converge", 1, 0, 'c'}, {"ndt-res", 1, 0, 'R'}, {"target-points", 1, 0, 'T'}, {"coarse-iterations", 1, 0, 'C'}, {"help", 0, 0, 'h'}, {0, 0, 0, 0}};
+    bool odd = false, verbose = false;
     long target_points = -1, coarse_iterations = -1;
-    int c;
-    while ((c = getopt_long(argc, argv, "", opts, nullptr)) != -1) {
-        switch (c) {
-        case 'l': log_path = optarg; break;
-        case 'm': map_path = optarg; break;
-        case 'v': vehicle_path = optarg; break;
-        case 'x': if (pb_arg_double("bench-localizer", "--voxel", optarg, 0.05, 10, &voxel)) return 2; break;
-        case 'e': if (pb_arg_long("bench-localizer", "--every", optarg, 1, 100000, &every)) return 2; break;
-        case 'b': if (pb_arg_long("bench-localizer", "--baseline-every", optarg, 0, 100000, &base_every)) return 2; break;
-        case 'n': if (pb_arg_long("bench-localizer", "--max-scans", optarg, 1, 100000000, &max_scans)) return 2; break;
-        case 's': if (pb_arg_long("bench-localizer", "--seed", optarg, 0, 1L << 40, &seed)) return 2; break;
-        case 'o': odd = true; break;
-        case 'V': verbose = true; break;
-        case 'T': if (pb_arg_long("bench-localizer", "--target-points", optarg, 0, 1000000, &target_points)) return 2; break;
-        case 'C': if (pb_arg_long("bench-localizer", "--coarse-iterations", optarg, 0, 100, &coarse_iterations)) return 2; break;
-        case 'g':
-            if (std::sscanf(optarg, "%lf,%lf", &g_radius, &g_yaw_deg) != 2 || g_radius < 0 || g_yaw_deg < 0) {
-                std::fprintf(stderr, "bench-localizer: --global wants R,DEG, got '%s'\n", optarg);
-                return 2;
-            }
-            global = true;
-            break;
-        case 'K': if (pb_arg_long("bench-localizer", "--starts", optarg, 1, 10000, &nstarts)) return 2; break;
-        case 'c': if (pb_arg_double("bench-localizer", "--converge", optarg, 0.001, 100, &g_converge)) return 2; break;
-        case 'R': {
-            std::string list = optarg;
-            size_t at = 0;
-            while (at <= list.size()) {
-                size_t e = list.find(',', at);
-                std::string item = list.substr(at, e == std::string::npos ? std::string::npos : e - at);
-                double r;
-                if (pb_arg_double("bench-localizer", "--ndt-res", item.c_str(), 0.05, 20, &r)) return 2;
-                ndt_res.push_back(r);
-                if (e == std::string::npos) break;
-                at = e + 1;
-            }
-            break;
-        }
-        case 'd': dump = optarg; break;
-        case 'j': json = optarg; break;
-        case 'h': usage(stdout); return 0;
-        default: usage(stderr); return 2;
-        }
-    }
-    if (!log_path || !map_path) { usage(stderr); return 2; }
+    const pb_opt_t opts[] = {
+        PB_OPT_REQUIRED("log", &log_path), PB_OPT_REQUIRED("map", &map_path), PB_OPT_STRING("vehicle", &vehicle_path),
+        PB_OPT_DOUBLE("voxel", &voxel, 0.05, 10), PB_OPT_LONG("every", &every, 1, 100000),
+        PB_OPT_LONG("baseline-every", &base_every, 0, 100000), PB_OPT_LONG("max-scans", &max_scans, 1, 100000000),
+        PB_OPT_BOOL("odd", &odd, 1), PB_OPT_CALL("global", parse_global, global_search), PB_OPT_STRING("dump", &dump),
+        PB_OPT_STRING("json", &json), PB_OPT_LONG("seed", &seed, 0, 1L << 40), PB_OPT_BOOL("verbose", &verbose, 1),
+        PB_OPT_LONG("starts", &nstarts, 1, 10000), PB_OPT_DOUBLE("converge", &g_converge, 0.001, 100),
+        PB_OPT_CALL("ndt-res", parse_ndt_res, &ndt_res), PB_OPT_LONG("target-points", &target_points, 0, 1000000),
+        PB_OPT_LONG("coarse-iterations", &coarse_iterations, 0, 100), PB_OPT_END,
+    };
+    int parsed = pb_opt_parse("bench-localizer", opts, usage, 0, argc, argv);
+    if (parsed >= 0) return parsed;
+    const bool global = global_search[0] >= 0;
+    const double g_radius = global_search[0], g_yaw_deg = global_search[1];
     if (ndt_res.empty()) ndt_res.push_back(voxel);
     if (!global) nstarts = 1;
     pb_err_t err;
@@ -196,26 +209,14 @@ int main(int argc, char **argv)
     const Eigen::Isometry3d B = pb_reg_from_transform(&base_from_lidar);
 
     // ---- read the log: ground truth track (+ velocities), then scans
-    pb_log_t *log = pb_log_open_read(log_path, &err);
-    if (!log) { std::fprintf(stderr, "bench-localizer: %s\n", err.msg); return 1; }
-    pb_pose_track_t *track = pb_pose_track_create();
-    std::vector<portobello_pose_t> gts;
-    std::vector<std::vector<uint8_t>> raw_scans;
-    pb_event_t ev;
-    int rc;
-    while ((rc = pb_log_next(log, &ev, &err)) == 1) {
-        if (!std::strcmp(ev.channel, "GROUND_TRUTH")) {
-            portobello_pose_t p;
-            pb_transform_t T;
-            if (pb_log_pose(&ev, &p, &T, &err)) { std::fprintf(stderr, "bench-localizer: %s: %s\n", log_path, err.msg); return 1; }
-            pb_pose_track_add(track, p.utime, &T);
-            gts.push_back(p);
-        } else if (!std::strcmp(ev.channel, "LIDAR_SCAN")) {
-            raw_scans.emplace_back(ev.data, ev.data + ev.datalen);
-        }
+    LogInput in;
+    if (pb_log_read_track(log_path, "GROUND_TRUTH", LogInput::on_pose, "LIDAR_SCAN", LogInput::on_scan, &in, &err)) {
+        std::fprintf(stderr, "bench-localizer: %s\n", err.msg);
+        return 1;
     }
-    if (rc < 0) { std::fprintf(stderr, "bench-localizer: %s\n", err.msg); return 1; }
-    pb_log_close(log, nullptr);
+    pb_pose_track_t *track = in.track;
+    std::vector<portobello_pose_t> &gts = in.gts;
+    std::vector<std::vector<uint8_t>> &raw_scans = in.raw_scans;
     std::sort(gts.begin(), gts.end(), [](const portobello_pose_t &a, const portobello_pose_t &b) { return a.utime < b.utime; });
 
     std::mt19937_64 rng((uint64_t)seed);

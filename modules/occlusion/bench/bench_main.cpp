@@ -9,7 +9,6 @@
  * castRay answers the same queries (timed): OUT gets OCCLUSION (ours) and
  * OCCLUSION_STOCK for those sweeps, so one agreement script scores both.
  * Prints one JSON object of timings on stdout. */
-#include <getopt.h>
 #include <sys/resource.h>
 #include <time.h>
 
@@ -25,6 +24,7 @@
 #include "core/occlusion.h"
 #include "occ_message.h"
 #include "pb_log.h"
+#include "pb_opt.h"
 #include "pb_scan.h"
 #include "pb_vehicle.h"
 #include "portobello_agents_t.h"
@@ -93,31 +93,25 @@ static int8_t stock_query(const octomap::OcTree &tree, const occ_config_t &c, co
     return OCC_UNKNOWN;
 }
 
+static void usage(FILE *f)
+{
+    fprintf(f, "usage: occlusion-bench --log DRIVE.lcm --out OUT.lcm [--stock-from N] [--stock-count M]\n"
+               "Times the occlusion pipeline on every sweep of a simdrive --scenario log, and stock\n"
+               "OctoMap insertPointCloud + castRay on sweeps N..N+M-1; writes both answers to OUT.\n");
+}
+
 int main(int argc, char **argv)
 {
     const char *log_path = nullptr, *out_path = nullptr;
     std::string vehicle = std::string(PB_SOURCE_DIR) + "/vehicles/prius2017.yaml";
     long stock_from = 300, stock_count = 30;
-    static const struct option opts[] = {
-        { "log", required_argument, 0, 'l' }, { "out", required_argument, 0, 'o' },
-        { "stock-from", required_argument, 0, 'f' }, { "stock-count", required_argument, 0, 'n' },
-        { "help", no_argument, 0, 'h' }, { 0, 0, 0, 0 } };
-    int c;
-    while ((c = getopt_long(argc, argv, "h", opts, nullptr)) != -1) {
-        switch (c) {
-        case 'l': log_path = optarg; break;
-        case 'o': out_path = optarg; break;
-        case 'f': stock_from = atol(optarg); break;
-        case 'n': stock_count = atol(optarg); break;
-        case 'h':
-            printf("usage: occlusion-bench --log DRIVE.lcm --out OUT.lcm [--stock-from N] [--stock-count M]\n"
-                   "Times the occlusion pipeline on every sweep of a simdrive --scenario log, and stock\n"
-                   "OctoMap insertPointCloud + castRay on sweeps N..N+M-1; writes both answers to OUT.\n");
-            return 0;
-        default: return 2;
-        }
-    }
-    if (!log_path || !out_path) { fprintf(stderr, "occlusion-bench: --log and --out are required\n"); return 2; }
+    const pb_opt_t opts[] = {
+        PB_OPT_REQUIRED("log", &log_path), PB_OPT_REQUIRED("out", &out_path),
+        PB_OPT_LONG("stock-from", &stock_from, 0, 1L << 40), PB_OPT_LONG("stock-count", &stock_count, 0, 1L << 40),
+        PB_OPT_END,
+    };
+    int parsed = pb_opt_parse("occlusion-bench", opts, usage, 0, argc, argv);
+    if (parsed >= 0) return parsed;
     pb_err_t err;
     pb_vehicle_t veh;
     if (pb_vehicle_load(vehicle.c_str(), &veh, &err)) { fprintf(stderr, "occlusion-bench: %s\n", err.msg); return 1; }

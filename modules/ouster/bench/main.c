@@ -4,7 +4,6 @@
  *   decode        ouster_driver on the packets: columns -> range image, frame closed
  *   decode_encode decode plus LCM encoding of the LIDAR_SCAN (what the live driver does)
  * The packets are replayed --frames times with the frame_id advanced each time. */
-#include <getopt.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -13,7 +12,7 @@
 #include "ouster/core/ouster_driver.h"
 #include "ouster/core/ouster_meta.h"
 #include "ouster/core/ouster_pcap.h"
-#include "pb_arg.h"
+#include "pb_opt.h"
 
 typedef struct { int encode; uint8_t *buf; int cap; long bytes; } sink_t;
 
@@ -41,31 +40,23 @@ static int cmp(const void *a, const void *b)
 
 static double median(double *v, int n) { qsort(v, n, sizeof *v, cmp); return n % 2 ? v[n / 2] : (v[n / 2 - 1] + v[n / 2]) / 2; }
 
+static void usage(FILE *f)
+{
+    fprintf(f, "usage: ouster-bench --pcap FILE --metadata JSON [--frames N] [--lidar-port 7502]\n"
+               "Median CPU time per frame of copying, decoding, decoding+encoding the capture's lidar\n"
+               "packets (one frame's worth, replayed N times); prints JSON.\n");
+}
+
 int main(int argc, char **argv)
 {
     const char *pcap = NULL, *meta_path = NULL;
     long frames = 300, port = 7502;
-    static const struct option opts[] = {
-        { "pcap", required_argument, 0, 'p' }, { "metadata", required_argument, 0, 'm' },
-        { "frames", required_argument, 0, 'f' }, { "lidar-port", required_argument, 0, 'L' },
-        { "help", no_argument, 0, 'h' }, { 0, 0, 0, 0 },
+    const pb_opt_t opts[] = {
+        PB_OPT_REQUIRED("pcap", &pcap), PB_OPT_REQUIRED("metadata", &meta_path),
+        PB_OPT_LONG("frames", &frames, 3, 1000000), PB_OPT_LONG("lidar-port", &port, 1, 65535), PB_OPT_END,
     };
-    int c;
-    while ((c = getopt_long(argc, argv, "h", opts, NULL)) != -1) {
-        switch (c) {
-        case 'p': pcap = optarg; break;
-        case 'm': meta_path = optarg; break;
-        case 'f': if (pb_arg_long("ouster-bench", "--frames", optarg, 3, 1000000, &frames)) return 2; break;
-        case 'L': if (pb_arg_long("ouster-bench", "--lidar-port", optarg, 1, 65535, &port)) return 2; break;
-        case 'h':
-            printf("usage: ouster-bench --pcap FILE --metadata JSON [--frames N] [--lidar-port 7502]\n"
-                   "Median CPU time per frame of copying, decoding, decoding+encoding the capture's lidar\n"
-                   "packets (one frame's worth, replayed N times); prints JSON.\n");
-            return 0;
-        default: return 2;
-        }
-    }
-    if (!pcap || !meta_path) { fprintf(stderr, "ouster-bench: --pcap and --metadata are required\n"); return 2; }
+    int parsed = pb_opt_parse("ouster-bench", opts, usage, 0, argc, argv);
+    if (parsed >= 0) return parsed;
     pb_err_t err;
     ouster_meta_t meta;
     if (ouster_meta_load(meta_path, &meta, &err)) { fprintf(stderr, "ouster-bench: %s\n", err.msg); return 1; }

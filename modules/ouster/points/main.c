@@ -1,13 +1,12 @@
 /* ouster-points: the points of LIDAR_SCAN messages of a log as CSV, computed by
  * common/pb_scan (the one implementation of the range-image model), so that a driver's
  * output can be checked point by point against reference xyz. */
-#include <getopt.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
-#include "pb_arg.h"
 #include "pb_log.h"
+#include "pb_opt.h"
 #include "pb_scan.h"
 #include "portobello_lidar_scan_t.h"
 
@@ -25,21 +24,12 @@ int main(int argc, char **argv)
 {
     const char *in = NULL, *channel = "LIDAR_SCAN";
     long want = -1;
-    static const struct option opts[] = {
-        { "in", required_argument, 0, 'i' }, { "channel", required_argument, 0, 'c' },
-        { "scan", required_argument, 0, 's' }, { "help", no_argument, 0, 'h' }, { 0, 0, 0, 0 },
+    const pb_opt_t opts[] = {
+        PB_OPT_REQUIRED("in", &in), PB_OPT_STRING("channel", &channel), PB_OPT_LONG("scan", &want, 0, 1L << 40),
+        PB_OPT_END,
     };
-    int c;
-    while ((c = getopt_long(argc, argv, "h", opts, NULL)) != -1) {
-        switch (c) {
-        case 'i': in = optarg; break;
-        case 'c': channel = optarg; break;
-        case 's': if (pb_arg_long("ouster-points", "--scan", optarg, 0, 1L << 40, &want)) return 2; break;
-        case 'h': usage(stdout); return 0;
-        default: usage(stderr); return 2;
-        }
-    }
-    if (!in || optind < argc) { usage(stderr); return 2; }
+    int parsed = pb_opt_parse("ouster-points", opts, usage, 0, argc, argv);
+    if (parsed >= 0) return parsed;
     pb_err_t err;
     pb_log_t *log = pb_log_open_read(in, &err);
     if (!log) { fprintf(stderr, "ouster-points: %s\n", err.msg); return 1; }

@@ -4,7 +4,6 @@
  * until the state shows the request was carried out. */
 #define _GNU_SOURCE
 #include <errno.h>
-#include <getopt.h>
 #include <poll.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -15,6 +14,7 @@
 
 #include "pb_arg.h"
 #include "pb_bus.h"
+#include "pb_opt.h"
 #include "portobello_supervisor_command_t.h"
 #include "portobello_supervisor_t.h"
 
@@ -175,20 +175,12 @@ int main(int argc, char **argv)
     double timeout = 30;
     long nlines = 20;
     int follow = 0;
-    static const struct option opts[] = {
-        { "stack", required_argument, 0, 's' }, { "lcm-url", required_argument, 0, 'u' },
-        { "timeout", required_argument, 0, 't' }, { "help", no_argument, 0, 'h' }, { 0, 0, 0, 0 },
+    const pb_opt_t opts[] = {
+        PB_OPT_STRING("stack", &c.stack), PB_OPT_STRING("lcm-url", &url), PB_OPT_DOUBLE("timeout", &timeout, 0.1, 86400),
+        PB_OPT_END,
     };
-    int o;
-    while ((o = getopt_long(argc, argv, "+h", opts, NULL)) != -1) {
-        switch (o) {
-        case 's': c.stack = optarg; break;
-        case 'u': url = optarg; break;
-        case 't': if (pb_arg_double("supervisorctl", "--timeout", optarg, 0.1, 86400, &timeout)) return 2; break;
-        case 'h': usage(stdout); return 0;
-        default: usage(stderr); return 2;
-        }
-    }
+    int parsed = pb_opt_parse("supervisorctl", opts, usage, PB_OPT_IN_ORDER, argc, argv);
+    if (parsed >= 0) return parsed;
     if (optind >= argc) { usage(stderr); return 2; }
     const char *action = argv[optind++];
     const char *target = NULL;
