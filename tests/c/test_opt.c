@@ -62,6 +62,7 @@ static int parse(int flags, const char *words[])
 
     char path[] = "/tmp/test_opt_XXXXXX";
     int fd = mkstemp(path);
+    if (fd < 0) { perror("test_opt: mkstemp"); exit(1); }
     fflush(stderr);
     int saved = dup(2);
     dup2(fd, 2);
