@@ -76,6 +76,7 @@ struct Scan {
     std::vector<Eigen::Isometry3d> off_starts;
 };
 
+static const double kTrackSigma = 0.05;   // m: a tracking start is the truth moved by N(0, this) in x and y
 static double g_converge = 0.3;
 
 struct Run {
@@ -267,10 +268,10 @@ int main(int argc, char **argv)
                 double r = g_radius * std::sqrt(uni(rng)), a = 2 * M_PI * uni(rng), y = (2 * uni(rng) - 1) * g_yaw_deg * deg;
                 sc.off_starts.push_back(perturb(sc.gt, r * std::cos(a), r * std::sin(a), 0, 0, 0, y));
             }
-            sc.track_start = perturb(sc.gt, 0.05 * nrm(rng), 0.05 * nrm(rng), 0.02 * nrm(rng), 0.05 * deg * nrm(rng),
+            sc.track_start = perturb(sc.gt, kTrackSigma * nrm(rng), kTrackSigma * nrm(rng), 0.02 * nrm(rng), 0.05 * deg * nrm(rng),
                                      0.05 * deg * nrm(rng), 0.2 * deg * nrm(rng));
         } else {
-            sc.track_start = perturb(sc.gt, 0.05 * nrm(rng), 0.05 * nrm(rng), 0.02 * nrm(rng), 0.05 * deg * nrm(rng),
+            sc.track_start = perturb(sc.gt, kTrackSigma * nrm(rng), kTrackSigma * nrm(rng), 0.02 * nrm(rng), 0.05 * deg * nrm(rng),
                                      0.05 * deg * nrm(rng), 0.2 * deg * nrm(rng));
             double a = 2 * M_PI * uni(rng);
             sc.off_starts.push_back(perturb(sc.gt, std::cos(a), std::sin(a), 0, 0, 0, (uni(rng) < 0.5 ? -3 : 3) * deg));
@@ -295,6 +296,9 @@ int main(int argc, char **argv)
     pb_reg_config_default(&rcfg);
     if (target_points >= 0) rcfg.target_points = (int)target_points;
     if (coarse_iterations >= 0) rcfg.coarse_iterations = (int)coarse_iterations;
+    // a tracking start carries the spread it was drawn with, as the localizer's filter gives its own
+    pb_reg_config_t tcfg = rcfg;
+    tcfg.prior_sigma_m = kTrackSigma;
     Run ours_track, ours_off, ours_track_sub, ours_off_sub, ours_track_red, ours_off_red;
     std::vector<std::vector<float>> reduced(scans.size());
     for (size_t k = 0; k < scans.size(); k++) {
@@ -303,7 +307,7 @@ int main(int argc, char **argv)
         pb_reg_result_t r;
         {
             double c0 = pb_clock_thread_cpu_ms();
-            pb_reg_align(map, sc.pts.data(), sc.pts.size() / 3, sc.track_start, &rcfg, &r, &err);
+            pb_reg_align(map, sc.pts.data(), sc.pts.size() / 3, sc.track_start, &tcfg, &r, &err);
             double ms = pb_clock_thread_cpu_ms() - c0;
             ours_track.add(ms, r.pose, sc.gt);
             if (verbose) {
@@ -346,7 +350,7 @@ int main(int argc, char **argv)
                 ours_off_red.add(pb_clock_thread_cpu_ms() - c0, r.pose, sc.gt);
             }
             double c0 = pb_clock_thread_cpu_ms();
-            pb_reg_align(map, rp.data(), rp.size() / 3, sc.track_start, &rcfg, &r, &err);
+            pb_reg_align(map, rp.data(), rp.size() / 3, sc.track_start, &tcfg, &r, &err);
             ours_track_red.add(pb_clock_thread_cpu_ms() - c0, r.pose, sc.gt);
         }
     }

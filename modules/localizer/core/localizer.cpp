@@ -611,7 +611,9 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
                                                                                                : PB_REG_FEW_POINTS;
         if (rc == PB_REG_FEW_POINTS) { res.points_matched = 0; res.points_used = int(L->xyz.size() / 3); }
     } else {
-        rc = pb_reg_align(L->map, L->xyz.data(), L->xyz.size() / 3, guess, &L->cfg.reg, &res, &err);
+        pb_reg_config_t reg = L->cfg.reg;
+        reg.prior_sigma_m = std::sqrt(std::max(prior.P(0, 0), prior.P(1, 1)));
+        rc = pb_reg_align(L->map, L->xyz.data(), L->xyz.size() / 3, guess, &reg, &res, &err);
     }
     bool accept = false;
     const char *why = nullptr;

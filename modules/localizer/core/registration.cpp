@@ -71,12 +71,24 @@ struct Accum {
     int matched, inliers;
 };
 
+/* Points whose nearest target (of any kind, at any distance) is upright, and
+ * how many of them are inliers: the divergence evidence of fill_result. */
+struct Upright {
+    int points, inliers;
+};
+
+bool cell_upright(const Cell *c)
+{
+    return c->kind == CELL_LINE ? std::fabs(c->u1[2]) + std::fabs(c->u2[2]) > 0.7 : std::fabs(c->u1[2]) < 0.7;
+}
+
 /* Linearises every point at pose T: J^T W J and J^T W r over the points whose
  * cell residual is within gate, with Geman-McClure weights of scale kernel. */
 void linearise(const Level &lv, const float *pts, size_t n, const Eigen::Isometry3d &T, double gate,
                double kernel, double inlier, bool planar_only, Accum *acc,
-               std::vector<float> *abs_residuals)
+               std::vector<float> *abs_residuals, Upright *up = nullptr)
 {
+    if (up) up->points = up->inliers = 0;
     acc->H.setZero();
     acc->g.setZero();
     acc->cost = acc->wsum = 0;
@@ -91,16 +103,21 @@ void linearise(const Level &lv, const float *pts, size_t n, const Eigen::Isometr
         /* the own cell's target, else the nearest of the face neighbours' */
         const Cell *near[7];
         int nn = lv.lookup_near(q(0), q(1), q(2), near);
-        const Cell *c = nullptr;
-        double r1 = 0, r2 = 0, best = HUGE_VAL;
+        const Cell *c = nullptr, *c_any = nullptr;
+        double r1 = 0, r2 = 0, best = HUGE_VAL, best_any = HUGE_VAL;
         Eigen::Vector3d u1, u2;
         for (int k = 0; k < nn; k++) {
             const Cell *ck = near[k];
-            if (planar_only && ck->kind != CELL_PLANE) continue;
             Eigen::Vector3d d(q(0) - ck->mean[0], q(1) - ck->mean[1], q(2) - ck->mean[2]);
             Eigen::Vector3d a(ck->u1[0], ck->u1[1], ck->u1[2]), b(ck->u2[0], ck->u2[1], ck->u2[2]);
             double ra = a.dot(d), rb = ck->kind == CELL_LINE ? b.dot(d) : 0.0;
+            if (ra * ra + rb * rb < best_any) { best_any = ra * ra + rb * rb; c_any = ck; }
+            if (planar_only && ck->kind != CELL_PLANE) continue;
             if (ra * ra + rb * rb < best) { best = ra * ra + rb * rb; c = ck; r1 = ra; r2 = rb; u1 = a; u2 = b; }
+        }
+        if (up && c_any && cell_upright(c_any)) {
+            up->points++;
+            if (best_any < inlier * inlier) up->inliers++;
         }
         if (!c) continue;
         double e2 = r1 * r1 + r2 * r2;
@@ -187,7 +204,8 @@ void fill_result(const Level &lv, const float *pts, size_t n, const Eigen::Isome
     std::vector<float> absr;
     absr.reserve(n);
     Accum acc;
-    linearise(lv, pts, n, T, pa.min_corr, pa.kernel, pa.inlier, pa.planar_only, &acc, &absr);
+    Upright up;
+    linearise(lv, pts, n, T, pa.min_corr, pa.kernel, pa.inlier, pa.planar_only, &acc, &absr, &up);
     res->points_used = (int)n;
     res->points_matched = acc.matched;
     res->overlap = n ? (double)acc.matched / (double)n : 0;
@@ -202,30 +220,8 @@ void fill_result(const Level &lv, const float *pts, size_t n, const Eigen::Isome
     } else {
         res->median_abs_m = 0;
     }
-    /* inliers among points on upright targets, found at any distance */
-    int up = 0, up_in = 0;
-    const Eigen::Matrix3d R = T.linear();
-    const Eigen::Vector3d t = T.translation();
-    for (size_t i = 0; i < n; i++) {
-        Eigen::Vector3d q = R * Eigen::Vector3d(pts[3 * i], pts[3 * i + 1], pts[3 * i + 2]) + t;
-        const Cell *near[7];
-        int nn = lv.lookup_near(q(0), q(1), q(2), near);
-        const Cell *c = nullptr;
-        double best = HUGE_VAL;
-        for (int k = 0; k < nn; k++) {
-            Eigen::Vector3d d(q(0) - near[k]->mean[0], q(1) - near[k]->mean[1], q(2) - near[k]->mean[2]);
-            double ra = d.dot(Eigen::Vector3d(near[k]->u1[0], near[k]->u1[1], near[k]->u1[2]));
-            double rb = near[k]->kind == CELL_LINE ? d.dot(Eigen::Vector3d(near[k]->u2[0], near[k]->u2[1], near[k]->u2[2])) : 0;
-            if (ra * ra + rb * rb < best) { best = ra * ra + rb * rb; c = near[k]; }
-        }
-        bool upright = c && (c->kind == CELL_LINE ? std::fabs(c->u1[2]) + std::fabs(c->u2[2]) > 0.7
-                                                  : std::fabs(c->u1[2]) < 0.7);
-        if (!upright) continue;
-        up++;
-        if (best < pa.inlier * pa.inlier) up_in++;
-    }
-    res->upright_points = up;
-    res->upright_inlier_fraction = up ? (double)up_in / up : NAN;
+    res->upright_points = up.points;
+    res->upright_inlier_fraction = up.points ? (double)up.inliers / up.points : NAN;
     /* covariance: sigma^2 H^-1, sigma^2 from the robust residuals */
     Eigen::Matrix<double, 6, 6> H = acc.H;
     if (acc.matched > 6) {
@@ -363,7 +359,20 @@ int pb_reg_align(const pb_regmap_t *map, const float *xyz, size_t n, const Eigen
         Accum a1, a2;
         linearise(map->fine, pts.data(), m, T, pa.min_corr, pa.kernel, pa.inlier, pa.planar_only, &a1, nullptr);
         linearise(map->fine, pts.data(), m, T2, pa.min_corr, pa.kernel, pa.inlier, pa.planar_only, &a2, nullptr);
-        if (a2.inliers > a1.inliers) {
+        /* two distinct minima: the guess is a prior, so one beyond 3 sigma of it
+         * must explain clearly more of the scan (3 sigma of a count) than the one
+         * nearer. On sparse or corridor-like real scans minima metres apart often
+         * differ by a handful of inliers, and taking the larger count slid tracking
+         * away. Otherwise (one basin, or no prior) more inliers wins. */
+        Eigen::Isometry3d D12 = T.inverse() * T2;
+        bool distinct = D12.translation().norm() > pa.min_corr || Eigen::AngleAxisd(D12.linear()).angle() > M_PI / 180;
+        double d1 = D.translation().norm(), d2 = (guess.inverse() * T2).translation().norm();
+        bool far_unlikely = cfg->prior_sigma_m > 0 && std::max(d1, d2) > 3 * cfg->prior_sigma_m;
+        double margin = distinct && far_unlikely ? 3.0 * std::sqrt((double)(d2 < d1 ? a2 : a1).inliers) : 0.0;
+        bool use_t2 = margin == 0   ? a2.inliers > a1.inliers
+                      : d2 < d1     ? a1.inliers <= a2.inliers + margin
+                                    : a2.inliers > a1.inliers + margin;
+        if (use_t2) {
             T = T2;
             converged = conv2;
         }

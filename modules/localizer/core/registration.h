@@ -54,6 +54,10 @@ typedef struct {
     double inlier_m = 0.1;        /* |point-to-plane| for the inlier fraction */
     int planar_only = 0;          /* 1 = never use line (pole) cells */
     int coarse_iterations = 16;   /* Gauss-Newton steps on the coarse level in step 3, 0 = never */
+    double prior_sigma_m = 0;     /* the guess's horizontal standard deviation (a tracking filter's prediction);
+                                   * when step 3 finds a minimum distinct from the fine run's and more than
+                                   * 3 sigma from the guess, it must explain clearly more of the scan to be
+                                   * taken; 0 = no prior: more inliers wins */
     double body_box[6] = {};      /* drop points inside this box of base (the car's own body: xmin, ymin, zmin,
                                    * xmax, ymax, zmax); all 0 = none */
 } pb_reg_config_t;
