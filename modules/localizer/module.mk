@@ -80,7 +80,7 @@ bench-localizer-real: $(BIN)/bench-localizer $(BIN)/import-scans $(DEPS)
 	$(BIN)/import-scans --scans $(LOCREG_REAL)/hdl32/scans --poses $(LOCREG_REAL)/hdl32/poses.txt \
 	    --out $(LOCREG_REAL)/hdl32/all.lcm --quiet && \
 	$(BIN)/bench-localizer --log $(LOCREG_REAL)/hdl32/all.lcm --map $(LOCREG_REAL)/hdl32/map.pcd --odd \
-	    $(LOCREAL_BENCH) --starts 100 --baseline-every 1 --seed 1 \
+	    $(LOCREAL_BENCH) --starts 100 --baseline-every 1 --timing-runs 21 --seed 1 \
 	    --dump $(LOCREG_REAL)/hdl32/baseline.bin --json $(LOCREG_REAL)/hdl32-results.json && \
 	$(VPY) modules/localizer/bench/bench_gicp.py $(LOCREG_REAL)/hdl32/baseline.bin $(LOCREG_REAL)/hdl32-results.json
 	@if [ ! -d "$(MULRAN)" ]; then echo "bench-localizer-real: MulRan part skipped, $(MULRAN) is absent"; exit 0; fi; \
@@ -94,7 +94,7 @@ bench-localizer-real: $(BIN)/bench-localizer $(BIN)/import-scans $(DEPS)
 	    --out $(LOCREG_REAL)/all.lcm --quiet && \
 	echo "== MulRan Riverside02 against the refined reference: every 2nd odd scan, $(LOCREAL_STARTS) starts each" && \
 	$(BIN)/bench-localizer --log $(LOCREG_REAL)/all.lcm --map $(LOCREG_REAL)/map.pcd --odd --every 2 \
-	    $(LOCREAL_BENCH) --starts $(LOCREAL_STARTS) --baseline-every $(LOCREAL_BASE_EVERY) --seed 1 \
+	    $(LOCREAL_BENCH) --starts $(LOCREAL_STARTS) --baseline-every $(LOCREAL_BASE_EVERY) --timing-runs 5 --seed 1 \
 	    --dump $(LOCREG_REAL)/baseline.bin --json $(LOCREG_REAL)/results.json && \
 	$(VPY) modules/localizer/bench/bench_gicp.py $(LOCREG_REAL)/baseline.bin $(LOCREG_REAL)/results.json && \
 	echo "== MulRan Riverside02, the whole localizer: the odd scans replayed, LiDAR alone, site = the even scans" && \

@@ -64,6 +64,9 @@ static void usage(FILE *f)
         "                   map points near them as FILE.map (float32 xyz)\n"
         "  --json FILE      write the per-method results as JSON\n"
         "  --seed N         starts RNG seed (default 1)\n"
+        "  --timing-runs N  every tracking align of the subsample (ours reduced, NDT; small_gicp reads it\n"
+        "                   from the JSON) is run N times and timed by the median: one scan's single\n"
+        "                   millisecond is noise on a shared machine (default 1)\n"
         "  --verbose        one line per scan (ours, tracking start)\n"
         "  --target-points N, --coarse-iterations N   override the registration defaults\n");
 }
@@ -89,6 +92,20 @@ struct Run {
         yerr.push_back(std::fabs(std::atan2(D(1, 0), D(0, 0))) * 180.0 / M_PI);
     }
 };
+
+/* CPU ms of one run of fn, as the median of `runs` runs (fn is deterministic: the same
+ * work each time) */
+template <class F> static double median_ms(long runs, F fn)
+{
+    std::vector<double> ms;
+    for (long i = 0; i < runs; i++) {
+        double c0 = pb_clock_thread_cpu_ms();
+        fn();
+        ms.push_back(pb_clock_thread_cpu_ms() - c0);
+    }
+    std::nth_element(ms.begin(), ms.begin() + ms.size() / 2, ms.end());
+    return ms[ms.size() / 2];
+}
 
 static double pct(std::vector<double> v, double p)
 {
@@ -180,7 +197,7 @@ int main(int argc, char **argv)
 {
     const char *log_path = nullptr, *map_path = nullptr, *vehicle_path = nullptr, *dump = nullptr, *json = nullptr;
     double voxel = 0.5, global_search[2] = { -1, -1 };   /* radius, yaw (deg); < 0: no --global */
-    long every = 1, base_every = 10, max_scans = 1000000, seed = 1, nstarts = 1;
+    long every = 1, base_every = 10, max_scans = 1000000, seed = 1, nstarts = 1, timing_runs = 1;
     std::vector<double> ndt_res;
     bool odd = false, verbose = false;
     long target_points = -1, coarse_iterations = -1;
@@ -192,7 +209,8 @@ int main(int argc, char **argv)
         PB_OPT_STRING("json", &json), PB_OPT_LONG("seed", &seed, 0, 1L << 40), PB_OPT_BOOL("verbose", &verbose, 1),
         PB_OPT_LONG("starts", &nstarts, 1, 10000), PB_OPT_DOUBLE("converge", &g_converge, 0.001, 100),
         PB_OPT_CALL("ndt-res", parse_ndt_res, &ndt_res), PB_OPT_LONG("target-points", &target_points, 0, 1000000),
-        PB_OPT_LONG("coarse-iterations", &coarse_iterations, 0, 100), PB_OPT_END,
+        PB_OPT_LONG("coarse-iterations", &coarse_iterations, 0, 100),
+        PB_OPT_LONG("timing-runs", &timing_runs, 1, 1000), PB_OPT_END,
     };
     int parsed = pb_opt_parse("bench-localizer", opts, usage, 0, argc, argv);
     if (parsed >= 0) return parsed;
@@ -349,9 +367,8 @@ int main(int argc, char **argv)
                     pb_reg_align(map, rp.data(), rp.size() / 3, start, &rcfg, &r, &err);
                 ours_off_red.add(pb_clock_thread_cpu_ms() - c0, r.pose, sc.gt);
             }
-            double c0 = pb_clock_thread_cpu_ms();
-            pb_reg_align(map, rp.data(), rp.size() / 3, sc.track_start, &tcfg, &r, &err);
-            ours_track_red.add(pb_clock_thread_cpu_ms() - c0, r.pose, sc.gt);
+            double ms = median_ms(timing_runs, [&] { pb_reg_align(map, rp.data(), rp.size() / 3, sc.track_start, &tcfg, &r, &err); });
+            ours_track_red.add(ms, r.pose, sc.gt);
         }
     }
     pb_regmap_destroy(map);
@@ -397,14 +414,12 @@ int main(int argc, char **argv)
                     src->push_back(pcl::PointXYZ(reduced[k][i], reduced[k][i + 1], reduced[k][i + 2]));
                 ndt.setInputSource(src);
                 pcl::PointCloud<pcl::PointXYZ> out;
-                auto run = [&](const Eigen::Isometry3d &start, Run *into) {
-                    double c0 = pb_clock_thread_cpu_ms();
-                    ndt.align(out, start.matrix().cast<float>());
-                    double ms = pb_clock_thread_cpu_ms() - c0;
+                auto run = [&](const Eigen::Isometry3d &start, long runs, Run *into) {
+                    double ms = median_ms(runs, [&] { ndt.align(out, start.matrix().cast<float>()); });
                     into->add(ms, Eigen::Isometry3d(ndt.getFinalTransformation().cast<double>()), sc.gt);
                 };
-                run(sc.track_start, &ndt_track[ri]);
-                for (const Eigen::Isometry3d &start : sc.off_starts) run(start, &ndt_off[ri]);
+                run(sc.track_start, timing_runs, &ndt_track[ri]);
+                for (const Eigen::Isometry3d &start : sc.off_starts) run(start, 1, &ndt_off[ri]);
                 if (ri == 0 && df) {
                     // per scan: n, points, number of starts, then truth, tracking start, each start (row-major 4x4)
                     int32_t n = (int32_t)(reduced[k].size() / 3), ns = (int32_t)sc.off_starts.size();
@@ -468,8 +483,8 @@ int main(int argc, char **argv)
         FILE *f = std::fopen(json, "w");
         if (!f) { std::fprintf(stderr, "bench-localizer: %s: cannot write\n", json); return 1; }
         std::fprintf(f, "{\n  \"scans\": %zu, \"baseline_scans\": %zu, \"baseline_every\": %ld, \"global\": %s,\n"
-                     "  \"starts_per_scan\": %ld, \"converge_m\": %g, \"start\": \"%s\", \"ndt_res\": [",
-                     scans.size(), nsub, base_every, global ? "true" : "false", nstarts, g_converge, start);
+                     "  \"starts_per_scan\": %ld, \"timing_runs\": %ld, \"converge_m\": %g, \"start\": \"%s\", \"ndt_res\": [",
+                     scans.size(), nsub, base_every, global ? "true" : "false", nstarts, timing_runs, g_converge, start);
         for (size_t ri = 0; ri < ndt_res.size(); ri++) std::fprintf(f, "%s%g", ri ? ", " : "", ndt_res[ri]);
         std::fprintf(f, "],\n");
         json_run(f, "ours_track", ours_track, false);
