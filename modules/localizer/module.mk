@@ -85,9 +85,16 @@ bench-localizer-real: $(BIN)/bench-localizer $(BIN)/import-scans $(DEPS)
 	$(VPY) modules/localizer/bench/bench_gicp.py $(LOCREG_REAL)/hdl32/baseline.bin $(LOCREG_REAL)/hdl32-results.json
 	@if [ ! -d "$(MULRAN)" ]; then echo "bench-localizer-real: MulRan part skipped, $(MULRAN) is absent"; exit 0; fi; \
 	echo "== MulRan Riverside02: reference = LiDAR odometry + pose graph over the dataset's keyframes" && \
-	$(VPY) modules/localizer/bench/reference.py --scans $(MULRAN)/Scans --poses $(MULRAN)/optimized_poses.txt \
-	    --times $(MULRAN)/times.txt --threads 2 \
-	    --out $(LOCREG_REAL)/refined_poses.txt --report $(LOCREG_REAL)/reference-report.json && \
+	if [ -s $(LOCREG_REAL)/refined_poses.txt -a $(LOCREG_REAL)/refined_poses.txt -nt modules/localizer/bench/reference.py \
+	     -a $(LOCREG_REAL)/refined_poses.txt -nt $(MULRAN)/optimized_poses.txt ]; then \
+	  $(VPY) -c 'import json, sys; r = json.load(open(sys.argv[1])); print("reference: kept from the last run (delete %s to build it again): held-out skip-3 residual median %.3f m, p90 %.3f m" % (sys.argv[2], r["heldout_skip3_resid_m_median"], r["heldout_skip3_resid_m_p90"]))' \
+	      $(LOCREG_REAL)/reference-report.json $(LOCREG_REAL)/refined_poses.txt; \
+	else \
+	  $(VPY) modules/localizer/bench/reference.py --scans $(MULRAN)/Scans --poses $(MULRAN)/optimized_poses.txt \
+	      --times $(MULRAN)/times.txt --threads 1 \
+	      --out $(LOCREG_REAL)/refined_poses.txt.tmp --report $(LOCREG_REAL)/reference-report.json && \
+	  mv $(LOCREG_REAL)/refined_poses.txt.tmp $(LOCREG_REAL)/refined_poses.txt; \
+	fi && \
 	$(BIN)/import-scans --scans $(MULRAN)/Scans --poses $(LOCREG_REAL)/refined_poses.txt --times $(MULRAN)/times.txt \
 	    --every 2 --map-out $(LOCREG_REAL)/map.pcd --voxel 0.15 --out $(LOCREG_REAL)/even.lcm --quiet && \
 	$(BIN)/import-scans --scans $(MULRAN)/Scans --poses $(LOCREG_REAL)/refined_poses.txt --times $(MULRAN)/times.txt \
