@@ -77,6 +77,35 @@ struct Upright {
     int points, inliers;
 };
 
+/* The targets near each point at its last voxel: Gauss-Newton moves points by
+ * millimetres between steps, so most keep their voxel and skip the hash look-ups
+ * (the align's main cost: every look-up misses the cache on a large map). */
+struct NearCache {
+    const Level *lv = nullptr;
+    std::vector<uint64_t> key;        /* voxel key of each point at its last look-up */
+    std::vector<uint8_t> n;
+    std::vector<const Cell *> near;   /* 7 per point */
+
+    /* the targets near point i, now at q */
+    int lookup(const Level &level, size_t i, size_t npts, const Eigen::Vector3d &q, const Cell *const **out)
+    {
+        if (lv != &level || key.size() != npts) {
+            lv = &level;
+            key.assign(npts, ~(uint64_t)0);
+            n.assign(npts, 0);
+            near.assign(7 * npts, nullptr);
+        }
+        uint64_t k;
+        *out = &near[7 * i];
+        if (!voxel_key_of(q(0), q(1), q(2), level.inv_voxel, &k)) return 0;
+        if (key[i] != k) {
+            key[i] = k;
+            n[i] = (uint8_t)level.lookup_near(q(0), q(1), q(2), &near[7 * i]);
+        }
+        return n[i];
+    }
+};
+
 bool cell_upright(const Cell *c)
 {
     return c->kind == CELL_LINE ? std::fabs(c->u1[2]) + std::fabs(c->u2[2]) > 0.7 : std::fabs(c->u1[2]) < 0.7;
@@ -86,8 +115,10 @@ bool cell_upright(const Cell *c)
  * cell residual is within gate, with Geman-McClure weights of scale kernel. */
 void linearise(const Level &lv, const float *pts, size_t n, const Eigen::Isometry3d &T, double gate,
                double kernel, double inlier, bool planar_only, Accum *acc,
-               std::vector<float> *abs_residuals, Upright *up = nullptr)
+               std::vector<float> *abs_residuals, Upright *up = nullptr, NearCache *cache = nullptr)
 {
+    NearCache local;
+    if (!cache) cache = &local;
     if (up) up->points = up->inliers = 0;
     acc->H.setZero();
     acc->g.setZero();
@@ -101,8 +132,8 @@ void linearise(const Level &lv, const float *pts, size_t n, const Eigen::Isometr
         Eigen::Vector3d s = R * p;          /* point about the vehicle, map axes */
         Eigen::Vector3d q = s + t;
         /* the own cell's target, else the nearest of the face neighbours' */
-        const Cell *near[7];
-        int nn = lv.lookup_near(q(0), q(1), q(2), near);
+        const Cell *const *near;
+        int nn = cache->lookup(lv, i, n, q, &near);
         const Cell *c = nullptr, *c_any = nullptr;
         double r1 = 0, r2 = 0, best = HUGE_VAL, best_any = HUGE_VAL;
         Eigen::Vector3d u1, u2;
@@ -155,8 +186,10 @@ Eigen::Matrix3d exp_so3(const Eigen::Vector3d &w)
 /* Gauss-Newton on one level from T (updated in place). Returns iterations and
  * whether the step became small. */
 int gauss_newton(const Level &lv, const float *pts, size_t n, const Params &pa, Eigen::Isometry3d *T,
-                 bool *converged, double abort_far_m = 0, bool *aborted = nullptr)
+                 bool *converged, double abort_far_m = 0, bool *aborted = nullptr, NearCache *cache = nullptr)
 {
+    NearCache local;
+    if (!cache) cache = &local;
     const Eigen::Isometry3d T_start = *T;
     if (aborted) *aborted = false;
     double gate = pa.max_corr;
@@ -167,7 +200,7 @@ int gauss_newton(const Level &lv, const float *pts, size_t n, const Params &pa, 
         it++;
         /* the kernel widens with the gate so that far-off starts still pull */
         double kernel = std::max(pa.kernel, gate / 3.0);
-        linearise(lv, pts, n, *T, gate, kernel, pa.inlier, pa.planar_only, &acc, nullptr);
+        linearise(lv, pts, n, *T, gate, kernel, pa.inlier, pa.planar_only, &acc, nullptr, nullptr, cache);
         if (acc.matched < 30) break;
         Eigen::Matrix<double, 6, 6> H = acc.H;
         /* light damping keeps unobservable directions (e.g. along a straight
@@ -199,13 +232,13 @@ int gauss_newton(const Level &lv, const float *pts, size_t n, const Params &pa, 
 }
 
 void fill_result(const Level &lv, const float *pts, size_t n, const Eigen::Isometry3d &T, const Params &pa,
-                 pb_reg_result_t *res)
+                 pb_reg_result_t *res, NearCache *cache)
 {
     std::vector<float> absr;
     absr.reserve(n);
     Accum acc;
     Upright up;
-    linearise(lv, pts, n, T, pa.min_corr, pa.kernel, pa.inlier, pa.planar_only, &acc, &absr, &up);
+    linearise(lv, pts, n, T, pa.min_corr, pa.kernel, pa.inlier, pa.planar_only, &acc, &absr, &up, cache);
     res->points_used = (int)n;
     res->points_matched = acc.matched;
     res->overlap = n ? (double)acc.matched / (double)n : 0;
@@ -337,8 +370,9 @@ int pb_reg_align(const pb_regmap_t *map, const float *xyz, size_t n, const Eigen
     Eigen::Isometry3d T = guess;
     bool converged = false, aborted = false;
     bool can_coarse = cfg->coarse_iterations > 0 && !map->coarse.cells.empty();
+    NearCache cache;
     res->iterations = gauss_newton(map->fine, pts.data(), m, pa, &T, &converged, can_coarse ? pa.min_corr : 0,
-                                   &aborted);
+                                   &aborted, &cache);
     /* 3. if that did not settle, or had to move far (a poor guess), retry
      *    coarse-to-fine: a few steps on the coarse level (every 4th point, planes
      *    over ~3 coarse cells, wide gate) pull in starts a metre or degrees off;
@@ -355,10 +389,13 @@ int pb_reg_align(const pb_regmap_t *map, const float *xyz, size_t n, const Eigen
         Eigen::Isometry3d T2 = guess;
         bool conv2 = false;
         res->iterations += gauss_newton(map->coarse, sub.data(), sub.size() / 3, pc, &T2, &conv2);
-        res->iterations += gauss_newton(map->fine, pts.data(), m, pa, &T2, &conv2);
+        NearCache cache2;
+        res->iterations += gauss_newton(map->fine, pts.data(), m, pa, &T2, &conv2, 0, nullptr, &cache2);
         Accum a1, a2;
-        linearise(map->fine, pts.data(), m, T, pa.min_corr, pa.kernel, pa.inlier, pa.planar_only, &a1, nullptr);
-        linearise(map->fine, pts.data(), m, T2, pa.min_corr, pa.kernel, pa.inlier, pa.planar_only, &a2, nullptr);
+        linearise(map->fine, pts.data(), m, T, pa.min_corr, pa.kernel, pa.inlier, pa.planar_only, &a1, nullptr,
+                  nullptr, &cache);
+        linearise(map->fine, pts.data(), m, T2, pa.min_corr, pa.kernel, pa.inlier, pa.planar_only, &a2, nullptr,
+                  nullptr, &cache2);
         /* two distinct minima: the guess is a prior, so one beyond 3 sigma of it
          * must explain clearly more of the scan (3 sigma of a count) than the one
          * nearer. On sparse or corridor-like real scans minima metres apart often
@@ -375,11 +412,12 @@ int pb_reg_align(const pb_regmap_t *map, const float *xyz, size_t n, const Eigen
         if (use_t2) {
             T = T2;
             converged = conv2;
+            std::swap(cache, cache2);
         }
     }
     /* 4. scores, covariance and divergence evidence at the result */
     int its = res->iterations;
-    fill_result(map->fine, pts.data(), m, T, pa, res);
+    fill_result(map->fine, pts.data(), m, T, pa, res, &cache);
     res->iterations = its;
     /* the pose, or the guess if too few points matched */
     if (res->points_matched < 30) {
