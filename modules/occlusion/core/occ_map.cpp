@@ -34,6 +34,7 @@ const int SUB = 4, SUB_TABLE = 1 << 16;
 const int SHAPES = 1 << 19;
 const uint32_t SUB_XP = 1u << 16, SUB_XN = 1u << 17, SUB_YP = 1u << 18, SUB_YN = 1u << 19;  /* beam along +x, -x, +y, -y */
 const int SUB_GROW_SHIFT = 20;              /* 2 bits: grow by 1 or 2 sub-cells; 3: the whole voxel */
+const uint32_t SUB_FRESH = 1u << 22;        /* the voxel became occupied in this sweep: a shape left from before is not its */
 const uint32_t SUB_X0 = 0x1111, SUB_X3 = 0x8888, SUB_Y0 = 0x000f, SUB_Y3 = 0xf000;   /* cells with x = 0, x = 3, y = 0, y = 3 */
 
 struct ground_cell_t { int32_t cx, cy, sweep; float minz; };
@@ -98,6 +99,8 @@ struct occ_map_t {
     std::vector<shape_t> shapes;
     std::vector<uint64_t> halo_bits;        /* voxels this sweep's returns reach into (half a column gap around each) */
     std::vector<uint32_t> halo_list;        /* their bit indices (cleared at the next sweep) */
+    size_t halo_last_bi[9];                 /* per neighbour direction, the voxel the previous halo reached and its slot */
+    int halo_last_slot[9];
     size_t sub_last_bi = SIZE_MAX;          /* the voxel of the previous return and its slot (neighbouring returns often share one) */
     int sub_last_slot = -1;
 
@@ -162,6 +165,7 @@ void occ_map_clear(occ_map_t *m)
     std::fill(m->hit_bits.begin(), m->hit_bits.end(), 0);
     std::fill(m->halo_bits.begin(), m->halo_bits.end(), 0);
     m->halo_list.clear();
+    std::fill(m->halo_last_bi, m->halo_last_bi + 9, SIZE_MAX);
     std::fill(m->shapes.begin(), m->shapes.end(), occ_map_t::shape_t{ 0, 0, 0 });
     m->hit_list.clear();
     m->fill_list.clear();
@@ -460,8 +464,16 @@ static void sub_add(occ_map_t *m, size_t bi, const OcTreeKey &k, double x, doubl
                         for (int xx = ax; xx <= bx_; xx++) mk |= 1u << ((xx - dx * SUB) + SUB * (yy - dy * SUB));
                     OcTreeKey nk((uint16_t)(k[0] + dx), (uint16_t)(k[1] + dy), k[2]);
                     size_t nb = fine_bit(nk);
+                    const int j = (dy + 1) * 3 + dx + 1;
+                    if (m->halo_last_bi[j] == nb) {      /* the previous return reached the same voxel */
+                        m->sub_mask[m->halo_last_slot[j]] |= mk;
+                        m->sub_top[m->halo_last_slot[j]] = std::max(m->sub_top[m->halo_last_slot[j]], top);
+                        continue;
+                    }
                     int h = sub_slot(m, nb, nk);
                     if (h < 0) continue;
+                    m->halo_last_bi[j] = nb;
+                    m->halo_last_slot[j] = h;
                     m->sub_mask[h] |= mk;
                     m->sub_top[h] = std::max(m->sub_top[h], top);
                     if (!get_bit(m->halo_bits, nb)) {
@@ -514,6 +526,7 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
     m->sub_last_bi = SIZE_MAX;
     for (uint32_t b : m->halo_list) clr_bit(m->halo_bits, b);
     m->halo_list.clear();
+    std::fill(m->halo_last_bi, m->halo_last_bi + 9, SIZE_MAX);
     /* the bitmaps are rings of FZ voxels in z: exact for the FZ around the car's height
      * (everything the eye rays cross); returns beyond that band skip the per-sweep shortcuts */
     OcTreeKey car_key;
@@ -540,10 +553,7 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
         }
         octomap::OcTreeNode *nd = m->fine.updateNode(k, true, true);
         if (nd && m->fine.isNodeOccupied(nd)) {
-            if (!get_bit(m->fine_bits, bi)) {      /* newly occupied: a shape left from before (the window let it go) is not its */
-                occ_map_t::shape_t &sh = m->shapes[shape_slot(bi)];
-                if (sh.pkey == pack(k)) sh.pkey = 0;
-            }
+            if (band && !get_bit(m->fine_bits, bi) && m->sub_last_bi == bi) m->sub_mask[m->sub_last_slot] |= SUB_FRESH;
             set_bit(m->fine_bits, bi);
             if (band && nd->getLogOdds() >= m->fine.getClampingThresMaxLog()) set_bit(m->sat_bits, bi);
             set_bit(m->any_bits, obs_bit(OcTreeKey((k[0] >> m->cshift) + m->coff, (k[1] >> m->cshift) + m->coff, (k[2] >> m->cshift) + m->coff)));
@@ -610,7 +620,7 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
         if (!get_bit(m->hit_bits, m->sub_key[u] - 1)) continue;    /* only reached by a neighbour's returns */
         occ_map_t::shape_t &sh = m->shapes[shape_slot(m->sub_key[u] - 1)];
         const uint32_t mk = sub_cells(m->sub_mask[u]);
-        if (sh.pkey != m->sub_pkey[u]) sh = occ_map_t::shape_t{ m->sub_pkey[u], mk, m->sub_top[u] };
+        if (sh.pkey != m->sub_pkey[u] || (m->sub_mask[u] & SUB_FRESH)) sh = occ_map_t::shape_t{ m->sub_pkey[u], mk, m->sub_top[u] };
         else { sh.mask |= mk; sh.top = std::max(sh.top, m->sub_top[u]); }
     }
 
