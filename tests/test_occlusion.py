@@ -55,13 +55,15 @@ def test_agrees_with_truth(drive, tmp_path):
     a = agreement(drive, out)
     assert a["samples"] > 5000
     # measured on this drive (seed 5, 12 s from rest, so the LiDAR's blind zone around the
-    # car is unknown at first): agreement 0.947 (error 0.053), visible when truly hidden
-    # 4 of 14,404 samples (0.028 % of all, 0.20 % of the hidden), truth changes followed
-    # within one sweep 402 of 456 (0.882, error 0.118); bounds at 3x the measured errors
-    assert a["agreement"] >= 0.842
+    # car is unknown at first; the site with its relief): agreement 0.954 (error 0.046),
+    # visible when truly hidden 7 of 14,404 samples (0.049 % of all, 0.35 % of the 1,995
+    # hidden), truth changes followed within one sweep 421 of 460 (0.915, error 0.085);
+    # bounds at 3x the measured errors (visible when hidden: kept at its earlier, tighter
+    # bound, 0.085 %)
+    assert a["agreement"] >= 0.862
     assert a["visible_when_hidden_of_all"] <= 0.00085
     assert a["state_changes"] > 200
-    assert a["changes_within_one_sweep"] >= 0.646
+    assert a["changes_within_one_sweep"] >= 0.746
     assert a["confusion"]["truth_hidden"]["module_hidden"] > 0     # it does see occluders
     # replaying again gives the same bytes
     out2 = tmp_path / "occ2.lcm"

@@ -6,7 +6,15 @@
  *  - a wall: hidden behind it, visible beside it, unknown where never observed;
  *  - a box that drives away is cleared at the next sweep;
  *  - an edge inside a voxel: a ray passing 10 cm beside a wall's edge, through the 0.2 m
- *    voxel that holds the edge, is visible; 3 cm inside the edge it is hidden. */
+ *    voxel that holds the edge, is visible; 3 cm inside the edge it is hidden;
+ *  - a top inside a voxel: a ray 6 cm over a low box's top, through the voxel that holds
+ *    it, is visible; 2 cm below the top it is hidden;
+ *  - an edge in the next voxel (the halo): a thin pole 27 m away that one column of beams
+ *    hits just before a voxel's side hides a ray through its part in the next voxel,
+ *    which no return reached; a ray past the pole is visible;
+ *  - a voxel's shape kept: a pole the LiDAR no longer sees (a sign above the eye's line
+ *    hides it from the roof) still hides what is behind it, and a ray beside it through
+ *    the same voxel stays visible (its columns, not the whole voxel). */
 #include <cmath>
 #include <vector>
 
@@ -167,8 +175,60 @@ static void test_edge_inside_a_voxel()
     occ_map_destroy(m);
 }
 
+static void test_top_inside_a_voxel()
+{
+    /* a low box ahead, its top (z = 1.03) inside the voxels z 1.0 .. 1.2 */
+    std::vector<box_t> box = { { { 10.0, -1.0, 0.0 }, { 12.0, 1.0, 1.03 } } };
+    occ_map_t *m = approached(box);
+    /* a sample at x = 20, y = the eye's, whose eye ray is at height zt over the box's front edge */
+    const double ex = EYE[0], ez = EYE[2];
+    auto sample_z = [&](double zt) { return ez + (zt - ez) * (20 - ex) / (10 - ex); };
+    CHECK(ask(m, 0, 20, EYE[1], sample_z(1.09)) == OCC_VISIBLE);   /* 6 cm over the top (the whole voxel would hide it) */
+    CHECK(ask(m, 0, 20, EYE[1], sample_z(1.01)) == OCC_HIDDEN);    /* 2 cm below it */
+    occ_map_destroy(m);
+}
+
+static void test_edge_in_the_next_voxel()
+{
+    /* column 6 of the sweep from the car at 0 (azimuth 2 pi 6 / 1024) meets the pole's face
+     * (x = 27.43) at y = 0.97, in the voxels y 0.8 .. 1.0; the pole reaches to y = 1.08, in
+     * the next voxels, where column 7 (y = 1.13) passes beside it: no return there */
+    std::vector<box_t> pole = { { { 27.43, 0.95, 0.0 }, { 27.53, 1.08, 3.0 } } };
+    occ_config_t c = config();
+    occ_map_t *m = occ_map_create(&c);
+    for (int k = 0; k < 3; k++) sweep(m, 0, pole);
+    const double ex = EYE[0], ey = EYE[1];
+    auto sample_y = [&](double yt) { return ey + (yt - ey) * (35 - ex) / (27.43 - ex); };
+    CHECK(ask(m, 0, 35, sample_y(1.03), 0.6) == OCC_HIDDEN);    /* through the pole, in the voxel no return reached */
+    CHECK(ask(m, 0, 35, sample_y(0.97), 0.6) == OCC_HIDDEN);    /* through the pole where the beam hit it */
+    CHECK(ask(m, 0, 35, sample_y(1.15), 0.6) == OCC_VISIBLE);   /* 7 cm past it */
+    occ_map_destroy(m);
+}
+
+static void test_shape_kept()
+{
+    /* a thin pole 10 m ahead, y 1.01 .. 1.07, in the voxels y 1.0 .. 1.2; then a sign (z 1.45
+     * .. 2.6, at x 5 .. 5.5) over the road between: the roof LiDAR's beams to the pole's
+     * middle meet the sign, the eye's line (1.1 to 1.2 m high) passes under it */
+    std::vector<box_t> pole = { { { 10.05, 1.01, 0.0 }, { 10.11, 1.07, 3.0 } } };
+    std::vector<box_t> both = pole;
+    both.push_back({ { 5.0, -1.0, 1.45 }, { 5.5, 3.0, 2.6 } });
+    occ_config_t c = config();
+    occ_map_t *m = occ_map_create(&c);
+    for (double cx = -3; cx <= 0; cx += 1.0) sweep(m, cx, pole);
+    sweep(m, 0, both);
+    const double ex = EYE[0], ey = EYE[1];
+    auto sample_y = [&](double yt) { return ey + (yt - ey) * (20 - ex) / (10.08 - ex); };
+    CHECK(ask(m, 0, 20, sample_y(1.02), 1.1) == OCC_HIDDEN);    /* through the pole, not seen in this sweep */
+    CHECK(ask(m, 0, 20, sample_y(1.16), 1.1) == OCC_VISIBLE);   /* 9 cm beside it, through its voxel */
+    occ_map_destroy(m);
+}
+
 int main()
 {
+    test_shape_kept();
+    test_top_inside_a_voxel();
+    test_edge_in_the_next_voxel();
     test_edge_inside_a_voxel();
     test_car_alongside(true);
     test_car_alongside(false);

@@ -31,8 +31,10 @@ const double EL_MIN = -0.55, EL_MAX = 0.55;  /* rad (+-31.5 deg) */
  * sub-cells (5 cm at 0.2 m) as bits 0-15 (x + 4 y), with how to grow them in bits 16-21
  * (see sub_add), in an open-addressed table by fine bit index */
 const int SUB = 4, SUB_TABLE = 1 << 16;
+const int SHAPES = 1 << 19;
 const uint32_t SUB_XP = 1u << 16, SUB_XN = 1u << 17, SUB_YP = 1u << 18, SUB_YN = 1u << 19;  /* beam along +x, -x, +y, -y */
 const int SUB_GROW_SHIFT = 20;              /* 2 bits: grow by 1 or 2 sub-cells; 3: the whole voxel */
+const uint32_t SUB_FRESH = 1u << 22;        /* the voxel became occupied in this sweep: a shape left from before is not its */
 const uint32_t SUB_X0 = 0x1111, SUB_X3 = 0x8888, SUB_Y0 = 0x000f, SUB_Y3 = 0xf000;   /* cells with x = 0, x = 3, y = 0, y = 3 */
 
 struct ground_cell_t { int32_t cx, cy, sweep; float minz; };
@@ -88,6 +90,17 @@ struct occ_map_t {
     std::vector<uint32_t> sub_key;          /* SUB_TABLE slots: fine bit index + 1 of a voxel hit this sweep (0 free) */
     std::vector<uint32_t> sub_mask;         /* its returns' sub-cell columns and how to grow them (sub_cells) */
     std::vector<uint32_t> sub_used;         /* used slots (freed at the next sweep) */
+    std::vector<float> sub_top;             /* per slot: top of what the voxel's returns stand for, fine key units */
+    std::vector<uint64_t> sub_pkey;         /* per slot: the voxel's packed key */
+    /* the shape (columns, top) of every occupied voxel from the sweeps that hit it since it
+     * became occupied: direct-mapped by fine bit index; a voxel whose entry another took
+     * counts whole */
+    struct shape_t { uint64_t pkey; uint32_t mask; float top; };
+    std::vector<shape_t> shapes;
+    std::vector<uint64_t> halo_bits;        /* voxels this sweep's returns reach into (half a column gap around each) */
+    std::vector<uint32_t> halo_list;        /* their bit indices (cleared at the next sweep) */
+    size_t halo_last_bi[9];                 /* per neighbour direction, the voxel the previous halo reached and its slot */
+    int halo_last_slot[9];
     size_t sub_last_bi = SIZE_MAX;          /* the voxel of the previous return and its slot (neighbouring returns often share one) */
     int sub_last_slot = -1;
 
@@ -116,7 +129,7 @@ occ_map_t *occ_map_create(const occ_config_t *cfg)
     }
     m->inv_res = 1.0 / cfg->resolution;
     m->inv_cres = 1.0 / cfg->observed_resolution;
-    for (int g = 0; g < 2; g++) m->sub_r2[g] = std::pow(2 * (g + 1) * cfg->resolution / SUB / cfg->beam_gap_rad, 2);
+    for (int g = 0; g < 2; g++) m->sub_r2[g] = std::pow(2 * (g + 1) * cfg->resolution / SUB / cfg->beam_gap_az_rad, 2);
     m->cshift = (int)std::lround(std::log2(cfg->observed_resolution / cfg->resolution));
     m->coff = KEY_ORIGIN - (KEY_ORIGIN >> m->cshift);
     m->fine_bits.assign((size_t)FX * FX * FZ / 64, 0);
@@ -130,6 +143,10 @@ occ_map_t *occ_map_create(const occ_config_t *cfg)
     m->sat_bits.assign((size_t)FX * FX * FZ / 64, 0);
     m->sub_key.assign(SUB_TABLE, 0);
     m->sub_mask.assign(SUB_TABLE, 0);
+    m->sub_top.assign(SUB_TABLE, 0);
+    m->sub_pkey.assign(SUB_TABLE, 0);
+    m->shapes.assign(SHAPES, occ_map_t::shape_t{ 0, 0, 0 });
+    m->halo_bits.assign((size_t)FX * FX * FZ / 64, 0);
     return m;
 }
 
@@ -146,6 +163,10 @@ void occ_map_clear(occ_map_t *m)
     std::fill(m->fill_bits.begin(), m->fill_bits.end(), 0);
     std::fill(m->sat_bits.begin(), m->sat_bits.end(), 0);
     std::fill(m->hit_bits.begin(), m->hit_bits.end(), 0);
+    std::fill(m->halo_bits.begin(), m->halo_bits.end(), 0);
+    m->halo_list.clear();
+    std::fill(m->halo_last_bi, m->halo_last_bi + 9, SIZE_MAX);
+    std::fill(m->shapes.begin(), m->shapes.end(), occ_map_t::shape_t{ 0, 0, 0 });
     m->hit_list.clear();
     m->fill_list.clear();
     for (uint32_t u : m->sub_used) m->sub_key[u] = 0;
@@ -387,36 +408,89 @@ static int sub_find(const occ_map_t *m, size_t bi)
     return -1;
 }
 
-/* Adds a return at (x, y), beam (bx, by, bz) from the sensor with squared length r2, to
- * its voxel's sub-cell columns. Columns, the whole voxel height: roofs and hoods are seen
- * at grazing angles, their returns far apart. The cells grow (sub_cells) by half the gap
- * between neighbouring beams at that range, so the returns' cells cover the surface
- * between them; beyond two cells' worth (or with a full table) the voxel is whole. What
- * is tight is the side edges: a pole, a parked car's end, the back of a bus. */
-static void sub_add(occ_map_t *m, size_t bi, const OcTreeKey &k, double x, double y, double bx, double by, double r2)
+/* Adds a return at (x, y, z), beam (bx, by, bz) from the sensor with squared length r2, to
+ * its voxel's sub-cell columns. Columns: roofs and hoods are seen at grazing angles, their
+ * returns far apart. The cells grow (sub_cells) by half the gap between neighbouring
+ * columns of the sweep at that range, so the returns' cells cover the surface between
+ * them; beyond two cells' worth (or with a full table) the voxel is whole. Where that half
+ * gap reaches past the voxel's side, the neighbouring voxels get the cells it covers (the
+ * halo, this sweep only): an object's edge lies between its last return and the next
+ * column's beam, which may be in the next voxel (a pole 30 m away: 18 cm between columns).
+ * The columns end at the top: the highest return plus top_gap_fraction of the gap between
+ * rings at that range (applied where the voxel above holds nothing: sub_hit). What is
+ * tight is the side edges and tops: a pole, a parked car's end or bonnet, the back of a bus. */
+static inline size_t shape_slot(size_t bi) { return (uint32_t)(bi * 2654435761u) >> (32 - 19); }
+
+static int sub_slot(occ_map_t *m, size_t bi, const OcTreeKey &k)
 {
+    for (uint32_t h = (uint32_t)(bi * 2654435761u) >> 16, n = 0; n < (uint32_t)SUB_TABLE; h = (h + 1) & (SUB_TABLE - 1), n++) {
+        if (m->sub_key[h] == 0) {
+            if (m->sub_used.size() * 2 > (size_t)SUB_TABLE) return -1;   /* table half full: the voxel stays whole */
+            m->sub_key[h] = (uint32_t)bi + 1;
+            m->sub_pkey[h] = pack(k);
+            m->sub_mask[h] = 0;
+            m->sub_top[h] = -INFINITY;
+            m->sub_used.push_back(h);
+        }
+        if (m->sub_key[h] == bi + 1) return (int)h;
+    }
+    return -1;
+}
+
+static void sub_add(occ_map_t *m, size_t bi, const OcTreeKey &k, double x, double y, double z, double bx, double by, double r2)
+{
+    const double r = std::sqrt(r2);
+    const float top = (float)((z + m->cfg.top_gap_fraction * m->cfg.beam_gap_rad * r) * m->inv_res + KEY_ORIGIN);
     const int grow = r2 < m->sub_r2[0] ? 1 : r2 < m->sub_r2[1] ? 2 : 3;
-    const int cx = std::min(SUB - 1, std::max(0, (int)((x * m->inv_res + KEY_ORIGIN - k[0]) * SUB)));
-    const int cy = std::min(SUB - 1, std::max(0, (int)((y * m->inv_res + KEY_ORIGIN - k[1]) * SUB)));
+    const double ux = (x * m->inv_res + KEY_ORIGIN - k[0]) * SUB, uy = (y * m->inv_res + KEY_ORIGIN - k[1]) * SUB;
+    const int cx = std::min(SUB - 1, std::max(0, (int)ux));
+    const int cy = std::min(SUB - 1, std::max(0, (int)uy));
     const double main2 = 0.1225 * r2;       /* a beam component above 0.35 of its length */
     uint32_t v = (1u << (cx + SUB * cy)) | (uint32_t)grow << SUB_GROW_SHIFT;
     if (bx * bx > main2) v |= bx > 0 ? SUB_XP : SUB_XN;
     if (by * by > main2) v |= by > 0 ? SUB_YP : SUB_YN;
-    if (bi == m->sub_last_bi) { m->sub_mask[m->sub_last_slot] |= v; return; }
-    for (uint32_t h = (uint32_t)(bi * 2654435761u) >> 16, n = 0; n < (uint32_t)SUB_TABLE; h = (h + 1) & (SUB_TABLE - 1), n++) {
-        if (m->sub_key[h] == 0) {
-            if (m->sub_used.size() * 2 > (size_t)SUB_TABLE) return;   /* table half full: the voxel stays whole */
-            m->sub_key[h] = (uint32_t)bi + 1;
-            m->sub_mask[h] = 0;
-            m->sub_used.push_back(h);
-        }
-        if (m->sub_key[h] == bi + 1) {
-            m->sub_mask[h] |= v;
-            m->sub_last_bi = bi;
-            m->sub_last_slot = (int)h;
-            return;
+    {   /* the halo: the half column gap around the return, where it reaches into the neighbouring voxels */
+        const double w = 0.5 * m->cfg.beam_gap_az_rad * r * m->inv_res * SUB;   /* sub-cells */
+        const int x0 = (int)std::floor(ux - w), x1 = (int)std::floor(ux + w), y0 = (int)std::floor(uy - w), y1 = (int)std::floor(uy + w);
+        if (x0 < 0 || y0 < 0 || x1 >= SUB || y1 >= SUB) {
+            for (int dy = -1; dy <= 1; dy++)
+                for (int dx = -1; dx <= 1; dx++) {
+                    if (!dx && !dy) continue;
+                    const int ax = std::max(x0, dx * SUB), bx_ = std::min(x1, dx * SUB + SUB - 1);
+                    const int ay = std::max(y0, dy * SUB), by_ = std::min(y1, dy * SUB + SUB - 1);
+                    if (ax > bx_ || ay > by_) continue;
+                    uint32_t mk = 0;
+                    for (int yy = ay; yy <= by_; yy++)
+                        for (int xx = ax; xx <= bx_; xx++) mk |= 1u << ((xx - dx * SUB) + SUB * (yy - dy * SUB));
+                    OcTreeKey nk((uint16_t)(k[0] + dx), (uint16_t)(k[1] + dy), k[2]);
+                    size_t nb = fine_bit(nk);
+                    const int j = (dy + 1) * 3 + dx + 1;
+                    if (m->halo_last_bi[j] == nb) {      /* the previous return reached the same voxel */
+                        m->sub_mask[m->halo_last_slot[j]] |= mk;
+                        m->sub_top[m->halo_last_slot[j]] = std::max(m->sub_top[m->halo_last_slot[j]], top);
+                        continue;
+                    }
+                    int h = sub_slot(m, nb, nk);
+                    if (h < 0) continue;
+                    m->halo_last_bi[j] = nb;
+                    m->halo_last_slot[j] = h;
+                    m->sub_mask[h] |= mk;
+                    m->sub_top[h] = std::max(m->sub_top[h], top);
+                    if (!get_bit(m->halo_bits, nb)) {
+                        set_bit(m->halo_bits, nb);
+                        m->halo_list.push_back((uint32_t)nb);
+                        set_bit(m->any_bits, obs_bit(OcTreeKey((nk[0] >> m->cshift) + m->coff, (nk[1] >> m->cshift) + m->coff, (nk[2] >> m->cshift) + m->coff)));
+                    }
+                }
         }
     }
+    if (bi == m->sub_last_bi) { m->sub_mask[m->sub_last_slot] |= v; m->sub_top[m->sub_last_slot] = std::max(m->sub_top[m->sub_last_slot], top); return; }
+    int h = sub_slot(m, bi, k);
+    if (h < 0) return;
+    m->sub_mask[h] |= v;
+    m->sub_top[h] = std::max(m->sub_top[h], top);
+    m->sub_last_bi = bi;
+    m->sub_last_slot = h;
 }
 
 void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_t *st)
@@ -450,6 +524,9 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
     for (uint32_t u : m->sub_used) m->sub_key[u] = 0;
     m->sub_used.clear();
     m->sub_last_bi = SIZE_MAX;
+    for (uint32_t b : m->halo_list) clr_bit(m->halo_bits, b);
+    m->halo_list.clear();
+    std::fill(m->halo_last_bi, m->halo_last_bi + 9, SIZE_MAX);
     /* the bitmaps are rings of FZ voxels in z: exact for the FZ around the car's height
      * (everything the eye rays cross); returns beyond that band skip the per-sweep shortcuts */
     OcTreeKey car_key;
@@ -467,7 +544,7 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
         size_t bi = fine_bit(k);
         bool band = std::abs((int)k[2] - car_kz) < FZ / 2;
         if (band) {
-            sub_add(m, bi, k, x, y, dx, dy, dx * dx + dy * dy + dz * dz);
+            sub_add(m, bi, k, x, y, z, dx, dy, dx * dx + dy * dy + dz * dz);
             if (get_bit(m->hit_bits, bi)) continue;        /* one update per voxel and sweep */
             set_bit(m->hit_bits, bi);
             m->hit_list.push_back((uint32_t)bi);
@@ -476,6 +553,7 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
         }
         octomap::OcTreeNode *nd = m->fine.updateNode(k, true, true);
         if (nd && m->fine.isNodeOccupied(nd)) {
+            if (band && !get_bit(m->fine_bits, bi) && m->sub_last_bi == bi) m->sub_mask[m->sub_last_slot] |= SUB_FRESH;
             set_bit(m->fine_bits, bi);
             if (band && nd->getLogOdds() >= m->fine.getClampingThresMaxLog()) set_bit(m->sat_bits, bi);
             set_bit(m->any_bits, obs_bit(OcTreeKey((k[0] >> m->cshift) + m->coff, (k[1] >> m->cshift) + m->coff, (k[2] >> m->cshift) + m->coff)));
@@ -526,7 +604,24 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
         OcTreeKey k = unpack(p);
         octomap::OcTreeNode *nd = m->fine.updateNode(k, false, true);
         clr_bit(m->sat_bits, fine_bit(k));
-        if (!nd || !m->fine.isNodeOccupied(nd)) { clr_bit(m->fine_bits, fine_bit(k)); s.cleared++; }
+        if (!nd || !m->fine.isNodeOccupied(nd)) {
+            clr_bit(m->fine_bits, fine_bit(k)); s.cleared++;
+            occ_map_t::shape_t &sh = m->shapes[shape_slot(fine_bit(k))];
+            if (sh.pkey == p) sh.pkey = 0;
+        }
+    }
+    /* the shapes of the voxels hit this sweep: their columns and top join those of the earlier
+     * sweeps since the voxel became occupied (a voxel not hit in a later sweep, as the LiDAR
+     * looks at another face of its object or past something in front, keeps them). The
+     * table is random access: prefetched a few entries ahead */
+    for (size_t i = 0, nu = m->sub_used.size(); i < nu; i++) {
+        if (i + 16 < nu) __builtin_prefetch(&m->shapes[shape_slot(m->sub_key[m->sub_used[i + 16]] - 1)], 1);
+        const uint32_t u = m->sub_used[i];
+        if (!get_bit(m->hit_bits, m->sub_key[u] - 1)) continue;    /* only reached by a neighbour's returns */
+        occ_map_t::shape_t &sh = m->shapes[shape_slot(m->sub_key[u] - 1)];
+        const uint32_t mk = sub_cells(m->sub_mask[u]);
+        if (sh.pkey != m->sub_pkey[u] || (m->sub_mask[u] & SUB_FRESH)) sh = occ_map_t::shape_t{ m->sub_pkey[u], mk, m->sub_top[u] };
+        else { sh.mask |= mk; sh.top = std::max(sh.top, m->sub_top[u]); }
     }
 
     /* 4. observed space: every Nth beam traced through the coarse cells (new cells only) */
@@ -571,18 +666,42 @@ static double ego_exit(const occ_config_t &c, const double e[3], const double d[
 }
 
 /* Where the ray (u0 + du t, fine-voxel units) first meets the sub-cells of voxel key
- * between t0 and t1 that hold this sweep's returns (grown), or t0 for a voxel not hit
- * this sweep (all of it counts: what it held may still be there); -1 if it passes
- * them (across x and y: the columns). Sampled every 1/8 sub-cell: a corner clipped by less is not a hit. */
+ * between t0 and t1 that hold what its returns stand for, below their top; -1 if it passes
+ * them (across x and y: the columns; in z: the top). The cells: for a voxel hit this
+ * sweep, this sweep's (grown, with its neighbours' halo); for an occupied voxel not hit
+ * this sweep, its shape from the sweeps that hit it (what it held may still be there) or,
+ * without one, all of it (t0); for a voxel only in a neighbour's halo, that halo.
+ * Sampled every 1/8 sub-cell: a corner clipped by less is not a hit. */
 static double sub_hit(const occ_map_t *m, size_t fb, const int key[3], const double u0[3], const double du[3], double t0,
                       double t1)
 {
     int slot = sub_find(m, fb);
-    const uint32_t mask = slot < 0 ? 0xffff : sub_cells(m->sub_mask[slot]);
-    if (mask == 0xffff) return t0;
+    uint32_t mask;
+    float stop;
+    const bool occupied = get_bit(m->fine_bits, fb);
+    if (get_bit(m->hit_bits, fb)) {
+        if (slot < 0) return t0;
+        mask = sub_cells(m->sub_mask[slot]); stop = m->sub_top[slot];
+    } else if (occupied) {
+        const occ_map_t::shape_t &sh = m->shapes[shape_slot(fb)];
+        if (sh.pkey != pack(OcTreeKey((uint16_t)key[0], (uint16_t)key[1], (uint16_t)key[2]))) return t0;
+        mask = sh.mask; stop = sh.top;
+        if (slot >= 0) { mask |= sub_cells(m->sub_mask[slot]); stop = std::max(stop, m->sub_top[slot]); }
+    } else {
+        if (slot < 0) return -1;
+        mask = sub_cells(m->sub_mask[slot]); stop = m->sub_top[slot];
+    }
+    /* the top: where the voxel above holds nothing, the object ends within this one */
+    double top = INFINITY;
+    if (key[2] + 1 < 2 * KEY_ORIGIN) {
+        size_t up = fine_bit(OcTreeKey((uint16_t)key[0], (uint16_t)key[1], (uint16_t)(key[2] + 1)));
+        if (!get_bit(m->fine_bits, up) && !get_bit(m->hit_bits, up) && !get_bit(m->fill_bits, up) && !get_bit(m->halo_bits, up)) top = stop;
+    }
+    if (mask == 0xffff && !(top < key[2] + 1)) return t0;
     const double dt = m->cfg.resolution / SUB / 8;
     for (double t = t0; t < t1 + dt; t += dt) {
         double tt = std::min(t, t1);
+        if (u0[2] + du[2] * tt > top) continue;
         int c[2];
         for (int i = 0; i < 2; i++) c[i] = std::min(SUB - 1, std::max(0, (int)((u0[i] + du[i] * tt - key[i]) * SUB)));
         if ((mask >> (c[0] + SUB * c[1])) & 1) return tt;
@@ -644,9 +763,9 @@ static int8_t query_one(const occ_map_t *m, const double e[3], const double bp[3
                 size_t fb = fine_bit(k);
                 if (get_bit(m->fill_bits, fb)) { *occ = (float)tf; return OCC_HIDDEN; }
                 int a = tmax[0] < tmax[1] ? (tmax[0] < tmax[2] ? 0 : 2) : (tmax[1] < tmax[2] ? 1 : 2);
-                if (get_bit(m->fine_bits, fb)) {
-                    const octomap::OcTreeNode *nd = m->fine.search(k);
-                    if (nd && m->fine.isNodeOccupied(nd)) {
+                if (get_bit(m->fine_bits, fb) || get_bit(m->halo_bits, fb)) {
+                    const octomap::OcTreeNode *nd = get_bit(m->fine_bits, fb) ? m->fine.search(k) : nullptr;
+                    if (!get_bit(m->fine_bits, fb) || (nd && m->fine.isNodeOccupied(nd))) {
                         double th = sub_hit(m, fb, key, u0, du, tf, std::min(tmax[a], tend));
                         if (th >= 0) { *occ = (float)th; return OCC_HIDDEN; }
                     }
@@ -677,3 +796,4 @@ void occ_map_query(const occ_map_t *m, const double eye[3], const double base_po
 {
     for (int i = 0; i < n; i++) state[i] = query_one(m, eye, base_pos, base_yaw, x[i], y[i], z[i], &occluder_m[i]);
 }
+

@@ -8,6 +8,10 @@
  *    the beams around it went on past it (by clear_margin_m), it gets a miss, so
  *    a bus that drove on is gone after one or two sweeps. This clears only the
  *    voxels that hold something, instead of tracing every beam through the tree.
+ *    Within a voxel, what its returns stand for is kept as 5 cm columns up to a top (the
+ *    highest return plus a part of the ring gap): this sweep's for the voxels it hit (and
+ *    the half column gap around each return, into the neighbouring voxels), and for
+ *    occupied voxels not hit this sweep the union of the sweeps that hit them.
  *  - `observed` (0.8 m): space the LiDAR has looked through or at (every
  *    observed_ray_stride-th beam traced): what is not in it is unknown, not free.
  * Ground returns (below the local ground + ground_clearance_m, from a 1 m grid of
@@ -43,7 +47,9 @@ struct occ_config_t {
     double prob_hit = 0.7, prob_miss = 0.1, clamp_min = 0.12, clamp_max = 0.88;  /* one clear miss frees any voxel */
     double fill_radius_m = 10.0;      /* returns of the lowest beams this close (horizontally) are checked for objects reaching under the view */
     double fill_elevation_tol_rad = 0.021;  /* "lowest beams": within 1.2 deg of the sweep's least elevation */
-    double beam_gap_rad = 0.0092;     /* largest angle between neighbouring beams (0.52 deg between rings): sets how far a return's sub-cells grow */
+    double beam_gap_rad = 0.0092;     /* largest angle between neighbouring rings (0.52 deg): how far above a voxel's highest return its object may reach */
+    double beam_gap_az_rad = 0.00614; /* angle between neighbouring columns (2 pi / 1024): a return's sub-cells grow by half of it, into neighbouring voxels too */
+    double top_gap_fraction = 0.25;   /* a voxel's object ends this fraction of the ring gap above its highest return (where the voxel above holds nothing) */
     double stop_short_m = 0.2;        /* eye rays stop this far before the sample (the agent's own spot) */
     /* the car's own box in base (the eye looks out through it): x from, x to, half width, height */
     double ego_x0 = -1.04, ego_x1 = 3.50, ego_half_width = 0.88, ego_height = 1.47;
