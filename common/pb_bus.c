@@ -285,9 +285,10 @@ static int run_live(pb_bus_t *bus, pb_err_t *err)
             int64_t ms = next <= now ? 0 : (next - now + 999) / 1000;
             if (ms < wait_ms) wait_ms = (int)ms;
         }
+        errno = 0;
         int r = wait_ms > 0 ? lcm_handle_timeout(bus->lcm, wait_ms) : 0;
         if (r < 0 && pb_signal_stop_requested()) break;   /* a signal interrupted the wait */
-        if (r < 0) return pb_err_set(err, "lcm_handle failed");
+        if (r < 0 && errno != EINTR) return pb_err_set(err, "lcm_handle failed");
         fire_timers(bus, pb_clock_monotonic_utime());
     }
     return 0;
@@ -299,8 +300,12 @@ int pb_bus_dispatch(pb_bus_t *bus, pb_err_t *err)
 {
     if (bus->replay) return 0;
     for (int i = 0; i < 1000; i++) {     /* bounded: a flood must not starve the caller */
+        errno = 0;
         int r = lcm_handle_timeout(bus->lcm, 0);
         if (r == 0) break;
+        /* a signal (SIGCHLD in the supervisor) interrupted select(): not a bus error,
+         * the caller dispatches again on its next turn */
+        if (r < 0 && errno == EINTR) break;
         if (r < 0) return pb_err_set(err, "lcm_handle failed");
     }
     fire_timers(bus, pb_clock_monotonic_utime());

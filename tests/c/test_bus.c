@@ -1,8 +1,11 @@
 /* pb_bus: replay delivers in log order with log time, timers fire on message
  * time, a corrupt input stops the run with the byte offset and keeps OUT; live,
  * messages cross real LCM UDP multicast on a private URL. */
+#include <signal.h>
 #include <stdint.h>
 #include <stdlib.h>
+#include <string.h>
+#include <sys/time.h>
 #include <unistd.h>
 
 #include "pb_bus.h"
@@ -89,6 +92,36 @@ static void on_ping(const pb_msg_t *m, void *user)
 }
 
 static void on_timeout(int64_t now, void *user) { pb_bus_stop(((ctx_t *)user)->bus); }
+
+static volatile sig_atomic_t g_alarms;
+static void on_alarm(int sig) { (void)sig; g_alarms++; }
+
+/* A process with children (the supervisor) gets SIGCHLD at any time; select() inside
+ * lcm_handle_timeout then fails with EINTR. That is not a bus error: dispatch must go on
+ * (the supervisor used to exit 1 "lcm_handle failed" while stopping its commands). */
+static void test_dispatch_survives_signals(const char *url)
+{
+    pb_err_t err;
+    pb_bus_t *bus = pb_bus_create_live(url, &err);
+    CHECK(bus != NULL);
+    if (!bus) return;
+    struct sigaction sa;
+    memset(&sa, 0, sizeof sa);
+    sigemptyset(&sa.sa_mask);
+    sa.sa_handler = on_alarm;   /* no SA_RESTART, and select() is never restarted anyway */
+    sigaction(SIGALRM, &sa, NULL);
+    struct itimerval it = { { 0, 20 }, { 0, 20 } };
+    setitimer(ITIMER_REAL, &it, NULL);
+    int failed = 0;
+    for (int i = 0; i < 30000 && !failed; i++) failed = pb_bus_dispatch(bus, &err) != 0;
+    struct itimerval off = { { 0, 0 }, { 0, 0 } };
+    setitimer(ITIMER_REAL, &off, NULL);
+    signal(SIGALRM, SIG_DFL);
+    printf("dispatch under %d signals: %s\n", (int)g_alarms, failed ? err.msg : "no failure");
+    CHECK(g_alarms > 100);
+    CHECK(!failed);
+    pb_bus_destroy(bus);
+}
 
 int main(void)
 {
@@ -198,6 +231,7 @@ int main(void)
     }
     pb_bus_destroy(tx);
     pb_bus_destroy(rx.bus);
+    test_dispatch_survives_signals("udpm://239.255.76.67:7742?ttl=0");
 
     snprintf(cmd, sizeof cmd, "rm -rf %s", dir);
     if (system(cmd) != 0) return 2;
