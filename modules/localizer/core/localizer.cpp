@@ -485,6 +485,13 @@ static void restart_from_two_matches(localizer_t *L, filter_t *f, const Eigen::I
     L->cand_vel_unknown = false;
 }
 
+/* The prediction's horizontal position standard deviation (base), metres. */
+static double prediction_sigma_m(const filter_t &prior)
+{
+    Mat6 P = filter_base_covariance(&prior);
+    return std::sqrt(std::max(P(0, 0), P(1, 1)));
+}
+
 /* A match whose structure does not fit the map while tracking, or while verifying a
  * candidate whose motion was unknown at its start (LiDAR alone: its speed comes from two
  * matches): the prediction may be off by more than one registration pulls in (a
@@ -494,7 +501,7 @@ static bool research(localizer_t *L, const filter_t &prior, const Eigen::Isometr
                      double *si)
 {
     Mat6 P = filter_base_covariance(&prior);
-    double radius = std::min(3 * std::sqrt(std::max(P(0, 0), P(1, 1))), 4.0);
+    double radius = std::min(3 * prediction_sigma_m(prior), 4.0);
     double yaw = std::min(3 * std::sqrt(P(5, 5)), 20 * M_PI / 180);
     if (radius < 1.0 && yaw < 5 * M_PI / 180) return false;   /* a sure prediction: one registration pulls it in */
     pb_reg_result_t r;
@@ -612,7 +619,7 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
         if (rc == PB_REG_FEW_POINTS) { res.points_matched = 0; res.points_used = int(L->xyz.size() / 3); }
     } else {
         pb_reg_config_t reg = L->cfg.reg;
-        reg.prior_sigma_m = std::sqrt(std::max(prior.P(0, 0), prior.P(1, 1)));
+        reg.prior_sigma_m = prediction_sigma_m(prior);
         rc = pb_reg_align(L->map, L->xyz.data(), L->xyz.size() / 3, guess, &reg, &res, &err);
     }
     bool accept = false;

@@ -86,21 +86,25 @@ struct NearCache {
     std::vector<uint8_t> n;
     std::vector<const Cell *> near;   /* 7 per point */
 
-    /* the targets near point i, now at q */
-    int lookup(const Level &level, size_t i, size_t npts, const Eigen::Vector3d &q, const Cell *const **out)
+    /* for npts points on level (emptied when either changes) */
+    void prepare(const Level &level, size_t npts)
     {
-        if (lv != &level || key.size() != npts) {
-            lv = &level;
-            key.assign(npts, ~(uint64_t)0);
-            n.assign(npts, 0);
-            near.assign(7 * npts, nullptr);
-        }
+        if (lv == &level && key.size() == npts) return;
+        lv = &level;
+        key.assign(npts, ~(uint64_t)0);
+        n.assign(npts, 0);
+        near.assign(7 * npts, nullptr);
+    }
+
+    /* the targets near point i, now at q */
+    int lookup(size_t i, const Eigen::Vector3d &q, const Cell *const **out)
+    {
         uint64_t k;
         *out = &near[7 * i];
-        if (!voxel_key_of(q(0), q(1), q(2), level.inv_voxel, &k)) return 0;
+        if (!voxel_key_of(q(0), q(1), q(2), lv->inv_voxel, &k)) return 0;
         if (key[i] != k) {
             key[i] = k;
-            n[i] = (uint8_t)level.lookup_near(q(0), q(1), q(2), &near[7 * i]);
+            n[i] = (uint8_t)lv->lookup_near(q(0), q(1), q(2), &near[7 * i]);
         }
         return n[i];
     }
@@ -112,13 +116,13 @@ bool cell_upright(const Cell *c)
 }
 
 /* Linearises every point at pose T: J^T W J and J^T W r over the points whose
- * cell residual is within gate, with Geman-McClure weights of scale kernel. */
+ * cell residual is within gate, with Geman-McClure weights of scale kernel.
+ * cache: the points' targets from an earlier pass over the same points (NULL: none). */
 void linearise(const Level &lv, const float *pts, size_t n, const Eigen::Isometry3d &T, double gate,
                double kernel, double inlier, bool planar_only, Accum *acc,
                std::vector<float> *abs_residuals, Upright *up = nullptr, NearCache *cache = nullptr)
 {
-    NearCache local;
-    if (!cache) cache = &local;
+    if (cache) cache->prepare(lv, n);
     if (up) up->points = up->inliers = 0;
     acc->H.setZero();
     acc->g.setZero();
@@ -132,8 +136,9 @@ void linearise(const Level &lv, const float *pts, size_t n, const Eigen::Isometr
         Eigen::Vector3d s = R * p;          /* point about the vehicle, map axes */
         Eigen::Vector3d q = s + t;
         /* the own cell's target, else the nearest of the face neighbours' */
-        const Cell *const *near;
-        int nn = cache->lookup(lv, i, n, q, &near);
+        const Cell *buf[7];
+        const Cell *const *near = buf;
+        int nn = cache ? cache->lookup(i, q, &near) : lv.lookup_near(q(0), q(1), q(2), buf);
         const Cell *c = nullptr, *c_any = nullptr;
         double r1 = 0, r2 = 0, best = HUGE_VAL, best_any = HUGE_VAL;
         Eigen::Vector3d u1, u2;
@@ -406,9 +411,8 @@ int pb_reg_align(const pb_regmap_t *map, const float *xyz, size_t n, const Eigen
         double d1 = D.translation().norm(), d2 = (guess.inverse() * T2).translation().norm();
         bool far_unlikely = cfg->prior_sigma_m > 0 && std::max(d1, d2) > 3 * cfg->prior_sigma_m;
         double margin = distinct && far_unlikely ? 3.0 * std::sqrt((double)(d2 < d1 ? a2 : a1).inliers) : 0.0;
-        bool use_t2 = margin == 0   ? a2.inliers > a1.inliers
-                      : d2 < d1     ? a1.inliers <= a2.inliers + margin
-                                    : a2.inliers > a1.inliers + margin;
+        /* the farther result pays the margin */
+        bool use_t2 = a2.inliers - (d2 < d1 ? 0.0 : margin) > a1.inliers - (d2 < d1 ? margin : 0.0);
         if (use_t2) {
             T = T2;
             converged = conv2;
