@@ -321,6 +321,9 @@ static int add_points(pb_map_builder_t *b, const pb_points_t *pts, TransformOf t
     Batch batch(b);
     try {
         for (int i = 0; i < pts->n; i++) {
+            /* a point at the sensor's own origin is no return (Velodyne organized clouds
+             * write (0, 0, 0)): a trail of them along the drive is not part of the world */
+            if (pts->x[i] == 0 && pts->y[i] == 0 && pts->z[i] == 0) continue;
             const Rt &T = transform_of(i);
             Eigen::Vector3d p = T.R * Eigen::Vector3d(pts->x[i], pts->y[i], pts->z[i]) + T.t;
             if (batch.push(p, pts->intensity ? pts->intensity[i] : 0.f) != 0) return batch.fail(err);

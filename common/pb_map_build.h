@@ -52,7 +52,9 @@ typedef struct pb_map_builder pb_map_builder_t;
 pb_map_builder_t *pb_map_builder_create(double voxel_m, pb_err_t *err);
 void pb_map_builder_destroy(pb_map_builder_t *b);
 
-/* Adds points of one scan, all moved by the same map <- lidar transform.
+/* Adds points of one scan, all moved by the same map <- lidar transform. Points at
+ * exactly (0, 0, 0) in the lidar frame are no-return markers and are skipped (here and
+ * in pb_map_builder_add_timed).
  * Returns 0, or -1 if a point falls outside the voxel key range (+-2^20 voxels). */
 int pb_map_builder_add(pb_map_builder_t *b, const pb_points_t *pts,
                        const pb_transform_t *map_from_lidar, pb_err_t *err);

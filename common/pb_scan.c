@@ -54,8 +54,9 @@ static int range_image(const portobello_lidar_scan_t *s, pb_points_t *out, pb_er
                 double Z = M[8] * x + M[9] * y + M[10] * z + M[11];
                 x = X; y = Y; z = Z;
             }
-            if (!isfinite(x) || !isfinite(y) || !isfinite(z)) continue;
-            out->x[k] = (float)x; out->y[k] = (float)y; out->z[k] = (float)z;
+            float fx = (float)x, fy = (float)y, fz = (float)z;   /* a huge finite double is an infinite float */
+            if (!isfinite(fx) || !isfinite(fy) || !isfinite(fz)) continue;
+            out->x[k] = fx; out->y[k] = fy; out->z[k] = fz;
             out->intensity[k] = s->reflectivity[r * s->cols + c];
             out->offset_us[k] = s->col_offset_us[c];
             out->ring[k] = (uint8_t)r;
@@ -77,6 +78,7 @@ int pb_scan_points(const portobello_lidar_scan_t *s, pb_points_t *out, pb_err_t 
     int k = 0;
     for (int i = 0; i < s->npoints; i++) {
         if (!isfinite(s->x[i]) || !isfinite(s->y[i]) || !isfinite(s->z[i])) continue;
+        if (s->x[i] == 0 && s->y[i] == 0 && s->z[i] == 0) continue;   /* no return (organized clouds) */
         out->x[k] = s->x[i]; out->y[k] = s->y[i]; out->z[k] = s->z[i];
         out->intensity[k] = s->intensity[i];
         out->offset_us[k] = s->point_offset_us[i];
@@ -85,4 +87,61 @@ int pb_scan_points(const portobello_lidar_scan_t *s, pb_points_t *out, pb_err_t 
     }
     out->n = k;
     return k;
+}
+
+static int cmp_double(const void *a, const void *b)
+{
+    double x = *(const double *)a, y = *(const double *)b;
+    return (x > y) - (x < y);
+}
+
+/* Largest gap between neighbouring values of v[0..n-1] (sorted in place). */
+static double largest_gap(double *v, int n)
+{
+    qsort(v, (size_t)n, sizeof *v, cmp_double);
+    double g = 0;
+    for (int i = 1; i < n; i++)
+        if (v[i] - v[i - 1] > g) g = v[i] - v[i - 1];
+    return g;
+}
+
+int pb_scan_beam_gaps(const portobello_lidar_scan_t *s, const pb_points_t *pts, double *ring_gap_rad, double *col_gap_rad)
+{
+    enum { RINGS = 255, SAMPLES = 65, MIN_POINTS = 16 };
+    double alt[RINGS];
+    int nr = 0;
+    if (s->rows >= 2 && s->cols > 0 && s->npixels == s->rows * s->cols) {
+        for (int r = 0; r < s->rows && nr < RINGS; r++)
+            if (fabsf(s->beam_altitude_rad[r]) <= (float)(M_PI / 2)) alt[nr++] = s->beam_altitude_rad[r];   /* false for NaN */
+        if (nr < 2) return 0;
+        *ring_gap_rad = largest_gap(alt, nr);
+        *col_gap_rad = 2 * M_PI / s->cols;
+        return *ring_gap_rad > 0;
+    }
+    /* point form: each ring's elevation is the median of SAMPLES of its points, spread over the ring */
+    int count[RINGS] = { 0 }, most = 0;
+    for (int i = 0; i < pts->n; i++)
+        if (pts->ring[i] < RINGS) count[pts->ring[i]]++;
+    double *el = malloc(sizeof(double) * RINGS * SAMPLES);
+    int taken[RINGS] = { 0 }, seen[RINGS] = { 0 };
+    if (!el) return 0;
+    for (int i = 0; i < pts->n; i++) {
+        int r = pts->ring[i];
+        if (r >= RINGS || count[r] < MIN_POINTS) continue;
+        /* every (count / SAMPLES)-th point of the ring */
+        if ((long)seen[r]++ * SAMPLES / count[r] < (long)taken[r] || taken[r] >= SAMPLES) continue;
+        el[r * SAMPLES + taken[r]++] = atan2(pts->z[i], hypot(pts->x[i], pts->y[i]));
+    }
+    for (int r = 0; r < RINGS; r++) {
+        if (count[r] < MIN_POINTS || taken[r] == 0) continue;
+        double *v = el + r * SAMPLES;
+        qsort(v, (size_t)taken[r], sizeof *v, cmp_double);
+        alt[nr++] = v[taken[r] / 2];
+        if (count[r] > most) most = count[r];
+    }
+    free(el);
+    if (nr < 2) return 0;
+    *ring_gap_rad = largest_gap(alt, nr);
+    *col_gap_rad = 2 * M_PI / most;
+    return *ring_gap_rad > 0;
 }

@@ -22,11 +22,21 @@ typedef struct {
     uint8_t *ring;          /* beam index, 255 unknown */
 } pb_points_t;
 
-/* Valid points only (no-return pixels and non-finite points are skipped).
+/* Valid points only (no-return pixels, non-finite points and point-form points at
+ * exactly (0, 0, 0), the no-return marker of organized Velodyne clouds, are skipped).
  * Returns the number of points, or -1 if the scan is inconsistent (array sizes
  * that do not match rows/cols), with err naming the field. */
 int pb_scan_points(const portobello_lidar_scan_t *scan, pb_points_t *out, pb_err_t *err);
 void pb_points_free(pb_points_t *pts);
+
+/* The angles between neighbouring beams of a sweep: *ring_gap_rad, the largest gap in
+ * elevation between neighbouring rings, and *col_gap_rad, between neighbouring columns.
+ * Range image: exact (beam_altitude_rad; 2 pi / cols). Point form with ring indices
+ * (pts from pb_scan_points of the same scan): estimated, each ring's elevation the median
+ * of its points', the column gap 2 pi over the most points on one ring. Returns 1 with
+ * both set, 0 if the scan does not say (point form without rings, fewer than two rings). */
+int pb_scan_beam_gaps(const portobello_lidar_scan_t *scan, const pb_points_t *pts, double *ring_gap_rad,
+                      double *col_gap_rad);
 
 #ifdef __cplusplus
 }

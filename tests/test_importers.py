@@ -337,6 +337,11 @@ def test_hdl_pair_map_is_the_aligned_union(hdl_import):
     n_unaligned = len(voxel_keys(np.vstack([tgt[:, :3], src[:, :3]]), v))
     assert n_union < n_unaligned
     assert max(n_t, n_s) < len(m)
+    # The pair writes (0, 0, 0) for no return (5,032 and 5,107 points): none of them in the
+    # map, where they would stand at the sensor's origin, 1.9 m above the road
+    assert (tgt[:, :3] == 0).all(axis=1).sum() == 5032
+    for origin in (np.zeros(3), T[:3, 3]):
+        assert np.linalg.norm(m[:, :3] - origin, axis=1).min() > 0.05
 
 
 # ---------------------------------------------------------------- import-scans: KITTI .bin, formats, errors

@@ -52,6 +52,40 @@ int main(void)
     p.npoints = 3; p.x = px; p.y = py; p.z = pz; p.intensity = pi; p.point_offset_us = po; p.ring = pr;
     CHECK(pb_scan_points(&p, &pts, &err) == 1);
     CHECK_NEAR(pts.x[0], 1, 0);
+
+    /* Beam gaps of the range image: the largest ring gap (0.3 rad), 2 pi / cols. */
+    double ring_gap = 0, col_gap = 0;
+    CHECK(pb_scan_points(&s, &pts, &err) == 7);
+    CHECK(pb_scan_beam_gaps(&s, &pts, &ring_gap, &col_gap) == 1);
+    CHECK_NEAR(ring_gap, 0.3, 1e-6);
+    CHECK_NEAR(col_gap, M_PI / 2, 1e-12);
+
+    /* Point form: (0, 0, 0) is no return; no rings, so the gaps are not known. */
+    px[1] = 0; py[1] = 0;
+    CHECK(pb_scan_points(&p, &pts, &err) == 1);
+    CHECK(pb_scan_beam_gaps(&p, &pts, &ring_gap, &col_gap) == 0);
+
+    /* Point form with rings: 3 rings at -0.1, 0 and 0.2 rad (gap 0.2), 40 points on the
+     * fullest ring (column gap 2 pi / 40), a few points off their ring's elevation */
+    enum { NP = 40 + 30 + 20 };
+    float qx[NP], qy[NP], qz[NP], qi[NP] = { 0 };
+    int32_t qo[NP] = { 0 };
+    uint8_t qr[NP];
+    const double ring_el[3] = { -0.1, 0.0, 0.2 };
+    const int ring_n[3] = { 40, 30, 20 };
+    int k = 0;
+    for (int r = 0; r < 3; r++)
+        for (int j = 0; j < ring_n[r]; j++, k++) {
+            double az = 2 * M_PI * j / ring_n[r], el = ring_el[r] + (j == 3 ? 0.05 : 0), d = 10 + j % 7;
+            qx[k] = (float)(d * cos(el) * cos(az)); qy[k] = (float)(d * cos(el) * sin(az)); qz[k] = (float)(d * sin(el));
+            qr[k] = (uint8_t)(5 + r);
+        }
+    portobello_lidar_scan_t q = { 0 };
+    q.npoints = NP; q.x = qx; q.y = qy; q.z = qz; q.intensity = qi; q.point_offset_us = qo; q.ring = qr;
+    CHECK(pb_scan_points(&q, &pts, &err) == NP);
+    CHECK(pb_scan_beam_gaps(&q, &pts, &ring_gap, &col_gap) == 1);
+    CHECK_NEAR(ring_gap, 0.2, 1e-5);
+    CHECK_NEAR(col_gap, 2 * M_PI / 40, 1e-12);
     pb_points_free(&pts);
     return pb_check_report("test_scan");
 }
