@@ -101,8 +101,13 @@ static void on_scan(const pb_msg_t *m, void *user)
     app_t *a = (app_t *)user;
     pb_status_take(a->status, m, portobello_lidar_scan_t_decode, portobello_lidar_scan_t_decode_cleanup,
                    [a](const portobello_lidar_scan_t &s) {
-                       if (pb_status_scan_points(a->status, &s, &a->pts) >= 0)
-                           occlusion_scan(a->occ, s.utime, &a->pts, &a->out, &a->ev);
+                       if (pb_status_scan_points(a->status, &s, &a->pts) >= 0) {
+                           /* the sensor's beam gaps, else the config's (64 x 1024): said in STATUS */
+                           double ring_gap = 0, col_gap = 0;
+                           if (!pb_scan_beam_gaps(&s, &a->pts, &ring_gap, &col_gap))
+                               pb_status_count(a->status, "beam_gaps_from_config", 1);
+                           occlusion_scan(a->occ, s.utime, &a->pts, ring_gap, col_gap, &a->out, &a->ev);
+                       }
                        flush(a);
                    });
 }

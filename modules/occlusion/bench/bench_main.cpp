@@ -13,8 +13,12 @@
 #include <time.h>
 
 #include <octomap/OcTree.h>
+#include <pcl/io/pcd_io.h>
+#include <pcl/point_types.h>
 
 #include <algorithm>
+#include <dirent.h>
+#include <fstream>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
@@ -96,22 +100,176 @@ static int8_t stock_query(const octomap::OcTree &tree, const occ_config_t &c, co
 static void usage(FILE *f)
 {
     fprintf(f, "usage: occlusion-bench --log DRIVE.lcm --out OUT.lcm [--stock-from N] [--stock-count M]\n"
+               "       occlusion-bench --real DIR [--ring-gap-deg G --col-gap-deg G]\n"
                "Times the occlusion pipeline on every sweep of a simdrive --scenario log, and stock\n"
-               "OctoMap insertPointCloud + castRay on sweeps N..N+M-1; writes both answers to OUT.\n");
+               "OctoMap insertPointCloud + castRay on sweeps N..N+M-1; writes both answers to OUT.\n"
+               "--real: two real sweeps (DIR/*.pcd in name order, DIR/relative.txt = 4x4 pose of the\n"
+               "second in the first's frame), integrated in turn by ours and by stock OctoMap (same\n"
+               "points, same origins), timed; then both answer samples whose state the first sweep's\n"
+               "own beams tell (1 m behind a return: hidden; 1 m before it: visible) from its origin.\n"
+               "--ring-gap-deg / --col-gap-deg: the sensor's beam gaps (the PCDs carry no rings);\n"
+               "without them the config's (64 x 1024). Prints one JSON object.\n");
+}
+
+/* One real sweep: points in the sensor frame and the sensor's pose in the map (the first sweep's frame). */
+struct real_sweep_t {
+    std::vector<float> x, y, z;     /* map frame */
+    std::vector<uint16_t> oi;
+    double origin[3], rot[9];
+};
+
+static bool load_real(const std::string &dir, std::vector<real_sweep_t> *out, std::string *why)
+{
+    std::vector<std::string> names;
+    if (DIR *d = opendir(dir.c_str())) {
+        while (dirent *e = readdir(d)) {
+            std::string n = e->d_name;
+            if (n.size() > 4 && n.compare(n.size() - 4, 4, ".pcd") == 0) names.push_back(n);
+        }
+        closedir(d);
+    }
+    std::sort(names.begin(), names.end());
+    if (names.size() != 2) { *why = dir + ": want two .pcd files, found " + std::to_string(names.size()); return false; }
+    double T[16];
+    std::ifstream rel(dir + "/relative.txt");
+    for (double &v : T) if (!(rel >> v)) { *why = dir + "/relative.txt: want 16 numbers (a 4 x 4 pose)"; return false; }
+    for (int s = 0; s < 2; s++) {
+        pcl::PointCloud<pcl::PointXYZ> c;
+        if (pcl::io::loadPCDFile(dir + "/" + names[s], c) != 0) { *why = dir + "/" + names[s] + ": not a readable PCD"; return false; }
+        real_sweep_t w;
+        for (int i = 0; i < 3; i++) {
+            w.origin[i] = s ? T[4 * i + 3] : 0;
+            for (int j = 0; j < 3; j++) w.rot[3 * i + j] = s ? T[4 * i + j] : (i == j);
+        }
+        for (const auto &p : c) {
+            if (!std::isfinite(p.x) || (p.x == 0 && p.y == 0 && p.z == 0)) continue;   /* no return */
+            const double *R = w.rot;
+            w.x.push_back((float)(R[0] * p.x + R[1] * p.y + R[2] * p.z + w.origin[0]));
+            w.y.push_back((float)(R[3] * p.x + R[4] * p.y + R[5] * p.z + w.origin[1]));
+            w.z.push_back((float)(R[6] * p.x + R[7] * p.y + R[8] * p.z + w.origin[2]));
+        }
+        w.oi.assign(w.x.size(), 0);
+        out->push_back(std::move(w));
+    }
+    return true;
+}
+
+/* --real: ours and stock OctoMap on two real sweeps, in turn, and their answers where the
+ * first sweep's beams tell the truth. */
+static int real_bench(const std::string &dir, double ring_gap, double col_gap)
+{
+    std::vector<real_sweep_t> sw;
+    std::string why;
+    if (!load_real(dir, &sw, &why)) { fprintf(stderr, "occlusion-bench: %s\n", why.c_str()); return 1; }
+    occ_config_t cfg;
+    occ_map_t *map = occ_map_create(&cfg);
+    octomap::OcTree stock(cfg.resolution);
+    /* one sweep into ours, and the same points (within range, from its origin) into stock */
+    auto ours_add = [&](const real_sweep_t &w) {
+        occ_sweep_t s = {};
+        s.n = (int)w.x.size(); s.x = w.x.data(); s.y = w.y.data(); s.z = w.z.data();
+        s.origin_index = w.oi.data(); s.norigins = 1;
+        const double origins[1][3] = { { w.origin[0], w.origin[1], w.origin[2] } };
+        s.origins = origins;
+        memcpy(s.mid_origin, w.origin, sizeof s.mid_origin);
+        memcpy(s.mid_rot, w.rot, sizeof s.mid_rot);
+        memcpy(s.car, w.origin, sizeof s.car);
+        s.ring_gap_rad = ring_gap; s.col_gap_rad = col_gap;
+        occ_integrate_stats_t st;
+        double t0 = pb_clock_thread_cpu_ms();
+        occ_map_integrate(map, &s, &st);
+        return pb_clock_thread_cpu_ms() - t0;
+    };
+    auto stock_add = [&](const real_sweep_t &w) {
+        octomap::Pointcloud cloud;
+        octomap::point3d so((float)w.origin[0], (float)w.origin[1], (float)w.origin[2]);
+        for (size_t i = 0; i < w.x.size(); i++) {
+            octomap::point3d p(w.x[i], w.y[i], w.z[i]);
+            if ((p - so).norm() <= cfg.range_m) cloud.push_back(p);
+        }
+        double t0 = pb_clock_thread_cpu_ms();
+        stock.insertPointCloud(cloud, so, cfg.range_m);
+        return pb_clock_thread_cpu_ms() - t0;
+    };
+    /* the two sweeps in turn: ours 16 times, stock 6 (about 1 s each); the first round
+     * fills an empty map and is not counted. Then the first sweep once more for both, so
+     * both answer after its view */
+    std::vector<double> ours_ms, stock_ms;
+    for (int k = 0; k < 16; k++) {
+        double dt = ours_add(sw[k % 2]);
+        if (k >= 2) ours_ms.push_back(dt);
+    }
+    for (int k = 0; k < 6; k++) {
+        double dt = stock_add(sw[k % 2]);
+        if (k >= 2) stock_ms.push_back(dt);
+    }
+    ours_add(sw[0]);
+    stock_add(sw[0]);
+    /* the samples: every 7th return of the first sweep 3-40 m away and 0.5-2.5 m above the
+     * lowest return in its 2 m cell (where agents stand: not ground, not treetops); hidden 1 m
+     * behind it along its beam, visible 1 m before it; asked from the first sweep's origin */
+    const real_sweep_t &a = sw[0];
+    std::vector<float> gz(100 * 100, INFINITY);   /* lowest return per 2 m cell, 100 x 100 cells */
+    auto cell = [](double x, double y) { int i = (int)std::floor(x / 2) + 50, j = (int)std::floor(y / 2) + 50;
+                                         return i >= 0 && j >= 0 && i < 100 && j < 100 ? j * 100 + i : -1; };
+    for (size_t i = 0; i < a.x.size(); i++) { int c = cell(a.x[i], a.y[i]); if (c >= 0) gz[c] = std::min(gz[c], a.z[i]); }
+    std::vector<float> sx, sy, sz;
+    std::vector<int8_t> truth;
+    for (size_t i = 0; i < a.x.size(); i += 7) {
+        double d[3] = { a.x[i] - a.origin[0], a.y[i] - a.origin[1], a.z[i] - a.origin[2] };
+        double r = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+        int c = cell(a.x[i], a.y[i]);
+        if (r < 3 || r > 40 || c < 0 || a.z[i] < gz[c] + 0.5 || a.z[i] > gz[c] + 2.5) continue;
+        for (int side = 0; side < 2; side++) {
+            double f = (r + (side ? 1.0 : -1.0)) / r;
+            sx.push_back((float)(a.origin[0] + d[0] * f)); sy.push_back((float)(a.origin[1] + d[1] * f));
+            sz.push_back((float)(a.origin[2] + d[2] * f));
+            truth.push_back(side ? OCC_HIDDEN : OCC_VISIBLE);
+        }
+    }
+    const double far_car[3] = { 1e4, 1e4, 0 };    /* no car box around this eye */
+    size_t n = sx.size();
+    std::vector<int8_t> ours(n), theirs(n);
+    std::vector<float> occm(n);
+    occ_map_query(map, a.origin, far_car, 0, sx.data(), sy.data(), sz.data(), (int)n, ours.data(), occm.data());
+    for (size_t i = 0; i < n; i++) {
+        float om;
+        theirs[i] = stock_query(stock, cfg, a.origin, 0, -1e9, sx[i], sy[i], sz[i], &om);
+    }
+    long conf[2][2][3] = {};                      /* method, truth (visible, hidden), answer */
+    for (size_t i = 0; i < n; i++) { conf[0][truth[i]][ours[i]]++; conf[1][truth[i]][theirs[i]]++; }
+    printf("{\"sweeps\": [%zu, %zu], \"ring_gap_rad\": %.5f, \"col_gap_rad\": %.5f, \"ours_integrate_ms\": [",
+           sw[0].x.size(), sw[1].x.size(), ring_gap, col_gap);
+    for (size_t i = 0; i < ours_ms.size(); i++) printf("%s%.3f", i ? ", " : "", ours_ms[i]);
+    printf("], \"stock_insert_ms\": [");
+    for (size_t i = 0; i < stock_ms.size(); i++) printf("%s%.1f", i ? ", " : "", stock_ms[i]);
+    printf("], \"ours_integrate_ms_p50\": %.3f, \"stock_insert_ms_p50\": %.1f, \"samples\": %zu", pct(ours_ms, 0.5),
+           pct(stock_ms, 0.5), n);
+    const char *who[2] = { "ours", "stock" };
+    for (int w = 0; w < 2; w++)
+        printf(", \"%s\": {\"truth_visible\": [%ld, %ld, %ld], \"truth_hidden\": [%ld, %ld, %ld]}", who[w],
+               conf[w][0][0], conf[w][0][1], conf[w][0][2], conf[w][1][0], conf[w][1][1], conf[w][1][2]);
+    printf("}\n");
+    occ_map_destroy(map);
+    return 0;
 }
 
 int main(int argc, char **argv)
 {
-    const char *log_path = nullptr, *out_path = nullptr;
+    const char *log_path = nullptr, *out_path = nullptr, *real_dir = nullptr;
     std::string vehicle = std::string(PB_SOURCE_DIR) + "/vehicles/prius2017.yaml";
     long stock_from = 300, stock_count = 30;
+    double ring_gap_deg = 0, col_gap_deg = 0;
     const pb_opt_t opts[] = {
-        PB_OPT_REQUIRED("log", &log_path), PB_OPT_REQUIRED("out", &out_path),
+        PB_OPT_STRING("log", &log_path), PB_OPT_STRING("out", &out_path), PB_OPT_STRING("real", &real_dir),
         PB_OPT_LONG("stock-from", &stock_from, 0, 1L << 40), PB_OPT_LONG("stock-count", &stock_count, 0, 1L << 40),
+        PB_OPT_DOUBLE("ring-gap-deg", &ring_gap_deg, 0, 30), PB_OPT_DOUBLE("col-gap-deg", &col_gap_deg, 0, 30),
         PB_OPT_END,
     };
     int parsed = pb_opt_parse("occlusion-bench", opts, usage, 0, argc, argv);
     if (parsed >= 0) return parsed;
+    if (real_dir) return real_bench(real_dir, ring_gap_deg * M_PI / 180, col_gap_deg * M_PI / 180);
+    if (!log_path || !out_path) { usage(stderr); return 2; }
     pb_err_t err;
     pb_vehicle_t veh;
     if (pb_vehicle_load(vehicle.c_str(), &veh, &err)) { fprintf(stderr, "occlusion-bench: %s\n", err.msg); return 1; }
@@ -174,7 +332,9 @@ int main(int argc, char **argv)
         } else if (ch == "LIDAR_SCAN") {
             portobello_lidar_scan_t s;
             if (portobello_lidar_scan_t_decode(e.data, 0, e.datalen, &s) < 0) continue;
-            if (pb_scan_points(&s, &pts, &err) >= 0) occlusion_scan(occ, s.utime, &pts, &res, &ev);
+            double ring_gap = 0, col_gap = 0;
+            if (pb_scan_points(&s, &pts, &err) >= 0 && pb_scan_beam_gaps(&s, &pts, &ring_gap, &col_gap) >= 0)
+                occlusion_scan(occ, s.utime, &pts, ring_gap, col_gap, &res, &ev);
             portobello_lidar_scan_t_decode_cleanup(&s);
         }
         for (occ_output_t &o : res) {

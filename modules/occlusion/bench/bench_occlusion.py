@@ -6,6 +6,10 @@ simulated drive with OCCLUSION_TRUTH, against stock OctoMap on the same sweeps.
 2. occlusion-bench (one thread, thread CPU time): ours on every sweep (integrate; query of
    100 agents), stock insertPointCloud + castRay on sweeps STOCK_FROM.. (after 10 warm-up)
 3. agreement with the truth: ours over the whole drive; ours and stock on the stock sweeps
+4. real sweeps: the HDL-32E pair of tests/data (two outdoor sweeps 0.5 m apart), ours and
+   stock in turn on the same points; both answer samples whose state the first sweep's own
+   beams tell (1 m behind a return: hidden, 1 m before it: visible), with the sensor's
+   beam gaps (HDL-32E: rings 1.33 deg apart, columns 0.167 deg) and with the config's
 Prints a table; writes build/bench/occlusion.json.
 """
 import json
@@ -22,6 +26,7 @@ from occ_agreement import CAUSES, agreement, read_states, read_truth  # noqa: E4
 DURATION = int(os.environ.get("OCC_BENCH_DURATION", "600"))
 STOCK_FROM = int(os.environ.get("OCC_BENCH_STOCK_FROM", "300"))
 STOCK_COUNT = int(os.environ.get("OCC_BENCH_STOCK_COUNT", "30"))
+HDL32 = os.path.join(TOP, "tests", "data", "lidar_pair_hdl32")
 
 
 def main():
@@ -53,11 +58,17 @@ def main():
     stock_times = set(stock)
     ours_sub = agreement(truth, ours, utimes=stock_times)
     stock_sub = agreement(truth, stock, utimes=stock_times)
+    print("bench-occlusion: real sweeps (HDL-32E pair) ...", flush=True)
+    real = {}
+    for name, gaps in (("sensor_gaps", ["--ring-gap-deg", "1.333", "--col-gap-deg", "0.1667"]), ("config_gaps", [])):
+        r = subprocess.run([os.path.join(BUILD, "bin", "occlusion-bench"), "--real", HDL32] + gaps,
+                           check=True, stdout=subprocess.PIPE, text=True)
+        real[name] = json.loads(r.stdout)
     mem = cost.pop("memory_per_minute")
     memory = [dict(sweep=mem[i], leaves=mem[i + 1], map_bytes=mem[i + 2], rss_kb=mem[i + 3]) for i in range(0, len(mem), 4)]
     res = dict(cost=cost, agreement_ours_drive=ours_all, agreement_ours_stock_sweeps=ours_sub,
                agreement_stock=stock_sub, memory=memory, duration_s=DURATION, stock_from=STOCK_FROM,
-               stock_count=STOCK_COUNT)
+               stock_count=STOCK_COUNT, real_hdl32=real)
     with open(os.path.join(BUILD, "bench", "occlusion.json"), "w") as f:
         json.dump(res, f, indent=1)
 
@@ -107,6 +118,21 @@ def main():
         print(f"  {m['sweep'] / 600:4.0f}  {m['leaves']:9d}  {m['map_bytes'] / 1e6:7.1f}  {m['rss_kb'] / 1e3:7.1f}")
     print(f"  process RSS: max {c['rss_max_kb'] / 1e3:.1f} MB, end {c['rss_end_kb'] / 1e3:.1f} MB "
           f"(the stock tree of sweeps {STOCK_FROM - 10}..{STOCK_FROM + STOCK_COUNT - 1} is in it from then on)")
+    print()
+    print("real sweeps, HDL-32E pair (tests/data; about 64,000 returns each, most within 15 m), one thread:")
+    print(f"{'':34s}{'integrate ms':>13s}{'agree':>8s}{'vis|hid':>9s}{'hid|vis':>9s}{'unknown':>9s}  samples")
+
+    def real_row(name, ms, c):
+        tv, th = c["truth_visible"], c["truth_hidden"]
+        n = sum(tv) + sum(th)
+        print(f"{name:34s}{ms:13.2f}{100 * (tv[0] + th[1]) / n:7.2f}%{100 * th[0] / sum(th):8.2f}%"
+              f"{100 * tv[1] / sum(tv):8.2f}%{100 * (tv[2] + th[2]) / n:8.2f}%  {n}")
+    g = real["sensor_gaps"]
+    real_row("ours, the sensor's beam gaps", g["ours_integrate_ms_p50"], g["ours"])
+    real_row("ours, the config's (64 x 1024)", real["config_gaps"]["ours_integrate_ms_p50"], real["config_gaps"]["ours"])
+    real_row("stock OctoMap", g["stock_insert_ms_p50"], g["stock"])
+    print(f"  stock / ours (median): {g['stock_insert_ms_p50'] / g['ours_integrate_ms_p50']:.0f}x  "
+          "(vis|hid: visible where hidden, of hidden; hid|vis: hidden where visible, of visible)")
     print(f"\nwritten: {os.path.join(BUILD, 'bench', 'occlusion.json')}")
 
 

@@ -69,6 +69,8 @@ struct occ_map_t {
     occ_config_t cfg;
     OcTree fine, observed;
     double inv_res, inv_cres;
+    double ring_gap, col_gap;               /* this sweep's beam gaps, rad */
+    int clear_el, clear_az;                 /* direction bins either side that clear a voxel, this sweep */
     double sub_r2[2];                       /* squared ranges within which returns grow by 1, 2 sub-cells */
     int cshift;                             /* observed voxel = 2^cshift fine voxels */
     int coff;                               /* observed key = (fine key >> cshift) + coff */
@@ -129,7 +131,6 @@ occ_map_t *occ_map_create(const occ_config_t *cfg)
     }
     m->inv_res = 1.0 / cfg->resolution;
     m->inv_cres = 1.0 / cfg->observed_resolution;
-    for (int g = 0; g < 2; g++) m->sub_r2[g] = std::pow(2 * (g + 1) * cfg->resolution / SUB / cfg->beam_gap_az_rad, 2);
     m->cshift = (int)std::lround(std::log2(cfg->observed_resolution / cfg->resolution));
     m->coff = KEY_ORIGIN - (KEY_ORIGIN >> m->cshift);
     m->fine_bits.assign((size_t)FX * FX * FZ / 64, 0);
@@ -440,7 +441,7 @@ static int sub_slot(occ_map_t *m, size_t bi, const OcTreeKey &k)
 static void sub_add(occ_map_t *m, size_t bi, const OcTreeKey &k, double x, double y, double z, double bx, double by, double r2)
 {
     const double r = std::sqrt(r2);
-    const float top = (float)((z + m->cfg.top_gap_fraction * m->cfg.beam_gap_rad * r) * m->inv_res + KEY_ORIGIN);
+    const float top = (float)((z + m->cfg.top_gap_fraction * m->ring_gap * r) * m->inv_res + KEY_ORIGIN);
     const int grow = r2 < m->sub_r2[0] ? 1 : r2 < m->sub_r2[1] ? 2 : 3;
     const double ux = (x * m->inv_res + KEY_ORIGIN - k[0]) * SUB, uy = (y * m->inv_res + KEY_ORIGIN - k[1]) * SUB;
     const int cx = std::min(SUB - 1, std::max(0, (int)ux));
@@ -450,7 +451,7 @@ static void sub_add(occ_map_t *m, size_t bi, const OcTreeKey &k, double x, doubl
     if (bx * bx > main2) v |= bx > 0 ? SUB_XP : SUB_XN;
     if (by * by > main2) v |= by > 0 ? SUB_YP : SUB_YN;
     {   /* the halo: the half column gap around the return, where it reaches into the neighbouring voxels */
-        const double w = 0.5 * m->cfg.beam_gap_az_rad * r * m->inv_res * SUB;   /* sub-cells */
+        const double w = 0.5 * m->col_gap * r * m->inv_res * SUB;   /* sub-cells */
         const int x0 = (int)std::floor(ux - w), x1 = (int)std::floor(ux + w), y0 = (int)std::floor(uy - w), y1 = (int)std::floor(uy + w);
         if (x0 < 0 || y0 < 0 || x1 >= SUB || y1 >= SUB) {
             for (int dy = -1; dy <= 1; dy++)
@@ -500,6 +501,13 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
     m->sweep++;
     const double r2max = c.range_m * c.range_m;
     std::fill(m->bin_min.begin(), m->bin_min.end(), INFINITY);
+    /* the sensor's beam gaps: how far a return's object may reach (tops, halo), and how many
+     * direction bins a voxel between two rings or columns must look across to meet a beam */
+    m->ring_gap = sw->ring_gap_rad > 0 ? sw->ring_gap_rad : c.beam_gap_rad;
+    m->col_gap = sw->col_gap_rad > 0 ? sw->col_gap_rad : c.beam_gap_az_rad;
+    for (int g = 0; g < 2; g++) m->sub_r2[g] = std::pow(2 * (g + 1) * c.resolution / SUB / m->col_gap, 2);
+    m->clear_el = std::max(c.clear_bins_el, (int)std::ceil((m->ring_gap / ((EL_MAX - EL_MIN) / NEL) - 1) / 2 - 1e-9));
+    m->clear_az = std::max(c.clear_bins_az, (int)std::ceil((m->col_gap / (2 * M_PI / NAZ) - 1) / 2 - 1e-9));
 
     /* 1. ground: lowest return per 1 m cell; the sweep binned by direction (nearest return).
      * Every point_stride-th return (the others on the next sweeps): neighbouring returns of
@@ -549,6 +557,7 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
             set_bit(m->hit_bits, bi);
             m->hit_list.push_back((uint32_t)bi);
             s.hit_voxels++;
+            set_bit(m->any_bits, obs_bit(OcTreeKey((k[0] >> m->cshift) + m->coff, (k[1] >> m->cshift) + m->coff, (k[2] >> m->cshift) + m->coff)));
             if (get_bit(m->sat_bits, bi)) continue;        /* at clamp_max: OctoMap would not change it */
         }
         octomap::OcTreeNode *nd = m->fine.updateNode(k, true, true);
@@ -590,8 +599,8 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
         if (b < 0 || r > c.range_m) continue;
         int e = b / NAZ, a = b % NAZ, seen = 0;
         bool past = true;
-        for (int de = -c.clear_bins_el; de <= c.clear_bins_el && past; de++)
-            for (int da = -c.clear_bins_az; da <= c.clear_bins_az; da++) {
+        for (int de = -m->clear_el; de <= m->clear_el && past; de++)
+            for (int da = -m->clear_az; da <= m->clear_az; da++) {
                 if (e + de < 0 || e + de >= NEL) continue;
                 float rb = m->bin_min[(size_t)(e + de) * NAZ + ((a + da) & (NAZ - 1))];
                 if (!std::isfinite(rb)) continue;
@@ -763,9 +772,13 @@ static int8_t query_one(const occ_map_t *m, const double e[3], const double bp[3
                 size_t fb = fine_bit(k);
                 if (get_bit(m->fill_bits, fb)) { *occ = (float)tf; return OCC_HIDDEN; }
                 int a = tmax[0] < tmax[1] ? (tmax[0] < tmax[2] ? 0 : 2) : (tmax[1] < tmax[2] ? 1 : 2);
-                if (get_bit(m->fine_bits, fb) || get_bit(m->halo_bits, fb)) {
-                    const octomap::OcTreeNode *nd = get_bit(m->fine_bits, fb) ? m->fine.search(k) : nullptr;
-                    if (!get_bit(m->fine_bits, fb) || (nd && m->fine.isNodeOccupied(nd))) {
+                /* a voxel hit this sweep stands for what the LiDAR sees now, whether or not the
+                 * tree holds it occupied yet (after a miss from another viewpoint it takes two
+                 * hits); other voxels as the tree says, and the halo of this sweep's returns */
+                const bool fine = get_bit(m->fine_bits, fb), hit = get_bit(m->hit_bits, fb);
+                if (fine || hit || get_bit(m->halo_bits, fb)) {
+                    const octomap::OcTreeNode *nd = fine && !hit ? m->fine.search(k) : nullptr;
+                    if (!fine || hit || (nd && m->fine.isNodeOccupied(nd))) {
                         double th = sub_hit(m, fb, key, u0, du, tf, std::min(tmax[a], tend));
                         if (th >= 0) { *occ = (float)th; return OCC_HIDDEN; }
                     }

@@ -42,13 +42,13 @@ struct occ_config_t {
     double ground_clearance_m = 0.25; /* returns this close to the local ground are ground */
     double clear_margin_m = 0.4;      /* a beam that ends this far past a voxel clears it */
     int point_stride = 1;             /* every Nth return per sweep for hits and ground (alternating) */
-    int clear_bins_el = 1, clear_bins_az = 0;  /* a voxel is cleared by the beams of its direction bin and this many bins either side */
+    int clear_bins_el = 1, clear_bins_az = 0;  /* a voxel is cleared by the beams of its direction bin and this many bins either side (at least as many as reach the nearest beam of a sensor with wider gaps) */
     int observed_ray_stride = 8;      /* every Nth return's beam marks observed space (the next N-1 sweeps trace the others) */
     double prob_hit = 0.7, prob_miss = 0.1, clamp_min = 0.12, clamp_max = 0.88;  /* one clear miss frees any voxel */
     double fill_radius_m = 10.0;      /* returns of the lowest beams this close (horizontally) are checked for objects reaching under the view */
     double fill_elevation_tol_rad = 0.021;  /* "lowest beams": within 1.2 deg of the sweep's least elevation */
-    double beam_gap_rad = 0.0092;     /* largest angle between neighbouring rings (0.52 deg): how far above a voxel's highest return its object may reach */
-    double beam_gap_az_rad = 0.00614; /* angle between neighbouring columns (2 pi / 1024): a return's sub-cells grow by half of it, into neighbouring voxels too */
+    double beam_gap_rad = 0.0092;     /* largest angle between neighbouring rings (0.52 deg): how far above a voxel's highest return its object may reach (for sweeps that do not say their own) */
+    double beam_gap_az_rad = 0.00614; /* angle between neighbouring columns (2 pi / 1024): a return's sub-cells grow by half of it, into neighbouring voxels too (idem) */
     double top_gap_fraction = 0.25;   /* a voxel's object ends this fraction of the ring gap above its highest return (where the voxel above holds nothing) */
     double stop_short_m = 0.2;        /* eye rays stop this far before the sample (the agent's own spot) */
     /* the car's own box in base (the eye looks out through it): x from, x to, half width, height */
@@ -65,6 +65,7 @@ struct occ_sweep_t {
     double mid_origin[3];             /* sensor at mid sweep, map: the view the sweep is binned in */
     double mid_rot[9];                /* map <- sensor at mid sweep, row-major */
     double car[3];                    /* base origin, map: the window's centre */
+    double ring_gap_rad, col_gap_rad; /* the sensor's beam gaps (pb_scan_beam_gaps); 0: the config's beam_gap_rad, beam_gap_az_rad */
 };
 
 struct occ_integrate_stats_t {

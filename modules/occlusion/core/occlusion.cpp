@@ -20,6 +20,7 @@ const int SLOTS = 64;                       /* sensor poses per sweep */
 struct sweep_t {
     int64_t utime, end;
     pb_points_t pts;
+    double ring_gap_rad, col_gap_rad;
 };
 
 }  // namespace
@@ -184,6 +185,8 @@ static void process(occlusion_t *o, sweep_t &s, std::vector<occ_output_t> *out, 
     memcpy(sw.mid_origin, lt[SLOTS / 2], sizeof sw.mid_origin);
     pb_quat_to_matrix(lq[SLOTS / 2], sw.mid_rot);
     memcpy(sw.car, bpos, sizeof sw.car);
+    sw.ring_gap_rad = s.ring_gap_rad;
+    sw.col_gap_rad = s.col_gap_rad;
     /* 3. integrate */
     occ_map_integrate(o->map, &sw, &r.integrate);
     memcpy(o->last_origins, origins, sizeof origins);
@@ -280,11 +283,13 @@ void occlusion_agents(occlusion_t *o, int64_t utime, const std::vector<occ_agent
     o->agents = agents;
 }
 
-void occlusion_scan(occlusion_t *o, int64_t utime, const pb_points_t *pts, std::vector<occ_output_t> *out,
-                    std::vector<occ_event_t> *ev)
+void occlusion_scan(occlusion_t *o, int64_t utime, const pb_points_t *pts, double ring_gap_rad, double col_gap_rad,
+                    std::vector<occ_output_t> *out, std::vector<occ_event_t> *ev)
 {
     sweep_t s;
     s.utime = utime;
+    s.ring_gap_rad = ring_gap_rad;
+    s.col_gap_rad = col_gap_rad;
     int32_t last = 0;
     for (int i = 0; i < pts->n; i++) last = std::max(last, pts->offset_us[i]);
     s.end = utime + last;

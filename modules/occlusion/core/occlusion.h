@@ -79,10 +79,12 @@ void occlusion_destroy(occlusion_t *o);
 void occlusion_pose(occlusion_t *o, const occ_pose_in_t *p, std::vector<occ_output_t> *out, std::vector<occ_event_t> *ev);
 void occlusion_head(occlusion_t *o, int64_t utime, const double pos[3], bool tracking);
 void occlusion_agents(occlusion_t *o, int64_t utime, const std::vector<occ_agent_in_t> &agents);
-/* A sweep (points in `lidar`, offsets after utime). Processed once a pose covers its
- * end; a sweep still waiting when the next one is 0.3 s newer goes out without a pose. */
-void occlusion_scan(occlusion_t *o, int64_t utime, const pb_points_t *pts, std::vector<occ_output_t> *out,
-                    std::vector<occ_event_t> *ev);
+/* A sweep (points in `lidar`, offsets after utime) and its sensor's beam gaps (rad;
+ * pb_scan_beam_gaps; 0 when the scan does not say: the config's). Processed once a pose
+ * covers its end; a sweep still waiting when the next one is 0.3 s newer goes out
+ * without a pose. */
+void occlusion_scan(occlusion_t *o, int64_t utime, const pb_points_t *pts, double ring_gap_rad, double col_gap_rad,
+                    std::vector<occ_output_t> *out, std::vector<occ_event_t> *ev);
 /* End of input: pending sweeps go out (without a pose if none covers them). */
 void occlusion_finish(occlusion_t *o, std::vector<occ_output_t> *out, std::vector<occ_event_t> *ev);
 
