@@ -105,6 +105,16 @@ static double largest_gap(double *v, int n)
     return g;
 }
 
+/* The gaps of nr ring elevations and cols columns a turn; 0 (outputs untouched) when they are not known. */
+static int gaps_of(double *alt, int nr, int cols, double *ring_gap_rad, double *col_gap_rad)
+{
+    double g = nr >= 2 ? largest_gap(alt, nr) : 0;
+    if (!(g > 0) || cols <= 0) return 0;
+    *ring_gap_rad = g;
+    *col_gap_rad = 2 * M_PI / cols;
+    return 1;
+}
+
 int pb_scan_beam_gaps(const portobello_lidar_scan_t *s, const pb_points_t *pts, double *ring_gap_rad, double *col_gap_rad)
 {
     enum { RINGS = 255, SAMPLES = 65, MIN_POINTS = 16 };
@@ -113,10 +123,7 @@ int pb_scan_beam_gaps(const portobello_lidar_scan_t *s, const pb_points_t *pts, 
     if (s->rows >= 2 && s->cols > 0 && s->npixels == s->rows * s->cols) {
         for (int r = 0; r < s->rows && nr < RINGS; r++)
             if (fabsf(s->beam_altitude_rad[r]) <= (float)(M_PI / 2)) alt[nr++] = s->beam_altitude_rad[r];   /* false for NaN */
-        if (nr < 2) return 0;
-        *ring_gap_rad = largest_gap(alt, nr);
-        *col_gap_rad = 2 * M_PI / s->cols;
-        return *ring_gap_rad > 0;
+        return gaps_of(alt, nr, s->cols, ring_gap_rad, col_gap_rad);
     }
     /* point form: each ring's elevation is the median of SAMPLES of its points, spread over the ring */
     int count[RINGS] = { 0 }, most = 0;
@@ -140,8 +147,5 @@ int pb_scan_beam_gaps(const portobello_lidar_scan_t *s, const pb_points_t *pts, 
         if (count[r] > most) most = count[r];
     }
     free(el);
-    if (nr < 2) return 0;
-    *ring_gap_rad = largest_gap(alt, nr);
-    *col_gap_rad = 2 * M_PI / most;
-    return *ring_gap_rad > 0;
+    return gaps_of(alt, nr, most, ring_gap_rad, col_gap_rad);
 }

@@ -34,7 +34,7 @@ void pb_points_free(pb_points_t *pts);
  * Range image: exact (beam_altitude_rad; 2 pi / cols). Point form with ring indices
  * (pts from pb_scan_points of the same scan): estimated, each ring's elevation the median
  * of its points', the column gap 2 pi over the most points on one ring. Returns 1 with
- * both set, 0 if the scan does not say (point form without rings, fewer than two rings). */
+ * both set, 0 (both untouched) if the scan does not say (point form without rings, fewer than two rings). */
 int pb_scan_beam_gaps(const portobello_lidar_scan_t *scan, const pb_points_t *pts, double *ring_gap_rad,
                       double *col_gap_rad);
 

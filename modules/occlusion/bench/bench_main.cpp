@@ -123,7 +123,7 @@ static octomap::Pointcloud stock_cloud(const float *x, const float *y, const flo
     return cloud;
 }
 
-/* One real sweep: points in the sensor frame and the sensor's pose in the map (the first sweep's frame). */
+/* One real sweep in the map (the first sweep's frame): its returns and the sensor's pose. */
 struct real_sweep_t {
     std::vector<float> x, y, z;     /* map frame */
     std::vector<uint16_t> oi;
@@ -176,7 +176,7 @@ static int real_bench(const std::string &dir, double ring_gap, double col_gap)
     occ_config_t cfg;
     occ_map_t *map = occ_map_create(&cfg);
     octomap::OcTree stock(cfg.resolution);
-    /* one sweep into ours, and the same points (within range, from its origin) into stock */
+    /* one sweep into ours, and the same returns, from its origin, into stock */
     auto ours_add = [&](const real_sweep_t &w) {
         occ_sweep_t s = {};
         s.n = (int)w.x.size(); s.x = w.x.data(); s.y = w.y.data(); s.z = w.z.data();
@@ -340,9 +340,11 @@ int main(int argc, char **argv)
         } else if (ch == "LIDAR_SCAN") {
             portobello_lidar_scan_t s;
             if (portobello_lidar_scan_t_decode(e.data, 0, e.datalen, &s) < 0) continue;
-            double ring_gap = 0, col_gap = 0;
-            if (pb_scan_points(&s, &pts, &err) >= 0 && pb_scan_beam_gaps(&s, &pts, &ring_gap, &col_gap) >= 0)
+            double ring_gap = 0, col_gap = 0;     /* 0: the config's, as the module does */
+            if (pb_scan_points(&s, &pts, &err) >= 0) {
+                pb_scan_beam_gaps(&s, &pts, &ring_gap, &col_gap);
                 occlusion_scan(occ, s.utime, &pts, ring_gap, col_gap, &res, &ev);
+            }
             portobello_lidar_scan_t_decode_cleanup(&s);
         }
         for (occ_output_t &o : res) {

@@ -114,6 +114,11 @@ static inline size_t obs_bit(const OcTreeKey &k) { return ((size_t)(k[2] & (CZ -
 static inline bool get_bit(const std::vector<uint64_t> &b, size_t i) { return (b[i >> 6] >> (i & 63)) & 1; }
 static inline void set_bit(std::vector<uint64_t> &b, size_t i) { b[i >> 6] |= 1ull << (i & 63); }
 static inline void clr_bit(std::vector<uint64_t> &b, size_t i) { b[i >> 6] &= ~(1ull << (i & 63)); }
+/* The observed-size cell holding fine voxel k may hold an occupied voxel (queries walk it). */
+static inline void mark_any(occ_map_t *m, const OcTreeKey &k)
+{
+    set_bit(m->any_bits, obs_bit(OcTreeKey((k[0] >> m->cshift) + m->coff, (k[1] >> m->cshift) + m->coff, (k[2] >> m->cshift) + m->coff)));
+}
 /* Clears n bits from i (n a power of 2 <= 64, i a multiple of n: within one word). */
 static inline void clear_run(std::vector<uint64_t> &b, size_t i, int n)
 {
@@ -359,7 +364,7 @@ static void fill_below_view(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_s
             if (get_bit(m->fill_bits, bi)) continue;
             set_bit(m->fill_bits, bi);
             m->fill_list.push_back((uint32_t)bi);
-            set_bit(m->any_bits, obs_bit(OcTreeKey((k[0] >> m->cshift) + m->coff, (k[1] >> m->cshift) + m->coff, (k[2] >> m->cshift) + m->coff)));
+            mark_any(m, k);
             s->filled++;
         }
     }
@@ -480,7 +485,7 @@ static void sub_add(occ_map_t *m, size_t bi, const OcTreeKey &k, double x, doubl
                     if (!get_bit(m->halo_bits, nb)) {
                         set_bit(m->halo_bits, nb);
                         m->halo_list.push_back((uint32_t)nb);
-                        set_bit(m->any_bits, obs_bit(OcTreeKey((nk[0] >> m->cshift) + m->coff, (nk[1] >> m->cshift) + m->coff, (nk[2] >> m->cshift) + m->coff)));
+                        mark_any(m, nk);
                     }
                 }
         }
@@ -557,7 +562,7 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
             set_bit(m->hit_bits, bi);
             m->hit_list.push_back((uint32_t)bi);
             s.hit_voxels++;
-            set_bit(m->any_bits, obs_bit(OcTreeKey((k[0] >> m->cshift) + m->coff, (k[1] >> m->cshift) + m->coff, (k[2] >> m->cshift) + m->coff)));
+            mark_any(m, k);
             if (get_bit(m->sat_bits, bi)) continue;        /* at clamp_max: OctoMap would not change it */
         }
         octomap::OcTreeNode *nd = m->fine.updateNode(k, true, true);
@@ -565,7 +570,7 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
             if (band && !get_bit(m->fine_bits, bi) && m->sub_last_bi == bi) m->sub_mask[m->sub_last_slot] |= SUB_FRESH;
             set_bit(m->fine_bits, bi);
             if (band && nd->getLogOdds() >= m->fine.getClampingThresMaxLog()) set_bit(m->sat_bits, bi);
-            set_bit(m->any_bits, obs_bit(OcTreeKey((k[0] >> m->cshift) + m->coff, (k[1] >> m->cshift) + m->coff, (k[2] >> m->cshift) + m->coff)));
+            mark_any(m, k);
             if (!get_bit(m->listed_bits, bi)) { set_bit(m->listed_bits, bi); m->occupied.push_back(pack(k)); }
         }
         m->blocks.try_emplace(block_of(k), 1);
