@@ -45,7 +45,7 @@ bench-localizer: $(BIN)/bench-localizer $(LOCREG_BENCH)/drive.lcm $(DEPS)
 # Unit tests of the registration core (run by make test through tests/test_c_units.py).
 LOCREG_CORE := modules/localizer/core/registration.cpp modules/localizer/core/regmap.cpp modules/localizer/core/deskew.cpp \
                modules/localizer/core/map_tiles.cpp modules/localizer/core/refine.cpp \
-               modules/localizer/core/places.cpp
+               modules/localizer/core/places.cpp modules/localizer/core/window_search.cpp
 $(eval $(call cxx_test,test_registration,tests/c/test_registration.cpp $(LOCREG_CORE)))
 $(OBJ)/tests/c/test_registration.o: CPPFLAGS += -I$(TOP)/modules/localizer/core
 

@@ -22,6 +22,8 @@
 #include "refine.h"
 #include "registration.h"
 #include "regmap.h"
+#include "regmap_impl.h"
+#include "window_search.h"
 
 /* A street along x: ground z = 0, building fronts at y = +-8 m (10 m tall) with
  * doorway recesses every 7 m and 11 m (so x is observable), a few poles. Points
@@ -151,7 +153,7 @@ static void test_align_street(void)
     CHECK(at_truth.pose.isApprox(truth));   /* evaluation only: pose unchanged */
 
     /* global alignment: 1.8 m and 9 degrees off, searched within 2 m / 12 deg */
-    rc = pb_reg_align_global(map, scan.data(), scan.size() / 3, pose(4.6, 1.8, 21), 2.0, 12 * M_PI / 180, 0, 0,
+    rc = pb_reg_align_global(map, scan.data(), scan.size() / 3, pose(4.6, 1.8, 21), 2.0, 12 * M_PI / 180,
                              nullptr, &r, &err);
     CHECK(rc >= 0);
     CHECK((r.pose.translation() - truth.translation()).norm() < 0.02);
@@ -166,6 +168,44 @@ static void test_align_street(void)
     CHECK(r.pose.matrix().hasNaN());   /* the guess comes back untouched */
     /* a scan far from the map matches nothing */
     CHECK(pb_reg_align(map, scan.data(), scan.size() / 3, pose(500, 500, 0), nullptr, &r, &err) == PB_REG_FEW_POINTS);
+    pb_regmap_destroy(map);
+}
+
+/* The window search alone: on the street (recesses fix x), from 2.5 m / 14 deg off, the
+ * best candidate lies within a cell and a half (0.75 m: a point scores in its cell or a
+ * neighbour's, so the score is flat a cell either way along the fronts) and a yaw step
+ * of the truth, and a window holding no structure (the seed far from the street) gives
+ * no candidate. */
+static void test_window_search(void)
+{
+    std::vector<float> m;
+    pb_regmap_t *map = street_map(&m, true);
+    if (!map) return;
+    Eigen::Isometry3d truth = pose(3.2, 0.6, 12);
+    std::vector<float> scan = scan_of(m, truth), pts;
+    pb_reg_config_t cfg;
+    pb_reg_config_default(&cfg);
+    pb_reg_downsample(scan.data(), scan.size() / 3, &cfg, &pts);
+    pb_loc::window_config_t wc;
+    wc.radius_m = 3.0;
+    wc.yaw_range_rad = 15 * M_PI / 180;
+    std::vector<pb_loc::window_candidate_t> cand;
+    int points = 0;
+    int nc = pb_loc::window_search(map->columns, map->fine, pts.data(), pts.size() / 3, pose(5.2, -0.9, 26),
+                                   wc, &cand, &points);
+    CHECK(nc >= 1 && nc <= wc.candidates);
+    CHECK(points == wc.max_points);   /* the fronts give more structure points than are scored */
+    if (nc >= 1) {
+        double e = (cand[0].pose.translation() - truth.translation()).norm();
+        std::printf("window search: best of %d at %.2f m / %.2f deg from the truth, %d of %d points\n", nc, e,
+                    yaw_err_deg(cand[0].pose, truth), cand[0].score, points);
+        CHECK(e < 0.75);
+        CHECK(yaw_err_deg(cand[0].pose, truth) < 1.0);
+        CHECK(cand[0].score > points / 2);
+    }
+    nc = pb_loc::window_search(map->columns, map->fine, pts.data(), pts.size() / 3, pose(500, 500, 0), wc, &cand,
+                               &points);
+    CHECK(nc == 0);
     pb_regmap_destroy(map);
 }
 
@@ -301,6 +341,27 @@ static void test_hdl32_pair(void)
                 r.inlier_fraction, r.iterations);
     CHECK(dt < 0.05);
     CHECK(drot < 0.5);
+    /* start-up search on real data: starts 3 m off in eight directions, yaw 15 deg off
+     * either way, searched within 3 m / 15 deg; and one 150 deg off, searched over the
+     * full turn (a GNSS fix without heading). Each must end on the reference. */
+    Eigen::Isometry3d ref_pose(ref);
+    int on_ref = 0, starts = 0;
+    double worst = 0;
+    for (int k = 0; k < 9; k++) {
+        Eigen::Isometry3d start = ref_pose;
+        double a = k * M_PI / 4, yaw = (k % 2 ? 15 : -15) * M_PI / 180, range = 15 * M_PI / 180;
+        if (k == 8) { a = 1.0; yaw = 150 * M_PI / 180; range = M_PI; }
+        start.translation() += 3.0 * Eigen::Vector3d(std::cos(a), std::sin(a), 0);
+        start.linear() = Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ()).toRotationMatrix() * ref_pose.linear();
+        rc = pb_reg_align_global(map, xyz.data(), xyz.size() / 3, start, 3.0, range, nullptr, &r, &err);
+        double e = (r.pose.translation() - ref_pose.translation()).norm();
+        double er = Eigen::AngleAxisd(r.pose.linear().transpose() * ref_pose.linear()).angle() * 180 / M_PI;
+        worst = std::max(worst, e);
+        starts++;
+        on_ref += rc >= 0 && e < 0.05 && er < 0.5;
+    }
+    std::printf("hdl32 pair, start-up search: %d of %d starts on the reference (worst %.3f m)\n", on_ref, starts, worst);
+    CHECK(on_ref == starts);
     pb_regmap_destroy(map);
 }
 
@@ -350,7 +411,7 @@ static void test_map_tiles(void)
     pb_regmap_info(whole, &wi);
     int64_t max_cells = 0, max_first_half = 0, max_second_half = 0;
     int max_tiles = 0;
-    int identical = 0, steps = 0, fit_identical = 0;
+    int identical = 0, steps = 0, fit_identical = 0, global_identical = 0, global_steps = 0;
     int64_t max_rough = 0;
     for (double x = 0; x <= 600; x += 10) {
         CHECK(pb_tiles_page(t, x, 0, &err) >= 0);
@@ -366,6 +427,15 @@ static void test_map_tiles(void)
         pb_reg_align(whole, scan.data(), scan.size() / 3, pose(x + 0.1, -0.2, 3), nullptr, &a, &err);
         pb_reg_align(pb_tiles_map(t), scan.data(), scan.size() / 3, pose(x + 0.1, -0.2, 3), nullptr, &b, &err);
         identical += a.pose.matrix() == b.pose.matrix() && a.inlier_fraction == b.inlier_fraction;
+        /* the start-up search too: the columns it scores are built again with each page */
+        if (std::fmod(x, 100) == 0) {
+            pb_reg_align_global(whole, scan.data(), scan.size() / 3, pose(x + 2.0, 1.2, 14), 3.0, 15 * M_PI / 180,
+                                nullptr, &a, &err);
+            pb_reg_align_global(pb_tiles_map(t), scan.data(), scan.size() / 3, pose(x + 2.0, 1.2, 14), 3.0,
+                                15 * M_PI / 180, nullptr, &b, &err);
+            global_identical += a.pose.matrix() == b.pose.matrix() && (a.pose.translation() - truth.translation()).norm() < 0.02;
+            global_steps++;
+        }
         /* the structure test (planes, lines and rough cells) gives the same fit too */
         std::vector<float> above;
         for (size_t i = 0; i < scan.size() / 3; i++)
@@ -384,6 +454,9 @@ static void test_map_tiles(void)
                 (long long)max_second_half, (long long)st.loads, (long long)st.drops, identical, steps);
     CHECK(identical == steps);
     CHECK(fit_identical == steps);
+    std::printf("tiles: start-up search %d/%d identical to the whole map's and on the truth\n", global_identical,
+                global_steps);
+    CHECK(global_steps == 7 && global_identical == global_steps);
     CHECK(max_rough > 0);   /* the bushes' rough cells are paged with their tiles */
     /* measured: at most 31% of the street's cells in 12 tiles (two rows: the street
      * spans y = -9..9); a tile is held only while within keep_radius (90 m) of the car,
@@ -574,6 +647,7 @@ int main(void)
     test_load_radius();
     test_deskew();
     test_hdl32_pair();
+    test_window_search();
     test_map_tiles();
     test_refine();
     return pb_check_report("test_registration");

@@ -346,7 +346,7 @@ int main(int argc, char **argv)
             for (const Eigen::Isometry3d &start : sc.off_starts) {
                 c0 = pb_clock_thread_cpu_ms();
                 if (global)
-                    pb_reg_align_global(map, sc.pts.data(), sc.pts.size() / 3, start, g_radius, g_yaw_deg * deg, 0, 0,
+                    pb_reg_align_global(map, sc.pts.data(), sc.pts.size() / 3, start, g_radius, g_yaw_deg * deg,
                                         &rcfg, &r, &err);
                 else
                     pb_reg_align(map, sc.pts.data(), sc.pts.size() / 3, start, &rcfg, &r, &err);
@@ -362,7 +362,7 @@ int main(int argc, char **argv)
             for (const Eigen::Isometry3d &start : sc.off_starts) {
                 double c0 = pb_clock_thread_cpu_ms();
                 if (global)
-                    pb_reg_align_global(map, rp.data(), rp.size() / 3, start, g_radius, g_yaw_deg * deg, 0, 0, &rcfg, &r, &err);
+                    pb_reg_align_global(map, rp.data(), rp.size() / 3, start, g_radius, g_yaw_deg * deg, &rcfg, &r, &err);
                 else
                     pb_reg_align(map, rp.data(), rp.size() / 3, start, &rcfg, &r, &err);
                 ours_off_red.add(pb_clock_thread_cpu_ms() - c0, r.pose, sc.gt);

@@ -506,7 +506,7 @@ static bool research(localizer_t *L, const filter_t &prior, const Eigen::Isometr
     if (radius < 1.0 && yaw < 5 * M_PI / 180) return false;   /* a sure prediction: one registration pulls it in */
     pb_reg_result_t r;
     double fit;
-    if (!search_seeds(L, { guess }, std::max(radius, 1.0), std::max(yaw, 5 * M_PI / 180), 1.0, 5 * M_PI / 180, false,
+    if (!search_seeds(L, { guess }, std::max(radius, 1.0), std::max(yaw, 5 * M_PI / 180), false,
                       &r, &fit, nullptr) ||
         fit < L->cfg.min_structure_inliers)
         return false;
@@ -613,9 +613,8 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
                 if (k != 0 && std::fabs(along) < 1e-9) seeds.pop_back();   /* no distance, no turn */
             }
         double fit;
-        rc = search_seeds(L, seeds, std::max(1.5, 0.75 * step), 5 * M_PI / 180, std::max(1.0, 0.5 * step), 5 * M_PI / 180,
-                          false, &res, &fit, nullptr) ? res.status
-                                                                                               : PB_REG_FEW_POINTS;
+        rc = search_seeds(L, seeds, std::max(1.5, 0.75 * step), 5 * M_PI / 180, false, &res, &fit, nullptr)
+                 ? res.status : PB_REG_FEW_POINTS;
         if (rc == PB_REG_FEW_POINTS) { res.points_matched = 0; res.points_used = int(L->xyz.size() / 3); }
     } else {
         pb_reg_config_t reg = L->cfg.reg;

@@ -107,8 +107,6 @@ struct localizer_config_t {
     double gnss_init_speed_mps = 3.0;      /* GNSS course used as heading above this speed */
     double gnss_init_heading_acc_deg = 10.0;
     double gnss_search_radius_m = 4.0;     /* relocalisation search around the GNSS position */
-    double search_pos_step_m = 2.0;        /* grid of the start-up / relocalisation search */
-    double search_yaw_step_deg = 10.0;
     /* an initial pose (INITIAL_POSE, --initial-pose) is a prior: searched within this */
     double hint_radius_m = 3.0;
     double hint_yaw_deg = 15.0;

@@ -117,7 +117,7 @@ Eigen::Isometry3d imu_pose(const filter_t &f);
 
 /* startup.cpp: start-up or relocalisation on this sweep; true with kf reset at a candidate */
 bool search_seeds(localizer_t *L, const std::vector<Eigen::Isometry3d> &seeds, double radius, double yaw_range,
-                  double pos_step, double yaw_step, bool page, pb_reg_result_t *res, double *fit, double *rival);
+                  bool page, pb_reg_result_t *res, double *fit, double *rival);
 bool global_search(localizer_t *L, pb_reg_result_t *res, outputs_t *out);
 bool try_initialize(localizer_t *L, int64_t t_ref, outputs_t *out);
 

@@ -406,9 +406,10 @@ int pb_tiles_page(pb_tiles_t *t, double x, double y, pb_err_t *err)
         t->loaded[i] = 1;
         changed++;
     }
-    /* 4. rebuild both hash indexes over what is loaded */
+    /* 4. rebuild both hash indexes and the columns over what is loaded */
     reindex(&t->map->fine, &t->rough);
     reindex(&t->map->coarse, nullptr);
+    columns_build(t->map->fine, &t->map->columns);
     t->tiles_loaded += changed - 2 * (int)drop.size();
     t->loads += changed - (int64_t)drop.size();
     t->drops += (int64_t)drop.size();

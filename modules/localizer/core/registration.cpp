@@ -3,6 +3,7 @@
 #pragma GCC diagnostic ignored "-Wmaybe-uninitialized"   /* Eigen 3.4 6x6 eigen solver false positive */
 #include "registration.h"
 #include "regmap_impl.h"
+#include "window_search.h"
 
 #include <algorithm>
 #include <cmath>
@@ -435,77 +436,60 @@ int pb_reg_align(const pb_regmap_t *map, const float *xyz, size_t n, const Eigen
 }
 
 int pb_reg_align_global(const pb_regmap_t *map, const float *xyz, size_t n, const Eigen::Isometry3d &seed,
-                        double radius_m, double yaw_range_rad, double pos_step_m, double yaw_step_rad,
-                        const pb_reg_config_t *cfg, pb_reg_result_t *res, pb_err_t *err)
+                        double radius_m, double yaw_range_rad, const pb_reg_config_t *cfg, pb_reg_result_t *res,
+                        pb_err_t *err)
 {
     pb_reg_config_t def;
     if (!cfg) cfg = (pb_reg_config_default(&def), &def);
     if (!start_result(map, xyz, n, seed, res, err)) return res->status;
-    if (pos_step_m <= 0) pos_step_m = 1.0;
-    if (yaw_step_rad <= 0) yaw_step_rad = 5.0 * M_PI / 180.0;
-    radius_m = std::max(radius_m, 0.0);
-    yaw_range_rad = std::min(std::max(yaw_range_rad, 0.0), M_PI);
-    const Level &coarse = map->coarse.cells.empty() ? map->fine : map->coarse;
-    /* 1. a small subsample for the many coarse hypotheses */
-    pb_reg_config_t small = *cfg;
-    small.target_points = 400;
-    small.scan_voxel_m = std::max(cfg->scan_voxel_m, 1.0);
+    /* 1. the sweep reduced once, for the search and the refinements */
     std::vector<float> pts;
-    pb_reg_downsample(xyz, n, &small, &pts);
-    size_t m = pts.size() / 3;
-    /* 2. hypotheses: a yaw fan at every grid position in the disc, each pulled
-     *    in by a few coarse Gauss-Newton steps with a wide gate, then scored by
-     *    the share of points near a coarse plane */
-    Params pc = coarse_params(params_of(cfg), coarse.voxel, 6);
-    struct Hyp { double score; Eigen::Isometry3d T; };
-    std::vector<Hyp> hyps;
-    const Eigen::Vector3d seed_t = seed.translation();
-    int nr = (int)std::floor(radius_m / pos_step_m + 1e-9);
-    int ny = (int)std::floor(yaw_range_rad / yaw_step_rad + 1e-9);
-    for (int ix = -nr; ix <= nr; ix++)
-        for (int iy = -nr; iy <= nr; iy++) {
-            double dx = ix * pos_step_m, dy = iy * pos_step_m;
-            if (dx * dx + dy * dy > radius_m * radius_m + 1e-9) continue;
-            for (int iw = -ny; iw <= ny; iw++) {
-                Eigen::Isometry3d T = seed;
-                T.linear() = Eigen::AngleAxisd(iw * yaw_step_rad, Eigen::Vector3d::UnitZ()) * seed.linear();
-                T.translation() = seed_t + Eigen::Vector3d(dx, dy, 0);
-                bool conv;
-                gauss_newton(coarse, pts.data(), m, pc, &T, &conv);
-                /* ranked by the fine level: coarse planes are blurred on sparse real maps */
-                Accum acc;
-                linearise(map->fine, pts.data(), m, T, 3 * cfg->inlier_m, cfg->kernel_m, cfg->inlier_m,
-                          cfg->planar_only != 0, &acc, nullptr);
-                hyps.push_back({acc.wsum, T});
+    pb_reg_downsample(xyz, n, cfg, &pts);
+    /* 2. every position and yaw of the window scored on the map's structure; the best
+     *    few distinct ones kept */
+    window_config_t wc;
+    wc.radius_m = std::max(radius_m, 0.0);
+    wc.yaw_range_rad = std::min(std::max(yaw_range_rad, 0.0), M_PI);
+    std::vector<window_candidate_t> cand;
+    int scored = 0;
+    window_search(map->columns, map->fine, pts.data(), pts.size() / 3, seed, wc, &cand, &scored);
+    /* no structure in the window (an open square): the seed is all there is */
+    if (cand.empty()) cand.push_back({ seed, 0 });
+    /* 3. a candidate is within a cell or two and a yaw step of its minimum, the fine
+     *    level's basin, so it is refined without the coarse retry; a refinement that ran
+     *    out of steps (a weakly held direction, as along a street) goes on from its result.
+     *    Near-equal candidates are told apart on 2/5 of the points (every 2.5th); the one
+     *    with the most inliers is refined on all of them. */
+    pb_reg_config_t fine = *cfg;
+    fine.coarse_iterations = 0;
+    int total_it = 0;
+    auto refine = [&](const std::vector<float> &p, const Eigen::Isometry3d &from, pb_reg_result_t *r) {
+        pb_reg_align(map, p.data(), p.size() / 3, from, &fine, r, err);
+        total_it += r->iterations;
+        if (r->status == PB_REG_MAX_ITER) {
+            Eigen::Isometry3d again = r->pose;
+            pb_reg_align(map, p.data(), p.size() / 3, again, &fine, r, err);
+            total_it += r->iterations;
+        }
+    };
+    Eigen::Isometry3d from = cand[0].pose;
+    if (cand.size() > 1) {
+        std::vector<float> sub;
+        for (size_t i = 0; 5 * i / 2 < pts.size() / 3; i++) {
+            const float *q = &pts[3 * (5 * i / 2)];
+            sub.insert(sub.end(), q, q + 3);
+        }
+        double most = -1;
+        for (const window_candidate_t &c : cand) {
+            pb_reg_result_t r;
+            refine(sub, c.pose, &r);
+            if (r.status >= 0 && r.status != PB_REG_FEW_POINTS && r.inlier_fraction > most) {
+                most = r.inlier_fraction;
+                from = r.pose;
             }
         }
-    /* 3. refine the best few distinct ones on the fine level; keep the one
-     *    with the most inliers */
-    std::stable_sort(hyps.begin(), hyps.end(), [](const Hyp &a, const Hyp &b) { return a.score > b.score; });
-    std::vector<Eigen::Isometry3d> picked;
-    for (const Hyp &h : hyps) {
-        bool distinct = true;
-        for (const auto &P : picked) {
-            Eigen::Isometry3d D = P.inverse() * h.T;
-            if (D.translation().norm() < 0.5 && Eigen::AngleAxisd(D.linear()).angle() < 0.03) distinct = false;
-        }
-        if (distinct) picked.push_back(h.T);
-        if (picked.size() >= 4) break;
     }
-    pb_reg_result_t best;
-    bool have = false;
-    int total_it = 0;
-    for (const auto &P : picked) {
-        pb_reg_result_t r;
-        pb_reg_align(map, xyz, n, P, cfg, &r, err);
-        total_it += r.iterations;
-        if (r.status >= 0 && (!have || r.inlier_fraction > best.inlier_fraction)) { best = r; have = true; }
-    }
-    if (!have) {
-        res->status = PB_REG_FEW_POINTS;
-        return res->status;
-    }
-    *res = best;
+    refine(pts, from, res);
     res->iterations = total_it;
     return res->status;
 }

@@ -110,18 +110,16 @@ int pb_reg_align(const pb_regmap_t *map, const float *xyz, size_t n,
                  const Eigen::Isometry3d &guess, const pb_reg_config_t *cfg,
                  pb_reg_result_t *result, pb_err_t *err);
 
-/* Global / coarse alignment for initialisation and relocalisation: the true pose
- * is within `radius_m` (horizontal) of seed's position and within +-yaw_range_rad
- * of seed's yaw (roll, pitch and z taken from seed). Tries a grid of hypotheses
- * (yaw every yaw_step_rad, positions every pos_step_m) on the coarse map level,
- * refines the best few with pb_reg_align on the fine level, and returns the
- * best by inlier fraction. result->inlier_fraction and ->overlap tell whether to
- * trust it. yaw_step_rad / pos_step_m <= 0 choose defaults (5 deg, 1 m).
- * Cost grows with (2 radius/pos_step)^2 * (2 yaw_range/yaw_step). */
+/* Global alignment for initialisation and relocalisation: the true pose is within
+ * `radius_m` (horizontal) of seed's position and within +-yaw_range_rad (up to pi)
+ * of seed's yaw (z, roll and pitch taken from seed). Every position and yaw of that
+ * window is scored by branch and bound on the map's structure above the ground
+ * (window_search.h); the best few distinct ones are refined with pb_reg_align, and
+ * the one with the most inliers is returned. result->inlier_fraction and ->overlap
+ * tell whether to trust it. */
 int pb_reg_align_global(const pb_regmap_t *map, const float *xyz, size_t n,
                         const Eigen::Isometry3d &seed, double radius_m, double yaw_range_rad,
-                        double pos_step_m, double yaw_step_rad, const pb_reg_config_t *cfg,
-                        pb_reg_result_t *result, pb_err_t *err);
+                        const pb_reg_config_t *cfg, pb_reg_result_t *result, pb_err_t *err);
 
 /* Structure fit: the share of n points (base frame) that lie on the map at pose:
  * within inlier_m of a plane or line target, or inside a cell of rough structure

@@ -163,6 +163,7 @@ pb_regmap_t *build(const float *xyz, size_t n, const pb_regmap_config_t *cfg, co
         info.cells = (int64_t)build_level(xyz, n, cfg->voxel_m, cfg, &m->fine);
         if (cfg->coarse_voxel_m > 0)
             info.coarse_cells = (int64_t)build_level(xyz, n, cfg->coarse_voxel_m, cfg, &m->coarse);
+        columns_build(m->fine, &m->columns);
     } catch (const std::bad_alloc &) {
         delete m;
         pb_err_set(err, "%s: out of memory preparing %zu map points", what, n);

@@ -6,6 +6,7 @@
 #include <vector>
 #include "regmap.h"
 #include "voxel_hash.h"
+#include "window_search.h"
 
 namespace pb_loc {
 
@@ -63,6 +64,7 @@ struct Level {
 struct pb_regmap {
     pb_regmap_config_t cfg;
     pb_loc::Level fine, coarse;
+    pb_loc::Columns columns;   /* the fine level's structure as columns (start-up search); rebuilt with it */
     pb_regmap_info_t info;
 };
 

@@ -100,7 +100,7 @@ static bool choose_start(localizer_t *L, int64_t t_ref, start_t *s)
  * *rival: the best fit of a result more than cfg.rival_m or cfg.rival_yaw_deg from the
  * best one (-1: none). */
 bool search_seeds(localizer_t *L, const std::vector<Eigen::Isometry3d> &seeds, double radius, double yaw_range,
-                  double pos_step, double yaw_step, bool page, pb_reg_result_t *res, double *fit, double *rival)
+                  bool page, pb_reg_result_t *res, double *fit, double *rival)
 {
     bool have = false;
     *fit = -1;
@@ -109,8 +109,8 @@ bool search_seeds(localizer_t *L, const std::vector<Eigen::Isometry3d> &seeds, d
         if (page && L->pager) L->pager(L->pager_user, seed.translation().x(), seed.translation().y());
         pb_reg_result_t r;
         pb_err_t err;
-        if (pb_reg_align_global(L->map, L->xyz.data(), L->xyz.size() / 3, seed, radius, yaw_range, pos_step, yaw_step,
-                                &L->cfg.reg, &r, &err) < 0 ||
+        if (pb_reg_align_global(L->map, L->xyz.data(), L->xyz.size() / 3, seed, radius, yaw_range, &L->cfg.reg, &r,
+                                &err) < 0 ||
             r.status == PB_REG_FEW_POINTS || r.inlier_fraction < L->cfg.min_inlier_fraction)
             continue;
         double si = structure_inliers(L, r.pose);
@@ -168,7 +168,7 @@ bool global_search(localizer_t *L, pb_reg_result_t *res, outputs_t *out)
         seeds.push_back(seed);
     }
     double fit, rival;
-    if (!search_seeds(L, seeds, 2.0, 12 * M_PI / 180, 1.0, 6 * M_PI / 180, true, res, &fit, &rival)) {
+    if (!search_seeds(L, seeds, 2.0, 12 * M_PI / 180, true, res, &fit, &rival)) {
         event(out, "no_start", "no pose: no INITIAL_POSE or GNSS fix, and none of %zu likely places in the map fits "
               "this sweep; still searching", seeds.size());
         return false;
@@ -188,7 +188,7 @@ bool global_search(localizer_t *L, pb_reg_result_t *res, outputs_t *out)
         }
         pb_reg_result_t r2;
         double f2;
-        if (search_seeds(L, along, 2.0, 4 * M_PI / 180, 1.0, 4 * M_PI / 180, true, &r2, &f2, nullptr) &&
+        if (search_seeds(L, along, 2.0, 4 * M_PI / 180, true, &r2, &f2, nullptr) &&
             (r2.pose.translation() - res->pose.translation()).head<2>().norm() > L->cfg.rival_m)
             rival = std::max(rival, f2);
         if (L->pager) L->pager(L->pager_user, res->pose.translation().x(), res->pose.translation().y());
@@ -212,7 +212,6 @@ bool try_initialize(localizer_t *L, int64_t t_ref, outputs_t *out)
     Vec3 omega = L->kf.initialized ? L->pred.omega : L->kf.omega;
     if (choose_start(L, t_ref, &s)) {
         int rc = pb_reg_align_global(L->map, L->xyz.data(), L->xyz.size() / 3, s.seed, s.radius, s.yaw_range,
-                                     L->cfg.search_pos_step_m, L->cfg.search_yaw_step_deg * M_PI / 180,
                                      &L->cfg.reg, &res, &err);
         if (rc < 0) { event(out, "init_failed", "%s: %s", s.how, err.msg); return false; }
     } else if (L->cfg.global_search) {
