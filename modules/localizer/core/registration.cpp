@@ -455,20 +455,21 @@ int pb_reg_align_global(const pb_regmap_t *map, const float *xyz, size_t n, cons
     window_search(map->columns, map->fine, pts.data(), pts.size() / 3, seed, wc, &cand, &scored);
     /* no structure in the window (an open square): the seed is all there is */
     if (cand.empty()) cand.push_back({ seed, 0 });
-    /* 3. a candidate is within a cell or two and a yaw step of its minimum, the fine
-     *    level's basin, so it is refined without the coarse retry; a refinement that ran
-     *    out of steps (a weakly held direction, as along a street) goes on from its result.
-     *    Near-equal candidates are told apart on 2/5 of the points (every 2.5th); the one
-     *    with the most inliers is refined on all of them. */
-    pb_reg_config_t fine = *cfg;
-    fine.coarse_iterations = 0;
+    /* 3. near-equal candidates are told apart on 2/5 of the points (every 2.5th): each is
+     *    within a cell or two and a yaw step of its minimum, so this refinement skips the
+     *    coarse retry. The one with the most inliers (or the only one) is refined on all
+     *    the points as any guess is: a wide window (a sparse moving start searches 20 m
+     *    around its seeds) can leave the best cell a few metres from the minimum. A
+     *    refinement that ran out of steps (a weakly held direction, as along a street)
+     *    goes on from its result. */
     int total_it = 0;
-    auto refine = [&](const std::vector<float> &p, const Eigen::Isometry3d &from, pb_reg_result_t *r) {
-        pb_reg_align(map, p.data(), p.size() / 3, from, &fine, r, err);
+    auto refine = [&](const std::vector<float> &p, const Eigen::Isometry3d &from, const pb_reg_config_t *c,
+                      pb_reg_result_t *r) {
+        pb_reg_align(map, p.data(), p.size() / 3, from, c, r, err);
         total_it += r->iterations;
         if (r->status == PB_REG_MAX_ITER) {
             Eigen::Isometry3d again = r->pose;
-            pb_reg_align(map, p.data(), p.size() / 3, again, &fine, r, err);
+            pb_reg_align(map, p.data(), p.size() / 3, again, c, r, err);
             total_it += r->iterations;
         }
     };
@@ -479,17 +480,19 @@ int pb_reg_align_global(const pb_regmap_t *map, const float *xyz, size_t n, cons
             const float *q = &pts[3 * (5 * i / 2)];
             sub.insert(sub.end(), q, q + 3);
         }
+        pb_reg_config_t quick = *cfg;
+        quick.coarse_iterations = 0;
         double most = -1;
         for (const window_candidate_t &c : cand) {
             pb_reg_result_t r;
-            refine(sub, c.pose, &r);
+            refine(sub, c.pose, &quick, &r);
             if (r.status >= 0 && r.status != PB_REG_FEW_POINTS && r.inlier_fraction > most) {
                 most = r.inlier_fraction;
                 from = r.pose;
             }
         }
     }
-    refine(pts, from, res);
+    refine(pts, from, cfg, res);
     res->iterations = total_it;
     return res->status;
 }
