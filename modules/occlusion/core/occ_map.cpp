@@ -39,6 +39,13 @@ const uint32_t SUB_X0 = 0x1111, SUB_X3 = 0x8888, SUB_Y0 = 0x000f, SUB_Y3 = 0xf00
 
 struct ground_cell_t { int32_t cx, cy, sweep; float minz; };
 
+/* The tree node of each live 6.4 m block (direct-mapped by block key): an update walks
+ * down from it (5 levels in fine) instead of from the root, twice (OctoMap's early-abort
+ * search, then its update). Block nodes are never pruned while live (updates are lazy);
+ * an entry goes when roll_window deletes its block. */
+const int BLOCK_CACHE = 1 << 11;
+struct block_node_t { uint64_t bkey; octomap::OcTreeNode *node; };
+
 /* The sub-cells a voxel's returns stand for (16 bits, x + 4 y; 0xffff: all of it): their
  * cells, those behind them along the beam to the voxel's far side (objects are solid),
  * all grown by one or two cells in x and y. */
@@ -105,6 +112,8 @@ struct occ_map_t {
     int halo_last_slot[9];
     size_t sub_last_bi = SIZE_MAX;          /* the voxel of the previous return and its slot (neighbouring returns often share one) */
     int sub_last_slot = -1;
+    std::vector<block_node_t> fine_blocks, obs_blocks;   /* block nodes of both trees (block_node_t) */
+    unsigned obs_block_depth;               /* depth of a 6.4 m block in observed (fine: 16 - BLOCK_FINE_LOG2) */
 
     explicit occ_map_t(const occ_config_t &c) : cfg(c), fine(c.resolution), observed(c.observed_resolution) {}
 };
@@ -153,6 +162,9 @@ occ_map_t *occ_map_create(const occ_config_t *cfg)
     m->sub_pkey.assign(SUB_TABLE, 0);
     m->shapes.assign(SHAPES, occ_map_t::shape_t{ 0, 0, 0 });
     m->halo_bits.assign((size_t)FX * FX * FZ / 64, 0);
+    m->fine_blocks.assign(BLOCK_CACHE, block_node_t{ 0, nullptr });
+    m->obs_blocks.assign(BLOCK_CACHE, block_node_t{ 0, nullptr });
+    m->obs_block_depth = 16 - (BLOCK_FINE_LOG2 - m->cshift);
     return m;
 }
 
@@ -181,6 +193,8 @@ void occ_map_clear(occ_map_t *m)
     for (ground_cell_t &g : m->ground) g.sweep = -1000000;
     m->blocks.clear();
     m->occupied.clear();
+    std::fill(m->fine_blocks.begin(), m->fine_blocks.end(), block_node_t{ 0, nullptr });
+    std::fill(m->obs_blocks.begin(), m->obs_blocks.end(), block_node_t{ 0, nullptr });
 }
 
 void occ_map_size(const occ_map_t *m, int64_t *leaves, int64_t *bytes)
@@ -254,6 +268,61 @@ static uint64_t block_of(const OcTreeKey &fine_key)
     return pack(OcTreeKey(fine_key[0] >> BLOCK_FINE_LOG2, fine_key[1] >> BLOCK_FINE_LOG2, fine_key[2] >> BLOCK_FINE_LOG2));
 }
 
+static inline block_node_t &block_entry(std::vector<block_node_t> &cache, uint64_t bkey)
+{
+    return cache[(bkey & 15) | (bkey >> 16 & 15) << 4 | (bkey >> 32 & 7) << 8];
+}
+
+/* OctoMap's updateNode(key, lo, lazy) from node n at depth d on key's path, which exists:
+ * the same early abort when the node it finds is at the clamp, the same expansion of a
+ * pruned node and creation of missing children, the same log-odds update. */
+static octomap::OcTreeNode *update_below(OcTree &t, octomap::OcTreeNode *n, unsigned d, const OcTreeKey &k, float lo)
+{
+    for (; d < 16; d++) {       /* OctoMap's search */
+        const unsigned pos = octomap::computeChildIdx(k, 15 - d);
+        if (!t.nodeChildExists(n, pos)) break;
+        n = t.getNodeChild(n, pos);
+    }
+    if (d == 16 || !t.nodeHasChildren(n)) {
+        const float v = n->getLogOdds();
+        if ((lo >= 0 && v >= t.getClampingThresMaxLog()) || (lo <= 0 && v <= t.getClampingThresMinLog())) return n;
+    }
+    bool just_created = false;  /* n exists: it was reached, not created, as in OctoMap's descent */
+    for (; d < 16; d++) {
+        const unsigned pos = octomap::computeChildIdx(k, 15 - d);
+        bool created = false;
+        if (!t.nodeChildExists(n, pos)) {
+            if (!t.nodeHasChildren(n) && !just_created) t.expandNode(n);     /* a pruned node */
+            else { t.createNodeChild(n, pos); created = true; }
+        }
+        n = t.getNodeChild(n, pos);
+        just_created = created;
+    }
+    t.updateNodeLogOdds(n, lo);
+    return n;
+}
+
+/* updateNode(k, occupied, lazy) through the block cache (block at depth bd). *known: the
+ * block was in the cache (so it is in `blocks` already). */
+static octomap::OcTreeNode *tree_update(OcTree &t, std::vector<block_node_t> &cache, unsigned bd, const OcTreeKey &k,
+                                        bool occupied, bool *known)
+{
+    const int s = 16 - bd;
+    const uint64_t bkey = pack(OcTreeKey(k[0] >> s, k[1] >> s, k[2] >> s));
+    block_node_t &e = block_entry(cache, bkey);
+    const float lo = occupied ? t.getProbHitLog() : t.getProbMissLog();
+    if (e.node && e.bkey == bkey) { *known = true; return update_below(t, e.node, bd, k, lo); }
+    *known = false;
+    octomap::OcTreeNode *leaf = t.updateNode(k, lo, true);
+    octomap::OcTreeNode *n = t.getRoot();
+    for (unsigned d = 0; n && d < bd; d++) {
+        const unsigned pos = octomap::computeChildIdx(k, 15 - d);
+        n = t.nodeChildExists(n, pos) ? t.getNodeChild(n, pos) : nullptr;
+    }
+    if (n) e = block_node_t{ bkey, n };
+    return leaf;
+}
+
 /* Makes node a leaf: OctoMap frees a node's child array only when it prunes it (8
  * equal leaf children), and deleting a node that still has that array trips its
  * assertion (OctoMap 1.9.7's deleteNode does, for an emptied parent), so children
@@ -271,8 +340,12 @@ static void make_leaf(OcTree &t, octomap::OcTreeNode *node)
 
 /* Removes the block (a node at depth) from its parent; the parent stays, possibly
  * with no children (never deleted itself, see make_leaf). */
-static void delete_block(OcTree &t, const OcTreeKey &k, unsigned depth)
+static void delete_block(OcTree &t, std::vector<block_node_t> &cache, const OcTreeKey &k, unsigned depth)
 {
+    const int s = 16 - depth;
+    const uint64_t bkey = pack(OcTreeKey(k[0] >> s, k[1] >> s, k[2] >> s));
+    block_node_t &e = block_entry(cache, bkey);
+    if (e.bkey == bkey) e.node = nullptr;
     octomap::OcTreeNode *parent = t.search(k, depth - 1);
     if (!parent || !t.nodeHasChildren(parent)) return;
     unsigned pos = octomap::computeChildIdx(k, 16 - depth);
@@ -293,10 +366,10 @@ static int roll_window(occ_map_t *m, const double car[3])
         double cy = ((int)b[1] - (KEY_ORIGIN >> BLOCK_FINE_LOG2) + 0.5) * bs;
         if (std::hypot(cx - car[0], cy - car[1]) <= m->cfg.window_m) { ++it; continue; }
         OcTreeKey f0(b[0] << BLOCK_FINE_LOG2, b[1] << BLOCK_FINE_LOG2, b[2] << BLOCK_FINE_LOG2);
-        delete_block(m->fine, f0, fine_depth);
+        delete_block(m->fine, m->fine_blocks, f0, fine_depth);
         int s = m->cshift, o = m->coff;
         OcTreeKey c0((f0[0] >> s) + o, (f0[1] >> s) + o, (f0[2] >> s) + o);
-        delete_block(m->observed, c0, obs_depth);
+        delete_block(m->observed, m->obs_blocks, c0, obs_depth);
         /* the block's voxels are runs of nf (nc) bits in x, aligned: cleared a run at a time */
         const int nf = 1 << BLOCK_FINE_LOG2, nc = nf >> s;
         for (int z = 0; z < nf; z++)
@@ -394,9 +467,10 @@ static void trace_observed(occ_map_t *m, const double o[3], const double pe[3], 
         size_t bi = obs_bit(key);
         if (!get_bit(m->obs_bits, bi)) {
             set_bit(m->obs_bits, bi);
-            m->observed.updateNode(key, false, true);
+            bool known;
+            tree_update(m->observed, m->obs_blocks, m->obs_block_depth, key, false, &known);
             s->observed_new++;
-            m->blocks.try_emplace(block_of(OcTreeKey((k[0] - co) << sh, (k[1] - co) << sh, (k[2] - co) << sh)), 1);
+            if (!known) m->blocks.try_emplace(block_of(OcTreeKey((k[0] - co) << sh, (k[1] - co) << sh, (k[2] - co) << sh)), 1);
         }
         int a = tmax[0] < tmax[1] ? (tmax[0] < tmax[2] ? 0 : 2) : (tmax[1] < tmax[2] ? 1 : 2);
         k[a] += step[a];
@@ -565,7 +639,8 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
             mark_any(m, k);
             if (get_bit(m->sat_bits, bi)) continue;        /* at clamp_max: OctoMap would not change it */
         }
-        octomap::OcTreeNode *nd = m->fine.updateNode(k, true, true);
+        bool known;
+        octomap::OcTreeNode *nd = tree_update(m->fine, m->fine_blocks, 16 - BLOCK_FINE_LOG2, k, true, &known);
         if (nd && m->fine.isNodeOccupied(nd)) {
             if (band && !get_bit(m->fine_bits, bi) && m->sub_last_bi == bi) m->sub_mask[m->sub_last_slot] |= SUB_FRESH;
             set_bit(m->fine_bits, bi);
@@ -573,7 +648,7 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
             mark_any(m, k);
             if (!get_bit(m->listed_bits, bi)) { set_bit(m->listed_bits, bi); m->occupied.push_back(pack(k)); }
         }
-        m->blocks.try_emplace(block_of(k), 1);
+        if (!known) m->blocks.try_emplace(block_of(k), 1);
     }
 
     /* 3. misses: occupied voxels in view whose surrounding beams all went on past them */
@@ -616,7 +691,8 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
     }
     for (uint64_t p : m->to_clear) {
         OcTreeKey k = unpack(p);
-        octomap::OcTreeNode *nd = m->fine.updateNode(k, false, true);
+        bool known;
+        octomap::OcTreeNode *nd = tree_update(m->fine, m->fine_blocks, 16 - BLOCK_FINE_LOG2, k, false, &known);
         clr_bit(m->sat_bits, fine_bit(k));
         if (!nd || !m->fine.isNodeOccupied(nd)) {
             clr_bit(m->fine_bits, fine_bit(k)); s.cleared++;
