@@ -45,6 +45,14 @@ struct ground_cell_t { int32_t cx, cy, sweep; float minz; };
  * an entry goes when roll_window deletes its block. */
 const int BLOCK_CACHE = 1 << 11;
 struct block_node_t { uint64_t bkey; octomap::OcTreeNode *node; };
+/* Tree updates are queued and applied in order, PF_GROUP at a time after their paths were
+ * fetched for all of them level by level: a path's nodes lie scattered over the heap (a
+ * cache miss per level), and walking one key after another waited for each miss in turn. */
+const int PF_GROUP = 32;
+const int FINE_BLOCK_DEPTH = 16 - BLOCK_FINE_LOG2;
+/* a queued hit: the voxel's bit index, whether it is in the bitmaps' band, and the slot of
+ * its sub-cells when its return was the last added (SUB_FRESH goes there), else -1 */
+struct hit_req_t { uint32_t bi; int32_t fresh_slot; bool band; };
 
 /* The sub-cells a voxel's returns stand for (16 bits, x + 4 y; 0xffff: all of it): their
  * cells, those behind them along the beam to the voxel's far side (objects are solid),
@@ -113,6 +121,8 @@ struct occ_map_t {
     size_t sub_last_bi = SIZE_MAX;          /* the voxel of the previous return and its slot (neighbouring returns often share one) */
     int sub_last_slot = -1;
     std::vector<block_node_t> fine_blocks, obs_blocks;   /* block nodes of both trees (block_node_t) */
+    std::vector<uint64_t> hit_keys, obs_keys;   /* this sweep's queued updates: hits of fine, new cells of observed */
+    std::vector<hit_req_t> hit_reqs;        /* per queued hit */
     unsigned obs_block_depth;               /* depth of a 6.4 m block in observed (fine: 16 - BLOCK_FINE_LOG2) */
 
     explicit occ_map_t(const occ_config_t &c) : cfg(c), fine(c.resolution), observed(c.observed_resolution) {}
@@ -302,6 +312,43 @@ static octomap::OcTreeNode *update_below(OcTree &t, octomap::OcTreeNode *n, unsi
     return n;
 }
 
+/* Reads the protected child array of a node (a pointer to member named through a derived
+ * class), to prefetch a child before reading it. */
+struct node_peek : octomap::OcTreeNode {
+    static octomap::AbstractOcTreeNode *const *kids(const octomap::OcTreeNode *n) { return n->*(&node_peek::children); }
+};
+
+/* Fetches the nodes on the paths of n <= PF_GROUP keys below their cached blocks into the
+ * cache, a level of all paths at a time (the misses overlap). Reads only. */
+static void prefetch_paths(const std::vector<block_node_t> &cache, unsigned bd, const uint64_t *keys, int n)
+{
+    const octomap::OcTreeNode *p[PF_GROUP];
+    octomap::AbstractOcTreeNode *const *kid[PF_GROUP];
+    unsigned pos[PF_GROUP];
+    const int s = 16 - bd;
+    for (int j = 0; j < n; j++) {
+        const OcTreeKey k = unpack(keys[j]);
+        const uint64_t bkey = pack(OcTreeKey(k[0] >> s, k[1] >> s, k[2] >> s));
+        const block_node_t &e = block_entry(const_cast<std::vector<block_node_t> &>(cache), bkey);
+        p[j] = e.bkey == bkey ? e.node : nullptr;
+        if (p[j]) __builtin_prefetch(p[j]);
+    }
+    for (unsigned d = bd; d < 16; d++) {
+        for (int j = 0; j < n; j++) {
+            if (!p[j]) continue;
+            kid[j] = node_peek::kids(p[j]);
+            if (!kid[j]) { p[j] = nullptr; continue; }
+            pos[j] = octomap::computeChildIdx(unpack(keys[j]), 15 - d);
+            __builtin_prefetch(&kid[j][pos[j]]);
+        }
+        for (int j = 0; j < n; j++) {
+            if (!p[j]) continue;
+            p[j] = static_cast<const octomap::OcTreeNode *>(kid[j][pos[j]]);
+            if (p[j]) __builtin_prefetch(p[j]);
+        }
+    }
+}
+
 /* updateNode(k, occupied, lazy) through the block cache (block at depth bd). *known: the
  * block was in the cache (so it is in `blocks` already). */
 static octomap::OcTreeNode *tree_update(OcTree &t, std::vector<block_node_t> &cache, unsigned bd, const OcTreeKey &k,
@@ -461,21 +508,61 @@ static void trace_observed(occ_map_t *m, const double o[3], const double pe[3], 
         else if (kend < k[i]) { step[i] = -1; tmax[i] = (k[i] - u0) / du; tdelta[i] = -1 / du; }
         else { step[i] = 0; tmax[i] = INFINITY; tdelta[i] = INFINITY; }
     }
-    const int sh = m->cshift, co = m->coff;
     for (int c = 0; c < cells; c++) {
         OcTreeKey key((uint16_t)k[0], (uint16_t)k[1], (uint16_t)k[2]);
         size_t bi = obs_bit(key);
         if (!get_bit(m->obs_bits, bi)) {
             set_bit(m->obs_bits, bi);
-            bool known;
-            tree_update(m->observed, m->obs_blocks, m->obs_block_depth, key, false, &known);
+            m->obs_keys.push_back(pack(key));    /* to the tree after the tracing (apply_observed) */
             s->observed_new++;
-            if (!known) m->blocks.try_emplace(block_of(OcTreeKey((k[0] - co) << sh, (k[1] - co) << sh, (k[2] - co) << sh)), 1);
         }
         int a = tmax[0] < tmax[1] ? (tmax[0] < tmax[2] ? 0 : 2) : (tmax[1] < tmax[2] ? 1 : 2);
         k[a] += step[a];
         tmax[a] += tdelta[a];
     }
+}
+
+/* The queued new observed cells into the observed tree, in order. */
+static void apply_observed(occ_map_t *m)
+{
+    const int sh = m->cshift, co = m->coff;
+    for (size_t g = 0; g < m->obs_keys.size(); g += PF_GROUP) {
+        const int n = (int)std::min<size_t>(PF_GROUP, m->obs_keys.size() - g);
+        prefetch_paths(m->obs_blocks, m->obs_block_depth, &m->obs_keys[g], n);
+        for (int j = 0; j < n; j++) {
+            const OcTreeKey k = unpack(m->obs_keys[g + j]);
+            bool known;
+            tree_update(m->observed, m->obs_blocks, m->obs_block_depth, k, false, &known);
+            if (!known) m->blocks.try_emplace(block_of(OcTreeKey((k[0] - co) << sh, (k[1] - co) << sh, (k[2] - co) << sh)), 1);
+        }
+    }
+    m->obs_keys.clear();
+}
+
+/* The queued hits into the fine tree, in order (as each return came), and what they make
+ * occupied into the bitmaps and the occupied list. */
+static void apply_hits(occ_map_t *m)
+{
+    for (size_t g = 0; g < m->hit_keys.size(); g += PF_GROUP) {
+        const int n = (int)std::min<size_t>(PF_GROUP, m->hit_keys.size() - g);
+        prefetch_paths(m->fine_blocks, FINE_BLOCK_DEPTH, &m->hit_keys[g], n);
+        for (int j = 0; j < n; j++) {
+            const OcTreeKey k = unpack(m->hit_keys[g + j]);
+            const hit_req_t &q = m->hit_reqs[g + j];
+            bool known;
+            octomap::OcTreeNode *nd = tree_update(m->fine, m->fine_blocks, FINE_BLOCK_DEPTH, k, true, &known);
+            if (nd && m->fine.isNodeOccupied(nd)) {
+                if (q.fresh_slot >= 0 && !get_bit(m->fine_bits, q.bi)) m->sub_mask[q.fresh_slot] |= SUB_FRESH;
+                set_bit(m->fine_bits, q.bi);
+                if (q.band && nd->getLogOdds() >= m->fine.getClampingThresMaxLog()) set_bit(m->sat_bits, q.bi);
+                mark_any(m, k);
+                if (!get_bit(m->listed_bits, q.bi)) { set_bit(m->listed_bits, q.bi); m->occupied.push_back(pack(k)); }
+            }
+            if (!known) m->blocks.try_emplace(block_of(k), 1);
+        }
+    }
+    m->hit_keys.clear();
+    m->hit_reqs.clear();
 }
 
 /* The table slot of a voxel hit this sweep (by fine bit index), or -1. */
@@ -639,17 +726,11 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
             mark_any(m, k);
             if (get_bit(m->sat_bits, bi)) continue;        /* at clamp_max: OctoMap would not change it */
         }
-        bool known;
-        octomap::OcTreeNode *nd = tree_update(m->fine, m->fine_blocks, 16 - BLOCK_FINE_LOG2, k, true, &known);
-        if (nd && m->fine.isNodeOccupied(nd)) {
-            if (band && !get_bit(m->fine_bits, bi) && m->sub_last_bi == bi) m->sub_mask[m->sub_last_slot] |= SUB_FRESH;
-            set_bit(m->fine_bits, bi);
-            if (band && nd->getLogOdds() >= m->fine.getClampingThresMaxLog()) set_bit(m->sat_bits, bi);
-            mark_any(m, k);
-            if (!get_bit(m->listed_bits, bi)) { set_bit(m->listed_bits, bi); m->occupied.push_back(pack(k)); }
-        }
-        if (!known) m->blocks.try_emplace(block_of(k), 1);
+        /* to the tree after the loop (apply_hits): nothing below reads what the update changes */
+        m->hit_keys.push_back(pack(k));
+        m->hit_reqs.push_back(hit_req_t{ (uint32_t)bi, band && m->sub_last_bi == bi ? m->sub_last_slot : -1, band });
     }
+    apply_hits(m);
 
     /* 3. misses: occupied voxels in view whose surrounding beams all went on past them */
     m->to_clear.clear();
@@ -689,10 +770,12 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
             }
         if (past && seen > 0) m->to_clear.push_back(pack(k));
     }
-    for (uint64_t p : m->to_clear) {
+    for (size_t i = 0; i < m->to_clear.size(); i++) {
+        if (i % PF_GROUP == 0) prefetch_paths(m->fine_blocks, FINE_BLOCK_DEPTH, &m->to_clear[i], (int)std::min<size_t>(PF_GROUP, m->to_clear.size() - i));
+        const uint64_t p = m->to_clear[i];
         OcTreeKey k = unpack(p);
         bool known;
-        octomap::OcTreeNode *nd = tree_update(m->fine, m->fine_blocks, 16 - BLOCK_FINE_LOG2, k, false, &known);
+        octomap::OcTreeNode *nd = tree_update(m->fine, m->fine_blocks, FINE_BLOCK_DEPTH, k, false, &known);
         clr_bit(m->sat_bits, fine_bit(k));
         if (!nd || !m->fine.isNodeOccupied(nd)) {
             clr_bit(m->fine_bits, fine_bit(k)); s.cleared++;
@@ -727,6 +810,7 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
         double pe[3] = { o[0] + d[0] * f, o[1] + d[1] * f, o[2] + d[2] * f };
         trace_observed(m, o, pe, &s);
     }
+    apply_observed(m);
 
     /* 5. what stands beside the car below the lowest beam (this sweep only) */
     fill_below_view(m, sw, &s);
