@@ -123,6 +123,7 @@ struct occ_map_t {
     std::vector<block_node_t> fine_blocks, obs_blocks;   /* block nodes of both trees (block_node_t) */
     std::vector<uint64_t> hit_keys, obs_keys;   /* this sweep's queued updates: hits of fine, new cells of observed */
     std::vector<hit_req_t> hit_reqs;        /* per queued hit */
+    int64_t prefetched = 0;                 /* paths prefetch_paths followed to their leaf */
     unsigned obs_block_depth;               /* depth of a 6.4 m block in observed (fine: 16 - BLOCK_FINE_LOG2) */
 
     explicit occ_map_t(const occ_config_t &c) : cfg(c), fine(c.resolution), observed(c.observed_resolution) {}
@@ -319,8 +320,9 @@ struct node_peek : octomap::OcTreeNode {
 };
 
 /* Fetches the nodes on the paths of n <= PF_GROUP keys below their cached blocks into the
- * cache, a level of all paths at a time (the misses overlap). Reads only. */
-static void prefetch_paths(const std::vector<block_node_t> &cache, unsigned bd, const uint64_t *keys, int n)
+ * cache, a level of all paths at a time (the misses overlap). Reads only; returns how many
+ * paths reached their leaf (kept in the map: unused, GCC removed the walk without it). */
+static int prefetch_paths(const std::vector<block_node_t> &cache, unsigned bd, const uint64_t *keys, int n)
 {
     const octomap::OcTreeNode *p[PF_GROUP];
     octomap::AbstractOcTreeNode *const *kid[PF_GROUP];
@@ -347,6 +349,9 @@ static void prefetch_paths(const std::vector<block_node_t> &cache, unsigned bd, 
             if (p[j]) __builtin_prefetch(p[j]);
         }
     }
+    int leaves = 0;
+    for (int j = 0; j < n; j++) leaves += p[j] != nullptr;
+    return leaves;
 }
 
 /* updateNode(k, occupied, lazy) through the block cache (block at depth bd). *known: the
@@ -528,7 +533,7 @@ static void apply_observed(occ_map_t *m)
     const int sh = m->cshift, co = m->coff;
     for (size_t g = 0; g < m->obs_keys.size(); g += PF_GROUP) {
         const int n = (int)std::min<size_t>(PF_GROUP, m->obs_keys.size() - g);
-        prefetch_paths(m->obs_blocks, m->obs_block_depth, &m->obs_keys[g], n);
+        m->prefetched += prefetch_paths(m->obs_blocks, m->obs_block_depth, &m->obs_keys[g], n);
         for (int j = 0; j < n; j++) {
             const OcTreeKey k = unpack(m->obs_keys[g + j]);
             bool known;
@@ -545,7 +550,7 @@ static void apply_hits(occ_map_t *m)
 {
     for (size_t g = 0; g < m->hit_keys.size(); g += PF_GROUP) {
         const int n = (int)std::min<size_t>(PF_GROUP, m->hit_keys.size() - g);
-        prefetch_paths(m->fine_blocks, FINE_BLOCK_DEPTH, &m->hit_keys[g], n);
+        m->prefetched += prefetch_paths(m->fine_blocks, FINE_BLOCK_DEPTH, &m->hit_keys[g], n);
         for (int j = 0; j < n; j++) {
             const OcTreeKey k = unpack(m->hit_keys[g + j]);
             const hit_req_t &q = m->hit_reqs[g + j];
@@ -771,7 +776,7 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
         if (past && seen > 0) m->to_clear.push_back(pack(k));
     }
     for (size_t i = 0; i < m->to_clear.size(); i++) {
-        if (i % PF_GROUP == 0) prefetch_paths(m->fine_blocks, FINE_BLOCK_DEPTH, &m->to_clear[i], (int)std::min<size_t>(PF_GROUP, m->to_clear.size() - i));
+        if (i % PF_GROUP == 0) m->prefetched += prefetch_paths(m->fine_blocks, FINE_BLOCK_DEPTH, &m->to_clear[i], (int)std::min<size_t>(PF_GROUP, m->to_clear.size() - i));
         const uint64_t p = m->to_clear[i];
         OcTreeKey k = unpack(p);
         bool known;
