@@ -257,8 +257,9 @@ static inline double fast_atan2(double y, double x)
     return y < 0 ? -r : r;
 }
 
-/* Direction bin of a map point seen from the sweep's mid pose: -1 outside the bins. */
-static inline int bin_of(const occ_sweep_t *sw, double px, double py, double pz, double *range)
+/* Direction bin of a map point seen from the sweep's mid pose: -1 outside the bins, or
+ * farther than rmax (then the angles are not worked out). */
+static inline int bin_of(const occ_sweep_t *sw, double px, double py, double pz, double *range, double rmax = INFINITY)
 {
     double d[3] = { px - sw->mid_origin[0], py - sw->mid_origin[1], pz - sw->mid_origin[2] };
     const double *R = sw->mid_rot;  /* sensor = R^T * d */
@@ -267,6 +268,7 @@ static inline int bin_of(const occ_sweep_t *sw, double px, double py, double pz,
     double lz = R[2] * d[0] + R[5] * d[1] + R[8] * d[2];
     double h = std::sqrt(lx * lx + ly * ly);
     *range = std::sqrt(h * h + lz * lz);
+    if (*range > rmax) return -1;
     double el = fast_atan2(lz, h);
     if (el < EL_MIN || el >= EL_MAX) return -1;
     int e = (int)((el - EL_MIN) / (EL_MAX - EL_MIN) * NEL);
@@ -710,6 +712,10 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
      * (everything the eye rays cross); returns beyond that band skip the per-sweep shortcuts */
     OcTreeKey car_key;
     const int car_kz = key_of(m->inv_res, sw->car[0], sw->car[1], sw->car[2], car_key) ? car_key[2] : -1000000;
+    /* the ground does not change in this loop: its height is kept for the 1 m cell of the
+     * last return (a column's returns mostly share one) */
+    int32_t gcx = INT32_MIN, gcy = INT32_MIN;
+    float gz = INFINITY;
     for (int i = p0; i < sw->n; i += ps) {
         float x = sw->x[i], y = sw->y[i], z = sw->z[i];
         if (!std::isfinite(x) || !std::isfinite(y) || !std::isfinite(z)) continue;
@@ -717,7 +723,9 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
         double dx = x - o[0], dy = y - o[1], dz = z - o[2];
         if (dx * dx + dy * dy + dz * dz > r2max) continue;
         s.points++;
-        if (z < ground_z(m, x, y) + c.ground_clearance_m) { s.ground++; continue; }
+        const int32_t cx = (int32_t)std::floor(x), cy = (int32_t)std::floor(y);
+        if (cx != gcx || cy != gcy) { gz = ground_z(m, x, y); gcx = cx; gcy = cy; }
+        if (z < gz + c.ground_clearance_m) { s.ground++; continue; }
         OcTreeKey k;
         if (!key_of(m->inv_res, x, y, z, k)) continue;
         size_t bi = fine_bit(k);
@@ -761,7 +769,7 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
         s.occupied_checked++;
         octomap::point3d p = m->fine.keyToCoord(k);
         double r;
-        int b = bin_of(sw, p.x(), p.y(), p.z(), &r);
+        int b = bin_of(sw, p.x(), p.y(), p.z(), &r, c.range_m);
         if (b < 0 || r > c.range_m) continue;
         int e = b / NAZ, a = b % NAZ, seen = 0;
         bool past = true;
