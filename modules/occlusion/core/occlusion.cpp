@@ -172,11 +172,13 @@ static void process(occlusion_t *o, sweep_t &s, std::vector<occ_output_t> *out, 
     /* 2. points into the map, each with the sensor pose of its time slot */
     int n = s.pts.n;
     o->mx.resize(n); o->my.resize(n); o->mz.resize(n); o->oi.resize(n);
+    double rot[SLOTS][9];   /* pb_quat_rotate's matrices, made once per slot instead of per point */
+    for (int k = 0; k < SLOTS; k++) pb_quat_to_matrix(lq[k], rot[k]);
     for (int i = 0; i < n; i++) {
         int k = (int)std::min<int64_t>(SLOTS - 1, std::max<int64_t>(0, (int64_t)s.pts.offset_us[i] * (SLOTS - 1) / span));
-        double pl[3] = { s.pts.x[i], s.pts.y[i], s.pts.z[i] }, pm[3];
-        pb_quat_rotate(lq[k], pl, pm);
-        o->mx[i] = (float)(pm[0] + lt[k][0]); o->my[i] = (float)(pm[1] + lt[k][1]); o->mz[i] = (float)(pm[2] + lt[k][2]);
+        const double *R = rot[k], px = s.pts.x[i], py = s.pts.y[i], pz = s.pts.z[i];
+        const double mx = R[0] * px + R[1] * py + R[2] * pz, my = R[3] * px + R[4] * py + R[5] * pz, mz = R[6] * px + R[7] * py + R[8] * pz;
+        o->mx[i] = (float)(mx + lt[k][0]); o->my[i] = (float)(my + lt[k][1]); o->mz[i] = (float)(mz + lt[k][2]);
         o->oi[i] = (uint16_t)k;
     }
     occ_sweep_t sw = {};
