@@ -104,10 +104,16 @@ struct occ_map_t {
     std::vector<uint64_t> fill_bits;        /* this sweep's columns below objects that reach under the lowest beam */
     std::vector<uint32_t> fill_list;        /* their bit indices (cleared at the next sweep) */
     std::vector<int> low_candidates;        /* scratch: non-ground returns near the car */
-    std::vector<uint32_t> sub_key;          /* SUB_TABLE slots: fine bit index + 1 of a voxel hit this sweep (0 free) */
-    std::vector<uint32_t> sub_mask;         /* its returns' sub-cell columns and how to grow them (sub_cells) */
+    /* SUB_TABLE slots, one per voxel this sweep's returns reach (one cache line holds all a
+     * return changes) */
+    struct sub_t {
+        uint32_t key;                       /* fine bit index + 1 (0: free) */
+        uint32_t mask;                      /* the returns' sub-cell columns and how to grow them (sub_cells) */
+        float top;                          /* top of what the returns stand for, fine key units */
+        uint32_t halo;                      /* 1: the voxel is in halo_bits (a neighbour's returns reach it) */
+    };
+    std::vector<sub_t> sub;
     std::vector<uint32_t> sub_used;         /* used slots (freed at the next sweep) */
-    std::vector<float> sub_top;             /* per slot: top of what the voxel's returns stand for, fine key units */
     std::vector<uint64_t> sub_pkey;         /* per slot: the voxel's packed key */
     /* the shape (columns, top) of every occupied voxel from the sweeps that hit it since it
      * became occupied: direct-mapped by fine bit index; a voxel whose entry another took
@@ -167,9 +173,7 @@ occ_map_t *occ_map_create(const occ_config_t *cfg)
     m->fill_bits.assign((size_t)FX * FX * FZ / 64, 0);
     m->hit_bits.assign((size_t)FX * FX * FZ / 64, 0);
     m->sat_bits.assign((size_t)FX * FX * FZ / 64, 0);
-    m->sub_key.assign(SUB_TABLE, 0);
-    m->sub_mask.assign(SUB_TABLE, 0);
-    m->sub_top.assign(SUB_TABLE, 0);
+    m->sub.assign(SUB_TABLE, occ_map_t::sub_t{ 0, 0, 0, 0 });
     m->sub_pkey.assign(SUB_TABLE, 0);
     m->shapes.assign(SHAPES, occ_map_t::shape_t{ 0, 0, 0 });
     m->halo_bits.assign((size_t)FX * FX * FZ / 64, 0);
@@ -198,7 +202,7 @@ void occ_map_clear(occ_map_t *m)
     std::fill(m->shapes.begin(), m->shapes.end(), occ_map_t::shape_t{ 0, 0, 0 });
     m->hit_list.clear();
     m->fill_list.clear();
-    for (uint32_t u : m->sub_used) m->sub_key[u] = 0;
+    for (uint32_t u : m->sub_used) m->sub[u].key = 0;
     m->sub_used.clear();
     m->sub_last_bi = SIZE_MAX;
     for (ground_cell_t &g : m->ground) g.sweep = -1000000;
@@ -570,7 +574,7 @@ static void apply_hits(occ_map_t *m)
             bool known;
             octomap::OcTreeNode *nd = tree_update(m->fine, m->fine_blocks, FINE_BLOCK_DEPTH, k, true, &known);
             if (nd && m->fine.isNodeOccupied(nd)) {
-                if (q.fresh_slot >= 0 && !get_bit(m->fine_bits, q.bi)) m->sub_mask[q.fresh_slot] |= SUB_FRESH;
+                if (q.fresh_slot >= 0 && !get_bit(m->fine_bits, q.bi)) m->sub[q.fresh_slot].mask |= SUB_FRESH;
                 set_bit(m->fine_bits, q.bi);
                 if (q.band && nd->getLogOdds() >= m->fine.getClampingThresMaxLog()) set_bit(m->sat_bits, q.bi);
                 mark_any(m, k);
@@ -587,8 +591,8 @@ static void apply_hits(occ_map_t *m)
 static int sub_find(const occ_map_t *m, size_t bi)
 {
     for (uint32_t h = (uint32_t)(bi * 2654435761u) >> 16, n = 0; n < (uint32_t)SUB_TABLE; h = (h + 1) & (SUB_TABLE - 1), n++) {
-        if (m->sub_key[h] == bi + 1) return (int)h;
-        if (m->sub_key[h] == 0) return -1;
+        if (m->sub[h].key == bi + 1) return (int)h;
+        if (m->sub[h].key == 0) return -1;
     }
     return -1;
 }
@@ -609,15 +613,14 @@ static inline size_t shape_slot(size_t bi) { return (uint32_t)(bi * 2654435761u)
 static int sub_slot(occ_map_t *m, size_t bi, const OcTreeKey &k)
 {
     for (uint32_t h = (uint32_t)(bi * 2654435761u) >> 16, n = 0; n < (uint32_t)SUB_TABLE; h = (h + 1) & (SUB_TABLE - 1), n++) {
-        if (m->sub_key[h] == 0) {
+        occ_map_t::sub_t &e = m->sub[h];
+        if (e.key == 0) {
             if (m->sub_used.size() * 2 > (size_t)SUB_TABLE) return -1;   /* table half full: the voxel stays whole */
-            m->sub_key[h] = (uint32_t)bi + 1;
+            e = occ_map_t::sub_t{ (uint32_t)bi + 1, 0, -INFINITY, 0 };
             m->sub_pkey[h] = pack(k);
-            m->sub_mask[h] = 0;
-            m->sub_top[h] = -INFINITY;
             m->sub_used.push_back(h);
         }
-        if (m->sub_key[h] == bi + 1) return (int)h;
+        if (e.key == bi + 1) return (int)h;
     }
     return -1;
 }
@@ -638,42 +641,54 @@ static void sub_add(occ_map_t *m, size_t bi, const OcTreeKey &k, double x, doubl
         const double w = 0.5 * m->col_gap * r * m->inv_res * SUB;   /* sub-cells */
         const int x0 = (int)std::floor(ux - w), x1 = (int)std::floor(ux + w), y0 = (int)std::floor(uy - w), y1 = (int)std::floor(uy + w);
         if (x0 < 0 || y0 < 0 || x1 >= SUB || y1 >= SUB) {
-            for (int dy = -1; dy <= 1; dy++)
-                for (int dx = -1; dx <= 1; dx++) {
+            /* the neighbours it reaches (|x0|, x1 - SUB < SUB: never past them), in the order
+             * -1..1 in y, then in x (the order slots are taken in matters when the table fills) */
+            const int dx0 = x0 < 0 ? -1 : 0, dx1 = x1 >= SUB ? 1 : 0, dy0 = y0 < 0 ? -1 : 0, dy1 = y1 >= SUB ? 1 : 0;
+            for (int dy = dy0; dy <= dy1; dy++) {
+                /* the rows it covers in that neighbour, as a column of 1 per row */
+                const int ly0 = std::max(y0, dy * SUB) - dy * SUB, ly1 = std::min(y1, dy * SUB + SUB - 1) - dy * SUB;
+                const uint32_t rows = (((1u << (SUB * (ly1 + 1))) - 1) & ~((1u << (SUB * ly0)) - 1)) & 0x1111;
+                for (int dx = dx0; dx <= dx1; dx++) {
                     if (!dx && !dy) continue;
-                    const int ax = std::max(x0, dx * SUB), bx_ = std::min(x1, dx * SUB + SUB - 1);
-                    const int ay = std::max(y0, dy * SUB), by_ = std::min(y1, dy * SUB + SUB - 1);
-                    if (ax > bx_ || ay > by_) continue;
-                    uint32_t mk = 0;
-                    for (int yy = ay; yy <= by_; yy++)
-                        for (int xx = ax; xx <= bx_; xx++) mk |= 1u << ((xx - dx * SUB) + SUB * (yy - dy * SUB));
+                    const int lx0 = std::max(x0, dx * SUB) - dx * SUB, lx1 = std::min(x1, dx * SUB + SUB - 1) - dx * SUB;
+                    const uint32_t mk = rows * ((2u << lx1) - (1u << lx0));    /* lx0..lx1 in each row */
                     OcTreeKey nk((uint16_t)(k[0] + dx), (uint16_t)(k[1] + dy), k[2]);
                     size_t nb = fine_bit(nk);
                     const int j = (dy + 1) * 3 + dx + 1;
                     if (m->halo_last_bi[j] == nb) {      /* the previous return reached the same voxel */
-                        m->sub_mask[m->halo_last_slot[j]] |= mk;
-                        m->sub_top[m->halo_last_slot[j]] = std::max(m->sub_top[m->halo_last_slot[j]], top);
+                        occ_map_t::sub_t &e = m->sub[m->halo_last_slot[j]];
+                        e.mask |= mk;
+                        e.top = std::max(e.top, top);
                         continue;
                     }
                     int h = sub_slot(m, nb, nk);
                     if (h < 0) continue;
                     m->halo_last_bi[j] = nb;
                     m->halo_last_slot[j] = h;
-                    m->sub_mask[h] |= mk;
-                    m->sub_top[h] = std::max(m->sub_top[h], top);
-                    if (!get_bit(m->halo_bits, nb)) {
+                    occ_map_t::sub_t &e = m->sub[h];
+                    e.mask |= mk;
+                    e.top = std::max(e.top, top);
+                    if (!e.halo) {
+                        e.halo = 1;
                         set_bit(m->halo_bits, nb);
                         m->halo_list.push_back((uint32_t)nb);
                         mark_any(m, nk);
                     }
                 }
+            }
         }
     }
-    if (bi == m->sub_last_bi) { m->sub_mask[m->sub_last_slot] |= v; m->sub_top[m->sub_last_slot] = std::max(m->sub_top[m->sub_last_slot], top); return; }
+    if (bi == m->sub_last_bi) {
+        occ_map_t::sub_t &e = m->sub[m->sub_last_slot];
+        e.mask |= v;
+        e.top = std::max(e.top, top);
+        return;
+    }
     int h = sub_slot(m, bi, k);
     if (h < 0) return;
-    m->sub_mask[h] |= v;
-    m->sub_top[h] = std::max(m->sub_top[h], top);
+    occ_map_t::sub_t &e = m->sub[h];
+    e.mask |= v;
+    e.top = std::max(e.top, top);
     m->sub_last_bi = bi;
     m->sub_last_slot = h;
 }
@@ -713,7 +728,7 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
     /* 2. hits: returns above the ground, one update per voxel */
     for (uint32_t b : m->hit_list) clr_bit(m->hit_bits, b);
     m->hit_list.clear();
-    for (uint32_t u : m->sub_used) m->sub_key[u] = 0;
+    for (uint32_t u : m->sub_used) m->sub[u].key = 0;
     m->sub_used.clear();
     m->sub_last_bi = SIZE_MAX;
     for (uint32_t b : m->halo_list) clr_bit(m->halo_bits, b);
@@ -812,13 +827,14 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
      * looks at another face of its object or past something in front, keeps them). The
      * table is random access: prefetched a few entries ahead */
     for (size_t i = 0, nu = m->sub_used.size(); i < nu; i++) {
-        if (i + 16 < nu) __builtin_prefetch(&m->shapes[shape_slot(m->sub_key[m->sub_used[i + 16]] - 1)], 1);
+        if (i + 16 < nu) __builtin_prefetch(&m->shapes[shape_slot(m->sub[m->sub_used[i + 16]].key - 1)], 1);
         const uint32_t u = m->sub_used[i];
-        if (!get_bit(m->hit_bits, m->sub_key[u] - 1)) continue;    /* only reached by a neighbour's returns */
-        occ_map_t::shape_t &sh = m->shapes[shape_slot(m->sub_key[u] - 1)];
-        const uint32_t mk = sub_cells(m->sub_mask[u]);
-        if (sh.pkey != m->sub_pkey[u] || (m->sub_mask[u] & SUB_FRESH)) sh = occ_map_t::shape_t{ m->sub_pkey[u], mk, m->sub_top[u] };
-        else { sh.mask |= mk; sh.top = std::max(sh.top, m->sub_top[u]); }
+        const occ_map_t::sub_t &e = m->sub[u];
+        if (!get_bit(m->hit_bits, e.key - 1)) continue;    /* only reached by a neighbour's returns */
+        occ_map_t::shape_t &sh = m->shapes[shape_slot(e.key - 1)];
+        const uint32_t mk = sub_cells(e.mask);
+        if (sh.pkey != m->sub_pkey[u] || (e.mask & SUB_FRESH)) sh = occ_map_t::shape_t{ m->sub_pkey[u], mk, e.top };
+        else { sh.mask |= mk; sh.top = std::max(sh.top, e.top); }
     }
 
     /* 4. observed space: every Nth beam traced through the coarse cells (new cells only) */
@@ -879,15 +895,15 @@ static double sub_hit(const occ_map_t *m, size_t fb, const int key[3], const dou
     const bool occupied = get_bit(m->fine_bits, fb);
     if (get_bit(m->hit_bits, fb)) {
         if (slot < 0) return t0;
-        mask = sub_cells(m->sub_mask[slot]); stop = m->sub_top[slot];
+        mask = sub_cells(m->sub[slot].mask); stop = m->sub[slot].top;
     } else if (occupied) {
         const occ_map_t::shape_t &sh = m->shapes[shape_slot(fb)];
         if (sh.pkey != pack(OcTreeKey((uint16_t)key[0], (uint16_t)key[1], (uint16_t)key[2]))) return t0;
         mask = sh.mask; stop = sh.top;
-        if (slot >= 0) { mask |= sub_cells(m->sub_mask[slot]); stop = std::max(stop, m->sub_top[slot]); }
+        if (slot >= 0) { mask |= sub_cells(m->sub[slot].mask); stop = std::max(stop, m->sub[slot].top); }
     } else {
         if (slot < 0) return -1;
-        mask = sub_cells(m->sub_mask[slot]); stop = m->sub_top[slot];
+        mask = sub_cells(m->sub[slot].mask); stop = m->sub[slot].top;
     }
     /* the top: where the voxel above holds nothing, the object ends within this one */
     double top = INFINITY;
