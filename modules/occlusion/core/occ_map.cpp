@@ -261,17 +261,6 @@ static inline double fast_atan2(double y, double x)
     return y < 0 ? -r : r;
 }
 
-/* (int)(v / span * n) with a multiplication: v * (n / span) differs from it by a few ulps,
- * so only within 1e-9 of a bin edge does the division decide (the bins stay exactly so). */
-static inline int scaled_bin(double v, double span, double n_over_span, int n)
-{
-    const double q = v * n_over_span;
-    const int i = (int)q;
-    const double f = q - i;
-    if (f > 1e-9 && f < 1 - 1e-9) return i;
-    return (int)(v / span * n);
-}
-
 /* Direction bin of a map point seen from the sweep's mid pose: -1 outside the bins, or
  * farther than rmax (then the angles are not worked out). */
 static inline int bin_of(const occ_sweep_t *sw, double px, double py, double pz, double *range, double rmax = INFINITY)
@@ -286,8 +275,8 @@ static inline int bin_of(const occ_sweep_t *sw, double px, double py, double pz,
     if (*range > rmax) return -1;
     double el = fast_atan2(lz, h);
     if (el < EL_MIN || el >= EL_MAX) return -1;
-    int e = scaled_bin(el - EL_MIN, EL_MAX - EL_MIN, NEL / (EL_MAX - EL_MIN), NEL);
-    int a = scaled_bin(fast_atan2(ly, lx) + M_PI, 2 * M_PI, NAZ / (2 * M_PI), NAZ) & (NAZ - 1);
+    int e = (int)((el - EL_MIN) / (EL_MAX - EL_MIN) * NEL);
+    int a = (int)((fast_atan2(ly, lx) + M_PI) / (2 * M_PI) * NAZ) & (NAZ - 1);
     return e * NAZ + a;
 }
 
