@@ -519,17 +519,24 @@ static void trace_observed(occ_map_t *m, const double o[3], const double pe[3], 
         else if (kend < k[i]) { step[i] = -1; tmax[i] = (k[i] - u0) / du; tdelta[i] = -1 / du; }
         else { step[i] = 0; tmax[i] = INFINITY; tdelta[i] = INFINITY; }
     }
+    /* the state in scalars: indexed by the axis it went through memory, a store and a
+     * reload on every step's critical path (the same steps, twice as fast) */
+    int k0 = k[0], k1 = k[1], k2 = k[2];
+    double t0 = tmax[0], t1 = tmax[1], t2 = tmax[2];
+    const int s0 = step[0], s1 = step[1], s2 = step[2];
+    const double d0 = tdelta[0], d1 = tdelta[1], d2 = tdelta[2];
     for (int c = 0; c < cells; c++) {
-        OcTreeKey key((uint16_t)k[0], (uint16_t)k[1], (uint16_t)k[2]);
+        OcTreeKey key((uint16_t)k0, (uint16_t)k1, (uint16_t)k2);
         size_t bi = obs_bit(key);
         if (!get_bit(m->obs_bits, bi)) {
             set_bit(m->obs_bits, bi);
             m->obs_keys.push_back(pack(key));    /* to the tree after the tracing (apply_observed) */
             s->observed_new++;
         }
-        int a = tmax[0] < tmax[1] ? (tmax[0] < tmax[2] ? 0 : 2) : (tmax[1] < tmax[2] ? 1 : 2);
-        k[a] += step[a];
-        tmax[a] += tdelta[a];
+        /* the axis whose cell boundary comes first (ties broken as before) */
+        if (t0 < t1) { if (t0 < t2) { k0 += s0; t0 += d0; } else { k2 += s2; t2 += d2; } }
+        else if (t1 < t2) { k1 += s1; t1 += d1; }
+        else { k2 += s2; t2 += d2; }
     }
 }
 
