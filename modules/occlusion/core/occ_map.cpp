@@ -38,6 +38,10 @@ const uint32_t SUB_FRESH = 1u << 22;        /* the voxel became occupied in this
 const uint32_t SUB_X0 = 0x1111, SUB_X3 = 0x8888, SUB_Y0 = 0x000f, SUB_Y3 = 0xf000;   /* cells with x = 0, x = 3, y = 0, y = 3 */
 
 struct ground_cell_t { int32_t cx, cy, sweep; float minz; };
+/* ground_z of a 1 m cell, kept for the rest of the hit loop (the grid does not change
+ * there; a cell's returns come in several columns): direct-mapped, valid for one sweep */
+const int GMEMO = 64;     /* cells a side (a ring) */
+struct ground_memo_t { int32_t cx, cy, sweep; float z; };
 
 /* The tree node of each live 6.4 m block (direct-mapped by block key): an update walks
  * down from it (5 levels in fine) instead of from the root, twice (OctoMap's early-abort
@@ -92,6 +96,7 @@ struct occ_map_t {
     std::vector<uint64_t> fine_bits, obs_bits;
     std::vector<uint64_t> any_bits;         /* observed-size cells that may hold an occupied fine voxel (queries skip the rest) */
     std::vector<ground_cell_t> ground;
+    std::vector<ground_memo_t> ground_memo;
     int32_t sweep = 0;
     std::vector<uint64_t> hit_bits;         /* fine voxels hit this sweep (same ring as fine_bits) */
     std::vector<uint32_t> hit_list;         /* their bit indices (cleared at the next sweep) */
@@ -169,6 +174,7 @@ occ_map_t *occ_map_create(const occ_config_t *cfg)
     m->obs_bits.assign((size_t)CX * CX * CZ / 64, 0);
     m->any_bits.assign((size_t)CX * CX * CZ / 64, 0);
     m->ground.assign((size_t)GN * GN, ground_cell_t{ 0, 0, -1000000, 0 });
+    m->ground_memo.assign((size_t)GMEMO * GMEMO, ground_memo_t{ 0, 0, -1000000, 0 });
     m->bin_min.assign((size_t)NAZ * NEL, INFINITY);
     m->fill_bits.assign((size_t)FX * FX * FZ / 64, 0);
     m->hit_bits.assign((size_t)FX * FX * FZ / 64, 0);
@@ -206,6 +212,7 @@ void occ_map_clear(occ_map_t *m)
     m->sub_used.clear();
     m->sub_last_bi = SIZE_MAX;
     for (ground_cell_t &g : m->ground) g.sweep = -1000000;
+    for (ground_memo_t &g : m->ground_memo) g.sweep = -1000000;
     m->blocks.clear();
     m->occupied.clear();
     std::fill(m->fine_blocks.begin(), m->fine_blocks.end(), block_node_t{ 0, nullptr });
@@ -734,10 +741,6 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
      * (everything the eye rays cross); returns beyond that band skip the per-sweep shortcuts */
     OcTreeKey car_key;
     const int car_kz = key_of(m->inv_res, sw->car[0], sw->car[1], sw->car[2], car_key) ? car_key[2] : -1000000;
-    /* the ground does not change in this loop: its height is kept for the 1 m cell of the
-     * last return (a column's returns mostly share one) */
-    int32_t gcx = INT32_MIN, gcy = INT32_MIN;
-    float gz = INFINITY;
     for (int i = p0; i < sw->n; i += ps) {
         float x = sw->x[i], y = sw->y[i], z = sw->z[i];
         if (!std::isfinite(x) || !std::isfinite(y) || !std::isfinite(z)) continue;
@@ -746,8 +749,9 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
         if (dx * dx + dy * dy + dz * dz > r2max) continue;
         s.points++;
         const int32_t cx = (int32_t)std::floor(x), cy = (int32_t)std::floor(y);
-        if (cx != gcx || cy != gcy) { gz = ground_z(m, x, y); gcx = cx; gcy = cy; }
-        if (z < gz + c.ground_clearance_m) { s.ground++; continue; }
+        ground_memo_t &gm = m->ground_memo[(size_t)(cy & (GMEMO - 1)) * GMEMO + (cx & (GMEMO - 1))];
+        if (gm.sweep != m->sweep || gm.cx != cx || gm.cy != cy) gm = ground_memo_t{ cx, cy, m->sweep, ground_z(m, x, y) };
+        if (z < gm.z + c.ground_clearance_m) { s.ground++; continue; }
         OcTreeKey k;
         if (!key_of(m->inv_res, x, y, z, k)) continue;
         size_t bi = fine_bit(k);
