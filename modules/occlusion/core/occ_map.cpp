@@ -827,6 +827,7 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
      * looks at another face of its object or past something in front, keeps them). The
      * table is random access: prefetched a few entries ahead */
     for (size_t i = 0, nu = m->sub_used.size(); i < nu; i++) {
+        if (i + 32 < nu) __builtin_prefetch(&m->sub[m->sub_used[i + 32]]);   /* the slot first: its key places the shape */
         if (i + 16 < nu) __builtin_prefetch(&m->shapes[shape_slot(m->sub[m->sub_used[i + 16]].key - 1)], 1);
         const uint32_t u = m->sub_used[i];
         const occ_map_t::sub_t &e = m->sub[u];
