@@ -292,10 +292,9 @@ static uint64_t block_of(const OcTreeKey &fine_key)
     return pack(OcTreeKey(fine_key[0] >> BLOCK_FINE_LOG2, fine_key[1] >> BLOCK_FINE_LOG2, fine_key[2] >> BLOCK_FINE_LOG2));
 }
 
-static inline block_node_t &block_entry(std::vector<block_node_t> &cache, uint64_t bkey)
-{
-    return cache[(bkey & 15) | (bkey >> 16 & 15) << 4 | (bkey >> 32 & 7) << 8];
-}
+/* A block's cache entry: 16 x 16 x 8 blocks (102 x 102 x 51 m, more than the window) */
+static inline size_t block_index(uint64_t bkey) { return (bkey & 15) | (bkey >> 16 & 15) << 4 | (bkey >> 32 & 7) << 8; }
+static inline block_node_t &block_entry(std::vector<block_node_t> &cache, uint64_t bkey) { return cache[block_index(bkey)]; }
 
 /* OctoMap's updateNode(key, lo, lazy) from node n at depth d on key's path, which exists:
  * the same early abort when the node it finds is at the clamp, the same expansion of a
@@ -344,7 +343,7 @@ static int prefetch_paths(const std::vector<block_node_t> &cache, unsigned bd, c
     for (int j = 0; j < n; j++) {
         const OcTreeKey k = unpack(keys[j]);
         const uint64_t bkey = pack(OcTreeKey(k[0] >> s, k[1] >> s, k[2] >> s));
-        const block_node_t &e = block_entry(const_cast<std::vector<block_node_t> &>(cache), bkey);
+        const block_node_t &e = cache[block_index(bkey)];
         p[j] = e.bkey == bkey ? e.node : nullptr;
         if (p[j]) __builtin_prefetch(p[j]);
     }
