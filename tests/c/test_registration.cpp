@@ -191,7 +191,7 @@ static void test_window_search(void)
     wc.yaw_range_rad = 15 * M_PI / 180;
     std::vector<pb_loc::window_candidate_t> cand;
     int points = 0;
-    int nc = pb_loc::window_search(map->columns, map->fine, pts.data(), pts.size() / 3, pose(5.2, -0.9, 26),
+    int nc = pb_loc::window_search(map->columns, pts.data(), pts.size() / 3, pose(5.2, -0.9, 26),
                                    wc, &cand, &points);
     CHECK(nc >= 1 && nc <= wc.candidates);
     CHECK(points == wc.max_points);   /* the fronts give more structure points than are scored */
@@ -203,7 +203,7 @@ static void test_window_search(void)
         CHECK(yaw_err_deg(cand[0].pose, truth) < 1.0);
         CHECK(cand[0].score > points / 2);
     }
-    nc = pb_loc::window_search(map->columns, map->fine, pts.data(), pts.size() / 3, pose(500, 500, 0), wc, &cand,
+    nc = pb_loc::window_search(map->columns, pts.data(), pts.size() / 3, pose(500, 500, 0), wc, &cand,
                                &points);
     CHECK(nc == 0);
     pb_regmap_destroy(map);

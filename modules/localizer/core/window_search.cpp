@@ -155,7 +155,7 @@ void columns_build(const Level &fine, Columns *out)
         }
 }
 
-int window_search(const Columns &cols, const Level &fine, const float *xyz, size_t n,
+int window_search(const Columns &cols, const float *xyz, size_t n,
                   const Eigen::Isometry3d &seed, const window_config_t &cfg,
                   std::vector<window_candidate_t> *out, int *points)
 {

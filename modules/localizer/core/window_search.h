@@ -62,10 +62,10 @@ struct window_candidate_t {
 };
 
 /* Searches the window around seed for the scan's n points (base frame, already
- * downsampled). fine: the map's fine level (ground test of the points at the seed).
+ * downsampled).
  * Fills out with up to cfg.candidates poses, best first; *points: structure points
  * scored (the best possible score). Returns the number of candidates. */
-int window_search(const Columns &cols, const Level &fine, const float *xyz, size_t n,
+int window_search(const Columns &cols, const float *xyz, size_t n,
                   const Eigen::Isometry3d &seed, const window_config_t &cfg,
                   std::vector<window_candidate_t> *out, int *points);
 
