@@ -22,8 +22,6 @@ const char kMagic[8] = {'P', 'B', 'T', 'I', 'L', 'E', 'S', '1'};
 const uint32_t kVersion = 2;
 const size_t kHeaderBytes = 192, kTableBytes = 32, kCellBytes = 48, kRoughBytes = 8;
 
-int64_t floor_div(int64_t a, int64_t b) { return a / b - ((a % b != 0) && ((a < 0) != (b < 0))); }
-
 /* voxels per tile edge, or 0 when tile_m is not a whole multiple of voxel */
 int64_t voxels_per_tile(double tile_m, double voxel)
 {

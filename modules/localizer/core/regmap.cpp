@@ -289,7 +289,7 @@ int pb_regmap_ground_z(const pb_regmap_t *m, double x, double y, double z_hint, 
     for (int i = 0; i <= (below_only ? steps : 2 * steps); i++) {
         int k = below_only ? -i : i - steps;
         const pb_loc::Cell *c = L.lookup(x, y, z_hint + k * v);
-        if (!c || c->kind != pb_loc::CELL_PLANE || std::fabs(c->u1[2]) < 0.8) continue;
+        if (!c || !c->ground()) continue;
         /* the plane's height at (x, y) */
         double h = c->mean[2] - (c->u1[0] * (x - c->mean[0]) + c->u1[1] * (y - c->mean[1])) / c->u1[2];
         if (below_only && h > z_hint + 0.5 * v) continue;
@@ -309,7 +309,7 @@ void pb_regmap_cells(const pb_regmap_t *m, std::vector<float> *xyz, std::vector<
     const pb_loc::Level &L = m->fine;
     for (const pb_loc::Cell &c : L.cells) {
         xyz->insert(xyz->end(), c.mean, c.mean + 3);
-        ground->push_back(c.kind == pb_loc::CELL_PLANE && std::fabs(c.u1[2]) >= 0.8);
+        ground->push_back(c.ground());
     }
     L.rough.for_each([&](uint64_t key, int32_t) {
         int64_t ix, iy, iz;

@@ -19,6 +19,9 @@ struct Cell {
     float mean[3];
     float u1[3], u2[3];
     uint8_t kind;    /* CELL_* */
+
+    /* an upward-facing plane: the ground (or a roof) */
+    bool ground() const { return kind == CELL_PLANE && (u1[2] >= 0.8f || u1[2] <= -0.8f); }
 };
 
 struct Level {

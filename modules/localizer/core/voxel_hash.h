@@ -31,6 +31,12 @@ inline int64_t fast_floor(double v)
     return i - (v < (double)i);
 }
 
+/* floor(a / b) for b > 0 (C++ division truncates towards zero) */
+inline int64_t floor_div(int64_t a, int64_t b)
+{
+    return a / b - (a % b != 0 && a < 0);
+}
+
 /* Voxel of a point; false for non-finite or far-out coordinates. */
 inline bool voxel_index_of(double x, double y, double z, double inv_voxel, int64_t *ix, int64_t *iy, int64_t *iz)
 {

@@ -9,16 +9,6 @@ namespace pb_loc {
 
 namespace {
 
-bool is_ground(const Cell &c)
-{
-    return c.kind == CELL_PLANE && std::fabs(c.u1[2]) >= 0.8;
-}
-
-int64_t floor_div(int64_t a, int64_t b)
-{
-    return a >= 0 ? a / b : -((-a + b - 1) / b);
-}
-
 /* The block holding column (ix, iy): its index in cols.blocks, or -1. */
 int32_t block_of(const Columns &cols, int64_t bx, int64_t by)
 {
@@ -33,16 +23,15 @@ struct Node {
 };
 
 struct Search {
-    const window_config_t *cfg;
+    int candidates = 0;
+    double distinct_m = 0, distinct_rad = 0;
     int nx = 0, W = 0;
     std::vector<std::vector<uint32_t>> grid;   /* per level: column masks OR-ed over 2^level cells */
     std::vector<uint32_t> mask;                /* per point: its height voxel and the two beside it */
     std::vector<int32_t> cell;                 /* per yaw, per point: grid index at offset (0, 0) */
     size_t m = 0;
     double voxel = 0, yaw_step = 0;
-    std::vector<window_candidate_t> best;      /* distinct, any order */
-    std::vector<Node> best_node;
-    Eigen::Isometry3d seed;
+    std::vector<Node> best;                    /* leaves, distinct, any order; bound = score */
 
     int score(const Node &nd, int level) const
     {
@@ -56,9 +45,9 @@ struct Search {
 
     int threshold() const
     {
-        if ((int)best.size() < cfg->candidates) return 0;
-        int lo = best[0].score;
-        for (const auto &b : best) lo = std::min(lo, b.score);
+        if ((int)best.size() < candidates) return 0;
+        int lo = best[0].bound;
+        for (const Node &b : best) lo = std::min(lo, b.bound);
         return lo;
     }
 
@@ -66,32 +55,20 @@ struct Search {
      * that score less, or, when none is near, the lowest one. */
     void offer(const Node &nd)
     {
-        double yaw = (nd.yaw * yaw_step) - cfg->yaw_range_rad;
         for (size_t k = 0; k < best.size(); k++) {
-            const Node &o = best_node[k];
+            const Node &o = best[k];
             double dyaw = std::fabs((o.yaw - nd.yaw) * yaw_step);
             double dd = std::hypot(o.dx - nd.dx, o.dy - nd.dy) * voxel;
-            if (dd <= cfg->distinct_m && dyaw <= cfg->distinct_rad) {
-                if (best[k].score >= nd.bound) return;
+            if (dd <= distinct_m && dyaw <= distinct_rad) {
+                if (o.bound >= nd.bound) return;
                 best.erase(best.begin() + (long)k);
-                best_node.erase(best_node.begin() + (long)k);
                 k--;
             }
         }
-        if ((int)best.size() >= cfg->candidates) {
-            size_t lo = 0;
-            for (size_t k = 1; k < best.size(); k++)
-                if (best[k].score < best[lo].score) lo = k;
-            best.erase(best.begin() + (long)lo);
-            best_node.erase(best_node.begin() + (long)lo);
-        }
-        window_candidate_t c;
-        c.pose = seed;
-        c.pose.linear() = Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ()).toRotationMatrix() * seed.linear();
-        c.pose.translation() += Eigen::Vector3d(nd.dx * voxel, nd.dy * voxel, 0);
-        c.score = nd.bound;
-        best.push_back(c);
-        best_node.push_back(nd);
+        if ((int)best.size() >= candidates)
+            best.erase(std::min_element(best.begin(), best.end(),
+                                        [](const Node &p, const Node &q) { return p.bound < q.bound; }));
+        best.push_back(nd);
     }
 
     void branch(const Node &nd, int level)
@@ -128,7 +105,7 @@ void columns_build(const Level &fine, Columns *out)
     std::vector<uint64_t> keys;
     keys.reserve(fine.cells.size());
     for (size_t c = 0; c < fine.cells.size(); c++)
-        if (!is_ground(fine.cells[c])) keys.push_back(fine.keys[c]);
+        if (!fine.cells[c].ground()) keys.push_back(fine.keys[c]);
     fine.rough.for_each([&](uint64_t key, int32_t) { keys.push_back(key); });
     /* 1. blocks and their lowest voxel; 2. the bits */
     for (int pass = 0; pass < 2; pass++)
@@ -198,9 +175,10 @@ int window_search(const Columns &cols, const float *xyz, size_t n,
     if (qz.empty()) return 0;
     int64_t iz0 = *std::min_element(qz.begin(), qz.end()) - 1;
     Search S;
-    S.cfg = &cfg;
+    S.candidates = cfg.candidates;
+    S.distinct_m = cfg.distinct_m;
+    S.distinct_rad = cfg.distinct_rad;
     S.voxel = v;
-    S.seed = seed;
     std::vector<float> px, py;
     for (size_t i = 0; i < qz.size(); i++) {
         int64_t b = qz[i] - iz0;   /* >= 1 */
@@ -290,13 +268,11 @@ int window_search(const Columns &cols, const float *xyz, size_t n,
     int ny = std::max(1, (int)std::ceil(2 * range / step) + 1);
     if (range >= M_PI - 1e-9) ny = std::max(1, (int)std::ceil(2 * M_PI / step));   /* a full turn: -pi only */
     S.yaw_step = ny > 1 ? (range >= M_PI - 1e-9 ? 2 * M_PI / ny : 2 * range / (ny - 1)) : 0;
-    window_config_t c2 = cfg;
-    c2.yaw_range_rad = ny > 1 ? range : 0;
-    S.cfg = &c2;
+    const double yaw0 = ny > 1 ? -range : 0;   /* yaw of index 0, from the seed's */
     S.cell.resize((size_t)ny * S.m);
     std::vector<Node> roots;
     for (int j = 0; j < ny; j++) {
-        double yaw = j * S.yaw_step - c2.yaw_range_rad, c = std::cos(yaw), s = std::sin(yaw);
+        double yaw = yaw0 + j * S.yaw_step, c = std::cos(yaw), s = std::sin(yaw);
         int32_t *cj = &S.cell[(size_t)j * S.m];
         for (size_t i = 0; i < S.m; i++) {
             double x = ts.x() + c * px[i] - s * py[i], y = ts.y() + s * px[i] + c * py[i];
@@ -313,9 +289,16 @@ int window_search(const Columns &cols, const float *xyz, size_t n,
     /* 4. best first: a block whose bound cannot beat the candidates held is skipped */
     std::stable_sort(roots.begin(), roots.end(), [](const Node &p, const Node &q) { return p.bound > q.bound; });
     for (const Node &r : roots) S.branch(r, H);
-    *out = S.best;
-    std::stable_sort(out->begin(), out->end(),
-                     [](const window_candidate_t &p, const window_candidate_t &q) { return p.score > q.score; });
+    std::stable_sort(S.best.begin(), S.best.end(), [](const Node &p, const Node &q) { return p.bound > q.bound; });
+    for (const Node &nd : S.best) {
+        window_candidate_t c;
+        c.pose = seed;
+        c.pose.linear() = Eigen::AngleAxisd(yaw0 + nd.yaw * S.yaw_step, Eigen::Vector3d::UnitZ()).toRotationMatrix() *
+                          seed.linear();
+        c.pose.translation() += Eigen::Vector3d(nd.dx * v, nd.dy * v, 0);
+        c.score = nd.bound;
+        out->push_back(c);
+    }
     /* a clear winner is refined alone; near-equals (a road alike both ways) are all tried */
     while (out->size() > 1 && out->back().score < cfg.close_ratio * out->front().score) out->pop_back();
     return (int)out->size();
