@@ -360,15 +360,12 @@ void pb_reg_downsample(const float *xyz, size_t n, const pb_reg_config_t *cfg, s
     }
 }
 
-int pb_reg_align(const pb_regmap_t *map, const float *xyz, size_t n, const Eigen::Isometry3d &guess,
-                 const pb_reg_config_t *cfg, pb_reg_result_t *res, pb_err_t *err)
+namespace {
+
+/* Steps 2-4 of pb_reg_align on points already reduced by step 1 (res started). */
+int align_points(const pb_regmap_t *map, const std::vector<float> &pts, const Eigen::Isometry3d &guess,
+                 const pb_reg_config_t *cfg, pb_reg_result_t *res)
 {
-    pb_reg_config_t def;
-    if (!cfg) cfg = (pb_reg_config_default(&def), &def);
-    if (!start_result(map, xyz, n, guess, res, err)) return res->status;
-    /* 1. downsample the scan (range filter + adaptive voxel grid) */
-    std::vector<float> pts;
-    pb_reg_downsample(xyz, n, cfg, &pts);
     size_t m = pts.size() / 3;
     Params pa = params_of(cfg);
     /* 2. fine level from the guess: robust point-to-plane Gauss-Newton, gate
@@ -435,6 +432,20 @@ int pb_reg_align(const pb_regmap_t *map, const float *xyz, size_t n, const Eigen
     return res->status;
 }
 
+}  // namespace
+
+int pb_reg_align(const pb_regmap_t *map, const float *xyz, size_t n, const Eigen::Isometry3d &guess,
+                 const pb_reg_config_t *cfg, pb_reg_result_t *res, pb_err_t *err)
+{
+    pb_reg_config_t def;
+    if (!cfg) cfg = (pb_reg_config_default(&def), &def);
+    if (!start_result(map, xyz, n, guess, res, err)) return res->status;
+    /* 1. downsample the scan (range filter + adaptive voxel grid) */
+    std::vector<float> pts;
+    pb_reg_downsample(xyz, n, cfg, &pts);
+    return align_points(map, pts, guess, cfg, res);
+}
+
 int pb_reg_align_global(const pb_regmap_t *map, const float *xyz, size_t n, const Eigen::Isometry3d &seed,
                         double radius_m, double yaw_range_rad, const pb_reg_config_t *cfg, pb_reg_result_t *res,
                         pb_err_t *err)
@@ -445,6 +456,7 @@ int pb_reg_align_global(const pb_regmap_t *map, const float *xyz, size_t n, cons
     /* 1. the sweep reduced once, for the search and the refinements */
     std::vector<float> pts;
     pb_reg_downsample(xyz, n, cfg, &pts);
+    if (pts.empty()) return res->status = PB_REG_FEW_POINTS;
     /* 2. every position and yaw of the window scored on the map's structure; the best
      *    few distinct ones kept */
     window_config_t wc;
@@ -455,44 +467,44 @@ int pb_reg_align_global(const pb_regmap_t *map, const float *xyz, size_t n, cons
     window_search(map->columns, pts.data(), pts.size() / 3, seed, wc, &cand, &scored);
     /* no structure in the window (an open square): the seed is all there is */
     if (cand.empty()) cand.push_back({ seed, 0 });
-    /* 3. near-equal candidates are told apart on 2/5 of the points (every 2.5th): each is
-     *    within a cell or two and a yaw step of its minimum, so this refinement skips the
-     *    coarse retry. The one with the most inliers (or the only one) is refined on all
-     *    the points as any guess is: a wide window (a sparse moving start searches 20 m
-     *    around its seeds) can leave the best cell a few metres from the minimum. A
-     *    refinement that ran out of steps (a weakly held direction, as along a street)
-     *    goes on from its result. */
+    /* 3. the candidates are refined on 2/5 of the points (every 2.5th), without the
+     *    coarse retry (each is within a cell and a yaw step of its minimum) and to steps
+     *    of a millimetre or two (enough to rank them): near-equals (a road alike both
+     *    ways) are told apart by their inliers. The best is then refined on all the
+     *    points from the wide gate, as any guess is: the gate's narrowing settles closer
+     *    to the truth than a start at the narrow gate, and a wide window (a sparse
+     *    moving start searches 20 m around its seeds) can leave the best cell metres
+     *    from the minimum (the coarse retry). A refinement that ran out of steps (a
+     *    weakly held direction, as along a street) goes on from its result. */
+    std::vector<float> sub;
+    for (size_t i = 0; 5 * i / 2 < pts.size() / 3; i++) {
+        const float *q = &pts[3 * (5 * i / 2)];
+        sub.insert(sub.end(), q, q + 3);
+    }
+    pb_reg_config_t quick = *cfg;
+    quick.coarse_iterations = 0;
+    quick.step_eps_m = 3 * cfg->step_eps_m;
+    quick.step_eps_rad = 3 * cfg->step_eps_rad;
     int total_it = 0;
-    auto refine = [&](const std::vector<float> &p, const Eigen::Isometry3d &from, const pb_reg_config_t *c,
-                      pb_reg_result_t *r) {
-        pb_reg_align(map, p.data(), p.size() / 3, from, c, r, err);
-        total_it += r->iterations;
-        if (r->status == PB_REG_MAX_ITER) {
-            Eigen::Isometry3d again = r->pose;
-            pb_reg_align(map, p.data(), p.size() / 3, again, c, r, err);
-            total_it += r->iterations;
-        }
-    };
+    double most = -1;
     Eigen::Isometry3d from = cand[0].pose;
-    if (cand.size() > 1) {
-        std::vector<float> sub;
-        for (size_t i = 0; 5 * i / 2 < pts.size() / 3; i++) {
-            const float *q = &pts[3 * (5 * i / 2)];
-            sub.insert(sub.end(), q, q + 3);
-        }
-        pb_reg_config_t quick = *cfg;
-        quick.coarse_iterations = 0;
-        double most = -1;
-        for (const window_candidate_t &c : cand) {
-            pb_reg_result_t r;
-            refine(sub, c.pose, &quick, &r);
-            if (r.status >= 0 && r.status != PB_REG_FEW_POINTS && r.inlier_fraction > most) {
-                most = r.inlier_fraction;
-                from = r.pose;
-            }
+    for (const window_candidate_t &c : cand) {
+        pb_reg_result_t r;
+        if (!start_result(map, sub.data(), sub.size() / 3, c.pose, &r, err)) break;
+        align_points(map, sub, c.pose, &quick, &r);
+        total_it += r.iterations;
+        if (r.status != PB_REG_FEW_POINTS && r.inlier_fraction > most) {
+            most = r.inlier_fraction;
+            from = r.pose;
         }
     }
-    refine(pts, from, cfg, res);
+    align_points(map, pts, from, cfg, res);
+    total_it += res->iterations;
+    if (res->status == PB_REG_MAX_ITER) {
+        Eigen::Isometry3d again = res->pose;
+        align_points(map, pts, again, cfg, res);
+        total_it += res->iterations;
+    }
     res->iterations = total_it;
     return res->status;
 }

@@ -16,6 +16,19 @@ int32_t block_of(const Columns &cols, int64_t bx, int64_t by)
     return voxel_key(bx, by, 0, &key) ? cols.index.find(key) : -1;
 }
 
+/* o[x] = a[x] | b[x] and o[x] |= a[x] | b[x] for x < n, n a multiple of 8: the level
+ * grids are built a row at a time in whole vectors */
+inline void or2(uint32_t *__restrict o, const uint32_t *__restrict a, const uint32_t *__restrict b, int n)
+{
+    for (int x0 = 0; x0 < n; x0 += 8)
+        for (int k = 0; k < 8; k++) o[x0 + k] = a[x0 + k] | b[x0 + k];
+}
+inline void or2_into(uint32_t *__restrict o, const uint32_t *__restrict a, const uint32_t *__restrict b, int n)
+{
+    for (int x0 = 0; x0 < n; x0 += 8)
+        for (int k = 0; k < 8; k++) o[x0 + k] |= a[x0 + k] | b[x0 + k];
+}
+
 /* A node of the search: positions [dx, dx + 2^level) x [dy, dy + 2^level) in cells
  * from the seed, at one yaw; bound = its score at that level. */
 struct Node {
@@ -24,8 +37,9 @@ struct Node {
 
 struct Search {
     int candidates = 0;
+    double close_ratio = 1;
     double distinct_m = 0, distinct_rad = 0;
-    int nx = 0, W = 0;
+    int nx = 0, W = 0;                         /* the grids' row stride (cells); window half-width */
     std::vector<std::vector<uint32_t>> grid;   /* per level: column masks OR-ed over 2^level cells */
     std::vector<uint32_t> mask;                /* per point: its height voxel and the two beside it */
     std::vector<int32_t> cell;                 /* per yaw, per point: grid index at offset (0, 0) */
@@ -43,12 +57,14 @@ struct Search {
         return s;
     }
 
-    int threshold() const
+    /* a node is worth opening when it can beat the lowest candidate held (once there
+     * are enough) and can still make the share of the best that is kept in the end */
+    bool worth(int bound) const
     {
-        if ((int)best.size() < candidates) return 0;
-        int lo = best[0].bound;
-        for (const Node &b : best) lo = std::min(lo, b.bound);
-        return lo;
+        int lo = best.empty() ? 0 : best[0].bound, hi = 0;
+        for (const Node &b : best) lo = std::min(lo, b.bound), hi = std::max(hi, b.bound);
+        if ((int)best.size() < candidates) lo = 0;
+        return bound > lo && bound >= close_ratio * hi;
     }
 
     /* A leaf with a score above the threshold: it replaces the candidates near it
@@ -73,7 +89,7 @@ struct Search {
 
     void branch(const Node &nd, int level)
     {
-        if (nd.bound <= threshold()) return;
+        if (!worth(nd.bound)) return;
         if (level == 0) {
             if (nd.dx * nd.dx + nd.dy * nd.dy <= W * W) offer(nd);
             return;
@@ -176,6 +192,7 @@ int window_search(const Columns &cols, const float *xyz, size_t n,
     int64_t iz0 = *std::min_element(qz.begin(), qz.end()) - 1;
     Search S;
     S.candidates = cfg.candidates;
+    S.close_ratio = cfg.close_ratio;
     S.distinct_m = cfg.distinct_m;
     S.distinct_rad = cfg.distinct_rad;
     S.voxel = v;
@@ -208,10 +225,12 @@ int window_search(const Columns &cols, const float *xyz, size_t n,
     int H = 0;
     while ((1 << H) < 2 * S.W + 1 && H < 6) H++;
     int rc = (int)std::ceil(r_far * inv) + 1;
-    S.nx = 2 * (rc + S.W) + 2 + (1 << H);
-    const int nx = S.nx;
+    /* nx x nx cells, nx whole vectors; each row is followed by 8 empty cells, so that
+     * reading a few cells past a row's end reads nothing */
+    const int nx = (2 * (rc + S.W) + 2 + (1 << H) + 7) & ~7;
+    S.nx = nx + 8;
     const int64_t gx0 = fast_floor(ts.x() * inv) - rc - S.W, gy0 = fast_floor(ts.y() * inv) - rc - S.W;
-    S.grid.assign((size_t)H + 1, std::vector<uint32_t>((size_t)nx * nx, 0u));
+    S.grid.assign((size_t)H + 1, std::vector<uint32_t>((size_t)nx * S.nx, 0u));
     const int B = Columns::kBlock;
     std::vector<uint32_t> &g0 = S.grid[0];
     for (int64_t bx = floor_div(gx0, B); bx <= floor_div(gx0 + nx - 1, B); bx++)
@@ -228,39 +247,35 @@ int window_search(const Columns &cols, const float *xyz, size_t n,
                     int64_t x = bx * B + i - gx0;
                     if (x < 0 || x >= nx) continue;
                     uint32_t b = blk.bits[j * B + i];
-                    g0[(size_t)(y * nx + x)] = sh >= 0 ? b << sh : b >> -sh;
+                    g0[(size_t)(y * S.nx + x)] = sh >= 0 ? b << sh : b >> -sh;
                 }
             }
         }
     {
         /* a surface on a cell border puts its points in either cell: a point counts in
-         * its cell or a face neighbour's */
+         * its cell or a face neighbour's (rows at a time: no test per cell) */
         std::vector<uint32_t> d(g0.size(), 0u);
-        for (int y = 0; y < nx; y++)
-            for (int x = 0; x < nx; x++) {
-                uint32_t a = g0[(size_t)(y * nx + x)];
-                if (x > 0) a |= g0[(size_t)(y * nx + x - 1)];
-                if (x + 1 < nx) a |= g0[(size_t)(y * nx + x + 1)];
-                if (y > 0) a |= g0[(size_t)((y - 1) * nx + x)];
-                if (y + 1 < nx) a |= g0[(size_t)((y + 1) * nx + x)];
-                d[(size_t)(y * nx + x)] = a;
-            }
+        for (int y = 0; y < nx; y++) {
+            const uint32_t *r = &g0[(size_t)y * S.nx];
+            const uint32_t *up = y > 0 ? r - S.nx : r, *dn = y + 1 < nx ? r + S.nx : r;
+            uint32_t *o = &d[(size_t)y * S.nx];
+            or2(o, up, dn, nx);
+            or2_into(o, r, r + 1, nx);
+            or2_into(o + 8, r + 7, r + 7, nx - 8);
+            for (int x = 1; x < 8; x++) o[x] |= r[x - 1];
+        }
         g0.swap(d);
     }
     for (int h = 1; h <= H; h++) {
         const std::vector<uint32_t> &lo = S.grid[(size_t)h - 1];
         std::vector<uint32_t> &hi = S.grid[(size_t)h];
         int s = 1 << (h - 1);
-        for (int y = 0; y < nx; y++)
-            for (int x = 0; x < nx; x++) {
-                uint32_t a = lo[(size_t)(y * nx + x)];
-                if (x + s < nx) a |= lo[(size_t)(y * nx + x + s)];
-                if (y + s < nx) {
-                    a |= lo[(size_t)((y + s) * nx + x)];
-                    if (x + s < nx) a |= lo[(size_t)((y + s) * nx + x + s)];
-                }
-                hi[(size_t)(y * nx + x)] = a;
-            }
+        for (int y = 0; y < nx; y++) {
+            const uint32_t *a = &lo[(size_t)y * S.nx], *b = y + s < nx ? a + (size_t)s * S.nx : a;
+            uint32_t *o = &hi[(size_t)y * S.nx];
+            or2(o, a, b, nx);
+            or2_into(o, a + s, b + s, s < 8 ? nx : nx - s);
+        }
     }
     /* 3. yaws a cell apart at the farthest point; each yaw's points as grid cells */
     double step = r_far > v ? 2 * std::asin(0.5 * v / r_far) : 0.5;
@@ -277,7 +292,7 @@ int window_search(const Columns &cols, const float *xyz, size_t n,
         for (size_t i = 0; i < S.m; i++) {
             double x = ts.x() + c * px[i] - s * py[i], y = ts.y() + s * px[i] + c * py[i];
             int64_t cx = fast_floor(x * inv) - gx0, cy = fast_floor(y * inv) - gy0;
-            cj[i] = (int32_t)(cy * nx + cx);
+            cj[i] = (int32_t)(cy * S.nx + cx);
         }
         for (int dx = -S.W; dx <= S.W; dx += 1 << H)
             for (int dy = -S.W; dy <= S.W; dy += 1 << H) {
