@@ -87,11 +87,11 @@ def test_gnss_start_tracks_accurately_and_deterministically(drive, tmp_path):
     r = lb.score_run(drive["drive"], out1)
     n_scans = sum(1 for _ in read_log(drive["drive"], {"LIDAR_SCAN"}))
     assert r["poses"] == n_scans, "one POSE per sweep"
-    # bounds ~3x the figures measured on this drive (23 Nov 2026; replay is deterministic):
-    # tracking after 0.2 s, median 0.011 m, p99 0.020 m, yaw p99 0.006 deg
+    # bounds ~3x the figures measured on this drive (27 Nov 2026; replay is deterministic):
+    # tracking after 0.2 s, median 0.005 m, p99 0.009 m, yaw p99 0.006 deg
     assert r["first_tracking_s"] <= 0.6, r
     assert r["lost_after_tracking"] == 0 and r["not_tracking_after"] == 0
-    assert r["t_median"] < 0.033 and r["t_p99"] < 0.06 and r["yaw_p99"] < 0.02, r
+    assert r["t_median"] < 0.015 and r["t_p99"] < 0.03 and r["yaw_p99"] < 0.02, r
     assert r["pred_rate_hz"] >= 190, r
     st = last_status_msg(out1)
     assert st.module == "localizer"
@@ -124,8 +124,15 @@ def test_lidar_gap_runs_on_prediction(drive, tmp_path):
     gap = poses[(poses[:, 0] > t0 + 4.3e6) & (poses[:, 0] < t0 + 7e6)]
     assert len(gap) >= 20, "POSE goes on during the gap"
     assert set(gap[:, 5]) == {2}, "degraded while the LiDAR is missing"
-    _, et, _ = lb.errors_vs_truth(gap, drive["gt"])
-    assert et[-1] < 0.25, et[-1]     # measured 0.085 m after the gap
+    pg, _, _ = lb.errors_vs_truth(gap, drive["gt"])
+    t = pg[-1, 0]
+    eh = math.hypot(pg[-1, 1] - np.interp(t, drive["gt"][:, 0], drive["gt"][:, 1]),
+                    pg[-1, 2] - np.interp(t, drive["gt"][:, 0], drive["gt"][:, 2]))
+    ez = abs(pg[-1, 3] - np.interp(t, drive["gt"][:, 0], drive["gt"][:, 3]))
+    # measured at the gap's end 0.031 m across the ground and 0.129 m in height: 4 s into
+    # the drive the accelerometer's vertical bias is not yet learnt, and nothing but the
+    # sweeps holds the height (the body pitches, so CAN speed says nothing of it)
+    assert eh < 0.1 and ez < 0.4, (eh, ez)
     after = poses[poses[:, 0] >= t0 + 7e6]
     assert after[1, 5] == 1 or after[0, 5] == 1, "tracking again within 2 sweeps"
     assert counters(last_status_msg(out)).get("lidar_gap") == 1
@@ -143,7 +150,7 @@ def test_wrong_initial_pose_is_reported_lost_and_relocalized(drive, tmp_path):
     back = np.nonzero(after[lost[0]:, 5] == 1)[0]
     assert len(back) and (after[lost[0] + back[0], 0] - tj) <= 1e6, "relocalized within 1 s (measured 0.3 s)"
     _, et, _ = lb.errors_vs_truth(after[after[:, 5] == 1], drive["gt"])
-    assert et.max() < 0.06, ("never tracking at the wrong pose (measured max 0.020 m)", et.max())
+    assert et.max() < 0.03, ("never tracking at the wrong pose (measured max 0.009 m)", et.max())
 
 
 def test_gnss_jump_is_not_followed(drive, tmp_path):
@@ -153,7 +160,7 @@ def test_gnss_jump_is_not_followed(drive, tmp_path):
     localize(drive, flog, out)
     r = lb.score_run(drive["drive"], out)
     assert r["lost_after_tracking"] == 0 and r["not_tracking_after"] == 0
-    assert r["t_p99"] < 0.06, r      # measured 0.020 m
+    assert r["t_p99"] < 0.03, r      # measured 0.009 m
     assert counters(last_status_msg(out)).get("gnss_outlier", 0) > 0
 
 
@@ -176,7 +183,7 @@ def test_bad_input_is_counted_not_fatal(drive, tmp_path):
     s = statuses(out)
     assert s[-1] == 1 and 3 not in s, "keeps tracking through bad input"
     r = lb.score_run(drive["drive"], out)
-    assert r["t_p99"] < 0.06, r      # measured 0.021 m
+    assert r["t_p99"] < 0.03, r      # measured 0.010 m
 
 
 @pytest.mark.parametrize("what", ["missing", "corrupt", "no-site"])
@@ -214,7 +221,7 @@ def test_tiles_of_another_map_are_refused(drive, tmp_path):
     (site / "map.tiles").unlink()
     p = localize(drive, drive["log"], out, site=site)
     assert "no map.tiles" in p.stderr
-    assert lb.score_run(drive["drive"], out)["t_p99"] < 0.06     # measured 0.020 m
+    assert lb.score_run(drive["drive"], out)["t_p99"] < 0.03     # measured 0.009 m
 
 
 def run_rss(args):
@@ -256,9 +263,9 @@ def test_default_site_is_paged(drive, tmp_path):
     c = counters(last_status_msg(out))
     assert c.get("map_tile_loaded", 0) > 0, c
     r = lb.score_run(drive["drive"], out)
-    # measured: tracking after 0.2 s, median 0.011 m, p99 0.020 m
+    # measured: tracking after 0.2 s, median 0.005 m, p99 0.009 m
     assert r["first_tracking_s"] <= 0.6 and r["lost_after_tracking"] == 0, r
-    assert r["t_median"] < 0.033 and r["t_p99"] < 0.06, r
+    assert r["t_median"] < 0.015 and r["t_p99"] < 0.03, r
     # measured: peak RSS 52 MB on this 12 s drive, 59-64 MB on the 232 s lap (the whole map
     # held: about 167 MB, 356 MB peak while loading map.pcd); 150 MB is the target
     print(f"default site, GNSS start, 12 s: peak RSS {peak:.1f} MB")
@@ -540,7 +547,7 @@ def test_lidar_outage_is_lost_by_time_then_recovers(drive, tmp_path):
     k = first_tracking(back)
     assert k is not None and back[k, 0] - (t0 + 8e6) <= 1e6, "tracking within 1 s of the return (measured 0.3 s)"
     _, et, _ = lb.errors_vs_truth(back[k:][back[k:, 5] == 1], drive["gt"])
-    assert et.max() < 0.06, et.max()     # measured 0.020 m
+    assert et.max() < 0.02, et.max()     # measured 0.007 m
     assert counters(last_status_msg(out)).get("lidar_outage") == 1
     assert len(scans) > 0
 
@@ -552,7 +559,7 @@ def test_gnss_clock_offset_is_found_reported_and_taken_out(drive, tmp_path):
     r = lb.score_run(drive["drive"], out)
     # measured: tracking 0.x s after the first sweep
     assert r["first_tracking_s"] <= 0.6, r     # measured 0.2 s
-    assert r["lost_after_tracking"] == 0 and r["t_p99"] < 0.06, r     # measured 0.020 m
+    assert r["lost_after_tracking"] == 0 and r["t_p99"] < 0.03, r     # measured 0.009 m
     st = last_status_msg(out)
     assert counters(st).get("gnss_clock_offset", 0) >= 1
     from portobello import status_t
@@ -584,7 +591,7 @@ def test_clock_step_back_carries_the_pose_over(drive, tmp_path):
     gt_new = drive["gt"].copy()
     gt_new[:, 0] -= 10e6
     _, et, _ = lb.errors_vs_truth(after[after[:, 5] == 1], gt_new)
-    assert len(et) > 30 and et.max() < 0.06, et.max()       # measured: max 0.020 m over 69 POSE
+    assert len(et) > 30 and et.max() < 0.03, et.max()       # measured: max 0.009 m over 69 POSE
     # POSE_PREDICTED at every IMU sample across the step: measured 1 missing (2378 of 2379;
     # the samples that showed the step before it was taken are dropped as out of order)
     imu = lb.read_channel_times(flog, "IMU")

@@ -10,7 +10,8 @@
  *   predict_cv      no IMU: constant velocity and turn rate (LiDAR-only mode)
  *   update_pose     a base pose in map from scan matching, 6x6 covariance
  *   update_speed    CAN speed as forward speed of the base origin plus the
- *                   non-holonomic constraint (no lateral, no vertical speed)
+ *                   non-holonomic constraint (no sideways speed; the vertical is left
+ *                   free, as the body pitches on its suspension)
  *   update_position a position of a point fixed on the vehicle (GNSS antenna); the
  *                   pipeline does not fuse GNSS yet (it uses it to start and to check)
  *
@@ -40,7 +41,7 @@ struct filter_config_t {
     double cv_yaw_accel_noise = 1.0; /* rad/s^2 */
     /* CAN speed: forward speed sigma, and the non-holonomic constraint sigma */
     double speed_sigma = 0.05;       /* m/s */
-    double nhc_sigma = 0.05;         /* m/s lateral and vertical */
+    double nhc_sigma = 0.05;         /* m/s sideways */
     double speed_scale = 1.0;        /* CAN speed reads this times the true speed */
 };
 
@@ -82,7 +83,8 @@ double filter_pose_innovation(const filter_t *f, const Eigen::Isometry3d &map_fr
                               Eigen::Matrix<double, 6, 1> *residual);
 
 /* Fuses the CAN forward speed of the base origin (m/s, along base x) with the
- * non-holonomic constraint. Returns the squared Mahalanobis distance (3 dof). */
+ * non-holonomic constraint (no sideways speed). Returns the squared Mahalanobis
+ * distance (2 dof). */
 double filter_update_speed(filter_t *f, double speed_mps);
 
 /* Outputs: base pose, base-origin velocity in map, angular rate in base. */
