@@ -27,7 +27,7 @@ const int CX = 128, CZ = 16;
 /* ground: lowest return per 1 m cell, a 256 x 256 ring; forgotten after GROUND_TTL sweeps */
 const int GN = 256, GROUND_TTL = 50;
 /* direction bins of a sweep for clearing */
-const int NAZ = 1024, NEL = 128;
+const int NAZ_LOG2 = 10, NAZ = 1 << NAZ_LOG2, NEL = 128;
 const int BATCH = 256;                      /* points binned together (bins_of) */
 const int SORT_EVERY = 16;                  /* sweeps between sorts of the occupied list */
 const double EL_MIN = -0.55, EL_MAX = 0.55;  /* rad (+-31.5 deg) */
@@ -302,29 +302,36 @@ static inline int bin_of(const occ_sweep_t *sw, double px, double py, double pz,
  * ranges. The divisions and square roots were most of the cost of binning a sweep and of
  * the clearing pass (100,000 points a sweep). */
 #if defined(__x86_64__)
-__attribute__((target("avx"))) static void bins_of_avx(const occ_sweep_t *sw, const double *px, const double *py,
+#define AVX __attribute__((target("avx")))
+/* a where m, else b, by bit masks (GCC turned _mm256_blendv_pd into a branch per lane) */
+AVX static inline __m256d select_pd(__m256d m, __m256d a, __m256d b) { return _mm256_or_pd(_mm256_and_pd(m, a), _mm256_andnot_pd(m, b)); }
+
+/* fast_atan2(y, x), lane by lane */
+AVX static inline __m256d atan2_pd(__m256d y, __m256d x)
+{
+    const __m256d zero = _mm256_setzero_pd(), sign = _mm256_set1_pd(-0.0);
+    const __m256d ax = _mm256_andnot_pd(sign, x), ay = _mm256_andnot_pd(sign, y);
+    const __m256d mx = _mm256_max_pd(ay, ax), mn = _mm256_min_pd(ay, ax);
+    const __m256d a = _mm256_div_pd(mn, mx), s = _mm256_mul_pd(a, a);
+    __m256d q = _mm256_add_pd(_mm256_mul_pd(_mm256_set1_pd(-0.0134804), s), _mm256_set1_pd(0.0574773));
+    q = _mm256_sub_pd(_mm256_mul_pd(q, s), _mm256_set1_pd(0.1212390));
+    q = _mm256_add_pd(_mm256_mul_pd(q, s), _mm256_set1_pd(0.1956359));
+    q = _mm256_sub_pd(_mm256_mul_pd(q, s), _mm256_set1_pd(0.3329946));
+    q = _mm256_add_pd(_mm256_mul_pd(_mm256_mul_pd(q, s), a), _mm256_mul_pd(_mm256_set1_pd(0.9999956), a));
+    q = select_pd(_mm256_cmp_pd(ay, ax, _CMP_GT_OQ), _mm256_sub_pd(_mm256_set1_pd(M_PI_2), q), q);
+    q = select_pd(_mm256_cmp_pd(x, zero, _CMP_LT_OQ), _mm256_sub_pd(_mm256_set1_pd(M_PI), q), q);
+    q = _mm256_xor_pd(q, _mm256_and_pd(_mm256_cmp_pd(y, zero, _CMP_LT_OQ), sign));
+    return _mm256_andnot_pd(_mm256_cmp_pd(mx, zero, _CMP_EQ_OQ), q);
+}
+
+AVX static void bins_of_avx(const occ_sweep_t *sw, const double *px, const double *py,
                                                         const double *pz, int n, int *bin, double *range, double rmax)
 {
     const double *R = sw->mid_rot;
     const __m256d o0 = _mm256_set1_pd(sw->mid_origin[0]), o1 = _mm256_set1_pd(sw->mid_origin[1]), o2 = _mm256_set1_pd(sw->mid_origin[2]);
     __m256d r[9];
     for (int k = 0; k < 9; k++) r[k] = _mm256_set1_pd(R[k]);
-    const __m256d zero = _mm256_setzero_pd(), sign = _mm256_set1_pd(-0.0), vmax = _mm256_set1_pd(rmax);
-    /* fast_atan2(y, x), lane by lane */
-    auto atan2v = [&](__m256d y, __m256d x) __attribute__((target("avx"))) {
-        const __m256d ax = _mm256_andnot_pd(sign, x), ay = _mm256_andnot_pd(sign, y);
-        const __m256d mx = _mm256_max_pd(ay, ax), mn = _mm256_min_pd(ay, ax);
-        const __m256d a = _mm256_div_pd(mn, mx), s = _mm256_mul_pd(a, a);
-        __m256d q = _mm256_add_pd(_mm256_mul_pd(_mm256_set1_pd(-0.0134804), s), _mm256_set1_pd(0.0574773));
-        q = _mm256_sub_pd(_mm256_mul_pd(q, s), _mm256_set1_pd(0.1212390));
-        q = _mm256_add_pd(_mm256_mul_pd(q, s), _mm256_set1_pd(0.1956359));
-        q = _mm256_sub_pd(_mm256_mul_pd(q, s), _mm256_set1_pd(0.3329946));
-        q = _mm256_add_pd(_mm256_mul_pd(_mm256_mul_pd(q, s), a), _mm256_mul_pd(_mm256_set1_pd(0.9999956), a));
-        q = _mm256_blendv_pd(q, _mm256_sub_pd(_mm256_set1_pd(M_PI_2), q), _mm256_cmp_pd(ay, ax, _CMP_GT_OQ));
-        q = _mm256_blendv_pd(q, _mm256_sub_pd(_mm256_set1_pd(M_PI), q), _mm256_cmp_pd(x, zero, _CMP_LT_OQ));
-        q = _mm256_blendv_pd(q, _mm256_xor_pd(q, sign), _mm256_cmp_pd(y, zero, _CMP_LT_OQ));
-        return _mm256_blendv_pd(q, zero, _mm256_cmp_pd(mx, zero, _CMP_EQ_OQ));
-    };
+    const __m256d vmax = _mm256_set1_pd(rmax);
     int i = 0;
     for (; i + 4 <= n; i += 4) {
         const __m256d d0 = _mm256_sub_pd(_mm256_loadu_pd(px + i), o0), d1 = _mm256_sub_pd(_mm256_loadu_pd(py + i), o1),
@@ -335,22 +342,23 @@ __attribute__((target("avx"))) static void bins_of_avx(const occ_sweep_t *sw, co
         const __m256d h = _mm256_sqrt_pd(_mm256_add_pd(_mm256_mul_pd(lx, lx), _mm256_mul_pd(ly, ly)));
         const __m256d rg = _mm256_sqrt_pd(_mm256_add_pd(_mm256_mul_pd(h, h), _mm256_mul_pd(lz, lz)));
         _mm256_storeu_pd(range + i, rg);
-        const __m256d el = atan2v(lz, h);
+        const __m256d el = atan2_pd(lz, h);
         const __m256d out = _mm256_or_pd(_mm256_cmp_pd(rg, vmax, _CMP_GT_OQ),
                                          _mm256_or_pd(_mm256_cmp_pd(el, _mm256_set1_pd(EL_MIN), _CMP_LT_OQ),
                                                       _mm256_cmp_pd(el, _mm256_set1_pd(EL_MAX), _CMP_GE_OQ)));
         const __m128i e = _mm256_cvttpd_epi32(_mm256_mul_pd(_mm256_div_pd(_mm256_sub_pd(el, _mm256_set1_pd(EL_MIN)),
                                                                           _mm256_set1_pd(EL_MAX - EL_MIN)), _mm256_set1_pd(NEL)));
-        const __m128i a = _mm256_cvttpd_epi32(_mm256_mul_pd(_mm256_div_pd(_mm256_add_pd(atan2v(ly, lx), _mm256_set1_pd(M_PI)),
+        const __m128i a = _mm256_cvttpd_epi32(_mm256_mul_pd(_mm256_div_pd(_mm256_add_pd(atan2_pd(ly, lx), _mm256_set1_pd(M_PI)),
                                                                           _mm256_set1_pd(2 * M_PI)), _mm256_set1_pd(NAZ)));
-        alignas(16) int ev[4], av[4];
-        _mm_store_si128((__m128i *)ev, e);
-        _mm_store_si128((__m128i *)av, a);
-        const int om = _mm256_movemask_pd(out);
-        for (int l = 0; l < 4; l++) bin[i + l] = (om >> l) & 1 ? -1 : ev[l] * NAZ + (av[l] & (NAZ - 1));
+        /* e * NAZ + (a & (NAZ - 1)), -1 outside (the low halves of the lanes of out: all ones or none) */
+        const __m128 o32 = _mm_shuffle_ps(_mm256_castps256_ps128(_mm256_castpd_ps(out)), _mm256_extractf128_ps(_mm256_castpd_ps(out), 1),
+                                          _MM_SHUFFLE(2, 0, 2, 0));
+        const __m128i b = _mm_add_epi32(_mm_slli_epi32(e, NAZ_LOG2), _mm_and_si128(a, _mm_set1_epi32(NAZ - 1)));
+        _mm_storeu_si128((__m128i *)(bin + i), _mm_or_si128(b, _mm_castps_si128(o32)));
     }
     for (; i < n; i++) bin[i] = bin_of(sw, px[i], py[i], pz[i], &range[i], rmax);
 }
+#undef AVX
 #endif
 
 static void bins_of(const occ_sweep_t *sw, const double *px, const double *py, const double *pz, int n, int *bin,
