@@ -1,5 +1,6 @@
 /* NAV-PVT and NMEA GGA/RMC -> fixes, with the NMEA fallback rule. */
 #include "gnss_driver.h"
+#include "pb_math.h"
 
 #include <math.h>
 #include <stdio.h>
@@ -72,12 +73,6 @@ static int32_t tod_diff(int32_t a, int32_t b)
     return d;
 }
 
-static int64_t floor_div(int64_t a, int64_t b)
-{
-    int64_t q = a / b;
-    return (a % b != 0 && ((a < 0) != (b < 0))) ? q - 1 : q;
-}
-
 static void count_error(gnss_driver_t *d, gnss_counter_t c, int64_t offset, const char *detail)
 {
     d->counters[c]++;
@@ -135,7 +130,7 @@ void gnss_fix_from_nav_pvt(const gnss_nav_pvt_t *p, gnss_fix_out_t *f)
         f->has_utime = 1;
         int64_t days = gnss_days_from_civil(p->year, p->month, p->day);
         int64_t s = days * 86400 + p->hour * 3600 + p->min * 60 + p->sec;
-        f->utime = s * 1000000 + floor_div((int64_t)p->nano + 500, 1000);
+        f->utime = s * 1000000 + pb_floor_div((int64_t)p->nano + 500, 1000);
     }
 }
 
@@ -287,7 +282,7 @@ static void on_ubx(void *user, int64_t offset, const gnss_ubx_frame_t *fr)
     f.offset = offset;
     if (f.has_utime) {
         int32_t tod = (int32_t)(((int64_t)p.hour * 3600000 + p.min * 60000 + p.sec * 1000 +
-                                 floor_div((int64_t)p.nano + 500000, 1000000)) % DAY_MS);
+                                 pb_floor_div((int64_t)p.nano + 500000, 1000000)) % DAY_MS);
         if (tod < 0) tod += DAY_MS;
         /* NMEA of this same epoch already waiting: NMEA leads on this stream. */
         if (d->pending.active && abs(tod_diff(d->pending.tod_ms, tod)) < SAME_EPOCH_MS) {

@@ -8,9 +8,9 @@ by GNSS alone. Prints per drive and overall: translation error vs GROUND_TRUTH w
 tracking (median, p99, max), yaw p99, LOST count, time to tracking, sweep latency
 p50/p99 (wall ms per sweep from LIDAR_SCAN decode to POSE published, tracking sweeps),
 POSE_PREDICTED rate. Baseline in the same run on the same logs: the LiDAR-only mode
-(--no-imu --no-speed) on every drive the fused mode ran. Then the fault scenarios (seed 5, normal,
-40 s): a 3 s LiDAR gap, a 20 m jump (a wrong INITIAL_POSE, see docs/localizer.md), a
-GNSS-only start and an --initial-pose start without GNSS.
+(--no-imu --no-speed) on every drive the fused mode ran. Then the fault scenarios (seed
+5, normal, 40 s): a 3 s LiDAR gap, a 20 m jump (a wrong INITIAL_POSE, see
+docs/localizer.md), a GNSS-only start and an --initial-pose start without GNSS.
 Then starts like real life (bench_starts.py): mid-drive moving starts from 100 guesses
 within 3 m / 15 degrees (fused and LiDAR-only on the same cuts), GNSS 5 m off with its
 clock 2 s off, and no prior at all (global search in the full site map); and the faults

@@ -34,8 +34,8 @@ void tile_of_key(uint64_t key, int64_t per_tile, int32_t *tx, int32_t *ty)
 {
     int64_t ix, iy, iz;
     voxel_unkey(key, &ix, &iy, &iz);
-    *tx = (int32_t)floor_div(ix, per_tile);
-    *ty = (int32_t)floor_div(iy, per_tile);
+    *tx = (int32_t)pb_floor_div(ix, per_tile);
+    *ty = (int32_t)pb_floor_div(iy, per_tile);
 }
 
 template <class T> void put(std::vector<uint8_t> *o, size_t at, T v) { std::memcpy(o->data() + at, &v, sizeof v); }

@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstdint>
 #include <vector>
+#include "pb_math.h"
 
 namespace pb_loc {
 
@@ -23,27 +24,13 @@ inline bool voxel_key(int64_t ix, int64_t iy, int64_t iz, uint64_t *key)
     return true;
 }
 
-/* floor() without a libm call (x86-64 without SSE4.1 has no floor instruction);
- * |v| < 1e6 is checked by the caller. */
-inline int64_t fast_floor(double v)
-{
-    int64_t i = (int64_t)v;
-    return i - (v < (double)i);
-}
-
-/* floor(a / b) for b > 0 (C++ division truncates towards zero) */
-inline int64_t floor_div(int64_t a, int64_t b)
-{
-    return a / b - (a % b != 0 && a < 0);
-}
-
 /* Voxel of a point; false for non-finite or far-out coordinates. */
 inline bool voxel_index_of(double x, double y, double z, double inv_voxel, int64_t *ix, int64_t *iy, int64_t *iz)
 {
     double vx = x * inv_voxel, vy = y * inv_voxel, vz = z * inv_voxel;
     if (!(std::fabs(vx) < 1e6 && std::fabs(vy) < 1e6 && std::fabs(vz) < 1e6))   /* also NaN */
         return false;
-    *ix = fast_floor(vx); *iy = fast_floor(vy); *iz = fast_floor(vz);
+    *ix = pb_floor_i64(vx); *iy = pb_floor_i64(vy); *iz = pb_floor_i64(vz);
     return true;
 }
 

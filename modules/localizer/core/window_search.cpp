@@ -128,7 +128,7 @@ void columns_build(const Level &fine, Columns *out)
         for (uint64_t key : keys) {
             int64_t ix, iy, iz;
             voxel_unkey(key, &ix, &iy, &iz);
-            int64_t bx = floor_div(ix, B), by = floor_div(iy, B);
+            int64_t bx = pb_floor_div(ix, B), by = pb_floor_div(iy, B);
             uint64_t bkey;
             if (!voxel_key(bx, by, 0, &bkey)) continue;
             bool inserted;
@@ -229,12 +229,12 @@ int window_search(const Columns &cols, const float *xyz, size_t n,
      * reading a few cells past a row's end reads nothing */
     const int nx = (2 * (rc + S.W) + 2 + (1 << H) + 7) & ~7;
     S.nx = nx + 8;
-    const int64_t gx0 = fast_floor(ts.x() * inv) - rc - S.W, gy0 = fast_floor(ts.y() * inv) - rc - S.W;
+    const int64_t gx0 = pb_floor_i64(ts.x() * inv) - rc - S.W, gy0 = pb_floor_i64(ts.y() * inv) - rc - S.W;
     S.grid.assign((size_t)H + 1, std::vector<uint32_t>((size_t)nx * S.nx, 0u));
     const int B = Columns::kBlock;
     std::vector<uint32_t> &g0 = S.grid[0];
-    for (int64_t bx = floor_div(gx0, B); bx <= floor_div(gx0 + nx - 1, B); bx++)
-        for (int64_t by = floor_div(gy0, B); by <= floor_div(gy0 + nx - 1, B); by++) {
+    for (int64_t bx = pb_floor_div(gx0, B); bx <= pb_floor_div(gx0 + nx - 1, B); bx++)
+        for (int64_t by = pb_floor_div(gy0, B); by <= pb_floor_div(gy0 + nx - 1, B); by++) {
             int32_t k = block_of(cols, bx, by);
             if (k < 0) continue;
             const Columns::Block &blk = cols.blocks[(size_t)k];
@@ -291,7 +291,7 @@ int window_search(const Columns &cols, const float *xyz, size_t n,
         int32_t *cj = &S.cell[(size_t)j * S.m];
         for (size_t i = 0; i < S.m; i++) {
             double x = ts.x() + c * px[i] - s * py[i], y = ts.y() + s * px[i] + c * py[i];
-            int64_t cx = fast_floor(x * inv) - gx0, cy = fast_floor(y * inv) - gy0;
+            int64_t cx = pb_floor_i64(x * inv) - gx0, cy = pb_floor_i64(y * inv) - gy0;
             cj[i] = (int32_t)(cy * S.nx + cx);
         }
         for (int dx = -S.W; dx <= S.W; dx += 1 << H)

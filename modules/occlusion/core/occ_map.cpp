@@ -1,6 +1,7 @@
 /* occ_map: OctoMap occupancy in a rolling window, cleared by the sweep's own view;
  * eye-ray queries (see occ_map.h). */
 #include "occ_map.h"
+#include "pb_math.h"
 
 #include <octomap/OcTree.h>
 
@@ -244,11 +245,6 @@ void occ_map_size(const occ_map_t *m, int64_t *leaves, int64_t *bytes)
     *bytes = (int64_t)m->fine.memoryUsage() + (int64_t)m->observed.memoryUsage();
 }
 
-/* (int)std::floor(v) for |v| < 2^31. GCC makes floor a sequence of some 20 instructions
- * for the baseline x86-64 (no SSE4.1 round): the hit loop's floors were a tenth of the
- * instructions of a sweep's integration. */
-static inline int ifloor(double v) { const int i = (int)v; return i - (v < (double)i); }
-static inline int32_t ifloorf(float v) { const int32_t i = (int32_t)v; return i - (v < (float)i); }
 
 static inline bool key_of(double inv, double x, double y, double z, OcTreeKey &k)
 {
@@ -256,7 +252,7 @@ static inline bool key_of(double inv, double x, double y, double z, OcTreeKey &k
     for (int i = 0; i < 3; i++) {
         const double v = c[i] * inv;
         if (!(v >= -KEY_ORIGIN && v < KEY_ORIGIN)) return false;    /* floor(v) + KEY_ORIGIN outside the keys */
-        k[i] = (uint16_t)(ifloor(v) + KEY_ORIGIN);
+        k[i] = (uint16_t)((int32_t)pb_floor_i64(v) + KEY_ORIGIN);
     }
     return true;
 }
@@ -269,7 +265,7 @@ static ground_cell_t *ground_cell(occ_map_t *m, int32_t cx, int32_t cy)
 /* Lowest return over the 3 x 3 cells around (x, y) seen within GROUND_TTL sweeps; +inf if none. */
 static float ground_z(occ_map_t *m, float x, float y)
 {
-    int32_t cx = ifloorf(x), cy = ifloorf(y);
+    int32_t cx = (int32_t)pb_floor_i64(x), cy = (int32_t)pb_floor_i64(y);
     float z = INFINITY;
     for (int dy = -1; dy <= 1; dy++)
         for (int dx = -1; dx <= 1; dx++) {
@@ -740,7 +736,8 @@ static void sub_add(occ_map_t *m, size_t bi, const OcTreeKey &k, double x, doubl
     if (by * by > main2) v |= by > 0 ? SUB_YP : SUB_YN;
     {   /* the halo: the half column gap around the return, where it reaches into the neighbouring voxels */
         const double w = 0.5 * m->col_gap * r * m->inv_res * SUB;   /* sub-cells */
-        const int x0 = ifloor(ux - w), x1 = ifloor(ux + w), y0 = ifloor(uy - w), y1 = ifloor(uy + w);
+        const int x0 = (int)pb_floor_i64(ux - w), x1 = (int)pb_floor_i64(ux + w);
+        const int y0 = (int)pb_floor_i64(uy - w), y1 = (int)pb_floor_i64(uy + w);
         if (x0 < 0 || y0 < 0 || x1 >= SUB || y1 >= SUB) {
             /* the neighbours it reaches (|x0|, x1 - SUB < SUB: never past them), in the order
              * -1..1 in y, then in x (the order slots are taken in matters when the table fills) */
@@ -829,7 +826,7 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
             if (b >= 0 && r < m->bin_min[b]) m->bin_min[b] = (float)r;
             if (r * r > r2max) continue;
             const float x = (float)bx[j], y = (float)by[j], z = (float)bz[j];
-            int32_t cx = ifloorf(x), cy = ifloorf(y);
+            int32_t cx = (int32_t)pb_floor_i64(x), cy = (int32_t)pb_floor_i64(y);
             ground_cell_t *g = ground_cell(m, cx, cy);
             if (g->cx != cx || g->cy != cy || m->sweep - g->sweep >= GROUND_TTL) *g = ground_cell_t{ cx, cy, m->sweep, z };
             else { g->minz = std::min(g->minz, z); g->sweep = m->sweep; }
@@ -856,7 +853,7 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
         double dx = x - o[0], dy = y - o[1], dz = z - o[2];
         if (dx * dx + dy * dy + dz * dz > r2max) continue;
         s.points++;
-        const int32_t cx = ifloorf(x), cy = ifloorf(y);
+        const int32_t cx = (int32_t)pb_floor_i64(x), cy = (int32_t)pb_floor_i64(y);
         ground_memo_t &gm = m->ground_memo[(size_t)(cy & (GMEMO - 1)) * GMEMO + (cx & (GMEMO - 1))];
         if (gm.sweep != m->sweep || gm.cx != cx || gm.cy != cy) gm = ground_memo_t{ cx, cy, m->sweep, ground_z(m, x, y) };
         if (z < gm.z + c.ground_clearance_m) { s.ground++; continue; }
