@@ -67,7 +67,7 @@ struct Search {
         return bound > lo && bound >= close_ratio * hi;
     }
 
-    /* A leaf with a score above the threshold: it replaces the candidates near it
+    /* A leaf worth keeping (see worth): it replaces the candidates near it
      * that score less, or, when none is near, the lowest one. */
     void offer(const Node &nd)
     {
