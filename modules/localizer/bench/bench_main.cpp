@@ -343,6 +343,8 @@ int main(int argc, char **argv)
                             std::sqrt(r.covariance(1, 1)), std::sqrt(r.covariance(5, 5)) / deg);
             }
             if (sub) ours_track_sub.add(ms, r.pose, sc.gt);
+            size_t off0 = ours_off.terr.size();
+            std::vector<double> off_inl;
             for (const Eigen::Isometry3d &start : sc.off_starts) {
                 c0 = pb_clock_thread_cpu_ms();
                 if (global)
@@ -352,7 +354,21 @@ int main(int argc, char **argv)
                     pb_reg_align(map, sc.pts.data(), sc.pts.size() / 3, start, &rcfg, &r, &err);
                 ms = pb_clock_thread_cpu_ms() - c0;
                 ours_off.add(ms, r.pose, sc.gt);
+                off_inl.push_back(r.inlier_fraction);
                 if (sub) ours_off_sub.add(ms, r.pose, sc.gt);
+            }
+            if (verbose && !sc.off_starts.empty()) {
+                // do the failures of a scan's starts cluster (the scan) or scatter (the search)?
+                int ok = 0;
+                std::string errs;
+                for (size_t i = off0; i < ours_off.terr.size(); i++) {
+                    ok += ours_off.terr[i] < g_converge;
+                    char b[32];
+                    std::snprintf(b, sizeof b, " %.2f (%.3f)", ours_off.terr[i], off_inl[i - off0]);
+                    errs += b;
+                }
+                std::printf("scan %d off starts: %d/%zu within %.2f m; errors (inliers)%s\n", sc.index, ok, sc.off_starts.size(),
+                            g_converge, errs.c_str());
             }
         }
         if (sub) {

@@ -1,0 +1,201 @@
+/* odometry: see odometry.h. */
+#include "odometry.h"
+
+#include <algorithm>
+#include <cmath>
+#include <vector>
+
+#include "deskew.h"
+#include "voxel_hash.h"
+
+using Vec3 = Eigen::Vector3d;
+
+namespace {
+struct Cell {
+    double sum[3];
+    int n;
+};
+}  // namespace
+
+struct pb_odom {
+    pb_odom_config_t cfg;
+    pb_reg_config_t reg;
+    int64_t sweeps = 0;
+    int64_t last_utime = 0;
+    Eigen::Isometry3d last_pose = Eigen::Isometry3d::Identity();
+    Vec3 v = Vec3::Zero(), w = Vec3::Zero();   /* base frame, of the last step */
+    bool motion_known = false;
+    /* the local map: cell -> centroid accumulator */
+    pb_loc::VoxelHash index;
+    std::vector<Cell> cells;
+    /* the registration map and where it was built */
+    pb_regmap_t *regmap = nullptr;
+    Vec3 built_at = Vec3::Zero();
+    int64_t built_sweep = 0;
+    std::vector<float> scratch;
+};
+
+/* A cell stops taking points after this many: its centroid is settled, and a cell
+ * that keeps being hit (the road under the car) costs nothing more. */
+static const int kCellFull = 20;
+
+pb_odom_t *pb_odom_create(const pb_odom_config_t *cfg, const pb_reg_config_t *reg)
+{
+    pb_odom_t *o = new pb_odom();
+    if (cfg) o->cfg = *cfg;
+    if (reg) o->reg = *reg;
+    else pb_reg_config_default(&o->reg);
+    return o;
+}
+
+void pb_odom_destroy(pb_odom_t *o)
+{
+    if (!o) return;
+    pb_regmap_destroy(o->regmap);
+    delete o;
+}
+
+static Eigen::Isometry3d exp_step(const Vec3 &v, const Vec3 &w, double dt)
+{
+    Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+    double a = w.norm() * dt;
+    if (a > 1e-12) T.linear() = Eigen::AngleAxisd(a, w.normalized()).toRotationMatrix();
+    T.translation() = v * dt;
+    return T;
+}
+
+static void add_to_map(pb_odom_t *o, const std::vector<float> &xyz, const Eigen::Isometry3d &pose)
+{
+    const double inv = 1.0 / o->cfg.cell_m;
+    for (size_t i = 0; i + 2 < xyz.size(); i += 3) {
+        Vec3 p = pose * Vec3(xyz[i], xyz[i + 1], xyz[i + 2]);
+        uint64_t key;
+        if (!pb_loc::voxel_key_of(p.x(), p.y(), p.z(), inv, &key)) continue;
+        bool fresh;
+        int32_t k = o->index.insert(key, (int32_t)o->cells.size(), &fresh);
+        if (fresh) o->cells.push_back(Cell{{0, 0, 0}, 0});
+        Cell &c = o->cells[(size_t)k];
+        if (c.n >= kCellFull) continue;
+        c.sum[0] += p.x(); c.sum[1] += p.y(); c.sum[2] += p.z();
+        c.n++;
+    }
+}
+
+/* Drops the cells beyond the local radius and builds the registration map from the rest. */
+static int rebuild(pb_odom_t *o, const Vec3 &at, pb_err_t *err)
+{
+    const double r2 = o->cfg.local_radius_m * o->cfg.local_radius_m;
+    std::vector<Cell> kept;
+    kept.reserve(o->cells.size());
+    o->scratch.clear();
+    for (const Cell &c : o->cells) {
+        Vec3 p(c.sum[0] / c.n, c.sum[1] / c.n, c.sum[2] / c.n);
+        if ((p.head<2>() - at.head<2>()).squaredNorm() > r2) continue;
+        kept.push_back(c);
+        o->scratch.insert(o->scratch.end(), {(float)p.x(), (float)p.y(), (float)p.z()});
+    }
+    /* the index again, over the kept cells in their order (deterministic) */
+    o->cells.swap(kept);
+    o->index.reset(o->cells.size());
+    const double inv = 1.0 / o->cfg.cell_m;
+    for (size_t i = 0; i < o->cells.size(); i++) {
+        uint64_t key;
+        bool fresh;
+        if (pb_loc::voxel_key_of(o->scratch[3 * i], o->scratch[3 * i + 1], o->scratch[3 * i + 2], inv, &key))
+            o->index.insert(key, (int32_t)i, &fresh);
+    }
+    pb_regmap_t *m = pb_regmap_from_points(o->scratch.data(), o->cells.size(), nullptr, err);
+    if (!m) return -1;
+    pb_regmap_destroy(o->regmap);
+    o->regmap = m;
+    o->built_at = at;
+    o->built_sweep = o->sweeps;
+    return 0;
+}
+
+int pb_odom_add(pb_odom_t *o, int64_t utime, const float *xyz, const int32_t *offset_us, size_t n,
+                pb_odom_result_t *out, pb_err_t *err)
+{
+    if (n == 0) return pb_err_set(err, "sweep at utime %lld has no points", (long long)utime), -1;
+    /* The pose refers to the middle of the sweep: deskewed about its middle, a wrong
+     * motion distorts the sweep evenly both ways and does not shift the match. (About
+     * its start, the match moves by half the motion's error, the next step's motion
+     * errs the other way, and the two feed each other into an oscillation.) */
+    int32_t off_min = offset_us[0], off_max = offset_us[0];
+    for (size_t i = 1; i < n; i++) {
+        off_min = std::min(off_min, offset_us[i]);
+        off_max = std::max(off_max, offset_us[i]);
+    }
+    const int32_t ref_off = (int32_t)(((int64_t)off_min + off_max) / 2);
+    const int64_t t_ref = utime + ref_off;
+    if (o->sweeps > 0 && t_ref <= o->last_utime)
+        return pb_err_set(err, "sweep at utime %lld is not after the last one", (long long)utime), -1;
+    const double dt = o->sweeps > 0 ? (t_ref - o->last_utime) * 1e-6 : 0;
+    if (dt > o->cfg.max_gap_s) o->motion_known = false;
+
+    // 1. prediction: the last step's motion carried on (standing still while unknown)
+    Vec3 v = o->motion_known ? o->v : Vec3::Zero(), w = o->motion_known ? o->w : Vec3::Zero();
+    Eigen::Isometry3d pred = o->last_pose * exp_step(v, w, dt);
+
+    // 2. the sweep deskewed to its utime with that motion
+    std::vector<float> pts(xyz, xyz + 3 * n);
+    pb_deskew(pts.data(), offset_us, n, ref_off, v.data(), w.data());
+
+    pb_odom_result_t r;
+    r.utime = t_ref;
+    r.v_base = v;
+    r.w_base = w;
+    r.inlier_fraction = NAN;
+    r.rebuilt = 0;
+    if (o->sweeps == 0) {
+        r.status = PB_ODOM_FIRST;
+        r.pose = Eigen::Isometry3d::Identity();
+    } else {
+        // 3. registration from the prediction; a search around it when that is not enough
+        pb_reg_config_t tcfg = o->reg;
+        tcfg.prior_sigma_m = o->motion_known ? o->cfg.prior_sigma_m : 0;
+        pb_reg_result_t m;
+        int rc = o->motion_known ? pb_reg_align(o->regmap, pts.data(), n, pred, &tcfg, &m, err) : PB_REG_FEW_POINTS;
+        if (rc < 0) return -1;
+        r.status = PB_ODOM_TRACKED;
+        if (rc == PB_REG_FEW_POINTS || !(m.inlier_fraction >= o->cfg.min_inlier_fraction)) {
+            pb_reg_result_t g;
+            int rg = pb_reg_align_global(o->regmap, pts.data(), n, pred, o->cfg.search_radius_m,
+                                         o->cfg.search_yaw_deg * M_PI / 180, &o->reg, &g, err);
+            if (rg < 0) return -1;
+            if (rg != PB_REG_FEW_POINTS && (rc == PB_REG_FEW_POINTS || g.inlier_fraction > m.inlier_fraction)) {
+                m = g;
+                rc = rg;
+                r.status = PB_ODOM_SEARCHED;
+            }
+        }
+        if (rc == PB_REG_FEW_POINTS) {
+            r.status = PB_ODOM_PREDICTED;
+            r.pose = pred;
+        } else {
+            r.pose = m.pose;
+            r.inlier_fraction = m.inlier_fraction;
+            if (!(m.inlier_fraction >= o->cfg.min_inlier_fraction)) r.status = PB_ODOM_WEAK;
+        }
+        // 4. the step gives the motion for the next sweep
+        Eigen::Isometry3d step = o->last_pose.inverse() * r.pose;
+        Eigen::AngleAxisd aa(step.linear());
+        o->v = step.translation() / dt;
+        o->w = aa.axis() * (aa.angle() / dt);
+        o->motion_known = true;
+    }
+
+    // 5. the sweep into the local map; the registration map rebuilt every few metres
+    add_to_map(o, pts, r.pose);
+    o->sweeps++;
+    o->last_utime = t_ref;
+    o->last_pose = r.pose;
+    if (!o->regmap || (r.pose.translation() - o->built_at).norm() >= o->cfg.rebuild_m ||
+        o->sweeps - o->built_sweep >= o->cfg.rebuild_sweeps) {
+        if (rebuild(o, r.pose.translation(), err) != 0) return -1;
+        r.rebuilt = 1;
+    }
+    r.map_cells = (int64_t)o->cells.size();
+    *out = r;
+    return 0;
+}

@@ -1,0 +1,80 @@
+/* odometry: LiDAR odometry for the mapper. Each sweep is registered to a rolling
+ * local map of the sweeps before it, with the localizer's registration core
+ * (registration.h: point-to-plane Gauss-Newton on a voxel hash of local planes).
+ *
+ * Frames and units: points in `base` (metres; move LiDAR points with base <- lidar
+ * first), each with its time after the sweep's utime. Poses are map <- base at the
+ * middle of the sweep (result.utime); `map` is the base frame of the first sweep.
+ *
+ * Pipeline of pb_odom_add:
+ *   1. predict the pose at the sweep's middle from the last step's motion (constant
+ *      velocity; none yet on the first steps);
+ *   2. deskew the sweep to its middle with that motion;
+ *   3. register it to the local map from the prediction; when the motion is not yet
+ *      known or the match explains too little of the sweep, search around the
+ *      prediction instead (pb_reg_align_global) and keep the better;
+ *   4. the step from the last pose gives the next motion;
+ *   5. add the sweep's points to the local map (one centroid per cell), and every
+ *      few metres rebuild the registration map from the cells near the car.
+ *
+ * No I/O and no clock: the same sweeps give the same poses.
+ * Ownership: pb_odom_create returns an object the caller frees with pb_odom_destroy
+ * (NULL is a no-op). Inputs are copied; no pointer into them is kept. */
+#ifndef PB_MAPPER_ODOMETRY_H
+#define PB_MAPPER_ODOMETRY_H
+
+#include <stddef.h>
+#include <stdint.h>
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+#include "pb_err.h"
+#include "registration.h"
+
+/* The defaults stand beside each field (a value-initialised struct holds them). */
+typedef struct {
+    double cell_m = 0.25;            /* local map: one centroid per cell of this edge */
+    double local_radius_m = 100;     /* the registration map holds the cells within this of the car */
+    double rebuild_m = 10;           /* rebuild the registration map after the car moved this far ... */
+    int rebuild_sweeps = 30;         /* ... or after this many sweeps (the LiDAR sees far ahead: the
+                                      * map of 10 m ago still covers the sweep) */
+    double min_inlier_fraction = 0.3;  /* a match explaining less than this is searched again */
+    double search_radius_m = 10;     /* that search: within this of the prediction ... */
+    double search_yaw_deg = 30;      /* ... and this of its yaw */
+    double prior_sigma_m = 0.5;      /* spread of the constant-velocity prediction (registration.h) */
+    double max_gap_s = 1.0;          /* a longer gap between sweeps forgets the motion (searched again) */
+} pb_odom_config_t;
+
+/* How a sweep's pose was found (pb_odom_result_t.status). */
+enum {
+    PB_ODOM_FIRST = 0,      /* the first sweep: the map's origin */
+    PB_ODOM_TRACKED = 1,    /* registered from the prediction */
+    PB_ODOM_SEARCHED = 2,   /* registered after a search around the prediction */
+    PB_ODOM_WEAK = 3,       /* the best match still explained less than min_inlier_fraction:
+                             * kept (it is the best estimate there is), counted in the report */
+    PB_ODOM_PREDICTED = 4   /* no match at all (too few points): the prediction */
+};
+
+typedef struct {
+    int status;                   /* PB_ODOM_* */
+    int64_t utime;                /* the time the pose refers to: the middle of the sweep */
+    Eigen::Isometry3d pose;       /* map <- base at utime */
+    Eigen::Vector3d v_base;       /* the motion the sweep was deskewed with: m/s ... */
+    Eigen::Vector3d w_base;       /* ... and rad/s, both in base */
+    double inlier_fraction;       /* of the match (registration.h); NaN for FIRST/PREDICTED */
+    int64_t map_cells;            /* cells in the local map after this sweep */
+    int rebuilt;                  /* 1 if the registration map was rebuilt after this sweep */
+} pb_odom_result_t;
+
+typedef struct pb_odom pb_odom_t;
+
+/* cfg NULL = defaults; reg NULL = registration defaults. */
+pb_odom_t *pb_odom_create(const pb_odom_config_t *cfg, const pb_reg_config_t *reg);
+void pb_odom_destroy(pb_odom_t *o);
+
+/* Adds one sweep: n points (xyz interleaved, base frame) with their offsets after utime
+ * (microseconds). Sweeps must come in time order. Returns 0 with *out filled, or -1 with
+ * err set (n == 0, a sweep not after the last one); the odometry is then unchanged. */
+int pb_odom_add(pb_odom_t *o, int64_t utime, const float *xyz, const int32_t *offset_us, size_t n,
+                pb_odom_result_t *out, pb_err_t *err);
+
+#endif

@@ -1,0 +1,274 @@
+// mapper: a recorded drive (LCM log) -> a site's prior map, by LiDAR odometry.
+//
+// Pass 1 runs the odometry (core/odometry.h) over every LIDAR_SCAN and keeps one pose
+// per sweep; pass 2 reads the sweeps again and places every point with the pose at its
+// own time (pb_map_builder_add_timed: the sweep's motion undone between the poses), one
+// centroid per voxel. Writes OUT/map.pcd, OUT/trajectory.tum (base in map) and
+// OUT/report.json.
+#include <algorithm>
+#include <cerrno>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <string>
+#include <sys/stat.h>
+#include <vector>
+
+#include "odometry.h"
+#include "pb_clock.h"
+#include "pb_err.h"
+#include "pb_log.h"
+#include "pb_map_build.h"
+#include "pb_opt.h"
+#include "pb_progress.h"
+#include "pb_scan.h"
+#include "pb_vehicle.h"
+#include "portobello_lidar_scan_t.h"
+
+static void usage(FILE *f)
+{
+    std::fprintf(f,
+        "usage: mapper --log DRIVE.lcm --out SITE_DIR [--vehicle FILE] [--voxel 0.15]\n"
+        "              [--scan-channel LIDAR_SCAN] [--quiet]\n"
+        "\n"
+        "Builds a prior map from a recorded drive by LiDAR odometry: every sweep is\n"
+        "registered to a rolling local map of the sweeps before it (the localizer's\n"
+        "registration), then every point is placed with the pose at its own time.\n"
+        "The map frame is the base frame of the first sweep.\n"
+        "Writes SITE_DIR/map.pcd (binary PCD, one point per voxel), SITE_DIR/trajectory.tum\n"
+        "(base in map at the middle of each sweep, TUM: t x y z qx qy qz qw) and SITE_DIR/report.json.\n"
+        "  --vehicle FILE      base <- lidar (default vehicles/prius2017.yaml; scans imported from\n"
+        "                      a dataset with their poses in the LiDAR frame: vehicles/lidar_mast.yaml)\n"
+        "  --voxel M           map.pcd voxel edge, metres (default 0.15)\n"
+        "  --scan-channel C    (default LIDAR_SCAN)\n"
+        "  --quiet             no progress bar, no summary\n"
+        "Exit 1 on error (unreadable or damaged log, no sweep, unwritable SITE_DIR).\n");
+}
+
+struct SweepPose {
+    int64_t utime;
+    Eigen::Isometry3d pose;
+    int status;
+    double inlier_fraction, cpu_ms;
+};
+
+static const char *kStatusName[] = {"first", "tracked", "searched", "weak", "predicted"};
+
+static pb_transform_t to_transform(const Eigen::Isometry3d &T)
+{
+    pb_transform_t t;
+    pb_reg_to_transform(T, &t);
+    return t;
+}
+
+static double pct(std::vector<double> v, double p)
+{
+    if (v.empty()) return NAN;
+    std::sort(v.begin(), v.end());
+    return v[std::min(v.size() - 1, (size_t)std::floor(p * (double)(v.size() - 1) + 0.5))];
+}
+
+/* Every LIDAR_SCAN of the log in turn: fn(utime, points in base, event) returns 0 or -1. */
+template <class F>
+static int for_each_sweep(const char *log_path, const char *scan_ch, const Eigen::Isometry3d &base_from_lidar,
+                          pb_progress_t *prog, F fn, long *empty, pb_err_t *err)
+{
+    pb_log_t *log = pb_log_open_read(log_path, err);
+    if (!log) return -1;
+    pb_points_t pts;
+    std::memset(&pts, 0, sizeof pts);
+    std::vector<float> xyz;
+    pb_event_t ev;
+    int rc, status = 0;
+    long seen = 0;
+    while ((rc = pb_log_next(log, &ev, err)) == 1) {
+        if (std::strcmp(ev.channel, scan_ch) != 0) continue;
+        if (prog) pb_progress_update(prog, seen);
+        seen++;
+        portobello_lidar_scan_t s;
+        if (portobello_lidar_scan_t_decode(ev.data, 0, ev.datalen, &s) < 0) {
+            pb_err_set(err, "%s: byte %lld: %s does not decode as lidar_scan_t", log_path, (long long)ev.offset,
+                       ev.channel);
+            status = -1;
+            break;
+        }
+        int n = pb_scan_points(&s, &pts, err);
+        int64_t utime = s.utime;
+        portobello_lidar_scan_t_decode_cleanup(&s);
+        if (n < 0) {
+            pb_err_prefix(err, "%s: byte %lld: ", log_path, (long long)ev.offset);
+            status = -1;
+            break;
+        }
+        if (n == 0) { (*empty)++; continue; }
+        xyz.resize(3 * (size_t)n);
+        for (int i = 0; i < n; i++) {
+            Eigen::Vector3d p = base_from_lidar * Eigen::Vector3d(pts.x[i], pts.y[i], pts.z[i]);
+            xyz[3 * i] = (float)p.x(); xyz[3 * i + 1] = (float)p.y(); xyz[3 * i + 2] = (float)p.z();
+        }
+        if (fn(utime, xyz, pts, ev, err) != 0) {
+            pb_err_prefix(err, "%s: byte %lld: ", log_path, (long long)ev.offset);
+            status = -1;
+            break;
+        }
+    }
+    if (rc < 0) status = -1;
+    pb_log_close(log, nullptr);
+    pb_points_free(&pts);
+    return status;
+}
+
+int main(int argc, char **argv)
+{
+    const char *log_path = nullptr, *out_dir = nullptr, *vehicle = PB_SOURCE_DIR "/vehicles/prius2017.yaml";
+    const char *scan_ch = "LIDAR_SCAN";
+    double voxel = 0.15;
+    int quiet = 0;
+    const pb_opt_t opts[] = {
+        PB_OPT_REQUIRED("log", &log_path), PB_OPT_REQUIRED("out", &out_dir), PB_OPT_STRING("vehicle", &vehicle),
+        PB_OPT_STRING("scan-channel", &scan_ch), PB_OPT_DOUBLE("voxel", &voxel, 0.01, 10),
+        PB_OPT_FLAG("quiet", &quiet, 1), PB_OPT_END,
+    };
+    int parsed = pb_opt_parse("mapper", opts, usage, 0, argc, argv);
+    if (parsed >= 0) return parsed;
+    auto wall0 = std::chrono::steady_clock::now();
+    pb_err_t err;
+    pb_vehicle_t veh;
+    if (pb_vehicle_load(vehicle, &veh, &err) != 0) {
+        std::fprintf(stderr, "mapper: %s\n", err.msg);
+        return 1;
+    }
+    const Eigen::Isometry3d base_from_lidar = pb_reg_from_transform(&veh.base_from_lidar);
+    if (mkdir(out_dir, 0777) != 0 && errno != EEXIST) {
+        std::fprintf(stderr, "mapper: %s: cannot create: %s\n", out_dir, std::strerror(errno));
+        return 1;
+    }
+
+    // Count the sweeps first, for the progress bars.
+    long total = 0;
+    if (pb_log_read_track(log_path, nullptr, nullptr, scan_ch,
+                          [](const pb_event_t *, void *u, pb_err_t *) { (*(long *)u)++; return 0; }, &total, &err)) {
+        std::fprintf(stderr, "mapper: %s\n", err.msg);
+        return 1;
+    }
+    if (total == 0) {
+        std::fprintf(stderr, "mapper: %s: no %s in the log\n", log_path, scan_ch);
+        return 1;
+    }
+
+    // Pass 1: odometry.
+    pb_odom_t *odom = pb_odom_create(nullptr, nullptr);
+    std::vector<SweepPose> traj;
+    traj.reserve((size_t)total);
+    long empty = 0, out_of_order = 0;
+    int64_t last_scan_utime = 0;
+    pb_progress_t prog;
+    pb_progress_start(&prog, "mapper: odometry", total, quiet);
+    int rc = for_each_sweep(log_path, scan_ch, base_from_lidar, &prog,
+        [&](int64_t utime, const std::vector<float> &xyz, const pb_points_t &pts, const pb_event_t &, pb_err_t *e) {
+            if (!traj.empty() && utime <= last_scan_utime) { out_of_order++; return 0; }
+            last_scan_utime = utime;
+            double c0 = pb_clock_thread_cpu_ms();
+            pb_odom_result_t r;
+            if (pb_odom_add(odom, utime, xyz.data(), pts.offset_us, xyz.size() / 3, &r, e) != 0) return -1;
+            traj.push_back({r.utime, r.pose, r.status, r.inlier_fraction, pb_clock_thread_cpu_ms() - c0});
+            return 0;
+        }, &empty, &err);
+    pb_odom_destroy(odom);
+    if (rc != 0) {
+        if (prog.tty && !quiet) std::fputc('\n', stderr);
+        std::fprintf(stderr, "mapper: %s\n", err.msg);
+        return 1;
+    }
+    pb_progress_finish(&prog);
+    if (traj.size() < 2) {
+        std::fprintf(stderr, "mapper: %s: %zu usable sweep(s) on %s; a map needs two or more\n", log_path,
+                     traj.size(), scan_ch);
+        return 1;
+    }
+
+    // Pass 2: the map, every point with the pose at its time. The poses are at the sweeps'
+    // middles: the track is carried on by the first and last steps' motion to cover the
+    // first sweep's first half and the last one's second half.
+    pb_pose_track_t *track = pb_pose_track_create();
+    for (const SweepPose &s : traj) {
+        pb_transform_t t = to_transform(s.pose);
+        pb_pose_track_add(track, s.utime, &t);
+    }
+    for (int end = 0; end < 2; end++) {
+        const SweepPose &a = end ? traj[traj.size() - 2] : traj[1], &b = end ? traj.back() : traj[0];
+        pb_transform_t t = to_transform(b.pose * (a.pose.inverse() * b.pose));
+        pb_pose_track_add(track, b.utime + (b.utime - a.utime), &t);
+    }
+    pb_map_builder_t *map = pb_map_builder_create(voxel, &err);
+    pb_transform_t bl = veh.base_from_lidar;
+    long placed = 0, unplaced = 0, empty_again = 0;
+    pb_progress_start(&prog, "mapper: map", total, quiet);
+    rc = map ? for_each_sweep(log_path, scan_ch, Eigen::Isometry3d::Identity(), &prog,
+        [&](int64_t utime, const std::vector<float> &, const pb_points_t &pts, const pb_event_t &, pb_err_t *e) {
+            int r = pb_map_builder_add_timed(map, &pts, utime, track, &bl, e);
+            if (r < 0) return -1;
+            (r ? placed : unplaced)++;
+            return 0;
+        }, &empty_again, &err) : -1;
+    std::string map_path = std::string(out_dir) + "/map.pcd";
+    if (rc == 0) pb_progress_finish(&prog);
+    if (rc != 0 || pb_map_builder_write_pcd(map, map_path.c_str(), &err) != 0) {
+        std::fprintf(stderr, "mapper: %s\n", err.msg);
+        return 1;
+    }
+    pb_pose_track_destroy(track);
+
+    // The trajectory and the report.
+    std::string tum_path = std::string(out_dir) + "/trajectory.tum", rep_path = std::string(out_dir) + "/report.json";
+    FILE *tf = std::fopen(tum_path.c_str(), "w");
+    FILE *rf = tf ? std::fopen(rep_path.c_str(), "w") : nullptr;
+    if (!tf || !rf) {
+        std::fprintf(stderr, "mapper: %s: cannot write: %s\n", tf ? rep_path.c_str() : tum_path.c_str(),
+                     std::strerror(errno));
+        return 1;
+    }
+    long by_status[5] = {};
+    double path_m = 0;
+    std::vector<double> ms, inl;
+    for (size_t i = 0; i < traj.size(); i++) {
+        const SweepPose &s = traj[i];
+        Eigen::Quaterniond q(s.pose.linear());
+        const Eigen::Vector3d &p = s.pose.translation();
+        std::fprintf(tf, "%.6f %.6f %.6f %.6f %.9f %.9f %.9f %.9f\n", s.utime * 1e-6, p.x(), p.y(), p.z(), q.x(), q.y(),
+                     q.z(), q.w());
+        by_status[s.status]++;
+        if (i > 0) path_m += (p - traj[i - 1].pose.translation()).norm();
+        ms.push_back(s.cpu_ms);
+        if (std::isfinite(s.inlier_fraction)) inl.push_back(s.inlier_fraction);
+    }
+    double wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall0).count();
+    double span_s = (traj.back().utime - traj.front().utime) * 1e-6;
+    std::fprintf(rf, "{\n  \"log\": \"%s\",\n  \"scans\": %zu,\n  \"scans_in_log\": %ld,\n  \"empty_scans\": %ld,\n"
+                     "  \"out_of_order_scans\": %ld,\n",
+                 log_path, traj.size(), total, empty, out_of_order);
+    for (int k = 0; k < 5; k++) std::fprintf(rf, "  \"scans_%s\": %ld,\n", kStatusName[k], by_status[k]);
+    std::fprintf(rf,
+                 "  \"inlier_fraction_median\": %.4f,\n  \"inlier_fraction_p01\": %.4f,\n  \"path_m\": %.3f,\n"
+                 "  \"drive_s\": %.3f,\n  \"cpu_ms_per_scan_median\": %.3f,\n  \"cpu_ms_per_scan_p99\": %.3f,\n"
+                 "  \"wall_s\": %.3f,\n  \"map_points\": %lld,\n  \"map_voxel_m\": %.3f,\n  \"scans_placed\": %ld,\n"
+                 "  \"scans_unplaced\": %ld\n}\n",
+                 pct(inl, 0.5), pct(inl, 0.01), path_m, span_s, pct(ms, 0.5), pct(ms, 0.99), wall_s,
+                 (long long)pb_map_builder_size(map), voxel, placed, unplaced);
+    int bad = std::fclose(tf) != 0;
+    bad |= std::fclose(rf) != 0;
+    if (bad) {
+        std::fprintf(stderr, "mapper: %s: write failed\n", out_dir);
+        return 1;
+    }
+    if (!quiet)
+        std::fprintf(stderr,
+                     "mapper: %zu sweeps over %.1f m in %.1f s of drive (tracked %ld, searched %ld, weak %ld, "
+                     "predicted %ld); odometry %.2f ms per sweep (median CPU), %lld map points; %.1f s wall\n",
+                     traj.size(), path_m, span_s, by_status[PB_ODOM_TRACKED], by_status[PB_ODOM_SEARCHED],
+                     by_status[PB_ODOM_WEAK], by_status[PB_ODOM_PREDICTED], pct(ms, 0.5),
+                     (long long)pb_map_builder_size(map), wall_s);
+    pb_map_builder_destroy(map);
+    return 0;
+}

@@ -1,0 +1,138 @@
+"""mapper: a site's map from a recorded drive, by LiDAR odometry (bounds about three times
+the figures these tests measured, each commented; the module's figures come from
+`make bench-mapper`).
+
+The drive is simdrive's (seed 7, normal, 12 s) cut to begin 4 s in, so the car is already
+moving at its first sweep; the mapper gets nothing but LIDAR_SCAN."""
+import filecmp
+import json
+import shutil
+
+import lcm
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation, Slerp
+
+import sys
+from conftest import BIN, ROOT, run
+
+sys.path.insert(0, str(ROOT / "modules" / "localizer" / "bench"))
+import locbench as lb  # noqa: E402
+
+
+def cut_log(src, dst, start_s, channels=None):
+    """Copies the events from start_s seconds after the first one (only `channels` if given)."""
+    w = lcm.EventLog(str(dst), "w", overwrite=True)
+    t0 = None
+    for ev in lcm.EventLog(str(src), "r"):
+        t0 = ev.timestamp if t0 is None else t0
+        if ev.timestamp - t0 >= start_s * 1e6 and (channels is None or ev.channel in channels):
+            w.write_event(ev.timestamp, ev.channel, ev.data)
+    w.close()
+    return dst
+
+
+def read_tum(path):
+    a = np.loadtxt(path, ndmin=2)
+    return a[:, 0], a[:, 1:4], Rotation.from_quat(a[:, 4:8])
+
+
+@pytest.fixture(scope="module")
+def drive(tmp_path_factory):
+    d = tmp_path_factory.mktemp("mapdrive")
+    lb.make_drive(d, 7, "normal", 12)
+    cut = cut_log(d / "drive.lcm", d / "moving.lcm", 4.0, {"LIDAR_SCAN", "GROUND_TRUTH"})
+    run([BIN / "pose-to-tum", "--log", cut, "--out", d / "gt.tum", "--channel", "GROUND_TRUTH"])
+    out = d / "site"
+    p = run([BIN / "mapper", "--log", cut, "--out", out])
+    return {"dir": d, "log": cut, "gt": d / "gt.tum", "out": out, "stderr": p.stderr}
+
+
+def truth_in_map_frame(drive, t):
+    """GROUND_TRUTH interpolated at times t, in the mapper's frame (the first pose's base):
+    positions and rotations, and the site <- mapper transform."""
+    gt_t, gt_p, gt_r = read_tum(drive["gt"])
+    assert gt_t[0] <= t[0] and t[-1] <= gt_t[-1], "mapper poses outside GROUND_TRUTH"
+    pos = np.stack([np.interp(t, gt_t, gt_p[:, k]) for k in range(3)], axis=1)
+    rot = Slerp(gt_t, gt_r)(t)
+    r0_inv = rot[0].inv()
+    return r0_inv.apply(pos - pos[0]), r0_inv * rot, (rot[0], pos[0])
+
+
+def test_help_and_bad_options():
+    p = run([BIN / "mapper", "--help"])
+    assert "--log" in p.stdout and "trajectory.tum" in p.stdout
+    p = run([BIN / "mapper", "--out", "x"], check=False)
+    assert p.returncode == 2 and "--log" in p.stderr
+
+
+def test_trajectory_from_a_moving_start(drive):
+    t, p, r = read_tum(drive["out"] / "trajectory.tum")
+    rep = json.loads((drive["out"] / "report.json").read_text())
+    assert rep["scans"] == rep["scans_in_log"] == len(t) == 80
+    assert rep["scans_weak"] == 0 and rep["scans_predicted"] == 0
+    truth_p, truth_r, _ = truth_in_map_frame(drive, t)
+    err = np.linalg.norm(p - truth_p, axis=1)
+    path = np.sum(np.linalg.norm(np.diff(truth_p, axis=0), axis=1))
+    yaw_err = np.abs((truth_r.inv() * r).as_rotvec()[:, 2]) * 180 / np.pi
+    # measured (27 Nov): path 55.1 m, error max 0.056 m (0.1 % of the path, at the end),
+    # yaw max 0.059 deg
+    assert path > 50
+    assert err.max() < 0.17, f"max {err.max():.3f} m over {path:.1f} m"
+    assert yaw_err.max() < 0.18, f"yaw max {yaw_err.max():.3f} deg"
+
+
+def test_map_lies_on_the_true_surfaces(drive):
+    """Every map point, moved into the site's frame with the truth's first pose, against the
+    default site's map (built from the same ray caster's world with every point kept)."""
+    pts = lb.read_pcd(drive["out"] / "map.pcd")[:, :3]
+    t, _, _ = read_tum(drive["out"] / "trajectory.tum")
+    _, _, (r0, p0) = truth_in_map_frame(drive, t)
+    in_site = r0.apply(pts) + p0
+    site = lb.read_pcd(ROOT / "maps" / "default" / "map.pcd")[:, :3]
+    lo, hi = in_site.min(axis=0) - 2, in_site.max(axis=0) + 2
+    site = site[np.all((site >= lo) & (site <= hi), axis=1)]
+    d, _ = cKDTree(site).query(in_site, distance_upper_bound=5.0)
+    far = np.mean(d > 0.15)
+    # measured (27 Nov): 650,991 points (0.15 m voxels), median distance 0.074 m (the site's
+    # map is itself voxelised), 16.5 % farther than 0.15 m: mostly traffic and the parked
+    # cars of drive day, which the site's map (mapping day) does not hold
+    assert len(pts) > 300000
+    assert np.median(d) < 0.22, f"median distance {np.median(d):.3f} m"
+    assert far < 0.33, f"{far:.3f} of {len(pts)} map points farther than 0.15 m from the site's map"
+
+
+def test_same_drive_same_map(drive, tmp_path):
+    run([BIN / "mapper", "--log", drive["log"], "--out", tmp_path, "--quiet"])
+    assert filecmp.cmp(tmp_path / "trajectory.tum", drive["out"] / "trajectory.tum", shallow=False)
+    assert filecmp.cmp(tmp_path / "map.pcd", drive["out"] / "map.pcd", shallow=False)
+
+
+def test_bad_input(drive, tmp_path):
+    p = run([BIN / "mapper", "--log", tmp_path / "missing.lcm", "--out", tmp_path / "o"], check=False)
+    assert p.returncode == 1 and "missing.lcm" in p.stderr
+    # no LIDAR_SCAN at all
+    gt_only = cut_log(drive["log"], tmp_path / "gt_only.lcm", 0, {"GROUND_TRUTH"})
+    p = run([BIN / "mapper", "--log", gt_only, "--out", tmp_path / "o"], check=False)
+    assert p.returncode == 1 and "no LIDAR_SCAN" in p.stderr
+    # a recording cut inside its last sweep (power loss): a map of what is there, and a warning
+    torn = tmp_path / "torn.lcm"
+    data = drive["log"].read_bytes()
+    torn.write_bytes(data[: len(data) // 2 + 1234])
+    p = run([BIN / "mapper", "--log", torn, "--out", tmp_path / "torn"], check=False)
+    assert p.returncode == 0 and "torn" in p.stderr
+    assert json.loads((tmp_path / "torn" / "report.json").read_text())["scans"] > 10
+    # a damaged byte in the middle: an error naming the byte, nothing written
+    bad = bytearray(data)
+    sync = data.find(b"\xed\xa1\xda\x01", len(data) // 2)   # an event header's sync word
+    bad[sync] ^= 0xFF
+    bad_log = tmp_path / "damaged.lcm"
+    bad_log.write_bytes(bytes(bad))
+    p = run([BIN / "mapper", "--log", bad_log, "--out", tmp_path / "dmg"], check=False)
+    assert p.returncode == 1 and "byte" in p.stderr, p.stderr
+    assert not (tmp_path / "dmg" / "map.pcd").exists()
+    # an output folder that cannot be made
+    (tmp_path / "file").write_text("x")
+    p = run([BIN / "mapper", "--log", drive["log"], "--out", tmp_path / "file" / "site"], check=False)
+    assert p.returncode == 1 and "file/site" in p.stderr
