@@ -36,6 +36,13 @@ static int range_image(const portobello_lidar_scan_t *s, pb_points_t *out, pb_er
     static const double I[16] = { 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1 };
     for (int i = 0; i < 16; i++) if (M[i] != I[i]) identity = 0;
     double n = s->beam_origin_m;
+    /* the beams' angles once per sweep, not per pixel: cos and sin of th = enc + azimuth by
+     * the angle sum (sin and cos were an eighth of a mapper's time) */
+    double ca[255], sa[255], cp[255], sp[255];
+    for (int r = 0; r < s->rows; r++) {
+        ca[r] = cos(s->beam_azimuth_rad[r]); sa[r] = sin(s->beam_azimuth_rad[r]);
+        cp[r] = cos(s->beam_altitude_rad[r]); sp[r] = sin(s->beam_altitude_rad[r]);
+    }
     int k = 0;
     for (int c = 0; c < s->cols; c++) {
         double enc = 2 * M_PI * (1.0 - (double)c / s->cols);
@@ -43,11 +50,11 @@ static int range_image(const portobello_lidar_scan_t *s, pb_points_t *out, pb_er
         for (int r = 0; r < s->rows; r++) {
             int32_t mm = s->range_mm[r * s->cols + c];
             if (mm <= 0) continue;
-            double R = mm * 1e-3, th = enc + s->beam_azimuth_rad[r], ph = s->beam_altitude_rad[r];
-            double cp = cos(ph);
-            double x = (R - n) * cos(th) * cp + n * ce;
-            double y = (R - n) * sin(th) * cp + n * se;
-            double z = (R - n) * sin(ph);
+            double R = mm * 1e-3;
+            double cth = ce * ca[r] - se * sa[r], sth = se * ca[r] + ce * sa[r];
+            double x = (R - n) * cth * cp[r] + n * ce;
+            double y = (R - n) * sth * cp[r] + n * se;
+            double z = (R - n) * sp[r];
             if (!identity) {
                 double X = M[0] * x + M[1] * y + M[2] * z + M[3];
                 double Y = M[4] * x + M[5] * y + M[6] * z + M[7];

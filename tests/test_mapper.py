@@ -76,11 +76,11 @@ def test_trajectory_from_a_moving_start(drive):
     err = np.linalg.norm(p - truth_p, axis=1)
     path = np.sum(np.linalg.norm(np.diff(truth_p, axis=0), axis=1))
     yaw_err = np.abs((truth_r.inv() * r).as_rotvec()[:, 2]) * 180 / np.pi
-    # measured (27 Nov): path 55.1 m, error max 0.056 m (0.1 % of the path, at the end),
-    # yaw max 0.059 deg
+    # measured (27 Nov): path 55.1 m, error max 0.062 m (0.1 % of the path), end 0.057 m,
+    # yaw max 0.075 deg
     assert path > 50
-    assert err.max() < 0.17, f"max {err.max():.3f} m over {path:.1f} m"
-    assert yaw_err.max() < 0.18, f"yaw max {yaw_err.max():.3f} deg"
+    assert err.max() < 0.19, f"max {err.max():.3f} m over {path:.1f} m"
+    assert yaw_err.max() < 0.22, f"yaw max {yaw_err.max():.3f} deg"
 
 
 def test_map_lies_on_the_true_surfaces(drive):

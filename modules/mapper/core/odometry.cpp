@@ -3,6 +3,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <future>
+#include <string>
 #include <vector>
 
 #include "deskew.h"
@@ -32,8 +34,19 @@ struct pb_odom {
     pb_regmap_t *regmap = nullptr;
     Vec3 built_at = Vec3::Zero();
     int64_t built_sweep = 0;
-    std::vector<float> scratch;
+    /* the next registration map, built on another thread from the cells near the car
+     * while the sweeps go on; swapped in at the next rebuild (a fixed sweep, whatever the
+     * threads' timing: the same sweeps give the same poses) */
+    std::future<pb_regmap_t *> next;
+    int64_t next_sweep = 0;   /* the sweep it is swapped in before */
+    std::string next_err;
 };
+
+/* Sweeps after its start that a new registration map is swapped in (waiting for it if it is
+ * not ready): long enough for a build of the whole local map to overlap the sweeps, short
+ * enough that the map keeps up with the car (a map 30 sweeps old doubled the error of a
+ * moving start). */
+static const int kSwapAfter = 8;
 
 /* A cell stops taking points after this many: its centroid is settled, and a cell
  * that keeps being hit (the road under the car) costs nothing more. */
@@ -51,6 +64,7 @@ pb_odom_t *pb_odom_create(const pb_odom_config_t *cfg, const pb_reg_config_t *re
 void pb_odom_destroy(pb_odom_t *o)
 {
     if (!o) return;
+    if (o->next.valid()) pb_regmap_destroy(o->next.get());
     pb_regmap_destroy(o->regmap);
     delete o;
 }
@@ -81,18 +95,31 @@ static void add_to_map(pb_odom_t *o, const std::vector<float> &xyz, const Eigen:
     }
 }
 
-/* Drops the cells beyond the local radius and builds the registration map from the rest. */
+/* The map being built becomes the registration map. */
+static int swap_in(pb_odom_t *o, pb_err_t *err)
+{
+    if (!o->next.valid()) return 0;
+    pb_regmap_t *m = o->next.get();
+    if (!m) return pb_err_set(err, "local map: %s", o->next_err.c_str()), -1;
+    pb_regmap_destroy(o->regmap);
+    o->regmap = m;
+    return 0;
+}
+
+/* Drops the cells beyond the local radius and starts building the next registration map
+ * from the cells kept (at the first sweep, built at once). */
 static int rebuild(pb_odom_t *o, const Vec3 &at, pb_err_t *err)
 {
     const double r2 = o->cfg.local_radius_m * o->cfg.local_radius_m;
     std::vector<Cell> kept;
     kept.reserve(o->cells.size());
-    o->scratch.clear();
+    std::vector<float> pts;
+    pts.reserve(3 * o->cells.size());
     for (const Cell &c : o->cells) {
         Vec3 p(c.sum[0] / c.n, c.sum[1] / c.n, c.sum[2] / c.n);
         if ((p.head<2>() - at.head<2>()).squaredNorm() > r2) continue;
         kept.push_back(c);
-        o->scratch.insert(o->scratch.end(), {(float)p.x(), (float)p.y(), (float)p.z()});
+        pts.insert(pts.end(), {(float)p.x(), (float)p.y(), (float)p.z()});
     }
     /* the index again, over the kept cells in their order (deterministic) */
     o->cells.swap(kept);
@@ -101,15 +128,23 @@ static int rebuild(pb_odom_t *o, const Vec3 &at, pb_err_t *err)
     for (size_t i = 0; i < o->cells.size(); i++) {
         uint64_t key;
         bool fresh;
-        if (pb_loc::voxel_key_of(o->scratch[3 * i], o->scratch[3 * i + 1], o->scratch[3 * i + 2], inv, &key))
+        if (pb_loc::voxel_key_of(pts[3 * i], pts[3 * i + 1], pts[3 * i + 2], inv, &key))
             o->index.insert(key, (int32_t)i, &fresh);
     }
-    pb_regmap_t *m = pb_regmap_from_points(o->scratch.data(), o->cells.size(), nullptr, err);
-    if (!m) return -1;
-    pb_regmap_destroy(o->regmap);
-    o->regmap = m;
     o->built_at = at;
     o->built_sweep = o->sweeps;
+    if (!o->regmap) {
+        o->regmap = pb_regmap_from_points(pts.data(), pts.size() / 3, nullptr, err);
+        return o->regmap ? 0 : -1;
+    }
+    if (swap_in(o, err) != 0) return -1;
+    o->next_sweep = o->sweeps + kSwapAfter;
+    o->next = std::async(std::launch::async, [o, pts = std::move(pts)]() {
+        pb_err_t e;
+        pb_regmap_t *m = pb_regmap_from_points(pts.data(), pts.size() / 3, nullptr, &e);
+        if (!m) o->next_err = e.msg;
+        return m;
+    });
     return 0;
 }
 
@@ -190,6 +225,10 @@ int pb_odom_add(pb_odom_t *o, int64_t utime, const float *xyz, const int32_t *of
     o->sweeps++;
     o->last_utime = t_ref;
     o->last_pose = r.pose;
+    if (o->next.valid() && o->sweeps >= o->next_sweep) {
+        if (swap_in(o, err) != 0) return -1;
+        r.rebuilt = 1;
+    }
     if (!o->regmap || (r.pose.translation() - o->built_at).norm() >= o->cfg.rebuild_m ||
         o->sweeps - o->built_sweep >= o->cfg.rebuild_sweeps) {
         if (rebuild(o, r.pose.translation(), err) != 0) return -1;

@@ -62,7 +62,7 @@ typedef struct {
     Eigen::Vector3d w_base;       /* ... and rad/s, both in base */
     double inlier_fraction;       /* of the match (registration.h); NaN for FIRST/PREDICTED */
     int64_t map_cells;            /* cells in the local map after this sweep */
-    int rebuilt;                  /* 1 if the registration map was rebuilt after this sweep */
+    int rebuilt;                  /* 1 if a new registration map was started or swapped in after this sweep */
 } pb_odom_result_t;
 
 typedef struct pb_odom pb_odom_t;
