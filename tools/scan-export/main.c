@@ -19,7 +19,7 @@
 #include "portobello_lidar_scan_t.h"
 #include "portobello_pose_t.h"
 
-#define DEFAULT_VEHICLE "vehicles/prius2017.yaml"
+#define DEFAULT_VEHICLE PB_SOURCE_DIR "/vehicles/prius2017.yaml"
 
 static void usage(FILE *f)
 {
@@ -39,7 +39,8 @@ static void usage(FILE *f)
             "  --log DRIVE.lcm   the log\n"
             "  --out DIR         output folder (created; files of an earlier export are overwritten)\n"
             "  --every N         only every Nth sweep (0, N, 2N, ...; default 1)\n"
-            "  --vehicle FILE    vehicle file for base <- lidar (default " DEFAULT_VEHICLE ").\n"
+            "  --vehicle FILE    vehicle file for base <- lidar (default vehicles/prius2017.yaml of the\n"
+            "                    source tree).\n"
             "                    Sweeps written by import-scans name their frame in the sensor string:\n"
             "                    \"lidar:NAME\" (imported without --vehicle, GROUND_TRUTH is the LiDAR's\n"
             "                    pose): base <- lidar is the identity and --vehicle must not be given;\n"
@@ -234,7 +235,7 @@ int main(int argc, char **argv)
             on_pose(&msg, &pose, &e);
         }
     }
-    pb_progress_finish(&prog);
+    if (r == 0) pb_progress_finish(&prog);
     int times_bad = fclose(e.times) != 0, gt_bad = fclose(e.gt) != 0;
     e.times = e.gt = NULL;
     if (r != 0) { fprintf(stderr, "scan-export: %s\n", err.msg); goto done; }
