@@ -1,0 +1,1 @@
+$(eval $(call c_program,scan-export,tools/scan-export))
