@@ -15,6 +15,7 @@
 #include <sys/stat.h>
 #include <vector>
 
+#include "loops.h"
 #include "odometry.h"
 #include "pb_clock.h"
 #include "pb_err.h"
@@ -36,8 +37,11 @@ static void usage(FILE *f)
         "registered to a rolling local map of the sweeps before it (the localizer's\n"
         "registration), then every point is placed with the pose at its own time.\n"
         "The map frame is the base frame of the first sweep.\n"
+        "Where the drive passes a place again, the sweep is matched to the earlier pass's map\n"
+        "and the poses are solved again with these loops (Ceres pose graph).\n"
         "Writes SITE_DIR/map.pcd (binary PCD, one point per voxel), SITE_DIR/trajectory.tum\n"
-        "(base in map at the middle of each sweep, TUM: t x y z qx qy qz qw) and SITE_DIR/report.json.\n"
+        "(base in map at the middle of each sweep, after loop closure; TUM: t x y z qx qy qz qw),\n"
+        "SITE_DIR/odometry.tum (the same before loop closure) and SITE_DIR/report.json.\n"
         "  --vehicle FILE      base <- lidar (default vehicles/prius2017.yaml; scans imported from\n"
         "                      a dataset with their poses in the LiDAR frame: vehicles/lidar_mast.yaml)\n"
         "  --voxel M           map.pcd voxel edge, metres (default 0.15)\n"
@@ -48,10 +52,49 @@ static void usage(FILE *f)
 
 struct SweepPose {
     int64_t utime;
-    Eigen::Isometry3d pose;
+    Eigen::Isometry3d pose;      /* the odometry's; after loop closure, corrected */
+    Eigen::Isometry3d odometry;
     int status;
     double inlier_fraction, cpu_ms;
+    int keyframe;                /* index of the last keyframe at or before it */
 };
+
+/* Keyframes for loop closure every this much path; their points kept at this voxel (about
+ * 40 KB a keyframe on the simulated OS1-64). */
+static const double kKeyframeSpacingM = 2.0;
+static const double kKeyframeVoxelM = 0.5;
+
+/* Every sweep's pose moved by its keyframes' corrections (new * old^-1), interpolated in
+ * time between the keyframe before it and the one after. */
+static void apply_corrections(std::vector<SweepPose> *traj, const std::vector<pb_keyframe_t> &kf,
+                              const std::vector<Eigen::Isometry3d> &solved)
+{
+    std::vector<Eigen::Isometry3d> C(kf.size());
+    for (size_t k = 0; k < kf.size(); k++) C[k] = solved[k] * kf[k].pose.inverse();
+    for (SweepPose &s : *traj) {
+        size_t a = (size_t)s.keyframe, b = std::min(a + 1, kf.size() - 1);
+        double u = b > a ? double(s.utime - kf[a].utime) / double(kf[b].utime - kf[a].utime) : 0;
+        u = std::min(1.0, std::max(0.0, u));
+        Eigen::Isometry3d Ci = Eigen::Isometry3d::Identity();
+        Ci.linear() = Eigen::Quaterniond(C[a].linear()).slerp(u, Eigen::Quaterniond(C[b].linear())).toRotationMatrix();
+        Ci.translation() = (1 - u) * C[a].translation() + u * C[b].translation();
+        s.pose = Ci * s.odometry;
+    }
+}
+
+static int write_tum(const char *path, const std::vector<SweepPose> &traj, bool odometry)
+{
+    FILE *f = std::fopen(path, "w");
+    if (!f) return -1;
+    for (const SweepPose &s : traj) {
+        const Eigen::Isometry3d &T = odometry ? s.odometry : s.pose;
+        Eigen::Quaterniond q(T.linear());
+        const Eigen::Vector3d &p = T.translation();
+        std::fprintf(f, "%.6f %.6f %.6f %.6f %.9f %.9f %.9f %.9f\n", s.utime * 1e-6, p.x(), p.y(), p.z(), q.x(), q.y(),
+                     q.z(), q.w());
+    }
+    return std::fclose(f) == 0 ? 0 : -1;
+}
 
 static const char *kStatusName[] = {"first", "tracked", "searched", "weak", "predicted"};
 
@@ -162,6 +205,11 @@ int main(int argc, char **argv)
     pb_odom_t *odom = pb_odom_create(nullptr, nullptr);
     std::vector<SweepPose> traj;
     traj.reserve((size_t)total);
+    std::vector<pb_keyframe_t> kf;
+    pb_reg_config_t kf_reduce;
+    pb_reg_config_default(&kf_reduce);
+    kf_reduce.target_points = 0;
+    kf_reduce.scan_voxel_m = kKeyframeVoxelM;
     long empty = 0, out_of_order = 0;
     int64_t last_scan_utime = 0;
     pb_progress_t prog;
@@ -173,10 +221,17 @@ int main(int argc, char **argv)
             double c0 = pb_clock_thread_cpu_ms();
             pb_odom_result_t r;
             if (pb_odom_add(odom, utime, xyz.data(), pts.offset_us, xyz.size() / 3, &r, e) != 0) return -1;
-            traj.push_back({r.utime, r.pose, r.status, r.inlier_fraction, pb_clock_thread_cpu_ms() - c0});
+            if (kf.empty() || (r.pose.translation() - kf.back().pose.translation()).norm() >= kKeyframeSpacingM) {
+                kf.push_back({r.utime, r.pose, {}});
+                const std::vector<float> &sw = pb_odom_last_sweep(odom);
+                pb_reg_downsample(sw.data(), sw.size() / 3, &kf_reduce, &kf.back().xyz);
+            }
+            traj.push_back({r.utime, r.pose, r.pose, r.status, r.inlier_fraction, pb_clock_thread_cpu_ms() - c0,
+                            (int)kf.size() - 1});
             return 0;
         }, &empty, &err);
     pb_odom_destroy(odom);
+    const double cpu1 = pb_clock_process_cpu_ms();
     if (rc != 0) {
         if (prog.tty && !quiet) std::fputc('\n', stderr);
         std::fprintf(stderr, "mapper: %s\n", err.msg);
@@ -188,6 +243,23 @@ int main(int argc, char **argv)
                      traj.size(), scan_ch);
         return 1;
     }
+
+    // Loop closure: the keyframes' poses solved again with the loops found, the sweeps moved
+    // with them.
+    pb_loops_report_t loops;
+    std::vector<Eigen::Isometry3d> solved;
+    if (kf.size() >= 2) {
+        if (pb_loops_close(kf, nullptr, &solved, &loops, &err) != 0) {
+            std::fprintf(stderr, "mapper: %s\n", err.msg);
+            return 1;
+        }
+        apply_corrections(&traj, kf, solved);
+    } else {
+        loops = pb_loops_report_t{};
+    }
+    const double cpu_loops = pb_clock_process_cpu_ms();
+    kf.clear();
+    kf.shrink_to_fit();
 
     // Pass 2: the map, every point with the pose at its time. The poses are at the sweeps'
     // middles: the track is carried on by the first and last steps' motion to cover the
@@ -205,7 +277,6 @@ int main(int argc, char **argv)
     pb_map_builder_t *map = pb_map_builder_create(voxel, &err);
     pb_transform_t bl = veh.base_from_lidar;
     long placed = 0, unplaced = 0, empty_again = 0;
-    const double cpu1 = pb_clock_process_cpu_ms();
     pb_progress_start(&prog, "mapper: map", total, quiet);
     rc = map ? for_each_sweep(log_path, scan_ch, Eigen::Isometry3d::Identity(), &prog,
         [&](int64_t utime, const std::vector<float> &, const pb_points_t &pts, const pb_event_t &, pb_err_t *e) {
@@ -222,13 +293,12 @@ int main(int argc, char **argv)
     }
     pb_pose_track_destroy(track);
 
-    // The trajectory and the report.
-    std::string tum_path = std::string(out_dir) + "/trajectory.tum", rep_path = std::string(out_dir) + "/report.json";
-    FILE *tf = std::fopen(tum_path.c_str(), "w");
-    FILE *rf = tf ? std::fopen(rep_path.c_str(), "w") : nullptr;
-    if (!tf || !rf) {
-        std::fprintf(stderr, "mapper: %s: cannot write: %s\n", tf ? rep_path.c_str() : tum_path.c_str(),
-                     std::strerror(errno));
+    // The trajectories and the report.
+    const double cpu2 = pb_clock_process_cpu_ms();
+    std::string tum_path = std::string(out_dir) + "/trajectory.tum", odo_path = std::string(out_dir) + "/odometry.tum",
+                rep_path = std::string(out_dir) + "/report.json";
+    if (write_tum(tum_path.c_str(), traj, false) != 0 || write_tum(odo_path.c_str(), traj, true) != 0) {
+        std::fprintf(stderr, "mapper: %s: cannot write the trajectories: %s\n", out_dir, std::strerror(errno));
         return 1;
     }
     long by_status[5] = {};
@@ -236,42 +306,45 @@ int main(int argc, char **argv)
     std::vector<double> ms, inl;
     for (size_t i = 0; i < traj.size(); i++) {
         const SweepPose &s = traj[i];
-        Eigen::Quaterniond q(s.pose.linear());
-        const Eigen::Vector3d &p = s.pose.translation();
-        std::fprintf(tf, "%.6f %.6f %.6f %.6f %.9f %.9f %.9f %.9f\n", s.utime * 1e-6, p.x(), p.y(), p.z(), q.x(), q.y(),
-                     q.z(), q.w());
         by_status[s.status]++;
-        if (i > 0) path_m += (p - traj[i - 1].pose.translation()).norm();
+        if (i > 0) path_m += (s.pose.translation() - traj[i - 1].pose.translation()).norm();
         ms.push_back(s.cpu_ms);
         if (std::isfinite(s.inlier_fraction)) inl.push_back(s.inlier_fraction);
     }
     double wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall0).count();
-    const double cpu2 = pb_clock_process_cpu_ms();
     double span_s = (traj.back().utime - traj.front().utime) * 1e-6;
+    FILE *rf = std::fopen(rep_path.c_str(), "w");
+    if (!rf) {
+        std::fprintf(stderr, "mapper: %s: cannot write: %s\n", rep_path.c_str(), std::strerror(errno));
+        return 1;
+    }
     std::fprintf(rf, "{\n  \"log\": \"%s\",\n  \"scans\": %zu,\n  \"scans_in_log\": %ld,\n  \"empty_scans\": %ld,\n"
                      "  \"out_of_order_scans\": %ld,\n",
                  log_path, traj.size(), total, empty, out_of_order);
     for (int k = 0; k < 5; k++) std::fprintf(rf, "  \"scans_%s\": %ld,\n", kStatusName[k], by_status[k]);
+    std::fprintf(rf, "  \"loop_candidates\": %d,\n  \"loops\": %d,\n  \"loops_rejected\": %d,\n  \"loops_dropped\": %d,\n"
+                     "  \"loop_correction_max_m\": %.4f,\n",
+                 loops.candidates, loops.verified, loops.rejected, loops.dropped, loops.max_change_m);
     std::fprintf(rf,
                  "  \"inlier_fraction_median\": %.4f,\n  \"inlier_fraction_p01\": %.4f,\n  \"path_m\": %.3f,\n"
                  "  \"drive_s\": %.3f,\n  \"cpu_ms_per_scan_median\": %.3f,\n  \"cpu_ms_per_scan_p99\": %.3f,\n"
-                 "  \"cpu_s_odometry\": %.3f,\n  \"cpu_s_map\": %.3f,\n  \"wall_s\": %.3f,\n  \"map_points\": %lld,\n  \"map_voxel_m\": %.3f,\n  \"scans_placed\": %ld,\n"
-                 "  \"scans_unplaced\": %ld\n}\n",
-                 pct(inl, 0.5), pct(inl, 0.01), path_m, span_s, pct(ms, 0.5), pct(ms, 0.99), (cpu1 - cpu0) / 1e3, (cpu2 - cpu1) / 1e3, wall_s,
-                 (long long)pb_map_builder_size(map), voxel, placed, unplaced);
-    int bad = std::fclose(tf) != 0;
-    bad |= std::fclose(rf) != 0;
-    if (bad) {
-        std::fprintf(stderr, "mapper: %s: write failed\n", out_dir);
+                 "  \"cpu_s_odometry\": %.3f,\n  \"cpu_s_loops\": %.3f,\n  \"cpu_s_map\": %.3f,\n  \"wall_s\": %.3f,\n"
+                 "  \"map_points\": %lld,\n  \"map_voxel_m\": %.3f,\n  \"scans_placed\": %ld,\n  \"scans_unplaced\": %ld\n}\n",
+                 pct(inl, 0.5), pct(inl, 0.01), path_m, span_s, pct(ms, 0.5), pct(ms, 0.99), (cpu1 - cpu0) / 1e3,
+                 (cpu_loops - cpu1) / 1e3, (cpu2 - cpu_loops) / 1e3, wall_s, (long long)pb_map_builder_size(map), voxel,
+                 placed, unplaced);
+    if (std::fclose(rf) != 0) {
+        std::fprintf(stderr, "mapper: %s: write failed\n", rep_path.c_str());
         return 1;
     }
     if (!quiet)
         std::fprintf(stderr,
                      "mapper: %zu sweeps over %.1f m in %.1f s of drive (tracked %ld, searched %ld, weak %ld, "
-                     "predicted %ld); odometry %.2f ms per sweep (median CPU), %lld map points; %.1f s wall\n",
+                     "predicted %ld); %d loop(s) of %d tried, largest correction %.2f m; odometry %.2f ms per sweep "
+                     "(median CPU), %lld map points; %.1f s wall\n",
                      traj.size(), path_m, span_s, by_status[PB_ODOM_TRACKED], by_status[PB_ODOM_SEARCHED],
-                     by_status[PB_ODOM_WEAK], by_status[PB_ODOM_PREDICTED], pct(ms, 0.5),
-                     (long long)pb_map_builder_size(map), wall_s);
+                     by_status[PB_ODOM_WEAK], by_status[PB_ODOM_PREDICTED], loops.verified, loops.candidates,
+                     loops.max_change_m, pct(ms, 0.5), (long long)pb_map_builder_size(map), wall_s);
     pb_map_builder_destroy(map);
     return 0;
 }

@@ -1,16 +1,21 @@
 # mapper: builds a site's prior map from a recorded drive (core: LiDAR odometry on a
 # rolling local map, reusing the localizer's registration core).
-$(eval $(call cxx_program,mapper,modules/mapper modules/mapper/core modules/localizer/core,-lz))
+$(eval $(call cxx_program,mapper,modules/mapper modules/mapper/core modules/localizer/core,-lz -lceres -lglog))
 $(OBJ)/modules/mapper/%.o: CPPFLAGS += -I$(TOP)/modules/localizer/core -I$(TOP)/modules/mapper/core
+
+# Unit test of the loop closure (run by make test through tests/test_c_units.py).
+$(eval $(call cxx_test,test_mapper_loops,tests/c/test_mapper_loops.cpp modules/mapper/core/loops.cpp $(LOCREG_CORE),-lceres -lglog))
+$(OBJ)/tests/c/test_mapper_loops.o: CPPFLAGS += -I$(TOP)/modules/localizer/core
 
 # ---- bench-mapper (modules/mapper/bench): ours against KISS-ICP on the same scans
 # The default site's full loop (the bench-localizer-drive cache, else simulated) and, when
 # ../shared/data has it, MulRan Riverside02 (read, never copied): KISS-ICP (PyPI kiss-icp,
 # default config, one thread) and build/bin/mapper on the sweeps of the same log (KISS-ICP
-# reads them as scan-export writes them). Table on stdout, build/bench/mapper.json.
+# reads them as scan-export writes them); then the localizer on three other drives with the
+# default site's map and with the mapper's. Tables on stdout, build/bench/mapper.json.
 #   MAPPER_SIM_LOG=FILE   the simulated loop's log instead of the cache
 #   BENCH_MAPPER_ARGS=... more options of bench_mapper.py (--drives sim, --keep-scans)
 BENCH_TARGETS += bench-mapper
 .PHONY: bench-mapper
-bench-mapper: $(BIN)/mapper $(BIN)/scan-export $(BIN)/import-scans $(BIN)/simdrive $(DEPS)
+bench-mapper: $(BIN)/mapper $(BIN)/scan-export $(BIN)/import-scans $(BIN)/simdrive $(BIN)/localizer $(BIN)/can $(BIN)/log-merge $(DEPS)
 	@$(VPY) modules/mapper/bench/bench_mapper.py $(if $(MAPPER_SIM_LOG),--sim-log $(MAPPER_SIM_LOG)) $(BENCH_MAPPER_ARGS)

@@ -339,6 +339,66 @@ def bench_drive(name, log_path, vehicle, sensor_range, gt_label, extra_refs, arg
         (ex / "times.txt").unlink(missing_ok=True)   # so the next run exports again
 
 
+# ---------------------------------------------------------------- the localizer on the map
+
+LOC_DRIVES = [(1, "normal"), (2, "aggressive"), (3, "cautious")]   # 30 s each, as bench-localizer-drive's
+
+
+def localize_on_mapped_map(drive_log, ours_dir, result):
+    """The localizer (fused, GNSS start) on three other drives of the loop, against the default
+    site's map and against the mapper's, in the same run. The mapper's map is in its first
+    pose's frame; it is put in the site's frame with GROUND_TRUTH at that pose (what GNSS
+    anchoring is to do; not built yet), next to the site's route and geo-reference."""
+    sys.path.insert(0, str(ROOT / "modules" / "localizer" / "bench"))
+    import locbench as lb
+    t, P = tm.read_tum(ours_dir / "trajectory.tum")
+    gt_t, gt_P = tm.read_tum(OUT / "sim" / "export" / "ground_truth.tum")
+    ok, A = tm.poses_at(gt_t, gt_P, t[:1])
+    if not ok[0]:
+        raise RuntimeError("the mapper's first pose is outside GROUND_TRUTH")
+    site_from_map = A[0] @ np.linalg.inv(P[0])
+    site = OUT / "sim" / "mapped_site"
+    shutil.rmtree(site, ignore_errors=True)
+    site.mkdir(parents=True)
+    for f in ("site.yaml", "route.yaml", "world.yaml"):
+        shutil.copy(ROOT / "maps" / "default" / f, site / f)
+    pts = lb.read_pcd(ours_dir / "map.pcd").copy()
+    pts[:, :3] = pts[:, :3] @ site_from_map[:3, :3].T + site_from_map[:3, 3]
+    lb.write_pcd(site / "map.pcd", pts)
+    rows = []
+    for seed, profile in LOC_DRIVES:
+        d = OUT / "loc" / f"s{seed}_{profile}_30"
+        d.mkdir(parents=True, exist_ok=True)
+        cache = ROOT / "build" / "bench-localizer-drive" / f"s{seed}_{profile}_30" / "input.lcm"
+        inp = cache if lb.cached(cache) else lb.make_drive(d, seed, profile, 30)
+        for label, site_dir in (("default site map", ROOT / "maps" / "default"), ("mapper's map", site)):
+            out = d / ("out_default.lcm" if site_dir != site else "out_mapped.lcm")
+            log(f"  localizer on {inp.parent.name} with the {label} ...")
+            p = lb.run_localizer(inp, out, ["--site", site_dir])
+            if p.returncode != 0:
+                raise RuntimeError(f"localizer on {inp}: exit {p.returncode}\n{p.stderr[-1500:]}")
+            r = lb.score_run(inp, out)
+            rows.append({"drive": f"seed {seed} {profile} 30 s", "map": label, **r})
+    result["localizer_on_mapped_map"] = {"mapping_drive": str(drive_log), "site_from_map": site_from_map.tolist(),
+                                         "map_points": int(len(pts)), "rows": rows}
+
+
+def print_localizer_table(result):
+    lm = result.get("localizer_on_mapped_map")
+    if not lm:
+        return
+    print(f"The localizer (fused, GNSS start) on other drives of the loop, on the default site's map and on the "
+          f"mapper's ({lm['map_points']:,} points, from {pathlib.Path(lm['mapping_drive']).parent.name}):")
+    hdr = f"{'drive':<26} {'map':<18} {'median m':>8} {'p99 m':>7} {'max m':>7} {'yaw p99':>7} {'LOST':>4} {'init s':>6}"
+    print(hdr)
+    print("-" * len(hdr))
+    for r in lm["rows"]:
+        print(f"{r['drive']:<26} {r['map']:<18} {fmt(r.get('t_median'), '{:.3f}'):>8} {fmt(r.get('t_p99'), '{:.3f}'):>7} "
+              f"{fmt(r.get('t_max'), '{:.3f}'):>7} {fmt(r.get('yaw_p99'), '{:.3f}'):>7} "
+              f"{r.get('lost_after_tracking', '-'):>4} {fmt(r.get('first_tracking_s'), '{:.1f}'):>6}")
+    print()
+
+
 def print_table(result):
     hdr = (f"{'drive':<8} {'reference':<26} {'method':<9} {'scans':>5} {'path m':>7} {'drift %':>7} {'deg/100m':>8} "
            f"{'ATE rmse':>8} {'ATE max':>8} {'ms med':>7} {'ms p99':>7} {'ms mean':>7} {'RTF':>6}")
@@ -405,6 +465,9 @@ def main():
         bench_drive("sim", log_path, ROOT / "vehicles" / "prius2017.yaml", SIM_SENSOR_RANGE_M, "GROUND_TRUTH", None,
                     args, result)
         result["drives"]["sim"]["source"] = how
+        if "error" not in result["drives"]["sim"]["methods"]["ours"]:
+            log("[sim] the localizer on the mapper's map ...")
+            localize_on_mapped_map(log_path, OUT / "sim" / "ours", result)
     if "mulran" in drives:
         if not MULRAN.is_dir():
             print(f"mulran: skipped, {MULRAN} is absent")
@@ -423,6 +486,7 @@ def main():
           f"deskew on, one thread) vs ours; drift = KITTI relative drift over 100..800 m segments; ATE after SE(3) "
           f"alignment; CPU ms per frame; RTF = scan period / mean CPU per frame")
     print_table(result)
+    print_localizer_table(result)
     pathlib.Path(args.json).parent.mkdir(parents=True, exist_ok=True)
     pathlib.Path(args.json).write_text(json.dumps(result, indent=1, default=float) + "\n")
     print(f"written {args.json}")

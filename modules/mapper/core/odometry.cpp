@@ -32,6 +32,7 @@ struct pb_odom {
     std::vector<Cell> cells;
     /* the registration map and where it was built */
     pb_regmap_t *regmap = nullptr;
+    std::vector<float> last_sweep;
     Vec3 built_at = Vec3::Zero();
     int64_t built_sweep = 0;
     /* the next registration map, built on another thread from the cells near the car
@@ -235,6 +236,9 @@ int pb_odom_add(pb_odom_t *o, int64_t utime, const float *xyz, const int32_t *of
         r.rebuilt = 1;
     }
     r.map_cells = (int64_t)o->cells.size();
+    o->last_sweep.swap(pts);
     *out = r;
     return 0;
 }
+
+const std::vector<float> &pb_odom_last_sweep(const pb_odom_t *o) { return o->last_sweep; }

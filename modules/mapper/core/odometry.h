@@ -25,6 +25,7 @@
 
 #include <stddef.h>
 #include <stdint.h>
+#include <vector>
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 #include "pb_err.h"
@@ -76,5 +77,9 @@ void pb_odom_destroy(pb_odom_t *o);
  * err set (n == 0, a sweep not after the last one); the odometry is then unchanged. */
 int pb_odom_add(pb_odom_t *o, int64_t utime, const float *xyz, const int32_t *offset_us, size_t n,
                 pb_odom_result_t *out, pb_err_t *err);
+
+/* The last sweep added, deskewed, in base at its pose's time (valid until the next
+ * pb_odom_add; empty before the first). */
+const std::vector<float> &pb_odom_last_sweep(const pb_odom_t *o);
 
 #endif

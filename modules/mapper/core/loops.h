@@ -1,0 +1,72 @@
+/* loops: loop closure for the mapper. Where the drive comes back to a place it passed
+ * before, the sweep there is registered to the map of the earlier pass; each such match
+ * found good becomes a loop edge, and the keyframes' poses are solved again over the
+ * odometry edges and the loop edges together.
+ *
+ * Pipeline of pb_loops_close:
+ *   1. candidates: for each keyframe, the nearest earlier keyframe within search_radius_m
+ *      (by the odometry's positions) that is at least min_separation_m of path behind it;
+ *   2. verification: the keyframe's points registered (pb_reg_align) to a map of the
+ *      stored keyframes within submap_radius_m of path around the earlier one, from the
+ *      odometry's pose, and searched for (pb_reg_align_global) when that does not fit;
+ *      kept if min_inliers of the points above the ground lie on the map's surfaces and
+ *      the keyframe moves by at most max_correction_m plus max_drift of the path between;
+ *   3. pose graph (Ceres: a maintained sparse least-squares solver, in Debian, with
+ *      manifolds for rotations; GTSAM is not packaged for Debian 12, g2o has no released
+ *      Debian package with a stable API): odometry edges between consecutive keyframes,
+ *      the loop edges, the first keyframe fixed. A false loop that passed step 2 cannot
+ *      agree with the odometry and the other loops: after the solve, the loop whose edge
+ *      is off the solution by more than loop_reject_m is dropped and the graph solved
+ *      again, until every loop left agrees. (Not a robust loss: a true loop after a long
+ *      drive is many sigmas off the odometry, and a loss scaled to the edges' noise would
+ *      down-weight exactly the loops that matter.)
+ *
+ * Frames: poses are map <- base; keyframe points are in base. Pure: no I/O, no clock;
+ * deterministic (Ceres with one thread).
+ * Ownership: the caller owns every array; nothing is kept after the call. */
+#ifndef PB_MAPPER_LOOPS_H
+#define PB_MAPPER_LOOPS_H
+
+#include <stdint.h>
+#include <vector>
+#include <Eigen/Geometry>
+#include "pb_err.h"
+
+/* The defaults stand beside each field (a value-initialised struct holds them). */
+typedef struct {
+    double search_radius_m = 15;     /* a candidate lies within this of the keyframe (odometry positions) */
+    double min_separation_m = 100;   /* ... and at least this much path behind it */
+    double submap_radius_m = 30;     /* the earlier pass's map: stored keyframes within this of the candidate */
+    double min_inliers = 0.4;        /* a loop match must put this share of the keyframe's points above the
+                                      * ground on the map's surfaces (the ground fits a pose metres off) */
+    double max_correction_m = 1.0;   /* and move the keyframe by at most this ... */
+    double max_drift = 0.02;         /* ... plus this share of the path between the two */
+    double search_yaw_deg = 10;      /* a match from the odometry's pose that does not fit is searched for
+                                      * within that distance and this yaw */
+    double odom_sigma_m = 0.01;      /* odometry edge: per metre of the step, and at least this */
+    double odom_sigma_deg = 0.05;    /* rotation, per edge */
+    double loop_sigma_m = 0.05;      /* loop edge */
+    double loop_sigma_deg = 0.1;
+    double loop_reject_m = 0.3;      /* a loop edge this far off the solved poses is dropped */
+} pb_loops_config_t;
+
+typedef struct {
+    int64_t utime;
+    Eigen::Isometry3d pose;          /* map <- base from the odometry */
+    std::vector<float> xyz;          /* base frame, deskewed, downsampled; may be empty (no submap use) */
+} pb_keyframe_t;
+
+typedef struct {
+    int candidates, verified, rejected;  /* loops tried, kept, refused by step 2 */
+    int dropped;                         /* verified but disagreeing with the rest after the solve */
+    int iterations;                      /* of the solver */
+    double max_change_m;                 /* largest move of a keyframe by the solve */
+    std::vector<std::pair<int, int>> loops;  /* the kept loops (earlier, later keyframe) */
+} pb_loops_report_t;
+
+/* Solves the keyframes' poses (n = kf.size()) with the loops found; out gets n poses.
+ * Returns 0, or -1 with err set (fewer than two keyframes). With no loop, out = the input. */
+int pb_loops_close(const std::vector<pb_keyframe_t> &kf, const pb_loops_config_t *cfg,
+                   std::vector<Eigen::Isometry3d> *out, pb_loops_report_t *report, pb_err_t *err);
+
+#endif
