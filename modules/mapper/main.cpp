@@ -15,16 +15,19 @@
 #include <sys/stat.h>
 #include <vector>
 
+#include "anchor.h"
 #include "loops.h"
 #include "odometry.h"
 #include "pb_clock.h"
 #include "pb_err.h"
+#include "pb_geo.h"
 #include "pb_log.h"
 #include "pb_map_build.h"
 #include "pb_opt.h"
 #include "pb_progress.h"
 #include "pb_scan.h"
 #include "pb_vehicle.h"
+#include "portobello_gnss_fix_t.h"
 #include "portobello_lidar_scan_t.h"
 
 static void usage(FILE *f)
@@ -36,12 +39,15 @@ static void usage(FILE *f)
         "Builds a prior map from a recorded drive by LiDAR odometry: every sweep is\n"
         "registered to a rolling local map of the sweeps before it (the localizer's\n"
         "registration), then every point is placed with the pose at its own time.\n"
-        "The map frame is the base frame of the first sweep.\n"
+        
         "Where the drive passes a place again, the sweep is matched to the earlier pass's map\n"
         "and the poses are solved again with these loops (Ceres pose graph).\n"
         "Writes SITE_DIR/map.pcd (binary PCD, one point per voxel), SITE_DIR/trajectory.tum\n"
         "(base in map at the middle of each sweep, after loop closure; TUM: t x y z qx qy qz qw),\n"
-        "SITE_DIR/odometry.tum (the same before loop closure) and SITE_DIR/report.json.\n"
+        "SITE_DIR/odometry.tum (the same before loop closure) and SITE_DIR/report.json. With\n"
+        "GNSS_FIX in the log, the map is moved onto the fixes (east-north-up at the first 3-D\n"
+        "fix) and SITE_DIR/site.yaml holds that geo-reference; without, the map stays in the\n"
+        "first sweep's frame and no site.yaml is written.\n"
         "  --vehicle FILE      base <- lidar (default vehicles/prius2017.yaml; scans imported from\n"
         "                      a dataset with their poses in the LiDAR frame: vehicles/lidar_mast.yaml)\n"
         "  --voxel M           map.pcd voxel edge, metres (default 0.15)\n"
@@ -64,6 +70,13 @@ struct SweepPose {
 static const double kKeyframeSpacingM = 2.0;
 static const double kKeyframeVoxelM = 0.5;
 
+static pb_transform_t to_transform(const Eigen::Isometry3d &T)
+{
+    pb_transform_t t;
+    pb_reg_to_transform(T, &t);
+    return t;
+}
+
 /* Every sweep's pose moved by its keyframes' corrections (new * old^-1), interpolated in
  * time between the keyframe before it and the one after. */
 static void apply_corrections(std::vector<SweepPose> *traj, const std::vector<pb_keyframe_t> &kf,
@@ -82,6 +95,80 @@ static void apply_corrections(std::vector<SweepPose> *traj, const std::vector<pb
     }
 }
 
+/* The GNSS_FIX of the log against the trajectory (pb_anchor_fit). No fix at all: not
+ * anchored (result->why says so), not an error. */
+static int anchor_to_gnss(const char *log_path, const std::vector<SweepPose> &traj, const pb_vehicle_t &veh,
+                          pb_anchor_result_t *result, pb_georef_t *georef, pb_err_t *err)
+{
+    struct Fixes { std::vector<portobello_gnss_fix_t> v; int undecodable; } fixes = {{}, 0};
+    auto on_fix = [](const pb_event_t *ev, void *u, pb_err_t *) {
+        Fixes *f = (Fixes *)u;
+        portobello_gnss_fix_t m;
+        if (portobello_gnss_fix_t_decode(ev->data, 0, ev->datalen, &m) < 0) { f->undecodable++; return 0; }
+        f->v.push_back(m);
+        portobello_gnss_fix_t_decode_cleanup(&m);
+        return 0;
+    };
+    if (pb_log_read_track(log_path, nullptr, nullptr, "GNSS_FIX", on_fix, &fixes, err)) return -1;
+    *result = pb_anchor_result_t{};
+    result->why = "no GNSS_FIX in the log";
+    const portobello_gnss_fix_t *origin = nullptr;
+    for (const auto &f : fixes.v)
+        if (f.fix_type >= PORTOBELLO_GNSS_FIX_T_FIX_3D && f.fix_type != PORTOBELLO_GNSS_FIX_T_FIX_TIME_ONLY) { origin = &f; break; }
+    if (!origin) {
+        if (!fixes.v.empty()) result->why = "no 3-D GNSS fix in the log";
+        return 0;
+    }
+    *georef = pb_georef_t{origin->lat_deg, origin->lon_deg, origin->alt_m, 0};
+    pb_pose_track_t *track = pb_pose_track_create();
+    for (const SweepPose &s : traj) {
+        pb_transform_t t = to_transform(s.pose);
+        pb_pose_track_add(track, s.utime, &t);
+    }
+    const Eigen::Vector3d lever(veh.base_from_gnss.t[0], veh.base_from_gnss.t[1], veh.base_from_gnss.t[2]);
+    std::vector<pb_anchor_obs_t> obs;
+    for (const auto &f : fixes.v) {
+        pb_transform_t t;
+        if (!pb_pose_track_at(track, f.utime, &t)) continue;   /* before the first sweep or after the last */
+        pb_anchor_obs_t o;
+        o.antenna_map = pb_reg_from_transform(&t) * lever;
+        double enu[3];
+        pb_geo_wgs84_to_map(georef, f.lat_deg, f.lon_deg, f.alt_m, enu);
+        o.fix_enu = Eigen::Vector3d(enu[0], enu[1], enu[2]);
+        o.h_acc_m = f.h_acc_m;
+        o.fix_3d = f.fix_type >= PORTOBELLO_GNSS_FIX_T_FIX_3D && f.fix_type != PORTOBELLO_GNSS_FIX_T_FIX_TIME_ONLY;
+        obs.push_back(o);
+    }
+    pb_pose_track_destroy(track);
+    if (obs.empty()) {
+        result->why = "no GNSS fix within the drive's sweeps";
+        return 0;
+    }
+    return pb_anchor_fit(obs, nullptr, result, err);
+}
+
+static int write_site_yaml(const char *path, const char *name, const char *log_path, const pb_georef_t &g, double voxel)
+{
+    FILE *f = std::fopen(path, "w");
+    if (!f) return -1;
+    std::fprintf(f,
+                 "# Written by build/bin/mapper from %s (docs/mapper.md).\n"
+                 "name: %s\n"
+                 "description: prior map built by the mapper from a recorded drive\n"
+                 "# map frame: east-north-up at the drive's first 3-D GNSS fix (ellipsoid height)\n"
+                 "georef:\n"
+                 "  lat0_deg: %.9f\n"
+                 "  lon0_deg: %.9f\n"
+                 "  alt0_m: %.3f\n"
+                 "  yaw_deg: 0.0\n"
+                 "map:\n"
+                 "  file: map.pcd\n"
+                 "  frame: map\n"
+                 "  voxel_m: %.3f\n",
+                 log_path, name, g.lat0_deg, g.lon0_deg, g.alt0_m, voxel);
+    return std::fclose(f) == 0 ? 0 : -1;
+}
+
 static int write_tum(const char *path, const std::vector<SweepPose> &traj, bool odometry)
 {
     FILE *f = std::fopen(path, "w");
@@ -97,13 +184,6 @@ static int write_tum(const char *path, const std::vector<SweepPose> &traj, bool 
 }
 
 static const char *kStatusName[] = {"first", "tracked", "searched", "weak", "predicted"};
-
-static pb_transform_t to_transform(const Eigen::Isometry3d &T)
-{
-    pb_transform_t t;
-    pb_reg_to_transform(T, &t);
-    return t;
-}
 
 static double pct(std::vector<double> v, double p)
 {
@@ -261,6 +341,23 @@ int main(int argc, char **argv)
     kf.clear();
     kf.shrink_to_fit();
 
+    // GNSS anchoring: the trajectory (and so the map) moved onto the fixes, in the east-north-up
+    // frame at the first 3-D fix, which becomes the site's geo-reference.
+    pb_anchor_result_t anchor = {};
+    pb_georef_t georef = {};
+    if (anchor_to_gnss(log_path, traj, veh, &anchor, &georef, &err) != 0) {
+        std::fprintf(stderr, "mapper: %s\n", err.msg);
+        return 1;
+    }
+    if (anchor.anchored)
+        for (SweepPose &sp : traj) {
+            sp.pose = anchor.enu_from_map * sp.pose;
+            sp.odometry = anchor.enu_from_map * sp.odometry;
+        }
+    else if (!quiet)
+        std::fprintf(stderr, "mapper: warning: the map is not geo-referenced (%s); it stays in the first pose's frame\n",
+                     anchor.why);
+
     // Pass 2: the map, every point with the pose at its time. The poses are at the sweeps'
     // middles: the track is carried on by the first and last steps' motion to cover the
     // first sweep's first half and the last one's second half.
@@ -301,6 +398,18 @@ int main(int argc, char **argv)
         std::fprintf(stderr, "mapper: %s: cannot write the trajectories: %s\n", out_dir, std::strerror(errno));
         return 1;
     }
+    std::string site_path = std::string(out_dir) + "/site.yaml";
+    if (anchor.anchored) {
+        std::string name = out_dir;
+        while (name.size() > 1 && name.back() == '/') name.pop_back();
+        name = name.substr(name.find_last_of('/') + 1);
+        if (write_site_yaml(site_path.c_str(), name.c_str(), log_path, georef, voxel) != 0) {
+            std::fprintf(stderr, "mapper: %s: cannot write: %s\n", site_path.c_str(), std::strerror(errno));
+            return 1;
+        }
+    } else {
+        std::remove(site_path.c_str());   /* one from an earlier run would geo-reference this map wrongly */
+    }
     long by_status[5] = {};
     double path_m = 0;
     std::vector<double> ms, inl;
@@ -325,6 +434,11 @@ int main(int argc, char **argv)
     std::fprintf(rf, "  \"loop_candidates\": %d,\n  \"loops\": %d,\n  \"loops_rejected\": %d,\n  \"loops_dropped\": %d,\n"
                      "  \"loop_correction_max_m\": %.4f,\n",
                  loops.candidates, loops.verified, loops.rejected, loops.dropped, loops.max_change_m);
+    std::fprintf(rf, "  \"geo_referenced\": %s,\n  \"geo_reference_why_not\": \"%s\",\n  \"gnss_fixes_used\": %d,\n"
+                     "  \"gnss_fixes_gated\": %d,\n  \"gnss_fixes_rejected\": %d,\n  \"gnss_resid_median_m\": %.3f,\n"
+                     "  \"gnss_resid_p90_m\": %.3f,\n  \"gnss_resid_max_m\": %.3f,\n",
+                 anchor.anchored ? "true" : "false", anchor.anchored ? "" : anchor.why, anchor.used, anchor.gated,
+                 anchor.rejected, anchor.resid_median_m, anchor.resid_p90_m, anchor.resid_max_m);
     std::fprintf(rf,
                  "  \"inlier_fraction_median\": %.4f,\n  \"inlier_fraction_p01\": %.4f,\n  \"path_m\": %.3f,\n"
                  "  \"drive_s\": %.3f,\n  \"cpu_ms_per_scan_median\": %.3f,\n  \"cpu_ms_per_scan_p99\": %.3f,\n"

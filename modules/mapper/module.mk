@@ -3,9 +3,10 @@
 $(eval $(call cxx_program,mapper,modules/mapper modules/mapper/core modules/localizer/core,-lz -lceres -lglog))
 $(OBJ)/modules/mapper/%.o: CPPFLAGS += -I$(TOP)/modules/localizer/core -I$(TOP)/modules/mapper/core
 
-# Unit test of the loop closure (run by make test through tests/test_c_units.py).
+# Unit tests of the loop closure and the GNSS anchoring (run by make test through tests/test_c_units.py).
 $(eval $(call cxx_test,test_mapper_loops,tests/c/test_mapper_loops.cpp modules/mapper/core/loops.cpp $(LOCREG_CORE),-lceres -lglog))
 $(OBJ)/tests/c/test_mapper_loops.o: CPPFLAGS += -I$(TOP)/modules/localizer/core
+$(eval $(call cxx_test,test_mapper_anchor,tests/c/test_mapper_anchor.cpp modules/mapper/core/anchor.cpp))
 
 # ---- bench-mapper (modules/mapper/bench): ours against KISS-ICP on the same scans
 # The default site's full loop (the bench-localizer-drive cache, else simulated) and, when

@@ -118,3 +118,35 @@ def relative_drift(est, gt, lengths=DRIFT_LENGTHS_M):
 
 def path_length(poses):
     return float(np.sum(np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1)))
+
+
+# WGS84 (NIMA TR8350.2): the map frame of a site is the tangent plane at its origin, +x yaw
+# degrees counter-clockwise from east, z up (docs/architecture.md, common/pb_geo).
+WGS84_A = 6378137.0
+WGS84_F = 1 / 298.257223563
+
+
+def _ecef(lat_deg, lon_deg, h):
+    e2 = WGS84_F * (2 - WGS84_F)
+    la, lo = np.radians(lat_deg), np.radians(lon_deg)
+    n = WGS84_A / np.sqrt(1 - e2 * np.sin(la) ** 2)
+    return np.array([(n + h) * np.cos(la) * np.cos(lo), (n + h) * np.cos(la) * np.sin(lo), (n * (1 - e2) + h) * np.sin(la)])
+
+
+def ecef_from_map(georef):
+    """4x4 transform ECEF <- map of a site's georef dict (lat0_deg, lon0_deg, alt0_m, yaw_deg)."""
+    la, lo = np.radians(georef["lat0_deg"]), np.radians(georef["lon0_deg"])
+    enu_in_ecef = np.array([[-np.sin(lo), -np.sin(la) * np.cos(lo), np.cos(la) * np.cos(lo)],
+                            [np.cos(lo), -np.sin(la) * np.sin(lo), np.cos(la) * np.sin(lo)],
+                            [0.0, np.cos(la), np.sin(la)]])
+    y = np.radians(georef.get("yaw_deg", 0.0))
+    enu_from_map = np.array([[np.cos(y), -np.sin(y), 0], [np.sin(y), np.cos(y), 0], [0, 0, 1]])
+    T = np.eye(4)
+    T[:3, :3] = enu_in_ecef @ enu_from_map
+    T[:3, 3] = _ecef(georef["lat0_deg"], georef["lon0_deg"], georef["alt0_m"])
+    return T
+
+
+def site_from_site(dst_georef, src_georef):
+    """4x4 transform between two sites' map frames: dst map <- src map (both through ECEF)."""
+    return np.linalg.inv(ecef_from_map(dst_georef)) @ ecef_from_map(src_georef)
