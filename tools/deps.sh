@@ -7,7 +7,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 APT_PKGS="build-essential pkg-config python3 python3-venv python3-pip libglib2.0-0 libglib2.0-dev \
-libyaml-dev libeigen3-dev libpcl-dev liboctomap-dev libccd-dev libceres-dev can-utils libcjson-dev zlib1g-dev \
+libyaml-dev libeigen3-dev libpcl-dev liboctomap-dev libccd-dev libceres-dev libpng-dev can-utils libcjson-dev zlib1g-dev \
 chromium chromium-driver mono-mcs mono-runtime libmono-system-runtime-serialization4.0-cil procps iproute2"
 # nodejs + npm bundle the webui pages at build time (esbuild from npm); a machine whose
 # node already brings npm (e.g. NodeSource's nodejs) must not get Debian's npm on top.

@@ -11,6 +11,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <map>
 #include <string>
 #include <sys/stat.h>
 #include <vector>
@@ -27,6 +28,7 @@
 #include "pb_progress.h"
 #include "pb_scan.h"
 #include "pb_vehicle.h"
+#include "picture.h"
 #include "portobello_gnss_fix_t.h"
 #include "portobello_lidar_scan_t.h"
 
@@ -44,7 +46,9 @@ static void usage(FILE *f)
         "and the poses are solved again with these loops (Ceres pose graph).\n"
         "Writes SITE_DIR/map.pcd (binary PCD, one point per voxel), SITE_DIR/trajectory.tum\n"
         "(base in map at the middle of each sweep, after loop closure; TUM: t x y z qx qy qz qw),\n"
-        "SITE_DIR/odometry.tum (the same before loop closure) and SITE_DIR/report.json. With\n"
+        "SITE_DIR/odometry.tum (the same before loop closure), SITE_DIR/report.json and\n"
+        "SITE_DIR/report.png (top-down: map grey, trajectory before loop closure orange and after\n"
+        "blue, loops green, GNSS fixes red; north up when geo-referenced). With\n"
         "GNSS_FIX in the log, the map is moved onto the fixes (east-north-up at the first 3-D\n"
         "fix) and SITE_DIR/site.yaml holds that geo-reference; without, the map stays in the\n"
         "first sweep's frame and no site.yaml is written.\n"
@@ -98,7 +102,8 @@ static void apply_corrections(std::vector<SweepPose> *traj, const std::vector<pb
 /* The GNSS_FIX of the log against the trajectory (pb_anchor_fit). No fix at all: not
  * anchored (result->why says so), not an error. */
 static int anchor_to_gnss(const char *log_path, const std::vector<SweepPose> &traj, const pb_vehicle_t &veh,
-                          pb_anchor_result_t *result, pb_georef_t *georef, pb_err_t *err)
+                          pb_anchor_result_t *result, pb_georef_t *georef, std::vector<Eigen::Vector3d> *fixes_enu,
+                          pb_err_t *err)
 {
     struct Fixes { std::vector<portobello_gnss_fix_t> v; int undecodable; } fixes = {{}, 0};
     auto on_fix = [](const pb_event_t *ev, void *u, pb_err_t *) {
@@ -135,6 +140,7 @@ static int anchor_to_gnss(const char *log_path, const std::vector<SweepPose> &tr
         double enu[3];
         pb_geo_wgs84_to_map(georef, f.lat_deg, f.lon_deg, f.alt_m, enu);
         o.fix_enu = Eigen::Vector3d(enu[0], enu[1], enu[2]);
+        fixes_enu->push_back(o.fix_enu);
         o.h_acc_m = f.h_acc_m;
         o.fix_3d = f.fix_type >= PORTOBELLO_GNSS_FIX_T_FIX_3D && f.fix_type != PORTOBELLO_GNSS_FIX_T_FIX_TIME_ONLY;
         obs.push_back(o);
@@ -338,6 +344,8 @@ int main(int argc, char **argv)
         loops = pb_loops_report_t{};
     }
     const double cpu_loops = pb_clock_process_cpu_ms();
+    std::vector<std::pair<int64_t, int64_t>> loop_times;
+    for (const auto &l : loops.loops) loop_times.push_back({kf[(size_t)l.first].utime, kf[(size_t)l.second].utime});
     kf.clear();
     kf.shrink_to_fit();
 
@@ -345,7 +353,8 @@ int main(int argc, char **argv)
     // frame at the first 3-D fix, which becomes the site's geo-reference.
     pb_anchor_result_t anchor = {};
     pb_georef_t georef = {};
-    if (anchor_to_gnss(log_path, traj, veh, &anchor, &georef, &err) != 0) {
+    pb_picture_layers_t layers;
+    if (anchor_to_gnss(log_path, traj, veh, &anchor, &georef, &layers.fixes, &err) != 0) {
         std::fprintf(stderr, "mapper: %s\n", err.msg);
         return 1;
     }
@@ -354,9 +363,12 @@ int main(int argc, char **argv)
             sp.pose = anchor.enu_from_map * sp.pose;
             sp.odometry = anchor.enu_from_map * sp.odometry;
         }
-    else if (!quiet)
-        std::fprintf(stderr, "mapper: warning: the map is not geo-referenced (%s); it stays in the first pose's frame\n",
-                     anchor.why);
+    else {
+        layers.fixes.clear();   /* in no frame of this map */
+        if (!quiet)
+            std::fprintf(stderr, "mapper: warning: the map is not geo-referenced (%s); it stays in the first pose's frame\n",
+                         anchor.why);
+    }
 
     // Pass 2: the map, every point with the pose at its time. The poses are at the sweeps'
     // middles: the track is carried on by the first and last steps' motion to cover the
@@ -396,6 +408,23 @@ int main(int argc, char **argv)
                 rep_path = std::string(out_dir) + "/report.json";
     if (write_tum(tum_path.c_str(), traj, false) != 0 || write_tum(odo_path.c_str(), traj, true) != 0) {
         std::fprintf(stderr, "mapper: %s: cannot write the trajectories: %s\n", out_dir, std::strerror(errno));
+        return 1;
+    }
+    // The picture.
+    {
+        std::map<int64_t, Eigen::Vector3d> at;
+        for (const SweepPose &sp : traj) {
+            layers.before.push_back(sp.odometry.translation());
+            layers.after.push_back(sp.pose.translation());
+            at[sp.utime] = sp.pose.translation();
+        }
+        for (const auto &lt : loop_times)
+            if (at.count(lt.first) && at.count(lt.second)) layers.loops.push_back({at[lt.first], at[lt.second]});
+    }
+    std::string png_path = std::string(out_dir) + "/report.png";
+    double m_per_px = 0;
+    if (pb_picture_write(map_path.c_str(), &layers, png_path.c_str(), &m_per_px, &err) != 0) {
+        std::fprintf(stderr, "mapper: %s\n", err.msg);
         return 1;
     }
     std::string site_path = std::string(out_dir) + "/site.yaml";
@@ -443,9 +472,9 @@ int main(int argc, char **argv)
                  "  \"inlier_fraction_median\": %.4f,\n  \"inlier_fraction_p01\": %.4f,\n  \"path_m\": %.3f,\n"
                  "  \"drive_s\": %.3f,\n  \"cpu_ms_per_scan_median\": %.3f,\n  \"cpu_ms_per_scan_p99\": %.3f,\n"
                  "  \"cpu_s_odometry\": %.3f,\n  \"cpu_s_loops\": %.3f,\n  \"cpu_s_map\": %.3f,\n  \"wall_s\": %.3f,\n"
-                 "  \"map_points\": %lld,\n  \"map_voxel_m\": %.3f,\n  \"scans_placed\": %ld,\n  \"scans_unplaced\": %ld\n}\n",
+                 "  \"picture\": \"report.png\",\n  \"picture_m_per_px\": %.3f,\n  \"map_points\": %lld,\n  \"map_voxel_m\": %.3f,\n  \"scans_placed\": %ld,\n  \"scans_unplaced\": %ld\n}\n",
                  pct(inl, 0.5), pct(inl, 0.01), path_m, span_s, pct(ms, 0.5), pct(ms, 0.99), (cpu1 - cpu0) / 1e3,
-                 (cpu_loops - cpu1) / 1e3, (cpu2 - cpu_loops) / 1e3, wall_s, (long long)pb_map_builder_size(map), voxel,
+                 (cpu_loops - cpu1) / 1e3, (cpu2 - cpu_loops) / 1e3, wall_s, m_per_px, (long long)pb_map_builder_size(map), voxel,
                  placed, unplaced);
     if (std::fclose(rf) != 0) {
         std::fprintf(stderr, "mapper: %s: write failed\n", rep_path.c_str());

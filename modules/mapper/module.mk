@@ -1,6 +1,6 @@
 # mapper: builds a site's prior map from a recorded drive (core: LiDAR odometry on a
 # rolling local map, reusing the localizer's registration core).
-$(eval $(call cxx_program,mapper,modules/mapper modules/mapper/core modules/localizer/core,-lz -lceres -lglog))
+$(eval $(call cxx_program,mapper,modules/mapper modules/mapper/core modules/localizer/core,-lz -lceres -lglog -lpng))
 $(OBJ)/modules/mapper/%.o: CPPFLAGS += -I$(TOP)/modules/localizer/core -I$(TOP)/modules/mapper/core
 
 # Unit tests of the loop closure and the GNSS anchoring (run by make test through tests/test_c_units.py).

@@ -1,0 +1,23 @@
+/* picture: the mapper's report as a top-down PNG (libpng): the map's points (grey, darker
+ * where denser), the trajectory before loop closure (orange) and after (blue), the loops
+ * (green, from the earlier pass's keyframe to the later one), the GNSS fixes (red dots).
+ * North is up when the map is geo-referenced (east-north-up); one pixel is `m_per_px`.
+ * Shell-side: it reads map.pcd and writes the file. */
+#ifndef PB_MAPPER_PICTURE_H
+#define PB_MAPPER_PICTURE_H
+
+#include <vector>
+#include <Eigen/Core>
+#include "pb_err.h"
+
+typedef struct {
+    std::vector<Eigen::Vector3d> before, after;   /* trajectory positions, map frame */
+    std::vector<std::pair<Eigen::Vector3d, Eigen::Vector3d>> loops;
+    std::vector<Eigen::Vector3d> fixes;           /* GNSS fixes in the map frame (may be empty) */
+} pb_picture_layers_t;
+
+/* Draws map_pcd and the layers into png_path; *m_per_px gets the scale. 0 or -1 (err set). */
+int pb_picture_write(const char *map_pcd, const pb_picture_layers_t *layers, const char *png_path, double *m_per_px,
+                     pb_err_t *err);
+
+#endif
