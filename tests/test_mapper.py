@@ -128,6 +128,15 @@ def test_gnss_anchoring_writes_the_geo_reference(drive, tmp_path):
     # loop of bench-mapper it is 0.8 m
     assert horiz.max() < 9.5
     assert np.median(yaw) < 0.4
+    # the folder is a site: the localizer loads it (its tiles, no preparing) and starts from GNSS
+    for f in ("map.pcd", "map.tiles", "ground.yaml", "ground.pgm", "trajectory.tum", "odometry.tum"):
+        assert (tmp_path / "site" / f).stat().st_size > 0, f
+    assert (tmp_path / "site" / "report.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    p = run([BIN / "localizer", "--site", tmp_path / "site", "--replay", log, "--out", tmp_path / "loc.lcm"])
+    assert "map.tiles" in p.stderr and "preparing" not in p.stderr
+    st = lb.read_poses(tmp_path / "loc.lcm", "POSE")[:, 5]
+    # measured (27 Nov): 78 of 80 POSE tracking (the GNSS start takes two sweeps)
+    assert np.mean(st == 1) > 0.9, np.bincount(st.astype(int))
     # without GNSS (the fixture's log): no site.yaml, and the report says why
     rep0 = json.loads((drive["out"] / "report.json").read_text())
     assert rep0["geo_referenced"] is False and "no GNSS_FIX" in rep0["geo_reference_why_not"]

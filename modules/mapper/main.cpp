@@ -15,6 +15,8 @@
 #include <string>
 #include <sys/stat.h>
 #include <vector>
+#include <pcl/io/pcd_io.h>
+#include <pcl/point_types.h>
 
 #include "anchor.h"
 #include "loops.h"
@@ -29,6 +31,9 @@
 #include "pb_scan.h"
 #include "pb_vehicle.h"
 #include "picture.h"
+#include "ground_build.h"
+#include "map_source.h"
+#include "pb_ground.h"
 #include "portobello_gnss_fix_t.h"
 #include "portobello_lidar_scan_t.h"
 
@@ -46,7 +51,8 @@ static void usage(FILE *f)
         "and the poses are solved again with these loops (Ceres pose graph).\n"
         "Writes SITE_DIR/map.pcd (binary PCD, one point per voxel), SITE_DIR/trajectory.tum\n"
         "(base in map at the middle of each sweep, after loop closure; TUM: t x y z qx qy qz qw),\n"
-        "SITE_DIR/odometry.tum (the same before loop closure), SITE_DIR/report.json and\n"
+        "SITE_DIR/odometry.tum (the same before loop closure), SITE_DIR/ground.yaml (+ .pgm, the\n"
+        "ground model), SITE_DIR/map.tiles (the map prepared for the localizer), report.json and\n"
         "SITE_DIR/report.png (top-down: map grey, trajectory before loop closure orange and after\n"
         "blue, loops green, GNSS fixes red; north up when geo-referenced). With\n"
         "GNSS_FIX in the log, the map is moved onto the fixes (east-north-up at the first 3-D\n"
@@ -173,6 +179,23 @@ static int write_site_yaml(const char *path, const char *name, const char *log_p
                  "  voxel_m: %.3f\n",
                  log_path, name, g.lat0_deg, g.lon0_deg, g.alt0_m, voxel);
     return std::fclose(f) == 0 ? 0 : -1;
+}
+
+/* map.tiles next to map.pcd, as tools/map-tiles writes it (through OUT.tmp, renamed). */
+static int write_tiles(const char *map_path, const char *out_path, pb_err_t *err)
+{
+    std::vector<uint8_t> bytes;
+    pb_regmap_info_t info;
+    size_t places = 0;
+    if (map_source_prepare(map_path, 32, &bytes, &info, &places, err) != 0) return -1;
+    std::string tmp = std::string(out_path) + ".tmp";
+    FILE *f = std::fopen(tmp.c_str(), "wb");
+    if (!f || std::fwrite(bytes.data(), 1, bytes.size(), f) != bytes.size() || std::fclose(f) != 0 ||
+        std::rename(tmp.c_str(), out_path) != 0) {
+        std::remove(tmp.c_str());
+        return pb_err_set(err, "%s: cannot write", tmp.c_str()), -1;
+    }
+    return 0;
 }
 
 static int write_tum(const char *path, const std::vector<SweepPose> &traj, bool odometry)
@@ -421,12 +444,36 @@ int main(int argc, char **argv)
         for (const auto &lt : loop_times)
             if (at.count(lt.first) && at.count(lt.second)) layers.loops.push_back({at[lt.first], at[lt.second]});
     }
-    std::string png_path = std::string(out_dir) + "/report.png";
-    double m_per_px = 0;
-    if (pb_picture_write(map_path.c_str(), &layers, png_path.c_str(), &m_per_px, &err) != 0) {
+    // The site's other files from the map as written: the ground model (tools/build-ground's
+    // core), the tiles the localizer pages (its map_source), and the picture.
+    pcl::PointCloud<pcl::PointXYZ> cloud;
+    if (pcl::io::loadPCDFile(map_path, cloud) < 0) {
+        std::fprintf(stderr, "mapper: %s: cannot read it back\n", map_path.c_str());
+        return 1;
+    }
+    const float *xyz0 = cloud.empty() ? nullptr : &cloud.points[0].x;
+    const size_t stride = sizeof(pcl::PointXYZ) / sizeof(float);
+    gb_config_t gcfg;
+    gb_config_default(&gcfg);
+    size_t nground = 0;
+    pb_ground_t *ground = gb_build(xyz0, cloud.size(), stride, &gcfg, &nground);
+    std::string ground_path = std::string(out_dir) + "/ground.yaml";
+    if (!ground || pb_ground_save(ground, ground_path.c_str(), &err) != 0) {
+        std::fprintf(stderr, "mapper: %s: %s\n", ground_path.c_str(), ground ? err.msg : "no ground in the map");
+        return 1;
+    }
+    pb_ground_destroy(ground);
+    if (write_tiles(map_path.c_str(), (std::string(out_dir) + "/map.tiles").c_str(), &err) != 0) {
         std::fprintf(stderr, "mapper: %s\n", err.msg);
         return 1;
     }
+    std::string png_path = std::string(out_dir) + "/report.png";
+    double m_per_px = 0;
+    if (pb_picture_write(xyz0, cloud.size(), stride, &layers, png_path.c_str(), &m_per_px, &err) != 0) {
+        std::fprintf(stderr, "mapper: %s\n", err.msg);
+        return 1;
+    }
+    cloud = pcl::PointCloud<pcl::PointXYZ>();
     std::string site_path = std::string(out_dir) + "/site.yaml";
     if (anchor.anchored) {
         std::string name = out_dir;

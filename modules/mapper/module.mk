@@ -1,7 +1,9 @@
 # mapper: builds a site's prior map from a recorded drive (core: LiDAR odometry on a
 # rolling local map, reusing the localizer's registration core).
 $(eval $(call cxx_program,mapper,modules/mapper modules/mapper/core modules/localizer/core,-lz -lceres -lglog -lpng))
-$(OBJ)/modules/mapper/%.o: CPPFLAGS += -I$(TOP)/modules/localizer/core -I$(TOP)/modules/mapper/core
+$(BIN)/mapper: $(OBJ)/modules/localizer/map_source.o $(OBJ)/tools/build-ground/ground_build.o
+$(OBJ)/modules/mapper/%.o: CPPFLAGS += -I$(TOP)/modules/localizer/core -I$(TOP)/modules/mapper/core \
+                                       -I$(TOP)/modules/localizer -I$(TOP)/tools/build-ground
 
 # Unit tests of the loop closure and the GNSS anchoring (run by make test through tests/test_c_units.py).
 $(eval $(call cxx_test,test_mapper_loops,tests/c/test_mapper_loops.cpp modules/mapper/core/loops.cpp $(LOCREG_CORE),-lceres -lglog))

@@ -7,8 +7,6 @@
 #include <cstdio>
 #include <cstring>
 #include <png.h>
-#include <pcl/io/pcd_io.h>
-#include <pcl/point_types.h>
 
 namespace {
 struct Canvas {
@@ -39,11 +37,9 @@ struct Canvas {
 };
 }  // namespace
 
-int pb_picture_write(const char *map_pcd, const pb_picture_layers_t *L, const char *png_path, double *m_per_px,
-                     pb_err_t *err)
+int pb_picture_write(const float *xyz, size_t n, size_t stride, const pb_picture_layers_t *L, const char *png_path,
+                     double *m_per_px, pb_err_t *err)
 {
-    pcl::PointCloud<pcl::PointXYZ> cloud;
-    if (pcl::io::loadPCDFile(map_pcd, cloud) < 0) return pb_err_set(err, "%s: cannot read it back", map_pcd), -1;
     if (L->after.empty()) return pb_err_set(err, "picture: no trajectory"), -1;
     /* the drive's surroundings: the trajectory's extent and 40 m around (the map reaches
      * the sensor's range, mostly sparse far returns) */
@@ -58,8 +54,9 @@ int pb_picture_write(const char *map_pcd, const pb_picture_layers_t *L, const ch
     cv.x0 = lo.x();
     cv.y1 = hi.y();
     std::vector<uint32_t> count((size_t)cv.w * cv.h, 0);
-    for (const auto &p : cloud.points) {
-        int c = (int)std::floor((p.x - cv.x0) / cv.res), r = (int)std::floor((cv.y1 - p.y) / cv.res);
+    for (size_t i = 0; i < n; i++) {
+        const float *p = xyz + i * stride;
+        int c = (int)std::floor((p[0] - cv.x0) / cv.res), r = (int)std::floor((cv.y1 - p[1]) / cv.res);
         if (c >= 0 && r >= 0 && c < cv.w && r < cv.h) count[(size_t)r * cv.w + c]++;
     }
     uint32_t top = std::max<uint32_t>(1, *std::max_element(count.begin(), count.end()));

@@ -2,7 +2,7 @@
  * where denser), the trajectory before loop closure (orange) and after (blue), the loops
  * (green, from the earlier pass's keyframe to the later one), the GNSS fixes (red dots).
  * North is up when the map is geo-referenced (east-north-up); one pixel is `m_per_px`.
- * Shell-side: it reads map.pcd and writes the file. */
+ * Shell-side: it writes the file. */
 #ifndef PB_MAPPER_PICTURE_H
 #define PB_MAPPER_PICTURE_H
 
@@ -16,8 +16,9 @@ typedef struct {
     std::vector<Eigen::Vector3d> fixes;           /* GNSS fixes in the map frame (may be empty) */
 } pb_picture_layers_t;
 
-/* Draws map_pcd and the layers into png_path; *m_per_px gets the scale. 0 or -1 (err set). */
-int pb_picture_write(const char *map_pcd, const pb_picture_layers_t *layers, const char *png_path, double *m_per_px,
-                     pb_err_t *err);
+/* Draws the map's n points (x, y, z floats, `stride` floats apart) and the layers into
+ * png_path; *m_per_px gets the scale. 0 or -1 (err set). */
+int pb_picture_write(const float *xyz, size_t n, size_t stride, const pb_picture_layers_t *layers, const char *png_path,
+                     double *m_per_px, pb_err_t *err);
 
 #endif
