@@ -19,6 +19,7 @@
 #include <pcl/point_types.h>
 
 #include "anchor.h"
+#include "carve.h"
 #include "loops.h"
 #include "odometry.h"
 #include "pb_clock.h"
@@ -224,7 +225,7 @@ static double pct(std::vector<double> v, double p)
 /* Every LIDAR_SCAN of the log in turn: fn(utime, points in base, event) returns 0 or -1. */
 template <class F>
 static int for_each_sweep(const char *log_path, const char *scan_ch, const Eigen::Isometry3d &base_from_lidar,
-                          pb_progress_t *prog, F fn, long *empty, pb_err_t *err)
+                          long every, pb_progress_t *prog, F fn, long *empty, pb_err_t *err)
 {
     pb_log_t *log = pb_log_open_read(log_path, err);
     if (!log) return -1;
@@ -237,7 +238,7 @@ static int for_each_sweep(const char *log_path, const char *scan_ch, const Eigen
     while ((rc = pb_log_next(log, &ev, err)) == 1) {
         if (std::strcmp(ev.channel, scan_ch) != 0) continue;
         if (prog) pb_progress_update(prog, seen);
-        seen++;
+        if (seen++ % every) continue;
         portobello_lidar_scan_t s;
         if (portobello_lidar_scan_t_decode(ev.data, 0, ev.datalen, &s) < 0) {
             pb_err_set(err, "%s: byte %lld: %s does not decode as lidar_scan_t", log_path, (long long)ev.offset,
@@ -323,7 +324,7 @@ int main(int argc, char **argv)
     int64_t last_scan_utime = 0;
     pb_progress_t prog;
     pb_progress_start(&prog, "mapper: odometry", total, quiet);
-    int rc = for_each_sweep(log_path, scan_ch, base_from_lidar, &prog,
+    int rc = for_each_sweep(log_path, scan_ch, base_from_lidar, 1, &prog,
         [&](int64_t utime, const std::vector<float> &xyz, const pb_points_t &pts, const pb_event_t &, pb_err_t *e) {
             if (!traj.empty() && utime <= last_scan_utime) { out_of_order++; return 0; }
             last_scan_utime = utime;
@@ -410,7 +411,7 @@ int main(int argc, char **argv)
     pb_transform_t bl = veh.base_from_lidar;
     long placed = 0, unplaced = 0, empty_again = 0;
     pb_progress_start(&prog, "mapper: map", total, quiet);
-    rc = map ? for_each_sweep(log_path, scan_ch, Eigen::Isometry3d::Identity(), &prog,
+    rc = map ? for_each_sweep(log_path, scan_ch, Eigen::Isometry3d::Identity(), 1, &prog,
         [&](int64_t utime, const std::vector<float> &, const pb_points_t &pts, const pb_event_t &, pb_err_t *e) {
             int r = pb_map_builder_add_timed(map, &pts, utime, track, &bl, e);
             if (r < 0) return -1;
@@ -423,7 +424,70 @@ int main(int argc, char **argv)
         std::fprintf(stderr, "mapper: %s\n", err.msg);
         return 1;
     }
+    pb_map_builder_destroy(map);
+
+    // Pass 3: what moved is carved out of the map (core/carve.h), on a sample of the rays
+    // (every 4th sweep, every 13th point: 13 is prime to the beam count, so every beam
+    // takes its turn). The ground model comes first: carving spares the band over it.
+    pcl::PointCloud<pcl::PointXYZI> cloud;
+    if (pcl::io::loadPCDFile(map_path, cloud) < 0) {
+        std::fprintf(stderr, "mapper: %s: cannot read it back\n", map_path.c_str());
+        return 1;
+    }
+    const size_t stride = sizeof(pcl::PointXYZI) / sizeof(float);
+    gb_config_t gcfg;
+    gb_config_default(&gcfg);
+    size_t nground = 0;
+    pb_ground_t *ground = gb_build(cloud.empty() ? nullptr : &cloud.points[0].x, cloud.size(), stride, &gcfg, &nground);
+    std::string ground_path = std::string(out_dir) + "/ground.yaml";
+    if (!ground || pb_ground_save(ground, ground_path.c_str(), &err) != 0) {
+        std::fprintf(stderr, "mapper: %s: %s\n", ground_path.c_str(), ground ? err.msg : "no ground in the map");
+        return 1;
+    }
+    pb_carve_t *carve = pb_carve_create(&cloud.points[0].x, cloud.size(), stride, ground, nullptr);
+    const Eigen::Isometry3d blT = pb_reg_from_transform(&bl);
+    pb_progress_start(&prog, "mapper: carve", total, quiet);
+    rc = for_each_sweep(log_path, scan_ch, Eigen::Isometry3d::Identity(), 4, &prog,
+        [&](int64_t utime, const std::vector<float> &, const pb_points_t &pts, const pb_event_t &, pb_err_t *) {
+            int32_t cached = INT32_MIN;
+            Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+            bool have = false;
+            for (int i = 0; i < pts.n; i += 13) {
+                if (pts.offset_us[i] != cached) {
+                    cached = pts.offset_us[i];
+                    pb_transform_t t;
+                    have = pb_pose_track_at(track, utime + cached, &t);
+                    if (have) T = pb_reg_from_transform(&t) * blT;
+                }
+                if (!have) continue;
+                Eigen::Vector3d o = T.translation(), e = T * Eigen::Vector3d(pts.x[i], pts.y[i], pts.z[i]);
+                pb_carve_ray(carve, utime + cached, o.data(), e.data());
+            }
+            return 0;
+        }, &empty_again, &err);
+    if (rc != 0) {
+        std::fprintf(stderr, "mapper: %s\n", err.msg);
+        return 1;
+    }
+    pb_progress_finish(&prog);
+    std::vector<uint8_t> keep;
+    const size_t carved = pb_carve_keep(carve, &keep);
+    pb_carve_destroy(carve);
+    pb_ground_destroy(ground);
     pb_pose_track_destroy(track);
+    {
+        pcl::PointCloud<pcl::PointXYZI> kept;
+        kept.reserve(cloud.size() - carved);
+        for (size_t i = 0; i < cloud.size(); i++)
+            if (keep[i]) kept.push_back(cloud.points[i]);
+        cloud.swap(kept);
+    }
+    std::string tmp = map_path + ".tmp";
+    if (pcl::io::savePCDFileBinary(tmp, cloud) < 0 || std::rename(tmp.c_str(), map_path.c_str()) != 0) {
+        std::remove(tmp.c_str());
+        std::fprintf(stderr, "mapper: %s: cannot write\n", map_path.c_str());
+        return 1;
+    }
 
     // The trajectories and the report.
     const double cpu2 = pb_clock_process_cpu_ms();
@@ -444,36 +508,20 @@ int main(int argc, char **argv)
         for (const auto &lt : loop_times)
             if (at.count(lt.first) && at.count(lt.second)) layers.loops.push_back({at[lt.first], at[lt.second]});
     }
-    // The site's other files from the map as written: the ground model (tools/build-ground's
-    // core), the tiles the localizer pages (its map_source), and the picture.
-    pcl::PointCloud<pcl::PointXYZ> cloud;
-    if (pcl::io::loadPCDFile(map_path, cloud) < 0) {
-        std::fprintf(stderr, "mapper: %s: cannot read it back\n", map_path.c_str());
-        return 1;
-    }
-    const float *xyz0 = cloud.empty() ? nullptr : &cloud.points[0].x;
-    const size_t stride = sizeof(pcl::PointXYZ) / sizeof(float);
-    gb_config_t gcfg;
-    gb_config_default(&gcfg);
-    size_t nground = 0;
-    pb_ground_t *ground = gb_build(xyz0, cloud.size(), stride, &gcfg, &nground);
-    std::string ground_path = std::string(out_dir) + "/ground.yaml";
-    if (!ground || pb_ground_save(ground, ground_path.c_str(), &err) != 0) {
-        std::fprintf(stderr, "mapper: %s: %s\n", ground_path.c_str(), ground ? err.msg : "no ground in the map");
-        return 1;
-    }
-    pb_ground_destroy(ground);
+    // The tiles the localizer pages (its map_source), from the map as written.
     if (write_tiles(map_path.c_str(), (std::string(out_dir) + "/map.tiles").c_str(), &err) != 0) {
         std::fprintf(stderr, "mapper: %s\n", err.msg);
         return 1;
     }
+    const float *xyz0 = cloud.empty() ? nullptr : &cloud.points[0].x;
     std::string png_path = std::string(out_dir) + "/report.png";
     double m_per_px = 0;
     if (pb_picture_write(xyz0, cloud.size(), stride, &layers, png_path.c_str(), &m_per_px, &err) != 0) {
         std::fprintf(stderr, "mapper: %s\n", err.msg);
         return 1;
     }
-    cloud = pcl::PointCloud<pcl::PointXYZ>();
+    const size_t map_points = cloud.size();
+    cloud = pcl::PointCloud<pcl::PointXYZI>();
     std::string site_path = std::string(out_dir) + "/site.yaml";
     if (anchor.anchored) {
         std::string name = out_dir;
@@ -519,9 +567,9 @@ int main(int argc, char **argv)
                  "  \"inlier_fraction_median\": %.4f,\n  \"inlier_fraction_p01\": %.4f,\n  \"path_m\": %.3f,\n"
                  "  \"drive_s\": %.3f,\n  \"cpu_ms_per_scan_median\": %.3f,\n  \"cpu_ms_per_scan_p99\": %.3f,\n"
                  "  \"cpu_s_odometry\": %.3f,\n  \"cpu_s_loops\": %.3f,\n  \"cpu_s_map\": %.3f,\n  \"wall_s\": %.3f,\n"
-                 "  \"picture\": \"report.png\",\n  \"picture_m_per_px\": %.3f,\n  \"map_points\": %lld,\n  \"map_voxel_m\": %.3f,\n  \"scans_placed\": %ld,\n  \"scans_unplaced\": %ld\n}\n",
+                 "  \"picture\": \"report.png\",\n  \"picture_m_per_px\": %.3f,\n  \"map_points\": %zu,\n  \"map_points_carved\": %zu,\n  \"map_voxel_m\": %.3f,\n  \"scans_placed\": %ld,\n  \"scans_unplaced\": %ld\n}\n",
                  pct(inl, 0.5), pct(inl, 0.01), path_m, span_s, pct(ms, 0.5), pct(ms, 0.99), (cpu1 - cpu0) / 1e3,
-                 (cpu_loops - cpu1) / 1e3, (cpu2 - cpu_loops) / 1e3, wall_s, m_per_px, (long long)pb_map_builder_size(map), voxel,
+                 (cpu_loops - cpu1) / 1e3, (cpu2 - cpu_loops) / 1e3, wall_s, m_per_px, map_points, carved, voxel,
                  placed, unplaced);
     if (std::fclose(rf) != 0) {
         std::fprintf(stderr, "mapper: %s: write failed\n", rep_path.c_str());
@@ -531,10 +579,9 @@ int main(int argc, char **argv)
         std::fprintf(stderr,
                      "mapper: %zu sweeps over %.1f m in %.1f s of drive (tracked %ld, searched %ld, weak %ld, "
                      "predicted %ld); %d loop(s) of %d tried, largest correction %.2f m; odometry %.2f ms per sweep "
-                     "(median CPU), %lld map points; %.1f s wall\n",
+                     "(median CPU), %zu map points (%zu carved: moved); %.1f s wall\n",
                      traj.size(), path_m, span_s, by_status[PB_ODOM_TRACKED], by_status[PB_ODOM_SEARCHED],
                      by_status[PB_ODOM_WEAK], by_status[PB_ODOM_PREDICTED], loops.verified, loops.candidates,
-                     loops.max_change_m, pct(ms, 0.5), (long long)pb_map_builder_size(map), wall_s);
-    pb_map_builder_destroy(map);
+                     loops.max_change_m, pct(ms, 0.5), map_points, carved, wall_s);
     return 0;
 }

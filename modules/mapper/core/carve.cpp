@@ -1,0 +1,105 @@
+/* carve: see carve.h. */
+#include "carve.h"
+
+#include <cmath>
+
+#include "voxel_hash.h"
+
+namespace {
+struct Count {
+    uint32_t hits, passes;
+    int64_t first_hit, last_hit;   /* utime */
+    uint8_t protect;   /* in the band over the ground: never carved */
+};
+}  // namespace
+
+struct pb_carve {
+    pb_carve_config_t cfg;
+    double inv;
+    pb_loc::VoxelHash index;
+    std::vector<Count> counts;
+    std::vector<int32_t> point_cell;   /* per map point, its cell (-1: outside the key range) */
+};
+
+pb_carve_t *pb_carve_create(const float *xyz, size_t n, size_t stride, const pb_ground_t *ground,
+                            const pb_carve_config_t *cfg)
+{
+    pb_carve_t *c = new pb_carve();
+    if (cfg) c->cfg = *cfg;
+    c->inv = 1.0 / c->cfg.cell_m;
+    c->index.reset(n / 4 + 16);
+    c->point_cell.assign(n, -1);
+    for (size_t i = 0; i < n; i++) {
+        const float *p = xyz + i * stride;
+        uint64_t key;
+        if (!pb_loc::voxel_key_of(p[0], p[1], p[2], c->inv, &key)) continue;
+        bool fresh;
+        int32_t k = c->index.insert(key, (int32_t)c->counts.size(), &fresh);
+        if (fresh) {
+            double g;
+            uint8_t protect = ground && pb_ground_height(ground, p[0], p[1], &g) == 0 &&
+                              std::floor(p[2] * c->inv) * c->cfg.cell_m <= g + c->cfg.ground_band_m;
+            c->counts.push_back(Count{0, 0, 0, 0, protect});
+        }
+        c->point_cell[i] = k;
+    }
+    return c;
+}
+
+void pb_carve_destroy(pb_carve_t *c) { delete c; }
+
+void pb_carve_ray(pb_carve_t *c, int64_t utime, const double o[3], const double e[3])
+{
+    double d[3] = {e[0] - o[0], e[1] - o[1], e[2] - o[2]};
+    double len = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+    if (!(len > 1e-6) || len > c->cfg.max_range_m) return;
+    uint64_t key;
+    if (pb_loc::voxel_key_of(e[0], e[1], e[2], c->inv, &key)) {
+        int32_t k = c->index.find(key);
+        if (k >= 0) {
+            Count &n = c->counts[(size_t)k];
+            if (n.hits++ == 0) n.first_hit = utime;
+            n.last_hit = utime;
+        }
+    }
+    /* the cells the ray crosses up to end_margin_m before its end, in order (a 3-D DDA) */
+    const double stop = len - c->cfg.end_margin_m;
+    if (stop <= 0) return;
+    int64_t v[3], step[3];
+    double tmax[3], tdelta[3];
+    for (int a = 0; a < 3; a++) {
+        double u = d[a] / len, x = o[a] * c->inv;
+        v[a] = pb_floor_i64(x);
+        step[a] = u > 0 ? 1 : -1;
+        tdelta[a] = u != 0 ? c->cfg.cell_m / std::fabs(u) : INFINITY;
+        double frac = u > 0 ? (double)(v[a] + 1) - x : x - (double)v[a];
+        tmax[a] = u != 0 ? frac * c->cfg.cell_m / std::fabs(u) : INFINITY;
+    }
+    for (;;) {
+        if (pb_loc::voxel_key(v[0], v[1], v[2], &key)) {
+            int32_t k = c->index.find(key);
+            if (k >= 0) c->counts[(size_t)k].passes++;
+        }
+        int a = tmax[0] < tmax[1] ? (tmax[0] < tmax[2] ? 0 : 2) : (tmax[1] < tmax[2] ? 1 : 2);
+        if (tmax[a] > stop) break;
+        v[a] += step[a];
+        tmax[a] += tdelta[a];
+    }
+}
+
+size_t pb_carve_keep(const pb_carve_t *c, std::vector<uint8_t> *keep)
+{
+    keep->assign(c->point_cell.size(), 1);
+    size_t carved = 0;
+    for (size_t i = 0; i < c->point_cell.size(); i++) {
+        int32_t k = c->point_cell[i];
+        if (k < 0) continue;
+        const Count &n = c->counts[(size_t)k];
+        if (!n.protect && n.passes >= (uint32_t)c->cfg.min_passes && n.passes > c->cfg.pass_ratio * n.hits &&
+            n.last_hit - n.first_hit <= (int64_t)(c->cfg.transient_s * 1e6)) {
+            (*keep)[i] = 0;
+            carved++;
+        }
+    }
+    return carved;
+}
