@@ -440,9 +440,13 @@ int main(int argc, char **argv)
     size_t nground = 0;
     pb_ground_t *ground = gb_build(cloud.empty() ? nullptr : &cloud.points[0].x, cloud.size(), stride, &gcfg, &nground);
     std::string ground_path = std::string(out_dir) + "/ground.yaml";
-    if (!ground || pb_ground_save(ground, ground_path.c_str(), &err) != 0) {
-        std::fprintf(stderr, "mapper: %s: %s\n", ground_path.c_str(), ground ? err.msg : "no ground in the map");
-        return 1;
+    /* a site without a ground model is still a site for the localizer: say why, go on */
+    std::string ground_why;
+    if (!ground) ground_why = "no ground in the map";
+    else if (pb_ground_save(ground, ground_path.c_str(), &err) != 0) ground_why = err.msg;
+    if (!ground_why.empty()) {
+        std::remove(ground_path.c_str());
+        std::fprintf(stderr, "mapper: warning: no ground model written: %s\n", ground_why.c_str());
     }
     pb_carve_t *carve = pb_carve_create(&cloud.points[0].x, cloud.size(), stride, ground, nullptr);
     const Eigen::Isometry3d blT = pb_reg_from_transform(&bl);
@@ -558,6 +562,8 @@ int main(int argc, char **argv)
     std::fprintf(rf, "  \"loop_candidates\": %d,\n  \"loops\": %d,\n  \"loops_rejected\": %d,\n  \"loops_dropped\": %d,\n"
                      "  \"loop_correction_max_m\": %.4f,\n",
                  loops.candidates, loops.verified, loops.rejected, loops.dropped, loops.max_change_m);
+    std::fprintf(rf, "  \"ground_model\": %s,\n  \"ground_model_why_not\": \"%s\",\n", ground_why.empty() ? "true" : "false",
+                 ground_why.c_str());
     std::fprintf(rf, "  \"geo_referenced\": %s,\n  \"geo_reference_why_not\": \"%s\",\n  \"gnss_fixes_used\": %d,\n"
                      "  \"gnss_fixes_gated\": %d,\n  \"gnss_fixes_rejected\": %d,\n  \"gnss_resid_median_m\": %.3f,\n"
                      "  \"gnss_resid_p90_m\": %.3f,\n  \"gnss_resid_max_m\": %.3f,\n",

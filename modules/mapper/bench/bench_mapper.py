@@ -2,6 +2,8 @@
 """make bench-mapper: the mapper's trajectory against KISS-ICP odometry on the same scans.
 
 Drives:
+  hills   maps/hills, 30 s aggressive (grades, crests, sags): bench-terrain-localizer's cached
+          drive, else simulated the same way into build/bench/mapper/hills/.
   sim     the default site's full loop (seed 4, aggressive, 232 s, about 1.5 km): the drive
           cached by bench-localizer-drive (build/bench-localizer-drive/s4_aggressive_232/
           drive.lcm) when it is there, else simulated the same way into build/bench/mapper/sim/.
@@ -100,6 +102,28 @@ def sim_drive(sim_log):
         (tmp / "drive.lcm").replace(log_path)
         shutil.rmtree(tmp, ignore_errors=True)
     return log_path, f"simdrive {' '.join(SIM_ARGS)}"
+
+
+HILLS_CACHED = ROOT / "build" / "bench-terrain-loc" / "loc-hills-aggressive-1" / "drive.lcm"
+HILLS_ARGS = ["--site", str(ROOT / "maps" / "hills"), "--seed", "1", "--speed-profile", "aggressive", "--duration", "30",
+              "--quiet"]   # as bench-terrain-localizer's
+
+
+def hills_drive():
+    """maps/hills, 30 s aggressive (grades, crests and sags): bench-terrain-localizer's drive
+    when it is cached, else simulated the same way."""
+    if HILLS_CACHED.exists():
+        return HILLS_CACHED
+    d = OUT / "hills"
+    log_path = d / "drive.lcm"
+    if not newer(log_path, BIN / "simdrive", ROOT / "maps" / "hills" / "world.yaml"):
+        tmp = d.with_name("hills.tmp")
+        shutil.rmtree(tmp, ignore_errors=True)
+        sh([BIN / "simdrive", "--out", tmp, *HILLS_ARGS])
+        d.mkdir(parents=True, exist_ok=True)
+        (tmp / "drive.lcm").replace(log_path)
+        shutil.rmtree(tmp, ignore_errors=True)
+    return log_path
 
 
 def mulran_drive():
@@ -459,7 +483,7 @@ def print_table(result):
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
                                  epilog="Writes build/bench/mapper.json; work files in build/bench/mapper/.")
-    ap.add_argument("--drives", default="sim,mulran", help="comma-separated: sim, mulran (default both)")
+    ap.add_argument("--drives", default="sim,hills,mulran", help="comma-separated: sim, hills, mulran (default all)")
     ap.add_argument("--sim-log", help="the simulated loop's log (default: the bench-localizer-drive cache, else simulated)")
     ap.add_argument("--refined", default=str(REFINED),
                     help="MulRan refined reference (default: bench-localizer-real's, if it made one)")
@@ -474,11 +498,11 @@ def main():
     except ImportError as e:
         sys.exit(f"bench_mapper: kiss-icp is not installed in {sys.executable}'s environment ({e}): make deps")
     drives = [x.strip() for x in args.drives.split(",") if x.strip()]
-    unknown = set(drives) - {"sim", "mulran"}
+    unknown = set(drives) - {"sim", "hills", "mulran"}
     if unknown:
-        sys.exit(f"bench_mapper: --drives: unknown drive(s) {', '.join(sorted(unknown))}; expected sim, mulran")
+        sys.exit(f"bench_mapper: --drives: unknown drive(s) {', '.join(sorted(unknown))}; expected sim, hills, mulran")
     need = ["mapper", "scan-export"] + (["import-scans"] if "mulran" in drives and MULRAN.is_dir() else []) + \
-        (["simdrive"] if "sim" in drives and not args.sim_log and not SIM_CACHED.exists() else [])
+        (["simdrive"] if ("sim" in drives and not args.sim_log and not SIM_CACHED.exists()) or "hills" in drives else [])
     for b in need:
         if not (BIN / b).exists():
             sys.exit(f"bench_mapper: {BIN / b} is missing: make {BIN / b}")
@@ -494,6 +518,9 @@ def main():
         if "error" not in result["drives"]["sim"]["methods"]["ours"]:
             log("[sim] the localizer on the mapper's map ...")
             localize_on_mapped_map(log_path, OUT / "sim" / "ours", result)
+    if "hills" in drives:
+        bench_drive("hills", hills_drive(), ROOT / "vehicles" / "prius2017.yaml", SIM_SENSOR_RANGE_M, "GROUND_TRUTH",
+                    None, args, result)
     if "mulran" in drives:
         if not MULRAN.is_dir():
             print(f"mulran: skipped, {MULRAN} is absent")

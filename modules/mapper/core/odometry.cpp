@@ -39,7 +39,8 @@ struct pb_odom {
      * while the sweeps go on; swapped in at the next rebuild (a fixed sweep, whatever the
      * threads' timing: the same sweeps give the same poses) */
     std::future<pb_regmap_t *> next;
-    int64_t next_sweep = 0;   /* the sweep it is swapped in before */
+    int64_t next_sweep = 0;   /* the sweep it is swapped in before ... */
+    Vec3 next_from = Vec3::Zero();   /* ... or once the car is kSwapAfterM from where it started */
     std::string next_err;
 };
 
@@ -48,6 +49,9 @@ struct pb_odom {
  * enough that the map keeps up with the car (a map 30 sweeps old doubled the error of a
  * moving start). */
 static const int kSwapAfter = 8;
+/* ... or once the car has moved this far since: sweeps metres apart (keyframes of a dataset)
+ * would otherwise be registered to a map tens of metres behind them. */
+static const double kSwapAfterM = 4.0;
 
 /* A cell stops taking points after this many: its centroid is settled, and a cell
  * that keeps being hit (the road under the car) costs nothing more. */
@@ -140,6 +144,7 @@ static int rebuild(pb_odom_t *o, const Vec3 &at, pb_err_t *err)
     }
     if (swap_in(o, err) != 0) return -1;
     o->next_sweep = o->sweeps + kSwapAfter;
+    o->next_from = at;
     o->next = std::async(std::launch::async, [o, pts = std::move(pts)]() {
         pb_err_t e;
         pb_regmap_t *m = pb_regmap_from_points(pts.data(), pts.size() / 3, nullptr, &e);
@@ -194,12 +199,12 @@ int pb_odom_add(pb_odom_t *o, int64_t utime, const float *xyz, const int32_t *of
         int rc = o->motion_known ? pb_reg_align(o->regmap, pts.data(), n, pred, &tcfg, &m, err) : PB_REG_FEW_POINTS;
         if (rc < 0) return -1;
         r.status = PB_ODOM_TRACKED;
-        if (rc == PB_REG_FEW_POINTS || !(m.inlier_fraction >= o->cfg.min_inlier_fraction)) {
+        if (rc == PB_REG_FEW_POINTS) {
             pb_reg_result_t g;
             int rg = pb_reg_align_global(o->regmap, pts.data(), n, pred, o->cfg.search_radius_m,
                                          o->cfg.search_yaw_deg * M_PI / 180, &o->reg, &g, err);
             if (rg < 0) return -1;
-            if (rg != PB_REG_FEW_POINTS && (rc == PB_REG_FEW_POINTS || g.inlier_fraction > m.inlier_fraction)) {
+            if (rg != PB_REG_FEW_POINTS) {
                 m = g;
                 rc = rg;
                 r.status = PB_ODOM_SEARCHED;
@@ -211,7 +216,7 @@ int pb_odom_add(pb_odom_t *o, int64_t utime, const float *xyz, const int32_t *of
         } else {
             r.pose = m.pose;
             r.inlier_fraction = m.inlier_fraction;
-            if (!(m.inlier_fraction >= o->cfg.min_inlier_fraction)) r.status = PB_ODOM_WEAK;
+            if (!(m.inlier_fraction >= o->cfg.weak_inlier_fraction)) r.status = PB_ODOM_WEAK;
         }
         // 4. the step gives the motion for the next sweep
         Eigen::Isometry3d step = o->last_pose.inverse() * r.pose;
@@ -226,7 +231,8 @@ int pb_odom_add(pb_odom_t *o, int64_t utime, const float *xyz, const int32_t *of
     o->sweeps++;
     o->last_utime = t_ref;
     o->last_pose = r.pose;
-    if (o->next.valid() && o->sweeps >= o->next_sweep) {
+    if (o->next.valid() &&
+        (o->sweeps >= o->next_sweep || (r.pose.translation() - o->next_from).norm() >= kSwapAfterM)) {
         if (swap_in(o, err) != 0) return -1;
         r.rebuilt = 1;
     }

@@ -11,8 +11,8 @@
  *      velocity; none yet on the first steps);
  *   2. deskew the sweep to its middle with that motion;
  *   3. register it to the local map from the prediction; when the motion is not yet
- *      known or the match explains too little of the sweep, search around the
- *      prediction instead (pb_reg_align_global) and keep the better;
+ *      known, or too few points match, search around the prediction instead
+ *      (pb_reg_align_global);
  *   4. the step from the last pose gives the next motion;
  *   5. add the sweep's points to the local map (one centroid per cell), and every
  *      few metres rebuild the registration map from the cells near the car.
@@ -38,7 +38,10 @@ typedef struct {
     double rebuild_m = 10;           /* rebuild the registration map after the car moved this far ... */
     int rebuild_sweeps = 30;         /* ... or after this many sweeps (the LiDAR sees far ahead: the
                                       * map of 10 m ago still covers the sweep) */
-    double min_inlier_fraction = 0.3;  /* a match explaining less than this is searched again */
+    double weak_inlier_fraction = 0.3; /* a match explaining less than this is counted weak (the
+                                        * report); not searched again: real roadsides (foliage)
+                                        * explain 10-20 % at the right pose, and a search then
+                                        * finds wrong places that explain as much */
     double search_radius_m = 10;     /* that search: within this of the prediction ... */
     double search_yaw_deg = 30;      /* ... and this of its yaw */
     double prior_sigma_m = 0.5;      /* spread of the constant-velocity prediction (registration.h) */
@@ -50,7 +53,7 @@ enum {
     PB_ODOM_FIRST = 0,      /* the first sweep: the map's origin */
     PB_ODOM_TRACKED = 1,    /* registered from the prediction */
     PB_ODOM_SEARCHED = 2,   /* registered after a search around the prediction */
-    PB_ODOM_WEAK = 3,       /* the best match still explained less than min_inlier_fraction:
+    PB_ODOM_WEAK = 3,       /* the match explained less than weak_inlier_fraction:
                              * kept (it is the best estimate there is), counted in the report */
     PB_ODOM_PREDICTED = 4   /* no match at all (too few points): the prediction */
 };
