@@ -21,7 +21,9 @@ namespace {
 
 const int KEY_ORIGIN = 32768;               /* OctoMap's key of coordinate 0 (tree depth 16) */
 const int BLOCK_FINE_LOG2 = 5;              /* 32 fine voxels: 6.4 m blocks at 0.2 m */
-/* bitmap index of the fine occupied voxels, a ring over keys (x, y: 102.4 m; z: 12.8 m at 0.2 m) */
+/* bitmap index of the fine occupied voxels, a ring over keys (x, y: 102.4 m; z: 12.8 m at 0.2 m),
+ * z the fastest: a column of voxels is one word (a LiDAR column's returns on an object are
+ * neighbours in z), and neighbours in x are the next words */
 const int FX = 512, FZ = 64;
 /* bitmap of observed voxels, a ring (x, y: 128 cells; z: 16) */
 const int CX = 128, CZ = 16;
@@ -145,7 +147,7 @@ struct occ_map_t {
     explicit occ_map_t(const occ_config_t &c) : cfg(c), fine(c.resolution), observed(c.observed_resolution) {}
 };
 
-static inline size_t fine_bit(const OcTreeKey &k) { return ((size_t)(k[2] & (FZ - 1)) * FX + (k[1] & (FX - 1))) * FX + (k[0] & (FX - 1)); }
+static inline size_t fine_bit(const OcTreeKey &k) { return ((size_t)(k[1] & (FX - 1)) * FX + (k[0] & (FX - 1))) * FZ + (k[2] & (FZ - 1)); }
 static inline size_t obs_bit(const OcTreeKey &k) { return ((size_t)(k[2] & (CZ - 1)) * CX + (k[1] & (CX - 1))) * CX + (k[0] & (CX - 1)); }
 static inline bool get_bit(const std::vector<uint64_t> &b, size_t i) { return (b[i >> 6] >> (i & 63)) & 1; }
 static inline void set_bit(std::vector<uint64_t> &b, size_t i) { b[i >> 6] |= 1ull << (i & 63); }
@@ -161,8 +163,8 @@ static inline uint64_t sort_key(uint64_t p)
 static inline uint64_t key_of_sort_key(uint64_t v)
 {
     const uint64_t b = v >> 24;
-    return pack(OcTreeKey((uint16_t)((b & 511) | (v >> 17 & 127) << 9), (uint16_t)((b >> 9 & 511) | (v >> 10 & 127) << 9),
-                          (uint16_t)((b >> 18) | (v & 1023) << 6)));
+    return pack(OcTreeKey((uint16_t)((b >> 6 & 511) | (v >> 17 & 127) << 9), (uint16_t)((b >> 15) | (v >> 10 & 127) << 9),
+                          (uint16_t)((b & 63) | (v & 1023) << 6)));
 }
 
 /* The observed-size cell holding fine voxel k may hold an occupied voxel (queries walk it). */
@@ -529,11 +531,11 @@ static int roll_window(occ_map_t *m, const double car[3])
         int s = m->cshift, o = m->coff;
         OcTreeKey c0((f0[0] >> s) + o, (f0[1] >> s) + o, (f0[2] >> s) + o);
         delete_block(m->observed, m->obs_blocks, c0, obs_depth);
-        /* the block's voxels are runs of nf (nc) bits in x, aligned: cleared a run at a time */
+        /* the block's voxels are runs of nf bits in z (nc in x), aligned: cleared a run at a time */
         const int nf = 1 << BLOCK_FINE_LOG2, nc = nf >> s;
-        for (int z = 0; z < nf; z++)
-            for (int y = 0; y < nf; y++)
-                { size_t b0 = fine_bit(OcTreeKey(f0[0], f0[1] + y, f0[2] + z)); clear_run(m->fine_bits, b0, nf); clear_run(m->sat_bits, b0, nf); }
+        for (int y = 0; y < nf; y++)
+            for (int x = 0; x < nf; x++)
+                { size_t b0 = fine_bit(OcTreeKey(f0[0] + x, f0[1] + y, f0[2])); clear_run(m->fine_bits, b0, nf); clear_run(m->sat_bits, b0, nf); }
         for (int z = 0; z < nc; z++)
             for (int y = 0; y < nc; y++) {
                 size_t b0 = obs_bit(OcTreeKey(c0[0], c0[1] + y, c0[2] + z));
@@ -705,7 +707,13 @@ static int sub_find(const occ_map_t *m, size_t bi)
  * The columns end at the top: the highest return plus top_gap_fraction of the gap between
  * rings at that range (applied where the voxel above holds nothing: sub_hit). What is
  * tight is the side edges and tops: a pole, a parked car's end or bonnet, the back of a bus. */
-static inline size_t shape_slot(size_t bi) { return (uint32_t)(bi * 2654435761u) >> (32 - 19); }
+/* the shape table's slot of a voxel: a hash of its ring position z-major (as the bit index
+ * was before it put z fastest; which voxels share a slot decides answers) */
+static inline size_t shape_slot(size_t bi)
+{
+    const uint32_t zmajor = (uint32_t)(bi & (FZ - 1)) << 18 | (uint32_t)(bi >> 6);
+    return (uint32_t)(zmajor * 2654435761u) >> (32 - 19);
+}
 
 static int sub_slot(occ_map_t *m, size_t bi, const OcTreeKey &k)
 {
