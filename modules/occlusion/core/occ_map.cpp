@@ -21,7 +21,9 @@ namespace {
 
 const int KEY_ORIGIN = 32768;               /* OctoMap's key of coordinate 0 (tree depth 16) */
 const int BLOCK_FINE_LOG2 = 5;              /* 32 fine voxels: 6.4 m blocks at 0.2 m */
-/* bitmap index of the fine occupied voxels, a ring over keys (x, y: 102.4 m; z: 12.8 m at 0.2 m) */
+/* bitmap index of the fine occupied voxels, a ring over keys (x, y: 102.4 m; z: 12.8 m at 0.2 m),
+ * z the fastest: a column of voxels is one word (a LiDAR column's returns on an object are
+ * neighbours in z), and neighbours in x are the next words */
 const int FX = 512, FZ = 64;
 /* bitmap of observed voxels, a ring (x, y: 128 cells; z: 16) */
 const int CX = 128, CZ = 16;
@@ -40,6 +42,7 @@ const int SHAPES = 1 << 19;
 const uint32_t SUB_XP = 1u << 16, SUB_XN = 1u << 17, SUB_YP = 1u << 18, SUB_YN = 1u << 19;  /* beam along +x, -x, +y, -y */
 const int SUB_GROW_SHIFT = 20;              /* 2 bits: grow by 1 or 2 sub-cells; 3: the whole voxel */
 const uint32_t SUB_FRESH = 1u << 22;        /* the voxel became occupied in this sweep: a shape left from before is not its */
+const uint32_t SUB_HALO = 1u << 23;         /* the voxel is in halo_bits (a neighbour's returns reach it) */
 const uint32_t SUB_X0 = 0x1111, SUB_X3 = 0x8888, SUB_Y0 = 0x000f, SUB_Y3 = 0xf000;   /* cells with x = 0, x = 3, y = 0, y = 3 */
 
 struct ground_cell_t { int32_t cx, cy, sweep; float minz; };
@@ -115,16 +118,15 @@ struct occ_map_t {
     std::vector<uint32_t> fill_list;        /* their bit indices (cleared at the next sweep) */
     std::vector<int> low_candidates;        /* scratch: non-ground returns near the car */
     /* SUB_TABLE slots, one per voxel this sweep's returns reach (one cache line holds all a
-     * return changes) */
+     * return changes, and the voxel's whole key) */
     struct sub_t {
         uint32_t key;                       /* fine bit index + 1 (0: free) */
-        uint32_t mask;                      /* the returns' sub-cell columns and how to grow them (sub_cells) */
+        uint32_t mask;                      /* the returns' sub-cell columns and how to grow them (sub_cells), SUB_FRESH, SUB_HALO */
         float top;                          /* top of what the returns stand for, fine key units */
-        uint32_t halo;                      /* 1: the voxel is in halo_bits (a neighbour's returns reach it) */
+        uint32_t above;                     /* the key's bits the bit index leaves out (key_above) */
     };
     std::vector<sub_t> sub;
     std::vector<uint32_t> sub_used;         /* used slots (freed at the next sweep) */
-    std::vector<uint64_t> sub_pkey;         /* per slot: the voxel's packed key */
     /* the shape (columns, top) of every occupied voxel from the sweeps that hit it since it
      * became occupied: direct-mapped by fine bit index; a voxel whose entry another took
      * counts whole */
@@ -145,24 +147,26 @@ struct occ_map_t {
     explicit occ_map_t(const occ_config_t &c) : cfg(c), fine(c.resolution), observed(c.observed_resolution) {}
 };
 
-static inline size_t fine_bit(const OcTreeKey &k) { return ((size_t)(k[2] & (FZ - 1)) * FX + (k[1] & (FX - 1))) * FX + (k[0] & (FX - 1)); }
+static inline size_t fine_bit(const OcTreeKey &k) { return ((size_t)(k[1] & (FX - 1)) * FX + (k[0] & (FX - 1))) * FZ + (k[2] & (FZ - 1)); }
 static inline size_t obs_bit(const OcTreeKey &k) { return ((size_t)(k[2] & (CZ - 1)) * CX + (k[1] & (CX - 1))) * CX + (k[0] & (CX - 1)); }
 static inline bool get_bit(const std::vector<uint64_t> &b, size_t i) { return (b[i >> 6] >> (i & 63)) & 1; }
 static inline void set_bit(std::vector<uint64_t> &b, size_t i) { b[i >> 6] |= 1ull << (i & 63); }
 static inline void clr_bit(std::vector<uint64_t> &b, size_t i) { b[i >> 6] &= ~(1ull << (i & 63)); }
-/* A packed key as a number that orders by fine_bit: the bit index above the key's bits it
- * leaves out (x, y above 9 bits, z above 6), so the key comes back from it. */
-static_assert(FX == 512 && FZ == 64, "sort_key takes 9 bits of x and y and 6 of z");
+/* The key's bits fine_bit leaves out (x, y above 9 bits, z above 6), 24 bits. */
+static_assert(FX == 512 && FZ == 64, "key_above takes 9 bits of x and y and 6 of z");
+static inline uint32_t key_above(const OcTreeKey &k) { return (uint32_t)(k[0] >> 9) << 17 | (uint32_t)(k[1] >> 9) << 10 | (uint32_t)(k[2] >> 6); }
+/* A packed key as a number that orders by fine_bit: the bit index above key_above, so the key
+ * comes back from it. */
 static inline uint64_t sort_key(uint64_t p)
 {
     const OcTreeKey k = unpack(p);
-    return (uint64_t)fine_bit(k) << 24 | (uint64_t)(k[0] >> 9) << 17 | (uint64_t)(k[1] >> 9) << 10 | (uint64_t)(k[2] >> 6);
+    return (uint64_t)fine_bit(k) << 24 | key_above(k);
 }
 static inline uint64_t key_of_sort_key(uint64_t v)
 {
     const uint64_t b = v >> 24;
-    return pack(OcTreeKey((uint16_t)((b & 511) | (v >> 17 & 127) << 9), (uint16_t)((b >> 9 & 511) | (v >> 10 & 127) << 9),
-                          (uint16_t)((b >> 18) | (v & 1023) << 6)));
+    return pack(OcTreeKey((uint16_t)((b >> 6 & 511) | (v >> 17 & 127) << 9), (uint16_t)((b >> 15) | (v >> 10 & 127) << 9),
+                          (uint16_t)((b & 63) | (v & 1023) << 6)));
 }
 
 /* The observed-size cell holding fine voxel k may hold an occupied voxel (queries walk it). */
@@ -200,7 +204,6 @@ occ_map_t *occ_map_create(const occ_config_t *cfg)
     m->hit_bits.assign((size_t)FX * FX * FZ / 64, 0);
     m->sat_bits.assign((size_t)FX * FX * FZ / 64, 0);
     m->sub.assign(SUB_TABLE, occ_map_t::sub_t{ 0, 0, 0, 0 });
-    m->sub_pkey.assign(SUB_TABLE, 0);
     m->shapes.assign(SHAPES, occ_map_t::shape_t{ 0, 0, 0 });
     m->halo_bits.assign((size_t)FX * FX * FZ / 64, 0);
     m->fine_blocks.assign(BLOCK_CACHE, block_node_t{ 0, nullptr });
@@ -529,11 +532,11 @@ static int roll_window(occ_map_t *m, const double car[3])
         int s = m->cshift, o = m->coff;
         OcTreeKey c0((f0[0] >> s) + o, (f0[1] >> s) + o, (f0[2] >> s) + o);
         delete_block(m->observed, m->obs_blocks, c0, obs_depth);
-        /* the block's voxels are runs of nf (nc) bits in x, aligned: cleared a run at a time */
+        /* the block's voxels are runs of nf bits in z (nc in x), aligned: cleared a run at a time */
         const int nf = 1 << BLOCK_FINE_LOG2, nc = nf >> s;
-        for (int z = 0; z < nf; z++)
-            for (int y = 0; y < nf; y++)
-                { size_t b0 = fine_bit(OcTreeKey(f0[0], f0[1] + y, f0[2] + z)); clear_run(m->fine_bits, b0, nf); clear_run(m->sat_bits, b0, nf); }
+        for (int y = 0; y < nf; y++)
+            for (int x = 0; x < nf; x++)
+                { size_t b0 = fine_bit(OcTreeKey(f0[0] + x, f0[1] + y, f0[2])); clear_run(m->fine_bits, b0, nf); clear_run(m->sat_bits, b0, nf); }
         for (int z = 0; z < nc; z++)
             for (int y = 0; y < nc; y++) {
                 size_t b0 = obs_bit(OcTreeKey(c0[0], c0[1] + y, c0[2] + z));
@@ -705,7 +708,13 @@ static int sub_find(const occ_map_t *m, size_t bi)
  * The columns end at the top: the highest return plus top_gap_fraction of the gap between
  * rings at that range (applied where the voxel above holds nothing: sub_hit). What is
  * tight is the side edges and tops: a pole, a parked car's end or bonnet, the back of a bus. */
-static inline size_t shape_slot(size_t bi) { return (uint32_t)(bi * 2654435761u) >> (32 - 19); }
+/* the shape table's slot of a voxel: a hash of its ring position z-major (as the bit index
+ * was before it put z fastest; which voxels share a slot decides answers) */
+static inline size_t shape_slot(size_t bi)
+{
+    const uint32_t zmajor = (uint32_t)(bi & (FZ - 1)) << 18 | (uint32_t)(bi >> 6);
+    return (uint32_t)(zmajor * 2654435761u) >> (32 - 19);
+}
 
 static int sub_slot(occ_map_t *m, size_t bi, const OcTreeKey &k)
 {
@@ -713,8 +722,7 @@ static int sub_slot(occ_map_t *m, size_t bi, const OcTreeKey &k)
         occ_map_t::sub_t &e = m->sub[h];
         if (e.key == 0) {
             if (m->sub_used.size() * 2 > (size_t)SUB_TABLE) return -1;   /* table half full: the voxel stays whole */
-            e = occ_map_t::sub_t{ (uint32_t)bi + 1, 0, -INFINITY, 0 };
-            m->sub_pkey[h] = pack(k);
+            e = occ_map_t::sub_t{ (uint32_t)bi + 1, 0, -INFINITY, key_above(k) };
             m->sub_used.push_back(h);
         }
         if (e.key == bi + 1) return (int)h;
@@ -766,8 +774,8 @@ static void sub_add(occ_map_t *m, size_t bi, const OcTreeKey &k, double x, doubl
                     occ_map_t::sub_t &e = m->sub[h];
                     e.mask |= mk;
                     e.top = std::max(e.top, top);
-                    if (!e.halo) {
-                        e.halo = 1;
+                    if (!(e.mask & SUB_HALO)) {
+                        e.mask |= SUB_HALO;
                         set_bit(m->halo_bits, nb);
                         m->halo_list.push_back((uint32_t)nb);
                         mark_any(m, nk);
@@ -954,7 +962,8 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
         if (!get_bit(m->hit_bits, e.key - 1)) continue;    /* only reached by a neighbour's returns */
         occ_map_t::shape_t &sh = m->shapes[shape_slot(e.key - 1)];
         const uint32_t mk = sub_cells(e.mask);
-        if (sh.pkey != m->sub_pkey[u] || (e.mask & SUB_FRESH)) sh = occ_map_t::shape_t{ m->sub_pkey[u], mk, e.top };
+        const uint64_t pkey = key_of_sort_key((uint64_t)(e.key - 1) << 24 | e.above);
+        if (sh.pkey != pkey || (e.mask & SUB_FRESH)) sh = occ_map_t::shape_t{ pkey, mk, e.top };
         else { sh.mask |= mk; sh.top = std::max(sh.top, e.top); }
     }
 
