@@ -85,23 +85,28 @@ def newer(path, *inputs):
 
 # ---------------------------------------------------------------- drives
 
+def simulated(name, args, inputs):
+    """build/bench/mapper/NAME/drive.lcm from simdrive ARGS, simulated again when older than inputs."""
+    d = OUT / name
+    log_path = d / "drive.lcm"
+    if not newer(log_path, BIN / "simdrive", *inputs):
+        log(f"simulating {name} into {d} (simdrive {' '.join(args)}) ...")
+        tmp = d.with_name(name + ".tmp")
+        shutil.rmtree(tmp, ignore_errors=True)
+        sh([BIN / "simdrive", "--out", tmp, *args])
+        d.mkdir(parents=True, exist_ok=True)
+        (tmp / "drive.lcm").replace(log_path)
+        shutil.rmtree(tmp, ignore_errors=True)
+    return log_path
+
+
 def sim_drive(sim_log):
     if sim_log:
         return pathlib.Path(sim_log), f"given log {sim_log}"
     if SIM_CACHED.exists():
         return SIM_CACHED, f"cached by bench-localizer-drive ({SIM_CACHED.relative_to(ROOT)})"
-    d = OUT / "sim"
-    log_path = d / "drive.lcm"
-    inputs = [BIN / "simdrive"] + [ROOT / "maps" / "default" / f for f in ("site.yaml", "route.yaml", "world.yaml")]
-    if not newer(log_path, *inputs):
-        log(f"simulating the default site's loop into {d} (simdrive {' '.join(SIM_ARGS)}) ...")
-        tmp = d.with_name("sim.tmp")
-        shutil.rmtree(tmp, ignore_errors=True)
-        sh([BIN / "simdrive", "--out", tmp, *SIM_ARGS])
-        d.mkdir(parents=True, exist_ok=True)
-        (tmp / "drive.lcm").replace(log_path)
-        shutil.rmtree(tmp, ignore_errors=True)
-    return log_path, f"simdrive {' '.join(SIM_ARGS)}"
+    inputs = [ROOT / "maps" / "default" / f for f in ("site.yaml", "route.yaml", "world.yaml")]
+    return simulated("sim", SIM_ARGS, inputs), f"simdrive {' '.join(SIM_ARGS)}"
 
 
 HILLS_CACHED = ROOT / "build" / "bench-terrain-loc" / "loc-hills-aggressive-1" / "drive.lcm"
@@ -114,16 +119,7 @@ def hills_drive():
     when it is cached, else simulated the same way."""
     if HILLS_CACHED.exists():
         return HILLS_CACHED
-    d = OUT / "hills"
-    log_path = d / "drive.lcm"
-    if not newer(log_path, BIN / "simdrive", ROOT / "maps" / "hills" / "world.yaml"):
-        tmp = d.with_name("hills.tmp")
-        shutil.rmtree(tmp, ignore_errors=True)
-        sh([BIN / "simdrive", "--out", tmp, *HILLS_ARGS])
-        d.mkdir(parents=True, exist_ok=True)
-        (tmp / "drive.lcm").replace(log_path)
-        shutil.rmtree(tmp, ignore_errors=True)
-    return log_path
+    return simulated("hills", HILLS_ARGS, [ROOT / "maps" / "hills" / f for f in ("site.yaml", "route.yaml", "world.yaml")])
 
 
 def mulran_drive():
