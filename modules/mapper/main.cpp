@@ -1,10 +1,6 @@
-// mapper: a recorded drive (LCM log) -> a site's prior map, by LiDAR odometry.
-//
-// Pass 1 runs the odometry (core/odometry.h) over every LIDAR_SCAN and keeps one pose
-// per sweep; pass 2 reads the sweeps again and places every point with the pose at its
-// own time (pb_map_builder_add_timed: the sweep's motion undone between the poses), one
-// centroid per voxel. Writes OUT/map.pcd, OUT/trajectory.tum (base in map) and
-// OUT/report.json.
+// mapper: a recorded drive (LCM log) -> a whole site, by LiDAR odometry, loop closure,
+// GNSS anchoring and carving what moved (docs/mapper.md). The shell: options, the log's
+// three passes, the files; the logic is in core/ (odometry, loops, anchor, carve).
 #include <algorithm>
 #include <cerrno>
 #include <chrono>
@@ -37,6 +33,7 @@
 #include "pb_ground.h"
 #include "portobello_gnss_fix_t.h"
 #include "portobello_lidar_scan_t.h"
+#include <cjson/cJSON.h>
 
 static void usage(FILE *f)
 {
@@ -272,322 +269,364 @@ static int for_each_sweep(const char *log_path, const char *scan_ch, const Eigen
     return status;
 }
 
-int main(int argc, char **argv)
-{
-    const char *log_path = nullptr, *out_dir = nullptr, *vehicle = PB_SOURCE_DIR "/vehicles/prius2017.yaml";
-    const char *scan_ch = "LIDAR_SCAN";
-    double voxel = 0.15;
-    int quiet = 0;
-    const pb_opt_t opts[] = {
-        PB_OPT_REQUIRED("log", &log_path), PB_OPT_REQUIRED("out", &out_dir), PB_OPT_STRING("vehicle", &vehicle),
-        PB_OPT_STRING("scan-channel", &scan_ch), PB_OPT_DOUBLE("voxel", &voxel, 0.01, 10),
-        PB_OPT_FLAG("quiet", &quiet, 1), PB_OPT_END,
-    };
-    int parsed = pb_opt_parse("mapper", opts, usage, 0, argc, argv);
-    if (parsed >= 0) return parsed;
-    auto wall0 = std::chrono::steady_clock::now();
-    const double cpu0 = pb_clock_process_cpu_ms();
-    pb_err_t err;
+/* One run: the options, and what each step hands the next. */
+struct Run {
+    const char *log_path, *out_dir, *scan_ch;
+    double voxel;
+    int quiet;
     pb_vehicle_t veh;
-    if (pb_vehicle_load(vehicle, &veh, &err) != 0) {
-        std::fprintf(stderr, "mapper: %s\n", err.msg);
-        return 1;
-    }
-    const Eigen::Isometry3d base_from_lidar = pb_reg_from_transform(&veh.base_from_lidar);
-    if (mkdir(out_dir, 0777) != 0 && errno != EEXIST) {
-        std::fprintf(stderr, "mapper: %s: cannot create: %s\n", out_dir, std::strerror(errno));
-        return 1;
-    }
-
-    // Count the sweeps first, for the progress bars.
-    long total = 0;
-    if (pb_log_read_track(log_path, nullptr, nullptr, scan_ch,
-                          [](const pb_event_t *, void *u, pb_err_t *) { (*(long *)u)++; return 0; }, &total, &err)) {
-        std::fprintf(stderr, "mapper: %s\n", err.msg);
-        return 1;
-    }
-    if (total == 0) {
-        std::fprintf(stderr, "mapper: %s: no %s in the log\n", log_path, scan_ch);
-        return 1;
-    }
-
-    // Pass 1: odometry.
-    pb_odom_t *odom = pb_odom_create(nullptr, nullptr);
+    long total = 0, empty = 0, out_of_order = 0;
     std::vector<SweepPose> traj;
-    traj.reserve((size_t)total);
     std::vector<pb_keyframe_t> kf;
+    pb_loops_report_t loops = {};
+    std::vector<std::pair<int64_t, int64_t>> loop_times;   /* kept loops: (earlier, later) keyframe utime */
+    pb_anchor_result_t anchor = {};
+    pb_georef_t georef = {};
+    pb_picture_layers_t layers;
+    pb_pose_track_t *track = nullptr;
+    long placed = 0, unplaced = 0;
+    pcl::PointCloud<pcl::PointXYZI> cloud;   /* the map, read back after pass 2 */
+    std::string ground_why;                  /* empty: ground.yaml written */
+    size_t carved = 0;
+    double m_per_px = 0;
+    std::string path(const char *name) const { return std::string(out_dir) + "/" + name; }
+};
+
+/* Pass 1: odometry over every sweep; a keyframe every kKeyframeSpacingM. */
+static int pass_odometry(Run *R, pb_err_t *err)
+{
+    pb_odom_t *odom = pb_odom_create(nullptr, nullptr);
     pb_reg_config_t kf_reduce;
     pb_reg_config_default(&kf_reduce);
     kf_reduce.target_points = 0;
     kf_reduce.scan_voxel_m = kKeyframeVoxelM;
-    long empty = 0, out_of_order = 0;
     int64_t last_scan_utime = 0;
+    R->traj.reserve((size_t)R->total);
     pb_progress_t prog;
-    pb_progress_start(&prog, "mapper: odometry", total, quiet);
-    int rc = for_each_sweep(log_path, scan_ch, base_from_lidar, 1, &prog,
+    pb_progress_start(&prog, "mapper: odometry", R->total, R->quiet);
+    int rc = for_each_sweep(R->log_path, R->scan_ch, pb_reg_from_transform(&R->veh.base_from_lidar), 1, &prog,
         [&](int64_t utime, const std::vector<float> &xyz, const pb_points_t &pts, const pb_event_t &, pb_err_t *e) {
-            if (!traj.empty() && utime <= last_scan_utime) { out_of_order++; return 0; }
+            if (!R->traj.empty() && utime <= last_scan_utime) { R->out_of_order++; return 0; }
             last_scan_utime = utime;
             double c0 = pb_clock_thread_cpu_ms();
             pb_odom_result_t r;
             if (pb_odom_add(odom, utime, xyz.data(), pts.offset_us, xyz.size() / 3, &r, e) != 0) return -1;
+            std::vector<pb_keyframe_t> &kf = R->kf;
             if (kf.empty() || (r.pose.translation() - kf.back().pose.translation()).norm() >= kKeyframeSpacingM) {
                 kf.push_back({r.utime, r.pose, {}});
                 const std::vector<float> &sw = pb_odom_last_sweep(odom);
                 pb_reg_downsample(sw.data(), sw.size() / 3, &kf_reduce, &kf.back().xyz);
             }
-            traj.push_back({r.utime, r.pose, r.pose, r.status, r.inlier_fraction, pb_clock_thread_cpu_ms() - c0,
-                            (int)kf.size() - 1});
+            R->traj.push_back({r.utime, r.pose, r.pose, r.status, r.inlier_fraction, pb_clock_thread_cpu_ms() - c0,
+                               (int)kf.size() - 1});
             return 0;
-        }, &empty, &err);
+        }, &R->empty, err);
     pb_odom_destroy(odom);
-    const double cpu1 = pb_clock_process_cpu_ms();
     if (rc != 0) {
-        if (prog.tty && !quiet) std::fputc('\n', stderr);
-        std::fprintf(stderr, "mapper: %s\n", err.msg);
-        return 1;
+        if (prog.tty && !R->quiet) std::fputc('\n', stderr);
+        return -1;
     }
     pb_progress_finish(&prog);
-    if (traj.size() < 2) {
-        std::fprintf(stderr, "mapper: %s: %zu usable sweep(s) on %s; a map needs two or more\n", log_path,
-                     traj.size(), scan_ch);
-        return 1;
-    }
+    if (R->traj.size() < 2)
+        return pb_err_set(err, "%s: %zu usable sweep(s) on %s; a map needs two or more", R->log_path, R->traj.size(),
+                          R->scan_ch), -1;
+    return 0;
+}
 
-    // Loop closure: the keyframes' poses solved again with the loops found, the sweeps moved
-    // with them.
-    pb_loops_report_t loops;
+/* The keyframes' poses solved again with the loops found; the sweeps moved with them. */
+static int close_loops(Run *R, pb_err_t *err)
+{
     std::vector<Eigen::Isometry3d> solved;
-    if (kf.size() >= 2) {
-        if (pb_loops_close(kf, nullptr, &solved, &loops, &err) != 0) {
-            std::fprintf(stderr, "mapper: %s\n", err.msg);
-            return 1;
+    if (R->kf.size() >= 2) {
+        if (pb_loops_close(R->kf, nullptr, &solved, &R->loops, err) != 0) return -1;
+        apply_corrections(&R->traj, R->kf, solved);
+    }
+    for (const auto &l : R->loops.loops)
+        R->loop_times.push_back({R->kf[(size_t)l.first].utime, R->kf[(size_t)l.second].utime});
+    R->kf.clear();
+    R->kf.shrink_to_fit();
+    return 0;
+}
+
+/* GNSS anchoring: the trajectory (and so the map) moved onto the fixes, in the
+ * east-north-up frame at the first 3-D fix, which becomes the site's geo-reference. */
+static int anchor(Run *R, pb_err_t *err)
+{
+    if (anchor_to_gnss(R->log_path, R->traj, R->veh, &R->anchor, &R->georef, &R->layers.fixes, err) != 0) return -1;
+    if (R->anchor.anchored) {
+        for (SweepPose &sp : R->traj) {
+            sp.pose = R->anchor.enu_from_map * sp.pose;
+            sp.odometry = R->anchor.enu_from_map * sp.odometry;
         }
-        apply_corrections(&traj, kf, solved);
     } else {
-        loops = pb_loops_report_t{};
-    }
-    const double cpu_loops = pb_clock_process_cpu_ms();
-    std::vector<std::pair<int64_t, int64_t>> loop_times;
-    for (const auto &l : loops.loops) loop_times.push_back({kf[(size_t)l.first].utime, kf[(size_t)l.second].utime});
-    kf.clear();
-    kf.shrink_to_fit();
-
-    // GNSS anchoring: the trajectory (and so the map) moved onto the fixes, in the east-north-up
-    // frame at the first 3-D fix, which becomes the site's geo-reference.
-    pb_anchor_result_t anchor = {};
-    pb_georef_t georef = {};
-    pb_picture_layers_t layers;
-    if (anchor_to_gnss(log_path, traj, veh, &anchor, &georef, &layers.fixes, &err) != 0) {
-        std::fprintf(stderr, "mapper: %s\n", err.msg);
-        return 1;
-    }
-    if (anchor.anchored)
-        for (SweepPose &sp : traj) {
-            sp.pose = anchor.enu_from_map * sp.pose;
-            sp.odometry = anchor.enu_from_map * sp.odometry;
-        }
-    else {
-        layers.fixes.clear();   /* in no frame of this map */
-        if (!quiet)
+        R->layers.fixes.clear();   /* in no frame of this map */
+        if (!R->quiet)
             std::fprintf(stderr, "mapper: warning: the map is not geo-referenced (%s); it stays in the first pose's frame\n",
-                         anchor.why);
+                         R->anchor.why);
     }
+    return 0;
+}
 
-    // Pass 2: the map, every point with the pose at its time. The poses are at the sweeps'
-    // middles: the track is carried on by the first and last steps' motion to cover the
-    // first sweep's first half and the last one's second half.
-    pb_pose_track_t *track = pb_pose_track_create();
+/* Pass 2: the map, every point with the pose at its time, written and read back. The poses
+ * are at the sweeps' middles: the track is carried on by the first and last steps' motion
+ * to cover the first sweep's first half and the last one's second half. */
+static int pass_map(Run *R, pb_err_t *err)
+{
+    const std::vector<SweepPose> &traj = R->traj;
+    R->track = pb_pose_track_create();
     for (const SweepPose &s : traj) {
         pb_transform_t t = to_transform(s.pose);
-        pb_pose_track_add(track, s.utime, &t);
+        pb_pose_track_add(R->track, s.utime, &t);
     }
     for (int end = 0; end < 2; end++) {
         const SweepPose &a = end ? traj[traj.size() - 2] : traj[1], &b = end ? traj.back() : traj[0];
         pb_transform_t t = to_transform(b.pose * (a.pose.inverse() * b.pose));
-        pb_pose_track_add(track, b.utime + (b.utime - a.utime), &t);
+        pb_pose_track_add(R->track, b.utime + (b.utime - a.utime), &t);
     }
-    pb_map_builder_t *map = pb_map_builder_create(voxel, &err);
-    pb_transform_t bl = veh.base_from_lidar;
-    long placed = 0, unplaced = 0, empty_again = 0;
-    pb_progress_start(&prog, "mapper: map", total, quiet);
-    rc = map ? for_each_sweep(log_path, scan_ch, Eigen::Isometry3d::Identity(), 1, &prog,
+    pb_map_builder_t *map = pb_map_builder_create(R->voxel, err);
+    if (!map) return -1;
+    long empty = 0;
+    pb_progress_t prog;
+    pb_progress_start(&prog, "mapper: map", R->total, R->quiet);
+    int rc = for_each_sweep(R->log_path, R->scan_ch, Eigen::Isometry3d::Identity(), 1, &prog,
         [&](int64_t utime, const std::vector<float> &, const pb_points_t &pts, const pb_event_t &, pb_err_t *e) {
-            int r = pb_map_builder_add_timed(map, &pts, utime, track, &bl, e);
+            int r = pb_map_builder_add_timed(map, &pts, utime, R->track, &R->veh.base_from_lidar, e);
             if (r < 0) return -1;
-            (r ? placed : unplaced)++;
+            (r ? R->placed : R->unplaced)++;
             return 0;
-        }, &empty_again, &err) : -1;
-    std::string map_path = std::string(out_dir) + "/map.pcd";
+        }, &empty, err);
     if (rc == 0) pb_progress_finish(&prog);
-    if (rc != 0 || pb_map_builder_write_pcd(map, map_path.c_str(), &err) != 0) {
-        std::fprintf(stderr, "mapper: %s\n", err.msg);
-        return 1;
-    }
+    const std::string map_path = R->path("map.pcd");
+    if (rc == 0) rc = pb_map_builder_write_pcd(map, map_path.c_str(), err);
     pb_map_builder_destroy(map);
+    if (rc != 0) return -1;
+    if (pcl::io::loadPCDFile(map_path, R->cloud) < 0) return pb_err_set(err, "%s: cannot read it back", map_path.c_str()), -1;
+    return 0;
+}
 
-    // Pass 3: what moved is carved out of the map (core/carve.h), on a sample of the rays
-    // (every 4th sweep, every 13th point: 13 is prime to the beam count, so every beam
-    // takes its turn). The ground model comes first: carving spares the band over it.
-    pcl::PointCloud<pcl::PointXYZI> cloud;
-    if (pcl::io::loadPCDFile(map_path, cloud) < 0) {
-        std::fprintf(stderr, "mapper: %s: cannot read it back\n", map_path.c_str());
-        return 1;
-    }
-    const size_t stride = sizeof(pcl::PointXYZI) / sizeof(float);
+/* The ground model (tools/build-ground's core) from the map; a site without one is still a
+ * site for the localizer: say why, go on. Kept for the carving. */
+static pb_ground_t *make_ground(Run *R, pb_err_t *err)
+{
     gb_config_t gcfg;
     gb_config_default(&gcfg);
     size_t nground = 0;
-    pb_ground_t *ground = gb_build(cloud.empty() ? nullptr : &cloud.points[0].x, cloud.size(), stride, &gcfg, &nground);
-    std::string ground_path = std::string(out_dir) + "/ground.yaml";
-    /* a site without a ground model is still a site for the localizer: say why, go on */
-    std::string ground_why;
-    if (!ground) ground_why = "no ground in the map";
-    else if (pb_ground_save(ground, ground_path.c_str(), &err) != 0) ground_why = err.msg;
-    if (!ground_why.empty()) {
+    pb_ground_t *ground = gb_build(R->cloud.empty() ? nullptr : &R->cloud.points[0].x, R->cloud.size(),
+                                   sizeof(pcl::PointXYZI) / sizeof(float), &gcfg, &nground);
+    const std::string ground_path = R->path("ground.yaml");
+    if (!ground) R->ground_why = "no ground in the map";
+    else if (pb_ground_save(ground, ground_path.c_str(), err) != 0) R->ground_why = err->msg;
+    if (!R->ground_why.empty()) {
         std::remove(ground_path.c_str());
-        std::fprintf(stderr, "mapper: warning: no ground model written: %s\n", ground_why.c_str());
+        std::fprintf(stderr, "mapper: warning: no ground model written: %s\n", R->ground_why.c_str());
     }
-    pb_carve_t *carve = pb_carve_create(&cloud.points[0].x, cloud.size(), stride, ground, nullptr);
-    const Eigen::Isometry3d blT = pb_reg_from_transform(&bl);
-    pb_progress_start(&prog, "mapper: carve", total, quiet);
-    rc = for_each_sweep(log_path, scan_ch, Eigen::Isometry3d::Identity(), 4, &prog,
+    return ground;
+}
+
+/* Pass 3: what moved is carved out of the map (core/carve.h), on a sample of the rays
+ * (every 4th sweep, every 13th point: 13 is prime to the beam count, so every beam takes
+ * its turn); the band over the ground model is spared. map.pcd is written again. */
+static int pass_carve(Run *R, const pb_ground_t *ground, pb_err_t *err)
+{
+    pb_carve_t *carve = pb_carve_create(&R->cloud.points[0].x, R->cloud.size(), sizeof(pcl::PointXYZI) / sizeof(float),
+                                        ground, nullptr);
+    const Eigen::Isometry3d bl = pb_reg_from_transform(&R->veh.base_from_lidar);
+    long empty = 0;
+    pb_progress_t prog;
+    pb_progress_start(&prog, "mapper: carve", R->total, R->quiet);
+    int rc = for_each_sweep(R->log_path, R->scan_ch, Eigen::Isometry3d::Identity(), 4, &prog,
         [&](int64_t utime, const std::vector<float> &, const pb_points_t &pts, const pb_event_t &, pb_err_t *) {
             int32_t cached = INT32_MIN;
             Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
             bool have = false;
             for (int i = 0; i < pts.n; i += 13) {
-                if (pts.offset_us[i] != cached) {
+                if (pts.offset_us[i] != cached) {   /* a column's points share their time */
                     cached = pts.offset_us[i];
                     pb_transform_t t;
-                    have = pb_pose_track_at(track, utime + cached, &t);
-                    if (have) T = pb_reg_from_transform(&t) * blT;
+                    have = pb_pose_track_at(R->track, utime + cached, &t);
+                    if (have) T = pb_reg_from_transform(&t) * bl;
                 }
                 if (!have) continue;
                 Eigen::Vector3d o = T.translation(), e = T * Eigen::Vector3d(pts.x[i], pts.y[i], pts.z[i]);
                 pb_carve_ray(carve, utime + cached, o.data(), e.data());
             }
             return 0;
-        }, &empty_again, &err);
-    if (rc != 0) {
-        std::fprintf(stderr, "mapper: %s\n", err.msg);
-        return 1;
-    }
-    pb_progress_finish(&prog);
+        }, &empty, err);
     std::vector<uint8_t> keep;
-    const size_t carved = pb_carve_keep(carve, &keep);
+    if (rc == 0) {
+        pb_progress_finish(&prog);
+        R->carved = pb_carve_keep(carve, &keep);
+    }
     pb_carve_destroy(carve);
-    pb_ground_destroy(ground);
-    pb_pose_track_destroy(track);
-    {
-        pcl::PointCloud<pcl::PointXYZI> kept;
-        kept.reserve(cloud.size() - carved);
-        for (size_t i = 0; i < cloud.size(); i++)
-            if (keep[i]) kept.push_back(cloud.points[i]);
-        cloud.swap(kept);
-    }
-    std::string tmp = map_path + ".tmp";
-    if (pcl::io::savePCDFileBinary(tmp, cloud) < 0 || std::rename(tmp.c_str(), map_path.c_str()) != 0) {
+    if (rc != 0) return -1;
+    pcl::PointCloud<pcl::PointXYZI> kept;
+    kept.reserve(R->cloud.size() - R->carved);
+    for (size_t i = 0; i < R->cloud.size(); i++)
+        if (keep[i]) kept.push_back(R->cloud.points[i]);
+    R->cloud.swap(kept);
+    const std::string map_path = R->path("map.pcd"), tmp = map_path + ".tmp";
+    if (pcl::io::savePCDFileBinary(tmp, R->cloud) < 0 || std::rename(tmp.c_str(), map_path.c_str()) != 0) {
         std::remove(tmp.c_str());
-        std::fprintf(stderr, "mapper: %s: cannot write\n", map_path.c_str());
-        return 1;
+        return pb_err_set(err, "%s: cannot write", map_path.c_str()), -1;
     }
+    return 0;
+}
 
-    // The trajectories and the report.
-    const double cpu2 = pb_clock_process_cpu_ms();
-    std::string tum_path = std::string(out_dir) + "/trajectory.tum", odo_path = std::string(out_dir) + "/odometry.tum",
-                rep_path = std::string(out_dir) + "/report.json";
-    if (write_tum(tum_path.c_str(), traj, false) != 0 || write_tum(odo_path.c_str(), traj, true) != 0) {
-        std::fprintf(stderr, "mapper: %s: cannot write the trajectories: %s\n", out_dir, std::strerror(errno));
-        return 1;
+/* The trajectories, the tiles the localizer pages (its map_source, from the map as
+ * written), the picture and site.yaml. */
+static int write_site(Run *R, pb_err_t *err)
+{
+    if (write_tum(R->path("trajectory.tum").c_str(), R->traj, false) != 0 ||
+        write_tum(R->path("odometry.tum").c_str(), R->traj, true) != 0)
+        return pb_err_set(err, "%s: cannot write the trajectories: %s", R->out_dir, std::strerror(errno)), -1;
+    if (write_tiles(R->path("map.pcd").c_str(), R->path("map.tiles").c_str(), err) != 0) return -1;
+    std::map<int64_t, Eigen::Vector3d> at;
+    for (const SweepPose &sp : R->traj) {
+        R->layers.before.push_back(sp.odometry.translation());
+        R->layers.after.push_back(sp.pose.translation());
+        at[sp.utime] = sp.pose.translation();
     }
-    // The picture.
-    {
-        std::map<int64_t, Eigen::Vector3d> at;
-        for (const SweepPose &sp : traj) {
-            layers.before.push_back(sp.odometry.translation());
-            layers.after.push_back(sp.pose.translation());
-            at[sp.utime] = sp.pose.translation();
-        }
-        for (const auto &lt : loop_times)
-            if (at.count(lt.first) && at.count(lt.second)) layers.loops.push_back({at[lt.first], at[lt.second]});
-    }
-    // The tiles the localizer pages (its map_source), from the map as written.
-    if (write_tiles(map_path.c_str(), (std::string(out_dir) + "/map.tiles").c_str(), &err) != 0) {
-        std::fprintf(stderr, "mapper: %s\n", err.msg);
-        return 1;
-    }
-    const float *xyz0 = cloud.empty() ? nullptr : &cloud.points[0].x;
-    std::string png_path = std::string(out_dir) + "/report.png";
-    double m_per_px = 0;
-    if (pb_picture_write(xyz0, cloud.size(), stride, &layers, png_path.c_str(), &m_per_px, &err) != 0) {
-        std::fprintf(stderr, "mapper: %s\n", err.msg);
-        return 1;
-    }
-    const size_t map_points = cloud.size();
-    cloud = pcl::PointCloud<pcl::PointXYZI>();
-    std::string site_path = std::string(out_dir) + "/site.yaml";
-    if (anchor.anchored) {
-        std::string name = out_dir;
-        while (name.size() > 1 && name.back() == '/') name.pop_back();
-        name = name.substr(name.find_last_of('/') + 1);
-        if (write_site_yaml(site_path.c_str(), name.c_str(), log_path, georef, voxel) != 0) {
-            std::fprintf(stderr, "mapper: %s: cannot write: %s\n", site_path.c_str(), std::strerror(errno));
-            return 1;
-        }
-    } else {
+    for (const auto &lt : R->loop_times)
+        if (at.count(lt.first) && at.count(lt.second)) R->layers.loops.push_back({at[lt.first], at[lt.second]});
+    if (pb_picture_write(R->cloud.empty() ? nullptr : &R->cloud.points[0].x, R->cloud.size(),
+                         sizeof(pcl::PointXYZI) / sizeof(float), &R->layers, R->path("report.png").c_str(), &R->m_per_px,
+                         err) != 0)
+        return -1;
+    const std::string site_path = R->path("site.yaml");
+    if (!R->anchor.anchored) {
         std::remove(site_path.c_str());   /* one from an earlier run would geo-reference this map wrongly */
+        return 0;
     }
+    std::string name = R->out_dir;
+    while (name.size() > 1 && name.back() == '/') name.pop_back();
+    name = name.substr(name.find_last_of('/') + 1);
+    if (write_site_yaml(site_path.c_str(), name.c_str(), R->log_path, R->georef, R->voxel) != 0)
+        return pb_err_set(err, "%s: cannot write: %s", site_path.c_str(), std::strerror(errno)), -1;
+    return 0;
+}
+
+/* report.json (cJSON: names and messages escaped) and the summary line. */
+static int write_report(const Run &R, const double cpu_ms[4], double wall_s, pb_err_t *err)
+{
     long by_status[5] = {};
     double path_m = 0;
     std::vector<double> ms, inl;
-    for (size_t i = 0; i < traj.size(); i++) {
-        const SweepPose &s = traj[i];
+    for (size_t i = 0; i < R.traj.size(); i++) {
+        const SweepPose &s = R.traj[i];
         by_status[s.status]++;
-        if (i > 0) path_m += (s.pose.translation() - traj[i - 1].pose.translation()).norm();
+        if (i > 0) path_m += (s.pose.translation() - R.traj[i - 1].pose.translation()).norm();
         ms.push_back(s.cpu_ms);
         if (std::isfinite(s.inlier_fraction)) inl.push_back(s.inlier_fraction);
     }
-    double wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall0).count();
-    double span_s = (traj.back().utime - traj.front().utime) * 1e-6;
-    FILE *rf = std::fopen(rep_path.c_str(), "w");
-    if (!rf) {
-        std::fprintf(stderr, "mapper: %s: cannot write: %s\n", rep_path.c_str(), std::strerror(errno));
-        return 1;
-    }
-    std::fprintf(rf, "{\n  \"log\": \"%s\",\n  \"scans\": %zu,\n  \"scans_in_log\": %ld,\n  \"empty_scans\": %ld,\n"
-                     "  \"out_of_order_scans\": %ld,\n",
-                 log_path, traj.size(), total, empty, out_of_order);
-    for (int k = 0; k < 5; k++) std::fprintf(rf, "  \"scans_%s\": %ld,\n", kStatusName[k], by_status[k]);
-    std::fprintf(rf, "  \"loop_candidates\": %d,\n  \"loops\": %d,\n  \"loops_rejected\": %d,\n  \"loops_dropped\": %d,\n"
-                     "  \"loop_correction_max_m\": %.4f,\n",
-                 loops.candidates, loops.verified, loops.rejected, loops.dropped, loops.max_change_m);
-    std::fprintf(rf, "  \"ground_model\": %s,\n  \"ground_model_why_not\": \"%s\",\n", ground_why.empty() ? "true" : "false",
-                 ground_why.c_str());
-    std::fprintf(rf, "  \"geo_referenced\": %s,\n  \"geo_reference_why_not\": \"%s\",\n  \"gnss_fixes_used\": %d,\n"
-                     "  \"gnss_fixes_gated\": %d,\n  \"gnss_fixes_rejected\": %d,\n  \"gnss_resid_median_m\": %.3f,\n"
-                     "  \"gnss_resid_p90_m\": %.3f,\n  \"gnss_resid_max_m\": %.3f,\n",
-                 anchor.anchored ? "true" : "false", anchor.anchored ? "" : anchor.why, anchor.used, anchor.gated,
-                 anchor.rejected, anchor.resid_median_m, anchor.resid_p90_m, anchor.resid_max_m);
-    std::fprintf(rf,
-                 "  \"inlier_fraction_median\": %.4f,\n  \"inlier_fraction_p01\": %.4f,\n  \"path_m\": %.3f,\n"
-                 "  \"drive_s\": %.3f,\n  \"cpu_ms_per_scan_median\": %.3f,\n  \"cpu_ms_per_scan_p99\": %.3f,\n"
-                 "  \"cpu_s_odometry\": %.3f,\n  \"cpu_s_loops\": %.3f,\n  \"cpu_s_map\": %.3f,\n  \"wall_s\": %.3f,\n"
-                 "  \"picture\": \"report.png\",\n  \"picture_m_per_px\": %.3f,\n  \"map_points\": %zu,\n  \"map_points_carved\": %zu,\n  \"map_voxel_m\": %.3f,\n  \"scans_placed\": %ld,\n  \"scans_unplaced\": %ld\n}\n",
-                 pct(inl, 0.5), pct(inl, 0.01), path_m, span_s, pct(ms, 0.5), pct(ms, 0.99), (cpu1 - cpu0) / 1e3,
-                 (cpu_loops - cpu1) / 1e3, (cpu2 - cpu_loops) / 1e3, wall_s, m_per_px, map_points, carved, voxel,
-                 placed, unplaced);
-    if (std::fclose(rf) != 0) {
-        std::fprintf(stderr, "mapper: %s: write failed\n", rep_path.c_str());
-        return 1;
-    }
-    if (!quiet)
+    const double span_s = (R.traj.back().utime - R.traj.front().utime) * 1e-6;
+    cJSON *j = cJSON_CreateObject();
+    cJSON_AddStringToObject(j, "log", R.log_path);
+    cJSON_AddNumberToObject(j, "scans", (double)R.traj.size());
+    cJSON_AddNumberToObject(j, "scans_in_log", (double)R.total);
+    cJSON_AddNumberToObject(j, "empty_scans", (double)R.empty);
+    cJSON_AddNumberToObject(j, "out_of_order_scans", (double)R.out_of_order);
+    for (int k = 0; k < 5; k++) cJSON_AddNumberToObject(j, (std::string("scans_") + kStatusName[k]).c_str(), (double)by_status[k]);
+    cJSON_AddNumberToObject(j, "loop_candidates", R.loops.candidates);
+    cJSON_AddNumberToObject(j, "loops", R.loops.verified);
+    cJSON_AddNumberToObject(j, "loops_rejected", R.loops.rejected);
+    cJSON_AddNumberToObject(j, "loops_dropped", R.loops.dropped);
+    cJSON_AddNumberToObject(j, "loop_correction_max_m", R.loops.max_change_m);
+    cJSON_AddBoolToObject(j, "ground_model", R.ground_why.empty());
+    cJSON_AddStringToObject(j, "ground_model_why_not", R.ground_why.c_str());
+    cJSON_AddBoolToObject(j, "geo_referenced", R.anchor.anchored);
+    cJSON_AddStringToObject(j, "geo_reference_why_not", R.anchor.anchored ? "" : R.anchor.why);
+    cJSON_AddNumberToObject(j, "gnss_fixes_used", R.anchor.used);
+    cJSON_AddNumberToObject(j, "gnss_fixes_gated", R.anchor.gated);
+    cJSON_AddNumberToObject(j, "gnss_fixes_rejected", R.anchor.rejected);
+    cJSON_AddNumberToObject(j, "gnss_resid_median_m", R.anchor.resid_median_m);
+    cJSON_AddNumberToObject(j, "gnss_resid_p90_m", R.anchor.resid_p90_m);
+    cJSON_AddNumberToObject(j, "gnss_resid_max_m", R.anchor.resid_max_m);
+    cJSON_AddNumberToObject(j, "inlier_fraction_median", inl.empty() ? 0 : pct(inl, 0.5));
+    cJSON_AddNumberToObject(j, "inlier_fraction_p01", inl.empty() ? 0 : pct(inl, 0.01));
+    cJSON_AddNumberToObject(j, "path_m", path_m);
+    cJSON_AddNumberToObject(j, "drive_s", span_s);
+    cJSON_AddNumberToObject(j, "cpu_ms_per_scan_median", pct(ms, 0.5));
+    cJSON_AddNumberToObject(j, "cpu_ms_per_scan_p99", pct(ms, 0.99));
+    cJSON_AddNumberToObject(j, "cpu_s_odometry", (cpu_ms[1] - cpu_ms[0]) / 1e3);
+    cJSON_AddNumberToObject(j, "cpu_s_loops", (cpu_ms[2] - cpu_ms[1]) / 1e3);
+    cJSON_AddNumberToObject(j, "cpu_s_map", (cpu_ms[3] - cpu_ms[2]) / 1e3);
+    cJSON_AddNumberToObject(j, "wall_s", wall_s);
+    cJSON_AddStringToObject(j, "picture", "report.png");
+    cJSON_AddNumberToObject(j, "picture_m_per_px", R.m_per_px);
+    cJSON_AddNumberToObject(j, "map_points", (double)R.cloud.size());
+    cJSON_AddNumberToObject(j, "map_points_carved", (double)R.carved);
+    cJSON_AddNumberToObject(j, "map_voxel_m", R.voxel);
+    cJSON_AddNumberToObject(j, "scans_placed", (double)R.placed);
+    cJSON_AddNumberToObject(j, "scans_unplaced", (double)R.unplaced);
+    char *text = cJSON_Print(j);
+    cJSON_Delete(j);
+    const std::string rep_path = R.path("report.json");
+    FILE *f = text ? std::fopen(rep_path.c_str(), "w") : nullptr;
+    bool ok = f && std::fputs(text, f) >= 0 && std::fputc('\n', f) != EOF;
+    if (f) ok &= std::fclose(f) == 0;
+    cJSON_free(text);
+    if (!ok) return pb_err_set(err, "%s: cannot write", rep_path.c_str()), -1;
+    if (!R.quiet)
         std::fprintf(stderr,
                      "mapper: %zu sweeps over %.1f m in %.1f s of drive (tracked %ld, searched %ld, weak %ld, "
                      "predicted %ld); %d loop(s) of %d tried, largest correction %.2f m; odometry %.2f ms per sweep "
                      "(median CPU), %zu map points (%zu carved: moved); %.1f s wall\n",
-                     traj.size(), path_m, span_s, by_status[PB_ODOM_TRACKED], by_status[PB_ODOM_SEARCHED],
-                     by_status[PB_ODOM_WEAK], by_status[PB_ODOM_PREDICTED], loops.verified, loops.candidates,
-                     loops.max_change_m, pct(ms, 0.5), map_points, carved, wall_s);
+                     R.traj.size(), path_m, span_s, by_status[PB_ODOM_TRACKED], by_status[PB_ODOM_SEARCHED],
+                     by_status[PB_ODOM_WEAK], by_status[PB_ODOM_PREDICTED], R.loops.verified, R.loops.candidates,
+                     R.loops.max_change_m, pct(ms, 0.5), R.cloud.size(), R.carved, wall_s);
+    return 0;
+}
+
+int main(int argc, char **argv)
+{
+    Run R;
+    R.log_path = nullptr;
+    R.out_dir = nullptr;
+    R.scan_ch = "LIDAR_SCAN";
+    R.voxel = 0.15;
+    R.quiet = 0;
+    const char *vehicle = PB_SOURCE_DIR "/vehicles/prius2017.yaml";
+    const pb_opt_t opts[] = {
+        PB_OPT_REQUIRED("log", &R.log_path), PB_OPT_REQUIRED("out", &R.out_dir), PB_OPT_STRING("vehicle", &vehicle),
+        PB_OPT_STRING("scan-channel", &R.scan_ch), PB_OPT_DOUBLE("voxel", &R.voxel, 0.01, 10),
+        PB_OPT_FLAG("quiet", &R.quiet, 1), PB_OPT_END,
+    };
+    int parsed = pb_opt_parse("mapper", opts, usage, 0, argc, argv);
+    if (parsed >= 0) return parsed;
+    const auto wall0 = std::chrono::steady_clock::now();
+    double cpu_ms[4] = {pb_clock_process_cpu_ms(), 0, 0, 0};
+    pb_err_t err;
+    int rc = pb_vehicle_load(vehicle, &R.veh, &err);
+    if (rc == 0 && mkdir(R.out_dir, 0777) != 0 && errno != EEXIST)
+        rc = pb_err_set(&err, "%s: cannot create: %s", R.out_dir, std::strerror(errno));
+    // the sweeps counted, for the progress bars
+    if (rc == 0)
+        rc = pb_log_read_track(R.log_path, nullptr, nullptr, R.scan_ch,
+                               [](const pb_event_t *, void *u, pb_err_t *) { (*(long *)u)++; return 0; }, &R.total, &err);
+    if (rc == 0 && R.total == 0) rc = pb_err_set(&err, "%s: no %s in the log", R.log_path, R.scan_ch);
+    // 1. odometry; a keyframe every 2 m
+    if (rc == 0) rc = pass_odometry(&R, &err);
+    cpu_ms[1] = pb_clock_process_cpu_ms();
+    // 2. loop closure over the keyframes
+    if (rc == 0) rc = close_loops(&R, &err);
+    // 3. GNSS anchoring
+    if (rc == 0) rc = anchor(&R, &err);
+    cpu_ms[2] = pb_clock_process_cpu_ms();
+    // 4. the map with the final poses
+    if (rc == 0) rc = pass_map(&R, &err);
+    // 5. the ground model, and what moved carved out with it
+    pb_ground_t *ground = rc == 0 ? make_ground(&R, &err) : nullptr;
+    if (rc == 0) rc = pass_carve(&R, ground, &err);
+    pb_ground_destroy(ground);
+    pb_pose_track_destroy(R.track);
+    // 6. the site's other files, the report
+    if (rc == 0) rc = write_site(&R, &err);
+    cpu_ms[3] = pb_clock_process_cpu_ms();
+    if (rc == 0)
+        rc = write_report(R, cpu_ms, std::chrono::duration<double>(std::chrono::steady_clock::now() - wall0).count(), &err);
+    if (rc != 0) {
+        std::fprintf(stderr, "mapper: %s\n", err.msg);
+        return 1;
+    }
     return 0;
 }

@@ -1,6 +1,6 @@
 # mapper: builds a site's prior map from a recorded drive (core: LiDAR odometry on a
 # rolling local map, reusing the localizer's registration core).
-$(eval $(call cxx_program,mapper,modules/mapper modules/mapper/core modules/localizer/core,-lz -lceres -lglog -lpng))
+$(eval $(call cxx_program,mapper,modules/mapper modules/mapper/core modules/localizer/core,-lz -lceres -lglog -lpng -lcjson))
 $(BIN)/mapper: $(OBJ)/modules/localizer/map_source.o $(OBJ)/tools/build-ground/ground_build.o
 $(OBJ)/modules/mapper/%.o: CPPFLAGS += -I$(TOP)/modules/localizer/core -I$(TOP)/modules/mapper/core \
                                        -I$(TOP)/modules/localizer -I$(TOP)/tools/build-ground
