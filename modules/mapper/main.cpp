@@ -159,11 +159,16 @@ static int anchor_to_gnss(const char *log_path, const std::vector<SweepPose> &tr
 
 static int write_site_yaml(const char *path, const char *name, const char *log_path, const pb_georef_t &g, double voxel)
 {
+    std::string quoted;   /* the folder's name as a YAML double-quoted scalar */
+    for (const char *c = name; *c; c++) {
+        if (*c == '"' || *c == '\\') quoted += '\\';
+        quoted += *c;
+    }
     FILE *f = std::fopen(path, "w");
     if (!f) return -1;
     std::fprintf(f,
                  "# Written by build/bin/mapper from %s (docs/mapper.md).\n"
-                 "name: %s\n"
+                 "name: \"%s\"\n"
                  "description: prior map built by the mapper from a recorded drive\n"
                  "# map frame: east-north-up at the drive's first 3-D GNSS fix (ellipsoid height)\n"
                  "georef:\n"
@@ -175,7 +180,7 @@ static int write_site_yaml(const char *path, const char *name, const char *log_p
                  "  file: map.pcd\n"
                  "  frame: map\n"
                  "  voxel_m: %.3f\n",
-                 log_path, name, g.lat0_deg, g.lon0_deg, g.alt0_m, voxel);
+                 log_path, quoted.c_str(), g.lat0_deg, g.lon0_deg, g.alt0_m, voxel);
     return std::fclose(f) == 0 ? 0 : -1;
 }
 
