@@ -99,6 +99,10 @@ static void usage(FILE *f)
         "  --quiet               no progress bar\n"
         "  --terrain-out FILE    write the site's true ground (the terrain's drivable and\n"
         "                        walkable cells; others unknown) as a ground model and exit\n"
+        "  --surface-distance FILE  FILE: points (float32 x y z, the site's frame; a map to\n"
+        "                        score): print, as one JSON line, how far they lie from the\n"
+        "                        drive day's static world (ground and objects; --mapping: the\n"
+        "                        mapping day's), and exit\n"
         "  --help                this text\n",
         PB_SOURCE_DIR, PB_SOURCE_DIR);
 }
@@ -134,6 +138,52 @@ static int write_terrain(const terrain_t *T, const char *path, pb_err_t *err)
     return rc;
 }
 
+static int cmp_double(const void *a, const void *b)
+{
+    double x = *(const double *)a, y = *(const double *)b;
+    return (x > y) - (x < y);
+}
+
+/* --surface-distance: each point's distance to the static world, summarised. */
+static int surface_distance(const world_t *w, const char *path, pb_err_t *err)
+{
+    FILE *f = fopen(path, "rb");
+    if (!f) return pb_err_set(err, "%s: %s", path, strerror(errno));
+    fseek(f, 0, SEEK_END);
+    long bytes = ftell(f);
+    fseek(f, 0, SEEK_SET);
+    if (bytes <= 0 || bytes % 12) {
+        fclose(f);
+        return pb_err_set(err, "%s: %ld bytes: not float32 x y z triples", path, bytes);
+    }
+    size_t n = (size_t)bytes / 12;
+    float *xyz = malloc((size_t)bytes);
+    double *d = malloc(n * sizeof *d);
+    int ok = xyz && d && fread(xyz, 12, n, f) == n;
+    fclose(f);
+    if (!ok) {
+        free(xyz);
+        free(d);
+        return pb_err_set(err, "%s: cannot read", path);
+    }
+    size_t w5 = 0, w10 = 0, w15 = 0, far = 0;
+    for (size_t i = 0; i < n; i++) {
+        double p[3] = {xyz[3 * i], xyz[3 * i + 1], xyz[3 * i + 2]};
+        d[i] = world_distance(w, p, 5.0);
+        w5 += d[i] <= 0.05;
+        w10 += d[i] <= 0.10;
+        w15 += d[i] <= 0.15;
+        far += d[i] > 0.5;
+    }
+    qsort(d, n, sizeof *d, cmp_double);
+    printf("{\"points\": %zu, \"median_m\": %.4f, \"p90_m\": %.4f, \"within_0.05\": %.4f, \"within_0.10\": %.4f, "
+           "\"within_0.15\": %.4f, \"beyond_0.5\": %.4f}\n", n, d[n / 2], d[(size_t)(0.9 * (double)(n - 1))],
+           (double)w5 / n, (double)w10 / n, (double)w15 / n, (double)far / n);
+    free(xyz);
+    free(d);
+    return 0;
+}
+
 enum { S_GT, S_IMU, S_LIDAR, S_GNSS, S_CAN_WS, S_CAN_SPD, S_TRUTH, S_CAN_GEAR, S_COUNT };
 
 /* --dwell S, repeatable: the 1st, 2nd, ... stop's dwell */
@@ -160,7 +210,7 @@ int main(int argc, char **argv)
     int mapping = 0, quiet = 0, no_lidar = 0, head = 0, prof = PB_PROFILE_NORMAL;
     dwells_t dwells = { .n = 0 };
     const char *scenario = NULL;
-    const char *terrain_out = NULL, *without_arg = "", *with = "";
+    const char *terrain_out = NULL, *without_arg = "", *with = "", *surface_points = NULL;
     double driver_spread = 0, reverse_m = 0;
     const pb_opt_t opts[] = {
         PB_OPT_STRING("out", &out_dir), PB_OPT_LONG("seed", &seed, 0, LONG_MAX),
@@ -170,11 +220,11 @@ int main(int argc, char **argv)
         PB_OPT_DOUBLE("driver-spread", &driver_spread, 0, 0.5), PB_OPT_STRING("without", &without_arg),
         PB_OPT_STRING("with", &with), PB_OPT_FLAG("no-lidar", &no_lidar, 1), PB_OPT_FLAG("quiet", &quiet, 1),
         PB_OPT_STRING("scenario", &scenario), PB_OPT_FLAG("head", &head, 1), PB_OPT_CALL("dwell", add_dwell, &dwells),
-        PB_OPT_DOUBLE("reverse", &reverse_m, 1, 500), PB_OPT_END,
+        PB_OPT_DOUBLE("reverse", &reverse_m, 1, 500), PB_OPT_STRING("surface-distance", &surface_points), PB_OPT_END,
     };
     int parsed = pb_opt_parse("simdrive", opts, usage, 0, argc, argv);
     if (parsed >= 0) return parsed;
-    if (!out_dir && !terrain_out) { fprintf(stderr, "simdrive: --out DIR is required (see --help)\n"); return 2; }
+    if (!out_dir && !terrain_out && !surface_points) { fprintf(stderr, "simdrive: --out DIR is required (see --help)\n"); return 2; }
     char without[256];
     snprintf(without, sizeof without, "%s", without_arg);
 
@@ -214,6 +264,13 @@ int main(int argc, char **argv)
         return 2;
     }
     world_build_grid(&world, mapping ? DAY_MAP : DAY_DRIVE, GRID_CELL_M);
+    if (surface_points) {
+        int rc = surface_distance(&world, surface_points, &err);
+        if (rc) fprintf(stderr, "simdrive: %s\n", err.msg);
+        world_free(&world);
+        pb_route_free(&route);
+        return rc ? 1 : 0;
+    }
     sim_occ_t *occ = NULL;
     if (scenario) {
         char sc_path[1200];

@@ -447,3 +447,42 @@ int world_raycast(const world_t *w, const double o[3], const double d[3], double
     hit->cls = cls;
     return 1;
 }
+
+/* Distance from p to an oriented box's surface (inside: to its nearest face). */
+static double box_distance(const prim_t *b, const double p[3])
+{
+    double dx = p[0] - b->cx, dy = p[1] - b->cy;
+    double u = b->c * dx + b->s * dy, v = -b->s * dx + b->c * dy;   /* in the box's axes */
+    double zc = 0.5 * (b->z0 + b->z1), hz = 0.5 * (b->z1 - b->z0);
+    double q[3] = {fabs(u) - b->hx, fabs(v) - b->hy, fabs(p[2] - zc) - hz};
+    double out = sqrt(fmax(q[0], 0) * fmax(q[0], 0) + fmax(q[1], 0) * fmax(q[1], 0) + fmax(q[2], 0) * fmax(q[2], 0));
+    return out > 0 ? out : -fmax(q[0], fmax(q[1], q[2]));
+}
+
+static double cylinder_distance(const prim_t *p, const double x[3])
+{
+    double radial = hypot(x[0] - p->cx, x[1] - p->cy) - p->r;
+    double zc = 0.5 * (p->z0 + p->z1), hz = 0.5 * (p->z1 - p->z0), axial = fabs(x[2] - zc) - hz;
+    if (radial > 0 || axial > 0) return hypot(fmax(radial, 0), fmax(axial, 0));
+    return -fmax(radial, axial);
+}
+
+double world_distance(const world_t *w, const double p[3], double cap)
+{
+    double best = fmin(cap, fabs(p[2] - (w->terrain.enabled ? terrain_height(&w->terrain, p[0], p[1]) : 0.0)));
+    int ix = (int)floor((p[0] - w->gx0) / w->cell), iy = (int)floor((p[1] - w->gy0) / w->cell);
+    for (int cy = iy - 1; cy <= iy + 1; cy++)
+        for (int cx = ix - 1; cx <= ix + 1; cx++) {
+            if (cx < 0 || cy < 0 || cx >= w->gnx || cy >= w->gny) continue;
+            int c = cy * w->gnx + cx;
+            for (int k = w->cell_start[c]; k < w->cell_start[c + 1]; k++) {
+                const prim_t *q = &w->prims[w->cell_items[k]];
+                double d = q->kind == PRIM_BOX ? box_distance(q, p)
+                         : q->kind == PRIM_CYLINDER ? cylinder_distance(q, p)
+                         : fabs(sqrt((p[0] - q->cx) * (p[0] - q->cx) + (p[1] - q->cy) * (p[1] - q->cy) +
+                                     (p[2] - q->cz) * (p[2] - q->cz)) - q->r);
+                if (d < best) best = d;
+            }
+        }
+    return best;
+}

@@ -90,4 +90,9 @@ typedef struct { double t; int cls; } hit_t;
 int world_raycast(const world_t *w, const double o[3], const double d[3], double tmax,
                   const mover_t *movers, int nmovers, uint32_t *mail, uint32_t stamp, hit_t *hit);
 
+/* Distance from p to the nearest static surface of the grid's day: the ground (vertical
+ * distance to the terrain) and the primitives within a grid cell of p; at most cap. For
+ * scoring a map against the world (simdrive --surface-distance). */
+double world_distance(const world_t *w, const double p[3], double cap);
+
 #endif

@@ -290,7 +290,25 @@ def fmt(v, f="{:.2f}"):
     return f.format(v)
 
 
-def bench_drive(name, log_path, vehicle, sensor_range, gt_label, extra_refs, args, result):
+def surface_score(ours_dir, gt_path, site):
+    """The mapper's map against the simulated world itself (simdrive --surface-distance: the
+    drive day's ground and objects), moved into the truth's frame by the alignment of its
+    trajectory to GROUND_TRUTH."""
+    sys.path.insert(0, str(ROOT / "modules" / "localizer" / "bench"))
+    import locbench as lb
+    t, P = tm.read_tum(ours_dir / "trajectory.tum")
+    gt_t, gt_P = tm.read_tum(gt_path)
+    ok, G = tm.poses_at(gt_t, gt_P, t)
+    R, tr = tm.umeyama_se3(P[ok][:, :3, 3], G[:, :3, 3])
+    pts = lb.read_pcd(ours_dir / "map.pcd")[:, :3].astype(float) @ R.T + tr
+    f = ours_dir / "map_in_truth.f32"
+    pts.astype("<f4").tofile(f)
+    p = sh([BIN / "simdrive", "--site", site, "--surface-distance", f])
+    f.unlink()
+    return json.loads(p.stdout)
+
+
+def bench_drive(name, log_path, vehicle, sensor_range, gt_label, extra_refs, args, result, world_site=None):
     """Scores against the log's GROUND_TRUTH (labelled gt_label) and extra_refs(base_from_lidar),
     a list of more (label, times, base poses)."""
     d = OUT / name
@@ -351,6 +369,9 @@ def bench_drive(name, log_path, vehicle, sensor_range, gt_label, extra_refs, arg
                 s["drift_from"] = "trajectory.tum (odometry only: no loop closure yet)"
             ores["scores"][label] = s
     drive["methods"]["ours"] = ores
+    if world_site and "error" not in ores:
+        log(f"[{name}] the map against the simulated world ...")
+        drive["map_vs_world"] = surface_score(d / "ours", gt_path, world_site)
     k = drive["methods"]["kiss_icp"]
     if "cpu_ms_mean" in ores:
         drive["ours_speedup_vs_kiss_icp"] = k["cpu_ms_mean"] / ores["cpu_ms_mean"]
@@ -472,6 +493,11 @@ def print_table(result):
             print(f"{dname}: ours {drv['ours_speedup_vs_kiss_icp']:.1f} x faster than KISS-ICP (mean CPU per sweep, "
                   f"{o['cpu_ms_mean']:.1f} ms with the map-building thread vs {drv['methods']['kiss_icp']['cpu_ms_mean']:.1f} ms); "
                   f"the whole mapper (odometry and map.pcd, 2 threads) {o['whole_mapper_rtf_wall']:.1f} x real time (wall)")
+        mw = drv.get("map_vs_world")
+        if mw:
+            print(f"{dname}: the map against the simulated world: {mw['points']:,} points, {100 * mw['within_0.05']:.1f} % "
+                  f"within 5 cm of a true static surface (target 95 %), median {mw['median_m'] * 1000:.1f} mm, "
+                  f"{100 * mw['beyond_0.5']:.2f} % farther than 0.5 m (moving objects left)")
         for line in drv.get("notes", []):
             print(f"{dname}: {line}")
 
@@ -509,14 +535,14 @@ def main():
     if "sim" in drives:
         log_path, how = sim_drive(args.sim_log)
         bench_drive("sim", log_path, ROOT / "vehicles" / "prius2017.yaml", SIM_SENSOR_RANGE_M, "GROUND_TRUTH", None,
-                    args, result)
+                    args, result, world_site=ROOT / "maps" / "default")
         result["drives"]["sim"]["source"] = how
         if "error" not in result["drives"]["sim"]["methods"]["ours"]:
             log("[sim] the localizer on the mapper's map ...")
             localize_on_mapped_map(log_path, OUT / "sim" / "ours", result)
     if "hills" in drives:
         bench_drive("hills", hills_drive(), ROOT / "vehicles" / "prius2017.yaml", SIM_SENSOR_RANGE_M, "GROUND_TRUTH",
-                    None, args, result)
+                    None, args, result, world_site=ROOT / "maps" / "hills")
     if "mulran" in drives:
         if not MULRAN.is_dir():
             print(f"mulran: skipped, {MULRAN} is absent")
