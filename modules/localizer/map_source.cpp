@@ -159,3 +159,19 @@ pb_loc::places_t *map_source_places(const map_source_t *s, pb_err_t *err)
 int map_source_page(map_source_t *s, double x, double y, pb_err_t *err) { return pb_tiles_page(s->tiles, x, y, err); }
 
 void map_source_stats(const map_source_t *s, pb_tiles_stats_t *st) { pb_tiles_stats(s->tiles, st); }
+
+int map_source_write_tiles(const char *pcd, const char *out_path, double tile_m, pb_regmap_info_t *info,
+                           size_t *places, size_t *bytes, pb_err_t *err)
+{
+    std::vector<uint8_t> data;
+    if (map_source_prepare(pcd, tile_m, &data, info, places, err) != 0) return -1;
+    std::string tmp = std::string(out_path) + ".tmp";
+    FILE *f = std::fopen(tmp.c_str(), "wb");
+    if (!f || std::fwrite(data.data(), 1, data.size(), f) != data.size() || std::fclose(f) != 0 ||
+        std::rename(tmp.c_str(), out_path) != 0) {
+        std::remove(tmp.c_str());
+        return pb_err_set(err, "%s: cannot write", tmp.c_str()), -1;
+    }
+    if (bytes) *bytes = data.size();
+    return 0;
+}

@@ -33,6 +33,11 @@ int map_source_file_id(const char *path, pb_tiles_source_t *id, pb_err_t *err);
 int map_source_prepare(const char *pcd, double tile_m, std::vector<uint8_t> *out, pb_regmap_info_t *info,
                        size_t *places, pb_err_t *err);
 
+/* The same written to out_path (through out_path.tmp, renamed: a failed run leaves no half
+ * file). *bytes (may be NULL) gets the file's size. */
+int map_source_write_tiles(const char *pcd, const char *out_path, double tile_m, pb_regmap_info_t *info,
+                           size_t *places, size_t *bytes, pb_err_t *err);
+
 /* site: the folder; cfg NULL = default radii. */
 map_source_t *map_source_open(const std::string &site, const pb_tiles_config_t *cfg, pb_err_t *err);
 void map_source_close(map_source_t *s);

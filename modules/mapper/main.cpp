@@ -184,23 +184,6 @@ static int write_site_yaml(const char *path, const char *name, const char *log_p
     return std::fclose(f) == 0 ? 0 : -1;
 }
 
-/* map.tiles next to map.pcd, as tools/map-tiles writes it (through OUT.tmp, renamed). */
-static int write_tiles(const char *map_path, const char *out_path, pb_err_t *err)
-{
-    std::vector<uint8_t> bytes;
-    pb_regmap_info_t info;
-    size_t places = 0;
-    if (map_source_prepare(map_path, 32, &bytes, &info, &places, err) != 0) return -1;
-    std::string tmp = std::string(out_path) + ".tmp";
-    FILE *f = std::fopen(tmp.c_str(), "wb");
-    if (!f || std::fwrite(bytes.data(), 1, bytes.size(), f) != bytes.size() || std::fclose(f) != 0 ||
-        std::rename(tmp.c_str(), out_path) != 0) {
-        std::remove(tmp.c_str());
-        return pb_err_set(err, "%s: cannot write", tmp.c_str()), -1;
-    }
-    return 0;
-}
-
 static int write_tum(const char *path, const std::vector<SweepPose> &traj, bool odometry)
 {
     FILE *f = std::fopen(path, "w");
@@ -484,7 +467,9 @@ static int write_site(Run *R, pb_err_t *err)
     if (write_tum(R->path("trajectory.tum").c_str(), R->traj, false) != 0 ||
         write_tum(R->path("odometry.tum").c_str(), R->traj, true) != 0)
         return pb_err_set(err, "%s: cannot write the trajectories: %s", R->out_dir, std::strerror(errno)), -1;
-    if (write_tiles(R->path("map.pcd").c_str(), R->path("map.tiles").c_str(), err) != 0) return -1;
+    if (map_source_write_tiles(R->path("map.pcd").c_str(), R->path("map.tiles").c_str(), MAP_SOURCE_TILE_M, nullptr,
+                               nullptr, nullptr, err) != 0)
+        return -1;
     std::map<int64_t, Eigen::Vector3d> at;
     for (const SweepPose &sp : R->traj) {
         R->layers.before.push_back(sp.odometry.translation());

@@ -1,6 +1,5 @@
 // map-tiles: a site's prior map (map.pcd) -> map.tiles, the prepared map cut into
 // square tiles that the localizer pages in around the car (modules/localizer/core/map_tiles.h).
-#include <unistd.h>
 #include <cstdio>
 #include <string>
 #include <vector>
@@ -37,24 +36,15 @@ int main(int argc, char **argv)
     int parsed = pb_opt_parse("map-tiles", opts, usage, 0, argc, argv);
     if (parsed >= 0) return parsed;
     pb_err_t err;
-    std::vector<uint8_t> bytes;
     pb_regmap_info_t info;
-    size_t places = 0;
-    if (map_source_prepare(map_path, tile, &bytes, &info, &places, &err) != 0) {
+    size_t places = 0, bytes = 0;
+    if (map_source_write_tiles(map_path, out_path, tile, &info, &places, &bytes, &err) != 0) {
         std::fprintf(stderr, "map-tiles: %s\n", err.msg);
-        return 1;
-    }
-    std::string tmp = std::string(out_path) + ".tmp";
-    FILE *f = std::fopen(tmp.c_str(), "wb");
-    if (!f || std::fwrite(bytes.data(), 1, bytes.size(), f) != bytes.size() || std::fclose(f) != 0 ||
-        std::rename(tmp.c_str(), out_path) != 0) {
-        std::fprintf(stderr, "map-tiles: %s: cannot write\n", tmp.c_str());
-        unlink(tmp.c_str());
         return 1;
     }
     if (!quiet)
         std::printf("map-tiles: %s: %lld points -> %lld fine + %lld coarse cells in %.0f m tiles, %zu places, %s "
                     "(%.1f MB)\n", map_path, (long long)info.points, (long long)info.cells, (long long)info.coarse_cells,
-                    tile, places, out_path, bytes.size() / 1e6);
+                    tile, places, out_path, bytes / 1e6);
     return 0;
 }
