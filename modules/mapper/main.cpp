@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <functional>
 #include <map>
 #include <string>
 #include <sys/stat.h>
@@ -32,7 +33,9 @@
 #include "map_source.h"
 #include "pb_ground.h"
 #include "portobello_gnss_fix_t.h"
+#include "portobello_imu_t.h"
 #include "portobello_lidar_scan_t.h"
+#include "portobello_vehicle_speed_t.h"
 #include <cjson/cJSON.h>
 
 static void usage(FILE *f)
@@ -43,7 +46,9 @@ static void usage(FILE *f)
         "\n"
         "Builds a prior map from a recorded drive by LiDAR odometry: every sweep is\n"
         "registered to a rolling local map of the sweeps before it (the localizer's\n"
-        "registration), then every point is placed with the pose at its own time.\n"
+        "registration), predicted by dead reckoning on VEHICLE_SPEED and the IMU's gyro when\n"
+        "the log has them (else the last step's motion), then every point is placed with the\n"
+        "pose at its own time.\n"
         
         "Where the drive passes a place again, the sweep is matched to the earlier pass's map\n"
         "and the poses are solved again with these loops (Ceres pose graph).\n"
@@ -68,7 +73,7 @@ struct SweepPose {
     int64_t utime;
     Eigen::Isometry3d pose;      /* the odometry's; after loop closure, corrected */
     Eigen::Isometry3d odometry;
-    int status;
+    int status, motion;          /* PB_ODOM_* and PB_ODOM_MOTION_* */
     double inlier_fraction, cpu_ms;
     int keyframe;                /* index of the last keyframe at or before it */
 };
@@ -207,10 +212,13 @@ static double pct(std::vector<double> v, double p)
     return v[std::min(v.size() - 1, (size_t)std::floor(p * (double)(v.size() - 1) + 0.5))];
 }
 
-/* Every LIDAR_SCAN of the log in turn: fn(utime, points in base, event) returns 0 or -1. */
+/* Every LIDAR_SCAN of the log in turn: fn(utime, points in base, event) returns 0 or -1;
+ * other (if given) sees every other event first, in log order, and returns 0 or -1. */
+using OtherFn = std::function<int(const pb_event_t &, pb_err_t *)>;
 template <class F>
 static int for_each_sweep(const char *log_path, const char *scan_ch, const Eigen::Isometry3d &base_from_lidar,
-                          long every, pb_progress_t *prog, F fn, long *empty, pb_err_t *err)
+                          long every, pb_progress_t *prog, F fn, long *empty, pb_err_t *err,
+                          const OtherFn &other = nullptr)
 {
     pb_log_t *log = pb_log_open_read(log_path, err);
     if (!log) return -1;
@@ -221,7 +229,14 @@ static int for_each_sweep(const char *log_path, const char *scan_ch, const Eigen
     int rc, status = 0;
     long seen = 0;
     while ((rc = pb_log_next(log, &ev, err)) == 1) {
-        if (std::strcmp(ev.channel, scan_ch) != 0) continue;
+        if (std::strcmp(ev.channel, scan_ch) != 0) {
+            if (other && other(ev, err) != 0) {
+                pb_err_prefix(err, "%s: byte %lld: ", log_path, (long long)ev.offset);
+                status = -1;
+                break;
+            }
+            continue;
+        }
         if (prog) pb_progress_update(prog, seen);
         if (seen++ % every) continue;
         portobello_lidar_scan_t s;
@@ -264,6 +279,7 @@ struct Run {
     int quiet;
     pb_vehicle_t veh;
     long total = 0, empty = 0, out_of_order = 0;
+    long by_motion[3] = {0, 0, 0};   /* sweeps predicted by PB_ODOM_MOTION_* */
     std::vector<SweepPose> traj;
     std::vector<pb_keyframe_t> kf;
     pb_loops_report_t loops = {};
@@ -280,6 +296,48 @@ struct Run {
     std::string path(const char *name) const { return std::string(out_dir) + "/" + name; }
 };
 
+/* The car's own motion from the log: VEHICLE_SPEED (signed speed) and IMU (gyro, rotated
+ * into base), gathered between sweeps for the odometry's dead reckoning. */
+struct MotionSamples {
+    Eigen::Matrix3d base_from_imu;
+    std::vector<pb_odom_speed_t> speed;
+    std::vector<pb_odom_rate_t> rate;
+
+    int add(const pb_event_t &ev, pb_err_t *err)
+    {
+        if (std::strcmp(ev.channel, "VEHICLE_SPEED") == 0) {
+            portobello_vehicle_speed_t m;
+            if (portobello_vehicle_speed_t_decode(ev.data, 0, ev.datalen, &m) < 0)
+                return pb_err_set(err, "%s does not decode as vehicle_speed_t", ev.channel), -1;
+            if (std::isfinite(m.speed_mps)) speed.push_back({m.utime, m.speed_mps});
+            portobello_vehicle_speed_t_decode_cleanup(&m);
+        } else if (std::strcmp(ev.channel, "IMU") == 0) {
+            portobello_imu_t m;
+            if (portobello_imu_t_decode(ev.data, 0, ev.datalen, &m) < 0)
+                return pb_err_set(err, "%s does not decode as imu_t", ev.channel), -1;
+            Eigen::Vector3d w = base_from_imu * Eigen::Vector3d(m.gyro[0], m.gyro[1], m.gyro[2]);
+            if (w.allFinite()) rate.push_back({m.utime, {w.x(), w.y(), w.z()}});
+            portobello_imu_t_decode_cleanup(&m);
+        }
+        return 0;
+    }
+    /* Samples out of time order (two sources merged badly) are left out, not fatal. */
+    pb_odom_motion_t take(int64_t last_speed, int64_t last_rate)
+    {
+        drop_unordered(&speed, last_speed);
+        drop_unordered(&rate, last_rate);
+        return {speed.data(), speed.size(), rate.data(), rate.size()};
+    }
+    template <class S>
+    static void drop_unordered(std::vector<S> *v, int64_t last)
+    {
+        size_t k = 0;
+        for (const S &x : *v)
+            if (x.utime >= last) (*v)[k++] = x, last = x.utime;
+        v->resize(k);
+    }
+};
+
 /* Pass 1: odometry over every sweep; a keyframe every kKeyframeSpacingM. */
 static int pass_odometry(Run *R, pb_err_t *err)
 {
@@ -292,23 +350,33 @@ static int pass_odometry(Run *R, pb_err_t *err)
     R->traj.reserve((size_t)R->total);
     pb_progress_t prog;
     pb_progress_start(&prog, "mapper: odometry", R->total, R->quiet);
+    MotionSamples ms;
+    ms.base_from_imu = pb_reg_from_transform(&R->veh.base_from_imu).linear();
+    int64_t last_speed = INT64_MIN, last_rate = INT64_MIN;
     int rc = for_each_sweep(R->log_path, R->scan_ch, pb_reg_from_transform(&R->veh.base_from_lidar), 1, &prog,
         [&](int64_t utime, const std::vector<float> &xyz, const pb_points_t &pts, const pb_event_t &, pb_err_t *e) {
             if (!R->traj.empty() && utime <= last_scan_utime) { R->out_of_order++; return 0; }
             last_scan_utime = utime;
             double c0 = pb_clock_thread_cpu_ms();
             pb_odom_result_t r;
-            if (pb_odom_add(odom, utime, xyz.data(), pts.offset_us, xyz.size() / 3, &r, e) != 0) return -1;
+            pb_odom_motion_t motion = ms.take(last_speed, last_rate);
+            if (!ms.speed.empty()) last_speed = ms.speed.back().utime;
+            if (!ms.rate.empty()) last_rate = ms.rate.back().utime;
+            int ok = pb_odom_add(odom, utime, xyz.data(), pts.offset_us, xyz.size() / 3, &motion, &r, e);
+            ms.speed.clear();
+            ms.rate.clear();
+            if (ok != 0) return -1;
+            R->by_motion[r.motion]++;
             std::vector<pb_keyframe_t> &kf = R->kf;
             if (kf.empty() || (r.pose.translation() - kf.back().pose.translation()).norm() >= kKeyframeSpacingM) {
                 kf.push_back({r.utime, r.pose, {}});
                 const std::vector<float> &sw = pb_odom_last_sweep(odom);
                 pb_reg_downsample(sw.data(), sw.size() / 3, &kf_reduce, &kf.back().xyz);
             }
-            R->traj.push_back({r.utime, r.pose, r.pose, r.status, r.inlier_fraction, pb_clock_thread_cpu_ms() - c0,
-                               (int)kf.size() - 1});
+            R->traj.push_back({r.utime, r.pose, r.pose, r.status, r.motion, r.inlier_fraction,
+                               pb_clock_thread_cpu_ms() - c0, (int)kf.size() - 1});
             return 0;
-        }, &R->empty, err);
+        }, &R->empty, err, [&](const pb_event_t &ev, pb_err_t *e) { return ms.add(ev, e); });
     pb_odom_destroy(odom);
     if (rc != 0) {
         if (prog.tty && !R->quiet) std::fputc('\n', stderr);
@@ -516,6 +584,11 @@ static int write_report(const Run &R, const double cpu_ms[4], double wall_s, pb_
     cJSON_AddNumberToObject(j, "empty_scans", (double)R.empty);
     cJSON_AddNumberToObject(j, "out_of_order_scans", (double)R.out_of_order);
     for (int k = 0; k < 5; k++) cJSON_AddNumberToObject(j, (std::string("scans_") + kStatusName[k]).c_str(), (double)by_status[k]);
+    /* what each sweep's prediction came from: dead reckoning on VEHICLE_SPEED and IMU, the
+     * last step's motion (LiDAR alone), or nothing (the first sweep, after a gap) */
+    cJSON_AddNumberToObject(j, "scans_motion_measured", (double)R.by_motion[PB_ODOM_MOTION_MEASURED]);
+    cJSON_AddNumberToObject(j, "scans_motion_constant", (double)R.by_motion[PB_ODOM_MOTION_CONSTANT]);
+    cJSON_AddNumberToObject(j, "scans_motion_none", (double)R.by_motion[PB_ODOM_MOTION_NONE]);
     cJSON_AddNumberToObject(j, "loop_candidates", R.loops.candidates);
     cJSON_AddNumberToObject(j, "loops", R.loops.verified);
     cJSON_AddNumberToObject(j, "loops_rejected", R.loops.rejected);

@@ -48,6 +48,7 @@ import subprocess  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 
+import lcm  # noqa: E402
 import numpy as np  # noqa: E402
 
 HERE = pathlib.Path(__file__).resolve().parent
@@ -342,33 +343,19 @@ def bench_drive(name, log_path, vehicle, sensor_range, gt_label, extra_refs, arg
         k["scores"][label] = score(kt, kbase, rt, rp)
     drive["methods"]["kiss_icp"] = k
 
-    # ours
+    # ours: on the LiDAR alone (KISS-ICP's input; GNSS_FIX stays for the anchoring), and, when
+    # the log has the car's IMU, with the IMU and VEHICLE_SPEED (the can driver's, merged in)
     log(f"[{name}] ours ...")
-    o = run_ours(str(BIN / "mapper"), log_path, d / "ours", vehicle)
-    rep = o.get("report", {})
-    ores = {k2: v for k2, v in o.items() if k2 not in ("trajectory", "odometry")}
-    if "error" not in o:
-        n = rep["scans"]
-        # the median is the main thread's CPU per sweep; the mean counts the thread that builds
-        # the registration maps too, which is the figure to compare with KISS-ICP's mean
-        ores["cpu_ms_median"] = rep["cpu_ms_per_scan_median"]
-        ores["cpu_ms_p99"] = rep["cpu_ms_per_scan_p99"]
-        ores["cpu_ms_mean"] = rep["cpu_s_odometry"] * 1e3 / n
-        ores["rtf"] = period * 1e3 / ores["cpu_ms_mean"]
-        ores["whole_mapper_rtf_wall"] = rep["drive_s"] / rep["wall_s"]
-        ores["scores"] = {}
-        for label, rt, rp in refs:
-            s = score(*o["trajectory"], rt, rp)
-            if "odometry" in o:   # drift before loop closure
-                so = score(*o["odometry"], rt, rp)
-                s["after_loop_closure"] = {kk: s.get(kk) for kk in ("drift_pct", "drift_deg_per_100m")}
-                s["drift_pct"], s["drift_deg_per_100m"] = so.get("drift_pct"), so.get("drift_deg_per_100m")
-                s["odometry_ate_rmse_m"] = so.get("ate_rmse_m")
-                s["drift_from"] = "odometry.tum (before loop closure)"
-            else:
-                s["drift_from"] = "trajectory.tum (odometry only: no loop closure yet)"
-            ores["scores"][label] = s
+    lidar_log = d / "lidar_only.lcm"
+    sh([BIN / "log-merge", "--quiet", "--out", lidar_log, "--drop", "IMU", "--drop", "VEHICLE_SPEED",
+        "--drop", "CAN_FRAME", log_path])
+    ores = run_and_score(lidar_log, d / "ours", vehicle, refs, period)
     drive["methods"]["ours"] = ores
+    lidar_log.unlink(missing_ok=True)
+    fused = fused_log(log_path, d)
+    if fused:
+        log(f"[{name}] ours with IMU and VEHICLE_SPEED ...")
+        drive["methods"]["ours_fused"] = run_and_score(fused, d / "ours_fused", vehicle, refs, period)
     if world_site and "error" not in ores:
         log(f"[{name}] the map against the simulated world ...")
         drive["map_vs_world"] = surface_score(d / "ours", gt_path, world_site)
@@ -378,6 +365,60 @@ def bench_drive(name, log_path, vehicle, sensor_range, gt_label, extra_refs, arg
     if not args.keep_scans:
         shutil.rmtree(ex / "scans", ignore_errors=True)
         (ex / "times.txt").unlink(missing_ok=True)   # so the next run exports again
+
+
+def has_channel(log_path, channel):
+    for ev in lcm.EventLog(str(log_path), "r"):
+        if ev.channel == channel:
+            return True
+    return False
+
+
+def fused_log(log_path, d):
+    """The log with IMU and VEHICLE_SPEED: itself if it has both, else with VEHICLE_SPEED
+    merged in (can --replay of its CAN_FRAME) if it has IMU and CAN_FRAME; None otherwise."""
+    out = d / "fused.lcm"
+    if newer(out, log_path, BIN / "can", BIN / "log-merge"):
+        return out
+    if not has_channel(log_path, "IMU"):
+        return None
+    if has_channel(log_path, "VEHICLE_SPEED"):
+        return log_path
+    if not has_channel(log_path, "CAN_FRAME"):
+        return None
+    sh([BIN / "can", "--replay", log_path, "--out", d / "speed.lcm"])
+    sh([BIN / "log-merge", "--quiet", "--out", out, log_path, d / "speed.lcm"])
+    return out
+
+
+def run_and_score(log_path, out_dir, vehicle, refs, period):
+    """The mapper on log_path into out_dir, its timing and its scores against refs."""
+    o = run_ours(str(BIN / "mapper"), log_path, out_dir, vehicle)
+    rep = o.get("report", {})
+    ores = {k2: v for k2, v in o.items() if k2 not in ("trajectory", "odometry")}
+    if "error" in o:
+        return ores
+    n = rep["scans"]
+    # the median is the main thread's CPU per sweep; the mean counts the thread that builds
+    # the registration maps too, which is the figure to compare with KISS-ICP's mean
+    ores["cpu_ms_median"] = rep["cpu_ms_per_scan_median"]
+    ores["cpu_ms_p99"] = rep["cpu_ms_per_scan_p99"]
+    ores["cpu_ms_mean"] = rep["cpu_s_odometry"] * 1e3 / n
+    ores["rtf"] = period * 1e3 / ores["cpu_ms_mean"]
+    ores["whole_mapper_rtf_wall"] = rep["drive_s"] / rep["wall_s"]
+    ores["scores"] = {}
+    for label, rt, rp in refs:
+        s = score(*o["trajectory"], rt, rp)
+        if "odometry" in o:   # drift before loop closure
+            so = score(*o["odometry"], rt, rp)
+            s["after_loop_closure"] = {kk: s.get(kk) for kk in ("drift_pct", "drift_deg_per_100m")}
+            s["drift_pct"], s["drift_deg_per_100m"] = so.get("drift_pct"), so.get("drift_deg_per_100m")
+            s["odometry_ate_rmse_m"] = so.get("ate_rmse_m")
+            s["drift_from"] = "odometry.tum (before loop closure)"
+        else:
+            s["drift_from"] = "trajectory.tum (odometry only: no loop closure yet)"
+        ores["scores"][label] = s
+    return ores
 
 
 # ---------------------------------------------------------------- the localizer on the map
@@ -467,7 +508,7 @@ def print_localizer_table(result):
 
 
 def print_table(result):
-    hdr = (f"{'drive':<8} {'reference':<26} {'method':<9} {'scans':>5} {'path m':>7} {'drift %':>7} {'deg/100m':>8} "
+    hdr = (f"{'drive':<8} {'reference':<26} {'method':<10} {'scans':>5} {'path m':>7} {'drift %':>7} {'deg/100m':>8} "
            f"{'ATE rmse':>8} {'ATE max':>8} {'ms med':>7} {'ms p99':>7} {'ms mean':>7} {'RTF':>6}")
     print(hdr)
     print("-" * len(hdr))
@@ -475,13 +516,13 @@ def print_table(result):
         for label in drv["references"]:
             for mname, m in drv["methods"].items():
                 if "error" in m:
-                    print(f"{dname:<8} {label:<26} {mname:<9} failed: {m['error'].strip().splitlines()[-1][:80]}")
+                    print(f"{dname:<8} {label:<26} {mname:<10} failed: {m['error'].strip().splitlines()[-1][:80]}")
                     continue
                 s = m["scores"][label]
                 if "error" in s:
-                    print(f"{dname:<8} {label:<26} {mname:<9} {s['error']}")
+                    print(f"{dname:<8} {label:<26} {mname:<10} {s['error']}")
                     continue
-                print(f"{dname:<8} {label:<26} {mname:<9} {s['poses']:>5} {s['path_m']:>7.0f} {fmt(s['drift_pct']):>7} "
+                print(f"{dname:<8} {label:<26} {mname:<10} {s['poses']:>5} {s['path_m']:>7.0f} {fmt(s['drift_pct']):>7} "
                       f"{fmt(s['drift_deg_per_100m'], '{:.3f}'):>8} {fmt(s['ate_rmse_m'], '{:.3f}'):>8} "
                       f"{fmt(s['ate_max_m'], '{:.3f}'):>8} {fmt(m.get('cpu_ms_median'), '{:.1f}'):>7} "
                       f"{fmt(m.get('cpu_ms_p99'), '{:.1f}'):>7} {fmt(m.get('cpu_ms_mean'), '{:.1f}'):>7} "

@@ -42,6 +42,9 @@ struct pb_odom {
     int64_t next_sweep = 0;   /* the sweep it is swapped in before ... */
     Vec3 next_from = Vec3::Zero();   /* ... or once the car is kSwapAfterM from where it started */
     std::string next_err;
+    /* the car's own motion samples: from the newest one at or before the last sweep's middle on */
+    std::vector<pb_odom_speed_t> speed;
+    std::vector<pb_odom_rate_t> rate;
 };
 
 /* Sweeps after its start that a new registration map is swapped in (waiting for it if it is
@@ -100,6 +103,86 @@ static void add_to_map(pb_odom_t *o, const std::vector<float> &xyz, const Eigen:
     }
 }
 
+/* 0 if the n samples come in time order after the ones kept; -1 with err set if not. */
+template <class S>
+static int check_order(const std::vector<S> &kept, const S *add, size_t n, const char *what, pb_err_t *err)
+{
+    int64_t last = kept.empty() ? INT64_MIN : kept.back().utime;
+    for (size_t i = 0; i < n; i++) {
+        if (add[i].utime < last)
+            return pb_err_set(err, "%s sample at utime %lld comes after one at %lld", what, (long long)add[i].utime,
+                              (long long)last), -1;
+        last = add[i].utime;
+    }
+    return 0;
+}
+
+/* Whether samples cover [t0, t1] with no hole longer than max_age_us (the newest one
+ * before t0 counts, as does the first one after it when it comes within max_age_us). */
+template <class S>
+static bool covers(const std::vector<S> &v, int64_t t0, int64_t t1, int64_t max_age_us)
+{
+    int64_t held = INT64_MIN;
+    for (const S &x : v) {
+        if (x.utime > t1) break;
+        if (x.utime <= t0) { held = x.utime; continue; }
+        if ((held == INT64_MIN ? x.utime - t0 : x.utime - held) > max_age_us) return false;
+        held = x.utime;
+    }
+    return held != INT64_MIN && t1 - held <= max_age_us;
+}
+
+/* The sample held at t: the newest at or before t, else the first. */
+template <class S>
+static const S &held_at(const std::vector<S> &v, int64_t t)
+{
+    size_t k = 0;
+    while (k + 1 < v.size() && v[k + 1].utime <= t) k++;
+    return v[k];
+}
+
+/* The mean rate of the samples within [t0, t1] (a real gyro's noise and the car's
+ * vibration average out over a sweep), else the one held at t1. */
+static Vec3 mean_rate(const std::vector<pb_odom_rate_t> &v, int64_t t0, int64_t t1)
+{
+    Vec3 sum = Vec3::Zero();
+    int n = 0;
+    for (const pb_odom_rate_t &x : v)
+        if (x.utime >= t0 && x.utime <= t1) sum += Eigen::Map<const Vec3>(x.rate), n++;
+    return n ? Vec3(sum / n) : Vec3(Eigen::Map<const Vec3>(held_at(v, t1).rate));
+}
+
+/* Drops the samples before the one held at t. */
+template <class S>
+static void drop_before(std::vector<S> *v, int64_t t)
+{
+    size_t k = 0;
+    while (k + 1 < v->size() && (*v)[k + 1].utime <= t) k++;
+    v->erase(v->begin(), v->begin() + (long)k);
+}
+
+/* Dead reckoning from t0 to t1 on the held speed (along base x) and rate, piecewise
+ * constant between samples: base(t0) <- base(t1). */
+static Eigen::Isometry3d reckon(const std::vector<pb_odom_speed_t> &sp, const std::vector<pb_odom_rate_t> &rt,
+                                int64_t t0, int64_t t1)
+{
+    Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+    size_t i = 0, j = 0;
+    int64_t t = t0;
+    while (t < t1) {
+        while (i + 1 < sp.size() && sp[i + 1].utime <= t) i++;
+        while (j + 1 < rt.size() && rt[j + 1].utime <= t) j++;
+        int64_t next = t1;
+        if (i + 1 < sp.size()) next = std::min(next, sp[i + 1].utime);
+        if (j + 1 < rt.size()) next = std::min(next, rt[j + 1].utime);
+        if (next <= t) next = t1;
+        T = T * exp_step(Vec3(sp[i].speed_mps, 0, 0), Vec3(rt[j].rate[0], rt[j].rate[1], rt[j].rate[2]),
+                         (next - t) * 1e-6);
+        t = next;
+    }
+    return T;
+}
+
 /* The map being built becomes the registration map. */
 static int swap_in(pb_odom_t *o, pb_err_t *err)
 {
@@ -155,9 +238,14 @@ static int rebuild(pb_odom_t *o, const Vec3 &at, pb_err_t *err)
 }
 
 int pb_odom_add(pb_odom_t *o, int64_t utime, const float *xyz, const int32_t *offset_us, size_t n,
-                pb_odom_result_t *out, pb_err_t *err)
+                const pb_odom_motion_t *motion, pb_odom_result_t *out, pb_err_t *err)
 {
     if (n == 0) return pb_err_set(err, "sweep at utime %lld has no points", (long long)utime), -1;
+    static const pb_odom_motion_t kNone = {};
+    if (!motion) motion = &kNone;
+    if (check_order(o->speed, motion->speed, motion->n_speed, "speed", err) != 0 ||
+        check_order(o->rate, motion->rate, motion->n_rate, "rate", err) != 0)
+        return -1;
     /* The pose refers to the middle of the sweep: deskewed about its middle, a wrong
      * motion distorts the sweep evenly both ways and does not shift the match. (About
      * its start, the match moves by half the motion's error, the next step's motion
@@ -173,16 +261,31 @@ int pb_odom_add(pb_odom_t *o, int64_t utime, const float *xyz, const int32_t *of
         return pb_err_set(err, "sweep at utime %lld is not after the last one", (long long)utime), -1;
     const double dt = o->sweeps > 0 ? (t_ref - o->last_utime) * 1e-6 : 0;
     if (dt > o->cfg.max_gap_s) o->motion_known = false;
+    o->speed.insert(o->speed.end(), motion->speed, motion->speed + motion->n_speed);
+    o->rate.insert(o->rate.end(), motion->rate, motion->rate + motion->n_rate);
+    const int64_t max_age = (int64_t)(o->cfg.max_sample_age_s * 1e6);
+    const int64_t t_from = o->sweeps > 0 ? o->last_utime : utime + off_min;
+    const bool has_speed = covers(o->speed, t_from, utime + off_max, max_age),
+               has_rate = covers(o->rate, t_from, utime + off_max, max_age), measured = has_speed && has_rate;
 
-    // 1. prediction: the last step's motion carried on (standing still while unknown)
-    Vec3 v = o->motion_known ? o->v : Vec3::Zero(), w = o->motion_known ? o->w : Vec3::Zero();
-    Eigen::Isometry3d pred = o->last_pose * exp_step(v, w, dt);
+    // 1. prediction: dead reckoning on the measured motion; else the last step's motion
+    //    carried on, with whichever of speed or rate was measured in place of its part
+    //    (across a gap only as the centre of the search: standing still is a worse guess
+    //    for a car that was moving)
+    Vec3 v = o->v, w = o->w;
+    if (has_speed) v = Vec3(held_at(o->speed, t_ref).speed_mps, 0, 0);
+    if (has_rate) w = mean_rate(o->rate, utime + off_min, utime + off_max);
+    Eigen::Isometry3d pred = o->last_pose * (measured ? reckon(o->speed, o->rate, o->last_utime, t_ref)
+                                                      : exp_step(v, w, dt));
 
-    // 2. the sweep deskewed to its utime with that motion
+    // 2. the sweep deskewed to its utime with the motion at the sweep
     std::vector<float> pts(xyz, xyz + 3 * n);
     pb_deskew(pts.data(), offset_us, n, ref_off, v.data(), w.data());
 
     pb_odom_result_t r;
+    r.motion = measured ? PB_ODOM_MOTION_MEASURED : o->motion_known ? PB_ODOM_MOTION_CONSTANT : PB_ODOM_MOTION_NONE;
+    r.has_speed = has_speed;
+    r.has_rate = has_rate;
     r.utime = t_ref;
     r.v_base = v;
     r.w_base = w;
@@ -193,10 +296,11 @@ int pb_odom_add(pb_odom_t *o, int64_t utime, const float *xyz, const int32_t *of
         r.pose = Eigen::Isometry3d::Identity();
     } else {
         // 3. registration from the prediction; a search around it when that is not enough
+        const bool predicted = measured || o->motion_known;
         pb_reg_config_t tcfg = o->reg;
-        tcfg.prior_sigma_m = o->motion_known ? o->cfg.prior_sigma_m : 0;
+        tcfg.prior_sigma_m = predicted ? o->cfg.prior_sigma_m : 0;
         pb_reg_result_t m;
-        int rc = o->motion_known ? pb_reg_align(o->regmap, pts.data(), n, pred, &tcfg, &m, err) : PB_REG_FEW_POINTS;
+        int rc = predicted ? pb_reg_align(o->regmap, pts.data(), n, pred, &tcfg, &m, err) : PB_REG_FEW_POINTS;
         if (rc < 0) return -1;
         r.status = PB_ODOM_TRACKED;
         if (rc == PB_REG_FEW_POINTS) {
@@ -242,6 +346,8 @@ int pb_odom_add(pb_odom_t *o, int64_t utime, const float *xyz, const int32_t *of
         r.rebuilt = 1;
     }
     r.map_cells = (int64_t)o->cells.size();
+    drop_before(&o->speed, t_ref);   /* the sample held at this middle starts the next reckoning */
+    drop_before(&o->rate, t_ref);
     o->last_sweep.swap(pts);
     *out = r;
     return 0;

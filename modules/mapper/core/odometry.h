@@ -7,9 +7,12 @@
  * middle of the sweep (result.utime); `map` is the base frame of the first sweep.
  *
  * Pipeline of pb_odom_add:
- *   1. predict the pose at the sweep's middle from the last step's motion (constant
- *      velocity; none yet on the first steps);
- *   2. deskew the sweep to its middle with that motion;
+ *   1. predict the pose at the sweep's middle: dead reckoning on the car's own speed
+ *      (VEHICLE_SPEED) and turn rate (IMU gyro) when both came with the sweep, else the
+ *      last step's motion carried on (constant velocity; none yet on the first steps)
+ *      with the speed or the rate in place of its part when one of them came;
+ *   2. deskew the sweep to its middle with the motion at the sweep (the measured one
+ *      when there is one);
  *   3. register it to the local map from the prediction; when the motion is not yet
  *      known, or too few points match, search around the prediction instead
  *      (pb_reg_align_global);
@@ -45,8 +48,25 @@ typedef struct {
     double search_radius_m = 10;     /* that search: within this of the prediction ... */
     double search_yaw_deg = 30;      /* ... and this of its yaw */
     double prior_sigma_m = 0.5;      /* spread of the constant-velocity prediction (registration.h) */
-    double max_gap_s = 1.0;          /* a longer gap between sweeps forgets the motion (searched again) */
+    double max_gap_s = 1.0;          /* a longer gap between sweeps forgets the motion (searched again);
+                                      * dead reckoning bridges it */
+    double max_sample_age_s = 0.2;   /* a speed or rate sample older than this at the sweep's middle is
+                                      * stale (CAN or IMU stopped): constant velocity instead */
 } pb_odom_config_t;
+
+/* What the car measures of its own motion: signed forward speed of base (VEHICLE_SPEED,
+ * m/s) and angular rate in base (IMU gyro rotated into base, rad/s), each with its time. */
+typedef struct { int64_t utime; double speed_mps; } pb_odom_speed_t;
+typedef struct { int64_t utime; double rate[3]; } pb_odom_rate_t;
+
+/* The samples that arrived since the last sweep (any order within a kind is an error:
+ * ascending utime). Either list may be empty; the odometry keeps the newest of each. */
+typedef struct {
+    const pb_odom_speed_t *speed;
+    size_t n_speed;
+    const pb_odom_rate_t *rate;
+    size_t n_rate;
+} pb_odom_motion_t;
 
 /* How a sweep's pose was found (pb_odom_result_t.status). */
 enum {
@@ -58,8 +78,18 @@ enum {
     PB_ODOM_PREDICTED = 4   /* no match at all (too few points): the prediction */
 };
 
+/* What the prediction of a sweep came from (pb_odom_result_t.motion). */
+enum {
+    PB_ODOM_MOTION_NONE = 0,      /* no motion known: the last pose (first sweep, after a gap) */
+    PB_ODOM_MOTION_CONSTANT = 1,  /* the last step's motion carried on */
+    PB_ODOM_MOTION_MEASURED = 2   /* dead reckoning on speed and turn rate */
+};
+
 typedef struct {
     int status;                   /* PB_ODOM_* */
+    int motion;                   /* PB_ODOM_MOTION_* */
+    int has_speed, has_rate;      /* the motion used speed / rate samples (with CONSTANT: in place of
+                                   * that part of the last step's motion) */
     int64_t utime;                /* the time the pose refers to: the middle of the sweep */
     Eigen::Isometry3d pose;       /* map <- base at utime */
     Eigen::Vector3d v_base;       /* the motion the sweep was deskewed with: m/s ... */
@@ -76,10 +106,12 @@ pb_odom_t *pb_odom_create(const pb_odom_config_t *cfg, const pb_reg_config_t *re
 void pb_odom_destroy(pb_odom_t *o);
 
 /* Adds one sweep: n points (xyz interleaved, base frame) with their offsets after utime
- * (microseconds). Sweeps must come in time order. Returns 0 with *out filled, or -1 with
- * err set (n == 0, a sweep not after the last one); the odometry is then unchanged. */
+ * (microseconds), and the speed and rate samples received since the last sweep (motion
+ * NULL = none: LiDAR alone). Sweeps must come in time order. Returns 0 with *out filled,
+ * or -1 with err set (n == 0, a sweep not after the last one, samples not in time order);
+ * the odometry is then unchanged. */
 int pb_odom_add(pb_odom_t *o, int64_t utime, const float *xyz, const int32_t *offset_us, size_t n,
-                pb_odom_result_t *out, pb_err_t *err);
+                const pb_odom_motion_t *motion, pb_odom_result_t *out, pb_err_t *err);
 
 /* The last sweep added, deskewed, in base at its pose's time (valid until the next
  * pb_odom_add; empty before the first). */
