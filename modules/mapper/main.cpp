@@ -57,7 +57,8 @@ static void usage(FILE *f)
         "SITE_DIR/odometry.tum (the same before loop closure), SITE_DIR/ground.yaml (+ .pgm, the\n"
         "ground model), SITE_DIR/map.tiles (the map prepared for the localizer), report.json and\n"
         "SITE_DIR/report.png (top-down: map grey, trajectory before loop closure orange and after\n"
-        "blue, loops green, GNSS fixes red; north up when geo-referenced). With\n"
+        "blue, loops green, GNSS fixes red, points carved as moving objects magenta; north up\n"
+        "when geo-referenced). With\n"
         "GNSS_FIX in the log, the map is moved onto the fixes (east-north-up at the first 3-D\n"
         "fix) and SITE_DIR/site.yaml holds that geo-reference; without, the map stays in the\n"
         "first sweep's frame and no site.yaml is written.\n"
@@ -517,8 +518,11 @@ static int pass_carve(Run *R, const pb_ground_t *ground, pb_err_t *err)
     if (rc != 0) return -1;
     pcl::PointCloud<pcl::PointXYZI> kept;
     kept.reserve(R->cloud.size() - R->carved);
-    for (size_t i = 0; i < R->cloud.size(); i++)
-        if (keep[i]) kept.push_back(R->cloud.points[i]);
+    for (size_t i = 0; i < R->cloud.size(); i++) {
+        const pcl::PointXYZI &q = R->cloud.points[i];
+        if (keep[i]) kept.push_back(q);
+        else R->layers.removed.insert(R->layers.removed.end(), {q.x, q.y, q.z});
+    }
     R->cloud.swap(kept);
     const std::string map_path = R->path("map.pcd"), tmp = map_path + ".tmp";
     if (pcl::io::savePCDFileBinary(tmp, R->cloud) < 0 || std::rename(tmp.c_str(), map_path.c_str()) != 0) {

@@ -69,7 +69,9 @@ int pb_picture_write(const float *xyz, size_t n, size_t stride, const pb_picture
         cv.rgb[3 * i] = cv.rgb[3 * i + 1] = cv.rgb[3 * i + 2] = g;
     }
     static const uint8_t orange[3] = {245, 140, 20}, blue[3] = {20, 80, 220}, green[3] = {0, 170, 60},
-                         red[3] = {215, 25, 30};
+                         red[3] = {215, 25, 30}, magenta[3] = {200, 0, 200};
+    for (size_t i = 0; i + 2 < L->removed.size(); i += 3)
+        cv.dot(Eigen::Vector3d(L->removed[i], L->removed[i + 1], L->removed[i + 2]), 0, magenta);
     for (const auto &f : L->fixes) cv.dot(f, 1, red);
     cv.path(L->before, 1, orange);
     cv.path(L->after, 1, blue);
