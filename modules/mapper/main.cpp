@@ -517,7 +517,10 @@ static int write_report(const Run &R, const double cpu_ms[4], double wall_s, pb_
     cJSON_AddNumberToObject(j, "out_of_order_scans", (double)R.out_of_order);
     for (int k = 0; k < 5; k++) cJSON_AddNumberToObject(j, (std::string("scans_") + kStatusName[k]).c_str(), (double)by_status[k]);
     cJSON_AddNumberToObject(j, "loop_candidates", R.loops.candidates);
+    cJSON_AddNumberToObject(j, "loop_candidates_by_place", R.loops.place_candidates);
     cJSON_AddNumberToObject(j, "loops", R.loops.verified);
+    cJSON_AddNumberToObject(j, "loops_by_position", R.loops.verified - R.loops.place_loops);
+    cJSON_AddNumberToObject(j, "loops_by_place", R.loops.place_loops);
     cJSON_AddNumberToObject(j, "loops_rejected", R.loops.rejected);
     cJSON_AddNumberToObject(j, "loops_dropped", R.loops.dropped);
     cJSON_AddNumberToObject(j, "loop_correction_max_m", R.loops.max_change_m);
