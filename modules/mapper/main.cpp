@@ -594,7 +594,10 @@ static int write_report(const Run &R, const double cpu_ms[4], double wall_s, pb_
     cJSON_AddNumberToObject(j, "scans_motion_constant", (double)R.by_motion[PB_ODOM_MOTION_CONSTANT]);
     cJSON_AddNumberToObject(j, "scans_motion_none", (double)R.by_motion[PB_ODOM_MOTION_NONE]);
     cJSON_AddNumberToObject(j, "loop_candidates", R.loops.candidates);
+    cJSON_AddNumberToObject(j, "loop_candidates_by_place", R.loops.place_candidates);
     cJSON_AddNumberToObject(j, "loops", R.loops.verified);
+    cJSON_AddNumberToObject(j, "loops_by_position", R.loops.verified - R.loops.place_loops);
+    cJSON_AddNumberToObject(j, "loops_by_place", R.loops.place_loops);
     cJSON_AddNumberToObject(j, "loops_rejected", R.loops.rejected);
     cJSON_AddNumberToObject(j, "loops_dropped", R.loops.dropped);
     cJSON_AddNumberToObject(j, "loop_correction_max_m", R.loops.max_change_m);

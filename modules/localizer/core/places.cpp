@@ -285,7 +285,11 @@ size_t places_count(const places_t *p) { return p ? p->spot.size() : 0; }
 
 void places_describe(const places_t *p, const float *xyz, size_t n, place_desc_t *d)
 {
-    const places_config_t &cfg = p->cfg;
+    places_describe(p->cfg, xyz, n, d);
+}
+
+void places_describe(const places_config_t &cfg, const float *xyz, size_t n, place_desc_t *d)
+{
     /* heights above the ground around each bin, as the map's are, not above the car's
      * base plane: on a grade or a crest that plane is metres off the ground 40 m away */
     static const float NONE = 1e9f;
@@ -341,6 +345,35 @@ static double compare(const places_config_t &cfg, const place_desc_t &a, const p
     return sum / (k * cfg.clip_m);
 }
 
+double places_compare(const places_config_t &cfg, const place_desc_t &a, const place_desc_t &b, double *yaw)
+{
+    /* the sector keys name the likely shifts; the full descriptors decide among
+     * them and their neighbours */
+    std::array<std::pair<double, int>, PLACE_SECTORS> sk;
+    for (int sh = 0; sh < PLACE_SECTORS; sh++) {
+        double sum = 0;
+        int k = 0;
+        for (int s = 0; s < PLACE_SECTORS; s++) {
+            float ka = a.sector_key[s], kb = b.sector_key[(s + sh) % PLACE_SECTORS];
+            if (ka < 0 || kb < 0) continue;
+            sum += std::fabs(ka - kb);
+            k++;
+        }
+        sk[sh] = { k ? sum / k : HUGE_VAL, sh };
+    }
+    std::partial_sort(sk.begin(), sk.begin() + kShifts, sk.end());
+    double best = HUGE_VAL;
+    int best_shift = 0;
+    for (int i = 0; i < kShifts; i++)
+        for (int ds = -1; ds <= 1; ds++) {
+            int sh = (sk[i].second + ds + PLACE_SECTORS) % PLACE_SECTORS;
+            double c = compare(cfg, a, b, sh);
+            if (c < best) { best = c; best_shift = sh; }
+        }
+    *yaw = best_shift * 2 * M_PI / PLACE_SECTORS;
+    return best;
+}
+
 void places_query(const places_t *p, const place_desc_t &d, int k, std::vector<place_match_t> *out)
 {
     out->clear();
@@ -360,32 +393,8 @@ void places_query(const places_t *p, const place_desc_t &d, int k, std::vector<p
         int c = p->spot_col[rk[j].second];
         describe_column(p, c % p->W, c / p->W, &pd);
         finish(p->cfg, &pd);
-        /* the sector keys name the likely shifts; the full descriptors decide among
-         * them and their neighbours */
-        std::array<std::pair<double, int>, PLACE_SECTORS> sk;
-        for (int sh = 0; sh < PLACE_SECTORS; sh++) {
-            double sum = 0;
-            int k = 0;
-            for (int s = 0; s < PLACE_SECTORS; s++) {
-                float a = d.sector_key[s], b = pd.sector_key[(s + sh) % PLACE_SECTORS];
-                if (a < 0 || b < 0) continue;
-                sum += std::fabs(a - b);
-                k++;
-            }
-            sk[sh] = { k ? sum / k : HUGE_VAL, sh };
-        }
-        std::partial_sort(sk.begin(), sk.begin() + kShifts, sk.end());
-        double best = HUGE_VAL;
-        int best_shift = 0;
-        for (int i = 0; i < kShifts; i++)
-            for (int ds = -1; ds <= 1; ds++) {
-                int sh = (sk[i].second + ds + PLACE_SECTORS) % PLACE_SECTORS;
-                double c = compare(p->cfg, d, pd, sh);
-                if (c < best) { best = c; best_shift = sh; }
-            }
         place_match_t pm = p->spot[rk[j].second];
-        pm.yaw = best_shift * 2 * M_PI / PLACE_SECTORS;
-        pm.distance = best;
+        pm.distance = places_compare(p->cfg, d, pd, &pm.yaw);
         out->push_back(pm);
     }
     std::stable_sort(out->begin(), out->end(), [](const place_match_t &a, const place_match_t &b) {

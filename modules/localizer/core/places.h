@@ -8,10 +8,11 @@
  * structure are unknown (a sweep cannot see through a wall; the map has what is behind
  * it), and only bins known on both sides are compared.
  *
- * Query: a rotation-invariant ring key (per ring, the share of known sectors holding
- * structure) shortlists places; the full descriptors are then compared under every
- * sector shift, which also gives the yaw. The caller verifies the best few by
- * registration and the structure test: a descriptor only proposes.
+ * Query: a rotation-invariant ring key (per ring, the mean height of its known bins)
+ * shortlists places; the full descriptors are then compared under every sector shift,
+ * which also gives the yaw. The caller verifies the best few by registration and the
+ * structure test: a descriptor only proposes. Two sweeps' descriptors compare the same
+ * way (places_compare): the mapper's loop closure finds places it passed before so.
  *
  * Pure: no I/O, no clocks. Ownership: places_build returns an object the caller frees
  * with places_destroy; the map is only read while building. */
@@ -68,8 +69,15 @@ void places_encode(const places_t *p, std::vector<uint8_t> *out);
  * damaged. */
 places_t *places_decode(const uint8_t *bytes, size_t n, char *msg, size_t msg_len);
 
-/* The descriptor of a sweep (points in base, metres; base z = 0 on the ground). */
+/* The descriptor of a sweep (points in base, metres; base z = 0 on the ground), with
+ * the places' settings or with the given ones (sweeps compared with each other). */
 void places_describe(const places_t *p, const float *xyz, size_t n, place_desc_t *d);
+void places_describe(const places_config_t &cfg, const float *xyz, size_t n, place_desc_t *d);
+
+/* Descriptor distance of a to b under the best sector shift, 0..1 (smaller is more
+ * alike; 1 when too few bins are known on both sides); *yaw gets the yaw of a's frame in
+ * b's frame that the shift stands for (a multiple of 360 / PLACE_SECTORS degrees). */
+double places_compare(const places_config_t &cfg, const place_desc_t &a, const place_desc_t &b, double *yaw);
 
 /* The k most alike places, best first. */
 void places_query(const places_t *p, const place_desc_t &d, int k, std::vector<place_match_t> *out);

@@ -4,17 +4,36 @@
  * odometry edges and the loop edges together.
  *
  * Pipeline of pb_loops_close:
- *   1. candidates: for each keyframe, the nearest earlier keyframe within search_radius_m
- *      (by the odometry's positions) that is at least min_separation_m of path behind it;
+ *   1. candidates, each kind tried at most once per try_every keyframes:
+ *      a. by position: the nearest earlier keyframe within search_radius_m (by the
+ *         odometry's positions) that is at least min_separation_m of path behind it;
+ *      b. by place recognition: each keyframe's Scan-Context-like descriptor (the
+ *         localizer's places_describe / places_compare: highest structure in a polar grid
+ *         around the base, compared under every sector shift, which gives the yaw, so a
+ *         place driven the other way is found too); among the keyframes at least
+ *         min_separation_m of path behind (no position gate: this is what finds a loop
+ *         after drift beyond search_radius_m), the place_candidates most alike distinct
+ *         places, at most place_max_distance apart, that the odometry can have drifted from
+ *         (the bound of step 2, tested before any registration);
  *   2. verification: the keyframe's points registered (pb_reg_align) to a map of the
  *      stored keyframes within submap_radius_m of path around the earlier one, from the
- *      odometry's pose, and searched for (pb_reg_align_global) when that does not fit;
- *      kept if min_inliers of the points above the ground lie on the map's surfaces and
- *      the keyframe moves by at most max_correction_m plus max_drift of the path between;
- *   3. pose graph (Ceres: a maintained sparse least-squares solver, in Debian, with
+ *      odometry's pose (a) or from the earlier keyframe's pose turned by the descriptor's
+ *      yaw (b), and searched for (pb_reg_align_global) when that does not fit; kept if
+ *      min_inliers of the points above the ground lie on the map's surfaces and the
+ *      correction of the keyframe's pose is one the odometry can have drifted: at most
+ *      max_correction_m plus max_drift (a) or place_max_drift (b) of the path between,
+ *      and max_correction_deg plus max_drift_deg per 100 m of it;
+ *   3. agreement: two loops agree when the cycle (a's earlier keyframe, by the odometry to
+ *      b's, over b's loop, by the odometry back to a's later one, over a's loop) closes
+ *      within max_correction_m + max_drift and max_correction_deg + max_drift_deg of its
+ *      two odometry legs. The largest set of loops that agree pairwise (greedily, from the
+ *      loop with the most partners) is kept, the others dropped; a loop by place needs a
+ *      partner. A place that merely looks alike (a street that repeats itself) passes
+ *      step 2 often; this is what refuses it when it lies within the drift bounds;
+ *   4. pose graph (Ceres: a maintained sparse least-squares solver, in Debian, with
  *      manifolds for rotations; GTSAM is not packaged for Debian 12, g2o has no released
  *      Debian package with a stable API): odometry edges between consecutive keyframes,
- *      the loop edges, the first keyframe fixed. A false loop that passed step 2 cannot
+ *      the loop edges, the first keyframe fixed. A false loop that passed steps 2-3 cannot
  *      agree with the odometry and the other loops: after the solve, the loop whose edge
  *      is off the solution by more than loop_reject_m is dropped and the graph solved
  *      again, until every loop left agrees. (Not a robust loss: a true loop after a long
@@ -40,9 +59,19 @@ typedef struct {
     double min_inliers = 0.4;        /* a loop match must put this share of the keyframe's points above the
                                       * ground on the map's surfaces (the ground fits a pose metres off) */
     double max_correction_m = 1.0;   /* and move the keyframe by at most this ... */
-    double max_drift = 0.02;         /* ... plus this share of the path between the two */
-    double search_yaw_deg = 10;      /* a match from the odometry's pose that does not fit is searched for
-                                      * within that distance and this yaw */
+    double max_drift = 0.02;         /* ... plus this share of the path between the two (by position) */
+    double place_max_drift = 0.15;   /* ... or this share (by place: drift beyond search_radius_m is
+                                      * what these candidates are for) */
+    double max_correction_deg = 3;   /* and turn it by at most this plus ... */
+    double max_drift_deg = 10;       /* ... this per 100 m of the path between */
+    int try_every = 5;               /* each kind of candidate is tried at most once per this many keyframes */
+    int place_candidates = 2;        /* by place: the most alike earlier places tried */
+    double place_max_distance = 0.06; /* ... if their descriptor distance (0..1) is at most this (the
+                                      * simulated loop: the same place 0.01-0.05, others 0.04 up) */
+    double place_search_m = 4;       /* ... searched within this of the earlier keyframe's position */
+    double search_yaw_deg = 10;      /* a match that does not fit from its seed is searched for within
+                                      * the correction allowed (by position) or place_search_m (by
+                                      * place) and this yaw */
     double odom_sigma_m = 0.01;      /* odometry edge: per metre of the step, and at least this */
     double odom_sigma_deg = 0.05;    /* rotation, per edge */
     double loop_sigma_m = 0.05;      /* loop edge */
@@ -58,10 +87,12 @@ typedef struct {
 
 typedef struct {
     int candidates, verified, rejected;  /* loops tried, kept, refused by step 2 */
-    int dropped;                         /* verified but disagreeing with the rest after the solve */
+    int dropped;                         /* verified but disagreeing with the rest (step 3 or 4) */
+    int place_candidates, place_loops;   /* of those tried and kept: found by place recognition */
     int iterations;                      /* of the solver */
     double max_change_m;                 /* largest move of a keyframe by the solve */
     std::vector<std::pair<int, int>> loops;  /* the kept loops (earlier, later keyframe) */
+    std::vector<std::pair<int, int>> refused; /* the candidates refused or dropped (earlier, later) */
 } pb_loops_report_t;
 
 /* Solves the keyframes' poses (n = kf.size()) with the loops found; out gets n poses.
