@@ -37,6 +37,12 @@ def read_tum(path):
     return a[:, 0], a[:, 1:4], Rotation.from_quat(a[:, 4:8])
 
 
+DRIVE_ARGS = ["--seed", 7, "--speed-profile", "normal", "--duration", 12]   # lb.make_drive's simdrive options
+# a drive among pedestrians and cars crossing (two pedestrians walk and wait by the road, a
+# bus and a car pass in the other lane)
+CROSSING_ARGS = ["--seed", 3, "--speed-profile", "aggressive", "--duration", 20, "--with", "crossing,pedestrians"]
+
+
 @pytest.fixture(scope="module")
 def drive(tmp_path_factory):
     d = tmp_path_factory.mktemp("mapdrive")
@@ -82,23 +88,51 @@ def test_trajectory_from_a_moving_start(drive):
     assert yaw_err.max() < 0.22, f"yaw max {yaw_err.max():.3f} deg"
 
 
-def test_map_lies_on_the_true_surfaces(drive, tmp_path):
+def score_map(drive, tmp_path, drive_args):
     """Every map point, moved into the site's frame with the truth's first pose, against the
-    simulated world itself (simdrive --surface-distance: the drive day's ground and objects)."""
+    simulated world itself (simdrive --surface-distance: the drive day's ground and objects, and
+    the road users of the drive that drive_args made)."""
     pts = lb.read_pcd(drive["out"] / "map.pcd")[:, :3]
     t, _, _ = read_tum(drive["out"] / "trajectory.tum")
     _, _, (r0, p0) = truth_in_map_frame(drive, t)
     (r0.apply(pts) + p0).astype("<f4").tofile(tmp_path / "map.f32")
-    p = run([BIN / "simdrive", "--site", ROOT / "maps" / "default", "--surface-distance", tmp_path / "map.f32"])
-    d = json.loads(p.stdout)
-    # measured (27 Nov): 648,566 points, 91.1 % within 5 cm of a true surface (median 8.6 mm),
-    # 1.25 % farther than 0.5 m (traffic the carving left; 8 s of drive give it few rays); the
-    # site's own map, mapped on another day: 98.9 % within 5 cm. Bounds: three times the
-    # share outside 5 cm, the share beyond 0.5 m and the median
+    p = run([BIN / "simdrive", "--site", ROOT / "maps" / "default", *drive_args, "--surface-distance",
+             tmp_path / "map.f32"])
+    return pts, json.loads(p.stdout)
+
+
+def test_map_lies_on_the_true_surfaces(drive, tmp_path):
+    pts, d = score_map(drive, tmp_path, DRIVE_ARGS)
+    # measured (27 Nov): 649,492 points, 91.0 % within 5 cm of a true surface (median 8.6 mm),
+    # 1.40 % farther than 0.5 m, nearly all of them on the bus that passed (9,359 points, 1.44 %,
+    # left by the carving: 8 s of drive give it few rays through the bus's place after it left;
+    # the carving before counting only passes outside a cell's hits left 8,351); the site's own
+    # map, mapped on another day: 98.9 % within 5 cm. Bounds: three times the share outside
+    # 5 cm, the share beyond 0.5 m, the median and the share on road users
     assert d["points"] == len(pts) > 300000
     assert d["within_0.05"] > 0.73, d
-    assert d["beyond_0.5"] < 0.0375, d
+    assert d["beyond_0.5"] < 0.042, d
     assert d["median_m"] < 0.026, d
+    assert d["on_moving_share"] < 0.043, d
+
+
+def test_map_keeps_few_points_of_moving_road_users(tmp_path):
+    """A drive among pedestrians and crossing cars (LIDAR_SCAN only): the map's points on the
+    road users that moved (simdrive --surface-distance's rule: off the static world, within
+    0.2 m of a road user's box as the LiDAR saw it) after the carving."""
+    d = tmp_path / "crossing"
+    run([BIN / "simdrive", "--out", d, *CROSSING_ARGS, "--quiet"])
+    log = cut_log(d / "drive.lcm", d / "scans.lcm", 0, {"LIDAR_SCAN"})
+    run([BIN / "mapper", "--log", log, "--out", d / "site", "--quiet"])
+    pts, s = score_map({"gt": d / "ground_truth.tum", "out": d / "site"}, tmp_path, CROSSING_ARGS)
+    # measured (27 Nov): 991 of 965,356 points on road users (0.10 %: 481 on pedestrians, most of
+    # them standing at a crosswalk's end while the car passed, 291 on a crossing car, 219 on the
+    # bus), 98.2 % within 5 cm of a true surface; with the carving before the passes outside a
+    # cell's hits were counted, 5,338 (0.55 %) and 97.8 %. Bounds: three times the points on
+    # road users and the share outside 5 cm
+    assert s["points"] == len(pts) > 500000
+    assert s["on_moving"] < 3000, s
+    assert s["within_0.05"] > 0.946, s
 
 
 def test_gnss_anchoring_writes_the_geo_reference(drive, tmp_path):

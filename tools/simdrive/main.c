@@ -21,6 +21,7 @@
 #include "pb_log.h"
 #include "pb_progress.h"
 #include "rng.h"
+#include "score.h"
 #include "pb_route.h"
 #include "pb_site.h"
 #include "trajectory.h"
@@ -102,7 +103,17 @@ static void usage(FILE *f)
         "  --surface-distance FILE  FILE: points (float32 x y z, the site's frame; a map to\n"
         "                        score): print, as one JSON line, how far they lie from the\n"
         "                        drive day's static world (ground and objects; --mapping: the\n"
-        "                        mapping day's), and exit\n"
+        "                        mapping day's), and how many lie on the drive's road users,\n"
+        "                        and exit. Give the drive's own --seed, --duration,\n"
+        "                        --speed-profile, --with, --driver-spread, --dwell, --reverse:\n"
+        "                        they decide where the road users were. A point is on a moving\n"
+        "                        object (on_moving) when it lies farther than 0.05 m from the\n"
+        "                        static world, within 0.2 m of a road user's box as the LiDAR\n"
+        "                        saw it at some sweep (traffic; lead car, crossing cars,\n"
+        "                        pedestrians when on), and nearer to that box than to the\n"
+        "                        static world; on_own_body: the same with the car's own body\n"
+        "                        box (with roof returns on). beyond_0.5_*: the points farther\n"
+        "                        than 0.5 m sorted into on_moving, on_own_body and other\n"
         "  --help                this text\n",
         PB_SOURCE_DIR, PB_SOURCE_DIR);
 }
@@ -136,52 +147,6 @@ static int write_terrain(const terrain_t *T, const char *path, pb_err_t *err)
     int rc = pb_ground_save(g, path, err);
     pb_ground_destroy(g);
     return rc;
-}
-
-static int cmp_double(const void *a, const void *b)
-{
-    double x = *(const double *)a, y = *(const double *)b;
-    return (x > y) - (x < y);
-}
-
-/* --surface-distance: each point's distance to the static world, summarised. */
-static int surface_distance(const world_t *w, const char *path, pb_err_t *err)
-{
-    FILE *f = fopen(path, "rb");
-    if (!f) return pb_err_set(err, "%s: %s", path, strerror(errno));
-    fseek(f, 0, SEEK_END);
-    long bytes = ftell(f);
-    fseek(f, 0, SEEK_SET);
-    if (bytes <= 0 || bytes % 12) {
-        fclose(f);
-        return pb_err_set(err, "%s: %ld bytes: not float32 x y z triples", path, bytes);
-    }
-    size_t n = (size_t)bytes / 12;
-    float *xyz = malloc((size_t)bytes);
-    double *d = malloc(n * sizeof *d);
-    int ok = xyz && d && fread(xyz, 12, n, f) == n;
-    fclose(f);
-    if (!ok) {
-        free(xyz);
-        free(d);
-        return pb_err_set(err, "%s: cannot read", path);
-    }
-    size_t w5 = 0, w10 = 0, w15 = 0, far = 0;
-    for (size_t i = 0; i < n; i++) {
-        double p[3] = {xyz[3 * i], xyz[3 * i + 1], xyz[3 * i + 2]};
-        d[i] = world_distance(w, p, 5.0);
-        w5 += d[i] <= 0.05;
-        w10 += d[i] <= 0.10;
-        w15 += d[i] <= 0.15;
-        far += d[i] > 0.5;
-    }
-    qsort(d, n, sizeof *d, cmp_double);
-    printf("{\"points\": %zu, \"median_m\": %.4f, \"p90_m\": %.4f, \"within_0.05\": %.4f, \"within_0.10\": %.4f, "
-           "\"within_0.15\": %.4f, \"beyond_0.5\": %.4f}\n", n, d[n / 2], d[(size_t)(0.9 * (double)(n - 1))],
-           (double)w5 / n, (double)w10 / n, (double)w15 / n, (double)far / n);
-    free(xyz);
-    free(d);
-    return 0;
 }
 
 enum { S_GT, S_IMU, S_LIDAR, S_GNSS, S_CAN_WS, S_CAN_SPD, S_TRUTH, S_CAN_GEAR, S_COUNT };
@@ -264,13 +229,6 @@ int main(int argc, char **argv)
         return 2;
     }
     world_build_grid(&world, mapping ? DAY_MAP : DAY_DRIVE, GRID_CELL_M);
-    if (surface_points) {
-        int rc = surface_distance(&world, surface_points, &err);
-        if (rc) fprintf(stderr, "simdrive: %s\n", err.msg);
-        world_free(&world);
-        pb_route_free(&route);
-        return rc ? 1 : 0;
-    }
     sim_occ_t *occ = NULL;
     if (scenario) {
         char sc_path[1200];
@@ -300,6 +258,19 @@ int main(int argc, char **argv)
     }
     actors_schedule(world.actors, &route, &traj, &veh, duration, seed);
     if (mapping) duration = traj.t_end;
+    body_model_t body = { .terrain = &world.terrain, .traj = &traj, .veh = &veh };
+    body_model_init(&body);
+    if (surface_points) {   /* the drive planned as above: its road users are the drive's */
+        score_drive_t sd = { &world, &route, &body, &veh, duration, (uint64_t)seed, !mapping };
+        int rc = score_surface_distance(&sd, surface_points, &err);
+        if (rc) fprintf(stderr, "simdrive: %s\n", err.msg);
+        sim_occ_destroy(occ);
+        body_model_free(&body);
+        traj_free(&traj);
+        world_free(&world);
+        pb_route_free(&route);
+        return rc ? 1 : 0;
+    }
     int64_t end_us = (int64_t)llround(duration * 1e6);
 
     if (mkdir_p(out_dir)) { fprintf(stderr, "simdrive: %s: cannot create: %s\n", out_dir, strerror(errno)); return 1; }
@@ -315,8 +286,6 @@ int main(int argc, char **argv)
     /* sensors */
     lidar_model_t lm;
     lidar_model_os1_64(&lm);
-    body_model_t body = { .terrain = &world.terrain, .traj = &traj, .veh = &veh };
-    body_model_init(&body);
     lidar_sim_t ls = { .world = &world, .route = &route, .traj = &traj, .body = &body, .veh = &veh, .model = &lm,
                        .seed = seed, .traffic = !mapping };
     lidar_sim_init(&ls);

@@ -1,14 +1,19 @@
 /* carve: see carve.h. */
 #include "carve.h"
 
+#include <algorithm>
 #include <cmath>
 
 #include "voxel_hash.h"
 
 namespace {
 struct Count {
-    uint32_t hits, passes;
+    uint32_t hits;
+    uint32_t passes_before;   /* passes before the first hit */
+    uint32_t passes_after;    /* passes since the last hit */
     int64_t first_hit, last_hit;   /* utime */
+    float ground_z;    /* band cells: the ground model's height at the cell's centre */
+    int32_t raised;    /* band cells: the cell of its points higher than raise_m over the ground, or -1 */
     uint8_t protect;   /* in the band over the ground: never carved */
 };
 }  // namespace
@@ -36,10 +41,20 @@ pb_carve_t *pb_carve_create(const float *xyz, size_t n, size_t stride, const pb_
         bool fresh;
         int32_t k = c->index.insert(key, (int32_t)c->counts.size(), &fresh);
         if (fresh) {
-            double g;
-            uint8_t protect = ground && pb_ground_height(ground, p[0], p[1], &g) == 0 &&
+            /* the ground under the cell's centre */
+            double g, cx = (std::floor(p[0] * c->inv) + 0.5) * c->cfg.cell_m, cy = (std::floor(p[1] * c->inv) + 0.5) * c->cfg.cell_m;
+            uint8_t protect = ground && pb_ground_height(ground, cx, cy, &g) == 0 &&
                               std::floor(p[2] * c->inv) * c->cfg.cell_m <= g + c->cfg.ground_band_m;
-            c->counts.push_back(Count{0, 0, 0, 0, protect});
+            c->counts.push_back(Count{0, 0, 0, 0, 0, protect ? (float)g : 0.0f, -1, protect});
+        }
+        /* a band cell's points clear of the ground are judged apart: a car's sill over the road */
+        Count &n = c->counts[(size_t)k];
+        if (n.protect && p[2] > n.ground_z + c->cfg.raise_m) {
+            if (n.raised < 0) {
+                n.raised = (int32_t)c->counts.size();
+                c->counts.push_back(Count{0, 0, 0, 0, 0, 0.0f, -1, 0});
+            }
+            k = c->counts[(size_t)k].raised;
         }
         c->point_cell[i] = k;
     }
@@ -56,10 +71,13 @@ void pb_carve_ray(pb_carve_t *c, int64_t utime, const double o[3], const double 
     uint64_t key;
     if (pb_loc::voxel_key_of(e[0], e[1], e[2], c->inv, &key)) {
         int32_t k = c->index.find(key);
+        if (k >= 0 && c->counts[(size_t)k].raised >= 0 && e[2] > c->counts[(size_t)k].ground_z + c->cfg.raise_m)
+            k = c->counts[(size_t)k].raised;
         if (k >= 0) {
             Count &n = c->counts[(size_t)k];
             if (n.hits++ == 0) n.first_hit = utime;
             n.last_hit = utime;
+            n.passes_after = 0;
         }
     }
     /* the cells the ray crosses up to end_margin_m before its end, in order (a 3-D DDA) */
@@ -75,13 +93,24 @@ void pb_carve_ray(pb_carve_t *c, int64_t utime, const double o[3], const double 
         double frac = u > 0 ? (double)(v[a] + 1) - x : x - (double)v[a];
         tmax[a] = u != 0 ? frac * c->cfg.cell_m / std::fabs(u) : INFINITY;
     }
+    double t_in = 0;
     for (;;) {
+        int a = tmax[0] < tmax[1] ? (tmax[0] < tmax[2] ? 0 : 2) : (tmax[1] < tmax[2] ? 1 : 2);
         if (pb_loc::voxel_key(v[0], v[1], v[2], &key)) {
             int32_t k = c->index.find(key);
-            if (k >= 0) c->counts[(size_t)k].passes++;
+            if (k >= 0 && c->counts[(size_t)k].raised >= 0) {
+                /* the raised part is passed when the ray stays clear of the ground through the cell */
+                double t_out = std::min(tmax[a], stop);
+                double zlow = o[2] + d[2] / len * (d[2] < 0 ? t_out : t_in);
+                if (zlow > c->counts[(size_t)k].ground_z + c->cfg.raise_m) k = c->counts[(size_t)k].raised;
+            }
+            if (k >= 0) {
+                Count &n = c->counts[(size_t)k];
+                (n.hits ? n.passes_after : n.passes_before)++;
+            }
         }
-        int a = tmax[0] < tmax[1] ? (tmax[0] < tmax[2] ? 0 : 2) : (tmax[1] < tmax[2] ? 1 : 2);
         if (tmax[a] > stop) break;
+        t_in = tmax[a];
         v[a] += step[a];
         tmax[a] += tdelta[a];
     }
@@ -95,7 +124,7 @@ size_t pb_carve_keep(const pb_carve_t *c, std::vector<uint8_t> *keep)
         int32_t k = c->point_cell[i];
         if (k < 0) continue;
         const Count &n = c->counts[(size_t)k];
-        if (!n.protect && n.passes >= (uint32_t)c->cfg.min_passes && n.passes > c->cfg.pass_ratio * n.hits &&
+        if (!n.protect && n.passes_before + n.passes_after >= (uint32_t)c->cfg.min_passes &&
             n.last_hit - n.first_hit <= (int64_t)(c->cfg.transient_s * 1e6)) {
             (*keep)[i] = 0;
             carved++;
