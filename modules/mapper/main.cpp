@@ -213,14 +213,29 @@ static double pct(std::vector<double> v, double p)
     return v[std::min(v.size() - 1, (size_t)std::floor(p * (double)(v.size() - 1) + 0.5))];
 }
 
-/* Every LIDAR_SCAN of the log in turn: fn(utime, points in base, event) returns 0 or -1;
+/* The car's own body in base (xmin, ymin, zmin, xmax, ymax, zmax), 10 cm larger than the
+ * vehicle file's box, as the localizer's: returns from it (a roof the mount lets beams reach)
+ * would be mapped along the whole drive. */
+struct BodyBox {
+    double b[6];
+    explicit BodyBox(const pb_vehicle_t &v)
+        : b{-v.rear_overhang - 0.1, -v.width / 2 - 0.1, -0.1, v.length - v.rear_overhang + 0.1, v.width / 2 + 0.1, v.height + 0.1} {}
+    bool has(const Eigen::Vector3d &p) const
+    {
+        return p.x() >= b[0] && p.y() >= b[1] && p.z() >= b[2] && p.x() <= b[3] && p.y() <= b[4] && p.z() <= b[5];
+    }
+};
+
+/* Every LIDAR_SCAN of the log in turn, without the points on the car's own body:
+ * fn(utime, points in base, the same points in the lidar frame, event) returns 0 or -1;
  * other (if given) sees every other event first, in log order, and returns 0 or -1. */
 using OtherFn = std::function<int(const pb_event_t &, pb_err_t *)>;
 template <class F>
-static int for_each_sweep(const char *log_path, const char *scan_ch, const Eigen::Isometry3d &base_from_lidar,
-                          long every, pb_progress_t *prog, F fn, long *empty, pb_err_t *err,
-                          const OtherFn &other = nullptr)
+static int for_each_sweep(const char *log_path, const char *scan_ch, const pb_vehicle_t &veh, long every,
+                          pb_progress_t *prog, F fn, long *empty, pb_err_t *err, const OtherFn &other = nullptr)
 {
+    const Eigen::Isometry3d base_from_lidar = pb_reg_from_transform(&veh.base_from_lidar);
+    const BodyBox body(veh);
     pb_log_t *log = pb_log_open_read(log_path, err);
     if (!log) return -1;
     pb_points_t pts;
@@ -255,12 +270,21 @@ static int for_each_sweep(const char *log_path, const char *scan_ch, const Eigen
             status = -1;
             break;
         }
-        if (n == 0) { (*empty)++; continue; }
         xyz.resize(3 * (size_t)n);
+        int kept = 0;
         for (int i = 0; i < n; i++) {
             Eigen::Vector3d p = base_from_lidar * Eigen::Vector3d(pts.x[i], pts.y[i], pts.z[i]);
-            xyz[3 * i] = (float)p.x(); xyz[3 * i + 1] = (float)p.y(); xyz[3 * i + 2] = (float)p.z();
+            if (body.has(p)) continue;
+            xyz[3 * kept] = (float)p.x(); xyz[3 * kept + 1] = (float)p.y(); xyz[3 * kept + 2] = (float)p.z();
+            pts.x[kept] = pts.x[i]; pts.y[kept] = pts.y[i]; pts.z[kept] = pts.z[i];
+            pts.intensity[kept] = pts.intensity[i];
+            pts.offset_us[kept] = pts.offset_us[i];
+            pts.ring[kept] = pts.ring[i];
+            kept++;
         }
+        pts.n = kept;
+        xyz.resize(3 * (size_t)kept);
+        if (kept == 0) { (*empty)++; continue; }
         if (fn(utime, xyz, pts, ev, err) != 0) {
             pb_err_prefix(err, "%s: byte %lld: ", log_path, (long long)ev.offset);
             status = -1;
@@ -354,7 +378,7 @@ static int pass_odometry(Run *R, pb_err_t *err)
     MotionSamples ms;
     ms.base_from_imu = pb_reg_from_transform(&R->veh.base_from_imu).linear();
     int64_t last_speed = INT64_MIN, last_rate = INT64_MIN;
-    int rc = for_each_sweep(R->log_path, R->scan_ch, pb_reg_from_transform(&R->veh.base_from_lidar), 1, &prog,
+    int rc = for_each_sweep(R->log_path, R->scan_ch, R->veh, 1, &prog,
         [&](int64_t utime, const std::vector<float> &xyz, const pb_points_t &pts, const pb_event_t &, pb_err_t *e) {
             if (!R->traj.empty() && utime <= last_scan_utime) { R->out_of_order++; return 0; }
             last_scan_utime = utime;
@@ -445,7 +469,7 @@ static int pass_map(Run *R, pb_err_t *err)
     long empty = 0;
     pb_progress_t prog;
     pb_progress_start(&prog, "mapper: map", R->total, R->quiet);
-    int rc = for_each_sweep(R->log_path, R->scan_ch, Eigen::Isometry3d::Identity(), 1, &prog,
+    int rc = for_each_sweep(R->log_path, R->scan_ch, R->veh, 1, &prog,
         [&](int64_t utime, const std::vector<float> &, const pb_points_t &pts, const pb_event_t &, pb_err_t *e) {
             int r = pb_map_builder_add_timed(map, &pts, utime, R->track, &R->veh.base_from_lidar, e);
             if (r < 0) return -1;
@@ -491,7 +515,7 @@ static int pass_carve(Run *R, const pb_ground_t *ground, pb_err_t *err)
     long empty = 0;
     pb_progress_t prog;
     pb_progress_start(&prog, "mapper: carve", R->total, R->quiet);
-    int rc = for_each_sweep(R->log_path, R->scan_ch, Eigen::Isometry3d::Identity(), 4, &prog,
+    int rc = for_each_sweep(R->log_path, R->scan_ch, R->veh, 4, &prog,
         [&](int64_t utime, const std::vector<float> &, const pb_points_t &pts, const pb_event_t &, pb_err_t *) {
             int32_t cached = INT32_MIN;
             Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
