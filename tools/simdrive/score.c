@@ -19,7 +19,6 @@ typedef struct {
     size_t n;
     cell_item_t *items;          /* sorted by key */
     const float *xyz;
-    const double *d_static;
     float *d_mover, *d_body;     /* per point, the nearest box seen */
     uint8_t *mover_cls;
 } cand_t;
@@ -203,7 +202,6 @@ int score_surface_distance(const score_drive_t *drv, const char *path, pb_err_t 
     // 2. the nearest road user's box and own body box of each point off the static world
     qsort(C.items, C.n, sizeof *C.items, cmp_item);
     C.xyz = xyz;
-    C.d_static = d;
     C.d_mover = malloc(n * sizeof *C.d_mover);
     C.d_body = malloc(n * sizeof *C.d_body);
     C.mover_cls = calloc(n, 1);
@@ -212,7 +210,7 @@ int score_surface_distance(const score_drive_t *drv, const char *path, pb_err_t 
         return pb_err_set(err, "%s: %zu points: out of memory", path, n);
     }
     for (size_t i = 0; i < n; i++) C.d_mover[i] = C.d_body[i] = INFINITY;
-    int roof = drv->world->actors && (((const actors_t *)drv->world->actors)->on & ACT_ROOF);
+    int roof = drv->world->actors && (drv->world->actors->on & ACT_ROOF);
     if (drv->traffic) sweep_movers(drv, &C);
     if (drv->traffic && roof) sweep_body(drv, &C);
     // 3. the rule of score.h, and the points farther than 0.5 m sorted by it
