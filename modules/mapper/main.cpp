@@ -9,7 +9,9 @@
 #include <cstring>
 #include <map>
 #include <string>
+#include <fcntl.h>
 #include <sys/stat.h>
+#include <unistd.h>
 #include <vector>
 #include <pcl/io/pcd_io.h>
 #include <pcl/point_types.h>
@@ -18,6 +20,7 @@
 #include "carve.h"
 #include "loops.h"
 #include "odometry.h"
+#include "pb_bytes.h"
 #include "pb_clock.h"
 #include "pb_err.h"
 #include "pb_geo.h"
@@ -198,6 +201,28 @@ static int write_tum(const char *path, const std::vector<SweepPose> &traj, bool 
     return std::fclose(f) == 0 ? 0 : -1;
 }
 
+/* Peak resident memory (VmHWM) since the last reset_peak_rss, MB; 0 where /proc has none. */
+static double peak_rss_mb()
+{
+    FILE *f = std::fopen("/proc/self/status", "r");
+    if (!f) return 0;
+    char line[256];
+    long kb = 0;
+    while (std::fgets(line, sizeof line, f))
+        if (std::sscanf(line, "VmHWM: %ld", &kb) == 1) break;
+    std::fclose(f);
+    return kb / 1024.0;
+}
+
+/* Starts the next step's peak from the memory held now (Linux: "5" to clear_refs). */
+static void reset_peak_rss()
+{
+    FILE *f = std::fopen("/proc/self/clear_refs", "w");
+    if (f) { std::fputs("5", f); std::fclose(f); }
+}
+
+static const char *kPeakStep[] = {"odometry", "loops", "map", "carve", "site"};
+
 static const char *kStatusName[] = {"first", "tracked", "searched", "weak", "predicted"};
 
 static double pct(std::vector<double> v, double p)
@@ -207,10 +232,11 @@ static double pct(std::vector<double> v, double p)
     return v[std::min(v.size() - 1, (size_t)std::floor(p * (double)(v.size() - 1) + 0.5))];
 }
 
-/* Every LIDAR_SCAN of the log in turn: fn(utime, points in base, event) returns 0 or -1. */
+/* Every LIDAR_SCAN of the log in turn after the first *seen (skipped unread): fn(utime,
+ * points in base, event) returns 0 or -1; *seen counts the scans read (fn's included). */
 template <class F>
 static int for_each_sweep(const char *log_path, const char *scan_ch, const Eigen::Isometry3d &base_from_lidar,
-                          long every, pb_progress_t *prog, F fn, long *empty, pb_err_t *err)
+                          long every, long *seen, pb_progress_t *prog, F fn, long *empty, pb_err_t *err)
 {
     pb_log_t *log = pb_log_open_read(log_path, err);
     if (!log) return -1;
@@ -219,11 +245,13 @@ static int for_each_sweep(const char *log_path, const char *scan_ch, const Eigen
     std::vector<float> xyz;
     pb_event_t ev;
     int rc, status = 0;
-    long seen = 0;
+    const long skip = *seen;
+    long read = 0;
     while ((rc = pb_log_next(log, &ev, err)) == 1) {
         if (std::strcmp(ev.channel, scan_ch) != 0) continue;
-        if (prog) pb_progress_update(prog, seen);
-        if (seen++ % every) continue;
+        if (read++ < skip) continue;
+        if (prog) pb_progress_update(prog, *seen);
+        if ((*seen)++ % every) continue;
         portobello_lidar_scan_t s;
         if (portobello_lidar_scan_t_decode(ev.data, 0, ev.datalen, &s) < 0) {
             pb_err_set(err, "%s: byte %lld: %s does not decode as lidar_scan_t", log_path, (long long)ev.offset,
@@ -262,6 +290,7 @@ struct Run {
     const char *log_path, *out_dir, *scan_ch;
     double voxel;
     int quiet;
+    int checkpoint_every;   /* sweeps between checkpoints of the odometry pass */
     pb_vehicle_t veh;
     long total = 0, empty = 0, out_of_order = 0;
     std::vector<SweepPose> traj;
@@ -277,22 +306,224 @@ struct Run {
     std::string ground_why;                  /* empty: ground.yaml written */
     size_t carved = 0;
     double m_per_px = 0;
+    double peak_mb[5] = {};                  /* peak resident memory of each step (kPeakStep) */
+    /* restart (checkpoint_*): what a checkpoint must match, and the odometry pass's state */
+    std::string log_id, build_id, options_id;
+    long resumed_from = 0;                   /* scans the checkpoint had read; 0: not resumed */
+    std::string checkpoint_refused;          /* why a checkpoint found was not used */
+    FILE *kf_file = nullptr;                 /* keyframes.bin, appended at each checkpoint */
+    size_t kf_saved = 0;                     /* keyframes in it */
+    uint64_t kf_bytes = 0;                   /* its valid length */
+    pb_odom_t *odom = nullptr;               /* restored odometry (NULL: start at the first scan) */
+    long seen = 0;                           /* scans read by the odometry pass */
+    int64_t last_scan_utime = 0;
+    bool odometry_done = false;              /* restored after the whole odometry pass */
     std::string path(const char *name) const { return std::string(out_dir) + "/" + name; }
 };
 
-/* Pass 1: odometry over every sweep; a keyframe every kKeyframeSpacingM. */
+/* ---- Restart after an interruption (docs/mapper.md, "Restart"). SITE_DIR/checkpoint.bin
+ * holds the odometry pass so far (the sweeps' poses, the scans read, the odometry's state)
+ * or, once it is over, the whole pass; the keyframes' points go to SITE_DIR/keyframes.bin,
+ * appended at each checkpoint (the checkpoint says how many of its bytes are valid).
+ * checkpoint.bin is written to .tmp, synced and renamed: an interruption leaves the last
+ * whole one. A run that ends well removes both. */
+static const char kCheckpointMagic[8] = {'P', 'B', 'M', 'A', 'P', 'C', 'K', '1'};
+
+static void put_pose(ByteWriter &w, const Eigen::Isometry3d &T)
+{
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 4; c++) w.put(T.matrix()(r, c));
+}
+
+static Eigen::Isometry3d get_pose(ByteReader &r)
+{
+    Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+    for (int i = 0; i < 3; i++)
+        for (int c = 0; c < 4; c++) T.matrix()(i, c) = r.get<double>();
+    return T;
+}
+
+/* What a checkpoint must match: the log (size and its first MiB), the mapper's build (the
+ * executable's size and time: another build may place the sweeps otherwise) and the options
+ * the odometry depends on. */
+static int checkpoint_ids(Run *R, pb_err_t *err)
+{
+    FILE *f = std::fopen(R->log_path, "rb");
+    if (!f) return pb_err_set(err, "%s: cannot open: %s", R->log_path, std::strerror(errno)), -1;
+    std::vector<uint8_t> head(1 << 20);
+    head.resize(std::fread(head.data(), 1, head.size(), f));
+    struct stat st;
+    const bool sized = fstat(fileno(f), &st) == 0;
+    std::fclose(f);
+    char buf[512];
+    std::snprintf(buf, sizeof buf, "log of %lld bytes, first MiB %016llx", sized ? (long long)st.st_size : -1LL,
+                  (unsigned long long)pb_fnv1a64(head.data(), head.size()));
+    R->log_id = buf;
+    struct stat ex;
+    std::snprintf(buf, sizeof buf, "mapper of %lld bytes at %lld", stat("/proc/self/exe", &ex) == 0 ? (long long)ex.st_size : -1LL,
+                  stat("/proc/self/exe", &ex) == 0 ? (long long)ex.st_mtime : -1LL);
+    R->build_id = buf;
+    const pb_transform_t &bl = R->veh.base_from_lidar;
+    std::snprintf(buf, sizeof buf, "channel %s, base <- lidar %.17g %.17g %.17g %.17g %.17g %.17g %.17g", R->scan_ch,
+                  bl.t[0], bl.t[1], bl.t[2], bl.q[0], bl.q[1], bl.q[2], bl.q[3]);
+    R->options_id = buf;
+    return 0;
+}
+
+/* The whole file into *out; -1 when it cannot be opened or read. */
+static int read_file(const std::string &path, std::vector<uint8_t> *out)
+{
+    FILE *f = std::fopen(path.c_str(), "rb");
+    if (!f) return -1;
+    out->clear();
+    uint8_t chunk[1 << 16];
+    size_t n;
+    while ((n = std::fread(chunk, 1, sizeof chunk, f)) > 0) out->insert(out->end(), chunk, chunk + n);
+    const bool ok = !std::ferror(f);
+    std::fclose(f);
+    return ok ? 0 : -1;
+}
+
+/* Writes bytes to path through path.tmp, synced, renamed. */
+static int write_file_synced(const std::string &path, const std::vector<uint8_t> &bytes, pb_err_t *err)
+{
+    const std::string tmp = path + ".tmp";
+    FILE *f = std::fopen(tmp.c_str(), "wb");
+    bool ok = f && std::fwrite(bytes.data(), 1, bytes.size(), f) == bytes.size() && std::fflush(f) == 0 &&
+              fsync(fileno(f)) == 0;
+    if (f) ok &= std::fclose(f) == 0;
+    if (!ok || std::rename(tmp.c_str(), path.c_str()) != 0) {
+        std::remove(tmp.c_str());
+        return pb_err_set(err, "%s: cannot write: %s", path.c_str(), std::strerror(errno)), -1;
+    }
+    return 0;
+}
+
+/* The keyframes not yet in keyframes.bin appended to it, then the checkpoint: odom the
+ * odometry in the middle of the pass, NULL once the pass is over. */
+static int checkpoint_write(Run *R, const pb_odom_t *odom, pb_err_t *err)
+{
+    std::vector<uint8_t> buf;
+    ByteWriter w{&buf};
+    for (; R->kf_saved < R->kf.size(); R->kf_saved++) {
+        const pb_keyframe_t &k = R->kf[R->kf_saved];
+        w.put(k.utime);
+        put_pose(w, k.pose);
+        w.put_array(k.xyz.data(), k.xyz.size());
+    }
+    if (std::fwrite(buf.data(), 1, buf.size(), R->kf_file) != buf.size() || std::fflush(R->kf_file) != 0 ||
+        fsync(fileno(R->kf_file)) != 0)
+        return pb_err_set(err, "%s: cannot write: %s", R->path("keyframes.bin").c_str(), std::strerror(errno)), -1;
+    R->kf_bytes += buf.size();
+    buf.clear();
+    for (char c : kCheckpointMagic) w.put(c);
+    w.put_string(R->log_id); w.put_string(R->build_id); w.put_string(R->options_id);
+    w.put((uint8_t)(odom == nullptr));
+    w.put((int64_t)R->seen); w.put(R->last_scan_utime); w.put((int64_t)R->empty); w.put((int64_t)R->out_of_order);
+    w.put((uint64_t)R->traj.size());
+    for (const SweepPose &sp : R->traj) {
+        w.put(sp.utime);
+        put_pose(w, sp.odometry);
+        w.put(sp.status); w.put(sp.inlier_fraction); w.put(sp.cpu_ms); w.put(sp.keyframe);
+    }
+    w.put((uint64_t)R->kf.size()); w.put(R->kf_bytes);
+    std::vector<uint8_t> state;
+    if (odom) pb_odom_save(odom, &state);
+    w.put_array(state.data(), state.size());
+    w.put(pb_fnv1a64(buf.data(), buf.size()));
+    return write_file_synced(R->path("checkpoint.bin"), buf, err);
+}
+
+/* A checkpoint of this log, build and options restored into R (R->resumed_from > 0); one
+ * of another (or damaged) is refused, its reason in R->checkpoint_refused and on stderr,
+ * and the run starts over. Returns -1 only on an error reading a file there. */
+static int checkpoint_read(Run *R, pb_err_t *err)
+{
+    const std::string path = R->path("checkpoint.bin"), kf_path = R->path("keyframes.bin");
+    std::vector<uint8_t> buf, kfb;
+    if (read_file(path, &buf) != 0) return 0;   /* none: a fresh start */
+    ByteReader r{buf.data(), buf.data() + buf.size()};
+    std::string why;
+    bool magic = buf.size() >= 16;
+    for (char c : kCheckpointMagic) magic &= r.get<char>() == c;
+    uint64_t sum = 0;
+    if (magic) std::memcpy(&sum, buf.data() + buf.size() - 8, 8);
+    std::string log_id = r.get_string(), build_id = r.get_string(), options_id = r.get_string();
+    if (!magic) why = "not a checkpoint of this version of the mapper";
+    else if (sum != pb_fnv1a64(buf.data(), buf.size() - 8)) why = "damaged (checksum)";
+    else if (log_id != R->log_id) why = "from another log (" + log_id + "; this one: " + R->log_id + ")";
+    else if (build_id != R->build_id) why = "from another build of the mapper (" + build_id + "; this one: " + R->build_id + ")";
+    else if (options_id != R->options_id) why = "made with other options (" + options_id + "; now: " + R->options_id + ")";
+    const bool done = r.get<uint8_t>() != 0;
+    const long seen = (long)r.get<int64_t>();
+    R->last_scan_utime = r.get<int64_t>();
+    R->empty = (long)r.get<int64_t>();
+    R->out_of_order = (long)r.get<int64_t>();
+    const uint64_t ntraj = r.get<uint64_t>();
+    for (uint64_t i = 0; why.empty() && r.ok && i < ntraj; i++) {
+        SweepPose sp;
+        sp.utime = r.get<int64_t>();
+        sp.pose = sp.odometry = get_pose(r);
+        sp.status = r.get<int>(); sp.inlier_fraction = r.get<double>(); sp.cpu_ms = r.get<double>();
+        sp.keyframe = r.get<int>();
+        R->traj.push_back(sp);
+    }
+    const uint64_t nkf = r.get<uint64_t>();
+    R->kf_bytes = r.get<uint64_t>();
+    std::vector<uint8_t> state;
+    r.get_array(&state);
+    if (why.empty() && (!r.ok || r.p != buf.data() + buf.size() - 8)) why = "damaged (truncated)";
+    // the keyframes it counts, from keyframes.bin
+    if (why.empty() && (read_file(kf_path, &kfb) != 0 || kfb.size() < R->kf_bytes))
+        why = "keyframes.bin is missing or shorter than the checkpoint says";
+    ByteReader k{kfb.data(), kfb.data() + std::min<uint64_t>(kfb.size(), R->kf_bytes)};
+    for (uint64_t i = 0; why.empty() && k.ok && i < nkf; i++) {
+        pb_keyframe_t kf;
+        kf.utime = k.get<int64_t>();
+        kf.pose = get_pose(k);
+        k.get_array(&kf.xyz);
+        R->kf.push_back(std::move(kf));
+    }
+    if (why.empty() && (!k.ok || k.p != k.end)) why = "keyframes.bin does not hold the keyframes the checkpoint says";
+    pb_err_t e;
+    if (why.empty() && !done && !(R->odom = pb_odom_restore(state.data(), state.size(), nullptr, nullptr, &e))) why = e.msg;
+    if (!why.empty()) {
+        R->checkpoint_refused = why;
+        R->traj.clear(); R->kf.clear();
+        R->empty = R->out_of_order = 0; R->last_scan_utime = 0; R->kf_bytes = 0;
+        std::fprintf(stderr, "mapper: %s: %s; starting over\n", path.c_str(), why.c_str());
+        return 0;
+    }
+    // keyframes.bin cut to what the checkpoint counts (an interruption may have left more)
+    if (truncate(kf_path.c_str(), (off_t)R->kf_bytes) != 0)
+        return pb_err_set(err, "%s: cannot truncate: %s", kf_path.c_str(), std::strerror(errno)), -1;
+    R->kf_saved = R->kf.size();
+    R->seen = R->resumed_from = seen;
+    R->odometry_done = done;
+    std::fprintf(stderr, "mapper: resuming from %s: %ld of %ld scans read%s\n", path.c_str(), seen, R->total,
+            done ? ", the odometry done" : "");
+    return 0;
+}
+
+/* Pass 1: odometry over every sweep; a keyframe every kKeyframeSpacingM; a checkpoint
+ * every R->checkpoint_every sweeps and at the end. Resumes where R's checkpoint left off. */
 static int pass_odometry(Run *R, pb_err_t *err)
 {
-    pb_odom_t *odom = pb_odom_create(nullptr, nullptr);
+    const std::string kf_path = R->path("keyframes.bin");
+    R->kf_file = std::fopen(kf_path.c_str(), R->resumed_from ? "ab" : "wb");
+    if (!R->kf_file) return pb_err_set(err, "%s: cannot write: %s", kf_path.c_str(), std::strerror(errno)), -1;
+    if (R->odometry_done) return 0;
+    pb_odom_t *odom = R->odom ? R->odom : pb_odom_create(nullptr, nullptr);
+    R->odom = nullptr;
     pb_reg_config_t kf_reduce;
     pb_reg_config_default(&kf_reduce);
     kf_reduce.target_points = 0;
     kf_reduce.scan_voxel_m = kKeyframeVoxelM;
-    int64_t last_scan_utime = 0;
+    int64_t &last_scan_utime = R->last_scan_utime;
     R->traj.reserve((size_t)R->total);
     pb_progress_t prog;
     pb_progress_start(&prog, "mapper: odometry", R->total, R->quiet);
-    int rc = for_each_sweep(R->log_path, R->scan_ch, pb_reg_from_transform(&R->veh.base_from_lidar), 1, &prog,
+    int rc = for_each_sweep(R->log_path, R->scan_ch, pb_reg_from_transform(&R->veh.base_from_lidar), 1, &R->seen, &prog,
         [&](int64_t utime, const std::vector<float> &xyz, const pb_points_t &pts, const pb_event_t &, pb_err_t *e) {
             if (!R->traj.empty() && utime <= last_scan_utime) { R->out_of_order++; return 0; }
             last_scan_utime = utime;
@@ -307,7 +538,7 @@ static int pass_odometry(Run *R, pb_err_t *err)
             }
             R->traj.push_back({r.utime, r.pose, r.pose, r.status, r.inlier_fraction, pb_clock_thread_cpu_ms() - c0,
                                (int)kf.size() - 1});
-            return 0;
+            return R->traj.size() % (size_t)R->checkpoint_every ? 0 : checkpoint_write(R, odom, e);
         }, &R->empty, err);
     pb_odom_destroy(odom);
     if (rc != 0) {
@@ -318,7 +549,7 @@ static int pass_odometry(Run *R, pb_err_t *err)
     if (R->traj.size() < 2)
         return pb_err_set(err, "%s: %zu usable sweep(s) on %s; a map needs two or more", R->log_path, R->traj.size(),
                           R->scan_ch), -1;
-    return 0;
+    return checkpoint_write(R, nullptr, err);
 }
 
 /* The keyframes' poses solved again with the loops found; the sweeps moved with them. */
@@ -376,7 +607,8 @@ static int pass_map(Run *R, pb_err_t *err)
     long empty = 0;
     pb_progress_t prog;
     pb_progress_start(&prog, "mapper: map", R->total, R->quiet);
-    int rc = for_each_sweep(R->log_path, R->scan_ch, Eigen::Isometry3d::Identity(), 1, &prog,
+    long seen = 0;
+    int rc = for_each_sweep(R->log_path, R->scan_ch, Eigen::Isometry3d::Identity(), 1, &seen, &prog,
         [&](int64_t utime, const std::vector<float> &, const pb_points_t &pts, const pb_event_t &, pb_err_t *e) {
             int r = pb_map_builder_add_timed(map, &pts, utime, R->track, &R->veh.base_from_lidar, e);
             if (r < 0) return -1;
@@ -422,7 +654,8 @@ static int pass_carve(Run *R, const pb_ground_t *ground, pb_err_t *err)
     long empty = 0;
     pb_progress_t prog;
     pb_progress_start(&prog, "mapper: carve", R->total, R->quiet);
-    int rc = for_each_sweep(R->log_path, R->scan_ch, Eigen::Isometry3d::Identity(), 4, &prog,
+    long seen = 0;
+    int rc = for_each_sweep(R->log_path, R->scan_ch, Eigen::Isometry3d::Identity(), 4, &seen, &prog,
         [&](int64_t utime, const std::vector<float> &, const pb_points_t &pts, const pb_event_t &, pb_err_t *) {
             int32_t cached = INT32_MIN;
             Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
@@ -541,6 +774,15 @@ static int write_report(const Run &R, const double cpu_ms[4], double wall_s, pb_
     cJSON_AddNumberToObject(j, "cpu_s_loops", (cpu_ms[2] - cpu_ms[1]) / 1e3);
     cJSON_AddNumberToObject(j, "cpu_s_map", (cpu_ms[3] - cpu_ms[2]) / 1e3);
     cJSON_AddNumberToObject(j, "wall_s", wall_s);
+    cJSON_AddNumberToObject(j, "resumed_from_scan", (double)R.resumed_from);
+    cJSON_AddStringToObject(j, "checkpoint_refused", R.checkpoint_refused.c_str());
+    cJSON *peak = cJSON_AddObjectToObject(j, "peak_rss_mb");
+    double peak_all = 0;
+    for (int k = 0; k < 5; k++) {
+        cJSON_AddNumberToObject(peak, kPeakStep[k], std::round(R.peak_mb[k]));
+        peak_all = std::max(peak_all, R.peak_mb[k]);
+    }
+    cJSON_AddNumberToObject(peak, "all", std::round(peak_all));
     cJSON_AddStringToObject(j, "picture", "report.png");
     cJSON_AddNumberToObject(j, "picture_m_per_px", R.m_per_px);
     cJSON_AddNumberToObject(j, "map_points", (double)R.cloud.size());
@@ -575,11 +817,12 @@ int main(int argc, char **argv)
     R.scan_ch = "LIDAR_SCAN";
     R.voxel = 0.15;
     R.quiet = 0;
+    R.checkpoint_every = 100;
     const char *vehicle = PB_SOURCE_DIR "/vehicles/prius2017.yaml";
     const pb_opt_t opts[] = {
         PB_OPT_REQUIRED("log", &R.log_path), PB_OPT_REQUIRED("out", &R.out_dir), PB_OPT_STRING("vehicle", &vehicle),
         PB_OPT_STRING("scan-channel", &R.scan_ch), PB_OPT_DOUBLE("voxel", &R.voxel, 0.01, 10),
-        PB_OPT_FLAG("quiet", &R.quiet, 1), PB_OPT_END,
+        PB_OPT_FLAG("quiet", &R.quiet, 1), PB_OPT_INT("checkpoint-every", &R.checkpoint_every, 1, 1000000), PB_OPT_END,
     };
     int parsed = pb_opt_parse("mapper", opts, usage, 0, argc, argv);
     if (parsed >= 0) return parsed;
@@ -594,29 +837,45 @@ int main(int argc, char **argv)
         rc = pb_log_read_track(R.log_path, nullptr, nullptr, R.scan_ch,
                                [](const pb_event_t *, void *u, pb_err_t *) { (*(long *)u)++; return 0; }, &R.total, &err);
     if (rc == 0 && R.total == 0) rc = pb_err_set(&err, "%s: no %s in the log", R.log_path, R.scan_ch);
+    // a checkpoint of an interrupted run of this log resumed
+    if (rc == 0) rc = checkpoint_ids(&R, &err);
+    if (rc == 0) rc = checkpoint_read(&R, &err);
     // 1. odometry; a keyframe every 2 m
     if (rc == 0) rc = pass_odometry(&R, &err);
+    if (R.kf_file) std::fclose(R.kf_file);
+    pb_odom_destroy(R.odom);   /* restored but not used (an error before the pass) */
     cpu_ms[1] = pb_clock_process_cpu_ms();
+    R.peak_mb[0] = peak_rss_mb();
+    reset_peak_rss();
     // 2. loop closure over the keyframes
     if (rc == 0) rc = close_loops(&R, &err);
     // 3. GNSS anchoring
     if (rc == 0) rc = anchor(&R, &err);
     cpu_ms[2] = pb_clock_process_cpu_ms();
+    R.peak_mb[1] = peak_rss_mb();
+    reset_peak_rss();
     // 4. the map with the final poses
     if (rc == 0) rc = pass_map(&R, &err);
+    R.peak_mb[2] = peak_rss_mb();
+    reset_peak_rss();
     // 5. the ground model, and what moved carved out with it
     pb_ground_t *ground = rc == 0 ? make_ground(&R, &err) : nullptr;
     if (rc == 0) rc = pass_carve(&R, ground, &err);
     pb_ground_destroy(ground);
     pb_pose_track_destroy(R.track);
+    R.peak_mb[3] = peak_rss_mb();
+    reset_peak_rss();
     // 6. the site's other files, the report
     if (rc == 0) rc = write_site(&R, &err);
     cpu_ms[3] = pb_clock_process_cpu_ms();
+    R.peak_mb[4] = peak_rss_mb();
     if (rc == 0)
         rc = write_report(R, cpu_ms, std::chrono::duration<double>(std::chrono::steady_clock::now() - wall0).count(), &err);
     if (rc != 0) {
         std::fprintf(stderr, "mapper: %s\n", err.msg);
         return 1;
     }
+    std::remove(R.path("checkpoint.bin").c_str());   /* done: nothing to resume */
+    std::remove(R.path("keyframes.bin").c_str());
     return 0;
 }

@@ -2,12 +2,14 @@
 #include "odometry.h"
 
 #include <algorithm>
+#include <cstring>
 #include <cmath>
 #include <future>
 #include <string>
 #include <vector>
 
 #include "deskew.h"
+#include "pb_bytes.h"
 #include "voxel_hash.h"
 
 using Vec3 = Eigen::Vector3d;
@@ -32,6 +34,7 @@ struct pb_odom {
     std::vector<Cell> cells;
     /* the registration map and where it was built */
     pb_regmap_t *regmap = nullptr;
+    std::vector<float> regmap_src;   /* the points it was built from (for pb_odom_save) */
     std::vector<float> last_sweep;
     Vec3 built_at = Vec3::Zero();
     int64_t built_sweep = 0;
@@ -39,6 +42,7 @@ struct pb_odom {
      * while the sweeps go on; swapped in at the next rebuild (a fixed sweep, whatever the
      * threads' timing: the same sweeps give the same poses) */
     std::future<pb_regmap_t *> next;
+    std::vector<float> next_src;     /* the points it is built from */
     int64_t next_sweep = 0;   /* the sweep it is swapped in before ... */
     Vec3 next_from = Vec3::Zero();   /* ... or once the car is kSwapAfterM from where it started */
     std::string next_err;
@@ -108,7 +112,21 @@ static int swap_in(pb_odom_t *o, pb_err_t *err)
     if (!m) return pb_err_set(err, "local map: %s", o->next_err.c_str()), -1;
     pb_regmap_destroy(o->regmap);
     o->regmap = m;
+    o->regmap_src.swap(o->next_src);
+    o->next_src.clear();
     return 0;
+}
+
+/* Starts building the next registration map from o->next_src on another thread (it
+ * reads o->next_src until swap_in takes the map). */
+static void start_next(pb_odom_t *o)
+{
+    o->next = std::async(std::launch::async, [o]() {
+        pb_err_t e;
+        pb_regmap_t *m = pb_regmap_from_points(o->next_src.data(), o->next_src.size() / 3, nullptr, &e);
+        if (!m) o->next_err = e.msg;
+        return m;
+    });
 }
 
 /* Drops the cells beyond the local radius and starts building the next registration map
@@ -140,17 +158,14 @@ static int rebuild(pb_odom_t *o, const Vec3 &at, pb_err_t *err)
     o->built_sweep = o->sweeps;
     if (!o->regmap) {
         o->regmap = pb_regmap_from_points(pts.data(), pts.size() / 3, nullptr, err);
+        o->regmap_src.swap(pts);
         return o->regmap ? 0 : -1;
     }
     if (swap_in(o, err) != 0) return -1;
     o->next_sweep = o->sweeps + kSwapAfter;
     o->next_from = at;
-    o->next = std::async(std::launch::async, [o, pts = std::move(pts)]() {
-        pb_err_t e;
-        pb_regmap_t *m = pb_regmap_from_points(pts.data(), pts.size() / 3, nullptr, &e);
-        if (!m) o->next_err = e.msg;
-        return m;
-    });
+    o->next_src.swap(pts);
+    start_next(o);
     return 0;
 }
 
@@ -248,3 +263,81 @@ int pb_odom_add(pb_odom_t *o, int64_t utime, const float *xyz, const int32_t *of
 }
 
 const std::vector<float> &pb_odom_last_sweep(const pb_odom_t *o) { return o->last_sweep; }
+
+/* ---- checkpoint: the state written field by field (no padding), read back with bounds */
+static const char kStateMagic[8] = {'P', 'B', 'O', 'D', 'O', 'M', '0', '1'};
+
+static void put_vec3(ByteWriter &w, const Vec3 &v) { for (int k = 0; k < 3; k++) w.put(v[k]); }
+static Vec3 get_vec3(ByteReader &r)
+{
+    Vec3 v;
+    for (int k = 0; k < 3; k++) v[k] = r.get<double>();
+    return v;
+}
+
+void pb_odom_save(const pb_odom_t *o, std::vector<uint8_t> *out)
+{
+    out->clear();
+    ByteWriter w{out};
+    for (char c : kStateMagic) w.put(c);
+    w.put(o->sweeps); w.put(o->last_utime);
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 4; c++) w.put(o->last_pose.matrix()(r, c));
+    put_vec3(w, o->v); put_vec3(w, o->w); w.put((uint8_t)o->motion_known);
+    put_vec3(w, o->built_at); w.put(o->built_sweep);
+    w.put((uint64_t)o->cells.size());
+    for (const Cell &c : o->cells) { w.put(c.sum[0]); w.put(c.sum[1]); w.put(c.sum[2]); w.put(c.n); }
+    /* the index as it is: keys of cells added since the last rebuild come from their first
+     * point, the others from their centroid, and two centroids may share a key */
+    w.put((uint64_t)o->index.size());
+    o->index.for_each([&](uint64_t key, int32_t value) { w.put(key); w.put(value); });
+    w.put_array(o->regmap_src.data(), o->regmap_src.size());
+    w.put((uint8_t)o->next.valid());
+    w.put(o->next_sweep); put_vec3(w, o->next_from);
+    w.put_array(o->next_src.data(), o->next_src.size());
+}
+
+pb_odom_t *pb_odom_restore(const uint8_t *data, size_t n, const pb_odom_config_t *cfg, const pb_reg_config_t *reg,
+                           pb_err_t *err)
+{
+    ByteReader r{data, data + n};
+    for (char c : kStateMagic)
+        if (r.get<char>() != c || !r.ok) return pb_err_set(err, "odometry state: not of this version"), nullptr;
+    pb_odom_t *o = pb_odom_create(cfg, reg);
+    o->sweeps = r.get<int64_t>(); o->last_utime = r.get<int64_t>();
+    for (int i = 0; i < 3; i++)
+        for (int c = 0; c < 4; c++) o->last_pose.matrix()(i, c) = r.get<double>();
+    o->v = get_vec3(r); o->w = get_vec3(r); o->motion_known = r.get<uint8_t>() != 0;
+    o->built_at = get_vec3(r); o->built_sweep = r.get<int64_t>();
+    uint64_t ncells = r.get<uint64_t>();
+    if (r.ok && ncells <= n / 28) {
+        o->cells.resize(ncells);
+        for (Cell &c : o->cells) { c.sum[0] = r.get<double>(); c.sum[1] = r.get<double>(); c.sum[2] = r.get<double>(); c.n = r.get<int>(); }
+    } else r.ok = false;
+    uint64_t nindex = r.get<uint64_t>();
+    if (r.ok && nindex <= n / 12) {
+        o->index.reset(nindex);
+        for (uint64_t i = 0; i < nindex && r.ok; i++) {
+            uint64_t key = r.get<uint64_t>();
+            int32_t value = r.get<int32_t>();
+            if (value < 0 || (uint64_t)value >= ncells) r.ok = false;
+            bool fresh;
+            o->index.insert(key, value, &fresh);
+        }
+    } else r.ok = false;
+    r.get_array(&o->regmap_src);
+    bool pending = r.get<uint8_t>() != 0;
+    o->next_sweep = r.get<int64_t>(); o->next_from = get_vec3(r);
+    r.get_array(&o->next_src);
+    if (!r.ok || r.p != r.end) {
+        pb_odom_destroy(o);
+        return pb_err_set(err, "odometry state: truncated or damaged"), nullptr;
+    }
+    /* the registration maps again from their points (pb_regmap_from_points is deterministic) */
+    if (!o->regmap_src.empty() && !(o->regmap = pb_regmap_from_points(o->regmap_src.data(), o->regmap_src.size() / 3, nullptr, err))) {
+        pb_odom_destroy(o);
+        return nullptr;
+    }
+    if (pending) start_next(o);
+    return o;
+}

@@ -18,8 +18,8 @@
  *      few metres rebuild the registration map from the cells near the car.
  *
  * No I/O and no clock: the same sweeps give the same poses.
- * Ownership: pb_odom_create returns an object the caller frees with pb_odom_destroy
- * (NULL is a no-op). Inputs are copied; no pointer into them is kept. */
+ * Ownership: pb_odom_create and pb_odom_restore return an object the caller frees with
+ * pb_odom_destroy (NULL is a no-op). Inputs are copied; no pointer into them is kept. */
 #ifndef PB_MAPPER_ODOMETRY_H
 #define PB_MAPPER_ODOMETRY_H
 
@@ -84,5 +84,17 @@ int pb_odom_add(pb_odom_t *o, int64_t utime, const float *xyz, const int32_t *of
 /* The last sweep added, deskewed, in base at its pose's time (valid until the next
  * pb_odom_add; empty before the first). */
 const std::vector<float> &pb_odom_last_sweep(const pb_odom_t *o);
+
+/* The odometry's whole state as bytes, for a checkpoint (out is replaced): the local map's
+ * cells and index, the motion, the points the registration map (and the one being built)
+ * come from. An odometry restored from them gives the same poses for the next sweeps as
+ * the saved one would have, byte for byte. */
+void pb_odom_save(const pb_odom_t *o, std::vector<uint8_t> *out);
+
+/* An odometry from pb_odom_save's bytes, with this config (cfg, reg as pb_odom_create; the
+ * caller gives the ones it saved with). Returns NULL with err set when the bytes are not
+ * a whole state of this version. */
+pb_odom_t *pb_odom_restore(const uint8_t *data, size_t n, const pb_odom_config_t *cfg, const pb_reg_config_t *reg,
+                           pb_err_t *err);
 
 #endif
