@@ -13,8 +13,6 @@
 #include <sys/stat.h>
 #include <unistd.h>
 #include <vector>
-#include <pcl/io/pcd_io.h>
-#include <pcl/point_types.h>
 
 #include "anchor.h"
 #include "carve.h"
@@ -302,7 +300,8 @@ struct Run {
     pb_picture_layers_t layers;
     pb_pose_track_t *track = nullptr;
     long placed = 0, unplaced = 0;
-    pcl::PointCloud<pcl::PointXYZI> cloud;   /* the map, read back after pass 2 */
+    std::vector<float> map;                  /* the map after pass 2: x y z intensity a point */
+    size_t map_points = 0;                   /* in map.pcd */
     std::string ground_why;                  /* empty: ground.yaml written */
     size_t carved = 0;
     double m_per_px = 0;
@@ -399,17 +398,51 @@ static int write_file_synced(const std::string &path, const std::vector<uint8_t>
     return 0;
 }
 
-/* The keyframes not yet in keyframes.bin appended to it, then the checkpoint: odom the
- * odometry in the middle of the pass, NULL once the pass is over. */
+/* keyframes.bin's first n keyframes (utime, pose, with_points: the points too) into *kf,
+ * which must hold bytes bytes. false when it does not. */
+static bool read_keyframes(const std::string &path, uint64_t n, uint64_t bytes, bool with_points,
+                           std::vector<pb_keyframe_t> *kf)
+{
+    FILE *f = std::fopen(path.c_str(), "rb");
+    if (!f) return false;
+    kf->resize(n);
+    uint64_t at = 0;
+    bool ok = true;
+    for (pb_keyframe_t &k : *kf) {
+        uint8_t head[8 + 12 * 8 + 8];
+        ok = std::fread(head, 1, sizeof head, f) == sizeof head;
+        if (!ok) break;
+        ByteReader r{head, head + sizeof head};
+        k.utime = r.get<int64_t>();
+        k.pose = get_pose(r);
+        const uint64_t npts = r.get<uint64_t>();
+        at += sizeof head + npts * sizeof(float);
+        if (!(ok = at <= bytes)) break;
+        if (with_points) {
+            k.xyz.resize((size_t)npts);
+            ok = std::fread(k.xyz.data(), sizeof(float), k.xyz.size(), f) == k.xyz.size();
+        } else {
+            ok = std::fseek(f, (long)(npts * sizeof(float)), SEEK_CUR) == 0;
+        }
+        if (!ok) break;
+    }
+    std::fclose(f);
+    return ok && at == bytes;
+}
+
+/* The keyframes not yet in keyframes.bin appended to it (their points then freed: read
+ * back for the loops), then the checkpoint: odom the odometry in the middle of the pass,
+ * NULL once the pass is over. */
 static int checkpoint_write(Run *R, const pb_odom_t *odom, pb_err_t *err)
 {
     std::vector<uint8_t> buf;
     ByteWriter w{&buf};
     for (; R->kf_saved < R->kf.size(); R->kf_saved++) {
-        const pb_keyframe_t &k = R->kf[R->kf_saved];
+        const pb_keyframe_t &k = R->kf[R->kf_saved];   /* the pass holds no other reference */
         w.put(k.utime);
         put_pose(w, k.pose);
         w.put_array(k.xyz.data(), k.xyz.size());
+        std::vector<float>().swap(R->kf[R->kf_saved].xyz);
     }
     if (std::fwrite(buf.data(), 1, buf.size(), R->kf_file) != buf.size() || std::fflush(R->kf_file) != 0 ||
         fsync(fileno(R->kf_file)) != 0)
@@ -440,7 +473,7 @@ static int checkpoint_write(Run *R, const pb_odom_t *odom, pb_err_t *err)
 static int checkpoint_read(Run *R, pb_err_t *err)
 {
     const std::string path = R->path("checkpoint.bin"), kf_path = R->path("keyframes.bin");
-    std::vector<uint8_t> buf, kfb;
+    std::vector<uint8_t> buf;
     if (read_file(path, &buf) != 0) return 0;   /* none: a fresh start */
     ByteReader r{buf.data(), buf.data() + buf.size()};
     std::string why;
@@ -473,18 +506,9 @@ static int checkpoint_read(Run *R, pb_err_t *err)
     std::vector<uint8_t> state;
     r.get_array(&state);
     if (why.empty() && (!r.ok || r.p != buf.data() + buf.size() - 8)) why = "damaged (truncated)";
-    // the keyframes it counts, from keyframes.bin
-    if (why.empty() && (read_file(kf_path, &kfb) != 0 || kfb.size() < R->kf_bytes))
-        why = "keyframes.bin is missing or shorter than the checkpoint says";
-    ByteReader k{kfb.data(), kfb.data() + std::min<uint64_t>(kfb.size(), R->kf_bytes)};
-    for (uint64_t i = 0; why.empty() && k.ok && i < nkf; i++) {
-        pb_keyframe_t kf;
-        kf.utime = k.get<int64_t>();
-        kf.pose = get_pose(k);
-        k.get_array(&kf.xyz);
-        R->kf.push_back(std::move(kf));
-    }
-    if (why.empty() && (!k.ok || k.p != k.end)) why = "keyframes.bin does not hold the keyframes the checkpoint says";
+    // the keyframes it counts, from keyframes.bin (their points stay there until the loops)
+    if (why.empty() && !read_keyframes(kf_path, nkf, R->kf_bytes, false, &R->kf))
+        why = "keyframes.bin does not hold the keyframes the checkpoint says";
     pb_err_t e;
     if (why.empty() && !done && !(R->odom = pb_odom_restore(state.data(), state.size(), nullptr, nullptr, &e))) why = e.msg;
     if (!why.empty()) {
@@ -552,9 +576,13 @@ static int pass_odometry(Run *R, pb_err_t *err)
     return checkpoint_write(R, nullptr, err);
 }
 
-/* The keyframes' poses solved again with the loops found; the sweeps moved with them. */
+/* The keyframes' poses solved again with the loops found (their points read back from
+ * keyframes.bin); the sweeps moved with them. */
 static int close_loops(Run *R, pb_err_t *err)
 {
+    const std::string kf_path = R->path("keyframes.bin");
+    if (!read_keyframes(kf_path, R->kf.size(), R->kf_bytes, true, &R->kf))
+        return pb_err_set(err, "%s: cannot read the keyframes back", kf_path.c_str()), -1;
     std::vector<Eigen::Isometry3d> solved;
     if (R->kf.size() >= 2) {
         if (pb_loops_close(R->kf, nullptr, &solved, &R->loops, err) != 0) return -1;
@@ -616,12 +644,13 @@ static int pass_map(Run *R, pb_err_t *err)
             return 0;
         }, &empty, err);
     if (rc == 0) pb_progress_finish(&prog);
-    const std::string map_path = R->path("map.pcd");
-    if (rc == 0) rc = pb_map_builder_write_pcd(map, map_path.c_str(), err);
+    if (rc == 0 && pb_map_builder_size(map) == 0) rc = pb_err_set(err, "the map has no points (no sweep had poses)");
+    if (rc == 0) {
+        R->map.resize(4 * (size_t)pb_map_builder_size(map));   /* 16 bytes a point, the builder's 40 freed */
+        pb_map_builder_points(map, R->map.data());
+    }
     pb_map_builder_destroy(map);
-    if (rc != 0) return -1;
-    if (pcl::io::loadPCDFile(map_path, R->cloud) < 0) return pb_err_set(err, "%s: cannot read it back", map_path.c_str()), -1;
-    return 0;
+    return rc;
 }
 
 /* The ground model (tools/build-ground's core) from the map; a site without one is still a
@@ -631,8 +660,7 @@ static pb_ground_t *make_ground(Run *R, pb_err_t *err)
     gb_config_t gcfg;
     gb_config_default(&gcfg);
     size_t nground = 0;
-    pb_ground_t *ground = gb_build(R->cloud.empty() ? nullptr : &R->cloud.points[0].x, R->cloud.size(),
-                                   sizeof(pcl::PointXYZI) / sizeof(float), &gcfg, &nground);
+    pb_ground_t *ground = gb_build(R->map.data(), R->map.size() / 4, 4, &gcfg, &nground);
     const std::string ground_path = R->path("ground.yaml");
     if (!ground) R->ground_why = "no ground in the map";
     else if (pb_ground_save(ground, ground_path.c_str(), err) != 0) R->ground_why = err->msg;
@@ -648,8 +676,7 @@ static pb_ground_t *make_ground(Run *R, pb_err_t *err)
  * its turn); the band over the ground model is spared. map.pcd is written again. */
 static int pass_carve(Run *R, const pb_ground_t *ground, pb_err_t *err)
 {
-    pb_carve_t *carve = pb_carve_create(&R->cloud.points[0].x, R->cloud.size(), sizeof(pcl::PointXYZI) / sizeof(float),
-                                        ground, nullptr);
+    pb_carve_t *carve = pb_carve_create(R->map.data(), R->map.size() / 4, 4, ground, nullptr);
     const Eigen::Isometry3d bl = pb_reg_from_transform(&R->veh.base_from_lidar);
     long empty = 0;
     pb_progress_t prog;
@@ -680,29 +707,27 @@ static int pass_carve(Run *R, const pb_ground_t *ground, pb_err_t *err)
     }
     pb_carve_destroy(carve);
     if (rc != 0) return -1;
-    pcl::PointCloud<pcl::PointXYZI> kept;
-    kept.reserve(R->cloud.size() - R->carved);
-    for (size_t i = 0; i < R->cloud.size(); i++)
-        if (keep[i]) kept.push_back(R->cloud.points[i]);
-    R->cloud.swap(kept);
+    size_t kept = 0;   /* the points kept moved up in place (no second copy of the map) */
+    for (size_t i = 0; i < keep.size(); i++)
+        if (keep[i]) std::memmove(&R->map[4 * kept++], &R->map[4 * i], 4 * sizeof(float));
+    R->map.resize(4 * kept);
+    R->map.shrink_to_fit();
+    R->map_points = kept;
     const std::string map_path = R->path("map.pcd"), tmp = map_path + ".tmp";
-    if (pcl::io::savePCDFileBinary(tmp, R->cloud) < 0 || std::rename(tmp.c_str(), map_path.c_str()) != 0) {
+    if (pb_pcd_write_xyzi(tmp.c_str(), R->map.data(), (int64_t)kept, err) != 0 || std::rename(tmp.c_str(), map_path.c_str()) != 0) {
         std::remove(tmp.c_str());
         return pb_err_set(err, "%s: cannot write", map_path.c_str()), -1;
     }
     return 0;
 }
 
-/* The trajectories, the tiles the localizer pages (its map_source, from the map as
- * written), the picture and site.yaml. */
+/* The trajectories, the picture, the tiles the localizer pages (its map_source, from the
+ * map as written) and site.yaml. */
 static int write_site(Run *R, pb_err_t *err)
 {
     if (write_tum(R->path("trajectory.tum").c_str(), R->traj, false) != 0 ||
         write_tum(R->path("odometry.tum").c_str(), R->traj, true) != 0)
         return pb_err_set(err, "%s: cannot write the trajectories: %s", R->out_dir, std::strerror(errno)), -1;
-    if (map_source_write_tiles(R->path("map.pcd").c_str(), R->path("map.tiles").c_str(), MAP_SOURCE_TILE_M, nullptr,
-                               nullptr, nullptr, err) != 0)
-        return -1;
     std::map<int64_t, Eigen::Vector3d> at;
     for (const SweepPose &sp : R->traj) {
         R->layers.before.push_back(sp.odometry.translation());
@@ -711,9 +736,12 @@ static int write_site(Run *R, pb_err_t *err)
     }
     for (const auto &lt : R->loop_times)
         if (at.count(lt.first) && at.count(lt.second)) R->layers.loops.push_back({at[lt.first], at[lt.second]});
-    if (pb_picture_write(R->cloud.empty() ? nullptr : &R->cloud.points[0].x, R->cloud.size(),
-                         sizeof(pcl::PointXYZI) / sizeof(float), &R->layers, R->path("report.png").c_str(), &R->m_per_px,
+    if (pb_picture_write(R->map.data(), R->map.size() / 4, 4, &R->layers, R->path("report.png").c_str(), &R->m_per_px,
                          err) != 0)
+        return -1;
+    std::vector<float>().swap(R->map);   /* freed: the tiles are made from map.pcd */
+    if (map_source_write_tiles(R->path("map.pcd").c_str(), R->path("map.tiles").c_str(), MAP_SOURCE_TILE_M, nullptr,
+                               nullptr, nullptr, err) != 0)
         return -1;
     const std::string site_path = R->path("site.yaml");
     if (!R->anchor.anchored) {
@@ -785,7 +813,7 @@ static int write_report(const Run &R, const double cpu_ms[4], double wall_s, pb_
     cJSON_AddNumberToObject(peak, "all", std::round(peak_all));
     cJSON_AddStringToObject(j, "picture", "report.png");
     cJSON_AddNumberToObject(j, "picture_m_per_px", R.m_per_px);
-    cJSON_AddNumberToObject(j, "map_points", (double)R.cloud.size());
+    cJSON_AddNumberToObject(j, "map_points", (double)R.map_points);
     cJSON_AddNumberToObject(j, "map_points_carved", (double)R.carved);
     cJSON_AddNumberToObject(j, "map_voxel_m", R.voxel);
     cJSON_AddNumberToObject(j, "scans_placed", (double)R.placed);
@@ -805,7 +833,7 @@ static int write_report(const Run &R, const double cpu_ms[4], double wall_s, pb_
                      "(median CPU), %zu map points (%zu carved: moved); %.1f s wall\n",
                      R.traj.size(), path_m, span_s, by_status[PB_ODOM_TRACKED], by_status[PB_ODOM_SEARCHED],
                      by_status[PB_ODOM_WEAK], by_status[PB_ODOM_PREDICTED], R.loops.verified, R.loops.candidates,
-                     R.loops.max_change_m, pct(ms, 0.5), R.cloud.size(), R.carved, wall_s);
+                     R.loops.max_change_m, pct(ms, 0.5), R.map_points, R.carved, wall_s);
     return 0;
 }
 
