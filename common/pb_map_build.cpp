@@ -444,11 +444,6 @@ static int write_xyzi(const char *path, int64_t n, PointOf point_of, pb_err_t *e
     return 0;
 }
 
-extern "C" void pb_map_builder_points(const pb_map_builder_t *b, float *xyzi)
-{
-    for (int64_t i = 0, n = b->size(); i < n; i++) b->point(i, xyzi + 4 * i);
-}
-
 extern "C" int pb_pcd_write_xyzi(const char *path, const float *xyzi, int64_t n, pb_err_t *err)
 {
     return write_xyzi(path, n, [&](int64_t i, float *out) { std::memcpy(out, xyzi + 4 * i, 4 * sizeof(float)); }, err);

@@ -77,10 +77,6 @@ int pb_map_builder_bounds(const pb_map_builder_t *b, double min[3], double max[3
  * parent directory if it is missing. Returns 0, or -1 (empty map, I/O error). */
 int pb_map_builder_write_pcd(const pb_map_builder_t *b, const char *path, pb_err_t *err);
 
-/* The map's points into xyzi, 4 floats each (x y z intensity), room for
- * pb_map_builder_size() points: as pb_map_builder_write_pcd would write them. */
-void pb_map_builder_points(const pb_map_builder_t *b, float *xyzi);
-
 /* Writes n points (xyzi: x y z intensity, 4 floats each) as binary PCD, the same file
  * pb_map_builder_write_pcd (and PCL for pcl::PointXYZI) writes. Returns 0, or -1 (I/O
  * error, err names the file). */

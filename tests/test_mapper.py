@@ -7,6 +7,8 @@ moving at its first sweep; the mapper gets nothing but LIDAR_SCAN."""
 import filecmp
 import json
 import shutil
+import subprocess
+import time
 
 import lcm
 import numpy as np
@@ -145,6 +147,38 @@ def test_same_drive_same_map(drive, tmp_path):
     run([BIN / "mapper", "--log", drive["log"], "--out", tmp_path, "--quiet"])
     assert filecmp.cmp(tmp_path / "trajectory.tum", drive["out"] / "trajectory.tum", shallow=False)
     assert filecmp.cmp(tmp_path / "map.pcd", drive["out"] / "map.pcd", shallow=False)
+
+
+def test_restart_after_a_kill(drive, tmp_path):
+    """Killed (SIGKILL) in the middle of the odometry and run again, the mapper resumes from its
+    checkpoint and writes the same site as the uninterrupted run (the fixture's), byte for byte;
+    a checkpoint of another log is refused and the run starts over."""
+    out = tmp_path / "site"
+    cmd = [str(BIN / "mapper"), "--log", str(drive["log"]), "--out", str(out), "--checkpoint-every", "20"]
+    p = subprocess.Popen(cmd + ["--quiet"])
+    ck = out / "checkpoint.bin"
+    deadline = time.monotonic() + 120
+    while p.poll() is None and not ck.exists() and time.monotonic() < deadline:
+        time.sleep(0.002)
+    p.kill()
+    p.wait()
+    assert ck.exists() and (out / "keyframes.bin").exists() and not (out / "map.pcd").exists()
+    shutil.copytree(out, tmp_path / "other")
+    q = run(cmd)
+    rep = json.loads((out / "report.json").read_text())
+    # killed at the first checkpoint (20 of the 80 sweeps) or the next
+    assert 0 < rep["resumed_from_scan"] < 80 and rep["checkpoint_refused"] == "", rep
+    assert f"resuming from {ck}: {rep['resumed_from_scan']} of 80 scans read" in q.stderr, q.stderr
+    for f in ("trajectory.tum", "odometry.tum", "map.pcd", "map.tiles", "ground.pgm"):
+        assert filecmp.cmp(out / f, drive["out"] / f, shallow=False), f
+    assert not ck.exists() and not (out / "keyframes.bin").exists()   # a finished run leaves none
+    # the checkpoint with another log (the same drive from 1 s later): refused, started over
+    log2 = cut_log(drive["log"], tmp_path / "later.lcm", 1.0)
+    q = run([BIN / "mapper", "--log", log2, "--out", tmp_path / "other", "--quiet"])
+    rep = json.loads((tmp_path / "other" / "report.json").read_text())
+    assert rep["resumed_from_scan"] == 0 and "from another log" in rep["checkpoint_refused"], rep
+    assert "from another log" in q.stderr and "starting over" in q.stderr, q.stderr
+    assert rep["scans"] < 80
 
 
 def test_bad_input(drive, tmp_path):

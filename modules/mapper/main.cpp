@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <initializer_list>
 #include <map>
 #include <string>
 #include <fcntl.h>
@@ -40,7 +41,7 @@ static void usage(FILE *f)
 {
     std::fprintf(f,
         "usage: mapper --log DRIVE.lcm --out SITE_DIR [--vehicle FILE] [--voxel 0.15]\n"
-        "              [--scan-channel LIDAR_SCAN] [--quiet]\n"
+        "              [--scan-channel LIDAR_SCAN] [--checkpoint-every 100] [--quiet]\n"
         "\n"
         "Builds a prior map from a recorded drive by LiDAR odometry: every sweep is\n"
         "registered to a rolling local map of the sweeps before it (the localizer's\n"
@@ -57,10 +58,16 @@ static void usage(FILE *f)
         "GNSS_FIX in the log, the map is moved onto the fixes (east-north-up at the first 3-D\n"
         "fix) and SITE_DIR/site.yaml holds that geo-reference; without, the map stays in the\n"
         "first sweep's frame and no site.yaml is written.\n"
+        "Restartable: while it runs, SITE_DIR/checkpoint.bin and keyframes.bin hold the odometry\n"
+        "so far; run the same command again after an interruption (Ctrl-C, power loss, a kill)\n"
+        "and it resumes there, with the same result as a run without one. A checkpoint of\n"
+        "another log, build of the mapper or --vehicle/--scan-channel is refused (said on\n"
+        "stderr and in report.json) and the run starts over; a finished run removes both.\n"
         "  --vehicle FILE      base <- lidar (default vehicles/prius2017.yaml; scans imported from\n"
         "                      a dataset with their poses in the LiDAR frame: vehicles/lidar_mast.yaml)\n"
         "  --voxel M           map.pcd voxel edge, metres (default 0.15)\n"
         "  --scan-channel C    (default LIDAR_SCAN)\n"
+        "  --checkpoint-every N  sweeps of odometry between checkpoints (default 100: 10 s of drive)\n"
         "  --quiet             no progress bar, no summary\n"
         "Exit 1 on error (unreadable or damaged log, no sweep, unwritable SITE_DIR).\n");
 }
@@ -359,8 +366,8 @@ static int checkpoint_ids(Run *R, pb_err_t *err)
                   (unsigned long long)pb_fnv1a64(head.data(), head.size()));
     R->log_id = buf;
     struct stat ex;
-    std::snprintf(buf, sizeof buf, "mapper of %lld bytes at %lld", stat("/proc/self/exe", &ex) == 0 ? (long long)ex.st_size : -1LL,
-                  stat("/proc/self/exe", &ex) == 0 ? (long long)ex.st_mtime : -1LL);
+    if (stat("/proc/self/exe", &ex) != 0) ex.st_size = ex.st_mtime = -1;
+    std::snprintf(buf, sizeof buf, "mapper of %lld bytes at %lld", (long long)ex.st_size, (long long)ex.st_mtime);
     R->build_id = buf;
     const pb_transform_t &bl = R->veh.base_from_lidar;
     std::snprintf(buf, sizeof buf, "channel %s, base <- lidar %.17g %.17g %.17g %.17g %.17g %.17g %.17g", R->scan_ch,
@@ -383,13 +390,15 @@ static int read_file(const std::string &path, std::vector<uint8_t> *out)
     return ok ? 0 : -1;
 }
 
-/* Writes bytes to path through path.tmp, synced, renamed. */
-static int write_file_synced(const std::string &path, const std::vector<uint8_t> &bytes, pb_err_t *err)
+/* Writes the pieces one after the other to path through path.tmp, synced, renamed. */
+static int write_file_synced(const std::string &path, std::initializer_list<const std::vector<uint8_t> *> pieces,
+                             pb_err_t *err)
 {
     const std::string tmp = path + ".tmp";
     FILE *f = std::fopen(tmp.c_str(), "wb");
-    bool ok = f && std::fwrite(bytes.data(), 1, bytes.size(), f) == bytes.size() && std::fflush(f) == 0 &&
-              fsync(fileno(f)) == 0;
+    bool ok = f != nullptr;
+    for (const std::vector<uint8_t> *b : pieces) ok = ok && std::fwrite(b->data(), 1, b->size(), f) == b->size();
+    ok = ok && std::fflush(f) == 0 && fsync(fileno(f)) == 0;
     if (f) ok &= std::fclose(f) == 0;
     if (!ok || std::rename(tmp.c_str(), path.c_str()) != 0) {
         std::remove(tmp.c_str());
@@ -460,11 +469,11 @@ static int checkpoint_write(Run *R, const pb_odom_t *odom, pb_err_t *err)
         w.put(sp.status); w.put(sp.inlier_fraction); w.put(sp.cpu_ms); w.put(sp.keyframe);
     }
     w.put((uint64_t)R->kf.size()); w.put(R->kf_bytes);
-    std::vector<uint8_t> state;
+    std::vector<uint8_t> state, sum;   /* the state (tens of MB) written as it is, not copied */
     if (odom) pb_odom_save(odom, &state);
-    w.put_array(state.data(), state.size());
-    w.put(pb_fnv1a64(buf.data(), buf.size()));
-    return write_file_synced(R->path("checkpoint.bin"), buf, err);
+    w.put((uint64_t)state.size());
+    ByteWriter{&sum}.put(pb_fnv1a64(state.data(), state.size(), pb_fnv1a64(buf.data(), buf.size())));
+    return write_file_synced(R->path("checkpoint.bin"), {&buf, &state, &sum}, err);
 }
 
 /* A checkpoint of this log, build and options restored into R (R->resumed_from > 0); one
@@ -614,6 +623,30 @@ static int anchor(Run *R, pb_err_t *err)
     return 0;
 }
 
+/* map.pcd as pb_map_builder_write_pcd wrote it (binary, x y z intensity) into *xyzi: 16
+ * bytes a point, once the builder (40 bytes a point) is gone. */
+static int read_map(const std::string &path, std::vector<float> *xyzi, pb_err_t *err)
+{
+    FILE *f = std::fopen(path.c_str(), "rb");
+    if (!f) return pb_err_set(err, "%s: cannot read it back: %s", path.c_str(), std::strerror(errno)), -1;
+    char line[256];
+    long long n = -1;
+    bool fields = false, data = false;
+    while (!data && std::fgets(line, sizeof line, f)) {
+        fields |= std::strcmp(line, "FIELDS x y z intensity\n") == 0;
+        std::sscanf(line, "POINTS %lld", &n);
+        data = std::strcmp(line, "DATA binary\n") == 0;
+    }
+    bool ok = fields && data && n >= 0;
+    if (ok) {
+        xyzi->resize(4 * (size_t)n);
+        ok = std::fread(xyzi->data(), 4 * sizeof(float), (size_t)n, f) == (size_t)n;
+    }
+    std::fclose(f);
+    if (!ok) return pb_err_set(err, "%s: cannot read it back (not the binary x y z intensity PCD written)", path.c_str()), -1;
+    return 0;
+}
+
 /* Pass 2: the map, every point with the pose at its time, written and read back. The poses
  * are at the sweeps' middles: the track is carried on by the first and last steps' motion
  * to cover the first sweep's first half and the last one's second half. */
@@ -644,13 +677,11 @@ static int pass_map(Run *R, pb_err_t *err)
             return 0;
         }, &empty, err);
     if (rc == 0) pb_progress_finish(&prog);
-    if (rc == 0 && pb_map_builder_size(map) == 0) rc = pb_err_set(err, "the map has no points (no sweep had poses)");
-    if (rc == 0) {
-        R->map.resize(4 * (size_t)pb_map_builder_size(map));   /* 16 bytes a point, the builder's 40 freed */
-        pb_map_builder_points(map, R->map.data());
-    }
+    const std::string map_path = R->path("map.pcd");
+    if (rc == 0) rc = pb_map_builder_write_pcd(map, map_path.c_str(), err);
     pb_map_builder_destroy(map);
-    return rc;
+    if (rc != 0) return -1;
+    return read_map(map_path, &R->map, err);
 }
 
 /* The ground model (tools/build-ground's core) from the map; a site without one is still a

@@ -278,6 +278,8 @@ static Vec3 get_vec3(ByteReader &r)
 void pb_odom_save(const pb_odom_t *o, std::vector<uint8_t> *out)
 {
     out->clear();
+    out->reserve(256 + 28 * o->cells.size() + 12 * o->index.size() +
+                 4 * (o->regmap_src.size() + o->next_src.size()));   /* exactly: no doubling */
     ByteWriter w{out};
     for (char c : kStateMagic) w.put(c);
     w.put(o->sweeps); w.put(o->last_utime);
