@@ -11,6 +11,7 @@
 #include <map>
 #include <string>
 #include <fcntl.h>
+#include <malloc.h>
 #include <sys/stat.h>
 #include <unistd.h>
 #include <vector>
@@ -219,9 +220,12 @@ static double peak_rss_mb()
     return kb / 1024.0;
 }
 
-/* Starts the next step's peak from the memory held now (Linux: "5" to clear_refs). */
+/* Starts the next step's peak from the memory held now (Linux: "5" to clear_refs), after
+ * handing the heap freed by the step back (glibc keeps it, and the next step's large
+ * blocks are mapped anew beside it). */
 static void reset_peak_rss()
 {
+    malloc_trim(0);
     FILE *f = std::fopen("/proc/self/clear_refs", "w");
     if (f) { std::fputs("5", f); std::fclose(f); }
 }
