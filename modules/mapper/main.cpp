@@ -938,7 +938,7 @@ int main(int argc, char **argv)
         std::fprintf(stderr, "mapper: %s\n", err.msg);
         return 1;
     }
-    std::remove(R.path("checkpoint.bin").c_str());   /* done: nothing to resume */
-    std::remove(R.path("keyframes.bin").c_str());
+    for (const char *f : {"checkpoint.bin", "checkpoint.bin.tmp", "keyframes.bin"})
+        std::remove(R.path(f).c_str());   /* done: nothing to resume */
     return 0;
 }
