@@ -451,11 +451,11 @@ static int checkpoint_write(Run *R, const pb_odom_t *odom, pb_err_t *err)
     std::vector<uint8_t> buf;
     ByteWriter w{&buf};
     for (; R->kf_saved < R->kf.size(); R->kf_saved++) {
-        const pb_keyframe_t &k = R->kf[R->kf_saved];   /* the pass holds no other reference */
+        pb_keyframe_t &k = R->kf[R->kf_saved];
         w.put(k.utime);
         put_pose(w, k.pose);
         w.put_array(k.xyz.data(), k.xyz.size());
-        std::vector<float>().swap(R->kf[R->kf_saved].xyz);
+        std::vector<float>().swap(k.xyz);
     }
     if (std::fwrite(buf.data(), 1, buf.size(), R->kf_file) != buf.size() || std::fflush(R->kf_file) != 0 ||
         fsync(fileno(R->kf_file)) != 0)
@@ -538,7 +538,7 @@ static int checkpoint_read(Run *R, pb_err_t *err)
     R->seen = R->resumed_from = seen;
     R->odometry_done = done;
     std::fprintf(stderr, "mapper: resuming from %s: %ld of %ld scans read%s\n", path.c_str(), seen, R->total,
-            done ? ", the odometry done" : "");
+                 done ? ", the odometry done" : "");
     return 0;
 }
 
