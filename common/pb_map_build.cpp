@@ -2,16 +2,16 @@
 #include "pb_map_build.h"
 
 #include <algorithm>
+#include <cerrno>
+#include <cstdio>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
+#include <memory>
 #include <new>
 #include <vector>
 
 #include <Eigen/Geometry>
-#include <pcl/io/pcd_io.h>
-#include <pcl/point_cloud.h>
-#include <pcl/point_types.h>
 
 
 namespace {
@@ -140,6 +140,24 @@ struct Voxel {
     uint32_t n;
 };
 
+// The voxels in blocks of fixed size: the store grows a block at a time, never copying
+// (a vector doubling its capacity held old and new, three times the voxels, at its peak).
+class VoxelStore {
+public:
+    static constexpr size_t kBlock = size_t(1) << 16;
+    size_t size() const { return n_; }
+    Voxel &operator[](size_t i) { return blocks_[i / kBlock][i % kBlock]; }
+    const Voxel &operator[](size_t i) const { return blocks_[i / kBlock][i % kBlock]; }
+    void push_back(const Voxel &v)
+    {
+        if (n_ == blocks_.size() * kBlock) blocks_.emplace_back(new Voxel[kBlock]);
+        (*this)[n_++] = v;
+    }
+private:
+    std::vector<std::unique_ptr<Voxel[]>> blocks_;
+    size_t n_ = 0;
+};
+
 inline uint64_t mix(uint64_t k)
 {
     k ^= k >> 33; k *= 0xff51afd7ed558ccdULL;
@@ -154,7 +172,7 @@ struct pb_map_builder {
     double voxel = 0, inv = 0;
     int64_t points_in = 0;
     // voxel mode: open-addressing table of indices (+1, 0 = empty) into voxels
-    std::vector<Voxel> voxels;
+    VoxelStore voxels;
     std::vector<uint32_t> slots;
     uint64_t mask = 0;
     int64_t last = -1;          // voxel of the previous point
@@ -399,35 +417,49 @@ extern "C" int pb_map_builder_bounds(const pb_map_builder_t *b, double mn[3], do
     return 0;
 }
 
+// Writes n points, point_of(i, out[4]) each, as binary PCD with the header PCL writes for
+// pcl::PointXYZI, 64K points at a time. Returns 0 or -1.
+template <typename PointOf>
+static int write_xyzi(const char *path, int64_t n, PointOf point_of, pb_err_t *err)
+{
+    if (n > INT32_MAX) return pb_err_set(err, "%s: %lld points do not fit a PCD", path, (long long)n);
+    FILE *f = std::fopen(path, "wb");
+    if (!f) return pb_err_set(err, "%s: cannot write the PCD: %s", path, std::strerror(errno));
+    bool ok = std::fprintf(f,
+                           "# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\nFIELDS x y z intensity\n"
+                           "SIZE 4 4 4 4\nTYPE F F F F\nCOUNT 1 1 1 1\nWIDTH %lld\nHEIGHT 1\n"
+                           "VIEWPOINT 0 0 0 1 0 0 0\nPOINTS %lld\nDATA binary\n",
+                           (long long)n, (long long)n) > 0;
+    std::vector<float> chunk;
+    for (int64_t i = 0; ok && i < n;) {
+        chunk.clear();
+        for (int64_t end = std::min(n, i + 65536); i < end; i++) {
+            chunk.resize(chunk.size() + 4);
+            point_of(i, &chunk[chunk.size() - 4]);
+        }
+        ok = std::fwrite(chunk.data(), sizeof(float), chunk.size(), f) == chunk.size();
+    }
+    ok &= std::fclose(f) == 0;
+    if (!ok) return pb_err_set(err, "%s: cannot write the PCD: %s", path, std::strerror(errno));
+    return 0;
+}
+
+extern "C" int pb_pcd_write_xyzi(const char *path, const float *xyzi, int64_t n, pb_err_t *err)
+{
+    return write_xyzi(path, n, [&](int64_t i, float *out) { std::memcpy(out, xyzi + 4 * i, 4 * sizeof(float)); }, err);
+}
+
 extern "C" int pb_map_builder_write_pcd(const pb_map_builder_t *b, const char *path, pb_err_t *err)
 {
     int64_t n = b->size();
     if (n == 0) return pb_err_set(err, "%s: the map has no points (no scan had bracketing poses?)", path);
-    if (n > INT32_MAX) return pb_err_set(err, "%s: %lld points do not fit a PCD", path, (long long)n);
     try {
         std::filesystem::path parent = std::filesystem::path(path).parent_path();
         if (!parent.empty()) std::filesystem::create_directories(parent);
     } catch (const std::exception &e) {
         return pb_err_set(err, "%s: cannot create the directory: %s", path, e.what());
     }
-    try {
-        pcl::PointCloud<pcl::PointXYZI> cloud;
-        cloud.resize(size_t(n));
-        cloud.width = uint32_t(n);
-        cloud.height = 1;
-        cloud.is_dense = true;
-        float p[4];
-        for (int64_t i = 0; i < n; i++) {
-            b->point(i, p);
-            pcl::PointXYZI &q = cloud[size_t(i)];
-            q.x = p[0]; q.y = p[1]; q.z = p[2]; q.intensity = p[3];
-        }
-        if (pcl::io::savePCDFileBinary(path, cloud) != 0)
-            return pb_err_set(err, "%s: cannot write the PCD", path);
-    } catch (const std::exception &e) {
-        return pb_err_set(err, "%s: cannot write the PCD: %s", path, e.what());
-    }
-    return 0;
+    return write_xyzi(path, n, [&](int64_t i, float *out) { b->point(i, out); }, err);
 }
 
 // ---------------------------------------------------------------- vehicle

@@ -1,8 +1,8 @@
 /* pb_map_build: assembling a prior point-cloud map from scans and poses.
  *
  * Used by tools/build-map (scans and poses from an LCM log) and
- * tools/import-scans (scans and poses from files). C-callable; implemented in
- * C++ with PCL (link libpb_common_cxx.a and PCL).
+ * tools/import-scans (scans and poses from files), and by the mapper. C-callable;
+ * implemented in C++ (link libpb_common_cxx.a).
  *
  *  - pb_pose_track_t: a time-ordered list of poses (map <- frame) that
  *    interpolates linearly in position and by slerp in orientation.
@@ -76,6 +76,11 @@ int pb_map_builder_bounds(const pb_map_builder_t *b, double min[3], double max[3
 /* Writes the map as binary PCD (fields x y z intensity, float32), creating the
  * parent directory if it is missing. Returns 0, or -1 (empty map, I/O error). */
 int pb_map_builder_write_pcd(const pb_map_builder_t *b, const char *path, pb_err_t *err);
+
+/* Writes n points (xyzi: x y z intensity, 4 floats each) as binary PCD, the same file
+ * pb_map_builder_write_pcd (and PCL for pcl::PointXYZI) writes. Returns 0, or -1 (I/O
+ * error, err names the file). */
+int pb_pcd_write_xyzi(const char *path, const float *xyzi, int64_t n, pb_err_t *err);
 
 #ifdef __cplusplus
 }

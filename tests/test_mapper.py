@@ -7,6 +7,8 @@ moving at its first sweep; the mapper gets nothing but LIDAR_SCAN."""
 import filecmp
 import json
 import shutil
+import subprocess
+import time
 
 import lcm
 import numpy as np
@@ -240,6 +242,60 @@ def test_same_drive_same_map(drive, tmp_path):
     run([BIN / "mapper", "--log", drive["log"], "--out", tmp_path, "--quiet"])
     assert filecmp.cmp(tmp_path / "trajectory.tum", drive["out"] / "trajectory.tum", shallow=False)
     assert filecmp.cmp(tmp_path / "map.pcd", drive["out"] / "map.pcd", shallow=False)
+
+
+def kill_and_resume(log, out, checkpoint_every=20):
+    """Runs the mapper on log into out, SIGKILLs it once its first checkpoint is written, runs
+    it again to the end; returns (the second run, its report)."""
+    cmd = [str(BIN / "mapper"), "--log", str(log), "--out", str(out), "--checkpoint-every", str(checkpoint_every)]
+    p = subprocess.Popen(cmd + ["--quiet"])
+    ck = out / "checkpoint.bin"
+    deadline = time.monotonic() + 120
+    while p.poll() is None and not ck.exists() and time.monotonic() < deadline:
+        time.sleep(0.002)
+    p.kill()
+    p.wait()
+    assert ck.exists() and (out / "keyframes.bin").exists() and not (out / "map.pcd").exists()
+    q = run(cmd)
+    return q, json.loads((out / "report.json").read_text())
+
+
+def test_restart_after_a_kill(drive, tmp_path):
+    """Killed (SIGKILL) in the middle of the odometry and run again, the mapper resumes from its
+    checkpoint and writes the same site as the uninterrupted run (the fixture's), byte for byte
+    (also with IMU and VEHICLE_SPEED, whose samples the odometry carries from sweep to sweep);
+    a checkpoint of another log is refused and the run starts over."""
+    out = tmp_path / "site"
+    q, rep = kill_and_resume(drive["log"], out)
+    # killed at the first checkpoint (20 of the 80 sweeps) or the next
+    assert 0 < rep["resumed_from_scan"] < 80 and rep["checkpoint_refused"] == "", rep
+    ck = out / "checkpoint.bin"
+    assert f"resuming from {ck}: {rep['resumed_from_scan']} of 80 scans read" in q.stderr, q.stderr
+    for f in ("trajectory.tum", "odometry.tum", "map.pcd", "map.tiles", "ground.pgm"):
+        assert filecmp.cmp(out / f, drive["out"] / f, shallow=False), f
+    assert not ck.exists() and not (out / "keyframes.bin").exists()   # a finished run leaves none
+    # with the car's own motion: the same files as an uninterrupted run of that log
+    fused = cut_log(drive["dir"] / "input.lcm", tmp_path / "fused.lcm", 4.0, {"LIDAR_SCAN", "IMU", "VEHICLE_SPEED"})
+    run([BIN / "mapper", "--log", fused, "--out", tmp_path / "fused_whole", "--quiet"])
+    q, rep = kill_and_resume(fused, tmp_path / "fused_resumed")
+    assert 0 < rep["resumed_from_scan"] < 80 and rep["scans_motion_measured"] == 79, rep
+    for f in ("trajectory.tum", "map.pcd"):
+        assert filecmp.cmp(tmp_path / "fused_resumed" / f, tmp_path / "fused_whole" / f, shallow=False), f
+    # a checkpoint with another log (the same drive from 1 s later): refused, started over
+    other = tmp_path / "other"
+    p = subprocess.Popen([str(BIN / "mapper"), "--log", str(drive["log"]), "--out", str(other), "--quiet",
+                          "--checkpoint-every", "20"])
+    deadline = time.monotonic() + 120
+    while p.poll() is None and not (other / "checkpoint.bin").exists() and time.monotonic() < deadline:
+        time.sleep(0.002)
+    p.kill()
+    p.wait()
+    log2 = cut_log(drive["log"], tmp_path / "later.lcm", 1.0)
+    q = run([BIN / "mapper", "--log", log2, "--out", other, "--quiet"])
+    rep = json.loads((other / "report.json").read_text())
+    assert rep["resumed_from_scan"] == 0 and "from another log" in rep["checkpoint_refused"], rep
+    assert "from another log" in q.stderr and "starting over" in q.stderr, q.stderr
+    assert rep["scans"] < 80
 
 
 def test_bad_input(drive, tmp_path):

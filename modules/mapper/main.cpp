@@ -8,17 +8,20 @@
 #include <cstdio>
 #include <cstring>
 #include <functional>
+#include <initializer_list>
 #include <map>
 #include <string>
+#include <fcntl.h>
+#include <malloc.h>
 #include <sys/stat.h>
+#include <unistd.h>
 #include <vector>
-#include <pcl/io/pcd_io.h>
-#include <pcl/point_types.h>
 
 #include "anchor.h"
 #include "carve.h"
 #include "loops.h"
 #include "odometry.h"
+#include "pb_bytes.h"
 #include "pb_clock.h"
 #include "pb_err.h"
 #include "pb_geo.h"
@@ -42,7 +45,7 @@ static void usage(FILE *f)
 {
     std::fprintf(f,
         "usage: mapper --log DRIVE.lcm --out SITE_DIR [--vehicle FILE] [--voxel 0.15]\n"
-        "              [--scan-channel LIDAR_SCAN] [--quiet]\n"
+        "              [--scan-channel LIDAR_SCAN] [--checkpoint-every 100] [--quiet]\n"
         "\n"
         "Builds a prior map from a recorded drive by LiDAR odometry: every sweep is\n"
         "registered to a rolling local map of the sweeps before it (the localizer's\n"
@@ -62,10 +65,16 @@ static void usage(FILE *f)
         "GNSS_FIX in the log, the map is moved onto the fixes (east-north-up at the first 3-D\n"
         "fix) and SITE_DIR/site.yaml holds that geo-reference; without, the map stays in the\n"
         "first sweep's frame and no site.yaml is written.\n"
+        "Restartable: while it runs, SITE_DIR/checkpoint.bin and keyframes.bin hold the odometry\n"
+        "so far; run the same command again after an interruption (Ctrl-C, power loss, a kill)\n"
+        "and it resumes there, with the same result as a run without one. A checkpoint of\n"
+        "another log, build of the mapper or --vehicle/--scan-channel is refused (said on\n"
+        "stderr and in report.json) and the run starts over; a finished run removes both.\n"
         "  --vehicle FILE      base <- lidar (default vehicles/prius2017.yaml; scans imported from\n"
         "                      a dataset with their poses in the LiDAR frame: vehicles/lidar_mast.yaml)\n"
         "  --voxel M           map.pcd voxel edge, metres (default 0.15)\n"
         "  --scan-channel C    (default LIDAR_SCAN)\n"
+        "  --checkpoint-every N  sweeps of odometry between checkpoints (default 100: 10 s of drive)\n"
         "  --quiet             no progress bar, no summary\n"
         "Exit 1 on error (unreadable or damaged log, no sweep, unwritable SITE_DIR).\n");
 }
@@ -204,6 +213,31 @@ static int write_tum(const char *path, const std::vector<SweepPose> &traj, bool 
     return std::fclose(f) == 0 ? 0 : -1;
 }
 
+/* Peak resident memory (VmHWM) since the last reset_peak_rss, MB; 0 where /proc has none. */
+static double peak_rss_mb()
+{
+    FILE *f = std::fopen("/proc/self/status", "r");
+    if (!f) return 0;
+    char line[256];
+    long kb = 0;
+    while (std::fgets(line, sizeof line, f))
+        if (std::sscanf(line, "VmHWM: %ld", &kb) == 1) break;
+    std::fclose(f);
+    return kb / 1024.0;
+}
+
+/* Starts the next step's peak from the memory held now (Linux: "5" to clear_refs), after
+ * handing the heap freed by the step back (glibc keeps it, and the next step's large
+ * blocks are mapped anew beside it). */
+static void reset_peak_rss()
+{
+    malloc_trim(0);
+    FILE *f = std::fopen("/proc/self/clear_refs", "w");
+    if (f) { std::fputs("5", f); std::fclose(f); }
+}
+
+static const char *kPeakStep[] = {"odometry", "loops", "map", "carve", "site"};
+
 static const char *kStatusName[] = {"first", "tracked", "searched", "weak", "predicted"};
 
 static double pct(std::vector<double> v, double p)
@@ -226,12 +260,13 @@ struct BodyBox {
     }
 };
 
-/* Every LIDAR_SCAN of the log in turn, without the points on the car's own body:
- * fn(utime, points in base, the same points in the lidar frame, event) returns 0 or -1;
- * other (if given) sees every other event first, in log order, and returns 0 or -1. */
+/* Every LIDAR_SCAN of the log in turn after the first *seen (skipped unread), without the
+ * points on the car's own body: fn(utime, points in base, the same points in the lidar
+ * frame, event) returns 0 or -1; *seen counts the scans read (fn's included). other (if
+ * given) sees every other event after the skipped scans, in log order, and returns 0 or -1. */
 using OtherFn = std::function<int(const pb_event_t &, pb_err_t *)>;
 template <class F>
-static int for_each_sweep(const char *log_path, const char *scan_ch, const pb_vehicle_t &veh, long every,
+static int for_each_sweep(const char *log_path, const char *scan_ch, const pb_vehicle_t &veh, long every, long *seen,
                           pb_progress_t *prog, F fn, long *empty, pb_err_t *err, const OtherFn &other = nullptr)
 {
     const Eigen::Isometry3d base_from_lidar = pb_reg_from_transform(&veh.base_from_lidar);
@@ -243,18 +278,20 @@ static int for_each_sweep(const char *log_path, const char *scan_ch, const pb_ve
     std::vector<float> xyz;
     pb_event_t ev;
     int rc, status = 0;
-    long seen = 0;
+    const long skip = *seen;
+    long read = 0;
     while ((rc = pb_log_next(log, &ev, err)) == 1) {
         if (std::strcmp(ev.channel, scan_ch) != 0) {
-            if (other && other(ev, err) != 0) {
+            if (other && read >= skip && other(ev, err) != 0) {
                 pb_err_prefix(err, "%s: byte %lld: ", log_path, (long long)ev.offset);
                 status = -1;
                 break;
             }
             continue;
         }
-        if (prog) pb_progress_update(prog, seen);
-        if (seen++ % every) continue;
+        if (read++ < skip) continue;
+        if (prog) pb_progress_update(prog, *seen);
+        if ((*seen)++ % every) continue;
         portobello_lidar_scan_t s;
         if (portobello_lidar_scan_t_decode(ev.data, 0, ev.datalen, &s) < 0) {
             pb_err_set(err, "%s: byte %lld: %s does not decode as lidar_scan_t", log_path, (long long)ev.offset,
@@ -302,9 +339,9 @@ struct Run {
     const char *log_path, *out_dir, *scan_ch;
     double voxel;
     int quiet;
+    int checkpoint_every;   /* sweeps between checkpoints of the odometry pass */
     pb_vehicle_t veh;
     long total = 0, empty = 0, out_of_order = 0;
-    long by_motion[3] = {0, 0, 0};   /* sweeps predicted by PB_ODOM_MOTION_* */
     std::vector<SweepPose> traj;
     std::vector<pb_keyframe_t> kf;
     pb_loops_report_t loops = {};
@@ -314,10 +351,23 @@ struct Run {
     pb_picture_layers_t layers;
     pb_pose_track_t *track = nullptr;
     long placed = 0, unplaced = 0;
-    pcl::PointCloud<pcl::PointXYZI> cloud;   /* the map, read back after pass 2 */
+    std::vector<float> map;                  /* the map after pass 2: x y z intensity a point */
+    size_t map_points = 0;                   /* in map.pcd */
     std::string ground_why;                  /* empty: ground.yaml written */
     size_t carved = 0;
     double m_per_px = 0;
+    double peak_mb[5] = {};                  /* peak resident memory of each step (kPeakStep) */
+    /* restart (checkpoint_*): what a checkpoint must match, and the odometry pass's state */
+    std::string log_id, build_id, options_id;
+    long resumed_from = 0;                   /* scans the checkpoint had read; 0: not resumed */
+    std::string checkpoint_refused;          /* why a checkpoint found was not used */
+    FILE *kf_file = nullptr;                 /* keyframes.bin, appended at each checkpoint */
+    size_t kf_saved = 0;                     /* keyframes in it */
+    uint64_t kf_bytes = 0;                   /* its valid length */
+    pb_odom_t *odom = nullptr;               /* restored odometry (NULL: start at the first scan) */
+    long seen = 0;                           /* scans read by the odometry pass */
+    int64_t last_scan_utime = 0;
+    bool odometry_done = false;              /* restored after the whole odometry pass */
     std::string path(const char *name) const { return std::string(out_dir) + "/" + name; }
 };
 
@@ -346,52 +396,257 @@ struct MotionSamples {
         }
         return 0;
     }
-    /* Samples out of time order (two sources merged badly) are left out, not fatal. */
-    pb_odom_motion_t take(int64_t last_speed, int64_t last_rate)
-    {
-        drop_unordered(&speed, last_speed);
-        drop_unordered(&rate, last_rate);
-        return {speed.data(), speed.size(), rate.data(), rate.size()};
-    }
-    template <class S>
-    static void drop_unordered(std::vector<S> *v, int64_t last)
-    {
-        size_t k = 0;
-        for (const S &x : *v)
-            if (x.utime >= last) (*v)[k++] = x, last = x.utime;
-        v->resize(k);
-    }
+    pb_odom_motion_t view() const { return {speed.data(), speed.size(), rate.data(), rate.size()}; }
 };
 
-/* Pass 1: odometry over every sweep; a keyframe every kKeyframeSpacingM. */
+
+/* ---- Restart after an interruption (docs/mapper.md, "Restart"). SITE_DIR/checkpoint.bin
+ * holds the odometry pass so far (the sweeps' poses, the scans read, the odometry's state)
+ * or, once it is over, the whole pass; the keyframes' points go to SITE_DIR/keyframes.bin,
+ * appended at each checkpoint (the checkpoint says how many of its bytes are valid).
+ * checkpoint.bin is written to .tmp, synced and renamed: an interruption leaves the last
+ * whole one. A run that ends well removes both. */
+static const char kCheckpointMagic[8] = {'P', 'B', 'M', 'A', 'P', 'C', 'K', '1'};
+
+static void put_pose(ByteWriter &w, const Eigen::Isometry3d &T)
+{
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 4; c++) w.put(T.matrix()(r, c));
+}
+
+static Eigen::Isometry3d get_pose(ByteReader &r)
+{
+    Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+    for (int i = 0; i < 3; i++)
+        for (int c = 0; c < 4; c++) T.matrix()(i, c) = r.get<double>();
+    return T;
+}
+
+/* What a checkpoint must match: the log (size and its first MiB), the mapper's build (the
+ * executable's size and time: another build may place the sweeps otherwise) and the options
+ * the odometry depends on. */
+static int checkpoint_ids(Run *R, pb_err_t *err)
+{
+    FILE *f = std::fopen(R->log_path, "rb");
+    if (!f) return pb_err_set(err, "%s: cannot open: %s", R->log_path, std::strerror(errno)), -1;
+    std::vector<uint8_t> head(1 << 20);
+    head.resize(std::fread(head.data(), 1, head.size(), f));
+    struct stat st;
+    const bool sized = fstat(fileno(f), &st) == 0;
+    std::fclose(f);
+    char buf[512];
+    std::snprintf(buf, sizeof buf, "log of %lld bytes, first MiB %016llx", sized ? (long long)st.st_size : -1LL,
+                  (unsigned long long)pb_fnv1a64(head.data(), head.size()));
+    R->log_id = buf;
+    struct stat ex;
+    if (stat("/proc/self/exe", &ex) != 0) ex.st_size = ex.st_mtime = -1;
+    std::snprintf(buf, sizeof buf, "mapper of %lld bytes at %lld", (long long)ex.st_size, (long long)ex.st_mtime);
+    R->build_id = buf;
+    const pb_transform_t &bl = R->veh.base_from_lidar;
+    const pb_transform_t &bi = R->veh.base_from_imu;
+    const pb_vehicle_t &v = R->veh;   /* the mounts and the body box the sweeps are cut by */
+    std::snprintf(buf, sizeof buf, "channel %s, base <- lidar %.17g %.17g %.17g %.17g %.17g %.17g %.17g, "
+                  "base <- imu %.17g %.17g %.17g %.17g, body %.17g %.17g %.17g %.17g", R->scan_ch,
+                  bl.t[0], bl.t[1], bl.t[2], bl.q[0], bl.q[1], bl.q[2], bl.q[3], bi.q[0], bi.q[1], bi.q[2], bi.q[3],
+                  v.length, v.width, v.height, v.rear_overhang);
+    R->options_id = buf;
+    return 0;
+}
+
+/* The whole file into *out; -1 when it cannot be opened or read. */
+static int read_file(const std::string &path, std::vector<uint8_t> *out)
+{
+    FILE *f = std::fopen(path.c_str(), "rb");
+    if (!f) return -1;
+    out->clear();
+    uint8_t chunk[1 << 16];
+    size_t n;
+    while ((n = std::fread(chunk, 1, sizeof chunk, f)) > 0) out->insert(out->end(), chunk, chunk + n);
+    const bool ok = !std::ferror(f);
+    std::fclose(f);
+    return ok ? 0 : -1;
+}
+
+/* Writes the pieces one after the other to path through path.tmp, synced, renamed. */
+static int write_file_synced(const std::string &path, std::initializer_list<const std::vector<uint8_t> *> pieces,
+                             pb_err_t *err)
+{
+    const std::string tmp = path + ".tmp";
+    FILE *f = std::fopen(tmp.c_str(), "wb");
+    bool ok = f != nullptr;
+    for (const std::vector<uint8_t> *b : pieces) ok = ok && std::fwrite(b->data(), 1, b->size(), f) == b->size();
+    ok = ok && std::fflush(f) == 0 && fsync(fileno(f)) == 0;
+    if (f) ok &= std::fclose(f) == 0;
+    if (!ok || std::rename(tmp.c_str(), path.c_str()) != 0) {
+        std::remove(tmp.c_str());
+        return pb_err_set(err, "%s: cannot write: %s", path.c_str(), std::strerror(errno)), -1;
+    }
+    return 0;
+}
+
+/* keyframes.bin's first n keyframes (utime, pose, with_points: the points too) into *kf,
+ * which must hold bytes bytes. false when it does not. */
+static bool read_keyframes(const std::string &path, uint64_t n, uint64_t bytes, bool with_points,
+                           std::vector<pb_keyframe_t> *kf)
+{
+    FILE *f = std::fopen(path.c_str(), "rb");
+    if (!f) return false;
+    kf->resize(n);
+    uint64_t at = 0;
+    bool ok = true;
+    for (pb_keyframe_t &k : *kf) {
+        uint8_t head[8 + 12 * 8 + 8];
+        ok = std::fread(head, 1, sizeof head, f) == sizeof head;
+        if (!ok) break;
+        ByteReader r{head, head + sizeof head};
+        k.utime = r.get<int64_t>();
+        k.pose = get_pose(r);
+        const uint64_t npts = r.get<uint64_t>();
+        at += sizeof head + npts * sizeof(float);
+        if (!(ok = at <= bytes)) break;
+        if (with_points) {
+            k.xyz.resize((size_t)npts);
+            ok = std::fread(k.xyz.data(), sizeof(float), k.xyz.size(), f) == k.xyz.size();
+        } else {
+            ok = std::fseek(f, (long)(npts * sizeof(float)), SEEK_CUR) == 0;
+        }
+        if (!ok) break;
+    }
+    std::fclose(f);
+    return ok && at == bytes;
+}
+
+/* The keyframes not yet in keyframes.bin appended to it (their points then freed: read
+ * back for the loops), then the checkpoint: odom the odometry in the middle of the pass,
+ * NULL once the pass is over. */
+static int checkpoint_write(Run *R, const pb_odom_t *odom, pb_err_t *err)
+{
+    std::vector<uint8_t> buf;
+    ByteWriter w{&buf};
+    for (; R->kf_saved < R->kf.size(); R->kf_saved++) {
+        pb_keyframe_t &k = R->kf[R->kf_saved];
+        w.put(k.utime);
+        put_pose(w, k.pose);
+        w.put_array(k.xyz.data(), k.xyz.size());
+        std::vector<float>().swap(k.xyz);
+    }
+    if (std::fwrite(buf.data(), 1, buf.size(), R->kf_file) != buf.size() || std::fflush(R->kf_file) != 0 ||
+        fsync(fileno(R->kf_file)) != 0)
+        return pb_err_set(err, "%s: cannot write: %s", R->path("keyframes.bin").c_str(), std::strerror(errno)), -1;
+    R->kf_bytes += buf.size();
+    buf.clear();
+    for (char c : kCheckpointMagic) w.put(c);
+    w.put_string(R->log_id); w.put_string(R->build_id); w.put_string(R->options_id);
+    w.put((uint8_t)(odom == nullptr));
+    w.put((int64_t)R->seen); w.put(R->last_scan_utime); w.put((int64_t)R->empty); w.put((int64_t)R->out_of_order);
+    w.put((uint64_t)R->traj.size());
+    for (const SweepPose &sp : R->traj) {
+        w.put(sp.utime);
+        put_pose(w, sp.odometry);
+        w.put(sp.status); w.put(sp.motion); w.put(sp.inlier_fraction); w.put(sp.cpu_ms); w.put(sp.keyframe);
+    }
+    w.put((uint64_t)R->kf.size()); w.put(R->kf_bytes);
+    std::vector<uint8_t> state, sum;   /* the state (tens of MB) written as it is, not copied */
+    if (odom) pb_odom_save(odom, &state);
+    w.put((uint64_t)state.size());
+    ByteWriter{&sum}.put(pb_fnv1a64(state.data(), state.size(), pb_fnv1a64(buf.data(), buf.size())));
+    return write_file_synced(R->path("checkpoint.bin"), {&buf, &state, &sum}, err);
+}
+
+/* A checkpoint of this log, build and options restored into R (R->resumed_from > 0); one
+ * of another (or damaged) is refused, its reason in R->checkpoint_refused and on stderr,
+ * and the run starts over. Returns -1 only on an error reading a file there. */
+static int checkpoint_read(Run *R, pb_err_t *err)
+{
+    const std::string path = R->path("checkpoint.bin"), kf_path = R->path("keyframes.bin");
+    std::vector<uint8_t> buf;
+    if (read_file(path, &buf) != 0) return 0;   /* none: a fresh start */
+    ByteReader r{buf.data(), buf.data() + buf.size()};
+    std::string why;
+    bool magic = buf.size() >= 16;
+    for (char c : kCheckpointMagic) magic &= r.get<char>() == c;
+    uint64_t sum = 0;
+    if (magic) std::memcpy(&sum, buf.data() + buf.size() - 8, 8);
+    std::string log_id = r.get_string(), build_id = r.get_string(), options_id = r.get_string();
+    if (!magic) why = "not a checkpoint of this version of the mapper";
+    else if (sum != pb_fnv1a64(buf.data(), buf.size() - 8)) why = "damaged (checksum)";
+    else if (log_id != R->log_id) why = "from another log (" + log_id + "; this one: " + R->log_id + ")";
+    else if (build_id != R->build_id) why = "from another build of the mapper (" + build_id + "; this one: " + R->build_id + ")";
+    else if (options_id != R->options_id) why = "made with other options (" + options_id + "; now: " + R->options_id + ")";
+    const bool done = r.get<uint8_t>() != 0;
+    const long seen = (long)r.get<int64_t>();
+    R->last_scan_utime = r.get<int64_t>();
+    R->empty = (long)r.get<int64_t>();
+    R->out_of_order = (long)r.get<int64_t>();
+    const uint64_t ntraj = r.get<uint64_t>();
+    for (uint64_t i = 0; why.empty() && r.ok && i < ntraj; i++) {
+        SweepPose sp;
+        sp.utime = r.get<int64_t>();
+        sp.pose = sp.odometry = get_pose(r);
+        sp.status = r.get<int>(); sp.motion = r.get<int>(); sp.inlier_fraction = r.get<double>();
+        sp.cpu_ms = r.get<double>();
+        sp.keyframe = r.get<int>();
+        R->traj.push_back(sp);
+    }
+    const uint64_t nkf = r.get<uint64_t>();
+    R->kf_bytes = r.get<uint64_t>();
+    std::vector<uint8_t> state;
+    r.get_array(&state);
+    if (why.empty() && (!r.ok || r.p != buf.data() + buf.size() - 8)) why = "damaged (truncated)";
+    // the keyframes it counts, from keyframes.bin (their points stay there until the loops)
+    if (why.empty() && !read_keyframes(kf_path, nkf, R->kf_bytes, false, &R->kf))
+        why = "keyframes.bin does not hold the keyframes the checkpoint says";
+    pb_err_t e;
+    if (why.empty() && !done && !(R->odom = pb_odom_restore(state.data(), state.size(), nullptr, nullptr, &e))) why = e.msg;
+    if (!why.empty()) {
+        R->checkpoint_refused = why;
+        R->traj.clear(); R->kf.clear();
+        R->empty = R->out_of_order = 0; R->last_scan_utime = 0; R->kf_bytes = 0;
+        std::fprintf(stderr, "mapper: %s: %s; starting over\n", path.c_str(), why.c_str());
+        return 0;
+    }
+    // keyframes.bin cut to what the checkpoint counts (an interruption may have left more)
+    if (truncate(kf_path.c_str(), (off_t)R->kf_bytes) != 0)
+        return pb_err_set(err, "%s: cannot truncate: %s", kf_path.c_str(), std::strerror(errno)), -1;
+    R->kf_saved = R->kf.size();
+    R->seen = R->resumed_from = seen;
+    R->odometry_done = done;
+    std::fprintf(stderr, "mapper: resuming from %s: %ld of %ld scans read%s\n", path.c_str(), seen, R->total,
+                 done ? ", the odometry done" : "");
+    return 0;
+}
+
+/* Pass 1: odometry over every sweep; a keyframe every kKeyframeSpacingM; a checkpoint
+ * every R->checkpoint_every sweeps and at the end. Resumes where R's checkpoint left off. */
 static int pass_odometry(Run *R, pb_err_t *err)
 {
-    pb_odom_t *odom = pb_odom_create(nullptr, nullptr);
+    const std::string kf_path = R->path("keyframes.bin");
+    R->kf_file = std::fopen(kf_path.c_str(), R->resumed_from ? "ab" : "wb");
+    if (!R->kf_file) return pb_err_set(err, "%s: cannot write: %s", kf_path.c_str(), std::strerror(errno)), -1;
+    if (R->odometry_done) return 0;
+    pb_odom_t *odom = R->odom ? R->odom : pb_odom_create(nullptr, nullptr);
+    R->odom = nullptr;
     pb_reg_config_t kf_reduce;
     pb_reg_config_default(&kf_reduce);
     kf_reduce.target_points = 0;
     kf_reduce.scan_voxel_m = kKeyframeVoxelM;
-    int64_t last_scan_utime = 0;
+    int64_t &last_scan_utime = R->last_scan_utime;
     R->traj.reserve((size_t)R->total);
     pb_progress_t prog;
     pb_progress_start(&prog, "mapper: odometry", R->total, R->quiet);
     MotionSamples ms;
     ms.base_from_imu = pb_reg_from_transform(&R->veh.base_from_imu).linear();
-    int64_t last_speed = INT64_MIN, last_rate = INT64_MIN;
-    int rc = for_each_sweep(R->log_path, R->scan_ch, R->veh, 1, &prog,
+    int rc = for_each_sweep(R->log_path, R->scan_ch, R->veh, 1, &R->seen, &prog,
         [&](int64_t utime, const std::vector<float> &xyz, const pb_points_t &pts, const pb_event_t &, pb_err_t *e) {
             if (!R->traj.empty() && utime <= last_scan_utime) { R->out_of_order++; return 0; }
             last_scan_utime = utime;
             double c0 = pb_clock_thread_cpu_ms();
             pb_odom_result_t r;
-            pb_odom_motion_t motion = ms.take(last_speed, last_rate);
-            if (!ms.speed.empty()) last_speed = ms.speed.back().utime;
-            if (!ms.rate.empty()) last_rate = ms.rate.back().utime;
+            pb_odom_motion_t motion = ms.view();
             int ok = pb_odom_add(odom, utime, xyz.data(), pts.offset_us, xyz.size() / 3, &motion, &r, e);
             ms.speed.clear();
             ms.rate.clear();
             if (ok != 0) return -1;
-            R->by_motion[r.motion]++;
             std::vector<pb_keyframe_t> &kf = R->kf;
             if (kf.empty() || (r.pose.translation() - kf.back().pose.translation()).norm() >= kKeyframeSpacingM) {
                 kf.push_back({r.utime, r.pose, {}});
@@ -400,7 +655,7 @@ static int pass_odometry(Run *R, pb_err_t *err)
             }
             R->traj.push_back({r.utime, r.pose, r.pose, r.status, r.motion, r.inlier_fraction,
                                pb_clock_thread_cpu_ms() - c0, (int)kf.size() - 1});
-            return 0;
+            return R->traj.size() % (size_t)R->checkpoint_every ? 0 : checkpoint_write(R, odom, e);
         }, &R->empty, err, [&](const pb_event_t &ev, pb_err_t *e) { return ms.add(ev, e); });
     pb_odom_destroy(odom);
     if (rc != 0) {
@@ -411,12 +666,16 @@ static int pass_odometry(Run *R, pb_err_t *err)
     if (R->traj.size() < 2)
         return pb_err_set(err, "%s: %zu usable sweep(s) on %s; a map needs two or more", R->log_path, R->traj.size(),
                           R->scan_ch), -1;
-    return 0;
+    return checkpoint_write(R, nullptr, err);
 }
 
-/* The keyframes' poses solved again with the loops found; the sweeps moved with them. */
+/* The keyframes' poses solved again with the loops found (their points read back from
+ * keyframes.bin); the sweeps moved with them. */
 static int close_loops(Run *R, pb_err_t *err)
 {
+    const std::string kf_path = R->path("keyframes.bin");
+    if (!read_keyframes(kf_path, R->kf.size(), R->kf_bytes, true, &R->kf))
+        return pb_err_set(err, "%s: cannot read the keyframes back", kf_path.c_str()), -1;
     std::vector<Eigen::Isometry3d> solved;
     if (R->kf.size() >= 2) {
         if (pb_loops_close(R->kf, nullptr, &solved, &R->loops, err) != 0) return -1;
@@ -448,6 +707,30 @@ static int anchor(Run *R, pb_err_t *err)
     return 0;
 }
 
+/* map.pcd as pb_map_builder_write_pcd wrote it (binary, x y z intensity) into *xyzi: 16
+ * bytes a point, once the builder (40 bytes a point) is gone. */
+static int read_map(const std::string &path, std::vector<float> *xyzi, pb_err_t *err)
+{
+    FILE *f = std::fopen(path.c_str(), "rb");
+    if (!f) return pb_err_set(err, "%s: cannot read it back: %s", path.c_str(), std::strerror(errno)), -1;
+    char line[256];
+    long long n = -1;
+    bool fields = false, data = false;
+    while (!data && std::fgets(line, sizeof line, f)) {
+        fields |= std::strcmp(line, "FIELDS x y z intensity\n") == 0;
+        std::sscanf(line, "POINTS %lld", &n);
+        data = std::strcmp(line, "DATA binary\n") == 0;
+    }
+    bool ok = fields && data && n >= 0;
+    if (ok) {
+        xyzi->resize(4 * (size_t)n);
+        ok = std::fread(xyzi->data(), 4 * sizeof(float), (size_t)n, f) == (size_t)n;
+    }
+    std::fclose(f);
+    if (!ok) return pb_err_set(err, "%s: cannot read it back (not the binary x y z intensity PCD written)", path.c_str()), -1;
+    return 0;
+}
+
 /* Pass 2: the map, every point with the pose at its time, written and read back. The poses
  * are at the sweeps' middles: the track is carried on by the first and last steps' motion
  * to cover the first sweep's first half and the last one's second half. */
@@ -469,7 +752,8 @@ static int pass_map(Run *R, pb_err_t *err)
     long empty = 0;
     pb_progress_t prog;
     pb_progress_start(&prog, "mapper: map", R->total, R->quiet);
-    int rc = for_each_sweep(R->log_path, R->scan_ch, R->veh, 1, &prog,
+    long seen = 0;
+    int rc = for_each_sweep(R->log_path, R->scan_ch, R->veh, 1, &seen, &prog,
         [&](int64_t utime, const std::vector<float> &, const pb_points_t &pts, const pb_event_t &, pb_err_t *e) {
             int r = pb_map_builder_add_timed(map, &pts, utime, R->track, &R->veh.base_from_lidar, e);
             if (r < 0) return -1;
@@ -481,8 +765,7 @@ static int pass_map(Run *R, pb_err_t *err)
     if (rc == 0) rc = pb_map_builder_write_pcd(map, map_path.c_str(), err);
     pb_map_builder_destroy(map);
     if (rc != 0) return -1;
-    if (pcl::io::loadPCDFile(map_path, R->cloud) < 0) return pb_err_set(err, "%s: cannot read it back", map_path.c_str()), -1;
-    return 0;
+    return read_map(map_path, &R->map, err);
 }
 
 /* The ground model (tools/build-ground's core) from the map; a site without one is still a
@@ -492,8 +775,7 @@ static pb_ground_t *make_ground(Run *R, pb_err_t *err)
     gb_config_t gcfg;
     gb_config_default(&gcfg);
     size_t nground = 0;
-    pb_ground_t *ground = gb_build(R->cloud.empty() ? nullptr : &R->cloud.points[0].x, R->cloud.size(),
-                                   sizeof(pcl::PointXYZI) / sizeof(float), &gcfg, &nground);
+    pb_ground_t *ground = gb_build(R->map.data(), R->map.size() / 4, 4, &gcfg, &nground);
     const std::string ground_path = R->path("ground.yaml");
     if (!ground) R->ground_why = "no ground in the map";
     else if (pb_ground_save(ground, ground_path.c_str(), err) != 0) R->ground_why = err->msg;
@@ -509,13 +791,13 @@ static pb_ground_t *make_ground(Run *R, pb_err_t *err)
  * its turn); the band over the ground model is spared. map.pcd is written again. */
 static int pass_carve(Run *R, const pb_ground_t *ground, pb_err_t *err)
 {
-    pb_carve_t *carve = pb_carve_create(&R->cloud.points[0].x, R->cloud.size(), sizeof(pcl::PointXYZI) / sizeof(float),
-                                        ground, nullptr);
+    pb_carve_t *carve = pb_carve_create(R->map.data(), R->map.size() / 4, 4, ground, nullptr);
     const Eigen::Isometry3d bl = pb_reg_from_transform(&R->veh.base_from_lidar);
     long empty = 0;
     pb_progress_t prog;
     pb_progress_start(&prog, "mapper: carve", R->total, R->quiet);
-    int rc = for_each_sweep(R->log_path, R->scan_ch, R->veh, 4, &prog,
+    long seen = 0;
+    int rc = for_each_sweep(R->log_path, R->scan_ch, R->veh, 4, &seen, &prog,
         [&](int64_t utime, const std::vector<float> &, const pb_points_t &pts, const pb_event_t &, pb_err_t *) {
             int32_t cached = INT32_MIN;
             Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
@@ -540,32 +822,29 @@ static int pass_carve(Run *R, const pb_ground_t *ground, pb_err_t *err)
     }
     pb_carve_destroy(carve);
     if (rc != 0) return -1;
-    pcl::PointCloud<pcl::PointXYZI> kept;
-    kept.reserve(R->cloud.size() - R->carved);
-    for (size_t i = 0; i < R->cloud.size(); i++) {
-        const pcl::PointXYZI &q = R->cloud.points[i];
-        if (keep[i]) kept.push_back(q);
-        else R->layers.removed.insert(R->layers.removed.end(), {q.x, q.y, q.z});
+    size_t kept = 0;   /* the points kept moved up in place (no second copy of the map) */
+    for (size_t i = 0; i < keep.size(); i++) {
+        if (keep[i]) std::memmove(&R->map[4 * kept++], &R->map[4 * i], 4 * sizeof(float));
+        else R->layers.removed.insert(R->layers.removed.end(), {R->map[4 * i], R->map[4 * i + 1], R->map[4 * i + 2]});
     }
-    R->cloud.swap(kept);
+    R->map.resize(4 * kept);
+    R->map.shrink_to_fit();
+    R->map_points = kept;
     const std::string map_path = R->path("map.pcd"), tmp = map_path + ".tmp";
-    if (pcl::io::savePCDFileBinary(tmp, R->cloud) < 0 || std::rename(tmp.c_str(), map_path.c_str()) != 0) {
+    if (pb_pcd_write_xyzi(tmp.c_str(), R->map.data(), (int64_t)kept, err) != 0 || std::rename(tmp.c_str(), map_path.c_str()) != 0) {
         std::remove(tmp.c_str());
         return pb_err_set(err, "%s: cannot write", map_path.c_str()), -1;
     }
     return 0;
 }
 
-/* The trajectories, the tiles the localizer pages (its map_source, from the map as
- * written), the picture and site.yaml. */
+/* The trajectories, the picture, the tiles the localizer pages (its map_source, from the
+ * map as written) and site.yaml. */
 static int write_site(Run *R, pb_err_t *err)
 {
     if (write_tum(R->path("trajectory.tum").c_str(), R->traj, false) != 0 ||
         write_tum(R->path("odometry.tum").c_str(), R->traj, true) != 0)
         return pb_err_set(err, "%s: cannot write the trajectories: %s", R->out_dir, std::strerror(errno)), -1;
-    if (map_source_write_tiles(R->path("map.pcd").c_str(), R->path("map.tiles").c_str(), MAP_SOURCE_TILE_M, nullptr,
-                               nullptr, nullptr, err) != 0)
-        return -1;
     std::map<int64_t, Eigen::Vector3d> at;
     for (const SweepPose &sp : R->traj) {
         R->layers.before.push_back(sp.odometry.translation());
@@ -574,9 +853,12 @@ static int write_site(Run *R, pb_err_t *err)
     }
     for (const auto &lt : R->loop_times)
         if (at.count(lt.first) && at.count(lt.second)) R->layers.loops.push_back({at[lt.first], at[lt.second]});
-    if (pb_picture_write(R->cloud.empty() ? nullptr : &R->cloud.points[0].x, R->cloud.size(),
-                         sizeof(pcl::PointXYZI) / sizeof(float), &R->layers, R->path("report.png").c_str(), &R->m_per_px,
+    if (pb_picture_write(R->map.data(), R->map.size() / 4, 4, &R->layers, R->path("report.png").c_str(), &R->m_per_px,
                          err) != 0)
+        return -1;
+    std::vector<float>().swap(R->map);   /* freed: the tiles are made from map.pcd */
+    if (map_source_write_tiles(R->path("map.pcd").c_str(), R->path("map.tiles").c_str(), MAP_SOURCE_TILE_M, nullptr,
+                               nullptr, nullptr, err) != 0)
         return -1;
     const std::string site_path = R->path("site.yaml");
     if (!R->anchor.anchored) {
@@ -594,12 +876,13 @@ static int write_site(Run *R, pb_err_t *err)
 /* report.json (cJSON: names and messages escaped) and the summary line. */
 static int write_report(const Run &R, const double cpu_ms[4], double wall_s, pb_err_t *err)
 {
-    long by_status[5] = {};
+    long by_status[5] = {}, by_motion[3] = {};
     double path_m = 0;
     std::vector<double> ms, inl;
     for (size_t i = 0; i < R.traj.size(); i++) {
         const SweepPose &s = R.traj[i];
         by_status[s.status]++;
+        by_motion[s.motion]++;
         if (i > 0) path_m += (s.pose.translation() - R.traj[i - 1].pose.translation()).norm();
         ms.push_back(s.cpu_ms);
         if (std::isfinite(s.inlier_fraction)) inl.push_back(s.inlier_fraction);
@@ -614,9 +897,9 @@ static int write_report(const Run &R, const double cpu_ms[4], double wall_s, pb_
     for (int k = 0; k < 5; k++) cJSON_AddNumberToObject(j, (std::string("scans_") + kStatusName[k]).c_str(), (double)by_status[k]);
     /* what each sweep's prediction came from: dead reckoning on VEHICLE_SPEED and IMU, the
      * last step's motion (LiDAR alone), or nothing (the first sweep, after a gap) */
-    cJSON_AddNumberToObject(j, "scans_motion_measured", (double)R.by_motion[PB_ODOM_MOTION_MEASURED]);
-    cJSON_AddNumberToObject(j, "scans_motion_constant", (double)R.by_motion[PB_ODOM_MOTION_CONSTANT]);
-    cJSON_AddNumberToObject(j, "scans_motion_none", (double)R.by_motion[PB_ODOM_MOTION_NONE]);
+    cJSON_AddNumberToObject(j, "scans_motion_measured", (double)by_motion[PB_ODOM_MOTION_MEASURED]);
+    cJSON_AddNumberToObject(j, "scans_motion_constant", (double)by_motion[PB_ODOM_MOTION_CONSTANT]);
+    cJSON_AddNumberToObject(j, "scans_motion_none", (double)by_motion[PB_ODOM_MOTION_NONE]);
     cJSON_AddNumberToObject(j, "loop_candidates", R.loops.candidates);
     cJSON_AddNumberToObject(j, "loop_candidates_by_place", R.loops.place_candidates);
     cJSON_AddNumberToObject(j, "loops", R.loops.verified);
@@ -645,9 +928,18 @@ static int write_report(const Run &R, const double cpu_ms[4], double wall_s, pb_
     cJSON_AddNumberToObject(j, "cpu_s_loops", (cpu_ms[2] - cpu_ms[1]) / 1e3);
     cJSON_AddNumberToObject(j, "cpu_s_map", (cpu_ms[3] - cpu_ms[2]) / 1e3);
     cJSON_AddNumberToObject(j, "wall_s", wall_s);
+    cJSON_AddNumberToObject(j, "resumed_from_scan", (double)R.resumed_from);
+    cJSON_AddStringToObject(j, "checkpoint_refused", R.checkpoint_refused.c_str());
+    cJSON *peak = cJSON_AddObjectToObject(j, "peak_rss_mb");
+    double peak_all = 0;
+    for (int k = 0; k < 5; k++) {
+        cJSON_AddNumberToObject(peak, kPeakStep[k], std::round(R.peak_mb[k]));
+        peak_all = std::max(peak_all, R.peak_mb[k]);
+    }
+    cJSON_AddNumberToObject(peak, "all", std::round(peak_all));
     cJSON_AddStringToObject(j, "picture", "report.png");
     cJSON_AddNumberToObject(j, "picture_m_per_px", R.m_per_px);
-    cJSON_AddNumberToObject(j, "map_points", (double)R.cloud.size());
+    cJSON_AddNumberToObject(j, "map_points", (double)R.map_points);
     cJSON_AddNumberToObject(j, "map_points_carved", (double)R.carved);
     cJSON_AddNumberToObject(j, "map_voxel_m", R.voxel);
     cJSON_AddNumberToObject(j, "scans_placed", (double)R.placed);
@@ -667,7 +959,7 @@ static int write_report(const Run &R, const double cpu_ms[4], double wall_s, pb_
                      "(median CPU), %zu map points (%zu carved: moved); %.1f s wall\n",
                      R.traj.size(), path_m, span_s, by_status[PB_ODOM_TRACKED], by_status[PB_ODOM_SEARCHED],
                      by_status[PB_ODOM_WEAK], by_status[PB_ODOM_PREDICTED], R.loops.verified, R.loops.candidates,
-                     R.loops.max_change_m, pct(ms, 0.5), R.cloud.size(), R.carved, wall_s);
+                     R.loops.max_change_m, pct(ms, 0.5), R.map_points, R.carved, wall_s);
     return 0;
 }
 
@@ -679,11 +971,12 @@ int main(int argc, char **argv)
     R.scan_ch = "LIDAR_SCAN";
     R.voxel = 0.15;
     R.quiet = 0;
+    R.checkpoint_every = 100;
     const char *vehicle = PB_SOURCE_DIR "/vehicles/prius2017.yaml";
     const pb_opt_t opts[] = {
         PB_OPT_REQUIRED("log", &R.log_path), PB_OPT_REQUIRED("out", &R.out_dir), PB_OPT_STRING("vehicle", &vehicle),
         PB_OPT_STRING("scan-channel", &R.scan_ch), PB_OPT_DOUBLE("voxel", &R.voxel, 0.01, 10),
-        PB_OPT_FLAG("quiet", &R.quiet, 1), PB_OPT_END,
+        PB_OPT_FLAG("quiet", &R.quiet, 1), PB_OPT_INT("checkpoint-every", &R.checkpoint_every, 1, 1000000), PB_OPT_END,
     };
     int parsed = pb_opt_parse("mapper", opts, usage, 0, argc, argv);
     if (parsed >= 0) return parsed;
@@ -698,29 +991,45 @@ int main(int argc, char **argv)
         rc = pb_log_read_track(R.log_path, nullptr, nullptr, R.scan_ch,
                                [](const pb_event_t *, void *u, pb_err_t *) { (*(long *)u)++; return 0; }, &R.total, &err);
     if (rc == 0 && R.total == 0) rc = pb_err_set(&err, "%s: no %s in the log", R.log_path, R.scan_ch);
+    // a checkpoint of an interrupted run of this log resumed
+    if (rc == 0) rc = checkpoint_ids(&R, &err);
+    if (rc == 0) rc = checkpoint_read(&R, &err);
     // 1. odometry; a keyframe every 2 m
     if (rc == 0) rc = pass_odometry(&R, &err);
+    if (R.kf_file) std::fclose(R.kf_file);
+    pb_odom_destroy(R.odom);   /* restored but not used (an error before the pass) */
     cpu_ms[1] = pb_clock_process_cpu_ms();
+    R.peak_mb[0] = peak_rss_mb();
+    reset_peak_rss();
     // 2. loop closure over the keyframes
     if (rc == 0) rc = close_loops(&R, &err);
     // 3. GNSS anchoring
     if (rc == 0) rc = anchor(&R, &err);
     cpu_ms[2] = pb_clock_process_cpu_ms();
+    R.peak_mb[1] = peak_rss_mb();
+    reset_peak_rss();
     // 4. the map with the final poses
     if (rc == 0) rc = pass_map(&R, &err);
+    R.peak_mb[2] = peak_rss_mb();
+    reset_peak_rss();
     // 5. the ground model, and what moved carved out with it
     pb_ground_t *ground = rc == 0 ? make_ground(&R, &err) : nullptr;
     if (rc == 0) rc = pass_carve(&R, ground, &err);
     pb_ground_destroy(ground);
     pb_pose_track_destroy(R.track);
+    R.peak_mb[3] = peak_rss_mb();
+    reset_peak_rss();
     // 6. the site's other files, the report
     if (rc == 0) rc = write_site(&R, &err);
     cpu_ms[3] = pb_clock_process_cpu_ms();
+    R.peak_mb[4] = peak_rss_mb();
     if (rc == 0)
         rc = write_report(R, cpu_ms, std::chrono::duration<double>(std::chrono::steady_clock::now() - wall0).count(), &err);
     if (rc != 0) {
         std::fprintf(stderr, "mapper: %s\n", err.msg);
         return 1;
     }
+    for (const char *f : {"checkpoint.bin", "checkpoint.bin.tmp", "keyframes.bin"})
+        std::remove(R.path(f).c_str());   /* done: nothing to resume */
     return 0;
 }

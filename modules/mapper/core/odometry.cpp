@@ -2,12 +2,14 @@
 #include "odometry.h"
 
 #include <algorithm>
+#include <cstring>
 #include <cmath>
 #include <future>
 #include <string>
 #include <vector>
 
 #include "deskew.h"
+#include "pb_bytes.h"
 #include "voxel_hash.h"
 
 using Vec3 = Eigen::Vector3d;
@@ -32,6 +34,7 @@ struct pb_odom {
     std::vector<Cell> cells;
     /* the registration map and where it was built */
     pb_regmap_t *regmap = nullptr;
+    std::vector<float> regmap_src;   /* the points it was built from (for pb_odom_save) */
     std::vector<float> last_sweep;
     Vec3 built_at = Vec3::Zero();
     int64_t built_sweep = 0;
@@ -39,6 +42,7 @@ struct pb_odom {
      * while the sweeps go on; swapped in at the next rebuild (a fixed sweep, whatever the
      * threads' timing: the same sweeps give the same poses) */
     std::future<pb_regmap_t *> next;
+    std::vector<float> next_src;     /* the points it is built from */
     int64_t next_sweep = 0;   /* the sweep it is swapped in before ... */
     Vec3 next_from = Vec3::Zero();   /* ... or once the car is kSwapAfterM from where it started */
     std::string next_err;
@@ -103,18 +107,13 @@ static void add_to_map(pb_odom_t *o, const std::vector<float> &xyz, const Eigen:
     }
 }
 
-/* 0 if the n samples come in time order after the ones kept; -1 with err set if not. */
+/* Appends the samples that come in time order after the ones kept; the others (two
+ * sources merged out of order) are left out. */
 template <class S>
-static int check_order(const std::vector<S> &kept, const S *add, size_t n, const char *what, pb_err_t *err)
+static void append_in_order(std::vector<S> *kept, const S *add, size_t n)
 {
-    int64_t last = kept.empty() ? INT64_MIN : kept.back().utime;
-    for (size_t i = 0; i < n; i++) {
-        if (add[i].utime < last)
-            return pb_err_set(err, "%s sample at utime %lld comes after one at %lld", what, (long long)add[i].utime,
-                              (long long)last), -1;
-        last = add[i].utime;
-    }
-    return 0;
+    for (size_t i = 0; i < n; i++)
+        if (kept->empty() || add[i].utime >= kept->back().utime) kept->push_back(add[i]);
 }
 
 /* Whether samples cover [t0, t1] with no hole longer than max_age_us (the newest one
@@ -191,7 +190,21 @@ static int swap_in(pb_odom_t *o, pb_err_t *err)
     if (!m) return pb_err_set(err, "local map: %s", o->next_err.c_str()), -1;
     pb_regmap_destroy(o->regmap);
     o->regmap = m;
+    o->regmap_src.swap(o->next_src);
+    o->next_src.clear();
     return 0;
+}
+
+/* Starts building the next registration map from o->next_src on another thread (it
+ * reads o->next_src until swap_in takes the map). */
+static void start_next(pb_odom_t *o)
+{
+    o->next = std::async(std::launch::async, [o]() {
+        pb_err_t e;
+        pb_regmap_t *m = pb_regmap_from_points(o->next_src.data(), o->next_src.size() / 3, nullptr, &e);
+        if (!m) o->next_err = e.msg;
+        return m;
+    });
 }
 
 /* Drops the cells beyond the local radius and starts building the next registration map
@@ -223,17 +236,14 @@ static int rebuild(pb_odom_t *o, const Vec3 &at, pb_err_t *err)
     o->built_sweep = o->sweeps;
     if (!o->regmap) {
         o->regmap = pb_regmap_from_points(pts.data(), pts.size() / 3, nullptr, err);
+        o->regmap_src.swap(pts);
         return o->regmap ? 0 : -1;
     }
     if (swap_in(o, err) != 0) return -1;
     o->next_sweep = o->sweeps + kSwapAfter;
     o->next_from = at;
-    o->next = std::async(std::launch::async, [o, pts = std::move(pts)]() {
-        pb_err_t e;
-        pb_regmap_t *m = pb_regmap_from_points(pts.data(), pts.size() / 3, nullptr, &e);
-        if (!m) o->next_err = e.msg;
-        return m;
-    });
+    o->next_src.swap(pts);
+    start_next(o);
     return 0;
 }
 
@@ -243,9 +253,6 @@ int pb_odom_add(pb_odom_t *o, int64_t utime, const float *xyz, const int32_t *of
     if (n == 0) return pb_err_set(err, "sweep at utime %lld has no points", (long long)utime), -1;
     static const pb_odom_motion_t kNone = {};
     if (!motion) motion = &kNone;
-    if (check_order(o->speed, motion->speed, motion->n_speed, "speed", err) != 0 ||
-        check_order(o->rate, motion->rate, motion->n_rate, "rate", err) != 0)
-        return -1;
     /* The pose refers to the middle of the sweep: deskewed about its middle, a wrong
      * motion distorts the sweep evenly both ways and does not shift the match. (About
      * its start, the match moves by half the motion's error, the next step's motion
@@ -261,8 +268,8 @@ int pb_odom_add(pb_odom_t *o, int64_t utime, const float *xyz, const int32_t *of
         return pb_err_set(err, "sweep at utime %lld is not after the last one", (long long)utime), -1;
     const double dt = o->sweeps > 0 ? (t_ref - o->last_utime) * 1e-6 : 0;
     if (dt > o->cfg.max_gap_s) o->motion_known = false;
-    o->speed.insert(o->speed.end(), motion->speed, motion->speed + motion->n_speed);
-    o->rate.insert(o->rate.end(), motion->rate, motion->rate + motion->n_rate);
+    append_in_order(&o->speed, motion->speed, motion->n_speed);
+    append_in_order(&o->rate, motion->rate, motion->n_rate);
     const int64_t max_age = (int64_t)(o->cfg.max_sample_age_s * 1e6);
     const int64_t t_from = o->sweeps > 0 ? o->last_utime : utime + off_min;
     const bool has_speed = covers(o->speed, t_from, utime + off_max, max_age),
@@ -354,3 +361,100 @@ int pb_odom_add(pb_odom_t *o, int64_t utime, const float *xyz, const int32_t *of
 }
 
 const std::vector<float> &pb_odom_last_sweep(const pb_odom_t *o) { return o->last_sweep; }
+
+/* ---- checkpoint: the state written field by field (no padding), read back with bounds */
+static const char kStateMagic[8] = {'P', 'B', 'O', 'D', 'O', 'M', '0', '1'};
+
+static void put_vec3(ByteWriter &w, const Vec3 &v) { for (int k = 0; k < 3; k++) w.put(v[k]); }
+static Vec3 get_vec3(ByteReader &r)
+{
+    Vec3 v;
+    for (int k = 0; k < 3; k++) v[k] = r.get<double>();
+    return v;
+}
+
+void pb_odom_save(const pb_odom_t *o, std::vector<uint8_t> *out)
+{
+    out->clear();
+    out->reserve(256 + 28 * o->cells.size() + 12 * o->index.size() +
+                 4 * (o->regmap_src.size() + o->next_src.size()) + 16 * o->speed.size() +
+                 32 * o->rate.size());   /* exactly: no doubling */
+    ByteWriter w{out};
+    for (char c : kStateMagic) w.put(c);
+    w.put(o->sweeps); w.put(o->last_utime);
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 4; c++) w.put(o->last_pose.matrix()(r, c));
+    put_vec3(w, o->v); put_vec3(w, o->w); w.put((uint8_t)o->motion_known);
+    put_vec3(w, o->built_at); w.put(o->built_sweep);
+    w.put((uint64_t)o->cells.size());
+    for (const Cell &c : o->cells) { w.put(c.sum[0]); w.put(c.sum[1]); w.put(c.sum[2]); w.put(c.n); }
+    /* the index as it is: keys of cells added since the last rebuild come from their first
+     * point, the others from their centroid, and two centroids may share a key */
+    w.put((uint64_t)o->index.size());
+    o->index.for_each([&](uint64_t key, int32_t value) { w.put(key); w.put(value); });
+    w.put_array(o->regmap_src.data(), o->regmap_src.size());
+    w.put((uint8_t)o->next.valid());
+    w.put(o->next_sweep); put_vec3(w, o->next_from);
+    w.put_array(o->next_src.data(), o->next_src.size());
+    w.put((uint64_t)o->speed.size());
+    for (const pb_odom_speed_t &x : o->speed) { w.put(x.utime); w.put(x.speed_mps); }
+    w.put((uint64_t)o->rate.size());
+    for (const pb_odom_rate_t &x : o->rate) { w.put(x.utime); w.put(x.rate[0]); w.put(x.rate[1]); w.put(x.rate[2]); }
+}
+
+pb_odom_t *pb_odom_restore(const uint8_t *data, size_t n, const pb_odom_config_t *cfg, const pb_reg_config_t *reg,
+                           pb_err_t *err)
+{
+    ByteReader r{data, data + n};
+    for (char c : kStateMagic)
+        if (r.get<char>() != c || !r.ok) return pb_err_set(err, "odometry state: not of this version"), nullptr;
+    pb_odom_t *o = pb_odom_create(cfg, reg);
+    o->sweeps = r.get<int64_t>(); o->last_utime = r.get<int64_t>();
+    for (int i = 0; i < 3; i++)
+        for (int c = 0; c < 4; c++) o->last_pose.matrix()(i, c) = r.get<double>();
+    o->v = get_vec3(r); o->w = get_vec3(r); o->motion_known = r.get<uint8_t>() != 0;
+    o->built_at = get_vec3(r); o->built_sweep = r.get<int64_t>();
+    uint64_t ncells = r.get<uint64_t>();
+    if (r.ok && ncells <= n / 28) {
+        o->cells.resize(ncells);
+        for (Cell &c : o->cells) { c.sum[0] = r.get<double>(); c.sum[1] = r.get<double>(); c.sum[2] = r.get<double>(); c.n = r.get<int>(); }
+    } else r.ok = false;
+    uint64_t nindex = r.get<uint64_t>();
+    if (r.ok && nindex <= n / 12) {
+        o->index.reset(nindex);
+        for (uint64_t i = 0; i < nindex && r.ok; i++) {
+            uint64_t key = r.get<uint64_t>();
+            int32_t value = r.get<int32_t>();
+            if (value < 0 || (uint64_t)value >= ncells) r.ok = false;
+            bool fresh;
+            o->index.insert(key, value, &fresh);
+        }
+    } else r.ok = false;
+    r.get_array(&o->regmap_src);
+    bool pending = r.get<uint8_t>() != 0;
+    o->next_sweep = r.get<int64_t>(); o->next_from = get_vec3(r);
+    r.get_array(&o->next_src);
+    const uint64_t nspeed = r.get<uint64_t>();
+    for (uint64_t i = 0; i < nspeed && r.ok && i <= n / 16; i++) {
+        pb_odom_speed_t x;
+        x.utime = r.get<int64_t>(); x.speed_mps = r.get<double>();
+        o->speed.push_back(x);
+    }
+    const uint64_t nrate = r.get<uint64_t>();
+    for (uint64_t i = 0; i < nrate && r.ok && i <= n / 32; i++) {
+        pb_odom_rate_t x;
+        x.utime = r.get<int64_t>(); x.rate[0] = r.get<double>(); x.rate[1] = r.get<double>(); x.rate[2] = r.get<double>();
+        o->rate.push_back(x);
+    }
+    if (!r.ok || r.p != r.end) {
+        pb_odom_destroy(o);
+        return pb_err_set(err, "odometry state: truncated or damaged"), nullptr;
+    }
+    /* the registration maps again from their points (pb_regmap_from_points is deterministic) */
+    if (!o->regmap_src.empty() && !(o->regmap = pb_regmap_from_points(o->regmap_src.data(), o->regmap_src.size() / 3, nullptr, err))) {
+        pb_odom_destroy(o);
+        return nullptr;
+    }
+    if (pending) start_next(o);
+    return o;
+}

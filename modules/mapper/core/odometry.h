@@ -21,8 +21,8 @@
  *      few metres rebuild the registration map from the cells near the car.
  *
  * No I/O and no clock: the same sweeps give the same poses.
- * Ownership: pb_odom_create returns an object the caller frees with pb_odom_destroy
- * (NULL is a no-op). Inputs are copied; no pointer into them is kept. */
+ * Ownership: pb_odom_create and pb_odom_restore return an object the caller frees with
+ * pb_odom_destroy (NULL is a no-op). Inputs are copied; no pointer into them is kept. */
 #ifndef PB_MAPPER_ODOMETRY_H
 #define PB_MAPPER_ODOMETRY_H
 
@@ -59,8 +59,8 @@ typedef struct {
 typedef struct { int64_t utime; double speed_mps; } pb_odom_speed_t;
 typedef struct { int64_t utime; double rate[3]; } pb_odom_rate_t;
 
-/* The samples that arrived since the last sweep (any order within a kind is an error:
- * ascending utime). Either list may be empty; the odometry keeps the newest of each. */
+/* The samples that arrived since the last sweep, in time order (one older than the newest
+ * before it is left out). Either list may be empty; the odometry keeps the newest of each. */
 typedef struct {
     const pb_odom_speed_t *speed;
     size_t n_speed;
@@ -108,13 +108,25 @@ void pb_odom_destroy(pb_odom_t *o);
 /* Adds one sweep: n points (xyz interleaved, base frame) with their offsets after utime
  * (microseconds), and the speed and rate samples received since the last sweep (motion
  * NULL = none: LiDAR alone). Sweeps must come in time order. Returns 0 with *out filled,
- * or -1 with err set (n == 0, a sweep not after the last one, samples not in time order);
- * the odometry is then unchanged. */
+ * or -1 with err set (n == 0, a sweep not after the last one); the odometry is then
+ * unchanged. */
 int pb_odom_add(pb_odom_t *o, int64_t utime, const float *xyz, const int32_t *offset_us, size_t n,
                 const pb_odom_motion_t *motion, pb_odom_result_t *out, pb_err_t *err);
 
 /* The last sweep added, deskewed, in base at its pose's time (valid until the next
  * pb_odom_add; empty before the first). */
 const std::vector<float> &pb_odom_last_sweep(const pb_odom_t *o);
+
+/* The odometry's whole state as bytes, for a checkpoint (out is replaced): the local map's
+ * cells and index, the motion, the points the registration map (and the one being built)
+ * come from. An odometry restored from them gives the same poses for the next sweeps as
+ * the saved one would have, byte for byte. */
+void pb_odom_save(const pb_odom_t *o, std::vector<uint8_t> *out);
+
+/* An odometry from pb_odom_save's bytes, with this config (cfg, reg as pb_odom_create; the
+ * caller gives the ones it saved with). Returns NULL with err set when the bytes are not
+ * a whole state of this version. */
+pb_odom_t *pb_odom_restore(const uint8_t *data, size_t n, const pb_odom_config_t *cfg, const pb_reg_config_t *reg,
+                           pb_err_t *err);
 
 #endif
