@@ -6,7 +6,6 @@ The drive is simdrive's (seed 7, normal, 12 s) cut to begin 4 s in, so the car i
 moving at its first sweep; the mapper gets nothing but LIDAR_SCAN."""
 import filecmp
 import json
-import shutil
 import subprocess
 import time
 
