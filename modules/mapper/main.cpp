@@ -44,7 +44,7 @@
 static void usage(FILE *f)
 {
     std::fprintf(f,
-        "usage: mapper --log DRIVE.lcm --out SITE_DIR [--vehicle FILE] [--voxel 0.15]\n"
+        "usage: mapper --log DRIVE.lcm --out SITE_DIR [--vehicle FILE] [--voxel 0.15] [--poses FILE.tum]\n"
         "              [--scan-channel LIDAR_SCAN] [--checkpoint-every 100] [--quiet]\n"
         "\n"
         "Builds a prior map from a recorded drive by LiDAR odometry: every sweep is\n"
@@ -75,9 +75,16 @@ static void usage(FILE *f)
         "  --voxel M           map.pcd voxel edge, metres (default 0.15)\n"
         "  --scan-channel C    (default LIDAR_SCAN)\n"
         "  --checkpoint-every N  sweeps of odometry between checkpoints (default 100: 10 s of drive)\n"
+        "  --poses FILE.tum    place the sweeps with these poses (base in map, TUM: t x y z qx qy qz\n"
+        "                      qw, t in seconds; an INS or RTK trajectory, another SLAM's): no\n"
+        "                      odometry and no loop closure; the map, ground, carving and report\n"
+        "                      as otherwise (report.json: poses_given; scans = the poses)\n"
         "  --quiet             no progress bar, no summary\n"
         "Exit 1 on error (unreadable or damaged log, no sweep, unwritable SITE_DIR).\n");
 }
+
+/* SweepPose.status and .motion of a pose given by --poses (not the odometry's). */
+static const int kGiven = -1;
 
 struct SweepPose {
     int64_t utime;
@@ -337,6 +344,7 @@ static int for_each_sweep(const char *log_path, const char *scan_ch, const pb_ve
 /* One run: the options, and what each step hands the next. */
 struct Run {
     const char *log_path, *out_dir, *scan_ch;
+    const char *poses_path = nullptr;   /* --poses: the sweeps placed with these, no odometry */
     double voxel;
     int quiet;
     int checkpoint_every;   /* sweeps between checkpoints of the odometry pass */
@@ -616,6 +624,51 @@ static int checkpoint_read(Run *R, pb_err_t *err)
     return 0;
 }
 
+/* --poses: the trajectory from a TUM file (t x y z qx qy qz qw: base in map, t in seconds
+ * ascending; '#' comments), no odometry and no loops: the map, the ground and the carving
+ * are made with these poses (an INS or RTK trajectory, another SLAM's). Errors name the
+ * file and line. */
+static int read_poses(Run *R, pb_err_t *err)
+{
+    FILE *f = std::fopen(R->poses_path, "r");
+    if (!f) return pb_err_set(err, "%s: cannot open: %s", R->poses_path, std::strerror(errno)), -1;
+    char line[1024];
+    int lineno = 0, rc = 0;
+    while (rc == 0 && std::fgets(line, sizeof line, f)) {
+        lineno++;
+        const char *p = line + std::strspn(line, " \t");
+        if (*p == '#' || *p == '\n' || *p == '\r' || *p == 0) continue;
+        double v[8];
+        char tail[2];
+        if (std::sscanf(p, "%lf %lf %lf %lf %lf %lf %lf %lf %1s", &v[0], &v[1], &v[2], &v[3], &v[4], &v[5], &v[6],
+                        &v[7], tail) != 8) {
+            rc = pb_err_set(err, "%s:%d: expected 8 numbers (t x y z qx qy qz qw)", R->poses_path, lineno);
+            break;
+        }
+        Eigen::Quaterniond q(v[7], v[4], v[5], v[6]);
+        bool finite = true;
+        for (double x : v) finite &= std::isfinite(x);
+        if (!finite || std::fabs(q.norm() - 1) > 1e-3) {
+            rc = pb_err_set(err, "%s:%d: not a pose (non-finite, or a quaternion of norm %.4f)", R->poses_path, lineno,
+                            q.norm());
+            break;
+        }
+        const int64_t utime = (int64_t)std::llround(v[0] * 1e6);
+        if (!R->traj.empty() && utime <= R->traj.back().utime) {
+            rc = pb_err_set(err, "%s:%d: time %.6f s is not after the line before's", R->poses_path, lineno, v[0]);
+            break;
+        }
+        Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+        T.linear() = q.normalized().toRotationMatrix();
+        T.translation() = Eigen::Vector3d(v[1], v[2], v[3]);
+        R->traj.push_back({utime, T, T, kGiven, kGiven, NAN, 0, -1});
+    }
+    std::fclose(f);
+    if (rc == 0 && R->traj.size() < 2)
+        rc = pb_err_set(err, "%s: %zu pose(s); a map needs two or more", R->poses_path, R->traj.size());
+    return rc;
+}
+
 /* Pass 1: odometry over every sweep; a keyframe every kKeyframeSpacingM; a checkpoint
  * every R->checkpoint_every sweeps and at the end. Resumes where R's checkpoint left off. */
 static int pass_odometry(Run *R, pb_err_t *err)
@@ -881,8 +934,8 @@ static int write_report(const Run &R, const double cpu_ms[4], double wall_s, pb_
     std::vector<double> ms, inl;
     for (size_t i = 0; i < R.traj.size(); i++) {
         const SweepPose &s = R.traj[i];
-        by_status[s.status]++;
-        by_motion[s.motion]++;
+        if (s.status != kGiven) by_status[s.status]++;
+        if (s.motion != kGiven) by_motion[s.motion]++;
         if (i > 0) path_m += (s.pose.translation() - R.traj[i - 1].pose.translation()).norm();
         ms.push_back(s.cpu_ms);
         if (std::isfinite(s.inlier_fraction)) inl.push_back(s.inlier_fraction);
@@ -890,6 +943,7 @@ static int write_report(const Run &R, const double cpu_ms[4], double wall_s, pb_
     const double span_s = (R.traj.back().utime - R.traj.front().utime) * 1e-6;
     cJSON *j = cJSON_CreateObject();
     cJSON_AddStringToObject(j, "log", R.log_path);
+    cJSON_AddStringToObject(j, "poses_given", R.poses_path ? R.poses_path : "");
     cJSON_AddNumberToObject(j, "scans", (double)R.traj.size());
     cJSON_AddNumberToObject(j, "scans_in_log", (double)R.total);
     cJSON_AddNumberToObject(j, "empty_scans", (double)R.empty);
@@ -952,7 +1006,10 @@ static int write_report(const Run &R, const double cpu_ms[4], double wall_s, pb_
     if (f) ok &= std::fclose(f) == 0;
     cJSON_free(text);
     if (!ok) return pb_err_set(err, "%s: cannot write", rep_path.c_str()), -1;
-    if (!R.quiet)
+    if (!R.quiet && R.poses_path)
+        std::fprintf(stderr, "mapper: %zu poses of %s over %.1f m in %.1f s of drive; %zu map points (%zu carved: moved); "
+                     "%.1f s wall\n", R.traj.size(), R.poses_path, path_m, span_s, R.map_points, R.carved, wall_s);
+    else if (!R.quiet)
         std::fprintf(stderr,
                      "mapper: %zu sweeps over %.1f m in %.1f s of drive (tracked %ld, searched %ld, weak %ld, "
                      "predicted %ld); %d loop(s) of %d tried, largest correction %.2f m; odometry %.2f ms per sweep "
@@ -976,7 +1033,8 @@ int main(int argc, char **argv)
     const pb_opt_t opts[] = {
         PB_OPT_REQUIRED("log", &R.log_path), PB_OPT_REQUIRED("out", &R.out_dir), PB_OPT_STRING("vehicle", &vehicle),
         PB_OPT_STRING("scan-channel", &R.scan_ch), PB_OPT_DOUBLE("voxel", &R.voxel, 0.01, 10),
-        PB_OPT_FLAG("quiet", &R.quiet, 1), PB_OPT_INT("checkpoint-every", &R.checkpoint_every, 1, 1000000), PB_OPT_END,
+        PB_OPT_FLAG("quiet", &R.quiet, 1), PB_OPT_INT("checkpoint-every", &R.checkpoint_every, 1, 1000000),
+        PB_OPT_STRING("poses", &R.poses_path), PB_OPT_END,
     };
     int parsed = pb_opt_parse("mapper", opts, usage, 0, argc, argv);
     if (parsed >= 0) return parsed;
@@ -992,17 +1050,17 @@ int main(int argc, char **argv)
                                [](const pb_event_t *, void *u, pb_err_t *) { (*(long *)u)++; return 0; }, &R.total, &err);
     if (rc == 0 && R.total == 0) rc = pb_err_set(&err, "%s: no %s in the log", R.log_path, R.scan_ch);
     // a checkpoint of an interrupted run of this log resumed
-    if (rc == 0) rc = checkpoint_ids(&R, &err);
-    if (rc == 0) rc = checkpoint_read(&R, &err);
-    // 1. odometry; a keyframe every 2 m
-    if (rc == 0) rc = pass_odometry(&R, &err);
+    if (rc == 0 && !R.poses_path) rc = checkpoint_ids(&R, &err);
+    if (rc == 0 && !R.poses_path) rc = checkpoint_read(&R, &err);
+    // 1. odometry; a keyframe every 2 m (or the poses given)
+    if (rc == 0) rc = R.poses_path ? read_poses(&R, &err) : pass_odometry(&R, &err);
     if (R.kf_file) std::fclose(R.kf_file);
     pb_odom_destroy(R.odom);   /* restored but not used (an error before the pass) */
     cpu_ms[1] = pb_clock_process_cpu_ms();
     R.peak_mb[0] = peak_rss_mb();
     reset_peak_rss();
     // 2. loop closure over the keyframes
-    if (rc == 0) rc = close_loops(&R, &err);
+    if (rc == 0 && !R.poses_path) rc = close_loops(&R, &err);
     // 3. GNSS anchoring
     if (rc == 0) rc = anchor(&R, &err);
     cpu_ms[2] = pb_clock_process_cpu_ms();
