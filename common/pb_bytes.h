@@ -44,7 +44,7 @@ struct ByteReader {
         uint64_t n = get<uint64_t>();
         if (!ok || n > (uint64_t)(end - p) / sizeof(T)) { ok = false; v->clear(); return; }
         v->resize((size_t)n);
-        std::memcpy(v->data(), p, (size_t)n * sizeof(T));
+        if (n) std::memcpy(v->data(), p, (size_t)n * sizeof(T));   /* data() may be NULL when empty */
         p += n * sizeof(T);
     }
     std::string get_string()

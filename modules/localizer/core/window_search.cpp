@@ -176,7 +176,7 @@ int window_search(const Columns &cols, const float *xyz, size_t n,
     }
     std::vector<float> qx, qy;
     std::vector<int64_t> qz;
-    double r_far = 0;
+    double r_far = 0, r_cells = 0;
     for (size_t i = 0; i < n; i++) {
         if (col_of[i] < 0 || xyz[3 * i + 2] <= col_min[(size_t)col_of[i]] + 0.3f) continue;
         Eigen::Vector3d p(xyz[3 * i], xyz[3 * i + 1], xyz[3 * i + 2]);
@@ -187,6 +187,9 @@ int window_search(const Columns &cols, const float *xyz, size_t n,
         qy.push_back((float)q.y());
         qz.push_back(iz);
         r_far = std::max(r_far, std::hypot(p.x(), p.y()));
+        /* the grid must hold the points as the seed turns them: a seed with roll or pitch
+         * (a slope) moves high points sideways beyond their reach in the sweep */
+        r_cells = std::max(r_cells, std::hypot(q.x(), q.y()));
     }
     if (qz.empty()) return 0;
     int64_t iz0 = *std::min_element(qz.begin(), qz.end()) - 1;
@@ -224,7 +227,7 @@ int window_search(const Columns &cols, const float *xyz, size_t n,
      * several roots per yaw rather than levels of its whole size */
     int H = 0;
     while ((1 << H) < 2 * S.W + 1 && H < 6) H++;
-    int rc = (int)std::ceil(r_far * inv) + 1;
+    int rc = (int)std::ceil(std::max(r_far, r_cells) * inv) + 1;
     /* nx x nx cells, nx whole vectors; each row is followed by 8 empty cells, so that
      * reading a few cells past a row's end reads nothing */
     const int nx = (2 * (rc + S.W) + 2 + (1 << H) + 7) & ~7;

@@ -107,13 +107,16 @@ static void add_to_map(pb_odom_t *o, const std::vector<float> &xyz, const Eigen:
     }
 }
 
+/* Times (microseconds since 1970) this far apart at most: their differences cannot overflow. */
+static bool utime_ok(int64_t t) { return t >= 0 && t < ((int64_t)1 << 62); }
+
 /* Appends the samples that come in time order after the ones kept; the others (two
- * sources merged out of order) are left out. */
+ * sources merged out of order, a time out of range) are left out. */
 template <class S>
 static void append_in_order(std::vector<S> *kept, const S *add, size_t n)
 {
     for (size_t i = 0; i < n; i++)
-        if (kept->empty() || add[i].utime >= kept->back().utime) kept->push_back(add[i]);
+        if (utime_ok(add[i].utime) && (kept->empty() || add[i].utime >= kept->back().utime)) kept->push_back(add[i]);
 }
 
 /* Whether samples cover [t0, t1] with no hole longer than max_age_us (the newest one
@@ -251,6 +254,7 @@ int pb_odom_add(pb_odom_t *o, int64_t utime, const float *xyz, const int32_t *of
                 const pb_odom_motion_t *motion, pb_odom_result_t *out, pb_err_t *err)
 {
     if (n == 0) return pb_err_set(err, "sweep at utime %lld has no points", (long long)utime), -1;
+    if (!utime_ok(utime)) return pb_err_set(err, "sweep at utime %lld: a time out of range", (long long)utime), -1;
     static const pb_odom_motion_t kNone = {};
     if (!motion) motion = &kNone;
     /* The pose refers to the middle of the sweep: deskewed about its middle, a wrong
@@ -402,6 +406,37 @@ void pb_odom_save(const pb_odom_t *o, std::vector<uint8_t> *out)
     for (const pb_odom_rate_t &x : o->rate) { w.put(x.utime); w.put(x.rate[0]); w.put(x.rate[1]); w.put(x.rate[2]); }
 }
 
+/* What a saved state must hold (a checksum passed, but the bytes may still be another
+ * program's): a rigid pose, finite motions, cells with 1 to kCellFull points, finite
+ * points, samples in time order. */
+static bool state_sane(const pb_odom_t *o)
+{
+    const Eigen::Matrix3d &R = o->last_pose.linear();
+    if (!o->last_pose.matrix().allFinite() || !(((R.transpose() * R) - Eigen::Matrix3d::Identity()).norm() < 1e-6) ||
+        !(std::fabs(R.determinant() - 1) < 1e-6))
+        return false;
+    if (!o->v.allFinite() || !o->w.allFinite() || !o->built_at.allFinite() || !o->next_from.allFinite() || o->sweeps < 0 ||
+        !utime_ok(o->last_utime) || o->built_sweep < 0 || o->built_sweep > o->sweeps || o->next_sweep < 0 ||
+        o->next_sweep > o->sweeps + kSwapAfter)
+        return false;
+    for (const Cell &c : o->cells)
+        if (c.n < 1 || c.n > kCellFull || !std::isfinite(c.sum[0] + c.sum[1] + c.sum[2])) return false;
+    for (const std::vector<float> *v : {&o->regmap_src, &o->next_src}) {
+        if (v->size() % 3) return false;
+        for (float x : *v)
+            if (!std::isfinite(x)) return false;
+    }
+    for (size_t i = 0; i < o->speed.size(); i++)
+        if (!std::isfinite(o->speed[i].speed_mps) || !utime_ok(o->speed[i].utime) ||
+            (i && o->speed[i].utime < o->speed[i - 1].utime))
+            return false;
+    for (size_t i = 0; i < o->rate.size(); i++)
+        if (!Eigen::Map<const Vec3>(o->rate[i].rate).allFinite() || !utime_ok(o->rate[i].utime) ||
+            (i && o->rate[i].utime < o->rate[i - 1].utime))
+            return false;
+    return true;
+}
+
 pb_odom_t *pb_odom_restore(const uint8_t *data, size_t n, const pb_odom_config_t *cfg, const pb_reg_config_t *reg,
                            pb_err_t *err)
 {
@@ -422,12 +457,14 @@ pb_odom_t *pb_odom_restore(const uint8_t *data, size_t n, const pb_odom_config_t
     uint64_t nindex = r.get<uint64_t>();
     if (r.ok && nindex <= n / 12) {
         o->index.reset(nindex);
+        std::vector<uint8_t> indexed(ncells, 0);   /* a cell has one key at most */
         for (uint64_t i = 0; i < nindex && r.ok; i++) {
             uint64_t key = r.get<uint64_t>();
             int32_t value = r.get<int32_t>();
-            if (value < 0 || (uint64_t)value >= ncells) r.ok = false;
+            if (value < 0 || (uint64_t)value >= ncells || indexed[(size_t)value]++) { r.ok = false; break; }
             bool fresh;
             o->index.insert(key, value, &fresh);
+            if (!fresh) r.ok = false;   /* a key twice */
         }
     } else r.ok = false;
     r.get_array(&o->regmap_src);
@@ -449,6 +486,10 @@ pb_odom_t *pb_odom_restore(const uint8_t *data, size_t n, const pb_odom_config_t
     if (!r.ok || r.p != r.end) {
         pb_odom_destroy(o);
         return pb_err_set(err, "odometry state: truncated or damaged"), nullptr;
+    }
+    if (!state_sane(o)) {
+        pb_odom_destroy(o);
+        return pb_err_set(err, "odometry state: damaged (a value out of its range)"), nullptr;
     }
     /* the registration maps again from their points (pb_regmap_from_points is deterministic) */
     if (!o->regmap_src.empty() && !(o->regmap = pb_regmap_from_points(o->regmap_src.data(), o->regmap_src.size() / 3, nullptr, err))) {
