@@ -106,3 +106,14 @@ out:
     pb_cfg_free(cfg);
     return rc;
 }
+
+void pb_vehicle_body_box(const pb_vehicle_t *v, double margin_m, double box[6])
+{
+    const double m = margin_m, ro = v->rear_overhang;
+    box[0] = -ro - m;
+    box[1] = -v->width / 2 - m;
+    box[2] = -m;
+    box[3] = v->length - ro + m;
+    box[4] = v->width / 2 + m;
+    box[5] = v->height + m;
+}

@@ -29,6 +29,11 @@ extern "C" {
 /* Loads path into *v (defaults first for the optional simulation block). 0 or -1. */
 int pb_vehicle_load(const char *path, pb_vehicle_t *v, pb_err_t *err);
 
+/* The car's own body in base, margin_m larger on every side: box = xmin, ymin, zmin, xmax,
+ * ymax, zmax (base at the rear axle on the ground). Returns from it (a roof the LiDAR mount
+ * lets beams reach) are not the world. */
+void pb_vehicle_body_box(const pb_vehicle_t *v, double margin_m, double box[6]);
+
 #ifdef __cplusplus
 }
 #endif

@@ -467,11 +467,7 @@ int main(int argc, char **argv)
     ex.base_from_lidar = to_iso(veh.base_from_lidar);
     ex.base_from_imu = to_iso(veh.base_from_imu);
     ex.base_from_gnss = to_iso(veh.base_from_gnss);
-    {   /* the car's own body (returns from the roof where the mount lets beams reach it), 10 cm margin */
-        const double m = 0.10, ro = veh.rear_overhang;
-        const double box[6] = { -ro - m, -veh.width / 2 - m, -m, veh.length - ro + m, veh.width / 2 + m, veh.height + m };
-        memcpy(cfg.reg.body_box, box, sizeof box);
-    }
+    pb_vehicle_body_box(&veh, 0.10, cfg.reg.body_box);   /* the car's own body, 10 cm margin */
 
     /* A site folder holding only map.pcd is enough; site.yaml adds the geo-reference. */
     struct stat sb;

@@ -265,8 +265,7 @@ static double pct(std::vector<double> v, double p)
  * would be mapped along the whole drive. */
 struct BodyBox {
     double b[6];
-    explicit BodyBox(const pb_vehicle_t &v)
-        : b{-v.rear_overhang - 0.1, -v.width / 2 - 0.1, -0.1, v.length - v.rear_overhang + 0.1, v.width / 2 + 0.1, v.height + 0.1} {}
+    explicit BodyBox(const pb_vehicle_t &v) { pb_vehicle_body_box(&v, 0.10, b); }
     bool has(const Eigen::Vector3d &p) const
     {
         return p.x() >= b[0] && p.y() >= b[1] && p.z() >= b[2] && p.x() <= b[3] && p.y() <= b[4] && p.z() <= b[5];
@@ -332,9 +331,23 @@ static int for_each_sweep(const char *log_path, const char *scan_ch, const pb_ve
     std::mutex mu;
     std::condition_variable cv;
     std::deque<std::unique_ptr<LogItem>> queue;
+    /* items consumed, taken again by the reader: a sweep's arrays keep their capacity
+     * (a fresh megabyte a sweep would be page faults on the hot path) */
+    std::vector<std::unique_ptr<LogItem>> spare;
     const size_t kAhead = 4;
+    auto take = [&] {
+        std::lock_guard<std::mutex> lk(mu);
+        if (spare.empty()) return std::unique_ptr<LogItem>(new LogItem);
+        std::unique_ptr<LogItem> it = std::move(spare.back());
+        spare.pop_back();
+        return it;
+    };
+    auto give_back = [&](std::unique_ptr<LogItem> it) {
+        std::lock_guard<std::mutex> lk(mu);
+        spare.push_back(std::move(it));
+    };
     auto push = [&](std::unique_ptr<LogItem> it) {
-        if (!read_ahead) { consume(*it); return; }
+        if (!read_ahead) { consume(*it); give_back(std::move(it)); return; }
         std::unique_lock<std::mutex> lk(mu);
         cv.wait(lk, [&] { return queue.size() < kAhead || stop; });
         queue.push_back(std::move(it));
@@ -351,7 +364,7 @@ static int for_each_sweep(const char *log_path, const char *scan_ch, const pb_ve
         while (!stop && (rc = pb_log_next(log, &ev, &end->err)) == 1) {
             if (std::strcmp(ev.channel, scan_ch) != 0) {
                 if (!other || nread < skip) continue;
-                std::unique_ptr<LogItem> it(new LogItem);
+                std::unique_ptr<LogItem> it = take();
                 it->kind = LogItem::OTHER;
                 it->channel = ev.channel;
                 it->data.assign(ev.data, ev.data + ev.datalen);
@@ -369,7 +382,7 @@ static int for_each_sweep(const char *log_path, const char *scan_ch, const pb_ve
                 rc = -1;
                 break;
             }
-            std::unique_ptr<LogItem> it(new LogItem);
+            std::unique_ptr<LogItem> it = take();
             int n = pb_scan_points(&s, &it->pts, &end->err);
             it->utime = s.utime;
             portobello_lidar_scan_t_decode_cleanup(&s);
@@ -418,6 +431,7 @@ static int for_each_sweep(const char *log_path, const char *scan_ch, const pb_ve
             }
             more = it->kind != LogItem::END;
             consume(*it);
+            give_back(std::move(it));
             std::lock_guard<std::mutex> lk(mu);
             cv.notify_all();
         }

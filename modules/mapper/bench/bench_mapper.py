@@ -372,11 +372,15 @@ def bench_drive(name, log_path, vehicle, sensor_range, gt_label, extra_refs, arg
         (ex / "times.txt").unlink(missing_ok=True)   # so the next run exports again
 
 
-def has_channel(log_path, channel):
+def channels_of(log_path, wanted):
+    """Which of the channels in `wanted` the log has (read until all are seen)."""
+    seen = set()
     for ev in lcm.EventLog(str(log_path), "r"):
-        if ev.channel == channel:
-            return True
-    return False
+        if ev.channel in wanted:
+            seen.add(ev.channel)
+            if seen == wanted:
+                break
+    return seen
 
 
 def fused_log(log_path, d):
@@ -385,11 +389,12 @@ def fused_log(log_path, d):
     out = d / "fused.lcm"
     if newer(out, log_path, BIN / "can", BIN / "log-merge"):
         return out
-    if not has_channel(log_path, "IMU"):
+    has = channels_of(log_path, {"IMU", "VEHICLE_SPEED", "CAN_FRAME"})
+    if "IMU" not in has:
         return None
-    if has_channel(log_path, "VEHICLE_SPEED"):
+    if "VEHICLE_SPEED" in has:
         return log_path
-    if not has_channel(log_path, "CAN_FRAME"):
+    if "CAN_FRAME" not in has:
         return None
     sh([BIN / "can", "--replay", log_path, "--out", d / "speed.lcm"])
     sh([BIN / "log-merge", "--quiet", "--out", out, log_path, d / "speed.lcm"])

@@ -295,8 +295,6 @@ int pb_odom_add(pb_odom_t *o, int64_t utime, const float *xyz, const int32_t *of
 
     pb_odom_result_t r;
     r.motion = measured ? PB_ODOM_MOTION_MEASURED : o->motion_known ? PB_ODOM_MOTION_CONSTANT : PB_ODOM_MOTION_NONE;
-    r.has_speed = has_speed;
-    r.has_rate = has_rate;
     r.utime = t_ref;
     r.v_base = v;
     r.w_base = w;

@@ -88,8 +88,6 @@ enum {
 typedef struct {
     int status;                   /* PB_ODOM_* */
     int motion;                   /* PB_ODOM_MOTION_* */
-    int has_speed, has_rate;      /* the motion used speed / rate samples (with CONSTANT: in place of
-                                   * that part of the last step's motion) */
     int64_t utime;                /* the time the pose refers to: the middle of the sweep */
     Eigen::Isometry3d pose;       /* map <- base at utime */
     Eigen::Vector3d v_base;       /* the motion the sweep was deskewed with: m/s ... */
