@@ -197,6 +197,53 @@ def test_gnss_anchoring_writes_the_geo_reference(drive, tmp_path):
     assert not (drive["out"] / "site.yaml").exists()
 
 
+def test_gnss_holds_a_drifting_trajectory(tmp_path):
+    """A trajectory that has drifted (here GROUND_TRUTH of a 40 s drive, about 370 m, turned
+    by 0.15 degrees a metre and given with --poses) disagrees with the fixes beyond their
+    accuracy: it is bent onto them (a pose graph of its steps and the fixes) and lies where the
+    truth does within what the fixes can tell; the same drive's truth is left as the rigid fit
+    put it (its shape is better than the fixes')."""
+    import yaml
+    sys.path.insert(0, str(ROOT / "modules" / "mapper" / "bench"))
+    import trajmetrics as tm
+    run([BIN / "simdrive", "--out", tmp_path, "--seed", 7, "--speed-profile", "aggressive", "--duration", 40, "--quiet"])
+    log = tmp_path / "drive.lcm"
+    run([BIN / "pose-to-tum", "--log", log, "--out", tmp_path / "gt.tum", "--channel", "GROUND_TRUTH"])
+    gt_t, gt_P = tm.read_tum(tmp_path / "gt.tum")
+    gt_t, gt_P = gt_t[::10], gt_P[::10]   # 10 Hz is plenty for the sweeps
+    P = [gt_P[0]]
+    for a, b in zip(gt_P[:-1], gt_P[1:]):
+        step = np.linalg.inv(a) @ b
+        turn = np.eye(4)
+        turn[:3, :3] = Rotation.from_euler("z", 0.15 * np.linalg.norm(step[:3, 3]), degrees=True).as_matrix()
+        P.append(P[-1] @ step @ turn)
+    tm.write_tum(tmp_path / "drifted.tum", gt_t, np.array(P))
+    tm.write_tum(tmp_path / "truth.tum", gt_t, gt_P)
+    default = yaml.safe_load((ROOT / "maps" / "default" / "site.yaml").read_text())["georef"]
+    found = {}
+    for name in ("drifted", "truth"):
+        out = tmp_path / name
+        run([BIN / "mapper", "--log", log, "--out", out, "--poses", tmp_path / f"{name}.tum", "--quiet"])
+        rep = json.loads((out / "report.json").read_text())
+        S = tm.site_from_site(default, yaml.safe_load((out / "site.yaml").read_text())["georef"])
+        e = {}
+        for f in ("trajectory", "odometry"):   # odometry.tum: the poses given, placed by the rigid fit alone
+            t, Q = tm.read_tum(out / f"{f}.tum")
+            ok, G = tm.poses_at(gt_t, gt_P, t)
+            e[f] = np.linalg.norm((S @ Q[ok])[:, :2, 3] - G[:, :2, 3], axis=1)
+        found[name] = (rep, e["trajectory"].max(), e["odometry"].max())
+    print({k: (r["gnss_drift_ratio"], r["gnss_held"], r["gnss_held_max_change_m"], e, e0)
+           for k, (r, e, e0) in found.items()})
+    rep, err, rigid = found["drifted"]
+    # measured (27 Nov): drifted: ratio 5.0, held (poses moved up to 11.7 m), horizontal error
+    # 3.63 m max against 11.0 m for the rigid fit alone; the truth given: ratio 1.02, not held,
+    # 3.19 m (the fixes' own error over 40 s: what the held one comes down to)
+    assert rep["gnss_held"] is True and rep["gnss_held_fixes"] >= 30
+    assert rigid > 8 and err < rigid / 2 and err < 6.0
+    rep0, err0, rigid0 = found["truth"]
+    assert rep0["gnss_held"] is False and rep0["gnss_drift_ratio"] < 2.5
+
+
 def test_lidar_outage_bridged_by_imu_and_speed(drive, tmp_path):
     """No LIDAR_SCAN for 3 s while the car drives on (from 3 s after the moving start): with
     IMU and VEHICLE_SPEED in the log the odometry dead-reckons across it and every sweep is

@@ -27,6 +27,7 @@
 #include "carve.h"
 #include "loops.h"
 #include "odometry.h"
+#include "pose_graph.h"
 #include "pb_bytes.h"
 #include "pb_clock.h"
 #include "pb_err.h"
@@ -118,45 +119,38 @@ static pb_transform_t to_transform(const Eigen::Isometry3d &T)
 static void apply_corrections(std::vector<SweepPose> *traj, const std::vector<pb_keyframe_t> &kf,
                               const std::vector<Eigen::Isometry3d> &solved)
 {
-    std::vector<Eigen::Isometry3d> C(kf.size());
-    for (size_t k = 0; k < kf.size(); k++) C[k] = solved[k] * kf[k].pose.inverse();
-    for (SweepPose &s : *traj) {
-        size_t a = (size_t)s.keyframe, b = std::min(a + 1, kf.size() - 1);
-        double u = b > a ? double(s.utime - kf[a].utime) / double(kf[b].utime - kf[a].utime) : 0;
-        u = std::min(1.0, std::max(0.0, u));
-        Eigen::Isometry3d Ci = Eigen::Isometry3d::Identity();
-        Ci.linear() = Eigen::Quaterniond(C[a].linear()).slerp(u, Eigen::Quaterniond(C[b].linear())).toRotationMatrix();
-        Ci.translation() = (1 - u) * C[a].translation() + u * C[b].translation();
-        s.pose = Ci * s.odometry;
-    }
+    std::vector<int64_t> node_utime, utime;
+    std::vector<Eigen::Isometry3d> before, poses;
+    for (const pb_keyframe_t &k : kf) { node_utime.push_back(k.utime); before.push_back(k.pose); }
+    for (const SweepPose &s : *traj) { utime.push_back(s.utime); poses.push_back(s.odometry); }
+    pb_pose_graph_apply(node_utime, before, solved, utime, &poses);
+    for (size_t i = 0; i < traj->size(); i++) (*traj)[i].pose = poses[i];
 }
 
-/* The GNSS_FIX of the log against the trajectory (pb_anchor_fit). No fix at all: not
- * anchored (result->why says so), not an error. */
-static int anchor_to_gnss(const char *log_path, const std::vector<SweepPose> &traj, const pb_vehicle_t &veh,
-                          pb_anchor_result_t *result, pb_georef_t *georef, std::vector<Eigen::Vector3d> *fixes_enu,
-                          pb_err_t *err)
+/* The GNSS_FIX of the log (one that does not decode is not used). */
+static int read_fixes(const char *log_path, std::vector<portobello_gnss_fix_t> *out, pb_err_t *err)
 {
-    struct Fixes { std::vector<portobello_gnss_fix_t> v; int undecodable; } fixes = {{}, 0};
     auto on_fix = [](const pb_event_t *ev, void *u, pb_err_t *) {
-        Fixes *f = (Fixes *)u;
         portobello_gnss_fix_t m;
-        if (portobello_gnss_fix_t_decode(ev->data, 0, ev->datalen, &m) < 0) { f->undecodable++; return 0; }
-        f->v.push_back(m);
+        if (portobello_gnss_fix_t_decode(ev->data, 0, ev->datalen, &m) < 0) return 0;   /* not a fix: not used */
+        ((std::vector<portobello_gnss_fix_t> *)u)->push_back(m);
         portobello_gnss_fix_t_decode_cleanup(&m);
         return 0;
     };
-    if (pb_log_read_track(log_path, nullptr, nullptr, "GNSS_FIX", on_fix, &fixes, err)) return -1;
-    *result = pb_anchor_result_t{};
-    result->why = "no GNSS_FIX in the log";
-    const portobello_gnss_fix_t *origin = nullptr;
-    for (const auto &f : fixes.v)
-        if (f.fix_type >= PORTOBELLO_GNSS_FIX_T_FIX_3D && f.fix_type != PORTOBELLO_GNSS_FIX_T_FIX_TIME_ONLY) { origin = &f; break; }
-    if (!origin) {
-        if (!fixes.v.empty()) result->why = "no 3-D GNSS fix in the log";
-        return 0;
-    }
-    *georef = pb_georef_t{origin->lat_deg, origin->lon_deg, origin->alt_m, 0};
+    return pb_log_read_track(log_path, nullptr, nullptr, "GNSS_FIX", on_fix, out, err);
+}
+
+static bool is_3d(const portobello_gnss_fix_t &f)
+{
+    return f.fix_type >= PORTOBELLO_GNSS_FIX_T_FIX_3D && f.fix_type != PORTOBELLO_GNSS_FIX_T_FIX_TIME_ONLY;
+}
+
+/* The fixes against the trajectory: where it puts the antenna at each fix's time, and the
+ * fix in the east-north-up frame at georef (fixes outside the sweeps' times left out). */
+static std::vector<pb_anchor_obs_t> observe_fixes(const std::vector<portobello_gnss_fix_t> &fixes,
+                                                  const std::vector<SweepPose> &traj, const pb_vehicle_t &veh,
+                                                  const pb_georef_t &georef)
+{
     pb_pose_track_t *track = pb_pose_track_create();
     for (const SweepPose &s : traj) {
         pb_transform_t t = to_transform(s.pose);
@@ -164,25 +158,21 @@ static int anchor_to_gnss(const char *log_path, const std::vector<SweepPose> &tr
     }
     const Eigen::Vector3d lever(veh.base_from_gnss.t[0], veh.base_from_gnss.t[1], veh.base_from_gnss.t[2]);
     std::vector<pb_anchor_obs_t> obs;
-    for (const auto &f : fixes.v) {
+    for (const auto &f : fixes) {
         pb_transform_t t;
         if (!pb_pose_track_at(track, f.utime, &t)) continue;   /* before the first sweep or after the last */
         pb_anchor_obs_t o;
+        o.utime = f.utime;
         o.antenna_map = pb_reg_from_transform(&t) * lever;
         double enu[3];
-        pb_geo_wgs84_to_map(georef, f.lat_deg, f.lon_deg, f.alt_m, enu);
+        pb_geo_wgs84_to_map(&georef, f.lat_deg, f.lon_deg, f.alt_m, enu);
         o.fix_enu = Eigen::Vector3d(enu[0], enu[1], enu[2]);
-        fixes_enu->push_back(o.fix_enu);
         o.h_acc_m = f.h_acc_m;
-        o.fix_3d = f.fix_type >= PORTOBELLO_GNSS_FIX_T_FIX_3D && f.fix_type != PORTOBELLO_GNSS_FIX_T_FIX_TIME_ONLY;
+        o.fix_3d = is_3d(f);
         obs.push_back(o);
     }
     pb_pose_track_destroy(track);
-    if (obs.empty()) {
-        result->why = "no GNSS fix within the drive's sweeps";
-        return 0;
-    }
-    return pb_anchor_fit(obs, nullptr, result, err);
+    return obs;
 }
 
 static int write_site_yaml(const char *path, const char *name, const char *log_path, const pb_georef_t &g, double voxel)
@@ -455,6 +445,7 @@ struct Run {
     pb_loops_report_t loops = {};
     std::vector<std::pair<int64_t, int64_t>> loop_times;   /* kept loops: (earlier, later) keyframe utime */
     pb_anchor_result_t anchor = {};
+    pb_anchor_hold_result_t hold = {};
     pb_georef_t georef = {};
     pb_picture_layers_t layers;
     pb_pose_track_t *track = nullptr;
@@ -845,18 +836,45 @@ static int close_loops(Run *R, pb_err_t *err)
  * east-north-up frame at the first 3-D fix, which becomes the site's geo-reference. */
 static int anchor(Run *R, pb_err_t *err)
 {
-    if (anchor_to_gnss(R->log_path, R->traj, R->veh, &R->anchor, &R->georef, &R->layers.fixes, err) != 0) return -1;
-    if (R->anchor.anchored) {
-        for (SweepPose &sp : R->traj) {
-            sp.pose = R->anchor.enu_from_map * sp.pose;
-            sp.odometry = R->anchor.enu_from_map * sp.odometry;
-        }
-    } else {
-        R->layers.fixes.clear();   /* in no frame of this map */
+    std::vector<portobello_gnss_fix_t> fixes;
+    if (read_fixes(R->log_path, &fixes, err) != 0) return -1;
+    R->anchor = pb_anchor_result_t{};
+    R->anchor.why = "no GNSS_FIX in the log";
+    const portobello_gnss_fix_t *origin = nullptr;
+    for (const auto &f : fixes)
+        if (is_3d(f)) { origin = &f; break; }
+    if (!fixes.empty() && !origin) R->anchor.why = "no 3-D GNSS fix in the log";
+    std::vector<pb_anchor_obs_t> obs;
+    if (origin) {
+        R->georef = pb_georef_t{origin->lat_deg, origin->lon_deg, origin->alt_m, 0};
+        obs = observe_fixes(fixes, R->traj, R->veh, R->georef);
+        if (obs.empty()) R->anchor.why = "no GNSS fix within the drive's sweeps";
+    }
+    if (!obs.empty() && pb_anchor_fit(obs, nullptr, &R->anchor, err) != 0) return -1;
+    if (!R->anchor.anchored) {
         if (!R->quiet)
             std::fprintf(stderr, "mapper: warning: the map is not geo-referenced (%s); it stays in the first pose's frame\n",
                          R->anchor.why);
+        return 0;
     }
+    for (SweepPose &sp : R->traj) {
+        sp.pose = R->anchor.enu_from_map * sp.pose;
+        sp.odometry = R->anchor.enu_from_map * sp.odometry;
+    }
+    // a drift the fixes see beyond their own errors bent out (pb_anchor_hold), then fitted again
+    for (pb_anchor_obs_t &o : obs) o.antenna_map = R->anchor.enu_from_map * o.antenna_map;
+    std::vector<int64_t> utime;
+    std::vector<Eigen::Isometry3d> poses;
+    for (const SweepPose &sp : R->traj) { utime.push_back(sp.utime); poses.push_back(sp.pose); }
+    const Eigen::Vector3d lever(R->veh.base_from_gnss.t[0], R->veh.base_from_gnss.t[1], R->veh.base_from_gnss.t[2]);
+    if (pb_anchor_hold(utime, &poses, obs, R->anchor, lever, nullptr, &R->hold, err) != 0) return -1;
+    if (R->hold.held) {
+        for (size_t i = 0; i < poses.size(); i++) R->traj[i].pose = poses[i];
+        obs = observe_fixes(fixes, R->traj, R->veh, R->georef);
+        if (pb_anchor_fit(obs, nullptr, &R->anchor, err) != 0) return -1;
+        for (SweepPose &sp : R->traj) sp.pose = R->anchor.enu_from_map * sp.pose;
+    }
+    for (const pb_anchor_obs_t &o : obs) R->layers.fixes.push_back(o.fix_enu);
     return 0;
 }
 
@@ -1072,6 +1090,12 @@ static int write_report(const Run &R, const double cpu_ms[4], double wall_s, pb_
     cJSON_AddNumberToObject(j, "gnss_resid_median_m", R.anchor.resid_median_m);
     cJSON_AddNumberToObject(j, "gnss_resid_p90_m", R.anchor.resid_p90_m);
     cJSON_AddNumberToObject(j, "gnss_resid_max_m", R.anchor.resid_max_m);
+    cJSON_AddBoolToObject(j, "gnss_held", R.hold.held);   /* pb_anchor_hold: the drift bent onto the fixes */
+    cJSON_AddNumberToObject(j, "gnss_drift_ratio", R.hold.ratio);
+    cJSON_AddNumberToObject(j, "gnss_held_fixes", R.hold.fixes);
+    cJSON_AddNumberToObject(j, "gnss_held_max_change_m", R.hold.max_change_m);
+    cJSON_AddNumberToObject(j, "gnss_held_step_freedom", R.hold.step_scale);
+    cJSON_AddNumberToObject(j, "gnss_held_resid_p90_m", R.hold.resid_p90_m);
     cJSON_AddNumberToObject(j, "inlier_fraction_median", inl.empty() ? 0 : pct(inl, 0.5));
     cJSON_AddNumberToObject(j, "inlier_fraction_p01", inl.empty() ? 0 : pct(inl, 0.01));
     cJSON_AddNumberToObject(j, "path_m", path_m);

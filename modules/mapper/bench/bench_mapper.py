@@ -455,6 +455,67 @@ def carving_on_real_scans(log_path, refined, result):
         f"{rep['map_points'] + rep['map_points_carved']:,} points carved; inspect {out / 'report.png'} (magenta)")
 
 
+# ---------------------------------------------------------------- GNSS holding a drift
+
+HOLD_DRIFT = (0.005, 0.003)   # degrees of yaw a metre (0.5 per 100 m) and scale: an odometry that drifts
+
+
+def gnss_hold(log_path, result):
+    """The loop's GROUND_TRUTH given to the mapper (--poses), once as it is and once turned
+    by HOLD_DRIFT: the rigid GNSS fit alone (odometry.tum) against the fit and the hold
+    (trajectory.tum), horizontal error against the truth in the site's frame."""
+    import yaml
+    d = OUT / "sim" / "gnss_hold"
+    d.mkdir(parents=True, exist_ok=True)
+    sh([BIN / "pose-to-tum", "--log", log_path, "--out", d / "gt.tum", "--channel", "GROUND_TRUTH"])
+    t, P = tm.read_tum(d / "gt.tum")
+    t, P = t[::10], P[::10]
+    turn, scale = HOLD_DRIFT
+    Q = [P[0]]
+    for a, b in zip(P[:-1], P[1:]):
+        step = np.linalg.inv(a) @ b
+        step[:3, 3] *= 1 + scale
+        c, s_ = np.cos(np.radians(turn * np.linalg.norm(step[:3, 3]))), np.sin(np.radians(turn * np.linalg.norm(step[:3, 3])))
+        R = np.eye(4)
+        R[:2, :2] = [[c, -s_], [s_, c]]
+        Q.append(Q[-1] @ step @ R)
+    tm.write_tum(d / "drifted.tum", t, np.array(Q))
+    tm.write_tum(d / "truth.tum", t, P)
+    default = yaml.safe_load((ROOT / "maps" / "default" / "site.yaml").read_text())["georef"]
+    rows = []
+    for name in ("truth", "drifted"):
+        out = d / name
+        shutil.rmtree(out, ignore_errors=True)
+        sh([BIN / "mapper", "--log", log_path, "--out", out, "--poses", d / f"{name}.tum", "--quiet"])
+        rep = json.loads((out / "report.json").read_text())
+        S = tm.site_from_site(default, yaml.safe_load((out / "site.yaml").read_text())["georef"])
+        row = {"given": name, "ratio": rep["gnss_drift_ratio"], "held": rep["gnss_held"],
+               "max_change_m": rep["gnss_held_max_change_m"], "fixes": rep["gnss_held_fixes"]}
+        for f, label in (("odometry", "rigid"), ("trajectory", "held")):
+            tt, X = tm.read_tum(out / f"{f}.tum")
+            ok, G = tm.poses_at(t, P, tt)
+            e = np.linalg.norm((S @ X[ok])[:, :2, 3] - G[:, :2, 3], axis=1)
+            row[f"{label}_max_m"], row[f"{label}_rms_m"] = float(e.max()), float(np.sqrt(np.mean(e ** 2)))
+        rows.append(row)
+    result["gnss_hold"] = {"drift_deg_per_m": turn, "scale": scale, "rows": rows}
+
+
+def print_hold_table(result):
+    h = result.get("gnss_hold")
+    if not h:
+        return
+    print(f"GNSS holding a drift (the loop's GROUND_TRUTH given with --poses, as it is and turned "
+          f"{h['drift_deg_per_m'] * 100:g} deg a 100 m with {h['scale'] * 100:g} % scale error); horizontal error "
+          f"against the truth, m:")
+    hdr = f"{'given':<8} {'ratio':>6} {'held':>5} {'rigid max':>9} {'rigid rms':>9} {'held max':>8} {'held rms':>8}"
+    print(hdr)
+    print("-" * len(hdr))
+    for r in h["rows"]:
+        print(f"{r['given']:<8} {r['ratio']:>6.2f} {str(r['held']):>5} {r['rigid_max_m']:>9.2f} {r['rigid_rms_m']:>9.2f} "
+              f"{r['held_max_m']:>8.2f} {r['held_rms_m']:>8.2f}")
+    print()
+
+
 # ---------------------------------------------------------------- the localizer on the map
 
 LOC_DRIVES = [(1, "normal"), (2, "aggressive"), (3, "cautious")]   # 30 s each, as bench-localizer-drive's
@@ -620,6 +681,8 @@ def main():
         if "error" not in result["drives"]["sim"]["methods"]["ours"]:
             log("[sim] the localizer on the mapper's map ...")
             localize_on_mapped_map(log_path, OUT / "sim" / "ours", result)
+        log("[sim] GNSS holding a drifted trajectory ...")
+        gnss_hold(log_path, result)
     if "hills" in drives:
         bench_drive("hills", hills_drive(), ROOT / "vehicles" / "prius2017.yaml", SIM_SENSOR_RANGE_M, "GROUND_TRUTH",
                     None, args, result, world=(ROOT / "maps" / "hills", HILLS_ARGS))
@@ -643,6 +706,7 @@ def main():
           f"alignment; CPU ms per frame; RTF = scan period / mean CPU per frame")
     print_table(result)
     print_localizer_table(result)
+    print_hold_table(result)
     pathlib.Path(args.json).parent.mkdir(parents=True, exist_ok=True)
     pathlib.Path(args.json).write_text(json.dumps(result, indent=1, default=float) + "\n")
     print(f"written {args.json}")

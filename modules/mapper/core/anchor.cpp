@@ -2,7 +2,11 @@
 #include "anchor.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
+#include <ceres/ceres.h>
+
+#include "pose_graph.h"
 
 using Vec3 = Eigen::Vector3d;
 
@@ -31,6 +35,11 @@ static double quantile(std::vector<double> v, double q)
     return v[std::min(v.size() - 1, (size_t)std::floor(q * (double)(v.size() - 1) + 0.5))];
 }
 
+static bool gated_in(const pb_anchor_obs_t &o, const pb_anchor_config_t &cfg)
+{
+    return o.fix_3d && o.h_acc_m > 0 && o.h_acc_m <= cfg.max_h_acc_m && o.antenna_map.allFinite() && o.fix_enu.allFinite();
+}
+
 int pb_anchor_fit(const std::vector<pb_anchor_obs_t> &obs, const pb_anchor_config_t *cfg_in, pb_anchor_result_t *r,
                   pb_err_t *err)
 {
@@ -42,8 +51,7 @@ int pb_anchor_fit(const std::vector<pb_anchor_obs_t> &obs, const pb_anchor_confi
     // 1. the gate
     std::vector<size_t> use;
     for (size_t i = 0; i < obs.size(); i++) {
-        if (obs[i].fix_3d && obs[i].h_acc_m > 0 && obs[i].h_acc_m <= cfg.max_h_acc_m && obs[i].antenna_map.allFinite() &&
-            obs[i].fix_enu.allFinite())
+        if (gated_in(obs[i], cfg))
             use.push_back(i);
         else
             r->gated++;
@@ -88,5 +96,167 @@ int pb_anchor_fit(const std::vector<pb_anchor_obs_t> &obs, const pb_anchor_confi
     }
     r->anchored = 1;
     r->why = "";
+    return 0;
+}
+
+/* A fix's antenna position (seen from its node: d, in the node's frame) against the fix, per
+ * axis in sigmas (horizontal sigma_h, vertical sigma_v). Parameters: the node's q (x y z w), t. */
+struct FixError {
+    Vec3 d, fix;
+    double sigma_h, sigma_v;
+
+    template <class T>
+    bool operator()(const T *q_p, const T *t_p, T *res) const
+    {
+        Eigen::Map<const Eigen::Quaternion<T>> q(q_p);
+        Eigen::Map<const Eigen::Matrix<T, 3, 1>> t(t_p);
+        Eigen::Matrix<T, 3, 1> e = q * d.cast<T>() + t - fix.cast<T>();
+        res[0] = e[0] / T(sigma_h);
+        res[1] = e[1] / T(sigma_h);
+        res[2] = e[2] / T(sigma_v);
+        return true;
+    }
+};
+
+/* The pose at time t between the poses around it (utime in order, t within their span). */
+static Eigen::Isometry3d pose_at(const std::vector<int64_t> &utime, const std::vector<Eigen::Isometry3d> &poses, int64_t t)
+{
+    size_t b = (size_t)(std::upper_bound(utime.begin(), utime.end(), t) - utime.begin());
+    b = std::min(std::max<size_t>(b, 1), utime.size() - 1);
+    const size_t a = b - 1;
+    const double u = std::min(1.0, std::max(0.0, double(t - utime[a]) / double(utime[b] - utime[a])));
+    Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+    T.linear() = Eigen::Quaterniond(poses[a].linear()).slerp(u, Eigen::Quaterniond(poses[b].linear())).toRotationMatrix();
+    T.translation() = (1 - u) * poses[a].translation() + u * poses[b].translation();
+    return T;
+}
+
+/* A fix in the graph: on node k, the antenna at d in the node's frame. */
+struct HeldFix {
+    size_t k;
+    Vec3 d, fix;
+    double sigma_h;
+};
+
+/* Steps 2-4's least squares: nodes (before) joined by their steps with step_scale times the
+ * configured freedom, and the fixes; solved into *solved. The fixes' p90 distance from the
+ * antenna at the solution into *resid_p90. Returns 0, or -1 with err. */
+static int solve_hold(const std::vector<Eigen::Isometry3d> &before, const std::vector<HeldFix> &fixes,
+                      const pb_anchor_hold_config_t &cfg, double step_scale, std::vector<Eigen::Isometry3d> *solved,
+                      double *resid_p90, int *iterations, pb_err_t *err)
+{
+    const size_t n = before.size();
+    std::vector<std::array<double, 4>> q(n);
+    std::vector<std::array<double, 3>> t(n);
+    for (size_t k = 0; k < n; k++) {
+        Eigen::Quaterniond qq(before[k].linear());
+        q[k] = {qq.x(), qq.y(), qq.z(), qq.w()};
+        t[k] = {before[k].translation().x(), before[k].translation().y(), before[k].translation().z()};
+    }
+    ceres::Problem::Options popt;
+    popt.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+    popt.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+    ceres::Problem problem(popt);
+    ceres::EigenQuaternionManifold quat;
+    const double deg = M_PI / 180;
+    for (size_t k = 0; k + 1 < n; k++) {
+        Eigen::Isometry3d rel = before[k].inverse() * before[k + 1];
+        double sm = step_scale * cfg.step_sigma_m * std::max(1.0, rel.translation().norm());
+        problem.AddResidualBlock(new ceres::AutoDiffCostFunction<pb_relative_pose_error, 6, 4, 3, 4, 3>(
+                                     new pb_relative_pose_error{rel.translation(), Eigen::Quaterniond(rel.linear()),
+                                                                pb_sqrt_info(sm, step_scale * cfg.step_sigma_deg * deg)}),
+                                 nullptr, q[k].data(), t[k].data(), q[k + 1].data(), t[k + 1].data());
+    }
+    ceres::CauchyLoss loss(cfg.loss_sigmas);
+    for (const HeldFix &f : fixes)
+        problem.AddResidualBlock(new ceres::AutoDiffCostFunction<FixError, 3, 4, 3>(
+                                     new FixError{f.d, f.fix, f.sigma_h, 1.5 * f.sigma_h}),
+                                 &loss, q[f.k].data(), t[f.k].data());
+    for (size_t k = 0; k < n; k++) problem.SetManifold(q[k].data(), &quat);
+    ceres::Solver::Options sopt;
+    sopt.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
+    sopt.num_threads = 1;
+    sopt.max_num_iterations = 100;
+    sopt.logging_type = ceres::SILENT;
+    ceres::Solver::Summary sum;
+    ceres::Solve(sopt, &problem, &sum);
+    if (!sum.IsSolutionUsable())
+        return pb_err_set(err, "GNSS hold: the pose graph did not solve: %s", sum.message.c_str()), -1;
+    *iterations += (int)sum.iterations.size();
+    solved->resize(n);
+    for (size_t k = 0; k < n; k++) {
+        (*solved)[k] = Eigen::Isometry3d::Identity();
+        (*solved)[k].linear() = Eigen::Quaterniond(q[k][3], q[k][0], q[k][1], q[k][2]).normalized().toRotationMatrix();
+        (*solved)[k].translation() = Vec3(t[k][0], t[k][1], t[k][2]);
+    }
+    std::vector<double> d;
+    for (const HeldFix &f : fixes) d.push_back(((*solved)[f.k] * f.d - f.fix).norm());
+    *resid_p90 = d.empty() ? 0 : quantile(d, 0.9);
+    return 0;
+}
+
+int pb_anchor_hold(const std::vector<int64_t> &utime, std::vector<Eigen::Isometry3d> *poses,
+                   const std::vector<pb_anchor_obs_t> &obs, const pb_anchor_result_t &fit,
+                   const Vec3 &antenna, const pb_anchor_hold_config_t *cfg_in,
+                   pb_anchor_hold_result_t *r, pb_err_t *err)
+{
+    const pb_anchor_hold_config_t cfg = cfg_in ? *cfg_in : pb_anchor_hold_config_t{};
+    const pb_anchor_config_t gate{};
+    *r = pb_anchor_hold_result_t{};
+    const std::vector<Eigen::Isometry3d> &P = *poses;
+    if (!fit.anchored || P.size() < 2) return 0;
+
+    // 1. does the trajectory disagree with the fixes beyond what they say they err?
+    std::vector<double> acc;
+    for (const pb_anchor_obs_t &o : obs)
+        if (gated_in(o, gate)) acc.push_back(o.h_acc_m);
+    if (acc.empty()) return 0;
+    const double h_acc = quantile(acc, 0.5);
+    r->ratio = fit.resid_p90_m / h_acc;
+    if (!(r->ratio > cfg.inconsistent_ratio)) return 0;
+
+    // 2. nodes every node_spacing_m of path
+    std::vector<size_t> node;
+    double since = 0;
+    for (size_t i = 0; i < P.size(); i++) {
+        if (i) since += (P[i].translation() - P[i - 1].translation()).norm();
+        if (i == 0 || since >= cfg.node_spacing_m || i + 1 == P.size()) { node.push_back(i); since = 0; }
+    }
+    const size_t n = node.size();
+    std::vector<int64_t> node_utime(n);
+    std::vector<Eigen::Isometry3d> before(n);
+    for (size_t k = 0; k < n; k++) { before[k] = P[node[k]]; node_utime[k] = utime[node[k]]; }
+
+    // 3. the fixes, one per fix_every_s at most, on the antenna seen from the node before
+    std::vector<HeldFix> fixes;
+    int64_t last = INT64_MIN;
+    for (const pb_anchor_obs_t &o : obs) {
+        if (!gated_in(o, gate) || o.utime < utime.front() || o.utime > utime.back()) continue;
+        if (last != INT64_MIN && double(o.utime - last) < cfg.fix_every_s * 1e6) continue;
+        last = o.utime;
+        size_t k = (size_t)(std::upper_bound(node_utime.begin(), node_utime.end(), o.utime) - node_utime.begin());
+        k = k ? k - 1 : 0;
+        /* h_acc: the horizontal RMS of two axes */
+        fixes.push_back({k, before[k].inverse() * (pose_at(utime, P, o.utime) * antenna), o.fix_enu, o.h_acc_m / std::sqrt(2.0)});
+    }
+
+    // 4. solve; while the fixes still disagree as much, the steps are given more freedom (the
+    //    odometry drifted more than its sigmas say); every pose moved with its nodes
+    std::vector<Eigen::Isometry3d> solved;
+    double scale = 1, p90 = 0;
+    for (int round = 0; round < cfg.max_rounds; round++, scale *= 3) {
+        if (solve_hold(before, fixes, cfg, scale, &solved, &p90, &r->iterations, err) != 0) return -1;
+        if (!(p90 / h_acc > cfg.inconsistent_ratio)) break;
+    }
+    std::vector<Eigen::Isometry3d> moved = P;
+    pb_pose_graph_apply(node_utime, before, solved, utime, &moved);
+    for (size_t i = 0; i < moved.size(); i++)
+        r->max_change_m = std::max(r->max_change_m, (moved[i].translation() - P[i].translation()).norm());
+    poses->swap(moved);
+    r->held = 1;
+    r->nodes = (int)n;
+    r->fixes = (int)fixes.size();
+    r->step_scale = scale;
+    r->resid_p90_m = p90;
     return 0;
 }

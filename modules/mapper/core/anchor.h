@@ -14,6 +14,25 @@
  *   4. refuse: fewer than min_fixes left, or the antenna positions spanning less than
  *      min_extent_m (the heading would be a guess): not anchored, and the result says why.
  *
+ * A rigid transform cannot take out drift: when the fitted trajectory stays farther from the
+ * fixes than they say they err, pb_anchor_hold bends it onto them (a pose graph).
+ *
+ * Pipeline of pb_anchor_hold (the trajectory already moved onto the fixes by pb_anchor_fit):
+ *   1. test: held only when the fit's residual p90 exceeds inconsistent_ratio times the
+ *      fixes' median reported accuracy, i.e. the fixes see a drift their own errors do not
+ *      explain (a trajectory that fits them rigidly is left as it is: its shape is better
+ *      than theirs over the few hundred metres their errors are correlated);
+ *   2. nodes: a pose every node_spacing_m of path; steps between them are edges (the
+ *      trajectory's own shape, loop closures included, with step_sigma_* freedom);
+ *   3. fixes: at most one per fix_every_s (a receiver's errors are correlated over
+ *      seconds: ten a second would count one error ten times), each a unary edge on the
+ *      antenna's position at the fix's time, seen from the node before it; accuracy as
+ *      reported, vertical 1.5 times horizontal; a Cauchy loss (multipath, jumps);
+ *   4. solve (Ceres, one thread; no node fixed: the fixes hold the frame); while the fixes
+ *      still disagree beyond inconsistent_ratio, again with the steps' freedom tripled (the
+ *      odometry drifted more than its sigmas say), up to max_rounds; every pose moved by its
+ *      nodes' corrections (pose_graph.h).
+ *
  * Pure: no I/O, no clock. Ownership: plain values; nothing is kept. */
 #ifndef PB_MAPPER_ANCHOR_H
 #define PB_MAPPER_ANCHOR_H
@@ -32,6 +51,7 @@ typedef struct {
 } pb_anchor_config_t;
 
 typedef struct {
+    int64_t utime = 0;             /* of the fix (pb_anchor_hold) */
     Eigen::Vector3d antenna_map;   /* where the trajectory puts the antenna at the fix's time (map frame) */
     Eigen::Vector3d fix_enu;       /* the fix in the local east-north-up frame, metres */
     double h_acc_m;                /* the receiver's horizontal accuracy */
@@ -50,5 +70,33 @@ typedef struct {
 /* Fits obs; returns 0 (result->anchored tells whether it did), -1 with err for no input. */
 int pb_anchor_fit(const std::vector<pb_anchor_obs_t> &obs, const pb_anchor_config_t *cfg, pb_anchor_result_t *result,
                   pb_err_t *err);
+
+typedef struct {
+    double inconsistent_ratio = 3;   /* held when the fit's residual p90 > this x the fixes' median h_acc */
+    double node_spacing_m = 2;       /* graph nodes along the path */
+    double fix_every_s = 1;          /* at most one fix in the graph per this */
+    double step_sigma_m = 0.01;      /* a step between nodes: per metre of it, at least 1 cm ... */
+    double step_sigma_deg = 0.05;    /* ... and this per step */
+    double loss_sigmas = 3;          /* Cauchy loss scale, in sigmas of the fix */
+    int max_rounds = 4;              /* solves, the steps' freedom tripled each time the fixes still disagree */
+} pb_anchor_hold_config_t;
+
+typedef struct {
+    int held;                        /* 1: the trajectory was bent onto the fixes */
+    double ratio;                    /* the fit's residual p90 / the fixes' median h_acc (step 1) */
+    int nodes, fixes, iterations;    /* of the graph */
+    double max_change_m;             /* largest move of a pose */
+    double step_scale;               /* the steps' freedom used, times step_sigma_* */
+    double resid_p90_m;              /* the fixes' p90 distance from the held antenna */
+} pb_anchor_hold_result_t;
+
+/* Step 1-4 above on poses (enu <- base, every sweep in time order, at utime; moved in place)
+ * with the fixes fit (the obs of pb_anchor_fit, fix_enu in the same ENU frame) and its
+ * result. antenna: the antenna's position in base. Returns 0 (result->held tells whether it
+ * bent anything), -1 with err (the graph did not solve; poses unchanged). */
+int pb_anchor_hold(const std::vector<int64_t> &utime, std::vector<Eigen::Isometry3d> *poses,
+                   const std::vector<pb_anchor_obs_t> &obs, const pb_anchor_result_t &fit,
+                   const Eigen::Vector3d &antenna, const pb_anchor_hold_config_t *cfg,
+                   pb_anchor_hold_result_t *result, pb_err_t *err);
 
 #endif

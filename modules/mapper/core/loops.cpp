@@ -8,45 +8,11 @@
 #include <ceres/ceres.h>
 
 #include "places.h"
+#include "pose_graph.h"
 #include "registration.h"
 #include "regmap.h"
 
 using Vec3 = Eigen::Vector3d;
-
-namespace {
-
-/* The relative pose b in a's frame against a measured one: translation error in a's frame
- * and twice the vector part of the rotation error quaternion (small angles: the angle),
- * weighted by the edge's square-root information. */
-struct RelativePoseError {
-    Vec3 t_ab;
-    Eigen::Quaterniond q_ab;
-    Eigen::Matrix<double, 6, 6> sqrt_info;
-
-    template <class T>
-    bool operator()(const T *qa_p, const T *ta_p, const T *qb_p, const T *tb_p, T *res) const
-    {
-        Eigen::Map<const Eigen::Quaternion<T>> qa(qa_p), qb(qb_p);
-        Eigen::Map<const Eigen::Matrix<T, 3, 1>> ta(ta_p), tb(tb_p);
-        Eigen::Quaternion<T> qa_inv = qa.conjugate();
-        Eigen::Matrix<T, 3, 1> t_est = qa_inv * (tb - ta);
-        Eigen::Quaternion<T> dq = q_ab.template cast<T>().conjugate() * (qa_inv * qb);
-        Eigen::Map<Eigen::Matrix<T, 6, 1>> r(res);
-        r.template head<3>() = t_est - t_ab.template cast<T>();
-        r.template tail<3>() = T(2.0) * dq.vec();
-        r.applyOnTheLeft(sqrt_info.template cast<T>());
-        return true;
-    }
-};
-
-Eigen::Matrix<double, 6, 6> sqrt_info_of(double sigma_m, double sigma_rad)
-{
-    Eigen::Matrix<double, 6, 1> d;
-    d << Vec3::Constant(1 / sigma_m), Vec3::Constant(1 / sigma_rad);
-    return d.asDiagonal();
-}
-
-}  // namespace
 
 struct Loop {
     size_t i, j;
@@ -137,17 +103,17 @@ static int solve(const std::vector<pb_keyframe_t> &kf, const std::vector<Loop> &
     ceres::Problem problem(popt);
     ceres::EigenQuaternionManifold quat;
     auto add_edge = [&](size_t a, size_t b, const Eigen::Isometry3d &rel, const Eigen::Matrix<double, 6, 6> &si) {
-        auto *f = new ceres::AutoDiffCostFunction<RelativePoseError, 6, 4, 3, 4, 3>(
-            new RelativePoseError{rel.translation(), Eigen::Quaterniond(rel.linear()), si});
+        auto *f = new ceres::AutoDiffCostFunction<pb_relative_pose_error, 6, 4, 3, 4, 3>(
+            new pb_relative_pose_error{rel.translation(), Eigen::Quaterniond(rel.linear()), si});
         problem.AddResidualBlock(f, nullptr, q[a].data(), t[a].data(), q[b].data(), t[b].data());
     };
     const double deg = M_PI / 180;
     for (size_t k = 0; k + 1 < n; k++) {
         Eigen::Isometry3d rel = kf[k].pose.inverse() * kf[k + 1].pose;
         double sm = cfg.odom_sigma_m * std::max(1.0, rel.translation().norm());
-        add_edge(k, k + 1, rel, sqrt_info_of(sm, cfg.odom_sigma_deg * deg));
+        add_edge(k, k + 1, rel, pb_sqrt_info(sm, cfg.odom_sigma_deg * deg));
     }
-    for (const Loop &l : loops) add_edge(l.i, l.j, l.rel, sqrt_info_of(cfg.loop_sigma_m, cfg.loop_sigma_deg * deg));
+    for (const Loop &l : loops) add_edge(l.i, l.j, l.rel, pb_sqrt_info(cfg.loop_sigma_m, cfg.loop_sigma_deg * deg));
     for (size_t k = 0; k < n; k++) problem.SetManifold(q[k].data(), &quat);
     problem.SetParameterBlockConstant(q[0].data());
     problem.SetParameterBlockConstant(t[0].data());
