@@ -6,7 +6,7 @@ $(OBJ)/modules/mapper/%.o: CPPFLAGS += -I$(TOP)/modules/localizer/core -I$(TOP)/
                                        -I$(TOP)/modules/localizer -I$(TOP)/tools/build-ground
 
 # Unit tests of the loop closure, the GNSS anchoring and the carving (run by make test through tests/test_c_units.py).
-$(eval $(call cxx_test,test_mapper_loops,tests/c/test_mapper_loops.cpp modules/mapper/core/loops.cpp $(LOCREG_CORE),-lceres -lglog))
+$(eval $(call cxx_test,test_mapper_loops,tests/c/test_mapper_loops.cpp modules/mapper/core/loops.cpp modules/mapper/core/pose_graph.cpp $(LOCREG_CORE),-lceres -lglog))
 $(OBJ)/tests/c/test_mapper_loops.o: CPPFLAGS += -I$(TOP)/modules/localizer/core
 $(eval $(call cxx_test,test_mapper_anchor,tests/c/test_mapper_anchor.cpp modules/mapper/core/anchor.cpp modules/mapper/core/pose_graph.cpp,-lceres -lglog))
 $(eval $(call cxx_test,test_mapper_carve,tests/c/test_mapper_carve.cpp modules/mapper/core/carve.cpp))

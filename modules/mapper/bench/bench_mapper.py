@@ -507,12 +507,13 @@ def print_hold_table(result):
     print(f"GNSS holding a drift (the loop's GROUND_TRUTH given with --poses, as it is and turned "
           f"{h['drift_deg_per_m'] * 100:g} deg a 100 m with {h['scale'] * 100:g} % scale error); horizontal error "
           f"against the truth, m:")
-    hdr = f"{'given':<8} {'ratio':>6} {'held':>5} {'rigid max':>9} {'rigid rms':>9} {'held max':>8} {'held rms':>8}"
-    print(hdr)
-    print("-" * len(hdr))
+    cols = [("given", "<8", "given", "{}"), ("ratio", ">6", "ratio", "{:.2f}"), ("held", ">5", "held", "{}"),
+            ("rigid max", ">9", "rigid_max_m", "{:.2f}"), ("rigid rms", ">9", "rigid_rms_m", "{:.2f}"),
+            ("held max", ">8", "held_max_m", "{:.2f}"), ("held rms", ">8", "held_rms_m", "{:.2f}")]
+    hdr = " ".join(f"{name:{align}}" for name, align, _, _ in cols)
+    print(hdr + "\n" + "-" * len(hdr))
     for r in h["rows"]:
-        print(f"{r['given']:<8} {r['ratio']:>6.2f} {str(r['held']):>5} {r['rigid_max_m']:>9.2f} {r['rigid_rms_m']:>9.2f} "
-              f"{r['held_max_m']:>8.2f} {r['held_rms_m']:>8.2f}")
+        print(" ".join(f"{f.format(r[key]):{align}}" for _, align, key, f in cols))
     print()
 
 

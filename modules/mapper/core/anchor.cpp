@@ -2,7 +2,6 @@
 #include "anchor.h"
 
 #include <algorithm>
-#include <array>
 #include <cmath>
 #include <ceres/ceres.h>
 
@@ -145,50 +144,20 @@ static int solve_hold(const std::vector<Eigen::Isometry3d> &before, const std::v
                       const pb_anchor_hold_config_t &cfg, double step_scale, std::vector<Eigen::Isometry3d> *solved,
                       double *resid_p90, int *iterations, pb_err_t *err)
 {
-    const size_t n = before.size();
-    std::vector<std::array<double, 4>> q(n);
-    std::vector<std::array<double, 3>> t(n);
-    for (size_t k = 0; k < n; k++) {
-        Eigen::Quaterniond qq(before[k].linear());
-        q[k] = {qq.x(), qq.y(), qq.z(), qq.w()};
-        t[k] = {before[k].translation().x(), before[k].translation().y(), before[k].translation().z()};
-    }
-    ceres::Problem::Options popt;
-    popt.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
-    popt.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
-    ceres::Problem problem(popt);
-    ceres::EigenQuaternionManifold quat;
+    pb_pose_graph g(before);
     const double deg = M_PI / 180;
-    for (size_t k = 0; k + 1 < n; k++) {
+    for (size_t k = 0; k + 1 < before.size(); k++) {
         Eigen::Isometry3d rel = before[k].inverse() * before[k + 1];
         double sm = step_scale * cfg.step_sigma_m * std::max(1.0, rel.translation().norm());
-        problem.AddResidualBlock(new ceres::AutoDiffCostFunction<pb_relative_pose_error, 6, 4, 3, 4, 3>(
-                                     new pb_relative_pose_error{rel.translation(), Eigen::Quaterniond(rel.linear()),
-                                                                pb_sqrt_info(sm, step_scale * cfg.step_sigma_deg * deg)}),
-                                 nullptr, q[k].data(), t[k].data(), q[k + 1].data(), t[k + 1].data());
+        g.add_edge(k, k + 1, rel, pb_sqrt_info(sm, step_scale * cfg.step_sigma_deg * deg));
     }
     ceres::CauchyLoss loss(cfg.loss_sigmas);
     for (const HeldFix &f : fixes)
-        problem.AddResidualBlock(new ceres::AutoDiffCostFunction<FixError, 3, 4, 3>(
-                                     new FixError{f.d, f.fix, f.sigma_h, 1.5 * f.sigma_h}),
-                                 &loss, q[f.k].data(), t[f.k].data());
-    for (size_t k = 0; k < n; k++) problem.SetManifold(q[k].data(), &quat);
-    ceres::Solver::Options sopt;
-    sopt.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
-    sopt.num_threads = 1;
-    sopt.max_num_iterations = 100;
-    sopt.logging_type = ceres::SILENT;
-    ceres::Solver::Summary sum;
-    ceres::Solve(sopt, &problem, &sum);
-    if (!sum.IsSolutionUsable())
-        return pb_err_set(err, "GNSS hold: the pose graph did not solve: %s", sum.message.c_str()), -1;
-    *iterations += (int)sum.iterations.size();
-    solved->resize(n);
-    for (size_t k = 0; k < n; k++) {
-        (*solved)[k] = Eigen::Isometry3d::Identity();
-        (*solved)[k].linear() = Eigen::Quaterniond(q[k][3], q[k][0], q[k][1], q[k][2]).normalized().toRotationMatrix();
-        (*solved)[k].translation() = Vec3(t[k][0], t[k][1], t[k][2]);
-    }
+        g.problem.AddResidualBlock(new ceres::AutoDiffCostFunction<FixError, 3, 4, 3>(
+                                       new FixError{f.d, f.fix, f.sigma_h, 1.5 * f.sigma_h}),
+                                   &loss, g.q[f.k].data(), g.t[f.k].data());
+    if (g.solve("GNSS hold", iterations, err) != 0) return -1;
+    *solved = g.poses();
     std::vector<double> d;
     for (const HeldFix &f : fixes) d.push_back(((*solved)[f.k] * f.d - f.fix).norm());
     *resid_p90 = d.empty() ? 0 : quantile(d, 0.9);

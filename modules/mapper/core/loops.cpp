@@ -89,50 +89,20 @@ static bool verify(const std::vector<pb_keyframe_t> &kf, const std::vector<doubl
 static int solve(const std::vector<pb_keyframe_t> &kf, const std::vector<Loop> &loops, const pb_loops_config_t &cfg,
                  std::vector<Eigen::Isometry3d> *out, int *iterations, pb_err_t *err)
 {
-    const size_t n = kf.size();
-    std::vector<std::array<double, 4>> q(n);
-    std::vector<std::array<double, 3>> t(n);
-    for (size_t k = 0; k < n; k++) {
-        Eigen::Quaterniond qq(kf[k].pose.linear());
-        q[k] = {qq.x(), qq.y(), qq.z(), qq.w()};
-        Vec3 tt = kf[k].pose.translation();
-        t[k] = {tt.x(), tt.y(), tt.z()};
-    }
-    ceres::Problem::Options popt;
-    popt.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
-    ceres::Problem problem(popt);
-    ceres::EigenQuaternionManifold quat;
-    auto add_edge = [&](size_t a, size_t b, const Eigen::Isometry3d &rel, const Eigen::Matrix<double, 6, 6> &si) {
-        auto *f = new ceres::AutoDiffCostFunction<pb_relative_pose_error, 6, 4, 3, 4, 3>(
-            new pb_relative_pose_error{rel.translation(), Eigen::Quaterniond(rel.linear()), si});
-        problem.AddResidualBlock(f, nullptr, q[a].data(), t[a].data(), q[b].data(), t[b].data());
-    };
+    std::vector<Eigen::Isometry3d> start;
+    for (const pb_keyframe_t &k : kf) start.push_back(k.pose);
+    pb_pose_graph g(start);
     const double deg = M_PI / 180;
-    for (size_t k = 0; k + 1 < n; k++) {
+    for (size_t k = 0; k + 1 < kf.size(); k++) {
         Eigen::Isometry3d rel = kf[k].pose.inverse() * kf[k + 1].pose;
         double sm = cfg.odom_sigma_m * std::max(1.0, rel.translation().norm());
-        add_edge(k, k + 1, rel, pb_sqrt_info(sm, cfg.odom_sigma_deg * deg));
+        g.add_edge(k, k + 1, rel, pb_sqrt_info(sm, cfg.odom_sigma_deg * deg));
     }
-    for (const Loop &l : loops) add_edge(l.i, l.j, l.rel, pb_sqrt_info(cfg.loop_sigma_m, cfg.loop_sigma_deg * deg));
-    for (size_t k = 0; k < n; k++) problem.SetManifold(q[k].data(), &quat);
-    problem.SetParameterBlockConstant(q[0].data());
-    problem.SetParameterBlockConstant(t[0].data());
-    ceres::Solver::Options sopt;
-    sopt.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
-    sopt.num_threads = 1;
-    sopt.max_num_iterations = 100;
-    sopt.logging_type = ceres::SILENT;
-    ceres::Solver::Summary sum;
-    ceres::Solve(sopt, &problem, &sum);
-    if (!sum.IsSolutionUsable())
-        return pb_err_set(err, "loop closure: the pose graph did not solve: %s", sum.message.c_str()), -1;
-    *iterations += (int)sum.iterations.size();
-    for (size_t k = 0; k < n; k++) {
-        Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-        T.linear() = Eigen::Quaterniond(q[k][3], q[k][0], q[k][1], q[k][2]).normalized().toRotationMatrix();
-        T.translation() = Vec3(t[k][0], t[k][1], t[k][2]);
-        (*out)[k] = T;
-    }
+    for (const Loop &l : loops) g.add_edge(l.i, l.j, l.rel, pb_sqrt_info(cfg.loop_sigma_m, cfg.loop_sigma_deg * deg));
+    g.problem.SetParameterBlockConstant(g.q[0].data());
+    g.problem.SetParameterBlockConstant(g.t[0].data());
+    if (g.solve("loop closure", iterations, err) != 0) return -1;
+    *out = g.poses();
     return 0;
 }
 
