@@ -20,31 +20,73 @@ static int cmp_float(const void *a, const void *b)
     return (x > y) - (x < y);
 }
 
-pb_ground_t *gb_build(const float *pts, size_t n, size_t stride, const gb_config_t *c, size_t *nground)
+struct gb_accum {
+    gb_config_t c;
+    double x0, y0;
+    int nx, ny;
+    float *zmin;
+};
+
+void gb_bounds(const float *pts, size_t n, size_t stride, double lo[2], double hi[2])
 {
-    if (n == 0) return NULL;
-    double lo[2] = { INFINITY, INFINITY }, hi[2] = { -INFINITY, -INFINITY };
     for (size_t i = 0; i < n; i++) {
         const float *p = pts + i * stride;
         if (!isfinite(p[0]) || !isfinite(p[1]) || !isfinite(p[2])) continue;
         lo[0] = fmin(lo[0], p[0]); lo[1] = fmin(lo[1], p[1]);
         hi[0] = fmax(hi[0], p[0]); hi[1] = fmax(hi[1], p[1]);
     }
+}
+
+gb_accum_t *gb_begin(const double lo[2], const double hi[2], const gb_config_t *c)
+{
     if (!isfinite(lo[0])) return NULL;
+    gb_accum_t *a = malloc(sizeof *a);
+    if (!a) return NULL;
+    a->c = *c;
     const double cs = c->cell_m;
-    double x0 = floor(lo[0] / cs) * cs, y0 = floor(lo[1] / cs) * cs;
-    int nx = (int)ceil((hi[0] - x0) / cs) + 2, ny = (int)ceil((hi[1] - y0) / cs) + 2;
-    size_t N = (size_t)nx * ny;
-    /* 1. lowest point per cell (cells centred on the grid's corners) */
-    float *zmin = malloc(N * sizeof *zmin), *win = malloc(N * sizeof *win), *g = malloc(N * sizeof *g);
-    for (size_t k = 0; k < N; k++) zmin[k] = INFINITY;
+    a->x0 = floor(lo[0] / cs) * cs;
+    a->y0 = floor(lo[1] / cs) * cs;
+    a->nx = (int)ceil((hi[0] - a->x0) / cs) + 2;
+    a->ny = (int)ceil((hi[1] - a->y0) / cs) + 2;
+    size_t N = (size_t)a->nx * a->ny;
+    a->zmin = malloc(N * sizeof *a->zmin);
+    if (!a->zmin) { free(a); return NULL; }
+    for (size_t k = 0; k < N; k++) a->zmin[k] = INFINITY;
+    return a;
+}
+
+/* 1. lowest point per cell (cells centred on the grid's corners) */
+void gb_add(gb_accum_t *a, const float *pts, size_t n, size_t stride)
+{
+    const double cs = a->c.cell_m;
     for (size_t i = 0; i < n; i++) {
         const float *p = pts + i * stride;
         if (!isfinite(p[0]) || !isfinite(p[1]) || !isfinite(p[2])) continue;
-        int ix = (int)lround((p[0] - x0) / cs), iy = (int)lround((p[1] - y0) / cs);
-        size_t k = (size_t)iy * nx + ix;
-        if (p[2] < zmin[k]) zmin[k] = p[2];
+        int ix = (int)lround((p[0] - a->x0) / cs), iy = (int)lround((p[1] - a->y0) / cs);
+        size_t k = (size_t)iy * a->nx + ix;
+        if (p[2] < a->zmin[k]) a->zmin[k] = p[2];
     }
+}
+
+pb_ground_t *gb_build(const float *pts, size_t n, size_t stride, const gb_config_t *c, size_t *nground)
+{
+    if (n == 0) return NULL;
+    double lo[2] = { INFINITY, INFINITY }, hi[2] = { -INFINITY, -INFINITY };
+    gb_bounds(pts, n, stride, lo, hi);
+    gb_accum_t *a = gb_begin(lo, hi, c);
+    if (!a) return NULL;
+    gb_add(a, pts, n, stride);
+    return gb_finish(a, nground);
+}
+
+pb_ground_t *gb_finish(gb_accum_t *a, size_t *nground)
+{
+    const gb_config_t cfg = a->c, *c = &cfg;
+    const double cs = c->cell_m, x0 = a->x0, y0 = a->y0;
+    const int nx = a->nx, ny = a->ny;
+    size_t N = (size_t)nx * ny;
+    float *zmin = a->zmin, *win = malloc(N * sizeof *win), *g = malloc(N * sizeof *g);
+    free(a);
     /* 2. the lowest point within the window (separable: rows, then columns) */
     int r = (int)ceil(c->window_m / cs);
     float *tmp = malloc(N * sizeof *tmp);
