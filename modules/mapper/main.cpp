@@ -1120,6 +1120,7 @@ static int pass_carve(Run *R, const pb_ground_t *ground, pb_err_t *err)
     bool finishing = false;   /* the pass is over: the tiles read back for their verdicts */
     auto page_in = [&](int64_t k, pb_err_t *e) -> pb_carve_t * {
         if (tile_read(tile_path(R, 'p', k), &pts, e) != 0) return nullptr;
+        if (pts.empty()) return pb_err_set(e, "%s: no point in the tile", tile_path(R, 'p', k).c_str()), nullptr;
         pb_carve_t *c = pb_carve_create(pts[0].p, pts.size(), sizeof(TilePoint) / sizeof(float), ground, &ccfg);
         const std::string counts = tile_path(R, 'c', k);
         if (read_file(counts, &bytes) != 0) return c;   /* never paged out */
