@@ -954,6 +954,50 @@ static bool sweep_reach(const Run *R, const pb_points_t &pts, int64_t utime, dou
     return true;
 }
 
+/* Tile k of the map's grid moved out into *vox (empty when not held). */
+static void take_tile(pb_map_builder_t *map, int64_t k, std::vector<pb_map_voxel_t> *vox)
+{
+    const int32_t tx = (int32_t)((uint64_t)k >> 32), ty = (int32_t)(uint32_t)k;
+    vox->resize((size_t)pb_map_builder_tile_size(map, tx, ty));
+    pb_map_builder_tile_take(map, tx, ty, vox->data());
+}
+
+/* Every tile's finished voxels (those held by map, those paged out) as points in the
+ * carving's tiles (by its cells: no cell spans two), appended to their files; the map's
+ * extent for the ground model. */
+static int to_carving_tiles(Run *R, pb_map_builder_t *map, std::vector<int64_t> all, const std::unordered_set<int64_t> &out,
+                            pb_err_t *err)
+{
+    const pb_carve_config_t ccfg{};
+    const TileGrid cgrid{1.0 / ccfg.cell_m, std::max<int64_t>(1, std::lround(R->tile_m / ccfg.cell_m))};
+    std::sort(all.begin(), all.end());
+    R->ground_lo[0] = R->ground_lo[1] = INFINITY;
+    R->ground_hi[0] = R->ground_hi[1] = -INFINITY;
+    std::vector<pb_map_voxel_t> vox;
+    std::map<int64_t, std::vector<TilePoint>> parts;
+    for (int64_t k : all) {
+        if (!out.count(k)) take_tile(map, k, &vox);
+        else if (tile_read(tile_path(R, 'v', k), &vox, err) != 0) return -1;
+        std::remove(tile_path(R, 'v', k).c_str());
+        parts.clear();
+        for (const pb_map_voxel_t &v : vox) {
+            TilePoint tp;
+            tp.seq = v.seq;
+            pb_map_voxel_point(map, &v, tp.p);
+            parts[tile_key(cgrid.of(tp.p[0]), cgrid.of(tp.p[1]))].push_back(tp);
+            gb_bounds(tp.p, 1, 4, R->ground_lo, R->ground_hi);
+        }
+        R->voxels += vox.size();
+        for (const auto &pt : parts) {
+            R->carve_tiles.insert(pt.first);
+            if (tile_write(tile_path(R, 'p', pt.first), pt.second.data(), pt.second.size(), true, err) != 0) return -1;
+        }
+    }
+    if (R->voxels == 0)
+        return pb_err_set(err, "%s: the map has no points (no scan had bracketing poses?)", R->path("map.pcd").c_str()), -1;
+    return 0;
+}
+
 /* Pass 2: the map, every point with the pose at its time, in tiles: those the sweep can
  * reach are held (paged back in when they were out), those no sweep of the last 20 reached
  * are paged out. Then the finished voxels are sorted into the carving's tiles. The poses
@@ -984,8 +1028,7 @@ static int pass_map(Run *R, pb_err_t *err)
     std::vector<pb_map_voxel_t> vox;
     std::vector<int32_t> xy;
     auto page_out = [&](int64_t k, pb_err_t *e) {
-        vox.resize((size_t)pb_map_builder_tile_size(map, (int32_t)((uint64_t)k >> 32), (int32_t)(uint32_t)k));
-        pb_map_builder_tile_take(map, (int32_t)((uint64_t)k >> 32), (int32_t)(uint32_t)k, vox.data());
+        take_tile(map, k, &vox);
         held.erase(k);
         if (vox.empty()) return 0;   /* reached, no point fell there */
         out.insert(k);
@@ -1038,40 +1081,11 @@ static int pass_map(Run *R, pb_err_t *err)
             return 0;
         }, &empty, err, nullptr, true);
     if (rc == 0) pb_progress_finish(&prog);
-    // every tile's finished points into the carving's tiles (by its cells)
-    const pb_carve_config_t ccfg{};
-    const TileGrid cgrid{1.0 / ccfg.cell_m, std::max<int64_t>(1, std::lround(R->tile_m / ccfg.cell_m))};
+    // every tile's finished points into the carving's tiles
     std::vector<int64_t> all(out.begin(), out.end());
     for (const auto &h : held) all.push_back(h.first);
-    std::sort(all.begin(), all.end());
-    R->ground_lo[0] = R->ground_lo[1] = INFINITY;
-    R->ground_hi[0] = R->ground_hi[1] = -INFINITY;
-    std::map<int64_t, std::vector<TilePoint>> parts;
-    for (size_t i = 0; rc == 0 && i < all.size(); i++) {
-        const int64_t k = all[i];
-        if (held.count(k)) {
-            vox.resize((size_t)pb_map_builder_tile_size(map, (int32_t)((uint64_t)k >> 32), (int32_t)(uint32_t)k));
-            pb_map_builder_tile_take(map, (int32_t)((uint64_t)k >> 32), (int32_t)(uint32_t)k, vox.data());
-        } else if ((rc = tile_read(tile_path(R, 'v', k), &vox, err)) != 0) {
-            break;
-        }
-        std::remove(tile_path(R, 'v', k).c_str());
-        parts.clear();
-        for (const pb_map_voxel_t &v : vox) {
-            TilePoint tp;
-            tp.seq = v.seq;
-            pb_map_voxel_point(map, &v, tp.p);
-            parts[tile_key(cgrid.of(tp.p[0]), cgrid.of(tp.p[1]))].push_back(tp);
-            gb_bounds(tp.p, 1, 4, R->ground_lo, R->ground_hi);
-        }
-        R->voxels += vox.size();
-        for (const auto &pt : parts) {
-            R->carve_tiles.insert(pt.first);
-            if ((rc = tile_write(tile_path(R, 'p', pt.first), pt.second.data(), pt.second.size(), true, err)) != 0) break;
-        }
-    }
+    if (rc == 0) rc = to_carving_tiles(R, map, all, out, err);
     pb_map_builder_destroy(map);
-    if (rc == 0 && R->voxels == 0) rc = pb_err_set(err, "%s: the map has no points (no scan had bracketing poses?)", R->path("map.pcd").c_str());
     return rc;
 }
 
@@ -1103,46 +1117,115 @@ static pb_ground_t *make_ground(Run *R, pb_err_t *err)
     return ground;
 }
 
-/* Pass 3: what moved is carved out of the map (core/carve.h), on a sample of the rays
- * (every 4th sweep, every 13th point: 13 is prime to the beam count, so every beam takes
- * its turn); the band over the ground model is spared. A tile of the carving is held (its
- * points' cells and their counts) while the rays of the last 10 sampled sweeps could reach
- * it (max_range_m of their origins), else its counts are paged out; each ray is cast in the
- * tiles under it. Then every tile's kept points are written sorted by seq. */
-static int pass_carve(Run *R, const pb_ground_t *ground, pb_err_t *err)
-{
-    const pb_carve_config_t ccfg{};
-    const TileGrid cgrid{1.0 / ccfg.cell_m, std::max<int64_t>(1, std::lround(R->tile_m / ccfg.cell_m))};
-    struct Held { pb_carve_t *carve; long last; };
+/* The carving's tiles (those that hold points): each held as a pb_carve_t of its points,
+ * its counts paged out to its 'c' file and back. */
+struct CarveTiles {
+    Run *R;
+    const pb_ground_t *ground;
+    pb_carve_config_t cfg;
+    struct Held { pb_carve_t *carve; long last; };   /* last: the sampled sweep that last reached it */
     std::map<int64_t, Held> held;
-    std::vector<TilePoint> pts;
+    std::vector<TilePoint> pts;                      /* the last tile read */
     std::vector<uint8_t> bytes;
-    bool finishing = false;   /* the pass is over: the tiles read back for their verdicts */
-    auto page_in = [&](int64_t k, pb_err_t *e) -> pb_carve_t * {
+
+    ~CarveTiles() { for (auto &h : held) pb_carve_destroy(h.second.carve); }
+
+    /* Tile k's carving made from its points (read into pts) and given its counts, if it
+     * was paged out; NULL on error. */
+    pb_carve_t *make(int64_t k, bool *was_out, pb_err_t *e)
+    {
         if (tile_read(tile_path(R, 'p', k), &pts, e) != 0) return nullptr;
         if (pts.empty()) return pb_err_set(e, "%s: no point in the tile", tile_path(R, 'p', k).c_str()), nullptr;
-        pb_carve_t *c = pb_carve_create(pts[0].p, pts.size(), sizeof(TilePoint) / sizeof(float), ground, &ccfg);
+        pb_carve_t *c = pb_carve_create(pts[0].p, pts.size(), sizeof(TilePoint) / sizeof(float), ground, &cfg);
         const std::string counts = tile_path(R, 'c', k);
-        if (read_file(counts, &bytes) != 0) return c;   /* never paged out */
-        if (pb_carve_load(c, bytes.data(), bytes.size()) != 0) {
+        *was_out = read_file(counts, &bytes) == 0;
+        if (*was_out && pb_carve_load(c, bytes.data(), bytes.size()) != 0) {
             pb_carve_destroy(c);
             return pb_err_set(e, "%s: not this tile's counts", counts.c_str()), nullptr;
         }
-        if (!finishing) R->carve_tiles_paged_in++;
         return c;
-    };
-    auto page_out = [&](std::map<int64_t, Held>::iterator it, pb_err_t *e) {
-        pb_carve_save(it->second.carve, &bytes);
-        pb_carve_destroy(it->second.carve);
-        R->carve_tiles_paged_out++;
-        const int64_t k = it->first;
-        held.erase(it);
-        return tile_write(tile_path(R, 'c', k), bytes.data(), bytes.size(), false, e);
-    };
+    }
+
+    /* Tile k held (paged back in if it was out); NULL on error. */
+    pb_carve_t *hold(int64_t k, long sampled, pb_err_t *e)
+    {
+        auto it = held.find(k);
+        if (it == held.end()) {
+            bool was_out;
+            pb_carve_t *c = make(k, &was_out, e);
+            if (!c) return nullptr;
+            R->carve_tiles_paged_in += was_out;
+            it = held.emplace(k, Held{c, 0}).first;
+        }
+        it->second.last = sampled;
+        return it->second.carve;
+    }
+
+    /* The tiles no sampled sweep since `since` reached: their counts paged out. */
+    int page_out(long since, pb_err_t *e)
+    {
+        for (auto it = held.begin(); it != held.end();) {
+            if (it->second.last >= since) { ++it; continue; }
+            pb_carve_save(it->second.carve, &bytes);
+            pb_carve_destroy(it->second.carve);
+            const std::string path = tile_path(R, 'c', it->first);
+            it = held.erase(it);
+            R->carve_tiles_paged_out++;
+            if (tile_write(path, bytes.data(), bytes.size(), false, e) != 0) return -1;
+        }
+        return 0;
+    }
+
+    /* Every tile's verdicts: its kept points sorted by seq (map.pcd's order) to its 'k'
+     * file, the carved ones to the picture's layer. */
+    int finish(pb_err_t *err)
+    {
+        std::vector<uint8_t> keep;
+        std::vector<TilePoint> kept;
+        for (int64_t k : R->carve_tiles) {
+            auto it = held.find(k);
+            pb_carve_t *c;
+            if (it == held.end()) {
+                bool was_out;
+                if (!(c = make(k, &was_out, err))) return -1;
+            } else {
+                c = it->second.carve;
+                held.erase(it);
+                if (tile_read(tile_path(R, 'p', k), &pts, err) != 0) { pb_carve_destroy(c); return -1; }
+            }
+            R->carved += pb_carve_keep(c, &keep);
+            pb_carve_destroy(c);
+            kept.clear();
+            for (size_t i = 0; i < pts.size(); i++) {
+                if (keep[i]) kept.push_back(pts[i]);
+                else R->layers.removed.insert(R->layers.removed.end(), {pts[i].p[0], pts[i].p[1], pts[i].p[2]});
+            }
+            std::sort(kept.begin(), kept.end(), [](const TilePoint &a, const TilePoint &b) { return a.seq < b.seq; });
+            R->map_points += kept.size();
+            R->kept_tiles.push_back({k, kept.empty() ? UINT32_MAX : kept[0].seq});
+            if (tile_write(tile_path(R, 'k', k), kept.data(), kept.size(), false, err) != 0) return -1;
+            std::remove(tile_path(R, 'p', k).c_str());
+            std::remove(tile_path(R, 'c', k).c_str());
+        }
+        return 0;
+    }
+};
+
+/* Pass 3: what moved is carved out of the map (core/carve.h), on a sample of the rays
+ * (every 4th sweep, every 13th point: 13 is prime to the beam count, so every beam takes
+ * its turn); the band over the ground model is spared. A tile of the carving is held
+ * while the rays of the last 10 sampled sweeps could reach it (max_range_m of their
+ * origins), else its counts are paged out; each ray is cast in the tiles under it. Then
+ * every tile's verdicts. */
+static int pass_carve(Run *R, const pb_ground_t *ground, pb_err_t *err)
+{
+    CarveTiles tiles{R, ground, pb_carve_config_t{}, {}, {}, {}};
+    const pb_carve_config_t &ccfg = tiles.cfg;
+    const TileGrid cgrid{1.0 / ccfg.cell_m, std::max<int64_t>(1, std::lround(R->tile_m / ccfg.cell_m))};
     const Eigen::Isometry3d bl = pb_reg_from_transform(&R->veh.base_from_lidar);
     struct Ray { int64_t utime; Eigen::Vector3d o, e; };
     std::vector<Ray> rays;
-    std::vector<pb_carve_t *> under;   /* the sweep's reach, row by row: the tile's carve or NULL */
+    std::vector<pb_carve_t *> under;   /* the sweep's reach, row by row: the tile's carving or NULL */
     long empty = 0, sampled = 0;
     pb_progress_t prog;
     pb_progress_start(&prog, "mapper: carve", R->total, R->quiet);
@@ -1183,16 +1266,11 @@ static int pass_carve(Run *R, const pb_ground_t *ground, pb_err_t *err)
                 for (int64_t ty = lo[1]; ty <= hi[1]; ty++) {
                     const int64_t k = tile_key(tx, ty);
                     if (!R->carve_tiles.count(k)) continue;
-                    auto it = held.find(k);
-                    if (it == held.end()) {
-                        pb_carve_t *c = page_in(k, e);
-                        if (!c) return -1;
-                        it = held.emplace(k, Held{c, 0}).first;
-                    }
-                    it->second.last = sampled;
-                    under[(size_t)((ty - lo[1]) * w + (tx - lo[0]))] = it->second.carve;
+                    pb_carve_t *c = tiles.hold(k, sampled, e);
+                    if (!c) return -1;
+                    under[(size_t)((ty - lo[1]) * w + (tx - lo[0]))] = c;
                 }
-            R->carve_tiles_held_max = std::max(R->carve_tiles_held_max, (long)held.size());
+            R->carve_tiles_held_max = std::max(R->carve_tiles_held_max, (long)tiles.held.size());
             // each ray cast in the tiles under it (one longer than max_range_m counts nowhere)
             for (const Ray &r : rays) {
                 const int64_t x0 = std::max(lo[0], cgrid.of(std::min(r.o.x(), r.e.x()))),
@@ -1205,46 +1283,11 @@ static int pass_carve(Run *R, const pb_ground_t *ground, pb_err_t *err)
                             pb_carve_ray(c, r.utime, r.o.data(), r.e.data());
             }
             // the tiles no sampled sweep of the last 10 reached paged out
-            if (sampled % 5 == 0)
-                for (auto it = held.begin(); it != held.end();) {
-                    auto next = std::next(it);
-                    if (it->second.last < sampled - 10 && page_out(it, e) != 0) return -1;
-                    it = next;
-                }
-            return 0;
+            return sampled % 5 == 0 ? tiles.page_out(sampled - 10, e) : 0;
         }, &empty, err, nullptr, true);
-    if (rc == 0) pb_progress_finish(&prog);
-    // every tile's kept points, sorted by seq (map.pcd's order)
-    finishing = true;
-    std::vector<uint8_t> keep;
-    std::vector<TilePoint> kept;
-    for (int64_t k : R->carve_tiles) {
-        if (rc != 0) break;
-        auto it = held.find(k);
-        pb_carve_t *c = nullptr;
-        if (it == held.end()) {
-            if (!(c = page_in(k, err))) { rc = -1; break; }   /* its points read too */
-        } else {
-            c = it->second.carve;
-            held.erase(it);
-            if ((rc = tile_read(tile_path(R, 'p', k), &pts, err)) != 0) { pb_carve_destroy(c); break; }
-        }
-        R->carved += pb_carve_keep(c, &keep);
-        pb_carve_destroy(c);
-        kept.clear();
-        for (size_t i = 0; i < pts.size(); i++) {
-            if (keep[i]) kept.push_back(pts[i]);
-            else R->layers.removed.insert(R->layers.removed.end(), {pts[i].p[0], pts[i].p[1], pts[i].p[2]});
-        }
-        std::sort(kept.begin(), kept.end(), [](const TilePoint &a, const TilePoint &b) { return a.seq < b.seq; });
-        R->map_points += kept.size();
-        R->kept_tiles.push_back({k, kept.empty() ? UINT32_MAX : kept[0].seq});
-        if ((rc = tile_write(tile_path(R, 'k', k), kept.data(), kept.size(), false, err)) != 0) break;
-        std::remove(tile_path(R, 'p', k).c_str());
-        std::remove(tile_path(R, 'c', k).c_str());
-    }
-    for (auto &h : held) pb_carve_destroy(h.second.carve);
-    return rc;
+    if (rc != 0) return -1;
+    pb_progress_finish(&prog);
+    return tiles.finish(err);
 }
 
 /* map.pcd from the kept tiles, in the order of the voxels' seq: a window of seq at a time
