@@ -901,6 +901,7 @@ struct TilePoint {
     uint32_t seq;
     float p[4];
 };
+static_assert(sizeof(TilePoint) == 5 * sizeof(float), "TilePoint: x y z at a stride of 5 floats");
 
 static std::string tile_path(const Run *R, char kind, int64_t key)
 {
