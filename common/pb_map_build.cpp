@@ -9,6 +9,7 @@
 #include <filesystem>
 #include <memory>
 #include <new>
+#include <unordered_map>
 #include <vector>
 
 #include <Eigen/Geometry>
@@ -133,27 +134,26 @@ namespace {
 
 constexpr int64_t KEY_HALF = int64_t(1) << 20;   // 21 bits per axis, signed
 
-struct Voxel {
-    uint64_t key;
-    float sx, sy, sz;       // sums of offsets from the voxel's min corner (small: precise in float)
-    float si;               // sum of intensities
-    uint32_t n;
-};
+// sums of offsets from the voxel's min corner (small: precise in float), of intensities
+using Voxel = pb_map_voxel_t;
 
 // The voxels in blocks of fixed size: the store grows a block at a time, never copying
 // (a vector doubling its capacity held old and new, three times the voxels, at its peak).
+// A tile's store has smaller blocks (a tile at the sensor's far range holds few voxels).
 class VoxelStore {
 public:
-    static constexpr size_t kBlock = size_t(1) << 16;
+    explicit VoxelStore(int shift = 16) : shift_(shift), mask_((size_t(1) << shift) - 1) {}
     size_t size() const { return n_; }
-    Voxel &operator[](size_t i) { return blocks_[i / kBlock][i % kBlock]; }
-    const Voxel &operator[](size_t i) const { return blocks_[i / kBlock][i % kBlock]; }
+    Voxel &operator[](size_t i) { return blocks_[i >> shift_][i & mask_]; }
+    const Voxel &operator[](size_t i) const { return blocks_[i >> shift_][i & mask_]; }
     void push_back(const Voxel &v)
     {
-        if (n_ == blocks_.size() * kBlock) blocks_.emplace_back(new Voxel[kBlock]);
+        if (n_ == blocks_.size() << shift_) blocks_.emplace_back(new Voxel[mask_ + 1]);
         (*this)[n_++] = v;
     }
 private:
+    int shift_;
+    size_t mask_;
     std::vector<std::unique_ptr<Voxel[]>> blocks_;
     size_t n_ = 0;
 };
@@ -176,13 +176,39 @@ struct pb_map_builder {
     std::vector<uint32_t> slots;
     uint64_t mask = 0;
     int64_t last = -1;          // voxel of the previous point
+    uint32_t made_here = 0, *made = &made_here;   // voxels made: the next one's seq (a tile counts in its builder's)
+    size_t first_table = size_t(1) << 16;
     static constexpr int BATCH = 64;
     // keep-all mode
     std::vector<float> px, py, pz, pi;
+    // tiled: a builder per tile of `tile` voxels a side, by (tx << 32 | uint32 ty)
+    int64_t tile = 0;
+    std::unordered_map<int64_t, std::unique_ptr<pb_map_builder>> tiles;
+    int64_t last_tile = 0;
+    pb_map_builder *last_sub = nullptr;
+
+    pb_map_builder() = default;
+    explicit pb_map_builder(const pb_map_builder &parent)
+        : voxel(parent.voxel), inv(parent.inv), voxels(12), made(parent.made), first_table(size_t(1) << 10) {}
+    pb_map_builder &operator=(const pb_map_builder &) = delete;
+
+    static int64_t floor_div(int64_t a, int64_t b) { return a >= 0 ? a / b : -((-a + b - 1) / b); }
+    static int64_t tile_key(int64_t tx, int64_t ty) { return int64_t(uint64_t(tx) << 32 | uint32_t(ty)); }
+
+    // The tile builder of voxel index (ix, iy), made when not held.
+    pb_map_builder *sub(int64_t ix, int64_t iy)
+    {
+        int64_t k = tile_key(floor_div(ix, tile), floor_div(iy, tile));
+        if (last_sub && k == last_tile) return last_sub;
+        std::unique_ptr<pb_map_builder> &t = tiles[k];
+        if (!t) t.reset(new pb_map_builder(*this));
+        last_tile = k;
+        return last_sub = t.get();
+    }
 
     void grow()
     {
-        size_t cap = slots.empty() ? (size_t(1) << 16) : slots.size() * 2;
+        size_t cap = slots.empty() ? first_table : slots.size() * 2;
         slots.assign(cap, 0);
         mask = cap - 1;
         for (size_t k = 0; k < voxels.size(); k++) {
@@ -219,7 +245,7 @@ struct pb_map_builder {
             if (!s) {
                 slots[h] = uint32_t(voxels.size() + 1);
                 last = int64_t(voxels.size());
-                voxels.push_back({key, ox, oy, oz, intensity, 1});
+                voxels.push_back({key, ox, oy, oz, intensity, 1, (*made)++});
                 return;
             }
             Voxel &v = voxels[s - 1];
@@ -248,6 +274,22 @@ struct pb_map_builder {
         }
         uint64_t keys[BATCH];
         double f[BATCH][3];
+        if (tile) {   // the same three steps, each point in its tile's table
+            pb_map_builder *sub_of[BATCH];
+            for (int k = 0; k < n; k++) {
+                if (!key_of(xyz[3 * k], xyz[3 * k + 1], xyz[3 * k + 2], &keys[k], f[k])) return k;
+                pb_map_builder *t = sub_of[k] = sub(int64_t(f[k][0]), int64_t(f[k][1]));
+                if (!t->slots.empty()) __builtin_prefetch(&t->slots[mix(keys[k]) & t->mask]);
+            }
+            for (int k = 0; k < n; k++) {
+                pb_map_builder *t = sub_of[k];
+                uint32_t s = t->slots.empty() ? 0 : t->slots[mix(keys[k]) & t->mask];
+                if (s) __builtin_prefetch(&t->voxels[s - 1], 1);
+            }
+            for (int k = 0; k < n; k++)
+                sub_of[k]->insert(keys[k], f[k], xyz[3 * k], xyz[3 * k + 1], xyz[3 * k + 2], inten[k]);
+            return -1;
+        }
         for (int k = 0; k < n; k++) {
             if (!key_of(xyz[3 * k], xyz[3 * k + 1], xyz[3 * k + 2], &keys[k], f[k])) return k;
             if (!slots.empty()) __builtin_prefetch(&slots[mix(keys[k]) & mask]);
@@ -261,7 +303,12 @@ struct pb_map_builder {
         return -1;
     }
 
-    int64_t size() const { return voxel > 0 ? int64_t(voxels.size()) : int64_t(px.size()); }
+    int64_t size() const
+    {
+        int64_t n = voxel > 0 ? int64_t(voxels.size()) : int64_t(px.size());
+        for (const auto &t : tiles) n += t.second->size();
+        return n;
+    }
 
     void point(int64_t k, float out[4]) const
     {
@@ -269,7 +316,11 @@ struct pb_map_builder {
             out[0] = px[k]; out[1] = py[k]; out[2] = pz[k]; out[3] = pi[k];
             return;
         }
-        const Voxel &v = voxels[k];
+        voxel_point(voxels[k], out);
+    }
+
+    void voxel_point(const Voxel &v, float out[4]) const
+    {
         double ix = double(int64_t(v.key >> 42) - KEY_HALF);
         double iy = double(int64_t((v.key >> 21) & 0x1fffff) - KEY_HALF);
         double iz = double(int64_t(v.key & 0x1fffff) - KEY_HALF);
@@ -331,6 +382,72 @@ extern "C" pb_map_builder_t *pb_map_builder_create(double voxel_m, pb_err_t *err
 }
 
 extern "C" void pb_map_builder_destroy(pb_map_builder_t *b) { delete b; }
+
+extern "C" pb_map_builder_t *pb_map_builder_create_tiled(double voxel_m, int tile_voxels, pb_err_t *err)
+{
+    if (!(voxel_m > 0) || tile_voxels < 1) {
+        pb_err_set(err, "a tiled map needs voxels (%g m) and tiles of one voxel or more (%d)", voxel_m, tile_voxels);
+        return nullptr;
+    }
+    pb_map_builder_t *b = pb_map_builder_create(voxel_m, err);
+    if (b) b->tile = tile_voxels;
+    return b;
+}
+
+extern "C" int pb_map_builder_tiles(const pb_map_builder_t *b, int32_t *xy, int max)
+{
+    int n = 0;
+    for (const auto &t : b->tiles) {
+        if (n < max) {
+            xy[2 * n] = int32_t(uint64_t(t.first) >> 32);
+            xy[2 * n + 1] = int32_t(uint32_t(t.first));
+        }
+        n++;
+    }
+    return n;
+}
+
+extern "C" int64_t pb_map_builder_tile_size(const pb_map_builder_t *b, int32_t tx, int32_t ty)
+{
+    auto it = b->tiles.find(pb_map_builder::tile_key(tx, ty));
+    return it == b->tiles.end() ? 0 : int64_t(it->second->voxels.size());
+}
+
+extern "C" void pb_map_builder_tile_take(pb_map_builder_t *b, int32_t tx, int32_t ty, pb_map_voxel_t *out)
+{
+    auto it = b->tiles.find(pb_map_builder::tile_key(tx, ty));
+    if (it == b->tiles.end()) return;
+    const VoxelStore &v = it->second->voxels;
+    for (size_t i = 0; i < v.size(); i++) out[i] = v[i];
+    if (b->last_sub == it->second.get()) b->last_sub = nullptr;
+    b->tiles.erase(it);
+}
+
+extern "C" int pb_map_builder_put(pb_map_builder_t *b, const pb_map_voxel_t *v, size_t n, pb_err_t *err)
+{
+    try {
+        for (size_t i = 0; i < n; i++) {
+            pb_map_builder *t = b->tile ? b->sub(int64_t(v[i].key >> 42) - KEY_HALF,
+                                                 int64_t((v[i].key >> 21) & 0x1fffff) - KEY_HALF) : b;
+            if ((t->voxels.size() + 1) * 10 > t->slots.size() * 7) t->grow();
+            uint64_t h = mix(v[i].key) & t->mask;
+            for (; t->slots[h]; h = (h + 1) & t->mask)
+                if (t->voxels[t->slots[h] - 1].key == v[i].key)
+                    return pb_err_set(err, "map voxel %llx put back while held", (unsigned long long)v[i].key);
+            t->slots[h] = uint32_t(t->voxels.size() + 1);
+            t->voxels.push_back(v[i]);
+            t->last = -1;
+        }
+    } catch (const std::bad_alloc &) {
+        return pb_err_set(err, "out of memory after %lld map points", (long long)b->size());
+    }
+    return 0;
+}
+
+extern "C" void pb_map_voxel_point(const pb_map_builder_t *b, const pb_map_voxel_t *v, float out[4])
+{
+    b->voxel_point(*v, out);
+}
 
 // Moves every point by transform_of(i) into map and adds it. Returns 0 or -1.
 template <typename TransformOf>
@@ -404,7 +521,7 @@ extern "C" int64_t pb_map_builder_size(const pb_map_builder_t *b) { return b->si
 extern "C" int pb_map_builder_bounds(const pb_map_builder_t *b, double mn[3], double mx[3])
 {
     int64_t n = b->size();
-    if (n == 0) return -1;
+    if (n == 0 || b->tile) return -1;   /* a tiled map: its tiles' voxels */
     for (int k = 0; k < 3; k++) { mn[k] = INFINITY; mx[k] = -INFINITY; }
     float p[4];
     for (int64_t i = 0; i < n; i++) {
@@ -417,10 +534,11 @@ extern "C" int pb_map_builder_bounds(const pb_map_builder_t *b, double mn[3], do
     return 0;
 }
 
-// Writes n points, point_of(i, out[4]) each, as binary PCD with the header PCL writes for
-// pcl::PointXYZI, 64K points at a time. Returns 0 or -1.
-template <typename PointOf>
-static int write_xyzi(const char *path, int64_t n, PointOf point_of, pb_err_t *err)
+// Writes n points as binary PCD with the header PCL writes for pcl::PointXYZI, 64K points
+// at a time: fill(i, count, out) gives points i .. i + count - 1 (0, or -1 with err set).
+// Returns 0 or -1.
+template <typename Fill>
+static int write_xyzi(const char *path, int64_t n, Fill fill, pb_err_t *err)
 {
     if (n > INT32_MAX) return pb_err_set(err, "%s: %lld points do not fit a PCD", path, (long long)n);
     FILE *f = std::fopen(path, "wb");
@@ -431,27 +549,32 @@ static int write_xyzi(const char *path, int64_t n, PointOf point_of, pb_err_t *e
                            "VIEWPOINT 0 0 0 1 0 0 0\nPOINTS %lld\nDATA binary\n",
                            (long long)n, (long long)n) > 0;
     std::vector<float> chunk;
+    bool filled = true;
     for (int64_t i = 0; ok && i < n;) {
-        chunk.clear();
-        for (int64_t end = std::min(n, i + 65536); i < end; i++) {
-            chunk.resize(chunk.size() + 4);
-            point_of(i, &chunk[chunk.size() - 4]);
-        }
+        const int64_t count = std::min<int64_t>(n - i, 65536);
+        chunk.resize(4 * size_t(count));
+        if (!(filled = fill(i, count, chunk.data()) == 0)) break;
         ok = std::fwrite(chunk.data(), sizeof(float), chunk.size(), f) == chunk.size();
+        i += count;
     }
     ok &= std::fclose(f) == 0;
+    if (!filled) std::remove(path);
+    if (!filled) return -1;
     if (!ok) return pb_err_set(err, "%s: cannot write the PCD: %s", path, std::strerror(errno));
     return 0;
 }
 
-extern "C" int pb_pcd_write_xyzi(const char *path, const float *xyzi, int64_t n, pb_err_t *err)
+extern "C" int pb_pcd_write_xyzi_from(const char *path, int64_t n,
+                                      int (*fill)(void *user, int64_t first, int64_t count, float *xyzi, pb_err_t *err),
+                                      void *user, pb_err_t *err)
 {
-    return write_xyzi(path, n, [&](int64_t i, float *out) { std::memcpy(out, xyzi + 4 * i, 4 * sizeof(float)); }, err);
+    return write_xyzi(path, n, [&](int64_t i, int64_t count, float *out) { return fill(user, i, count, out, err); }, err);
 }
 
 extern "C" int pb_map_builder_write_pcd(const pb_map_builder_t *b, const char *path, pb_err_t *err)
 {
     int64_t n = b->size();
+    if (b->tile) return pb_err_set(err, "%s: a tiled map is written from its tiles", path);
     if (n == 0) return pb_err_set(err, "%s: the map has no points (no scan had bracketing poses?)", path);
     try {
         std::filesystem::path parent = std::filesystem::path(path).parent_path();
@@ -459,7 +582,10 @@ extern "C" int pb_map_builder_write_pcd(const pb_map_builder_t *b, const char *p
     } catch (const std::exception &e) {
         return pb_err_set(err, "%s: cannot create the directory: %s", path, e.what());
     }
-    return write_xyzi(path, n, [&](int64_t i, float *out) { b->point(i, out); }, err);
+    return write_xyzi(path, n, [&](int64_t i, int64_t count, float *out) {
+        for (int64_t k = 0; k < count; k++) b->point(i + k, out + 4 * k);
+        return 0;
+    }, err);
 }
 
 // ---------------------------------------------------------------- vehicle

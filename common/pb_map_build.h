@@ -73,14 +73,43 @@ int64_t pb_map_builder_size(const pb_map_builder_t *b);        /* points in the 
 /* Extent of the map's points; returns 0, or -1 if empty. */
 int pb_map_builder_bounds(const pb_map_builder_t *b, double min[3], double max[3]);
 
+/* Paging a large map out of memory and back (the mapper keeps only the tiles around the
+ * car). A builder made tiled holds its voxels per square tile of tile_voxels voxels a side
+ * (x, y; tile = floor(voxel index / tile_voxels)); a tile can be taken out whole and put
+ * back later as it was: the voxels, their sums and pb_map_builder_write_pcd's order are
+ * those of a builder that was never paged. A point that falls in a tile not held starts
+ * that tile afresh: the caller puts a tile back before points can reach it. */
+typedef struct {
+    uint64_t key;
+    float sx, sy, sz, si;   /* sums of the points' offsets from the voxel's min corner, of intensities */
+    uint32_t n, seq;        /* points; the order the voxel was made in (0, 1, ...) */
+} pb_map_voxel_t;
+
+pb_map_builder_t *pb_map_builder_create_tiled(double voxel_m, int tile_voxels, pb_err_t *err);
+/* The tiles held, (tx, ty) pairs into xy (room for max); returns how many are held. */
+int pb_map_builder_tiles(const pb_map_builder_t *b, int32_t *xy, int max);
+/* Voxels in tile (tx, ty) (0 when not held). */
+int64_t pb_map_builder_tile_size(const pb_map_builder_t *b, int32_t tx, int32_t ty);
+/* Moves tile (tx, ty)'s voxels into out (room for pb_map_builder_tile_size), in the order
+ * they were made; the tile is then not held. */
+void pb_map_builder_tile_take(pb_map_builder_t *b, int32_t tx, int32_t ty, pb_map_voxel_t *out);
+/* Puts voxels taken before back (a tile not held). Returns 0, or -1 (a voxel held already, out of memory). */
+int pb_map_builder_put(pb_map_builder_t *b, const pb_map_voxel_t *v, size_t n, pb_err_t *err);
+/* The voxel's point as the PCD holds it: the centroid and the mean intensity. */
+void pb_map_voxel_point(const pb_map_builder_t *b, const pb_map_voxel_t *v, float out[4]);
+
 /* Writes the map as binary PCD (fields x y z intensity, float32), creating the
  * parent directory if it is missing. Returns 0, or -1 (empty map, I/O error). */
 int pb_map_builder_write_pcd(const pb_map_builder_t *b, const char *path, pb_err_t *err);
 
-/* Writes n points (xyzi: x y z intensity, 4 floats each) as binary PCD, the same file
- * pb_map_builder_write_pcd (and PCL for pcl::PointXYZI) writes. Returns 0, or -1 (I/O
- * error, err names the file). */
-int pb_pcd_write_xyzi(const char *path, const float *xyzi, int64_t n, pb_err_t *err);
+/* Writes n points (x y z intensity, 4 floats each) as binary PCD, the same file
+ * pb_map_builder_write_pcd (and PCL for pcl::PointXYZI) writes, a part at a time:
+ * fill(user, first, count, xyzi, err) puts points first .. first + count - 1 into xyzi and
+ * returns 0, or -1 with err set (the file is then removed). Returns 0, or -1 (I/O error,
+ * err names the file). */
+int pb_pcd_write_xyzi_from(const char *path, int64_t n,
+                           int (*fill)(void *user, int64_t first, int64_t count, float *xyzi, pb_err_t *err),
+                           void *user, pb_err_t *err);
 
 #ifdef __cplusplus
 }

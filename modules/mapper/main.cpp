@@ -15,8 +15,12 @@
 #include <mutex>
 #include <thread>
 #include <initializer_list>
+#include <filesystem>
 #include <map>
+#include <set>
 #include <string>
+#include <unordered_map>
+#include <unordered_set>
 #include <fcntl.h>
 #include <malloc.h>
 #include <sys/stat.h>
@@ -52,7 +56,7 @@ static void usage(FILE *f)
 {
     std::fprintf(f,
         "usage: mapper --log DRIVE.lcm --out SITE_DIR [--vehicle FILE] [--voxel 0.15] [--poses FILE.tum]\n"
-        "              [--scan-channel LIDAR_SCAN] [--checkpoint-every 100] [--quiet]\n"
+        "              [--scan-channel LIDAR_SCAN] [--checkpoint-every 100] [--tile-m 32] [--quiet]\n"
         "\n"
         "Builds a prior map from a recorded drive by LiDAR odometry: every sweep is\n"
         "registered to a rolling local map of the sweeps before it (the localizer's\n"
@@ -86,6 +90,9 @@ static void usage(FILE *f)
         "                      qw, t in seconds; an INS or RTK trajectory, another SLAM's): no\n"
         "                      odometry and no loop closure; the map, ground, carving and report\n"
         "                      as otherwise (report.json: poses_given; scans = the poses)\n"
+        "  --tile-m M          edge of the map's tiles while it is built and carved (default 32): only\n"
+        "                      those within the sensor's reach are held, the others wait in\n"
+        "                      SITE_DIR/map-tiles.tmp (the same map.pcd whatever the edge)\n"
         "  --quiet             no progress bar, no summary\n"
         "Exit 1 on error (unreadable or damaged log, no sweep, unwritable SITE_DIR).\n");
 }
@@ -450,7 +457,16 @@ struct Run {
     pb_picture_layers_t layers;
     pb_pose_track_t *track = nullptr;
     long placed = 0, unplaced = 0;
-    std::vector<float> map;                  /* the map after pass 2: x y z intensity a point */
+    /* the map in tiles (pass 2 -> map.pcd): their folder, their edge (--tile-m) */
+    std::string tiles_dir;
+    double tile_m = 32;
+    size_t voxels = 0;                       /* made by pass 2 (seq 0 .. voxels - 1) */
+    double ground_lo[2], ground_hi[2];       /* the map's extent, for the ground model */
+    std::set<int64_t> carve_tiles;           /* the carving's tiles that hold points */
+    std::vector<std::pair<int64_t, uint32_t>> kept_tiles;   /* after it: tile, seq of its next point to write */
+    long tiles_held_max = 0, carve_tiles_held_max = 0, tiles_paged_out = 0, carve_tiles_paged_out = 0;
+    long tiles_paged_in = 0, carve_tiles_paged_in = 0;   /* paged out, then back in */
+    int64_t voxels_held_max = 0;
     size_t map_points = 0;                   /* in map.pcd */
     std::string ground_why;                  /* empty: ground.yaml written */
     size_t carved = 0;
@@ -878,31 +894,132 @@ static int anchor(Run *R, pb_err_t *err)
     return 0;
 }
 
-/* map.pcd as pb_map_builder_write_pcd wrote it (binary, x y z intensity) into *xyzi: 16
- * bytes a point, once the builder (40 bytes a point) is gone. */
-static int read_map(const std::string &path, std::vector<float> *xyzi, pb_err_t *err)
+/* ---- The map in tiles (docs/mapper.md, "Memory"): pass 2 holds the tiles of voxels its
+ * sweeps can reach and pages the others out to SITE_DIR/map-tiles.tmp/; the finished voxels
+ * are then sorted into the carving's tiles (by its cells, so that no cell spans two), which
+ * pass 3 holds while its rays can reach them, with their counts paged out and back; map.pcd
+ * is assembled from the kept points in the order the voxels were made (what one builder of
+ * the whole map writes). A tile is keyed tx << 32 | uint32 ty. */
+static int64_t tile_key(int64_t tx, int64_t ty) { return (int64_t)((uint64_t)tx << 32 | (uint32_t)ty); }
+
+/* Square tiles of `per` units (voxels, carving cells) a side: unit = floor(x * inv). */
+struct TileGrid {
+    double inv;
+    int64_t per;
+    int64_t of(double x) const
+    {
+        int64_t u = pb_floor_i64(x * inv);
+        return u >= 0 ? u / per : -((-u + per - 1) / per);
+    }
+};
+
+/* A point of the finished map in a tile file: the voxel's seq (the order it was made in),
+ * x y z intensity. */
+struct TilePoint {
+    uint32_t seq;
+    float p[4];
+};
+static_assert(sizeof(TilePoint) == 5 * sizeof(float), "TilePoint: x y z at a stride of 5 floats");
+
+static std::string tile_path(const Run *R, char kind, int64_t key)
 {
-    FILE *f = std::fopen(path.c_str(), "rb");
-    if (!f) return pb_err_set(err, "%s: cannot read it back: %s", path.c_str(), std::strerror(errno)), -1;
-    char line[256];
-    long long n = -1;
-    bool fields = false, data = false;
-    while (!data && std::fgets(line, sizeof line, f)) {
-        fields |= std::strcmp(line, "FIELDS x y z intensity\n") == 0;
-        std::sscanf(line, "POINTS %lld", &n);
-        data = std::strcmp(line, "DATA binary\n") == 0;
-    }
-    bool ok = fields && data && n >= 0;
-    if (ok) {
-        xyzi->resize(4 * (size_t)n);
-        ok = std::fread(xyzi->data(), 4 * sizeof(float), (size_t)n, f) == (size_t)n;
-    }
-    std::fclose(f);
-    if (!ok) return pb_err_set(err, "%s: cannot read it back (not the binary x y z intensity PCD written)", path.c_str()), -1;
+    char name[64];
+    std::snprintf(name, sizeof name, "/%c_%d_%d.bin", kind, (int32_t)((uint64_t)key >> 32), (int32_t)(uint32_t)key);
+    return R->tiles_dir + name;
+}
+
+template <class T>
+static int tile_write(const std::string &path, const T *v, size_t n, bool append, pb_err_t *err)
+{
+    FILE *f = std::fopen(path.c_str(), append ? "ab" : "wb");
+    bool ok = f && std::fwrite(v, sizeof(T), n, f) == n;
+    if (f) ok &= std::fclose(f) == 0;
+    if (!ok) return pb_err_set(err, "%s: cannot write: %s", path.c_str(), std::strerror(errno)), -1;
     return 0;
 }
 
-/* Pass 2: the map, every point with the pose at its time, written and read back. The poses
+template <class T>
+static int tile_read(const std::string &path, std::vector<T> *v, pb_err_t *err)
+{
+    std::vector<uint8_t> bytes;
+    if (read_file(path, &bytes) != 0 || bytes.size() % sizeof(T) != 0)
+        return pb_err_set(err, "%s: cannot read the tile back", path.c_str()), -1;
+    v->resize(bytes.size() / sizeof(T));
+    if (!bytes.empty()) std::memcpy(v->data(), bytes.data(), bytes.size());
+    return 0;
+}
+
+/* The tiles of grid within reach of a sweep's points (range_m from the LiDAR, or its
+ * farthest point's range when range_m < 0), into [lo, hi] (x, y): around the base's
+ * positions at its first and last point's times, with the LiDAR's lever and 2 m (the path's
+ * bend within a sweep). false when the track does not cover the sweep (pass 2 skips it). */
+static bool sweep_reach(const Run *R, const pb_points_t &pts, int64_t utime, double range_m, const TileGrid &grid,
+                        int64_t lo[2], int64_t hi[2])
+{
+    int32_t omin = pts.offset_us && pts.n > 0 ? pts.offset_us[0] : 0, omax = omin;   /* as pb_map_builder_add_timed */
+    double r2 = 0;
+    for (int i = 0; i < pts.n; i++) {
+        if (pts.offset_us) { omin = std::min(omin, pts.offset_us[i]); omax = std::max(omax, pts.offset_us[i]); }
+        if (range_m < 0) r2 = std::max(r2, (double)pts.x[i] * pts.x[i] + (double)pts.y[i] * pts.y[i] + (double)pts.z[i] * pts.z[i]);
+    }
+    pb_transform_t a, b;
+    if (!pb_pose_track_at(R->track, utime + omin, &a) || !pb_pose_track_at(R->track, utime + omax, &b)) return false;
+    const double *l = R->veh.base_from_lidar.t;
+    const double reach = (range_m < 0 ? std::sqrt(r2) : range_m) + std::sqrt(l[0] * l[0] + l[1] * l[1] + l[2] * l[2]) + 2;
+    for (int k = 0; k < 2; k++) {
+        lo[k] = grid.of(std::min(a.t[k], b.t[k]) - reach);
+        hi[k] = grid.of(std::max(a.t[k], b.t[k]) + reach);
+    }
+    return true;
+}
+
+/* Tile k of the map's grid moved out into *vox (empty when not held). */
+static void take_tile(pb_map_builder_t *map, int64_t k, std::vector<pb_map_voxel_t> *vox)
+{
+    const int32_t tx = (int32_t)((uint64_t)k >> 32), ty = (int32_t)(uint32_t)k;
+    vox->resize((size_t)pb_map_builder_tile_size(map, tx, ty));
+    pb_map_builder_tile_take(map, tx, ty, vox->data());
+}
+
+/* Every tile's finished voxels (those held by map, those paged out) as points in the
+ * carving's tiles (by its cells: no cell spans two), appended to their files; the map's
+ * extent for the ground model. */
+static int to_carving_tiles(Run *R, pb_map_builder_t *map, std::vector<int64_t> all, const std::unordered_set<int64_t> &out,
+                            pb_err_t *err)
+{
+    const pb_carve_config_t ccfg{};
+    const TileGrid cgrid{1.0 / ccfg.cell_m, std::max<int64_t>(1, std::lround(R->tile_m / ccfg.cell_m))};
+    std::sort(all.begin(), all.end());
+    R->ground_lo[0] = R->ground_lo[1] = INFINITY;
+    R->ground_hi[0] = R->ground_hi[1] = -INFINITY;
+    std::vector<pb_map_voxel_t> vox;
+    std::map<int64_t, std::vector<TilePoint>> parts;
+    for (int64_t k : all) {
+        if (!out.count(k)) take_tile(map, k, &vox);
+        else if (tile_read(tile_path(R, 'v', k), &vox, err) != 0) return -1;
+        std::remove(tile_path(R, 'v', k).c_str());
+        parts.clear();
+        for (const pb_map_voxel_t &v : vox) {
+            TilePoint tp;
+            tp.seq = v.seq;
+            pb_map_voxel_point(map, &v, tp.p);
+            parts[tile_key(cgrid.of(tp.p[0]), cgrid.of(tp.p[1]))].push_back(tp);
+            gb_bounds(tp.p, 1, 4, R->ground_lo, R->ground_hi);
+        }
+        R->voxels += vox.size();
+        for (const auto &pt : parts) {
+            R->carve_tiles.insert(pt.first);
+            if (tile_write(tile_path(R, 'p', pt.first), pt.second.data(), pt.second.size(), true, err) != 0) return -1;
+        }
+    }
+    if (R->voxels == 0)
+        return pb_err_set(err, "%s: the map has no points (no scan had bracketing poses?)", R->path("map.pcd").c_str()), -1;
+    return 0;
+}
+
+/* Pass 2: the map, every point with the pose at its time, in tiles: those the sweep can
+ * reach are held (paged back in when they were out), those no sweep of the last 20 reached
+ * are paged out. Then the finished voxels are sorted into the carving's tiles. The poses
  * are at the sweeps' middles: the track is carried on by the first and last steps' motion
  * to cover the first sweep's first half and the last one's second half. */
 static int pass_map(Run *R, pb_err_t *err)
@@ -918,38 +1035,100 @@ static int pass_map(Run *R, pb_err_t *err)
         pb_transform_t t = to_transform(b.pose * (a.pose.inverse() * b.pose));
         pb_pose_track_add(R->track, b.utime + (b.utime - a.utime), &t);
     }
-    pb_map_builder_t *map = pb_map_builder_create(R->voxel, err);
+    std::error_code ec;
+    std::filesystem::remove_all(R->tiles_dir, ec);   /* an interrupted run's */
+    if (!std::filesystem::create_directory(R->tiles_dir, ec))
+        return pb_err_set(err, "%s: cannot create: %s", R->tiles_dir.c_str(), ec.message().c_str()), -1;
+    const TileGrid grid{1.0 / R->voxel, std::max<int64_t>(1, std::lround(R->tile_m / R->voxel))};
+    pb_map_builder_t *map = pb_map_builder_create_tiled(R->voxel, (int)grid.per, err);
     if (!map) return -1;
-    long empty = 0;
+    std::unordered_map<int64_t, long> held;   /* tile -> the sweep that last reached it */
+    std::unordered_set<int64_t> out;           /* tiles paged out */
+    std::vector<pb_map_voxel_t> vox;
+    std::vector<int32_t> xy;
+    auto page_out = [&](int64_t k, pb_err_t *e) {
+        take_tile(map, k, &vox);
+        held.erase(k);
+        if (vox.empty()) return 0;   /* reached, no point fell there */
+        out.insert(k);
+        R->tiles_paged_out++;
+        return tile_write(tile_path(R, 'v', k), vox.data(), vox.size(), false, e);
+    };
+    long empty = 0, sweep = 0;
     pb_progress_t prog;
     pb_progress_start(&prog, "mapper: map", R->total, R->quiet);
     long seen = 0;
     int rc = for_each_sweep(R->log_path, R->scan_ch, R->veh, 1, &seen, &prog,
         [&](int64_t utime, const std::vector<float> &, const pb_points_t &pts, const pb_event_t &, pb_err_t *e) {
+            sweep++;
+            // the tiles it can reach held
+            int64_t lo[2], hi[2];
+            if (sweep_reach(R, pts, utime, -1, grid, lo, hi))
+                for (int64_t tx = lo[0]; tx <= hi[0]; tx++)
+                    for (int64_t ty = lo[1]; ty <= hi[1]; ty++) {
+                        const int64_t k = tile_key(tx, ty);
+                        auto it = held.find(k);
+                        if (it != held.end()) { it->second = sweep; continue; }
+                        held[k] = sweep;
+                        if (!out.count(k)) continue;
+                        if (tile_read(tile_path(R, 'v', k), &vox, e) != 0 || pb_map_builder_put(map, vox.data(), vox.size(), e) != 0)
+                            return -1;
+                        out.erase(k);
+                        R->tiles_paged_in++;
+                    }
             int r = pb_map_builder_add_timed(map, &pts, utime, R->track, &R->veh.base_from_lidar, e);
             if (r < 0) return -1;
             (r ? R->placed : R->unplaced)++;
+            // a point beyond the reach would have started a paged-out tile afresh
+            xy.resize(2 * (size_t)pb_map_builder_tiles(map, nullptr, 0));
+            pb_map_builder_tiles(map, xy.data(), (int)(xy.size() / 2));
+            for (size_t i = 0; i < xy.size(); i += 2)
+                if (!held.count(tile_key(xy[i], xy[i + 1])))
+                    return pb_err_set(e, "internal: a point fell in map tile (%d, %d), beyond the sweep's reach", xy[i],
+                                      xy[i + 1]), -1;
+            R->tiles_held_max = std::max(R->tiles_held_max, (long)(xy.size() / 2));   /* those with points */
+            R->voxels_held_max = std::max(R->voxels_held_max, (int64_t)pb_map_builder_size(map));
+            // the tiles no sweep of the last 20 reached paged out
+            if (sweep % 10 == 0) {
+                std::vector<int64_t> old;
+                for (const auto &h : held)
+                    if (h.second < sweep - 20) old.push_back(h.first);
+                std::sort(old.begin(), old.end());
+                for (int64_t k : old)
+                    if (page_out(k, e) != 0) return -1;
+            }
             return 0;
         }, &empty, err, nullptr, true);
     if (rc == 0) pb_progress_finish(&prog);
-    const std::string map_path = R->path("map.pcd");
-    if (rc == 0) rc = pb_map_builder_write_pcd(map, map_path.c_str(), err);
+    // every tile's finished points into the carving's tiles
+    std::vector<int64_t> all(out.begin(), out.end());
+    for (const auto &h : held) all.push_back(h.first);
+    if (rc == 0) rc = to_carving_tiles(R, map, all, out, err);
     pb_map_builder_destroy(map);
-    if (rc != 0) return -1;
-    return read_map(map_path, &R->map, err);
+    return rc;
 }
 
-/* The ground model (tools/build-ground's core) from the map; a site without one is still a
- * site for the localizer: say why, go on. Kept for the carving. */
+/* The ground model (tools/build-ground's core) from the map, tile by tile; a site without
+ * one is still a site for the localizer: say why, go on. Kept for the carving. */
 static pb_ground_t *make_ground(Run *R, pb_err_t *err)
 {
     gb_config_t gcfg;
     gb_config_default(&gcfg);
     size_t nground = 0;
-    pb_ground_t *ground = gb_build(R->map.data(), R->map.size() / 4, 4, &gcfg, &nground);
+    gb_accum_t *acc = gb_begin(R->ground_lo, R->ground_hi, &gcfg);
+    std::vector<TilePoint> pts;
+    for (int64_t k : R->carve_tiles) {
+        if (acc && tile_read(tile_path(R, 'p', k), &pts, err) != 0) {
+            R->ground_why = err->msg;
+            break;
+        }
+        if (acc && !pts.empty()) gb_add(acc, pts[0].p, pts.size(), sizeof(TilePoint) / sizeof(float));
+    }
+    pb_ground_t *ground = acc ? gb_finish(acc, &nground) : nullptr;
+    if (!R->ground_why.empty()) { pb_ground_destroy(ground); ground = nullptr; }
     const std::string ground_path = R->path("ground.yaml");
-    if (!ground) R->ground_why = "no ground in the map";
-    else if (pb_ground_save(ground, ground_path.c_str(), err) != 0) R->ground_why = err->msg;
+    if (!ground && R->ground_why.empty()) R->ground_why = "no ground in the map";
+    else if (ground && pb_ground_save(ground, ground_path.c_str(), err) != 0) R->ground_why = err->msg;
     if (!R->ground_why.empty()) {
         std::remove(ground_path.c_str());
         std::fprintf(stderr, "mapper: warning: no ground model written: %s\n", R->ground_why.c_str());
@@ -957,19 +1136,125 @@ static pb_ground_t *make_ground(Run *R, pb_err_t *err)
     return ground;
 }
 
+/* The carving's tiles (those that hold points): each held as a pb_carve_t of its points,
+ * its counts paged out to its 'c' file and back. */
+struct CarveTiles {
+    Run *R;
+    const pb_ground_t *ground;
+    pb_carve_config_t cfg;
+    struct Held { pb_carve_t *carve; long last; };   /* last: the sampled sweep that last reached it */
+    std::map<int64_t, Held> held;
+    std::vector<TilePoint> pts;                      /* the last tile read */
+    std::vector<uint8_t> bytes;
+
+    ~CarveTiles() { for (auto &h : held) pb_carve_destroy(h.second.carve); }
+
+    /* Tile k's carving made from its points (read into pts) and given its counts, if it
+     * was paged out; NULL on error. */
+    pb_carve_t *make(int64_t k, bool *was_out, pb_err_t *e)
+    {
+        if (tile_read(tile_path(R, 'p', k), &pts, e) != 0) return nullptr;
+        if (pts.empty()) return pb_err_set(e, "%s: no point in the tile", tile_path(R, 'p', k).c_str()), nullptr;
+        pb_carve_t *c = pb_carve_create(pts[0].p, pts.size(), sizeof(TilePoint) / sizeof(float), ground, &cfg);
+        const std::string counts = tile_path(R, 'c', k);
+        *was_out = read_file(counts, &bytes) == 0;
+        if (*was_out && pb_carve_load(c, bytes.data(), bytes.size()) != 0) {
+            pb_carve_destroy(c);
+            return pb_err_set(e, "%s: not this tile's counts", counts.c_str()), nullptr;
+        }
+        return c;
+    }
+
+    /* Tile k held (paged back in if it was out); NULL on error. */
+    pb_carve_t *hold(int64_t k, long sampled, pb_err_t *e)
+    {
+        auto it = held.find(k);
+        if (it == held.end()) {
+            bool was_out;
+            pb_carve_t *c = make(k, &was_out, e);
+            if (!c) return nullptr;
+            R->carve_tiles_paged_in += was_out;
+            it = held.emplace(k, Held{c, 0}).first;
+        }
+        it->second.last = sampled;
+        return it->second.carve;
+    }
+
+    /* The tiles no sampled sweep since `since` reached: their counts paged out. */
+    int page_out(long since, pb_err_t *e)
+    {
+        for (auto it = held.begin(); it != held.end();) {
+            if (it->second.last >= since) { ++it; continue; }
+            pb_carve_save(it->second.carve, &bytes);
+            pb_carve_destroy(it->second.carve);
+            const std::string path = tile_path(R, 'c', it->first);
+            it = held.erase(it);
+            R->carve_tiles_paged_out++;
+            if (tile_write(path, bytes.data(), bytes.size(), false, e) != 0) return -1;
+        }
+        return 0;
+    }
+
+    /* Every tile's verdicts: its kept points sorted by seq (map.pcd's order) to its 'k'
+     * file, the carved ones to the picture's layer. */
+    int finish(pb_err_t *err)
+    {
+        std::vector<uint8_t> keep;
+        std::vector<TilePoint> kept;
+        for (int64_t k : R->carve_tiles) {
+            auto it = held.find(k);
+            pb_carve_t *c;
+            if (it == held.end()) {
+                bool was_out;
+                if (!(c = make(k, &was_out, err))) return -1;
+            } else {
+                c = it->second.carve;
+                held.erase(it);
+                if (tile_read(tile_path(R, 'p', k), &pts, err) != 0) { pb_carve_destroy(c); return -1; }
+            }
+            R->carved += pb_carve_keep(c, &keep);
+            pb_carve_destroy(c);
+            kept.clear();
+            for (size_t i = 0; i < pts.size(); i++) {
+                if (keep[i]) kept.push_back(pts[i]);
+                else R->layers.removed.insert(R->layers.removed.end(), {pts[i].p[0], pts[i].p[1], pts[i].p[2]});
+            }
+            std::sort(kept.begin(), kept.end(), [](const TilePoint &a, const TilePoint &b) { return a.seq < b.seq; });
+            R->map_points += kept.size();
+            R->kept_tiles.push_back({k, kept.empty() ? UINT32_MAX : kept[0].seq});
+            if (tile_write(tile_path(R, 'k', k), kept.data(), kept.size(), false, err) != 0) return -1;
+            std::remove(tile_path(R, 'p', k).c_str());
+            std::remove(tile_path(R, 'c', k).c_str());
+        }
+        return 0;
+    }
+};
+
 /* Pass 3: what moved is carved out of the map (core/carve.h), on a sample of the rays
  * (every 4th sweep, every 13th point: 13 is prime to the beam count, so every beam takes
- * its turn); the band over the ground model is spared. map.pcd is written again. */
+ * its turn); the band over the ground model is spared. A tile of the carving is held
+ * while the rays of the last 10 sampled sweeps could reach it (max_range_m of their
+ * origins), else its counts are paged out; each ray is cast in the tiles under it. Then
+ * every tile's verdicts. */
 static int pass_carve(Run *R, const pb_ground_t *ground, pb_err_t *err)
 {
-    pb_carve_t *carve = pb_carve_create(R->map.data(), R->map.size() / 4, 4, ground, nullptr);
+    CarveTiles tiles{R, ground, pb_carve_config_t{}, {}, {}, {}};
+    const pb_carve_config_t &ccfg = tiles.cfg;
+    const TileGrid cgrid{1.0 / ccfg.cell_m, std::max<int64_t>(1, std::lround(R->tile_m / ccfg.cell_m))};
     const Eigen::Isometry3d bl = pb_reg_from_transform(&R->veh.base_from_lidar);
-    long empty = 0;
+    struct Ray { int64_t utime; Eigen::Vector3d o, e; };
+    std::vector<Ray> rays;
+    std::vector<pb_carve_t *> under;   /* the sweep's reach, row by row: the tile's carving or NULL */
+    long empty = 0, sampled = 0;
     pb_progress_t prog;
     pb_progress_start(&prog, "mapper: carve", R->total, R->quiet);
     long seen = 0;
     int rc = for_each_sweep(R->log_path, R->scan_ch, R->veh, 4, &seen, &prog,
-        [&](int64_t utime, const std::vector<float> &, const pb_points_t &pts, const pb_event_t &, pb_err_t *) {
+        [&](int64_t utime, const std::vector<float> &, const pb_points_t &pts, const pb_event_t &, pb_err_t *e) {
+            sampled++;
+            // the sampled rays, and the extent of their origins
+            rays.clear();
+            double olo[2] = {INFINITY, INFINITY}, ohi[2] = {-INFINITY, -INFINITY};
             int32_t cached = INT32_MIN;
             Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
             bool have = false;
@@ -979,38 +1264,120 @@ static int pass_carve(Run *R, const pb_ground_t *ground, pb_err_t *err)
                     pb_transform_t t;
                     have = pb_pose_track_at(R->track, utime + cached, &t);
                     if (have) T = pb_reg_from_transform(&t) * bl;
+                    for (int k = 0; have && k < 2; k++) {
+                        olo[k] = std::min(olo[k], T.translation()[k]);
+                        ohi[k] = std::max(ohi[k], T.translation()[k]);
+                    }
                 }
                 if (!have) continue;
-                Eigen::Vector3d o = T.translation(), e = T * Eigen::Vector3d(pts.x[i], pts.y[i], pts.z[i]);
-                pb_carve_ray(carve, utime + cached, o.data(), e.data());
+                rays.push_back({utime + cached, T.translation(), T * Eigen::Vector3d(pts.x[i], pts.y[i], pts.z[i])});
             }
-            return 0;
+            if (rays.empty()) return 0;
+            // the tiles its rays can reach held
+            int64_t lo[2], hi[2];
+            for (int k = 0; k < 2; k++) {
+                lo[k] = cgrid.of(olo[k] - ccfg.max_range_m - 1);
+                hi[k] = cgrid.of(ohi[k] + ccfg.max_range_m + 1);
+            }
+            const int64_t w = hi[0] - lo[0] + 1;
+            under.assign((size_t)(w * (hi[1] - lo[1] + 1)), nullptr);
+            for (int64_t tx = lo[0]; tx <= hi[0]; tx++)
+                for (int64_t ty = lo[1]; ty <= hi[1]; ty++) {
+                    const int64_t k = tile_key(tx, ty);
+                    if (!R->carve_tiles.count(k)) continue;
+                    pb_carve_t *c = tiles.hold(k, sampled, e);
+                    if (!c) return -1;
+                    under[(size_t)((ty - lo[1]) * w + (tx - lo[0]))] = c;
+                }
+            R->carve_tiles_held_max = std::max(R->carve_tiles_held_max, (long)tiles.held.size());
+            // each ray cast in the tiles under it (one longer than max_range_m counts nowhere)
+            for (const Ray &r : rays) {
+                const int64_t x0 = std::max(lo[0], cgrid.of(std::min(r.o.x(), r.e.x()))),
+                              x1 = std::min(hi[0], cgrid.of(std::max(r.o.x(), r.e.x()))),
+                              y0 = std::max(lo[1], cgrid.of(std::min(r.o.y(), r.e.y()))),
+                              y1 = std::min(hi[1], cgrid.of(std::max(r.o.y(), r.e.y())));
+                for (int64_t ty = y0; ty <= y1; ty++)
+                    for (int64_t tx = x0; tx <= x1; tx++)
+                        if (pb_carve_t *c = under[(size_t)((ty - lo[1]) * w + (tx - lo[0]))])
+                            pb_carve_ray(c, r.utime, r.o.data(), r.e.data());
+            }
+            // the tiles no sampled sweep of the last 10 reached paged out
+            return sampled % 5 == 0 ? tiles.page_out(sampled - 10, e) : 0;
         }, &empty, err, nullptr, true);
-    std::vector<uint8_t> keep;
-    if (rc == 0) {
-        pb_progress_finish(&prog);
-        R->carved = pb_carve_keep(carve, &keep);
-    }
-    pb_carve_destroy(carve);
     if (rc != 0) return -1;
-    size_t kept = 0;   /* the points kept moved up in place (no second copy of the map) */
-    for (size_t i = 0; i < keep.size(); i++) {
-        if (keep[i]) std::memmove(&R->map[4 * kept++], &R->map[4 * i], 4 * sizeof(float));
-        else R->layers.removed.insert(R->layers.removed.end(), {R->map[4 * i], R->map[4 * i + 1], R->map[4 * i + 2]});
-    }
-    R->map.resize(4 * kept);
-    R->map.shrink_to_fit();
-    R->map_points = kept;
-    const std::string map_path = R->path("map.pcd"), tmp = map_path + ".tmp";
-    if (pb_pcd_write_xyzi(tmp.c_str(), R->map.data(), (int64_t)kept, err) != 0 || std::rename(tmp.c_str(), map_path.c_str()) != 0) {
-        std::remove(tmp.c_str());
-        return pb_err_set(err, "%s: cannot write", map_path.c_str()), -1;
-    }
-    return 0;
+    pb_progress_finish(&prog);
+    return tiles.finish(err);
 }
 
-/* The trajectories, the picture, the tiles the localizer pages (its map_source, from the
- * map as written) and site.yaml. */
+/* map.pcd from the kept tiles, in the order of the voxels' seq: a window of seq at a time
+ * gathered from the tiles that have points in it; each part drawn into the picture too. */
+struct Assembly {
+    Run *R = nullptr;
+    pb_picture_t *pic = nullptr;
+    std::vector<size_t> read;          /* per kept tile: its points taken so far */
+    std::vector<float> window;         /* x y z intensity by seq - start */
+    std::vector<uint8_t> has;
+    std::vector<float> ready;          /* the window's points in order */
+    size_t ready_at = 0;
+    int64_t start = 0;                 /* the window's first seq */
+    static const int64_t kWindow = int64_t(1) << 21;
+
+    int next_window(pb_err_t *err)
+    {
+        const int64_t end = start + kWindow;
+        window.resize(4 * (size_t)kWindow);
+        has.assign((size_t)kWindow, 0);
+        std::vector<TilePoint> chunk(4096);
+        for (size_t t = 0; t < R->kept_tiles.size(); t++) {
+            uint32_t &next = R->kept_tiles[t].second;
+            if (next == UINT32_MAX || next >= end) continue;
+            const std::string path = tile_path(R, 'k', R->kept_tiles[t].first);
+            FILE *f = std::fopen(path.c_str(), "rb");
+            if (!f || std::fseek(f, (long)(read[t] * sizeof(TilePoint)), SEEK_SET) != 0) {
+                if (f) std::fclose(f);
+                return pb_err_set(err, "%s: cannot read the tile back", path.c_str()), -1;
+            }
+            for (bool more = true; more;) {
+                const size_t n = std::fread(chunk.data(), sizeof(TilePoint), chunk.size(), f);
+                if (n == 0) { next = UINT32_MAX; break; }
+                for (size_t i = 0; i < n; i++) {
+                    if (chunk[i].seq >= end) { next = chunk[i].seq; more = false; break; }
+                    std::memcpy(&window[4 * (size_t)(chunk[i].seq - start)], chunk[i].p, sizeof chunk[i].p);
+                    has[(size_t)(chunk[i].seq - start)] = 1;
+                    read[t]++;
+                }
+            }
+            std::fclose(f);
+        }
+        ready.clear();
+        ready_at = 0;
+        for (size_t i = 0; i < has.size(); i++)
+            if (has[i]) ready.insert(ready.end(), &window[4 * i], &window[4 * i + 4]);
+        pb_picture_add(pic, ready.data(), ready.size() / 4, 4);
+        start = end;
+        return 0;
+    }
+
+    static int fill(void *user, int64_t, int64_t count, float *xyzi, pb_err_t *err)
+    {
+        Assembly *a = (Assembly *)user;
+        for (int64_t done = 0; done < count;) {
+            if (a->ready_at == a->ready.size()) {
+                if (a->start >= (int64_t)a->R->voxels) return pb_err_set(err, "internal: the kept tiles hold fewer points than counted"), -1;
+                if (a->next_window(err) != 0) return -1;
+                continue;
+            }
+            const size_t n = std::min((size_t)(count - done), (a->ready.size() - a->ready_at) / 4);
+            std::memcpy(xyzi + 4 * done, &a->ready[a->ready_at], 4 * n * sizeof(float));
+            a->ready_at += 4 * n;
+            done += (int64_t)n;
+        }
+        return 0;
+    }
+};
+
+/* The trajectories, map.pcd and the picture, the tiles the localizer pages (its map_source,
+ * from the map as written) and site.yaml. */
 static int write_site(Run *R, pb_err_t *err)
 {
     if (write_tum(R->path("trajectory.tum").c_str(), R->traj, false) != 0 ||
@@ -1024,11 +1391,19 @@ static int write_site(Run *R, pb_err_t *err)
     }
     for (const auto &lt : R->loop_times)
         if (at.count(lt.first) && at.count(lt.second)) R->layers.loops.push_back({at[lt.first], at[lt.second]});
-    if (pb_picture_write(R->map.data(), R->map.size() / 4, 4, &R->layers, R->path("report.png").c_str(), &R->m_per_px,
-                         err) != 0)
-        return -1;
-    std::vector<float>().swap(R->map);   /* freed: the tiles are made from map.pcd */
-    if (map_source_write_tiles(R->path("map.pcd").c_str(), R->path("map.tiles").c_str(), MAP_SOURCE_TILE_M, nullptr,
+    Assembly as{R, pb_picture_begin(&R->layers), std::vector<size_t>(R->kept_tiles.size(), 0), {}, {}, {}};
+    const std::string map_path = R->path("map.pcd"), tmp = map_path + ".tmp";
+    int rc = pb_pcd_write_xyzi_from(tmp.c_str(), (int64_t)R->map_points, Assembly::fill, &as, err);
+    if (rc == 0 && std::rename(tmp.c_str(), map_path.c_str()) != 0)
+        rc = pb_err_set(err, "%s: cannot write: %s", map_path.c_str(), std::strerror(errno));
+    if (rc == 0) rc = pb_picture_write(as.pic, &R->layers, R->path("report.png").c_str(), &R->m_per_px, err);
+    pb_picture_end(as.pic);
+    as = Assembly{};   /* its buffers freed before the tiles are prepared */
+    malloc_trim(0);
+    std::error_code ec;
+    std::filesystem::remove_all(R->tiles_dir, ec);
+    if (rc != 0) return -1;
+    if (map_source_write_tiles(map_path.c_str(), R->path("map.tiles").c_str(), MAP_SOURCE_TILE_M, nullptr,
                                nullptr, nullptr, err) != 0)
         return -1;
     const std::string site_path = R->path("site.yaml");
@@ -1120,6 +1495,17 @@ static int write_report(const Run &R, const double cpu_ms[4], double wall_s, pb_
     cJSON_AddNumberToObject(j, "map_points", (double)R.map_points);
     cJSON_AddNumberToObject(j, "map_points_carved", (double)R.carved);
     cJSON_AddNumberToObject(j, "map_voxel_m", R.voxel);
+    /* the map in tiles: how many, the most held at once (pass 2: tiles and voxels; carving) */
+    cJSON_AddNumberToObject(j, "map_tile_m", R.tile_m);
+    cJSON_AddNumberToObject(j, "map_voxels", (double)R.voxels);
+    cJSON_AddNumberToObject(j, "map_tiles", (double)R.carve_tiles.size());
+    cJSON_AddNumberToObject(j, "map_tiles_held_max", (double)R.tiles_held_max);
+    cJSON_AddNumberToObject(j, "map_voxels_held_max", (double)R.voxels_held_max);
+    cJSON_AddNumberToObject(j, "map_tiles_paged_out", (double)R.tiles_paged_out);
+    cJSON_AddNumberToObject(j, "map_tiles_paged_in", (double)R.tiles_paged_in);
+    cJSON_AddNumberToObject(j, "carve_tiles_held_max", (double)R.carve_tiles_held_max);
+    cJSON_AddNumberToObject(j, "carve_tiles_paged_out", (double)R.carve_tiles_paged_out);
+    cJSON_AddNumberToObject(j, "carve_tiles_paged_in", (double)R.carve_tiles_paged_in);
     cJSON_AddNumberToObject(j, "scans_placed", (double)R.placed);
     cJSON_AddNumberToObject(j, "scans_unplaced", (double)R.unplaced);
     char *text = cJSON_Print(j);
@@ -1158,10 +1544,11 @@ int main(int argc, char **argv)
         PB_OPT_REQUIRED("log", &R.log_path), PB_OPT_REQUIRED("out", &R.out_dir), PB_OPT_STRING("vehicle", &vehicle),
         PB_OPT_STRING("scan-channel", &R.scan_ch), PB_OPT_DOUBLE("voxel", &R.voxel, 0.01, 10),
         PB_OPT_FLAG("quiet", &R.quiet, 1), PB_OPT_INT("checkpoint-every", &R.checkpoint_every, 1, 1000000),
-        PB_OPT_STRING("poses", &R.poses_path), PB_OPT_END,
+        PB_OPT_STRING("poses", &R.poses_path), PB_OPT_DOUBLE("tile-m", &R.tile_m, 1, 10000), PB_OPT_END,
     };
     int parsed = pb_opt_parse("mapper", opts, usage, 0, argc, argv);
     if (parsed >= 0) return parsed;
+    R.tiles_dir = R.path("map-tiles.tmp");
     const auto wall0 = std::chrono::steady_clock::now();
     double cpu_ms[4] = {pb_clock_process_cpu_ms(), 0, 0, 0};
     pb_err_t err;

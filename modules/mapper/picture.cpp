@@ -37,28 +37,49 @@ struct Canvas {
 };
 }  // namespace
 
-int pb_picture_write(const float *xyz, size_t n, size_t stride, const pb_picture_layers_t *L, const char *png_path,
-                     double *m_per_px, pb_err_t *err)
+struct pb_picture {
+    Canvas cv;
+    std::vector<uint32_t> count;   /* the map's points a pixel */
+};
+
+pb_picture_t *pb_picture_begin(const pb_picture_layers_t *L)
 {
-    if (L->after.empty()) return pb_err_set(err, "picture: no trajectory"), -1;
+    if (L->after.empty()) return nullptr;
     /* the drive's surroundings: the trajectory's extent and 40 m around (the map reaches
      * the sensor's range, mostly sparse far returns) */
     Eigen::Vector2d lo = L->after[0].head<2>(), hi = lo;
     for (const auto &p : L->after) { lo = lo.cwiseMin(p.head<2>()); hi = hi.cwiseMax(p.head<2>()); }
     lo -= Eigen::Vector2d(40, 40);
     hi += Eigen::Vector2d(40, 40);
-    Canvas cv;
+    pb_picture_t *pic = new pb_picture_t();
+    Canvas &cv = pic->cv;
     cv.res = std::max(0.2, std::max(hi.x() - lo.x(), hi.y() - lo.y()) / 2000);
     cv.w = (int)std::ceil((hi.x() - lo.x()) / cv.res);
     cv.h = (int)std::ceil((hi.y() - lo.y()) / cv.res);
     cv.x0 = lo.x();
     cv.y1 = hi.y();
-    std::vector<uint32_t> count((size_t)cv.w * cv.h, 0);
+    pic->count.assign((size_t)cv.w * cv.h, 0);
+    return pic;
+}
+
+void pb_picture_add(pb_picture_t *pic, const float *xyz, size_t n, size_t stride)
+{
+    const Canvas &cv = pic->cv;
     for (size_t i = 0; i < n; i++) {
         const float *p = xyz + i * stride;
         int c = (int)std::floor((p[0] - cv.x0) / cv.res), r = (int)std::floor((cv.y1 - p[1]) / cv.res);
-        if (c >= 0 && r >= 0 && c < cv.w && r < cv.h) count[(size_t)r * cv.w + c]++;
+        if (c >= 0 && r >= 0 && c < cv.w && r < cv.h) pic->count[(size_t)r * cv.w + c]++;
     }
+}
+
+void pb_picture_end(pb_picture_t *p) { delete p; }
+
+int pb_picture_write(pb_picture_t *pic, const pb_picture_layers_t *L, const char *png_path, double *m_per_px,
+                     pb_err_t *err)
+{
+    if (!pic) return pb_err_set(err, "picture: no trajectory"), -1;
+    Canvas &cv = pic->cv;
+    const std::vector<uint32_t> &count = pic->count;
     uint32_t top = std::max<uint32_t>(1, *std::max_element(count.begin(), count.end()));
     cv.rgb.assign((size_t)cv.w * cv.h * 3, 255);
     for (size_t i = 0; i < count.size(); i++) {

@@ -18,9 +18,15 @@ typedef struct {
     std::vector<float> removed;                   /* carved points, x y z interleaved, map frame */
 } pb_picture_layers_t;
 
-/* Draws the map's n points (x, y, z floats, `stride` floats apart) and the layers into
- * png_path; *m_per_px gets the scale. 0 or -1 (err set). */
-int pb_picture_write(const float *xyz, size_t n, size_t stride, const pb_picture_layers_t *layers, const char *png_path,
-                     double *m_per_px, pb_err_t *err);
+/* The picture is drawn as the map is written, a part at a time: begin (the extent comes
+ * from the trajectory; NULL when layers->after is empty), add the map's points (x, y, z
+ * floats, `stride` floats apart) in parts, then write it to png_path with the layers
+ * (*m_per_px gets the scale; 0 or -1, err set) and free it with end (NULL is a no-op). */
+typedef struct pb_picture pb_picture_t;
+pb_picture_t *pb_picture_begin(const pb_picture_layers_t *layers);
+void pb_picture_add(pb_picture_t *p, const float *xyz, size_t n, size_t stride);
+int pb_picture_write(pb_picture_t *p, const pb_picture_layers_t *layers, const char *png_path, double *m_per_px,
+                     pb_err_t *err);
+void pb_picture_end(pb_picture_t *p);
 
 #endif

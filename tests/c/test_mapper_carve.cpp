@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <map>
 #include <vector>
 
 #include "mapper/core/carve.h"
@@ -47,6 +48,59 @@ static void window_test()
     pb_carve_destroy(c);
 }
 
+/* The same map carved in parts (tiles of 4 m by the carving's cells, as the mapper's),
+ * every ray cast in every part, and every 10th sweep the parts paged out (their counts
+ * saved, the part made again from its points and given them back): each point's verdict
+ * must be the whole map's. */
+struct Ray { int64_t utime; double o[3], e[3]; };
+static void parts_test(const std::vector<float> &pts, const pb_ground_t *ground, const std::vector<Ray> &rays,
+                       const std::vector<uint8_t> &whole)
+{
+    std::map<std::pair<int, int>, std::vector<size_t>> tiles;   /* part -> its points */
+    for (size_t i = 0; i < pts.size() / 3; i++)
+        tiles[{(int)std::floor(std::floor(pts[3 * i] * 2.0) / 8), (int)std::floor(std::floor(pts[3 * i + 1] * 2.0) / 8)}].push_back(i);
+    struct Part { std::vector<float> xyz; pb_carve_t *c; };
+    std::vector<Part> parts;
+    for (const auto &t : tiles) {
+        Part p;
+        for (size_t i : t.second) p.xyz.insert(p.xyz.end(), &pts[3 * i], &pts[3 * i + 3]);
+        p.c = pb_carve_create(p.xyz.data(), p.xyz.size() / 3, 3, ground, nullptr);
+        parts.push_back(p);
+    }
+    int paged = 0, bad_load = 0;
+    for (size_t r = 0; r < rays.size(); r++) {
+        if (r > 0 && rays[r].utime != rays[r - 1].utime && (rays[r].utime / 100000) % 10 == 0)
+            for (Part &p : parts) {
+                std::vector<uint8_t> bytes;
+                pb_carve_save(p.c, &bytes);
+                pb_carve_destroy(p.c);
+                p.c = pb_carve_create(p.xyz.data(), p.xyz.size() / 3, 3, ground, nullptr);
+                bad_load += pb_carve_load(p.c, bytes.data(), bytes.size()) != 0;
+                paged++;
+            }
+        for (Part &p : parts) pb_carve_ray(p.c, rays[r].utime, rays[r].o, rays[r].e);
+    }
+    size_t same = 0, n = 0, k = 0;
+    for (const auto &t : tiles) {
+        std::vector<uint8_t> keep;
+        pb_carve_keep(parts[k].c, &keep);
+        for (size_t j = 0; j < t.second.size(); j++) { same += keep[j] == whole[t.second[j]]; n++; }
+        pb_carve_destroy(parts[k++].c);
+    }
+    std::printf("parts: %zu of them, paged out and back %d times, %zu of %zu points judged as the whole map's\n",
+                parts.size(), paged, same, n);
+    CHECK(parts.size() > 50 && paged > 300);
+    CHECK(bad_load == 0);
+    CHECK(n == whole.size() && same == n);
+    /* counts of another part are refused */
+    std::vector<uint8_t> bytes;
+    pb_carve_t *a = pb_carve_create(pts.data(), 10, 3, ground, nullptr), *b = pb_carve_create(pts.data(), pts.size() / 3, 3, ground, nullptr);
+    pb_carve_save(b, &bytes);
+    CHECK(pb_carve_load(a, bytes.data(), bytes.size()) == -1);
+    pb_carve_destroy(a);
+    pb_carve_destroy(b);
+}
+
 int main()
 {
     /* the map: a wall at y = 10 (x 0..60, z 0..4), a box at x 28..32, y 4..6, z 0..1.5, the
@@ -64,6 +118,11 @@ int main()
     for (int i = 0; i < 130; i++)
         for (int j = 0; j < 40; j++) pb_ground_set(ground, i, j, 0.0);
     pb_carve_t *c = pb_carve_create(pts.data(), pts.size() / 3, 3, ground, nullptr);
+    std::vector<Ray> cast;
+    auto ray = [&](int64_t utime, const double o[3], const double e[3]) {
+        pb_carve_ray(c, utime, o, e);
+        cast.push_back({utime, {o[0], o[1], o[2]}, {e[0], e[1], e[2]}});
+    };
     /* the sensor at 1.8 m drives along y = 0 at 10 m/s, 10 sweeps a second for 6 s */
     for (int s = 0; s < 60; s++) {
         double t = 0.1 * s, x0 = 10 * t;
@@ -75,7 +134,7 @@ int main()
                 double e[3] = {x, 10, z};
                 /* the box is there from 2 to 3 s: rays toward it end on its near face */
                 if (t >= 2.0 && t < 3.0 && x > 28 && x < 32 && z < 1.5) e[0] = o[0] + (x - o[0]) * 0.4, e[1] = 4, e[2] = 1.8 + (z - 1.8) * 0.4;
-                pb_carve_ray(c, utime, o, e);
+                ray(utime, o, e);
             }
         /* and to the ground between its faces and beyond its place (y 5, 7 and 9), whose
          * rays cross it low */
@@ -87,7 +146,7 @@ int main()
                     double f = 4.0 / y;
                     e[0] = o[0] + (x - o[0]) * f, e[1] = 4, e[2] = 1.8 * (1 - f);
                 }
-                pb_carve_ray(c, utime, o, e);
+                ray(utime, o, e);
             }
     }
     std::vector<uint8_t> keep;
@@ -112,6 +171,7 @@ int main()
     CHECK(wall_lost == 0);
     CHECK(ground_lost == 0);
     pb_carve_destroy(c);
+    parts_test(pts, ground, cast, keep);
     window_test();
     pb_ground_destroy(ground);
     return pb_check_report("test_mapper_carve");

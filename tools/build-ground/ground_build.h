@@ -31,6 +31,16 @@ void gb_config_default(gb_config_t *c);
  * ground cells before filling. */
 pb_ground_t *gb_build(const float *points, size_t n, size_t stride, const gb_config_t *c, size_t *nground);
 
+/* The same from a map given in parts (a map too large to hold at once): the extent of all
+ * its points first (gb_bounds over every part), then every part added, then finished;
+ * the result is gb_build's on the whole map. Ownership: gb_begin returns an object that
+ * gb_finish frees (NULL: no finite point, or out of memory). */
+typedef struct gb_accum gb_accum_t;
+void gb_bounds(const float *points, size_t n, size_t stride, double lo[2], double hi[2]);   /* start lo +inf, hi -inf */
+gb_accum_t *gb_begin(const double lo[2], const double hi[2], const gb_config_t *c);
+void gb_add(gb_accum_t *a, const float *points, size_t n, size_t stride);
+pb_ground_t *gb_finish(gb_accum_t *a, size_t *nground);
+
 #ifdef __cplusplus
 }
 #endif

@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 
 #include "voxel_hash.h"
 
@@ -24,6 +25,7 @@ struct pb_carve {
     pb_loc::VoxelHash index;
     std::vector<Count> counts;
     std::vector<int32_t> point_cell;   /* per map point, its cell (-1: outside the key range) */
+    int64_t lo[3] = {INT64_MAX, INT64_MAX, INT64_MAX}, hi[3] = {INT64_MIN, INT64_MIN, INT64_MIN};   /* cells' extent */
 };
 
 pb_carve_t *pb_carve_create(const float *xyz, size_t n, size_t stride, const pb_ground_t *ground,
@@ -37,7 +39,11 @@ pb_carve_t *pb_carve_create(const float *xyz, size_t n, size_t stride, const pb_
     for (size_t i = 0; i < n; i++) {
         const float *p = xyz + i * stride;
         uint64_t key;
-        if (!pb_loc::voxel_key_of(p[0], p[1], p[2], c->inv, &key)) continue;
+        int64_t v[3];
+        if (!pb_loc::voxel_index_of(p[0], p[1], p[2], c->inv, &v[0], &v[1], &v[2]) ||
+            !pb_loc::voxel_key(v[0], v[1], v[2], &key))
+            continue;
+        for (int a = 0; a < 3; a++) { c->lo[a] = std::min(c->lo[a], v[a]); c->hi[a] = std::max(c->hi[a], v[a]); }
         bool fresh;
         int32_t k = c->index.insert(key, (int32_t)c->counts.size(), &fresh);
         if (fresh) {
@@ -83,6 +89,21 @@ void pb_carve_ray(pb_carve_t *c, int64_t utime, const double o[3], const double 
     /* the cells the ray crosses up to end_margin_m before its end, in order (a 3-D DDA) */
     const double stop = len - c->cfg.end_margin_m;
     if (stop <= 0) return;
+    /* none of them among this map's (a part's) cells: the segment misses their box grown by a cell */
+    double t0 = 0, t1 = stop;
+    for (int a = 0; a < 3 && t0 <= t1; a++) {
+        const double blo = (double)(c->lo[a] - 1) * c->cfg.cell_m, bhi = (double)(c->hi[a] + 2) * c->cfg.cell_m;
+        const double u = d[a] / len;
+        if (u == 0) {
+            if (o[a] < blo || o[a] > bhi) return;
+            continue;
+        }
+        double ta = (blo - o[a]) / u, tb = (bhi - o[a]) / u;
+        if (ta > tb) std::swap(ta, tb);
+        t0 = std::max(t0, ta);
+        t1 = std::min(t1, tb);
+    }
+    if (t0 > t1) return;
     int64_t v[3], step[3];
     double tmax[3], tdelta[3];
     for (int a = 0; a < 3; a++) {
@@ -96,7 +117,12 @@ void pb_carve_ray(pb_carve_t *c, int64_t utime, const double o[3], const double 
     double t_in = 0;
     for (;;) {
         int a = tmax[0] < tmax[1] ? (tmax[0] < tmax[2] ? 0 : 2) : (tmax[1] < tmax[2] ? 1 : 2);
-        if (pb_loc::voxel_key(v[0], v[1], v[2], &key)) {
+        bool inside = true;   /* the walk leaves the cells' box once and for all (each axis moves one way) */
+        for (int b = 0; b < 3; b++) {
+            if (step[b] > 0 ? v[b] > c->hi[b] : v[b] < c->lo[b]) return;
+            inside &= v[b] >= c->lo[b] && v[b] <= c->hi[b];
+        }
+        if (inside && pb_loc::voxel_key(v[0], v[1], v[2], &key)) {
             int32_t k = c->index.find(key);
             if (k >= 0 && c->counts[(size_t)k].raised >= 0) {
                 /* the raised part is passed when the ray stays clear of the ground through the cell */
@@ -131,4 +157,17 @@ size_t pb_carve_keep(const pb_carve_t *c, std::vector<uint8_t> *keep)
         }
     }
     return carved;
+}
+
+void pb_carve_save(const pb_carve_t *c, std::vector<uint8_t> *out)
+{
+    out->resize(c->counts.size() * sizeof(Count));
+    if (!out->empty()) std::memcpy(out->data(), c->counts.data(), out->size());
+}
+
+int pb_carve_load(pb_carve_t *c, const uint8_t *data, size_t len)
+{
+    if (len != c->counts.size() * sizeof(Count)) return -1;
+    if (len) std::memcpy(c->counts.data(), data, len);
+    return 0;
 }

@@ -56,4 +56,12 @@ void pb_carve_ray(pb_carve_t *c, int64_t utime, const double origin[3], const do
 /* Per map point (as given to create): 1 keep, 0 carved. Returns the number carved. */
 size_t pb_carve_keep(const pb_carve_t *c, std::vector<uint8_t> *keep);
 
+/* A map in parts (the mapper's tiles, each its own pb_carve_t): every part given the rays
+ * that may cross it carves as one pb_carve_t of the whole map would, provided no cell
+ * spans two parts; a ray that misses a part's cells costs little there. To page a part
+ * out and back: its counts so far (out replaced), and given to a part made again from the
+ * same points and ground. load returns 0, or -1 when the bytes are not of such a part. */
+void pb_carve_save(const pb_carve_t *c, std::vector<uint8_t> *out);
+int pb_carve_load(pb_carve_t *c, const uint8_t *data, size_t len);
+
 #endif

@@ -1,0 +1,102 @@
+/* Unit test of pb_map_build's tiled builder (the mapper's paging): a car's worth of
+ * scans, each 2,000 points within 30 m of a sensor that drives out along x and back, added
+ * to a builder of the whole map and to a tiled one whose tiles farther than 40 m from the
+ * sensor are taken out and put back when it comes near again. The tiled builder's voxels,
+ * in the order they were made (seq), must be the whole builder's, sums and all. */
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <map>
+#include <vector>
+
+#include "pb_check.h"
+#include "pb_map_build.h"
+
+int main()
+{
+    pb_err_t err;
+    const double voxel = 0.15;
+    const int tile = 100;   /* voxels: 15 m */
+    pb_map_builder_t *whole = pb_map_builder_create(voxel, &err), *tiled = pb_map_builder_create_tiled(voxel, tile, &err);
+    std::map<std::pair<int32_t, int32_t>, std::vector<pb_map_voxel_t>> out;   /* tiles taken out */
+    uint32_t rng = 12345;
+    auto uni = [&] { rng = rng * 1664525u + 1013904223u; return (rng >> 8) / 16777216.0; };
+    std::vector<float> x(2000), y(2000), z(2000), in(2000);
+    int taken = 0, put = 0, bad = 0;
+    for (int s = 0; s < 200; s++) {
+        const double cx = s < 100 ? 2.0 * s : 2.0 * (199 - s);   /* out 200 m and back */
+        for (int i = 0; i < 2000; i++) {
+            double a = 2 * M_PI * uni(), r = 30 * std::sqrt(uni());
+            x[i] = (float)(r * std::cos(a)); y[i] = (float)(r * std::sin(a)); z[i] = (float)(3 * uni()); in[i] = (float)uni();
+        }
+        pb_points_t pts = {};
+        pts.n = 2000; pts.x = x.data(); pts.y = y.data(); pts.z = z.data(); pts.intensity = in.data();
+        pb_transform_t T = {{cx, 0, 0}, {1, 0, 0, 0}};
+        /* the tiles within 40 m put back, then the scan, then the tiles beyond taken out */
+        for (auto it = out.begin(); it != out.end();) {
+            const double tx = (it->first.first + 0.5) * tile * voxel;
+            if (std::fabs(tx - cx) < 40) {
+                bad += pb_map_builder_put(tiled, it->second.data(), it->second.size(), &err) != 0;
+                put++;
+                it = out.erase(it);
+            } else {
+                ++it;
+            }
+        }
+        CHECK_OK(pb_map_builder_add(whole, &pts, &T, &err), err.msg);
+        CHECK_OK(pb_map_builder_add(tiled, &pts, &T, &err), err.msg);
+        std::vector<int32_t> xy(2 * (size_t)pb_map_builder_tiles(tiled, nullptr, 0));
+        pb_map_builder_tiles(tiled, xy.data(), (int)(xy.size() / 2));
+        for (size_t i = 0; i < xy.size(); i += 2) {
+            const double tx = (xy[i] + 0.5) * tile * voxel;
+            if (std::fabs(tx - cx) < 40) continue;
+            std::vector<pb_map_voxel_t> &v = out[{xy[i], xy[i + 1]}];
+            CHECK(v.empty());   /* a tile is either held or out */
+            v.resize((size_t)pb_map_builder_tile_size(tiled, xy[i], xy[i + 1]));
+            pb_map_builder_tile_take(tiled, xy[i], xy[i + 1], v.data());
+            taken++;
+        }
+    }
+    /* every voxel: those still held and those out, by seq */
+    std::vector<int32_t> xy(2 * (size_t)pb_map_builder_tiles(tiled, nullptr, 0));
+    pb_map_builder_tiles(tiled, xy.data(), (int)(xy.size() / 2));
+    for (size_t i = 0; i < xy.size(); i += 2) {
+        std::vector<pb_map_voxel_t> &v = out[{xy[i], xy[i + 1]}];
+        size_t at = v.size();
+        v.resize(at + (size_t)pb_map_builder_tile_size(tiled, xy[i], xy[i + 1]));
+        pb_map_builder_tile_take(tiled, xy[i], xy[i + 1], v.data() + at);
+    }
+    std::vector<pb_map_voxel_t> all;
+    for (const auto &t : out) all.insert(all.end(), t.second.begin(), t.second.end());
+    std::sort(all.begin(), all.end(), [](const pb_map_voxel_t &a, const pb_map_voxel_t &b) { return a.seq < b.seq; });
+    const int64_t n = pb_map_builder_size(whole);
+    size_t same = 0;
+    /* the whole builder's PCD order is its voxels' order: compare point by point */
+    const char *path = "/tmp/test_map_build_whole.pcd";
+    CHECK_OK(pb_map_builder_write_pcd(whole, path, &err), err.msg);
+    FILE *f = std::fopen(path, "rb");
+    char line[256];
+    while (f && std::fgets(line, sizeof line, f) && std::strcmp(line, "DATA binary\n") != 0) {}
+    std::vector<float> pcd(4 * (size_t)n);
+    CHECK(f && std::fread(pcd.data(), sizeof(float), pcd.size(), f) == pcd.size());
+    if (f) std::fclose(f);
+    std::remove(path);
+    for (size_t i = 0; i < all.size() && i < (size_t)n; i++) {
+        float p[4];
+        pb_map_voxel_point(tiled, &all[i], p);
+        same += all[i].seq == i && std::memcmp(p, &pcd[4 * i], sizeof p) == 0;
+    }
+    std::printf("%lld voxels; tiles taken out %d times, put back %d times; %zu of %zu the same, in the same order\n",
+                (long long)n, taken, put, same, all.size());
+    CHECK(taken > 20 && put > 10 && bad == 0);
+    CHECK((int64_t)all.size() == n && (int64_t)same == n);
+    /* a voxel held already is refused */
+    pb_map_voxel_t v = all[0];
+    CHECK(pb_map_builder_put(tiled, &v, 1, &err) == 0);
+    CHECK(pb_map_builder_put(tiled, &v, 1, &err) == -1);
+    CHECK_CONTAINS(err.msg, "put back while held");
+    pb_map_builder_destroy(whole);
+    pb_map_builder_destroy(tiled);
+    return pb_check_report("test_map_build");
+}
