@@ -1196,9 +1196,24 @@ struct CarveTiles {
     }
 
     /* Every tile's verdicts: its kept points sorted by seq (map.pcd's order) to its 'k'
-     * file, the carved ones to the picture's layer. */
+     * file, the carved ones to the picture's layer. First every tile's cells carved on
+     * their own counts, so that a cell on a tile's border sees its neighbours over it. */
     int finish(pb_err_t *err)
     {
+        std::vector<uint64_t> gone;
+        for (int64_t k : R->carve_tiles) {
+            auto it = held.find(k);
+            if (it != held.end()) {
+                pb_carve_gone(it->second.carve, &gone);
+                continue;
+            }
+            bool was_out;
+            pb_carve_t *c = make(k, &was_out, err);
+            if (!c) return -1;
+            pb_carve_gone(c, &gone);
+            pb_carve_destroy(c);
+        }
+        std::sort(gone.begin(), gone.end());
         std::vector<uint8_t> keep;
         std::vector<TilePoint> kept;
         for (int64_t k : R->carve_tiles) {
@@ -1212,7 +1227,7 @@ struct CarveTiles {
                 held.erase(it);
                 if (tile_read(tile_path(R, 'p', k), &pts, err) != 0) { pb_carve_destroy(c); return -1; }
             }
-            R->carved += pb_carve_keep(c, &keep);
+            R->carved += pb_carve_keep(c, &gone, &keep);
             pb_carve_destroy(c);
             kept.clear();
             for (size_t i = 0; i < pts.size(); i++) {

@@ -1,7 +1,8 @@
 /* Unit tests of the mapper's carving (modules/mapper/core/carve): a sensor driving along a
  * wall 10 m to its left; a box (a car) stands between them for one second (2-3 s, as the
  * sensor passes it) and is gone after; rays to the wall. What the rays saw of the box must
- * go, the wall's and the ground's points stay. And which passes count (window_test). */
+ * go, the wall's and the ground's points stay. And which passes count (window_test), visits,
+ * eighths and neighbours (visits_test). */
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -41,7 +42,7 @@ static void window_test()
         pb_carve_ray(c, (int64_t)std::llround(r.t * 1e6), o, e);
     }
     std::vector<uint8_t> keep;
-    size_t carved = pb_carve_keep(c, &keep);
+    size_t carved = pb_carve_keep(c, nullptr, &keep);
     std::printf("window: carved %zu, keep %d %d %d %d\n", carved, keep[0], keep[1], keep[2], keep[3]);
     CHECK(carved == 2);
     CHECK(keep[0] == 1 && keep[1] == 0 && keep[2] == 0 && keep[3] == 1);
@@ -80,10 +81,13 @@ static void parts_test(const std::vector<float> &pts, const pb_ground_t *ground,
             }
         for (Part &p : parts) pb_carve_ray(p.c, rays[r].utime, rays[r].o, rays[r].e);
     }
+    std::vector<uint64_t> gone;   /* every part's cells carved on their own counts */
+    for (Part &p : parts) pb_carve_gone(p.c, &gone);
+    std::sort(gone.begin(), gone.end());
     size_t same = 0, n = 0, k = 0;
     for (const auto &t : tiles) {
         std::vector<uint8_t> keep;
-        pb_carve_keep(parts[k].c, &keep);
+        pb_carve_keep(parts[k].c, &gone, &keep);
         for (size_t j = 0; j < t.second.size(); j++) { same += keep[j] == whole[t.second[j]]; n++; }
         pb_carve_destroy(parts[k++].c);
     }
@@ -99,6 +103,117 @@ static void parts_test(const std::vector<float> &pts, const pb_ground_t *ground,
     CHECK(pb_carve_load(a, bytes.data(), bytes.size()) == -1);
     pb_carve_destroy(a);
     pb_carve_destroy(b);
+}
+
+/* Visits, eighths and neighbours, on single points in 0.5 m cells, hit and passed by
+ * vertical rays (each crosses its own column of cells only). */
+struct Shot { double t; int pass; double x, y; };
+
+static std::vector<uint8_t> shoot(const std::vector<float> &pts, std::vector<Shot> shots, size_t *carved)
+{
+    pb_carve_t *c = pb_carve_create(pts.data(), pts.size() / 3, 3, nullptr, nullptr);
+    std::stable_sort(shots.begin(), shots.end(), [](const Shot &a, const Shot &b) { return a.t < b.t; });
+    for (const Shot &s : shots) {
+        const double o[3] = {s.x, s.y, 10}, e[3] = {s.x, s.y, s.pass ? -10.0 : 0.3};   /* a hit ends at z = 0.3 */
+        pb_carve_ray(c, (int64_t)std::llround(s.t * 1e6), o, e);
+    }
+    std::vector<uint8_t> keep;
+    *carved = pb_carve_keep(c, nullptr, &keep);
+    pb_carve_destroy(c);
+    return keep;
+}
+
+static void visits_test()
+{
+    /* cells at x = 10, 20, 30 (points at 0.3 0.3 0.3 in the cell): hit at 1 s and 30 s (two
+     * visits: carved), at 1, 30 and 60 s (three: kept), at 1 and 6 s (one visit of 5 s, longer
+     * than transient_s: kept); six passes at 10-20 s through each */
+    std::vector<float> pts = {10.3f, 0.3f, 0.3f, 20.3f, 0.3f, 0.3f, 30.3f, 0.3f, 0.3f};
+    std::vector<Shot> shots;
+    for (double x : {10.3, 20.3, 30.3}) {
+        for (int k = 0; k < 6; k++) shots.push_back({10 + 2.0 * k, 1, x, 0.3});
+        shots.push_back({1, 0, x, 0.3});
+    }
+    shots.push_back({30, 0, 10.3, 0.3});
+    for (double t : {30.0, 60.0}) shots.push_back({t, 0, 20.3, 0.3});
+    shots.push_back({6, 0, 30.3, 0.3});
+    size_t carved;
+    std::vector<uint8_t> keep = shoot(pts, shots, &carved);
+    std::printf("visits: carved %zu, keep %d %d %d\n", carved, keep[0], keep[1], keep[2]);
+    CHECK(carved == 1 && keep[0] == 0 && keep[1] == 1 && keep[2] == 1);
+
+    /* eighths: a point in its cell's low corner eighth, hit at 1 s; ten passes after through
+     * the cell's other corner (kept) or through its eighth (carved) */
+    pts = {10.1f, 0.1f, 0.1f, 20.1f, 0.1f, 0.1f};
+    shots = {{1, 0, 10.1, 0.1}, {1, 0, 20.1, 0.1}};
+    for (int k = 0; k < 10; k++) {
+        shots.push_back({3 + 0.1 * k, 1, 10.4, 0.4});
+        shots.push_back({3 + 0.1 * k, 1, 20.1, 0.1});
+    }
+    keep = shoot(pts, shots, &carved);
+    std::printf("eighths: carved %zu, keep %d %d\n", carved, keep[0], keep[1]);
+    CHECK(carved == 1 && keep[0] == 1 && keep[1] == 0);
+
+    /* neighbours: three 3 x 3 squares of cells, each cell hit at 1 s. Square A: its 8 outer
+     * cells passed 6 times after, its centre twice (carved with them: the same body). Square
+     * B: the same, its centre passed once (kept). Square C: 5 outer cells passed 6 times, the
+     * centre twice (kept: too few carved around it) */
+    pts.clear();
+    shots.clear();
+    for (int sq = 0; sq < 3; sq++)
+        for (int i = 0; i < 3; i++)
+            for (int j = 0; j < 3; j++) {
+                double x = 10 * (sq + 1) + 0.5 * i + 0.3, y = 0.5 * j + 0.3;
+                pts.insert(pts.end(), {(float)x, (float)y, 0.3f});
+                shots.push_back({1, 0, x, y});
+                bool centre = i == 1 && j == 1;
+                int outer = i * 3 + j - (i * 3 + j > 4);   /* 0..7 for the outer cells */
+                int n = centre ? (sq == 1 ? 1 : 2) : (sq == 2 && outer >= 5 ? 0 : 6);
+                for (int k = 0; k < n; k++) shots.push_back({3 + 0.1 * k, 1, x, y});
+            }
+    keep = shoot(pts, shots, &carved);
+    std::printf("neighbours: carved %zu, centres kept %d %d %d\n", carved, keep[4], keep[13], keep[22]);
+    CHECK(carved == 8 + 1 + 8 + 5);
+    CHECK(keep[4] == 0 && keep[13] == 1 && keep[22] == 1);
+
+    /* the same squares in two parts split through them (x mod 10 < 10.8: each square's first
+     * column of cells in one part, the other two in the other), every shot in both: with
+     * every part's gone cells, the verdicts are the whole map's; with each part's own alone,
+     * square A's centre loses the three neighbours over the border (5 < 6) and is kept */
+    std::vector<float> part[2];
+    std::vector<size_t> at[2];
+    for (size_t i = 0; i < pts.size() / 3; i++) {
+        int p = std::fmod(pts[3 * i], 10.0) < 0.8;
+        part[p].insert(part[p].end(), &pts[3 * i], &pts[3 * i + 3]);
+        at[p].push_back(i);
+    }
+    std::stable_sort(shots.begin(), shots.end(), [](const Shot &a, const Shot &b) { return a.t < b.t; });
+    pb_carve_t *pc[2];
+    std::vector<uint64_t> gone;
+    for (int p = 0; p < 2; p++) {
+        pc[p] = pb_carve_create(part[p].data(), part[p].size() / 3, 3, nullptr, nullptr);
+        for (const Shot &sh : shots) {
+            const double o[3] = {sh.x, sh.y, 10}, e[3] = {sh.x, sh.y, sh.pass ? -10.0 : 0.3};
+            pb_carve_ray(pc[p], (int64_t)std::llround(sh.t * 1e6), o, e);
+        }
+        pb_carve_gone(pc[p], &gone);
+    }
+    std::sort(gone.begin(), gone.end());
+    size_t same_all = 0, same_own = 0;
+    for (int p = 0; p < 2; p++) {
+        std::vector<uint8_t> with_all, with_own;
+        pb_carve_keep(pc[p], &gone, &with_all);
+        pb_carve_keep(pc[p], nullptr, &with_own);
+        for (size_t j = 0; j < at[p].size(); j++) {
+            same_all += with_all[j] == keep[at[p][j]];
+            same_own += with_own[j] == keep[at[p][j]];
+        }
+        pb_carve_destroy(pc[p]);
+    }
+    std::printf("neighbours over a part's border: %zu of %zu points as the whole map's (each part alone: %zu)\n",
+                same_all, keep.size(), same_own);
+    CHECK(same_all == keep.size());
+    CHECK(same_own < keep.size());
 }
 
 int main()
@@ -150,7 +265,7 @@ int main()
             }
     }
     std::vector<uint8_t> keep;
-    size_t carved = pb_carve_keep(c, &keep);
+    size_t carved = pb_carve_keep(c, nullptr, &keep);
     size_t box = 0, box_kept = 0, wall_lost = 0, ground_lost = 0;
     for (size_t i = 0; i < kind.size(); i++) {
         if (kind[i] == 1) { box++; box_kept += keep[i]; }
@@ -173,6 +288,7 @@ int main()
     pb_carve_destroy(c);
     parts_test(pts, ground, cast, keep);
     window_test();
+    visits_test();
     pb_ground_destroy(ground);
     return pb_check_report("test_mapper_carve");
 }

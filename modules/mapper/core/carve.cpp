@@ -9,14 +9,25 @@
 
 namespace {
 struct Count {
+    int64_t visit_start, last_hit;   /* utime: the present visit's first hit, the last hit */
     uint32_t hits;
-    uint32_t passes_before;   /* passes before the first hit */
-    uint32_t passes_after;    /* passes since the last hit */
-    int64_t first_hit, last_hit;   /* utime */
+    uint32_t passes;           /* passes outside the visits: before the first, between, after the last */
+    uint32_t passes_since_hit; /* passes since the last hit: inside the visit if the next hit continues it */
+    float longest_s;           /* the longest visit that ended */
     float ground_z;    /* band cells: the ground model's height at the cell's centre */
     int32_t raised;    /* band cells: the cell of its points higher than raise_m over the ground, or -1 */
     uint8_t protect;   /* in the band over the ground: never carved */
+    uint8_t visits;    /* spans of hits kept apart by more than revisit_s (up to 255) */
+    uint8_t occupied;  /* the cell's eighths (x, y, z halves; bit x + 2y + 4z) that hold its points */
 };
+
+/* The eighth of the cell whose lowest corner is lo (half its edge: half_m) that p falls in, as a bit. */
+inline uint8_t eighth_bit(const double p[3], const double lo[3], double half_m)
+{
+    int b = 0;
+    for (int a = 0; a < 3; a++) b |= (p[a] >= lo[a] + half_m) << a;
+    return (uint8_t)(1u << b);
+}
 }  // namespace
 
 struct pb_carve {
@@ -51,23 +62,61 @@ pb_carve_t *pb_carve_create(const float *xyz, size_t n, size_t stride, const pb_
             double g, cx = (std::floor(p[0] * c->inv) + 0.5) * c->cfg.cell_m, cy = (std::floor(p[1] * c->inv) + 0.5) * c->cfg.cell_m;
             uint8_t protect = ground && pb_ground_height(ground, cx, cy, &g) == 0 &&
                               std::floor(p[2] * c->inv) * c->cfg.cell_m <= g + c->cfg.ground_band_m;
-            c->counts.push_back(Count{0, 0, 0, 0, 0, protect ? (float)g : 0.0f, -1, protect});
+            c->counts.push_back(Count{0, 0, 0, 0, 0, 0.0f, protect ? (float)g : 0.0f, -1, protect, 0, 0});
         }
         /* a band cell's points clear of the ground are judged apart: a car's sill over the road */
         Count &n = c->counts[(size_t)k];
         if (n.protect && p[2] > n.ground_z + c->cfg.raise_m) {
             if (n.raised < 0) {
                 n.raised = (int32_t)c->counts.size();
-                c->counts.push_back(Count{0, 0, 0, 0, 0, 0.0f, -1, 0});
+                c->counts.push_back(Count{0, 0, 0, 0, 0, 0.0f, 0.0f, -1, 0, 0, 0});
             }
             k = c->counts[(size_t)k].raised;
         }
         c->point_cell[i] = k;
+        /* the eighth of the cell it lies in */
+        const double pd[3] = {p[0], p[1], p[2]};
+        const double lo[3] = {std::floor(p[0] * c->inv) * c->cfg.cell_m, std::floor(p[1] * c->inv) * c->cfg.cell_m,
+                              std::floor(p[2] * c->inv) * c->cfg.cell_m};
+        c->counts[(size_t)k].occupied |= eighth_bit(pd, lo, c->cfg.cell_m / 2);
     }
     return c;
 }
 
 void pb_carve_destroy(pb_carve_t *c) { delete c; }
+
+/* The eighths of cell v that the ray o + u t (u unit) crosses for t in [t0, t1], as bits. */
+static uint8_t eighths_crossed(const pb_carve_t *c, const int64_t v[3], const double o[3], const double u[3], double t0,
+                               double t1)
+{
+    const double half = c->cfg.cell_m / 2;
+    double lo[3], p[3], q[3];
+    for (int a = 0; a < 3; a++) {
+        lo[a] = (double)v[a] * c->cfg.cell_m;
+        p[a] = o[a] + u[a] * t0;
+        q[a] = o[a] + u[a] * t1;
+    }
+    /* the segment crosses each of the three mid-planes at most once: an eighth is crossed
+     * where a piece between two crossings (in order) has its middle */
+    double cuts[5] = {t0, t1, t1, t1, t1};
+    int n = 1;
+    for (int a = 0; a < 3; a++) {
+        double mid = lo[a] + half;
+        if ((p[a] - mid) * (q[a] - mid) < 0) {
+            double t = t0 + (mid - p[a]) / u[a];
+            int i = n++;
+            for (; i > 1 && cuts[i - 1] > t; i--) cuts[i] = cuts[i - 1];   /* kept in order */
+            cuts[i] = t;
+        }
+    }
+    cuts[n] = t1;
+    uint8_t m = 0;
+    for (int i = 0; i < n; i++) {
+        double t = 0.5 * (cuts[i] + cuts[i + 1]), x[3] = {o[0] + u[0] * t, o[1] + u[1] * t, o[2] + u[2] * t};
+        m |= eighth_bit(x, lo, half);
+    }
+    return m;
+}
 
 void pb_carve_ray(pb_carve_t *c, int64_t utime, const double o[3], const double e[3])
 {
@@ -81,9 +130,15 @@ void pb_carve_ray(pb_carve_t *c, int64_t utime, const double o[3], const double 
             k = c->counts[(size_t)k].raised;
         if (k >= 0) {
             Count &n = c->counts[(size_t)k];
-            if (n.hits++ == 0) n.first_hit = utime;
+            if (n.hits == 0 || utime - n.last_hit > (int64_t)(c->cfg.revisit_s * 1e6)) {   /* a new visit */
+                if (n.hits) n.longest_s = std::max(n.longest_s, (float)((double)(n.last_hit - n.visit_start) * 1e-6));
+                n.passes += n.passes_since_hit;
+                n.visit_start = utime;
+                n.visits += n.visits < 255;
+            }
+            n.hits++;
             n.last_hit = utime;
-            n.passes_after = 0;
+            n.passes_since_hit = 0;
         }
     }
     /* the cells the ray crosses up to end_margin_m before its end, in order (a 3-D DDA) */
@@ -104,10 +159,11 @@ void pb_carve_ray(pb_carve_t *c, int64_t utime, const double o[3], const double 
         t1 = std::min(t1, tb);
     }
     if (t0 > t1) return;
+    const double u3[3] = {d[0] / len, d[1] / len, d[2] / len};
     int64_t v[3], step[3];
     double tmax[3], tdelta[3];
     for (int a = 0; a < 3; a++) {
-        double u = d[a] / len, x = o[a] * c->inv;
+        double u = u3[a], x = o[a] * c->inv;
         v[a] = pb_floor_i64(x);
         step[a] = u > 0 ? 1 : -1;
         tdelta[a] = u != 0 ? c->cfg.cell_m / std::fabs(u) : INFINITY;
@@ -124,15 +180,16 @@ void pb_carve_ray(pb_carve_t *c, int64_t utime, const double o[3], const double 
         }
         if (inside && pb_loc::voxel_key(v[0], v[1], v[2], &key)) {
             int32_t k = c->index.find(key);
+            const double t_out = std::min(tmax[a], stop);
             if (k >= 0 && c->counts[(size_t)k].raised >= 0) {
                 /* the raised part is passed when the ray stays clear of the ground through the cell */
-                double t_out = std::min(tmax[a], stop);
                 double zlow = o[2] + d[2] / len * (d[2] < 0 ? t_out : t_in);
                 if (zlow > c->counts[(size_t)k].ground_z + c->cfg.raise_m) k = c->counts[(size_t)k].raised;
             }
-            if (k >= 0) {
+            /* a pass through the cell's empty part (beside a wall, over a roof's edge) is none */
+            if (k >= 0 && (eighths_crossed(c, v, o, u3, t_in, t_out) & c->counts[(size_t)k].occupied)) {
                 Count &n = c->counts[(size_t)k];
-                (n.hits ? n.passes_after : n.passes_before)++;
+                (n.hits ? n.passes_since_hit : n.passes)++;
             }
         }
         if (tmax[a] > stop) break;
@@ -142,16 +199,81 @@ void pb_carve_ray(pb_carve_t *c, int64_t utime, const double o[3], const double 
     }
 }
 
-size_t pb_carve_keep(const pb_carve_t *c, std::vector<uint8_t> *keep)
+/* A cell whose hits tell of a road user passing by: short visits, few enough of them. */
+static bool passing(const pb_carve_config_t &cfg, const Count &n)
 {
+    const double longest_s = n.hits ? std::max((double)n.longest_s, (double)(n.last_hit - n.visit_start) * 1e-6) : 0;
+    return !n.protect && n.visits <= cfg.max_visits && longest_s <= cfg.transient_s;
+}
+
+/* Step 1: the cells seen through often enough outside their visits. */
+static std::vector<uint8_t> gone_cells(const pb_carve_t *c)
+{
+    std::vector<uint8_t> gone(c->counts.size(), 0);
+    for (size_t k = 0; k < c->counts.size(); k++) {
+        const Count &n = c->counts[k];
+        gone[k] = passing(c->cfg, n) && n.passes + n.passes_since_hit >= (uint32_t)c->cfg.min_passes;
+    }
+    return gone;
+}
+
+/* Each cell's key (a raised part has its cell's). */
+static std::vector<uint64_t> cell_keys(const pb_carve_t *c)
+{
+    std::vector<uint64_t> key(c->counts.size(), 0);
+    c->index.for_each([&](uint64_t kk, int32_t v) {
+        key[(size_t)v] = kk;
+        if (c->counts[(size_t)v].raised >= 0) key[(size_t)c->counts[(size_t)v].raised] = kk;
+    });
+    return key;
+}
+
+void pb_carve_gone(const pb_carve_t *c, std::vector<uint64_t> *keys)
+{
+    const std::vector<uint8_t> gone = gone_cells(c);
+    const std::vector<uint64_t> key = cell_keys(c);
+    for (size_t k = 0; k < gone.size(); k++)
+        if (gone[k]) keys->push_back(key[k]);
+}
+
+size_t pb_carve_keep(const pb_carve_t *c, const std::vector<uint64_t> *gone_keys, std::vector<uint8_t> *keep)
+{
+    const pb_carve_config_t &cfg = c->cfg;
+    const size_t ncells = c->counts.size();
+    // 1. the cells seen through often enough outside their visits
+    const std::vector<uint8_t> gone = gone_cells(c);
+    // 2. the cells seen through less often but lying among such cells (here, or in the
+    //    other parts' gone_keys): the rest of the same body
+    const std::vector<uint64_t> key = cell_keys(c);
+    auto neighbour_gone = [&](uint64_t nk) {
+        if (gone_keys) return std::binary_search(gone_keys->begin(), gone_keys->end(), nk);
+        int32_t j = c->index.find(nk);
+        if (j < 0) return false;
+        int32_t r = c->counts[(size_t)j].raised;
+        return gone[(size_t)j] || (r >= 0 && gone[(size_t)r]);
+    };
+    std::vector<uint8_t> grown(gone);
+    for (size_t k = 0; k < ncells; k++) {
+        const Count &n = c->counts[k];
+        if (gone[k] || !passing(cfg, n) || n.passes + n.passes_since_hit < (uint32_t)cfg.min_passes_beside) continue;
+        int64_t v[3];
+        pb_loc::voxel_unkey(key[k], &v[0], &v[1], &v[2]);
+        int around = 0;
+        for (int dx = -1; dx <= 1; dx++)
+            for (int dy = -1; dy <= 1; dy++)
+                for (int dz = -1; dz <= 1; dz++) {
+                    uint64_t nk;
+                    if ((dx | dy | dz) == 0 || !pb_loc::voxel_key(v[0] + dx, v[1] + dy, v[2] + dz, &nk)) continue;
+                    around += neighbour_gone(nk);
+                }
+        grown[k] = around >= cfg.carved_beside;
+    }
+    // 3. their points
     keep->assign(c->point_cell.size(), 1);
     size_t carved = 0;
     for (size_t i = 0; i < c->point_cell.size(); i++) {
         int32_t k = c->point_cell[i];
-        if (k < 0) continue;
-        const Count &n = c->counts[(size_t)k];
-        if (!n.protect && n.passes_before + n.passes_after >= (uint32_t)c->cfg.min_passes &&
-            n.last_hit - n.first_hit <= (int64_t)(c->cfg.transient_s * 1e6)) {
+        if (k >= 0 && grown[(size_t)k]) {
             (*keep)[i] = 0;
             carved++;
         }

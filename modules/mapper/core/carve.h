@@ -1,12 +1,19 @@
 /* carve: removes what moved from the mapper's map. A place the LiDAR saw through before or
  * after the moment it was hit was empty then: what the map holds there (a car that drove by,
  * a pedestrian) was there only for a moment. Each sampled ray of the drive counts a hit in the
- * cell it ended in and a pass in every occupied cell it crossed on the way. Only the passes
- * outside the span of a cell's hits count (before its first hit, after its last): a cell
- * passed through at least `min_passes` times so, and hit only within `transient_s`, is
- * carved: its map points go. A cell the sampled rays never hit has no span: all its passes
- * count (its points came from rays left out of the sample).
- * Passes outside the span tell a car that drove by (seen through after it left) from a
+ * cell it ended in and a pass in every occupied cell it crossed on the way, when it crossed
+ * an eighth of the cell (a half along each axis) that holds map points: a ray through the
+ * cell's empty part (beside a wall, over a roof's edge) says nothing about its points.
+ * A cell's hits make visits: hits more than `revisit_s` apart are two (two road users at one
+ * place, or one place passed at the drive's start and again at its end). Only the passes
+ * outside the visits count (before the first, between them, after the last): a cell passed
+ * through at least `min_passes` times so, hit on at most `max_visits` visits of at most
+ * `transient_s` each, is carved: its map points go. A cell the sampled rays never hit has no
+ * visit: all its passes count (its points came from rays left out of the sample). Then a
+ * cell that passes the visits' test but was passed fewer times (at least
+ * `min_passes_beside`) goes too when `carved_beside` of its 26 neighbours went: the rest of
+ * the same body, which the sparse sample crossed less often.
+ * Passes outside the visits tell a car that drove by (seen through after it left) from a
  * wall seen edge-on (its grazing rays pass through its cells while it is hit), and a static
  * thing hit by few sampled rays from one that was there for a moment. The first version
  * (all passes against five times the hits, the whole ground band spared) left 37 times as
@@ -38,9 +45,13 @@ typedef struct {
     double end_margin_m = 1.0;
     double ground_band_m = 0.4;
     double raise_m = 0.1;      /* a band cell's points higher over the ground than this are judged apart */
-    int min_passes = 12;       /* passes outside the span the cell was hit in */
+    int min_passes = 6;        /* passes outside the visits the cell was hit in */
     double max_range_m = 60;   /* rays are cut here: farther, beams are wide and poses' errors grow */
-    double transient_s = 2;    /* a cell hit over a longer span than this was there, not passing by */
+    double transient_s = 2;    /* a cell hit over a longer visit than this was there, not passing by */
+    double revisit_s = 10;     /* hits farther apart than this are two visits (two road users) */
+    int max_visits = 2;        /* a cell hit on more visits than this holds something that stays */
+    int min_passes_beside = 2; /* passes enough for a cell among carved ones (the same body's rest) */
+    int carved_beside = 6;     /* ... when this many of its 26 neighbours are carved by min_passes */
 } pb_carve_config_t;
 
 typedef struct pb_carve pb_carve_t;
@@ -53,12 +64,17 @@ void pb_carve_destroy(pb_carve_t *c);
 /* One ray of a sweep at utime, from the sensor's origin to its return, both in the map frame. */
 void pb_carve_ray(pb_carve_t *c, int64_t utime, const double origin[3], const double end[3]);
 
-/* Per map point (as given to create): 1 keep, 0 carved. Returns the number carved. */
-size_t pb_carve_keep(const pb_carve_t *c, std::vector<uint8_t> *keep);
+/* Per map point (as given to create): 1 keep, 0 carved. Returns the number carved.
+ * gone_keys NULL: the neighbours' verdicts from this map's own cells; else a sorted list of
+ * the keys of every part's cells that step 1 carves (pb_carve_gone), so that a part's cell
+ * on its border sees its neighbours in the next part. */
+size_t pb_carve_keep(const pb_carve_t *c, const std::vector<uint64_t> *gone_keys, std::vector<uint8_t> *keep);
+/* Appends to keys the cell keys (the voxel keys of cell_m cells) that step 1 carves here. */
+void pb_carve_gone(const pb_carve_t *c, std::vector<uint64_t> *keys);
 
 /* A map in parts (the mapper's tiles, each its own pb_carve_t): every part given the rays
  * that may cross it carves as one pb_carve_t of the whole map would, provided no cell
- * spans two parts; a ray that misses a part's cells costs little there. To page a part
+ * spans two parts and every part's pb_carve_keep is given all parts' pb_carve_gone; a ray that misses a part's cells costs little there. To page a part
  * out and back: its counts so far (out replaced), and given to a part made again from the
  * same points and ground. load returns 0, or -1 when the bytes are not of such a part. */
 void pb_carve_save(const pb_carve_t *c, std::vector<uint8_t> *out);
