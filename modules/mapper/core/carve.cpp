@@ -15,7 +15,12 @@ struct Count {
     float ground_z;    /* band cells: the ground model's height at the cell's centre */
     int32_t raised;    /* band cells: the cell of its points higher than raise_m over the ground, or -1 */
     uint8_t protect;   /* in the band over the ground: never carved */
+    uint8_t drive_passes;   /* passes in the drive now (saturating) */
+    uint8_t drive;     /* bit 0: hit in the drive now; bit 1: a drive passed it min_passes times, no hit */
 };
+
+/* Whether the drive now passed the cell often enough without hitting it. */
+static bool empty_in_drive(const Count &n, int min_passes) { return !(n.drive & 1) && n.drive_passes >= min_passes; }
 }  // namespace
 
 struct pb_carve {
@@ -45,14 +50,14 @@ pb_carve_t *pb_carve_create(const float *xyz, size_t n, size_t stride, const pb_
             double g, cx = (std::floor(p[0] * c->inv) + 0.5) * c->cfg.cell_m, cy = (std::floor(p[1] * c->inv) + 0.5) * c->cfg.cell_m;
             uint8_t protect = ground && pb_ground_height(ground, cx, cy, &g) == 0 &&
                               std::floor(p[2] * c->inv) * c->cfg.cell_m <= g + c->cfg.ground_band_m;
-            c->counts.push_back(Count{0, 0, 0, 0, 0, protect ? (float)g : 0.0f, -1, protect});
+            c->counts.push_back(Count{0, 0, 0, 0, 0, protect ? (float)g : 0.0f, -1, protect, 0, 0});
         }
         /* a band cell's points clear of the ground are judged apart: a car's sill over the road */
         Count &n = c->counts[(size_t)k];
         if (n.protect && p[2] > n.ground_z + c->cfg.raise_m) {
             if (n.raised < 0) {
                 n.raised = (int32_t)c->counts.size();
-                c->counts.push_back(Count{0, 0, 0, 0, 0, 0.0f, -1, 0});
+                c->counts.push_back(Count{0, 0, 0, 0, 0, 0.0f, -1, 0, 0, 0});
             }
             k = c->counts[(size_t)k].raised;
         }
@@ -78,6 +83,7 @@ void pb_carve_ray(pb_carve_t *c, int64_t utime, const double o[3], const double 
             if (n.hits++ == 0) n.first_hit = utime;
             n.last_hit = utime;
             n.passes_after = 0;
+            n.drive |= 1;
         }
     }
     /* the cells the ray crosses up to end_margin_m before its end, in order (a 3-D DDA) */
@@ -107,12 +113,22 @@ void pb_carve_ray(pb_carve_t *c, int64_t utime, const double o[3], const double 
             if (k >= 0) {
                 Count &n = c->counts[(size_t)k];
                 (n.hits ? n.passes_after : n.passes_before)++;
+                if (n.drive_passes < 255) n.drive_passes++;
             }
         }
         if (tmax[a] > stop) break;
         t_in = tmax[a];
         v[a] += step[a];
         tmax[a] += tdelta[a];
+    }
+}
+
+void pb_carve_next_drive(pb_carve_t *c)
+{
+    for (Count &n : c->counts) {
+        if (empty_in_drive(n, c->cfg.min_passes)) n.drive |= 2;
+        n.drive &= 2;
+        n.drive_passes = 0;
     }
 }
 
@@ -124,8 +140,11 @@ size_t pb_carve_keep(const pb_carve_t *c, std::vector<uint8_t> *keep)
         int32_t k = c->point_cell[i];
         if (k < 0) continue;
         const Count &n = c->counts[(size_t)k];
-        if (!n.protect && n.passes_before + n.passes_after >= (uint32_t)c->cfg.min_passes &&
-            n.last_hit - n.first_hit <= (int64_t)(c->cfg.transient_s * 1e6)) {
+        /* seen through outside a short span of hits, or empty in one of several drives
+         * (with one drive, a cell it never hit: carved by the first rule too) */
+        const bool moved = n.passes_before + n.passes_after >= (uint32_t)c->cfg.min_passes &&
+                           n.last_hit - n.first_hit <= (int64_t)(c->cfg.transient_s * 1e6);
+        if (!n.protect && (moved || (n.drive & 2) || empty_in_drive(n, c->cfg.min_passes))) {
             (*keep)[i] = 0;
             carved++;
         }

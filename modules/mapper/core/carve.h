@@ -20,7 +20,9 @@
  * own: hits that end there and passes of rays that stay higher through the cell (a car's
  * sill over the road; it shared its cell with the road, hit all drive long). What stood still
  * through the drive (parked cars, a pedestrian waiting at a crossing) stays: one drive cannot
- * tell it from the world.
+ * tell it from the world. Several drives of the course can: a cell passed through at least
+ * `min_passes` times in one drive and not hit in it was empty that day, and what the other
+ * drives saw there (a car parked then gone) is carved too (pb_carve_next_drive between them).
  *
  * Pure: no I/O, no clock. Ownership: pb_carve_create copies what it needs; the caller
  * frees the result with pb_carve_destroy (NULL is a no-op). */
@@ -52,6 +54,9 @@ void pb_carve_destroy(pb_carve_t *c);
 
 /* One ray of a sweep at utime, from the sensor's origin to its return, both in the map frame. */
 void pb_carve_ray(pb_carve_t *c, int64_t utime, const double origin[3], const double end[3]);
+
+/* The rays that follow are of the next drive (their utimes must not overlap the last's). */
+void pb_carve_next_drive(pb_carve_t *c);
 
 /* Per map point (as given to create): 1 keep, 0 carved. Returns the number carved. */
 size_t pb_carve_keep(const pb_carve_t *c, std::vector<uint8_t> *keep);
