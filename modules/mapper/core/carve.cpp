@@ -16,7 +16,9 @@ struct Count {
     int32_t raised;    /* band cells: the cell of its points higher than raise_m over the ground, or -1 */
     uint8_t protect;   /* in the band over the ground: never carved */
     uint8_t drive_passes;   /* passes in the drive now (saturating) */
-    uint8_t drive;     /* bit 0: hit in the drive now; bit 1: a drive passed it min_passes times, no hit */
+    uint8_t drive;     /* bit 0: hit in the drive now; bit 1: a drive passed it min_passes times, no hit;
+                        * bit 2: an earlier drive hit it over more than transient_s; bits 3-7: the
+                        * earlier drives that hit it (saturating) */
 };
 
 /* Whether the drive now passed the cell often enough without hitting it. */
@@ -127,7 +129,14 @@ void pb_carve_next_drive(pb_carve_t *c)
 {
     for (Count &n : c->counts) {
         if (empty_in_drive(n, c->cfg.min_passes)) n.drive |= 2;
-        n.drive &= 2;
+        if (n.hits && n.last_hit - n.first_hit > (int64_t)(c->cfg.transient_s * 1e6)) n.drive |= 4;
+        /* the span of hits is each drive's own (two drives meeting the same bus an hour apart
+         * are two short spans); the passes outside it add up */
+        n.passes_before += n.passes_after;
+        n.passes_after = 0;
+        if (n.hits && n.drive >> 3 < 31) n.drive += 8;
+        n.hits = 0;
+        n.drive &= ~1;
         n.drive_passes = 0;
     }
 }
@@ -140,10 +149,12 @@ size_t pb_carve_keep(const pb_carve_t *c, std::vector<uint8_t> *keep)
         int32_t k = c->point_cell[i];
         if (k < 0) continue;
         const Count &n = c->counts[(size_t)k];
-        /* seen through outside a short span of hits, or empty in one of several drives
-         * (with one drive, a cell it never hit: carved by the first rule too) */
-        const bool moved = n.passes_before + n.passes_after >= (uint32_t)c->cfg.min_passes &&
-                           n.last_hit - n.first_hit <= (int64_t)(c->cfg.transient_s * 1e6);
+        /* seen through outside a short span of hits (min_passes for each drive that hit it),
+         * or empty in one of several drives (with one drive, a cell it never hit: carved by
+         * the first rule too) */
+        const uint32_t drives_hit = (uint32_t)(n.drive >> 3) + (n.hits > 0);
+        const bool moved = n.passes_before + n.passes_after >= (uint32_t)c->cfg.min_passes * std::max(1u, drives_hit) &&
+                           n.last_hit - n.first_hit <= (int64_t)(c->cfg.transient_s * 1e6) && !(n.drive & 4);
         if (!n.protect && (moved || (n.drive & 2) || empty_in_drive(n, c->cfg.min_passes))) {
             (*keep)[i] = 0;
             carved++;

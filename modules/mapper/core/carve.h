@@ -22,7 +22,9 @@
  * through the drive (parked cars, a pedestrian waiting at a crossing) stays: one drive cannot
  * tell it from the world. Several drives of the course can: a cell passed through at least
  * `min_passes` times in one drive and not hit in it was empty that day, and what the other
- * drives saw there (a car parked then gone) is carved too (pb_carve_next_drive between them).
+ * drives saw there (a car parked then gone) is carved too (pb_carve_next_drive between them). A cell's span of
+ * hits is then each drive's own: a cell hit only briefly in every drive that hit it, and passed
+ * through outside those spans min_passes times in all, is carved too.
  *
  * Pure: no I/O, no clock. Ownership: pb_carve_create copies what it needs; the caller
  * frees the result with pb_carve_destroy (NULL is a no-op). */
