@@ -347,6 +347,14 @@ def test_bad_input(drive, tmp_path):
     p = run([BIN / "mapper", "--log", bad_log, "--out", tmp_path / "dmg"], check=False)
     assert p.returncode == 1 and "byte" in p.stderr, p.stderr
     assert not (tmp_path / "dmg" / "map.pcd").exists()
+    # a second drive that does not open: an error naming it before any work; --poses places one
+    p = run([BIN / "mapper", "--log", drive["log"], "--log", tmp_path / "missing2.lcm", "--out", tmp_path / "o2"],
+            check=False)
+    assert p.returncode == 1 and "missing2.lcm" in p.stderr
+    assert not (tmp_path / "o2" / "checkpoint.bin").exists()
+    p = run([BIN / "mapper", "--log", drive["log"], "--log", drive["log"], "--poses", drive["gt"], "--out", tmp_path / "o3"],
+            check=False)
+    assert p.returncode == 2 and "--poses" in p.stderr
     # an output folder that cannot be made
     (tmp_path / "file").write_text("x")
     p = run([BIN / "mapper", "--log", drive["log"], "--out", tmp_path / "file" / "site"], check=False)

@@ -47,8 +47,9 @@
  * alike verified by registration as in step 2 (no drift bound), and the drive is placed by
  * the first verified match that a second one, at least submap_radius_m of its path further
  * on, agrees with (as in step 3). Those two matches join the loops; its keyframes, moved
- * by the placement, then go through steps 1-4 with the rest (the path between two drives
- * counts min_separation_m, so every keyframe of an earlier drive is a candidate). A drive
+ * by the placement, then go through steps 1-4 with the rest (every keyframe of an earlier
+ * drive counts as far enough behind; the path between keyframes of two drives, for the
+ * drift bounds, is counted through the drives one after the other: loose). A drive
  * no two matches agree for is not placed (never placed by one look-alike); nor is one
  * whose links to the earlier drives all disagreed with the graph (steps 3-4): the whole is
  * then done again without it. An unplaced drive's poses come back unchanged.
