@@ -79,7 +79,7 @@ static void usage(FILE *f)
         "saw something (a car parked, then gone) is carved. A drive that cannot be placed is\n"
         "left out of the map and said so (stderr, report.json \"drives\"). The first drive's\n"
         "trajectory is trajectory.tum, drive N's trajectory.N.tum (odometry.N.tum); GNSS\n"
-        "anchoring uses the first drive's fixes; checkpoints are per drive (checkpoint.N.bin).\n"
+        "anchoring fits all placed drives' fixes; checkpoints are per drive (checkpoint.N.bin).\n"
         "Restartable: while it runs, SITE_DIR/checkpoint.bin and keyframes.bin hold the odometry\n"
         "so far; run the same command again after an interruption (Ctrl-C, power loss, a kill)\n"
         "and it resumes there, with the same result as a run without one. A checkpoint of\n"
@@ -142,13 +142,16 @@ static void apply_corrections(std::vector<SweepPose> *traj, const std::vector<pb
     }
 }
 
-/* The GNSS_FIX of the log against the trajectory (pb_anchor_fit). No fix at all: not
- * anchored (result->why says so), not an error. */
-static int anchor_to_gnss(const char *log_path, const std::vector<SweepPose> &traj, const pb_vehicle_t &veh,
+/* The GNSS_FIX of the logs (each placed drive's: its log and its trajectory in the map) against
+ * the trajectories (pb_anchor_fit), east-north-up at the first drive's first 3-D fix (or the
+ * next drive's). No fix at all: not anchored (result->why says so), not an error. */
+using DriveTrack = std::pair<const char *, const std::vector<SweepPose> *>;
+static int anchor_to_gnss(const std::vector<DriveTrack> &drives, const pb_vehicle_t &veh,
                           pb_anchor_result_t *result, pb_georef_t *georef, std::vector<Eigen::Vector3d> *fixes_enu,
                           pb_err_t *err)
 {
-    struct Fixes { std::vector<portobello_gnss_fix_t> v; int undecodable; } fixes = {{}, 0};
+    struct Fixes { std::vector<portobello_gnss_fix_t> v; int undecodable; };
+    std::vector<Fixes> fixes(drives.size(), Fixes{{}, 0});
     auto on_fix = [](const pb_event_t *ev, void *u, pb_err_t *) {
         Fixes *f = (Fixes *)u;
         portobello_gnss_fix_t m;
@@ -157,38 +160,43 @@ static int anchor_to_gnss(const char *log_path, const std::vector<SweepPose> &tr
         portobello_gnss_fix_t_decode_cleanup(&m);
         return 0;
     };
-    if (pb_log_read_track(log_path, nullptr, nullptr, "GNSS_FIX", on_fix, &fixes, err)) return -1;
+    for (size_t d = 0; d < drives.size(); d++)
+        if (pb_log_read_track(drives[d].first, nullptr, nullptr, "GNSS_FIX", on_fix, &fixes[d], err)) return -1;
     *result = pb_anchor_result_t{};
     result->why = "no GNSS_FIX in the log";
     const portobello_gnss_fix_t *origin = nullptr;
-    for (const auto &f : fixes.v)
-        if (f.fix_type >= PORTOBELLO_GNSS_FIX_T_FIX_3D && f.fix_type != PORTOBELLO_GNSS_FIX_T_FIX_TIME_ONLY) { origin = &f; break; }
+    for (const Fixes &fd : fixes)
+        for (const auto &f : fd.v)
+            if (!origin && f.fix_type >= PORTOBELLO_GNSS_FIX_T_FIX_3D && f.fix_type != PORTOBELLO_GNSS_FIX_T_FIX_TIME_ONLY) origin = &f;
     if (!origin) {
-        if (!fixes.v.empty()) result->why = "no 3-D GNSS fix in the log";
+        for (const Fixes &fd : fixes)
+            if (!fd.v.empty()) result->why = "no 3-D GNSS fix in the log";
         return 0;
     }
     *georef = pb_georef_t{origin->lat_deg, origin->lon_deg, origin->alt_m, 0};
-    pb_pose_track_t *track = pb_pose_track_create();
-    for (const SweepPose &s : traj) {
-        pb_transform_t t = to_transform(s.pose);
-        pb_pose_track_add(track, s.utime, &t);
-    }
     const Eigen::Vector3d lever(veh.base_from_gnss.t[0], veh.base_from_gnss.t[1], veh.base_from_gnss.t[2]);
     std::vector<pb_anchor_obs_t> obs;
-    for (const auto &f : fixes.v) {
-        pb_transform_t t;
-        if (!pb_pose_track_at(track, f.utime, &t)) continue;   /* before the first sweep or after the last */
-        pb_anchor_obs_t o;
-        o.antenna_map = pb_reg_from_transform(&t) * lever;
-        double enu[3];
-        pb_geo_wgs84_to_map(georef, f.lat_deg, f.lon_deg, f.alt_m, enu);
-        o.fix_enu = Eigen::Vector3d(enu[0], enu[1], enu[2]);
-        fixes_enu->push_back(o.fix_enu);
-        o.h_acc_m = f.h_acc_m;
-        o.fix_3d = f.fix_type >= PORTOBELLO_GNSS_FIX_T_FIX_3D && f.fix_type != PORTOBELLO_GNSS_FIX_T_FIX_TIME_ONLY;
-        obs.push_back(o);
+    for (size_t d = 0; d < drives.size(); d++) {
+        pb_pose_track_t *track = pb_pose_track_create();
+        for (const SweepPose &s : *drives[d].second) {
+            pb_transform_t t = to_transform(s.pose);
+            pb_pose_track_add(track, s.utime, &t);
+        }
+        for (const auto &f : fixes[d].v) {
+            pb_transform_t t;
+            if (!pb_pose_track_at(track, f.utime, &t)) continue;   /* before the first sweep or after the last */
+            pb_anchor_obs_t o;
+            o.antenna_map = pb_reg_from_transform(&t) * lever;
+            double enu[3];
+            pb_geo_wgs84_to_map(georef, f.lat_deg, f.lon_deg, f.alt_m, enu);
+            o.fix_enu = Eigen::Vector3d(enu[0], enu[1], enu[2]);
+            fixes_enu->push_back(o.fix_enu);
+            o.h_acc_m = f.h_acc_m;
+            o.fix_3d = f.fix_type >= PORTOBELLO_GNSS_FIX_T_FIX_3D && f.fix_type != PORTOBELLO_GNSS_FIX_T_FIX_TIME_ONLY;
+            obs.push_back(o);
+        }
+        pb_pose_track_destroy(track);
     }
-    pb_pose_track_destroy(track);
     if (obs.empty()) {
         result->why = "no GNSS fix within the drive's sweeps";
         return 0;
@@ -896,7 +904,10 @@ static int close_loops(Run *R, pb_err_t *err)
  * east-north-up frame at the first 3-D fix, which becomes the site's geo-reference. */
 static int anchor(Run *R, pb_err_t *err)
 {
-    if (anchor_to_gnss(R->log_path, R->traj, R->veh, &R->anchor, &R->georef, &R->layers.fixes, err) != 0) return -1;
+    std::vector<DriveTrack> placed;
+    for (const Run *D : R->drives)
+        if (D->placement.placed) placed.push_back({D->log_path, &D->traj});
+    if (anchor_to_gnss(placed, R->veh, &R->anchor, &R->georef, &R->layers.fixes, err) != 0) return -1;
     if (R->anchor.anchored) {
         for (Run *D : R->drives)
             for (SweepPose &sp : D->traj) {
