@@ -460,6 +460,8 @@ static int for_each_sweep(const char *log_path, const char *scan_ch, const pb_ve
     return status;
 }
 
+using SweepKey = std::pair<int, int64_t>;   /* a sweep's drive and utime */
+
 /* One run: the options, and what each step hands the next. */
 struct Run {
     const char *log_path, *out_dir, *scan_ch;
@@ -472,8 +474,7 @@ struct Run {
     std::vector<SweepPose> traj;
     std::vector<pb_keyframe_t> kf;
     pb_loops_report_t loops = {};
-    std::vector<std::pair<std::pair<int, int64_t>, std::pair<int, int64_t>>> loop_times;   /* kept loops: (earlier,
-                                                                                            * later) keyframe's (drive, utime) */
+    std::vector<std::pair<SweepKey, SweepKey>> loop_times;   /* kept loops: (earlier, later) keyframe */
     pb_anchor_result_t anchor = {};
     pb_georef_t georef = {};
     pb_picture_layers_t layers;
@@ -1078,7 +1079,7 @@ static int pass_carve(Run *R, const pb_ground_t *ground, pb_err_t *err)
  * map as written) and site.yaml. */
 static int write_site(Run *R, pb_err_t *err)
 {
-    std::map<std::pair<int, int64_t>, Eigen::Vector3d> at;   /* (drive, utime) */
+    std::map<SweepKey, Eigen::Vector3d> at;
     for (Run *D : R->drives) {   /* drive N's trajectory.N.tum and odometry.N.tum */
         if (!D->placement.placed) continue;
         const std::string n = D->drive ? "." + std::to_string(D->drive + 1) : "";
