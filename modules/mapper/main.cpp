@@ -55,7 +55,8 @@
 static void usage(FILE *f)
 {
     std::fprintf(f,
-        "usage: mapper --log DRIVE.lcm --out SITE_DIR [--vehicle FILE] [--voxel 0.15] [--poses FILE.tum]\n"
+        "usage: mapper --log DRIVE.lcm [--log DRIVE2.lcm ...] --out SITE_DIR [--vehicle FILE] [--voxel 0.15]\n"
+        "              [--poses FILE.tum]\n"
         "              [--scan-channel LIDAR_SCAN] [--checkpoint-every 100] [--tile-m 32] [--quiet]\n"
         "\n"
         "Builds a prior map from a recorded drive by LiDAR odometry: every sweep is\n"
@@ -76,11 +77,21 @@ static void usage(FILE *f)
         "GNSS_FIX in the log, the map is moved onto the fixes (east-north-up at the first 3-D\n"
         "fix) and SITE_DIR/site.yaml holds that geo-reference; without, the map stays in the\n"
         "first sweep's frame and no site.yaml is written.\n"
+        "Several drives of the same course (--log repeated): each gets its own odometry, then\n"
+        "each later drive is placed in the first drive's frame by matching its places to the\n"
+        "earlier drives' (two matches that agree, verified by registration), one pose graph\n"
+        "joins them all, the map is made from all, and what one drive saw through where another\n"
+        "saw something (a car parked, then gone) is carved. A drive that cannot be placed is\n"
+        "left out of the map and said so (stderr, report.json \"drives\"). The first drive's\n"
+        "trajectory is trajectory.tum, drive N's trajectory.N.tum (odometry.N.tum); GNSS\n"
+        "anchoring fits all placed drives' fixes; checkpoints are per drive (checkpoint.N.bin).\n"
         "Restartable: while it runs, SITE_DIR/checkpoint.bin and keyframes.bin hold the odometry\n"
         "so far; run the same command again after an interruption (Ctrl-C, power loss, a kill)\n"
         "and it resumes there, with the same result as a run without one. A checkpoint of\n"
         "another log, build of the mapper or --vehicle/--scan-channel is refused (said on\n"
         "stderr and in report.json) and the run starts over; a finished run removes both.\n"
+        "  --log FILE          a recorded drive (repeat for several drives of the course; the\n"
+        "                      first one's frame is the map's)\n"
         "  --vehicle FILE      base <- lidar (default vehicles/prius2017.yaml; scans imported from\n"
         "                      a dataset with their poses in the LiDAR frame: vehicles/lidar_mast.yaml)\n"
         "  --voxel M           map.pcd voxel edge, metres (default 0.15)\n"
@@ -438,6 +449,8 @@ static int for_each_sweep(const char *log_path, const char *scan_ch, const pb_ve
     return status;
 }
 
+using SweepKey = std::pair<int, int64_t>;   /* a sweep's drive and utime */
+
 /* One run: the options, and what each step hands the next. */
 struct Run {
     const char *log_path, *out_dir, *scan_ch;
@@ -450,7 +463,7 @@ struct Run {
     std::vector<SweepPose> traj;
     std::vector<pb_keyframe_t> kf;
     pb_loops_report_t loops = {};
-    std::vector<std::pair<int64_t, int64_t>> loop_times;   /* kept loops: (earlier, later) keyframe utime */
+    std::vector<std::pair<SweepKey, SweepKey>> loop_times;   /* kept loops: (earlier, later) keyframe */
     pb_anchor_result_t anchor = {};
     pb_anchor_hold_result_t hold = {};
     pb_georef_t georef = {};
@@ -483,7 +496,20 @@ struct Run {
     long seen = 0;                           /* scans read by the odometry pass */
     int64_t last_scan_utime = 0;
     bool odometry_done = false;              /* restored after the whole odometry pass */
+    /* several drives (--log repeated): one Run each, the first one's also the site's */
+    int drive = 0;                           /* 0, 1, ... in the order of --log */
+    std::vector<Run *> drives;               /* in the first: every drive's Run, itself first */
+    pb_drive_report_t placement = {true, "", 0, 0, 0, Eigen::Isometry3d::Identity()};
     std::string path(const char *name) const { return std::string(out_dir) + "/" + name; }
+    std::string label(const char *what) const   /* a progress bar's */
+    {
+        return drive ? std::string(what) + " (drive " + std::to_string(drive + 1) + ")" : what;
+    }
+    /* a drive's own work file: NAME.bin for the first, NAME.N.bin for drive N */
+    std::string work(const char *name) const
+    {
+        return drive ? path(name) + "." + std::to_string(drive + 1) + ".bin" : path(name) + ".bin";
+    }
 };
 
 /* The car's own motion from the log: VEHICLE_SPEED (signed speed) and IMU (gyro, rotated
@@ -647,7 +673,7 @@ static int checkpoint_write(Run *R, const pb_odom_t *odom, pb_err_t *err)
     }
     if (std::fwrite(buf.data(), 1, buf.size(), R->kf_file) != buf.size() || std::fflush(R->kf_file) != 0 ||
         fsync(fileno(R->kf_file)) != 0)
-        return pb_err_set(err, "%s: cannot write: %s", R->path("keyframes.bin").c_str(), std::strerror(errno)), -1;
+        return pb_err_set(err, "%s: cannot write: %s", R->work("keyframes").c_str(), std::strerror(errno)), -1;
     R->kf_bytes += buf.size();
     buf.clear();
     for (char c : kCheckpointMagic) w.put(c);
@@ -665,7 +691,7 @@ static int checkpoint_write(Run *R, const pb_odom_t *odom, pb_err_t *err)
     if (odom) pb_odom_save(odom, &state);
     w.put((uint64_t)state.size());
     ByteWriter{&sum}.put(pb_fnv1a64(state.data(), state.size(), pb_fnv1a64(buf.data(), buf.size())));
-    return write_file_synced(R->path("checkpoint.bin"), {&buf, &state, &sum}, err);
+    return write_file_synced(R->work("checkpoint"), {&buf, &state, &sum}, err);
 }
 
 /* A checkpoint of this log, build and options restored into R (R->resumed_from > 0); one
@@ -673,7 +699,7 @@ static int checkpoint_write(Run *R, const pb_odom_t *odom, pb_err_t *err)
  * and the run starts over. Returns -1 only on an error reading a file there. */
 static int checkpoint_read(Run *R, pb_err_t *err)
 {
-    const std::string path = R->path("checkpoint.bin"), kf_path = R->path("keyframes.bin");
+    const std::string path = R->work("checkpoint"), kf_path = R->work("keyframes");
     std::vector<uint8_t> buf;
     if (read_file(path, &buf) != 0) return 0;   /* none: a fresh start */
     ByteReader r{buf.data(), buf.data() + buf.size()};
@@ -780,7 +806,7 @@ static int read_poses(Run *R, pb_err_t *err)
  * every R->checkpoint_every sweeps and at the end. Resumes where R's checkpoint left off. */
 static int pass_odometry(Run *R, pb_err_t *err)
 {
-    const std::string kf_path = R->path("keyframes.bin");
+    const std::string kf_path = R->work("keyframes");
     R->kf_file = std::fopen(kf_path.c_str(), R->resumed_from ? "ab" : "wb");
     if (!R->kf_file) return pb_err_set(err, "%s: cannot write: %s", kf_path.c_str(), std::strerror(errno)), -1;
     if (R->odometry_done) return 0;
@@ -793,7 +819,8 @@ static int pass_odometry(Run *R, pb_err_t *err)
     int64_t &last_scan_utime = R->last_scan_utime;
     R->traj.reserve((size_t)R->total);
     pb_progress_t prog;
-    pb_progress_start(&prog, "mapper: odometry", R->total, R->quiet);
+    const std::string label = R->label("mapper: odometry");   /* the bar keeps the pointer */
+    pb_progress_start(&prog, label.c_str(), R->total, R->quiet);
     MotionSamples ms;
     ms.base_from_imu = pb_reg_from_transform(&R->veh.base_from_imu).linear();
     int rc = for_each_sweep(R->log_path, R->scan_ch, R->veh, 1, &R->seen, &prog,
@@ -830,21 +857,46 @@ static int pass_odometry(Run *R, pb_err_t *err)
 }
 
 /* The keyframes' poses solved again with the loops found (their points read back from
- * keyframes.bin); the sweeps moved with them. */
+ * each drive's keyframes.bin); the later drives placed in the first one's frame, or left
+ * out (said on stderr); the sweeps moved with them. */
 static int close_loops(Run *R, pb_err_t *err)
 {
-    const std::string kf_path = R->path("keyframes.bin");
-    if (!read_keyframes(kf_path, R->kf.size(), R->kf_bytes, true, &R->kf))
-        return pb_err_set(err, "%s: cannot read the keyframes back", kf_path.c_str()), -1;
-    std::vector<Eigen::Isometry3d> solved;
-    if (R->kf.size() >= 2) {
-        if (pb_loops_close(R->kf, nullptr, &solved, &R->loops, err) != 0) return -1;
-        apply_corrections(&R->traj, R->kf, solved);
+    std::vector<pb_keyframe_t> kf;   /* every drive's, one drive after the other */
+    for (Run *D : R->drives) {
+        const std::string kf_path = D->work("keyframes");
+        if (!read_keyframes(kf_path, D->kf.size(), D->kf_bytes, true, &D->kf))
+            return pb_err_set(err, "%s: cannot read the keyframes back", kf_path.c_str()), -1;
+        for (pb_keyframe_t &k : D->kf) {   /* the points move; D->kf keeps the times and poses */
+            k.drive = D->drive;
+            kf.push_back(std::move(k));
+        }
     }
-    for (const auto &l : R->loops.loops)
-        R->loop_times.push_back({R->kf[(size_t)l.first].utime, R->kf[(size_t)l.second].utime});
-    R->kf.clear();
-    R->kf.shrink_to_fit();
+    std::vector<Eigen::Isometry3d> solved;
+    if (kf.size() >= 2) {
+        if (pb_loops_close(kf, nullptr, &solved, &R->loops, err) != 0) return -1;
+        size_t at = 0;
+        for (Run *D : R->drives) {
+            const size_t nk = D->kf.size();
+            D->placement = R->loops.drives[(size_t)D->drive];
+            if (D->placement.placed) {
+                apply_corrections(&D->traj, D->kf, {solved.begin() + (long)at, solved.begin() + (long)(at + nk)});
+                if (D->drive)   /* its odometry too in the map's frame, as placed */
+                    for (SweepPose &sp : D->traj) sp.odometry = D->placement.placement * sp.odometry;
+            } else {
+                std::fprintf(stderr, "mapper: warning: %s not placed in the map of the drives before it (%s): left "
+                             "out of the map\n", D->log_path, D->placement.why);
+            }
+            at += nk;
+        }
+    }
+    for (const auto &l : R->loops.loops) {
+        const pb_keyframe_t &a = kf[(size_t)l.first], &b = kf[(size_t)l.second];
+        R->loop_times.push_back({{a.drive, a.utime}, {b.drive, b.utime}});
+    }
+    for (Run *D : R->drives) {
+        D->kf.clear();
+        D->kf.shrink_to_fit();
+    }
     return 0;
 }
 
@@ -852,18 +904,31 @@ static int close_loops(Run *R, pb_err_t *err)
  * east-north-up frame at the first 3-D fix, which becomes the site's geo-reference. */
 static int anchor(Run *R, pb_err_t *err)
 {
-    std::vector<portobello_gnss_fix_t> fixes;
-    if (read_fixes(R->log_path, &fixes, err) != 0) return -1;
+    std::vector<Run *> placed;
+    for (Run *D : R->drives)
+        if (D->placement.placed) placed.push_back(D);
+    std::vector<std::vector<portobello_gnss_fix_t>> fixes(placed.size());
+    for (size_t d = 0; d < placed.size(); d++)
+        if (read_fixes(placed[d]->log_path, &fixes[d], err) != 0) return -1;
     R->anchor = pb_anchor_result_t{};
     R->anchor.why = "no GNSS_FIX in the log";
     const portobello_gnss_fix_t *origin = nullptr;
-    for (const auto &f : fixes)
-        if (is_3d(f)) { origin = &f; break; }
-    if (!fixes.empty() && !origin) R->anchor.why = "no 3-D GNSS fix in the log";
+    for (const auto &fd : fixes) {
+        for (const auto &f : fd)
+            if (!origin && is_3d(f)) origin = &f;
+        if (!fd.empty() && !origin) R->anchor.why = "no 3-D GNSS fix in the log";
+    }
     std::vector<pb_anchor_obs_t> obs;
+    auto observe = [&]() {   /* every placed drive's fixes against its trajectory */
+        obs.clear();
+        for (size_t d = 0; d < placed.size(); d++) {
+            std::vector<pb_anchor_obs_t> od = observe_fixes(fixes[d], placed[d]->traj, R->veh, R->georef);
+            obs.insert(obs.end(), od.begin(), od.end());
+        }
+    };
     if (origin) {
         R->georef = pb_georef_t{origin->lat_deg, origin->lon_deg, origin->alt_m, 0};
-        obs = observe_fixes(fixes, R->traj, R->veh, R->georef);
+        observe();
         if (obs.empty()) R->anchor.why = "no GNSS fix within the drive's sweeps";
     }
     if (!obs.empty() && pb_anchor_fit(obs, nullptr, &R->anchor, err) != 0) return -1;
@@ -873,22 +938,26 @@ static int anchor(Run *R, pb_err_t *err)
                          R->anchor.why);
         return 0;
     }
-    for (SweepPose &sp : R->traj) {
-        sp.pose = R->anchor.enu_from_map * sp.pose;
-        sp.odometry = R->anchor.enu_from_map * sp.odometry;
-    }
-    // a drift the fixes see beyond their own errors bent out (pb_anchor_hold), then fitted again
-    for (pb_anchor_obs_t &o : obs) o.antenna_map = R->anchor.enu_from_map * o.antenna_map;
-    std::vector<int64_t> utime;
-    std::vector<Eigen::Isometry3d> poses;
-    for (const SweepPose &sp : R->traj) { utime.push_back(sp.utime); poses.push_back(sp.pose); }
-    const Eigen::Vector3d lever(R->veh.base_from_gnss.t[0], R->veh.base_from_gnss.t[1], R->veh.base_from_gnss.t[2]);
-    if (pb_anchor_hold(utime, &poses, obs, R->anchor, lever, nullptr, &R->hold, err) != 0) return -1;
-    if (R->hold.held) {
-        for (size_t i = 0; i < poses.size(); i++) R->traj[i].pose = poses[i];
-        obs = observe_fixes(fixes, R->traj, R->veh, R->georef);
-        if (pb_anchor_fit(obs, nullptr, &R->anchor, err) != 0) return -1;
-        for (SweepPose &sp : R->traj) sp.pose = R->anchor.enu_from_map * sp.pose;
+    for (Run *D : R->drives)
+        for (SweepPose &sp : D->traj) {
+            sp.pose = R->anchor.enu_from_map * sp.pose;
+            sp.odometry = R->anchor.enu_from_map * sp.odometry;
+        }
+    // a drift the fixes see beyond their own errors bent out (pb_anchor_hold; one drive: the
+    // drives of several are held together by their loops, not yet by the fixes), fitted again
+    if (placed.size() == 1) {
+        for (pb_anchor_obs_t &o : obs) o.antenna_map = R->anchor.enu_from_map * o.antenna_map;
+        std::vector<int64_t> utime;
+        std::vector<Eigen::Isometry3d> poses;
+        for (const SweepPose &sp : R->traj) { utime.push_back(sp.utime); poses.push_back(sp.pose); }
+        const Eigen::Vector3d lever(R->veh.base_from_gnss.t[0], R->veh.base_from_gnss.t[1], R->veh.base_from_gnss.t[2]);
+        if (pb_anchor_hold(utime, &poses, obs, R->anchor, lever, nullptr, &R->hold, err) != 0) return -1;
+        if (R->hold.held) {
+            for (size_t i = 0; i < poses.size(); i++) R->traj[i].pose = poses[i];
+            observe();
+            if (pb_anchor_fit(obs, nullptr, &R->anchor, err) != 0) return -1;
+            for (SweepPose &sp : R->traj) sp.pose = R->anchor.enu_from_map * sp.pose;
+        }
     }
     for (const pb_anchor_obs_t &o : obs) R->layers.fixes.push_back(o.fix_enu);
     return 0;
@@ -953,8 +1022,8 @@ static int tile_read(const std::string &path, std::vector<T> *v, pb_err_t *err)
  * farthest point's range when range_m < 0), into [lo, hi] (x, y): around the base's
  * positions at its first and last point's times, with the LiDAR's lever and 2 m (the path's
  * bend within a sweep). false when the track does not cover the sweep (pass 2 skips it). */
-static bool sweep_reach(const Run *R, const pb_points_t &pts, int64_t utime, double range_m, const TileGrid &grid,
-                        int64_t lo[2], int64_t hi[2])
+static bool sweep_reach(const Run *R, const pb_pose_track_t *track, const pb_points_t &pts, int64_t utime, double range_m,
+                        const TileGrid &grid, int64_t lo[2], int64_t hi[2])
 {
     int32_t omin = pts.offset_us && pts.n > 0 ? pts.offset_us[0] : 0, omax = omin;   /* as pb_map_builder_add_timed */
     double r2 = 0;
@@ -963,7 +1032,7 @@ static bool sweep_reach(const Run *R, const pb_points_t &pts, int64_t utime, dou
         if (range_m < 0) r2 = std::max(r2, (double)pts.x[i] * pts.x[i] + (double)pts.y[i] * pts.y[i] + (double)pts.z[i] * pts.z[i]);
     }
     pb_transform_t a, b;
-    if (!pb_pose_track_at(R->track, utime + omin, &a) || !pb_pose_track_at(R->track, utime + omax, &b)) return false;
+    if (!pb_pose_track_at(track, utime + omin, &a) || !pb_pose_track_at(track, utime + omax, &b)) return false;
     const double *l = R->veh.base_from_lidar.t;
     const double reach = (range_m < 0 ? std::sqrt(r2) : range_m) + std::sqrt(l[0] * l[0] + l[1] * l[1] + l[2] * l[2]) + 2;
     for (int k = 0; k < 2; k++) {
@@ -1019,21 +1088,25 @@ static int to_carving_tiles(Run *R, pb_map_builder_t *map, std::vector<int64_t> 
 
 /* Pass 2: the map, every point with the pose at its time, in tiles: those the sweep can
  * reach are held (paged back in when they were out), those no sweep of the last 20 reached
- * are paged out. Then the finished voxels are sorted into the carving's tiles. The poses
- * are at the sweeps' middles: the track is carried on by the first and last steps' motion
- * to cover the first sweep's first half and the last one's second half. */
+ * are paged out; of every drive placed, one after the other. Then the finished voxels are
+ * sorted into the carving's tiles. The poses are at the sweeps' middles: the track is
+ * carried on by the first and last steps' motion to cover the first sweep's first half and
+ * the last one's second half. */
 static int pass_map(Run *R, pb_err_t *err)
 {
-    const std::vector<SweepPose> &traj = R->traj;
-    R->track = pb_pose_track_create();
-    for (const SweepPose &s : traj) {
-        pb_transform_t t = to_transform(s.pose);
-        pb_pose_track_add(R->track, s.utime, &t);
-    }
-    for (int end = 0; end < 2; end++) {
-        const SweepPose &a = end ? traj[traj.size() - 2] : traj[1], &b = end ? traj.back() : traj[0];
-        pb_transform_t t = to_transform(b.pose * (a.pose.inverse() * b.pose));
-        pb_pose_track_add(R->track, b.utime + (b.utime - a.utime), &t);
+    for (Run *D : R->drives) {
+        if (!D->placement.placed) continue;
+        const std::vector<SweepPose> &traj = D->traj;
+        D->track = pb_pose_track_create();
+        for (const SweepPose &s : traj) {
+            pb_transform_t t = to_transform(s.pose);
+            pb_pose_track_add(D->track, s.utime, &t);
+        }
+        for (int end = 0; end < 2; end++) {
+            const SweepPose &a = end ? traj[traj.size() - 2] : traj[1], &b = end ? traj.back() : traj[0];
+            pb_transform_t t = to_transform(b.pose * (a.pose.inverse() * b.pose));
+            pb_pose_track_add(D->track, b.utime + (b.utime - a.utime), &t);
+        }
     }
     std::error_code ec;
     std::filesystem::remove_all(R->tiles_dir, ec);   /* an interrupted run's */
@@ -1054,16 +1127,20 @@ static int pass_map(Run *R, pb_err_t *err)
         R->tiles_paged_out++;
         return tile_write(tile_path(R, 'v', k), vox.data(), vox.size(), false, e);
     };
-    long empty = 0, sweep = 0;
-    pb_progress_t prog;
-    pb_progress_start(&prog, "mapper: map", R->total, R->quiet);
-    long seen = 0;
-    int rc = for_each_sweep(R->log_path, R->scan_ch, R->veh, 1, &seen, &prog,
+    long sweep = 0;
+    int rc = 0;
+    for (Run *D : R->drives) {
+        if (rc != 0 || !D->placement.placed) continue;
+        long empty = 0, seen = 0;
+        pb_progress_t prog;
+        const std::string label = D->label("mapper: map");   /* the bar keeps the pointer */
+        pb_progress_start(&prog, label.c_str(), D->total, R->quiet);
+        rc = for_each_sweep(D->log_path, R->scan_ch, R->veh, 1, &seen, &prog,
         [&](int64_t utime, const std::vector<float> &, const pb_points_t &pts, const pb_event_t &, pb_err_t *e) {
             sweep++;
             // the tiles it can reach held
             int64_t lo[2], hi[2];
-            if (sweep_reach(R, pts, utime, -1, grid, lo, hi))
+            if (sweep_reach(R, D->track, pts, utime, -1, grid, lo, hi))
                 for (int64_t tx = lo[0]; tx <= hi[0]; tx++)
                     for (int64_t ty = lo[1]; ty <= hi[1]; ty++) {
                         const int64_t k = tile_key(tx, ty);
@@ -1076,7 +1153,7 @@ static int pass_map(Run *R, pb_err_t *err)
                         out.erase(k);
                         R->tiles_paged_in++;
                     }
-            int r = pb_map_builder_add_timed(map, &pts, utime, R->track, &R->veh.base_from_lidar, e);
+            int r = pb_map_builder_add_timed(map, &pts, utime, D->track, &R->veh.base_from_lidar, e);
             if (r < 0) return -1;
             (r ? R->placed : R->unplaced)++;
             // a point beyond the reach would have started a paged-out tile afresh
@@ -1099,7 +1176,8 @@ static int pass_map(Run *R, pb_err_t *err)
             }
             return 0;
         }, &empty, err, nullptr, true);
-    if (rc == 0) pb_progress_finish(&prog);
+        if (rc == 0) pb_progress_finish(&prog);
+    }
     // every tile's finished points into the carving's tiles
     std::vector<int64_t> all(out.begin(), out.end());
     for (const auto &h : held) all.push_back(h.first);
@@ -1247,10 +1325,11 @@ struct CarveTiles {
 
 /* Pass 3: what moved is carved out of the map (core/carve.h), on a sample of the rays
  * (every 4th sweep, every 13th point: 13 is prime to the beam count, so every beam takes
- * its turn); the band over the ground model is spared. A tile of the carving is held
- * while the rays of the last 10 sampled sweeps could reach it (max_range_m of their
- * origins), else its counts are paged out; each ray is cast in the tiles under it. Then
- * every tile's verdicts. */
+ * its turn) of every drive placed, each an hour after the last in the carving's time (two
+ * drives' clocks may overlap), with the drive's number (pb_carve_set_drive); the band over
+ * the ground model is spared. A tile of the carving is held while the rays of the last 10
+ * sampled sweeps could reach it (max_range_m of their origins), else its counts are paged
+ * out; each ray is cast in the tiles under it. Then every tile's verdicts. */
 static int pass_carve(Run *R, const pb_ground_t *ground, pb_err_t *err)
 {
     CarveTiles tiles{R, ground, pb_carve_config_t{}, {}, {}, {}};
@@ -1260,11 +1339,19 @@ static int pass_carve(Run *R, const pb_ground_t *ground, pb_err_t *err)
     struct Ray { int64_t utime; Eigen::Vector3d o, e; };
     std::vector<Ray> rays;
     std::vector<pb_carve_t *> under;   /* the sweep's reach, row by row: the tile's carving or NULL */
-    long empty = 0, sampled = 0;
-    pb_progress_t prog;
-    pb_progress_start(&prog, "mapper: carve", R->total, R->quiet);
-    long seen = 0;
-    int rc = for_each_sweep(R->log_path, R->scan_ch, R->veh, 4, &seen, &prog,
+    long sampled = 0;
+    int rc = 0, drive = -1;
+    int64_t offset = 0, last = INT64_MIN;   /* drive's time + offset: the carving's */
+    for (Run *D : R->drives) {
+        if (rc != 0 || !D->placement.placed) continue;
+        drive++;
+        if (last != INT64_MIN) offset = last + 3600 * (int64_t)1000000 - D->traj.front().utime;
+        last = D->traj.back().utime + offset;
+        long empty = 0, seen = 0;
+        pb_progress_t prog;
+        const std::string label = D->label("mapper: carve");   /* the bar keeps the pointer */
+        pb_progress_start(&prog, label.c_str(), D->total, R->quiet);
+        rc = for_each_sweep(D->log_path, R->scan_ch, R->veh, 4, &seen, &prog,
         [&](int64_t utime, const std::vector<float> &, const pb_points_t &pts, const pb_event_t &, pb_err_t *e) {
             sampled++;
             // the sampled rays, and the extent of their origins
@@ -1277,7 +1364,7 @@ static int pass_carve(Run *R, const pb_ground_t *ground, pb_err_t *err)
                 if (pts.offset_us[i] != cached) {   /* a column's points share their time */
                     cached = pts.offset_us[i];
                     pb_transform_t t;
-                    have = pb_pose_track_at(R->track, utime + cached, &t);
+                    have = pb_pose_track_at(D->track, utime + cached, &t);
                     if (have) T = pb_reg_from_transform(&t) * bl;
                     for (int k = 0; have && k < 2; k++) {
                         olo[k] = std::min(olo[k], T.translation()[k]);
@@ -1285,7 +1372,7 @@ static int pass_carve(Run *R, const pb_ground_t *ground, pb_err_t *err)
                     }
                 }
                 if (!have) continue;
-                rays.push_back({utime + cached, T.translation(), T * Eigen::Vector3d(pts.x[i], pts.y[i], pts.z[i])});
+                rays.push_back({utime + cached + offset, T.translation(), T * Eigen::Vector3d(pts.x[i], pts.y[i], pts.z[i])});
             }
             if (rays.empty()) return 0;
             // the tiles its rays can reach held
@@ -1302,6 +1389,7 @@ static int pass_carve(Run *R, const pb_ground_t *ground, pb_err_t *err)
                     if (!R->carve_tiles.count(k)) continue;
                     pb_carve_t *c = tiles.hold(k, sampled, e);
                     if (!c) return -1;
+                    pb_carve_set_drive(c, drive);
                     under[(size_t)((ty - lo[1]) * w + (tx - lo[0]))] = c;
                 }
             R->carve_tiles_held_max = std::max(R->carve_tiles_held_max, (long)tiles.held.size());
@@ -1319,8 +1407,9 @@ static int pass_carve(Run *R, const pb_ground_t *ground, pb_err_t *err)
             // the tiles no sampled sweep of the last 10 reached paged out
             return sampled % 5 == 0 ? tiles.page_out(sampled - 10, e) : 0;
         }, &empty, err, nullptr, true);
+        if (rc == 0) pb_progress_finish(&prog);
+    }
     if (rc != 0) return -1;
-    pb_progress_finish(&prog);
     return tiles.finish(err);
 }
 
@@ -1395,14 +1484,22 @@ struct Assembly {
  * from the map as written) and site.yaml. */
 static int write_site(Run *R, pb_err_t *err)
 {
-    if (write_tum(R->path("trajectory.tum").c_str(), R->traj, false) != 0 ||
-        write_tum(R->path("odometry.tum").c_str(), R->traj, true) != 0)
-        return pb_err_set(err, "%s: cannot write the trajectories: %s", R->out_dir, std::strerror(errno)), -1;
-    std::map<int64_t, Eigen::Vector3d> at;
-    for (const SweepPose &sp : R->traj) {
-        R->layers.before.push_back(sp.odometry.translation());
-        R->layers.after.push_back(sp.pose.translation());
-        at[sp.utime] = sp.pose.translation();
+    std::map<SweepKey, Eigen::Vector3d> at;
+    for (Run *D : R->drives) {   /* drive N's trajectory.N.tum and odometry.N.tum */
+        if (!D->placement.placed) continue;
+        const std::string n = D->drive ? "." + std::to_string(D->drive + 1) : "";
+        if (write_tum(R->path(("trajectory" + n + ".tum").c_str()).c_str(), D->traj, false) != 0 ||
+            write_tum(R->path(("odometry" + n + ".tum").c_str()).c_str(), D->traj, true) != 0)
+            return pb_err_set(err, "%s: cannot write the trajectories: %s", R->out_dir, std::strerror(errno)), -1;
+        if (D->drive) {   /* the picture's lines break between drives */
+            R->layers.before.push_back(Eigen::Vector3d::Constant(NAN));
+            R->layers.after.push_back(Eigen::Vector3d::Constant(NAN));
+        }
+        for (const SweepPose &sp : D->traj) {
+            R->layers.before.push_back(sp.odometry.translation());
+            R->layers.after.push_back(sp.pose.translation());
+            at[{D->drive, sp.utime}] = sp.pose.translation();
+        }
     }
     for (const auto &lt : R->loop_times)
         if (at.count(lt.first) && at.count(lt.second)) R->layers.loops.push_back({at[lt.first], at[lt.second]});
@@ -1523,6 +1620,23 @@ static int write_report(const Run &R, const double cpu_ms[4], double wall_s, pb_
     cJSON_AddNumberToObject(j, "carve_tiles_paged_in", (double)R.carve_tiles_paged_in);
     cJSON_AddNumberToObject(j, "scans_placed", (double)R.placed);
     cJSON_AddNumberToObject(j, "scans_unplaced", (double)R.unplaced);
+    /* per drive (the fields above are the first drive's, or of the map from all) */
+    cJSON *drives = cJSON_AddArrayToObject(j, "drives");
+    for (const Run *D : R.drives) {
+        cJSON *o = cJSON_CreateObject();
+        cJSON_AddStringToObject(o, "log", D->log_path);
+        cJSON_AddNumberToObject(o, "scans", (double)D->traj.size());
+        cJSON_AddBoolToObject(o, "placed", D->placement.placed);
+        cJSON_AddStringToObject(o, "why_not_placed", D->placement.placed ? "" : D->placement.why);
+        cJSON_AddNumberToObject(o, "place_matches_tried", D->placement.tried);
+        cJSON_AddNumberToObject(o, "place_matches_verified", D->placement.matched);
+        cJSON_AddNumberToObject(o, "loops_to_other_drives", D->placement.links);
+        const std::string n = D->drive ? "." + std::to_string(D->drive + 1) : "";
+        cJSON_AddStringToObject(o, "trajectory", D->placement.placed ? ("trajectory" + n + ".tum").c_str() : "");
+        cJSON_AddNumberToObject(o, "resumed_from_scan", (double)D->resumed_from);
+        cJSON_AddStringToObject(o, "checkpoint_refused", D->checkpoint_refused.c_str());
+        cJSON_AddItemToArray(drives, o);
+    }
     char *text = cJSON_Print(j);
     cJSON_Delete(j);
     const std::string rep_path = R.path("report.json");
@@ -1545,9 +1659,17 @@ static int write_report(const Run &R, const double cpu_ms[4], double wall_s, pb_
     return 0;
 }
 
+/* --log: one more drive. */
+static int add_log(const char *, const char *arg, void *logs)
+{
+    ((std::vector<const char *> *)logs)->push_back(arg);
+    return 0;
+}
+
 int main(int argc, char **argv)
 {
     Run R;
+    std::vector<const char *> logs;
     R.log_path = nullptr;
     R.out_dir = nullptr;
     R.scan_ch = "LIDAR_SCAN";
@@ -1556,7 +1678,7 @@ int main(int argc, char **argv)
     R.checkpoint_every = 100;
     const char *vehicle = PB_SOURCE_DIR "/vehicles/prius2017.yaml";
     const pb_opt_t opts[] = {
-        PB_OPT_REQUIRED("log", &R.log_path), PB_OPT_REQUIRED("out", &R.out_dir), PB_OPT_STRING("vehicle", &vehicle),
+        PB_OPT_CALL("log", add_log, &logs), PB_OPT_REQUIRED("out", &R.out_dir), PB_OPT_STRING("vehicle", &vehicle),
         PB_OPT_STRING("scan-channel", &R.scan_ch), PB_OPT_DOUBLE("voxel", &R.voxel, 0.01, 10),
         PB_OPT_FLAG("quiet", &R.quiet, 1), PB_OPT_INT("checkpoint-every", &R.checkpoint_every, 1, 1000000),
         PB_OPT_STRING("poses", &R.poses_path), PB_OPT_DOUBLE("tile-m", &R.tile_m, 1, 10000), PB_OPT_END,
@@ -1564,24 +1686,45 @@ int main(int argc, char **argv)
     int parsed = pb_opt_parse("mapper", opts, usage, 0, argc, argv);
     if (parsed >= 0) return parsed;
     R.tiles_dir = R.path("map-tiles.tmp");
+    if (logs.empty() || (R.poses_path && logs.size() > 1)) {
+        std::fprintf(stderr, logs.empty() ? "mapper: --log is required\n" : "mapper: --poses places one --log\n");
+        usage(stderr);
+        return 2;
+    }
+    R.log_path = logs[0];
     const auto wall0 = std::chrono::steady_clock::now();
     double cpu_ms[4] = {pb_clock_process_cpu_ms(), 0, 0, 0};
     pb_err_t err;
     int rc = pb_vehicle_load(vehicle, &R.veh, &err);
+    std::deque<Run> later;   /* drives 2..n: the same options and vehicle */
+    R.drives.push_back(&R);
+    for (size_t k = 1; k < logs.size(); k++) {
+        later.push_back(R);
+        later.back().log_path = logs[k];
+        later.back().drive = (int)k;
+        later.back().drives.clear();
+        R.drives.push_back(&later.back());
+    }
     if (rc == 0 && mkdir(R.out_dir, 0777) != 0 && errno != EEXIST)
         rc = pb_err_set(&err, "%s: cannot create: %s", R.out_dir, std::strerror(errno));
-    // the sweeps counted, for the progress bars
-    if (rc == 0)
-        rc = pb_log_read_track(R.log_path, nullptr, nullptr, R.scan_ch,
-                               [](const pb_event_t *, void *u, pb_err_t *) { (*(long *)u)++; return 0; }, &R.total, &err);
-    if (rc == 0 && R.total == 0) rc = pb_err_set(&err, "%s: no %s in the log", R.log_path, R.scan_ch);
-    // a checkpoint of an interrupted run of this log resumed
-    if (rc == 0 && !R.poses_path) rc = checkpoint_ids(&R, &err);
-    if (rc == 0 && !R.poses_path) rc = checkpoint_read(&R, &err);
-    // 1. odometry; a keyframe every 2 m (or the poses given)
-    if (rc == 0) rc = R.poses_path ? read_poses(&R, &err) : pass_odometry(&R, &err);
-    if (R.kf_file) std::fclose(R.kf_file);
-    pb_odom_destroy(R.odom);   /* restored but not used (an error before the pass) */
+    // the sweeps counted, for the progress bars (every drive's first: a bad log fails early)
+    for (Run *D : R.drives) {
+        if (rc == 0)
+            rc = pb_log_read_track(D->log_path, nullptr, nullptr, R.scan_ch,
+                                   [](const pb_event_t *, void *u, pb_err_t *) { (*(long *)u)++; return 0; }, &D->total, &err);
+        if (rc == 0 && D->total == 0) rc = pb_err_set(&err, "%s: no %s in the log", D->log_path, R.scan_ch);
+    }
+    for (Run *D : R.drives) {
+        // a checkpoint of an interrupted run of this log resumed
+        if (rc == 0 && !R.poses_path) rc = checkpoint_ids(D, &err);
+        if (rc == 0 && !R.poses_path) rc = checkpoint_read(D, &err);
+        // 1. odometry; a keyframe every 2 m (or the poses given)
+        if (rc == 0) rc = R.poses_path ? read_poses(D, &err) : pass_odometry(D, &err);
+        if (D->kf_file) std::fclose(D->kf_file);
+        D->kf_file = nullptr;
+        pb_odom_destroy(D->odom);   /* restored but not used (an error before the pass) */
+        D->odom = nullptr;
+    }
     cpu_ms[1] = pb_clock_process_cpu_ms();
     R.peak_mb[0] = peak_rss_mb();
     reset_peak_rss();
@@ -1600,7 +1743,7 @@ int main(int argc, char **argv)
     pb_ground_t *ground = rc == 0 ? make_ground(&R, &err) : nullptr;
     if (rc == 0) rc = pass_carve(&R, ground, &err);
     pb_ground_destroy(ground);
-    pb_pose_track_destroy(R.track);
+    for (Run *D : R.drives) pb_pose_track_destroy(D->track);
     R.peak_mb[3] = peak_rss_mb();
     reset_peak_rss();
     // 6. the site's other files, the report
@@ -1613,7 +1756,8 @@ int main(int argc, char **argv)
         std::fprintf(stderr, "mapper: %s\n", err.msg);
         return 1;
     }
-    for (const char *f : {"checkpoint.bin", "checkpoint.bin.tmp", "keyframes.bin"})
-        std::remove(R.path(f).c_str());   /* done: nothing to resume */
+    for (Run *D : R.drives)   /* done: nothing to resume */
+        for (const std::string &f : {D->work("checkpoint"), D->work("checkpoint") + ".tmp", D->work("keyframes")})
+            std::remove(f.c_str());
     return 0;
 }

@@ -32,7 +32,8 @@ struct Canvas {
     }
     void path(const std::vector<Eigen::Vector3d> &p, int radius, const uint8_t col[3])
     {
-        for (size_t i = 1; i < p.size(); i++) line(p[i - 1], p[i], radius, col);
+        for (size_t i = 1; i < p.size(); i++)
+            if (p[i - 1].allFinite() && p[i].allFinite()) line(p[i - 1], p[i], radius, col);   /* NaN: between two drives */
     }
 };
 }  // namespace
@@ -48,7 +49,8 @@ pb_picture_t *pb_picture_begin(const pb_picture_layers_t *L)
     /* the drive's surroundings: the trajectory's extent and 40 m around (the map reaches
      * the sensor's range, mostly sparse far returns) */
     Eigen::Vector2d lo = L->after[0].head<2>(), hi = lo;
-    for (const auto &p : L->after) { lo = lo.cwiseMin(p.head<2>()); hi = hi.cwiseMax(p.head<2>()); }
+    for (const auto &p : L->after)
+        if (p.allFinite()) { lo = lo.cwiseMin(p.head<2>()); hi = hi.cwiseMax(p.head<2>()); }
     lo -= Eigen::Vector2d(40, 40);
     hi += Eigen::Vector2d(40, 40);
     pb_picture_t *pic = new pb_picture_t();

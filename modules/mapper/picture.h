@@ -12,7 +12,7 @@
 #include "pb_err.h"
 
 typedef struct {
-    std::vector<Eigen::Vector3d> before, after;   /* trajectory positions, map frame */
+    std::vector<Eigen::Vector3d> before, after;   /* trajectory positions, map frame (NaN between drives) */
     std::vector<std::pair<Eigen::Vector3d, Eigen::Vector3d>> loops;
     std::vector<Eigen::Vector3d> fixes;           /* GNSS fixes in the map frame (may be empty) */
     std::vector<float> removed;                   /* carved points, x y z interleaved, map frame */

@@ -216,6 +216,40 @@ static void visits_test()
     CHECK(same_own < keep.size());
 }
 
+/* Two drives (pb_carve_set_drive(1) between them; the second's clock an hour on): four
+ * single-point cells as in window_test. x = 2: hit through 5 s of the first drive (a car
+ * parked), passed through 20 times in the second without a hit (gone): carved. x = 4: hit
+ * through 5 s of both: kept. x = 6: hit within 0.5 s in each drive (a bus passing both days),
+ * passed through 13 times after the first drive's hits and 13 times before the second's:
+ * carved (each drive's own visit, the passes outside them added up: min_passes for each
+ * drive that hit it). x = 8: the same hits, 5 + 5 passes: kept. */
+static void drives_test()
+{
+    const float pts[] = {2, 10, 1, 4, 10, 1, 6, 10, 1, 8, 10, 1};
+    pb_carve_t *c = pb_carve_create(pts, 4, 3, nullptr, nullptr);
+    const double o[3] = {0, 0, 1};
+    auto hit = [&](double t, double x) { double e[3] = {x, 10, 1}; pb_carve_ray(c, (int64_t)std::llround(t * 1e6), o, e); };
+    auto pass = [&](double t, double x) { double e[3] = {2 * x, 20, 1}; pb_carve_ray(c, (int64_t)std::llround(t * 1e6), o, e); };
+    for (int day = 0; day < 2; day++) {
+        const double t0 = day * 3600.0;
+        for (int k = 0; k < 20; k++) {
+            if (day == 0) hit(t0 + 0.25 * k, 2);
+            else pass(t0 + 0.25 * k, 2);
+            hit(t0 + 0.25 * k, 4);
+        }
+        for (int k = 0; k < 6; k++) { hit(t0 + 1 + 0.1 * k, 6); hit(t0 + 1 + 0.1 * k, 8); }
+        for (int k = 0; k < 13; k++) pass(day == 0 ? t0 + 2 + 0.05 * k : t0 + 0.05 * k, 6);
+        for (int k = 0; k < 5; k++) pass(day == 0 ? t0 + 2 + 0.05 * k : t0 + 0.05 * k, 8);
+        if (day == 0) pb_carve_set_drive(c, 1);
+    }
+    std::vector<uint8_t> keep;
+    size_t carved = pb_carve_keep(c, nullptr, &keep);
+    std::printf("drives: carved %zu, keep %d %d %d %d\n", carved, keep[0], keep[1], keep[2], keep[3]);
+    CHECK(carved == 2);
+    CHECK(keep[0] == 0 && keep[1] == 1 && keep[2] == 0 && keep[3] == 1);
+    pb_carve_destroy(c);
+}
+
 int main()
 {
     /* the map: a wall at y = 10 (x 0..60, z 0..4), a box at x 28..32, y 4..6, z 0..1.5, the
@@ -289,6 +323,7 @@ int main()
     parts_test(pts, ground, cast, keep);
     window_test();
     visits_test();
+    drives_test();
     pb_ground_destroy(ground);
     return pb_check_report("test_mapper_carve");
 }

@@ -259,6 +259,48 @@ static void test_bad_input()
     CHECK_CONTAINS(err.msg, "keyframe");
 }
 
+/* Several drives: the first 150 m of the square in the map's frame; a second drive of the
+ * same 150 m (another drift) in a frame of its own (500 m off, turned by 1 rad): placed, its
+ * poses back in the first one's frame; a third of a world mirrored (another place): not
+ * placed, its poses as given. */
+static void test_drives_placed(const std::vector<Vec3> &world)
+{
+    std::vector<pb_keyframe_t> kf = make_keyframes(world, 150);
+    const size_t n1 = kf.size();
+    Eigen::Isometry3d G = Eigen::Isometry3d::Identity();
+    G.linear() = Eigen::AngleAxisd(1.0, Vec3::UnitZ()).toRotationMatrix();
+    G.translation() = Vec3(500, -300, 0);
+    for (pb_keyframe_t k : make_keyframes(world, 150, {0.998, -0.003})) {
+        k.pose = G * k.pose;
+        k.drive = 1;
+        kf.push_back(k);
+    }
+    std::vector<Vec3> mirrored = world;
+    for (Vec3 &p : mirrored) p.y() = -p.y();
+    for (pb_keyframe_t k : make_keyframes(mirrored, 150)) {
+        k.drive = 2;
+        kf.push_back(k);
+    }
+    std::vector<Eigen::Isometry3d> out;
+    pb_loops_report_t rep;
+    pb_err_t err;
+    if (CHECK_OK(pb_loops_close(kf, nullptr, &out, &rep, &err), err.msg)) return;
+    CHECK(rep.drives.size() == 3);
+    if (rep.drives.size() != 3) return;
+    double worst = 0;
+    for (size_t k = n1; k < 2 * n1; k++) worst = std::max(worst, pos_err(out[k], 2.0 * (double)(k - n1)));
+    std::printf("drives: placed %d %d %d (tried %d, matched %d, links %d), second drive's error max %.3f m; third: %s\n",
+                rep.drives[0].placed, rep.drives[1].placed, rep.drives[2].placed, rep.drives[1].tried,
+                rep.drives[1].matched, rep.drives[1].links, worst, rep.drives[2].why);
+    CHECK(rep.drives[0].placed && rep.drives[1].placed && !rep.drives[2].placed);
+    CHECK(rep.drives[1].links >= 2);
+    CHECK(worst < 0.3);
+    for (size_t k = 2 * n1; k < kf.size(); k++) CHECK((out[k].translation() - kf[k].pose.translation()).norm() == 0);
+    /* drives out of order are refused */
+    kf[1].drive = 1;
+    CHECK(pb_loops_close(kf, nullptr, &out, &rep, &err) == -1);
+}
+
 int main()
 {
     std::vector<Vec3> world = make_world(false);
@@ -268,5 +310,6 @@ int main()
     test_look_alike_refused(make_world(true));
     test_no_loop_keeps_the_poses(world);
     test_bad_input();
+    test_drives_placed(world);
     return pb_check_report("test_mapper_loops");
 }

@@ -17,9 +17,29 @@ struct Count {
     float ground_z;    /* band cells: the ground model's height at the cell's centre */
     int32_t raised;    /* band cells: the cell of its points higher than raise_m over the ground, or -1 */
     uint8_t protect;   /* in the band over the ground: never carved */
-    uint8_t visits;    /* spans of hits kept apart by more than revisit_s (up to 255) */
+    uint8_t visits;    /* spans of hits kept apart by more than revisit_s (up to 255), in the drive of drive */
     uint8_t occupied;  /* the cell's eighths (x, y, z halves; bit x + 2y + 4z) that hold its points */
+    uint8_t drive;     /* the drive the counts below are of (pb_carve_set_drive) */
+    uint8_t drive_passes;  /* passes in that drive (saturating) */
+    uint8_t drive_flags;   /* bit 0: hit in that drive; bit 1: an earlier drive passed it min_passes_empty
+                            * times and never hit it; bit 2: an earlier drive hit it on more than
+                            * max_visits visits; bits 3-7: the earlier drives that hit it (saturating) */
 };
+
+/* The counts of a cell last touched in an earlier drive, carried into drive d: what that
+ * drive said kept in drive_flags, its visits and passes of its own started afresh. */
+inline void roll_to(Count &n, uint8_t d, const pb_carve_config_t &cfg)
+{
+    if (n.drive == d) return;
+    if (!(n.drive_flags & 1) && n.drive_passes >= cfg.min_passes_empty) n.drive_flags |= 2;
+    if (n.visits > cfg.max_visits) n.drive_flags |= 4;
+    if ((n.drive_flags & 1) && (n.drive_flags >> 3) < 31) n.drive_flags += 8;
+    if (n.hits) n.longest_s = std::max(n.longest_s, (float)((double)(n.last_hit - n.visit_start) * 1e-6));
+    n.drive_flags &= (uint8_t)~1u;
+    n.visits = 0;
+    n.drive_passes = 0;
+    n.drive = d;
+}
 
 /* The eighth of the cell whose lowest corner is lo (half its edge: half_m) that p falls in, as a bit. */
 inline uint8_t eighth_bit(const double p[3], const double lo[3], double half_m)
@@ -34,6 +54,7 @@ struct pb_carve {
     pb_carve_config_t cfg;
     double inv;
     pb_loc::VoxelHash index;
+    uint8_t drive = 0;                 /* the drive the rays now come from */
     std::vector<Count> counts;
     std::vector<int32_t> point_cell;   /* per map point, its cell (-1: outside the key range) */
     int64_t lo[3] = {INT64_MAX, INT64_MAX, INT64_MAX}, hi[3] = {INT64_MIN, INT64_MIN, INT64_MIN};   /* cells' extent */
@@ -62,14 +83,14 @@ pb_carve_t *pb_carve_create(const float *xyz, size_t n, size_t stride, const pb_
             double g, cx = (std::floor(p[0] * c->inv) + 0.5) * c->cfg.cell_m, cy = (std::floor(p[1] * c->inv) + 0.5) * c->cfg.cell_m;
             uint8_t protect = ground && pb_ground_height(ground, cx, cy, &g) == 0 &&
                               std::floor(p[2] * c->inv) * c->cfg.cell_m <= g + c->cfg.ground_band_m;
-            c->counts.push_back(Count{0, 0, 0, 0, 0, 0.0f, protect ? (float)g : 0.0f, -1, protect, 0, 0});
+            c->counts.push_back(Count{0, 0, 0, 0, 0, 0.0f, protect ? (float)g : 0.0f, -1, protect, 0, 0, 0, 0, 0});
         }
         /* a band cell's points clear of the ground are judged apart: a car's sill over the road */
         Count &n = c->counts[(size_t)k];
         if (n.protect && p[2] > n.ground_z + c->cfg.raise_m) {
             if (n.raised < 0) {
                 n.raised = (int32_t)c->counts.size();
-                c->counts.push_back(Count{0, 0, 0, 0, 0, 0.0f, 0.0f, -1, 0, 0, 0});
+                c->counts.push_back(Count{0, 0, 0, 0, 0, 0.0f, 0.0f, -1, 0, 0, 0, 0, 0, 0});
             }
             k = c->counts[(size_t)k].raised;
         }
@@ -130,6 +151,8 @@ void pb_carve_ray(pb_carve_t *c, int64_t utime, const double o[3], const double 
             k = c->counts[(size_t)k].raised;
         if (k >= 0) {
             Count &n = c->counts[(size_t)k];
+            roll_to(n, c->drive, c->cfg);
+            n.drive_flags |= 1;
             if (n.hits == 0 || utime - n.last_hit > (int64_t)(c->cfg.revisit_s * 1e6)) {   /* a new visit */
                 if (n.hits) n.longest_s = std::max(n.longest_s, (float)((double)(n.last_hit - n.visit_start) * 1e-6));
                 n.passes += n.passes_since_hit;
@@ -189,7 +212,9 @@ void pb_carve_ray(pb_carve_t *c, int64_t utime, const double o[3], const double 
             /* a pass through the cell's empty part (beside a wall, over a roof's edge) is none */
             if (k >= 0 && (eighths_crossed(c, v, o, u3, t_in, t_out) & c->counts[(size_t)k].occupied)) {
                 Count &n = c->counts[(size_t)k];
+                roll_to(n, c->drive, c->cfg);
                 (n.hits ? n.passes_since_hit : n.passes)++;
+                n.drive_passes += n.drive_passes < 255;
             }
         }
         if (tmax[a] > stop) break;
@@ -203,7 +228,22 @@ void pb_carve_ray(pb_carve_t *c, int64_t utime, const double o[3], const double 
 static bool passing(const pb_carve_config_t &cfg, const Count &n)
 {
     const double longest_s = n.hits ? std::max((double)n.longest_s, (double)(n.last_hit - n.visit_start) * 1e-6) : 0;
-    return !n.protect && n.visits <= cfg.max_visits && longest_s <= cfg.transient_s;
+    return !n.protect && n.visits <= cfg.max_visits && !(n.drive_flags & 4) && longest_s <= cfg.transient_s;
+}
+
+/* Passes enough outside the visits: min_passes for each drive that hit the cell (one drive
+ * that never hit it was enough for the rest; see empty). */
+static bool passed(const Count &n, int min_passes)
+{
+    const uint32_t drives_hit = (uint32_t)(n.drive_flags >> 3) + (n.drive_flags & 1);
+    return n.passes + n.passes_since_hit >= (uint32_t)min_passes * std::max(1u, drives_hit);
+}
+
+/* Empty in a drive: passed min_passes_empty times in it and never hit in it (several drives:
+ * what the others saw there was parked, then gone). */
+static bool empty(const pb_carve_config_t &cfg, const Count &n)
+{
+    return !n.protect && ((n.drive_flags & 2) || (!(n.drive_flags & 1) && n.drive_passes >= cfg.min_passes_empty));
 }
 
 /* Step 1: the cells seen through often enough outside their visits. */
@@ -212,7 +252,7 @@ static std::vector<uint8_t> gone_cells(const pb_carve_t *c)
     std::vector<uint8_t> gone(c->counts.size(), 0);
     for (size_t k = 0; k < c->counts.size(); k++) {
         const Count &n = c->counts[k];
-        gone[k] = passing(c->cfg, n) && n.passes + n.passes_since_hit >= (uint32_t)c->cfg.min_passes;
+        gone[k] = (passing(c->cfg, n) && passed(n, c->cfg.min_passes)) || empty(c->cfg, n);
     }
     return gone;
 }
@@ -255,7 +295,7 @@ size_t pb_carve_keep(const pb_carve_t *c, const std::vector<uint64_t> *gone_keys
     std::vector<uint8_t> grown(gone);
     for (size_t k = 0; k < ncells; k++) {
         const Count &n = c->counts[k];
-        if (gone[k] || !passing(cfg, n) || n.passes + n.passes_since_hit < (uint32_t)cfg.min_passes_beside) continue;
+        if (gone[k] || !passing(cfg, n) || !passed(n, cfg.min_passes_beside)) continue;
         int64_t v[3];
         pb_loc::voxel_unkey(key[k], &v[0], &v[1], &v[2]);
         int around = 0;
@@ -280,6 +320,8 @@ size_t pb_carve_keep(const pb_carve_t *c, const std::vector<uint64_t> *gone_keys
     }
     return carved;
 }
+
+void pb_carve_set_drive(pb_carve_t *c, int drive) { c->drive = (uint8_t)std::min(std::max(drive, 0), 255); }
 
 void pb_carve_save(const pb_carve_t *c, std::vector<uint8_t> *out)
 {

@@ -27,7 +27,9 @@
  * own: hits that end there and passes of rays that stay higher through the cell (a car's
  * sill over the road; it shared its cell with the road, hit all drive long). What stood still
  * through the drive (parked cars, a pedestrian waiting at a crossing) stays: one drive cannot
- * tell it from the world.
+ * tell it from the world. Several drives of the course can (pb_carve_set_drive): a cell passed
+ * through at least `min_passes_empty` times in one drive and never hit in it was empty that
+ * day, and what the other drives saw there (a car parked, then gone) is carved.
  *
  * Pure: no I/O, no clock. Ownership: pb_carve_create copies what it needs; the caller
  * frees the result with pb_carve_destroy (NULL is a no-op). */
@@ -52,6 +54,7 @@ typedef struct {
     int max_visits = 2;        /* a cell hit on more visits than this holds something that stays */
     int min_passes_beside = 2; /* passes enough for a cell among carved ones (the same body's rest) */
     int carved_beside = 6;     /* ... when this many of its 26 neighbours are carved by min_passes */
+    int min_passes_empty = 12; /* several drives: passes in one drive that never hit the cell */
 } pb_carve_config_t;
 
 typedef struct pb_carve pb_carve_t;
@@ -63,6 +66,12 @@ void pb_carve_destroy(pb_carve_t *c);
 
 /* One ray of a sweep at utime, from the sensor's origin to its return, both in the map frame. */
 void pb_carve_ray(pb_carve_t *c, int64_t utime, const double origin[3], const double end[3]);
+
+/* The rays that follow are of drive `drive` (0, 1, ... up to 255, in order; each drive's ray
+ * times after the last's by more than revisit_s). A cell is touched as the drive's rays reach
+ * it; its visits are each drive's own, a cell hit on more than max_visits visits in any drive
+ * stays, and it needs min_passes for every drive that hit it. */
+void pb_carve_set_drive(pb_carve_t *c, int drive);
 
 /* Per map point (as given to create): 1 keep, 0 carved. Returns the number carved.
  * gone_keys NULL: the neighbours' verdicts from this map's own cells; else a sorted list of

@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <array>
+#include <functional>
 #include <tuple>
 #include <cmath>
 #include <ceres/ceres.h>
@@ -50,6 +51,47 @@ static bool consistent(const std::vector<pb_keyframe_t> &kf, const std::vector<d
            Eigen::AngleAxisd(e.linear()).angle() * 180 / M_PI <= cfg.max_correction_deg + cfg.max_drift_deg * legs / 100;
 }
 
+/* The map of the stored keyframes before end of keyframe i's drive within submap_radius_m
+ * of path around it, at least min_separation_m of path behind s_from (map frame). */
+static std::vector<float> submap(const std::vector<pb_keyframe_t> &kf, const std::vector<double> &s,
+                                 const pb_loops_config_t &cfg, size_t i, size_t end, double s_from)
+{
+    std::vector<float> sub;
+    for (size_t k = 0; k < end; k++) {
+        if (kf[k].xyz.empty() || kf[k].drive != kf[i].drive || std::fabs(s[k] - s[i]) > cfg.submap_radius_m ||
+            s_from - s[k] < cfg.min_separation_m)
+            continue;
+        for (size_t q = 0; q + 2 < kf[k].xyz.size(); q += 3) {
+            Vec3 p = kf[k].pose * Vec3(kf[k].xyz[q], kf[k].xyz[q + 1], kf[k].xyz[q + 2]);
+            sub.insert(sub.end(), {(float)p.x(), (float)p.y(), (float)p.z()});
+        }
+    }
+    return sub;
+}
+
+/* Points xyz (base) registered to the map sub from seed, searched for within radius_m when
+ * that does not fit; true with *pose when the structure fits. */
+static bool match(const std::vector<float> &sub, const std::vector<float> &pts, const Eigen::Isometry3d &seed,
+                  double radius_m, const pb_loops_config_t &cfg, Eigen::Isometry3d *pose)
+{
+    pb_reg_config_t rcfg;
+    pb_reg_config_default(&rcfg);
+    pb_err_t e;
+    pb_regmap_t *m = pb_regmap_from_points(sub.data(), sub.size() / 3, nullptr, &e);
+    if (!m) return false;
+    pb_reg_result_t r;
+    const float *xyz = pts.data();
+    const size_t n = pts.size() / 3;
+    int rc = pb_reg_align(m, xyz, n, seed, &rcfg, &r, &e);
+    /* judged on the structure above the ground: the ground fits a pose metres off */
+    if (rc < 0 || rc == PB_REG_FEW_POINTS || !(r.upright_inlier_fraction >= cfg.min_inliers))
+        rc = pb_reg_align_global(m, xyz, n, seed, radius_m, cfg.search_yaw_deg * M_PI / 180, &rcfg, &r, &e);
+    pb_regmap_destroy(m);
+    if (rc < 0 || rc == PB_REG_FEW_POINTS || !(r.upright_inlier_fraction >= cfg.min_inliers)) return false;
+    *pose = r.pose;
+    return true;
+}
+
 /* Step 2 for one candidate: keyframe j's points registered to the earlier pass's map
  * around keyframe i from seed, searched for within radius_m when that does not fit; true
  * with *pose when the structure fits and the correction is within the drift allowed. */
@@ -57,31 +99,10 @@ static bool verify(const std::vector<pb_keyframe_t> &kf, const std::vector<doubl
                    size_t i, size_t j, const Eigen::Isometry3d &seed, double radius_m, double drift_share,
                    Eigen::Isometry3d *pose)
 {
-    pb_reg_config_t rcfg;
-    pb_reg_config_default(&rcfg);
-    std::vector<float> sub;
-    for (size_t k = 0; k < j; k++) {
-        if (kf[k].xyz.empty() || std::fabs(s[k] - s[i]) > cfg.submap_radius_m || s[j] - s[k] < cfg.min_separation_m)
-            continue;
-        for (size_t q = 0; q + 2 < kf[k].xyz.size(); q += 3) {
-            Vec3 p = kf[k].pose * Vec3(kf[k].xyz[q], kf[k].xyz[q + 1], kf[k].xyz[q + 2]);
-            sub.insert(sub.end(), {(float)p.x(), (float)p.y(), (float)p.z()});
-        }
-    }
-    pb_err_t e;
-    pb_regmap_t *m = pb_regmap_from_points(sub.data(), sub.size() / 3, nullptr, &e);
-    if (!m) return false;
-    pb_reg_result_t r;
-    const float *xyz = kf[j].xyz.data();
-    const size_t n = kf[j].xyz.size() / 3;
-    int rc = pb_reg_align(m, xyz, n, seed, &rcfg, &r, &e);
-    /* judged on the structure above the ground: the ground fits a pose metres off */
-    if (rc < 0 || rc == PB_REG_FEW_POINTS || !(r.upright_inlier_fraction >= cfg.min_inliers))
-        rc = pb_reg_align_global(m, xyz, n, seed, radius_m, cfg.search_yaw_deg * M_PI / 180, &rcfg, &r, &e);
-    pb_regmap_destroy(m);
-    if (rc < 0 || rc == PB_REG_FEW_POINTS || !(r.upright_inlier_fraction >= cfg.min_inliers)) return false;
-    if (!within_drift(kf, s, cfg, i, j, r.pose, drift_share, 0, 0)) return false;
-    *pose = r.pose;
+    Eigen::Isometry3d r;
+    if (!match(submap(kf, s, cfg, i, j, s[j]), kf[j].xyz, seed, radius_m, cfg, &r)) return false;
+    if (!within_drift(kf, s, cfg, i, j, r, drift_share, 0, 0)) return false;
+    *pose = r;
     return true;
 }
 
@@ -94,6 +115,7 @@ static int solve(const std::vector<pb_keyframe_t> &kf, const std::vector<Loop> &
     pb_pose_graph g(start);
     const double deg = M_PI / 180;
     for (size_t k = 0; k + 1 < kf.size(); k++) {
+        if (kf[k + 1].drive != kf[k].drive) continue;   /* two drives: no odometry between them */
         Eigen::Isometry3d rel = kf[k].pose.inverse() * kf[k + 1].pose;
         double sm = cfg.odom_sigma_m * std::max(1.0, rel.translation().norm());
         g.add_edge(k, k + 1, rel, pb_sqrt_info(sm, cfg.odom_sigma_deg * deg));
@@ -106,17 +128,25 @@ static int solve(const std::vector<pb_keyframe_t> &kf, const std::vector<Loop> &
     return 0;
 }
 
-int pb_loops_close(const std::vector<pb_keyframe_t> &kf, const pb_loops_config_t *cfg_in,
-                   std::vector<Eigen::Isometry3d> *out, pb_loops_report_t *rep, pb_err_t *err)
+/* The path length at each keyframe (the drives' paths one after the other). */
+static std::vector<double> path_at(const std::vector<pb_keyframe_t> &kf)
 {
-    const pb_loops_config_t cfg = cfg_in ? *cfg_in : pb_loops_config_t{};
+    std::vector<double> s(kf.size(), 0);
+    for (size_t k = 1; k < kf.size(); k++)
+        s[k] = s[k - 1] + (kf[k].drive != kf[k - 1].drive ? 0 : (kf[k].pose.translation() - kf[k - 1].pose.translation()).norm());
+    return s;
+}
+
+/* Steps 1-4 over the keyframes (placed drives one after the other), with the loops given
+ * (step 0's) besides those found. */
+static int close_placed(const std::vector<pb_keyframe_t> &kf, const pb_loops_config_t &cfg, std::vector<Loop> loops,
+                        std::vector<Eigen::Isometry3d> *out, pb_loops_report_t *rep, pb_err_t *err)
+{
     const size_t n = kf.size();
-    *rep = pb_loops_report_t{};
-    if (n < 2) return pb_err_set(err, "loop closure: %zu keyframe(s), two or more needed", n), -1;
+    for (const Loop &l : loops) rep->loops.push_back({(int)l.i, (int)l.j});
     out->resize(n);
     for (size_t k = 0; k < n; k++) (*out)[k] = kf[k].pose;
-    std::vector<double> s(n, 0);   /* path length at each keyframe */
-    for (size_t k = 1; k < n; k++) s[k] = s[k - 1] + (kf[k].pose.translation() - kf[k - 1].pose.translation()).norm();
+    const std::vector<double> s = path_at(kf);
 
     // 1-2. candidates by position and by place, each verified against the earlier pass's
     //      map; first every keyframe's place descriptor (the localizer's Scan-Context-like one)
@@ -124,12 +154,11 @@ int pb_loops_close(const std::vector<pb_keyframe_t> &kf, const pb_loops_config_t
     std::vector<pb_loc::place_desc_t> desc(n);
     for (size_t k = 0; k < n; k++) pb_loc::places_describe(pcfg, kf[k].xyz.data(), kf[k].xyz.size() / 3, &desc[k]);
 
-    std::vector<Loop> loops;
     size_t last_position = 0, last_place = 0;   /* the last keyframes that tried */
     for (size_t j = 1; j < n; j++) {
         if (kf[j].xyz.empty()) continue;
-        size_t behind = 0;   /* keyframes [0, behind) are far enough behind */
-        while (behind < j && s[j] - s[behind] >= cfg.min_separation_m) behind++;
+        size_t behind = 0;   /* keyframes [0, behind) are far enough behind (an earlier drive's: all) */
+        while (behind < j && (kf[behind].drive != kf[j].drive || s[j] - s[behind] >= cfg.min_separation_m)) behind++;
         if (behind == 0) continue;
         /* a. the nearest by the odometry's positions */
         struct Candidate { size_t i; bool by_place; double yaw; };
@@ -263,4 +292,165 @@ int pb_loops_close(const std::vector<pb_keyframe_t> &kf, const pb_loops_config_t
     for (size_t k = 0; k < n; k++)
         rep->max_change_m = std::max(rep->max_change_m, ((*out)[k].translation() - kf[k].pose.translation()).norm());
     return 0;
+}
+
+/* Step 0 for one drive (its keyframes kf[b, e), in its own odometry frame): placed in the
+ * map of the keyframes placed before it (placed, path ps), by the first verified match of
+ * its places to theirs that a second one, at least submap_radius_m of its path further on,
+ * agrees with. true with *placement (map <- its frame) and the two matches (i in placed, j
+ * in kf, rel unset; *poses their j's poses in the map). */
+static bool place(const std::vector<pb_keyframe_t> &placed, const std::vector<double> &ps,
+                  const std::vector<pb_keyframe_t> &kf, size_t b, size_t e, const pb_loops_config_t &cfg,
+                  pb_drive_report_t *dr, Eigen::Isometry3d *placement, std::vector<Loop> *two,
+                  std::vector<Eigen::Isometry3d> *poses)
+{
+    pb_loc::places_config_t pcfg;
+    std::vector<pb_loc::place_desc_t> desc(placed.size());
+    for (size_t k = 0; k < placed.size(); k++)
+        pb_loc::places_describe(pcfg, placed[k].xyz.data(), placed[k].xyz.size() / 3, &desc[k]);
+    struct Match { size_t i, j; double sj; Eigen::Isometry3d pose; };
+    std::vector<Match> found;
+    double sj = 0;   /* path along the drive */
+    size_t last = e;
+    for (size_t j = b; j < e; j++) {
+        if (j > b) sj += (kf[j].pose.translation() - kf[j - 1].pose.translation()).norm();
+        if (kf[j].xyz.empty() || (last < e && j - last < (size_t)cfg.try_every)) continue;
+        last = j;
+        pb_loc::place_desc_t dj;
+        pb_loc::places_describe(pcfg, kf[j].xyz.data(), kf[j].xyz.size() / 3, &dj);
+        /* the most alike places (a ring-key shortlist compared in full), distinct ones */
+        std::vector<std::pair<double, size_t>> rk;
+        for (size_t i = 0; i < placed.size(); i++) {
+            if (placed[i].xyz.empty()) continue;
+            double d = 0;
+            for (int r = 0; r < pb_loc::PLACE_RINGS; r++) d += std::fabs(dj.ring_key[r] - desc[i].ring_key[r]);
+            rk.push_back({d, i});
+        }
+        size_t m = std::min(rk.size(), kPlaceShortlist);
+        std::partial_sort(rk.begin(), rk.begin() + (long)m, rk.end());
+        std::vector<std::tuple<double, size_t, double>> alike;   /* distance, keyframe, yaw */
+        for (size_t q = 0; q < m; q++) {
+            double yaw, d = pb_loc::places_compare(pcfg, dj, desc[rk[q].second], &yaw);
+            if (d <= cfg.place_max_distance) alike.push_back({d, rk[q].second, yaw});
+        }
+        std::sort(alike.begin(), alike.end());
+        std::vector<size_t> tried;
+        for (const auto &[d, i, yaw] : alike) {
+            if ((int)tried.size() >= cfg.place_candidates) break;
+            bool distinct = true;
+            for (size_t t : tried) distinct &= placed[t].drive != placed[i].drive || std::fabs(ps[t] - ps[i]) > cfg.submap_radius_m;
+            if (!distinct) continue;
+            tried.push_back(i);
+            dr->tried++;
+            Eigen::Isometry3d pose;
+            if (!match(submap(placed, ps, cfg, i, placed.size(), INFINITY), kf[j].xyz,
+                       placed[i].pose * Eigen::AngleAxisd(yaw, Vec3::UnitZ()), cfg.place_search_m, cfg, &pose))
+                continue;
+            dr->matched++;
+            /* agreement with an earlier match far enough back: the placement it gives puts
+             * this keyframe where this match does, within the drift of the two paths */
+            for (const Match &a : found) {
+                if (sj - a.sj < cfg.submap_radius_m) continue;
+                const Eigen::Isometry3d T = a.pose * kf[a.j].pose.inverse();
+                const Eigen::Isometry3d err = pose.inverse() * T * kf[j].pose;
+                const double legs = (sj - a.sj) + (placed[a.i].drive == placed[i].drive ? std::fabs(ps[i] - ps[a.i]) : 0);
+                if (err.translation().norm() <= cfg.max_correction_m + cfg.max_drift * legs &&
+                    Eigen::AngleAxisd(err.linear()).angle() * 180 / M_PI <=
+                        cfg.max_correction_deg + cfg.max_drift_deg * legs / 100) {
+                    *placement = T;
+                    *two = {{a.i, a.j, {}, true}, {i, j, {}, true}};
+                    *poses = {a.pose, pose};
+                    return true;
+                }
+            }
+            found.push_back({i, j, sj, pose});
+        }
+    }
+    dr->why = dr->matched ? "no two matches to the earlier drives agree" : "no place of the earlier drives matched";
+    return false;
+}
+
+int pb_loops_close(const std::vector<pb_keyframe_t> &kf, const pb_loops_config_t *cfg_in,
+                   std::vector<Eigen::Isometry3d> *out, pb_loops_report_t *rep, pb_err_t *err)
+{
+    const pb_loops_config_t cfg = cfg_in ? *cfg_in : pb_loops_config_t{};
+    const size_t n = kf.size();
+    *rep = pb_loops_report_t{};
+    if (n < 2) return pb_err_set(err, "loop closure: %zu keyframe(s), two or more needed", n), -1;
+    std::vector<size_t> begin = {0};   /* each drive's first keyframe, and n */
+    for (size_t k = 0; k < n; k++) {
+        if (k == 0 ? kf[k].drive != 0 : kf[k].drive != kf[k - 1].drive && kf[k].drive != kf[k - 1].drive + 1)
+            return pb_err_set(err, "loop closure: keyframe %zu is of drive %d (drives 0, 1, ... in order)", k, kf[k].drive), -1;
+        if (k > 0 && kf[k].drive != kf[k - 1].drive) begin.push_back(k);
+    }
+    begin.push_back(n);
+    const size_t nd = begin.size() - 1;
+    const pb_drive_report_t first = {true, "", 0, 0, 0, Eigen::Isometry3d::Identity()};
+    if (nd == 1) {
+        rep->drives = {first};
+        return close_placed(kf, cfg, {}, out, rep, err);
+    }
+    std::vector<const char *> excluded(nd, nullptr);   /* why a drive is left out */
+    for (;;) {
+        // 0. each later drive placed in the map of those before it
+        std::vector<pb_drive_report_t> drives(nd, pb_drive_report_t{false, "", 0, 0, 0, Eigen::Isometry3d::Identity()});
+        drives[0] = first;
+        std::vector<pb_keyframe_t> placed(kf.begin(), kf.begin() + (long)begin[1]);
+        std::vector<size_t> from(begin[1]);   /* placed's keyframe k is kf[from[k]] */
+        for (size_t k = 0; k < begin[1]; k++) from[k] = k;
+        std::vector<Loop> given;
+        for (size_t d = 1; d < nd; d++) {
+            if (excluded[d]) { drives[d].why = excluded[d]; continue; }
+            Eigen::Isometry3d T;
+            std::vector<Loop> two;
+            std::vector<Eigen::Isometry3d> poses;
+            if (!place(placed, path_at(placed), kf, begin[d], begin[d + 1], cfg, &drives[d], &T, &two, &poses)) continue;
+            drives[d].placed = true;
+            drives[d].placement = T;
+            const size_t at = placed.size();
+            for (size_t k = begin[d]; k < begin[d + 1]; k++) {
+                placed.push_back(kf[k]);
+                placed.back().pose = T * kf[k].pose;
+                from.push_back(k);
+            }
+            for (size_t q = 0; q < 2; q++) {
+                Loop l = two[q];
+                l.j = l.j - begin[d] + at;
+                l.rel = placed[l.i].pose.inverse() * poses[q];
+                given.push_back(l);
+            }
+        }
+        // 1-4. over the placed drives together
+        pb_loops_report_t r{};
+        std::vector<Eigen::Isometry3d> solved;
+        if (close_placed(placed, cfg, given, &solved, &r, err) != 0) return -1;
+        // every placed drive must still be joined to the first by the loops kept: else it is
+        // left out and all done again (the drives placed on it may have to go too)
+        std::vector<int> root(nd);
+        for (size_t d = 0; d < nd; d++) root[d] = (int)d;
+        std::function<int(int)> find = [&](int d) { return root[d] == d ? d : root[d] = find(root[d]); };
+        for (const auto &l : r.loops) {
+            int a = placed[(size_t)l.first].drive, b = placed[(size_t)l.second].drive;
+            if (a == b) continue;
+            drives[a].links++;
+            drives[b].links++;
+            root[find(a)] = find(b);
+        }
+        size_t cut = 0;
+        for (size_t d = 1; d < nd && !cut; d++)
+            if (drives[d].placed && find((int)d) != find(0)) cut = d;
+        if (cut) {
+            excluded[cut] = "its matches to the earlier drives disagreed with the rest of the graph";
+            continue;
+        }
+        // back to the keyframes as given
+        out->resize(n);
+        for (size_t k = 0; k < n; k++) (*out)[k] = kf[k].pose;
+        for (size_t k = 0; k < placed.size(); k++) (*out)[from[k]] = solved[k];
+        for (auto *v : {&r.loops, &r.refused})
+            for (auto &l : *v) l = {(int)from[(size_t)l.first], (int)from[(size_t)l.second]};
+        *rep = r;
+        rep->drives = drives;
+        return 0;
+    }
 }

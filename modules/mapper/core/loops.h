@@ -40,7 +40,22 @@
  *      drive is many sigmas off the odometry, and a loss scaled to the edges' noise would
  *      down-weight exactly the loops that matter.)
  *
- * Frames: poses are map <- base; keyframe points are in base. Pure: no I/O, no clock;
+ * Several drives of the same course (the keyframes in drive order, drive 0 first): no
+ * odometry edge joins two drives, and each later drive is first placed in the map of the
+ * drives before it (pb_loops_close's step 0): its keyframes' descriptors are compared with
+ * the earlier drives' (no position or drift gate: its odometry frame is its own), the most
+ * alike verified by registration as in step 2 (no drift bound), and the drive is placed by
+ * the first verified match that a second one, at least submap_radius_m of its path further
+ * on, agrees with (as in step 3). Those two matches join the loops; its keyframes, moved
+ * by the placement, then go through steps 1-4 with the rest (every keyframe of an earlier
+ * drive counts as far enough behind; the path between keyframes of two drives, for the
+ * drift bounds, is counted through the drives one after the other: loose). A drive
+ * no two matches agree for is not placed (never placed by one look-alike); nor is one
+ * whose links to the earlier drives all disagreed with the graph (steps 3-4): the whole is
+ * then done again without it. An unplaced drive's poses come back unchanged.
+ *
+ * Frames: poses are map <- base (a later drive's odometry: its own frame); keyframe points
+ * are in base. Pure: no I/O, no clock;
  * deterministic (Ceres with one thread).
  * Ownership: the caller owns every array; nothing is kept after the call. */
 #ifndef PB_MAPPER_LOOPS_H
@@ -83,7 +98,17 @@ typedef struct {
     int64_t utime;
     Eigen::Isometry3d pose;          /* map <- base from the odometry */
     std::vector<float> xyz;          /* base frame, deskewed, downsampled; may be empty (no submap use) */
+    int drive = 0;                   /* several drives: 0, 1, ... in order (no odometry edge between two) */
 } pb_keyframe_t;
+
+/* Per drive: how it was placed in the map of the drives before it (drive 0: the map's frame). */
+typedef struct {
+    bool placed;
+    const char *why;                 /* not placed: why (static text) */
+    int tried, matched;              /* step 0: matches to the earlier drives tried, verified */
+    int links;                       /* loops kept between it and other drives */
+    Eigen::Isometry3d placement;     /* map <- the drive's odometry frame, before the solve */
+} pb_drive_report_t;
 
 typedef struct {
     int candidates, verified, rejected;  /* loops tried, kept, refused by step 2 */
@@ -93,10 +118,12 @@ typedef struct {
     double max_change_m;                 /* largest move of a keyframe by the solve */
     std::vector<std::pair<int, int>> loops;  /* the kept loops (earlier, later keyframe) */
     std::vector<std::pair<int, int>> refused; /* the candidates refused or dropped (earlier, later) */
+    std::vector<pb_drive_report_t> drives;    /* one per drive */
 } pb_loops_report_t;
 
-/* Solves the keyframes' poses (n = kf.size()) with the loops found; out gets n poses.
- * Returns 0, or -1 with err set (fewer than two keyframes). With no loop, out = the input. */
+/* Solves the keyframes' poses (n = kf.size()) with the loops found; out gets n poses, in
+ * drive 0's frame (an unplaced drive's: as given). Returns 0, or -1 with err set (fewer than
+ * two keyframes, drives not numbered 0, 1, ... in order). With no loop, out = the input. */
 int pb_loops_close(const std::vector<pb_keyframe_t> &kf, const pb_loops_config_t *cfg,
                    std::vector<Eigen::Isometry3d> *out, pb_loops_report_t *report, pb_err_t *err);
 
