@@ -512,6 +512,27 @@ struct Run {
     }
 };
 
+/* fn(D, utime, points in base, in the lidar frame, event, err) on every `every`-th sweep of
+ * each placed drive D in turn, read ahead, each drive with its progress bar ("what"). */
+template <class F>
+static int for_each_drive_sweep(Run *R, const char *what, long every, F fn, pb_err_t *err)
+{
+    int rc = 0;
+    for (Run *D : R->drives) {
+        if (rc != 0 || !D->placement.placed) continue;
+        long empty = 0, seen = 0;
+        pb_progress_t prog;
+        const std::string label = D->label(what);   /* the bar keeps the pointer */
+        pb_progress_start(&prog, label.c_str(), D->total, R->quiet);
+        rc = for_each_sweep(D->log_path, R->scan_ch, R->veh, every, &seen, &prog,
+            [&](int64_t utime, const std::vector<float> &xyz, const pb_points_t &pts, const pb_event_t &ev, pb_err_t *e) {
+                return fn(D, utime, xyz, pts, ev, e);
+            }, &empty, err, nullptr, true);
+        if (rc == 0) pb_progress_finish(&prog);
+    }
+    return rc;
+}
+
 /* The car's own motion from the log: VEHICLE_SPEED (signed speed) and IMU (gyro, rotated
  * into base), gathered between sweeps for the odometry's dead reckoning. */
 struct MotionSamples {
@@ -1128,15 +1149,8 @@ static int pass_map(Run *R, pb_err_t *err)
         return tile_write(tile_path(R, 'v', k), vox.data(), vox.size(), false, e);
     };
     long sweep = 0;
-    int rc = 0;
-    for (Run *D : R->drives) {
-        if (rc != 0 || !D->placement.placed) continue;
-        long empty = 0, seen = 0;
-        pb_progress_t prog;
-        const std::string label = D->label("mapper: map");   /* the bar keeps the pointer */
-        pb_progress_start(&prog, label.c_str(), D->total, R->quiet);
-        rc = for_each_sweep(D->log_path, R->scan_ch, R->veh, 1, &seen, &prog,
-        [&](int64_t utime, const std::vector<float> &, const pb_points_t &pts, const pb_event_t &, pb_err_t *e) {
+    int rc = for_each_drive_sweep(R, "mapper: map", 1,
+        [&](Run *D, int64_t utime, const std::vector<float> &, const pb_points_t &pts, const pb_event_t &, pb_err_t *e) {
             sweep++;
             // the tiles it can reach held
             int64_t lo[2], hi[2];
@@ -1175,9 +1189,7 @@ static int pass_map(Run *R, pb_err_t *err)
                     if (page_out(k, e) != 0) return -1;
             }
             return 0;
-        }, &empty, err, nullptr, true);
-        if (rc == 0) pb_progress_finish(&prog);
-    }
+        }, err);
     // every tile's finished points into the carving's tiles
     std::vector<int64_t> all(out.begin(), out.end());
     for (const auto &h : held) all.push_back(h.first);
@@ -1340,19 +1352,17 @@ static int pass_carve(Run *R, const pb_ground_t *ground, pb_err_t *err)
     std::vector<Ray> rays;
     std::vector<pb_carve_t *> under;   /* the sweep's reach, row by row: the tile's carving or NULL */
     long sampled = 0;
-    int rc = 0, drive = -1;
+    int drive = -1;
+    const Run *now = nullptr;
     int64_t offset = 0, last = INT64_MIN;   /* drive's time + offset: the carving's */
-    for (Run *D : R->drives) {
-        if (rc != 0 || !D->placement.placed) continue;
-        drive++;
-        if (last != INT64_MIN) offset = last + 3600 * (int64_t)1000000 - D->traj.front().utime;
-        last = D->traj.back().utime + offset;
-        long empty = 0, seen = 0;
-        pb_progress_t prog;
-        const std::string label = D->label("mapper: carve");   /* the bar keeps the pointer */
-        pb_progress_start(&prog, label.c_str(), D->total, R->quiet);
-        rc = for_each_sweep(D->log_path, R->scan_ch, R->veh, 4, &seen, &prog,
-        [&](int64_t utime, const std::vector<float> &, const pb_points_t &pts, const pb_event_t &, pb_err_t *e) {
+    int rc = for_each_drive_sweep(R, "mapper: carve", 4,
+        [&](Run *D, int64_t utime, const std::vector<float> &, const pb_points_t &pts, const pb_event_t &, pb_err_t *e) {
+            if (D != now) {   /* the next drive: an hour after the last in the carving's time */
+                now = D;
+                drive++;
+                if (last != INT64_MIN) offset = last + 3600 * (int64_t)1000000 - D->traj.front().utime;
+                last = D->traj.back().utime + offset;
+            }
             sampled++;
             // the sampled rays, and the extent of their origins
             rays.clear();
@@ -1406,9 +1416,7 @@ static int pass_carve(Run *R, const pb_ground_t *ground, pb_err_t *err)
             }
             // the tiles no sampled sweep of the last 10 reached paged out
             return sampled % 5 == 0 ? tiles.page_out(sampled - 10, e) : 0;
-        }, &empty, err, nullptr, true);
-        if (rc == 0) pb_progress_finish(&prog);
-    }
+        }, err);
     if (rc != 0) return -1;
     return tiles.finish(err);
 }
