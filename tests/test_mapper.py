@@ -523,6 +523,32 @@ def test_two_drives_merged(hills_drives, tmp_path):
     assert s["beyond_0.5"] < 0.0025, s
 
 
+def test_two_drives_restart_after_a_kill(hills_drives, tmp_path):
+    """Killed (SIGKILL) once the second drive's odometry has written its first checkpoint
+    and run again, the merge resumes both drives (the first from its finished pass, the
+    second from its checkpoint) and writes the same site as the uninterrupted merge, byte for
+    byte."""
+    h = hills_drives
+    out = tmp_path / "both"
+    cmd = [str(BIN / "mapper"), "--log", str(h["logs"][0]), "--log", str(h["logs"][1]), "--out", str(out),
+           "--checkpoint-every", "20"]
+    p = subprocess.Popen(cmd + ["--quiet"])
+    ck = out / "checkpoint.2.bin"
+    deadline = time.monotonic() + 120
+    while p.poll() is None and not ck.exists() and time.monotonic() < deadline:
+        time.sleep(0.002)
+    p.kill()
+    p.wait()
+    assert ck.exists() and (out / "checkpoint.bin").exists() and not (out / "map.pcd").exists()
+    q = run(cmd)
+    rep = json.loads((out / "report.json").read_text())
+    assert "resuming from" in q.stderr and str(ck) in q.stderr, q.stderr
+    assert [d["placed"] for d in rep["drives"]] == [True, True], rep["drives"]
+    for f in ("trajectory.tum", "trajectory.2.tum", "map.pcd", "map.tiles", "ground.pgm"):
+        assert filecmp.cmp(out / f, h["dir"] / "both" / f, shallow=False), f
+    assert not ck.exists() and not (out / "keyframes.2.bin").exists()   # a finished run leaves none
+
+
 def test_a_drive_of_another_place_is_not_merged(hills_drives, drive, tmp_path):
     """A second drive of another site (the default one's 8 s): reported as not placed, left
     out of the map: the same map as the first drive's alone, byte for byte."""
