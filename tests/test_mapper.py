@@ -349,18 +349,22 @@ def test_map_in_tiles_is_the_same_map(drive, tmp_path):
     assert small["carve_tiles_held_max"] <= (reach / 4 + 2) ** 2 < small["map_tiles"], (small, reach)
 
 
-def kill_and_resume(log, out, checkpoint_every=20):
-    """Runs the mapper on log into out, SIGKILLs it once its first checkpoint is written, runs
-    it again to the end; returns (the second run, its report)."""
-    cmd = [str(BIN / "mapper"), "--log", str(log), "--out", str(out), "--checkpoint-every", str(checkpoint_every)]
+def kill_and_resume(log, out, checkpoint_every=20, checkpoint="checkpoint.bin"):
+    """Runs the mapper on log (or a list of logs: several drives) into out, SIGKILLs it once
+    the checkpoint file is written, runs it again to the end; returns (the second run, its
+    report)."""
+    logs = log if isinstance(log, list) else [log]
+    cmd = [str(BIN / "mapper"), *[a for lg in logs for a in ("--log", str(lg))], "--out", str(out),
+           "--checkpoint-every", str(checkpoint_every)]
     p = subprocess.Popen(cmd + ["--quiet"])
-    ck = out / "checkpoint.bin"
+    ck = out / checkpoint
     deadline = time.monotonic() + 120
     while p.poll() is None and not ck.exists() and time.monotonic() < deadline:
         time.sleep(0.002)
     p.kill()
     p.wait()
-    assert ck.exists() and (out / "keyframes.bin").exists() and not (out / "map.pcd").exists()
+    assert ck.exists() and (out / "checkpoint.bin").exists() and (out / "keyframes.bin").exists()
+    assert not (out / "map.pcd").exists()
     q = run(cmd)
     return q, json.loads((out / "report.json").read_text())
 
@@ -530,18 +534,8 @@ def test_two_drives_restart_after_a_kill(hills_drives, tmp_path):
     byte."""
     h = hills_drives
     out = tmp_path / "both"
-    cmd = [str(BIN / "mapper"), "--log", str(h["logs"][0]), "--log", str(h["logs"][1]), "--out", str(out),
-           "--checkpoint-every", "20"]
-    p = subprocess.Popen(cmd + ["--quiet"])
     ck = out / "checkpoint.2.bin"
-    deadline = time.monotonic() + 120
-    while p.poll() is None and not ck.exists() and time.monotonic() < deadline:
-        time.sleep(0.002)
-    p.kill()
-    p.wait()
-    assert ck.exists() and (out / "checkpoint.bin").exists() and not (out / "map.pcd").exists()
-    q = run(cmd)
-    rep = json.loads((out / "report.json").read_text())
+    q, rep = kill_and_resume(h["logs"], out, checkpoint=ck.name)
     assert "resuming from" in q.stderr and str(ck) in q.stderr, q.stderr
     assert [d["placed"] for d in rep["drives"]] == [True, True], rep["drives"]
     for f in ("trajectory.tum", "trajectory.2.tum", "map.pcd", "map.tiles", "ground.pgm"):
