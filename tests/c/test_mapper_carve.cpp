@@ -12,6 +12,18 @@
 #include "mapper/core/carve.h"
 #include "pb_check.h"
 
+/* The verdicts on four single-point cells against the expected ones (1 keep, 0 carved); c is
+ * destroyed. */
+static void check_four(pb_carve_t *c, const char *what, const std::vector<uint8_t> &expected)
+{
+    std::vector<uint8_t> keep;
+    size_t carved = pb_carve_keep(c, nullptr, &keep);
+    std::printf("%s: carved %zu, keep %d %d %d %d\n", what, carved, keep[0], keep[1], keep[2], keep[3]);
+    CHECK(carved == 2);
+    CHECK(keep == expected);
+    pb_carve_destroy(c);
+}
+
 /* Passes count only outside the time a cell was hit in: four single-point cells along x
  * (x = 2, 4, 6, 8 at y = 10), each hit by 6 rays from the origin over 0.5 s; 20 rays pass
  * through each (to y = 20) during that time (a wall seen edge-on: kept), after it (carved),
@@ -41,12 +53,7 @@ static void window_test()
         double e[3] = {r.pass ? 2 * r.x : r.x, r.pass ? 20.0 : 10.0, 1};   /* a pass goes on to y = 20 */
         pb_carve_ray(c, (int64_t)std::llround(r.t * 1e6), o, e);
     }
-    std::vector<uint8_t> keep;
-    size_t carved = pb_carve_keep(c, nullptr, &keep);
-    std::printf("window: carved %zu, keep %d %d %d %d\n", carved, keep[0], keep[1], keep[2], keep[3]);
-    CHECK(carved == 2);
-    CHECK(keep[0] == 1 && keep[1] == 0 && keep[2] == 0 && keep[3] == 1);
-    pb_carve_destroy(c);
+    check_four(c, "window", {1, 0, 0, 1});
 }
 
 /* The same map carved in parts (tiles of 4 m by the carving's cells, as the mapper's),
@@ -242,12 +249,7 @@ static void drives_test()
         for (int k = 0; k < 5; k++) pass(day == 0 ? t0 + 2 + 0.05 * k : t0 + 0.05 * k, 8);
         if (day == 0) pb_carve_set_drive(c, 1);
     }
-    std::vector<uint8_t> keep;
-    size_t carved = pb_carve_keep(c, nullptr, &keep);
-    std::printf("drives: carved %zu, keep %d %d %d %d\n", carved, keep[0], keep[1], keep[2], keep[3]);
-    CHECK(carved == 2);
-    CHECK(keep[0] == 0 && keep[1] == 1 && keep[2] == 0 && keep[3] == 1);
-    pb_carve_destroy(c);
+    check_four(c, "drives", {0, 1, 0, 1});
 }
 
 int main()
