@@ -1,0 +1,393 @@
+// mapper, steps 4-5: the map in tiles, the ground model, the carving (mapper.h, docs/mapper.md
+// "Memory"; the logic in core/carve and common/pb_map_build).
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <map>
+#include <unordered_map>
+#include <unordered_set>
+#include "mapper.h"
+#include "carve.h"
+#include "ground_build.h"
+
+/* The tiles of grid within reach of a sweep's points (range_m from the LiDAR, or its
+ * farthest point's range when range_m < 0), into [lo, hi] (x, y): around the base's
+ * positions at its first and last point's times, with the LiDAR's lever and 2 m (the path's
+ * bend within a sweep). false when the track does not cover the sweep (pass 2 skips it). */
+static bool sweep_reach(const Run *R, const pb_pose_track_t *track, const pb_points_t &pts, int64_t utime, double range_m,
+                        const TileGrid &grid, int64_t lo[2], int64_t hi[2])
+{
+    int32_t omin = pts.offset_us && pts.n > 0 ? pts.offset_us[0] : 0, omax = omin;   /* as pb_map_builder_add_timed */
+    double r2 = 0;
+    for (int i = 0; i < pts.n; i++) {
+        if (pts.offset_us) { omin = std::min(omin, pts.offset_us[i]); omax = std::max(omax, pts.offset_us[i]); }
+        if (range_m < 0) r2 = std::max(r2, (double)pts.x[i] * pts.x[i] + (double)pts.y[i] * pts.y[i] + (double)pts.z[i] * pts.z[i]);
+    }
+    pb_transform_t a, b;
+    if (!pb_pose_track_at(track, utime + omin, &a) || !pb_pose_track_at(track, utime + omax, &b)) return false;
+    const double *l = R->veh.base_from_lidar.t;
+    const double reach = (range_m < 0 ? std::sqrt(r2) : range_m) + std::sqrt(l[0] * l[0] + l[1] * l[1] + l[2] * l[2]) + 2;
+    for (int k = 0; k < 2; k++) {
+        lo[k] = grid.of(std::min(a.t[k], b.t[k]) - reach);
+        hi[k] = grid.of(std::max(a.t[k], b.t[k]) + reach);
+    }
+    return true;
+}
+
+/* Tile k of the map's grid moved out into *vox (empty when not held). */
+static void take_tile(pb_map_builder_t *map, int64_t k, std::vector<pb_map_voxel_t> *vox)
+{
+    const int32_t tx = (int32_t)((uint64_t)k >> 32), ty = (int32_t)(uint32_t)k;
+    vox->resize((size_t)pb_map_builder_tile_size(map, tx, ty));
+    pb_map_builder_tile_take(map, tx, ty, vox->data());
+}
+
+/* Every tile's finished voxels (those held by map, those paged out) as points in the
+ * carving's tiles (by its cells: no cell spans two), appended to their files; the map's
+ * extent for the ground model. */
+static int to_carving_tiles(Run *R, pb_map_builder_t *map, std::vector<int64_t> all, const std::unordered_set<int64_t> &out,
+                            pb_err_t *err)
+{
+    const pb_carve_config_t ccfg{};
+    const TileGrid cgrid{1.0 / ccfg.cell_m, std::max<int64_t>(1, std::lround(R->tile_m / ccfg.cell_m))};
+    std::sort(all.begin(), all.end());
+    R->ground_lo[0] = R->ground_lo[1] = INFINITY;
+    R->ground_hi[0] = R->ground_hi[1] = -INFINITY;
+    std::vector<pb_map_voxel_t> vox;
+    std::map<int64_t, std::vector<TilePoint>> parts;
+    for (int64_t k : all) {
+        if (!out.count(k)) take_tile(map, k, &vox);
+        else if (tile_read(tile_path(R, 'v', k), &vox, err) != 0) return -1;
+        std::remove(tile_path(R, 'v', k).c_str());
+        parts.clear();
+        for (const pb_map_voxel_t &v : vox) {
+            TilePoint tp;
+            tp.seq = v.seq;
+            pb_map_voxel_point(map, &v, tp.p);
+            parts[tile_key(cgrid.of(tp.p[0]), cgrid.of(tp.p[1]))].push_back(tp);
+            gb_bounds(tp.p, 1, 4, R->ground_lo, R->ground_hi);
+        }
+        R->voxels += vox.size();
+        for (const auto &pt : parts) {
+            R->carve_tiles.insert(pt.first);
+            if (tile_write(tile_path(R, 'p', pt.first), pt.second.data(), pt.second.size(), true, err) != 0) return -1;
+        }
+    }
+    if (R->voxels == 0)
+        return pb_err_set(err, "%s: the map has no points (no scan had bracketing poses?)", R->path("map.pcd").c_str()), -1;
+    return 0;
+}
+
+/* Pass 2: the map, every point with the pose at its time, in tiles: those the sweep can
+ * reach are held (paged back in when they were out), those no sweep of the last 20 reached
+ * are paged out; of every drive placed, one after the other. Then the finished voxels are
+ * sorted into the carving's tiles. The poses are at the sweeps' middles: the track is
+ * carried on by the first and last steps' motion to cover the first sweep's first half and
+ * the last one's second half. */
+int pass_map(Run *R, pb_err_t *err)
+{
+    for (Run *D : R->drives) {
+        if (!D->placement.placed) continue;
+        const std::vector<SweepPose> &traj = D->traj;
+        D->track = pb_pose_track_create();
+        for (const SweepPose &s : traj) {
+            pb_transform_t t = to_transform(s.pose);
+            pb_pose_track_add(D->track, s.utime, &t);
+        }
+        for (int end = 0; end < 2; end++) {
+            const SweepPose &a = end ? traj[traj.size() - 2] : traj[1], &b = end ? traj.back() : traj[0];
+            pb_transform_t t = to_transform(b.pose * (a.pose.inverse() * b.pose));
+            pb_pose_track_add(D->track, b.utime + (b.utime - a.utime), &t);
+        }
+    }
+    std::error_code ec;
+    std::filesystem::remove_all(R->tiles_dir, ec);   /* an interrupted run's */
+    if (!std::filesystem::create_directory(R->tiles_dir, ec))
+        return pb_err_set(err, "%s: cannot create: %s", R->tiles_dir.c_str(), ec.message().c_str()), -1;
+    const TileGrid grid{1.0 / R->voxel, std::max<int64_t>(1, std::lround(R->tile_m / R->voxel))};
+    pb_map_builder_t *map = pb_map_builder_create_tiled(R->voxel, (int)grid.per, err);
+    if (!map) return -1;
+    std::unordered_map<int64_t, long> held;   /* tile -> the sweep that last reached it */
+    std::unordered_set<int64_t> out;           /* tiles paged out */
+    std::vector<pb_map_voxel_t> vox;
+    std::vector<int32_t> xy;
+    auto page_out = [&](int64_t k, pb_err_t *e) {
+        take_tile(map, k, &vox);
+        held.erase(k);
+        if (vox.empty()) return 0;   /* reached, no point fell there */
+        out.insert(k);
+        R->tiles_paged_out++;
+        return tile_write(tile_path(R, 'v', k), vox.data(), vox.size(), false, e);
+    };
+    long sweep = 0;
+    int rc = for_each_drive_sweep(R, "mapper: map", 1,
+        [&](Run *D, int64_t utime, const std::vector<float> &, const pb_points_t &pts, const pb_event_t &, pb_err_t *e) {
+            sweep++;
+            // the tiles it can reach held
+            int64_t lo[2], hi[2];
+            if (sweep_reach(R, D->track, pts, utime, -1, grid, lo, hi))
+                for (int64_t tx = lo[0]; tx <= hi[0]; tx++)
+                    for (int64_t ty = lo[1]; ty <= hi[1]; ty++) {
+                        const int64_t k = tile_key(tx, ty);
+                        auto it = held.find(k);
+                        if (it != held.end()) { it->second = sweep; continue; }
+                        held[k] = sweep;
+                        if (!out.count(k)) continue;
+                        if (tile_read(tile_path(R, 'v', k), &vox, e) != 0 || pb_map_builder_put(map, vox.data(), vox.size(), e) != 0)
+                            return -1;
+                        out.erase(k);
+                        R->tiles_paged_in++;
+                    }
+            int r = pb_map_builder_add_timed(map, &pts, utime, D->track, &R->veh.base_from_lidar, e);
+            if (r < 0) return -1;
+            (r ? R->placed : R->unplaced)++;
+            // a point beyond the reach would have started a paged-out tile afresh
+            xy.resize(2 * (size_t)pb_map_builder_tiles(map, nullptr, 0));
+            pb_map_builder_tiles(map, xy.data(), (int)(xy.size() / 2));
+            for (size_t i = 0; i < xy.size(); i += 2)
+                if (!held.count(tile_key(xy[i], xy[i + 1])))
+                    return pb_err_set(e, "internal: a point fell in map tile (%d, %d), beyond the sweep's reach", xy[i],
+                                      xy[i + 1]), -1;
+            R->tiles_held_max = std::max(R->tiles_held_max, (long)(xy.size() / 2));   /* those with points */
+            R->voxels_held_max = std::max(R->voxels_held_max, (int64_t)pb_map_builder_size(map));
+            // the tiles no sweep of the last 20 reached paged out
+            if (sweep % 10 == 0) {
+                std::vector<int64_t> old;
+                for (const auto &h : held)
+                    if (h.second < sweep - 20) old.push_back(h.first);
+                std::sort(old.begin(), old.end());
+                for (int64_t k : old)
+                    if (page_out(k, e) != 0) return -1;
+            }
+            return 0;
+        }, err);
+    // every tile's finished points into the carving's tiles
+    std::vector<int64_t> all(out.begin(), out.end());
+    for (const auto &h : held) all.push_back(h.first);
+    if (rc == 0) rc = to_carving_tiles(R, map, all, out, err);
+    pb_map_builder_destroy(map);
+    return rc;
+}
+
+/* The ground model (tools/build-ground's core) from the map, tile by tile; a site without
+ * one is still a site for the localizer: say why, go on. Kept for the carving. */
+pb_ground_t *make_ground(Run *R, pb_err_t *err)
+{
+    gb_config_t gcfg;
+    gb_config_default(&gcfg);
+    size_t nground = 0;
+    gb_accum_t *acc = gb_begin(R->ground_lo, R->ground_hi, &gcfg);
+    std::vector<TilePoint> pts;
+    for (int64_t k : R->carve_tiles) {
+        if (acc && tile_read(tile_path(R, 'p', k), &pts, err) != 0) {
+            R->ground_why = err->msg;
+            break;
+        }
+        if (acc && !pts.empty()) gb_add(acc, pts[0].p, pts.size(), sizeof(TilePoint) / sizeof(float));
+    }
+    pb_ground_t *ground = acc ? gb_finish(acc, &nground) : nullptr;
+    if (!R->ground_why.empty()) { pb_ground_destroy(ground); ground = nullptr; }
+    const std::string ground_path = R->path("ground.yaml");
+    if (!ground && R->ground_why.empty()) R->ground_why = "no ground in the map";
+    else if (ground && pb_ground_save(ground, ground_path.c_str(), err) != 0) R->ground_why = err->msg;
+    if (!R->ground_why.empty()) {
+        std::remove(ground_path.c_str());
+        std::fprintf(stderr, "mapper: warning: no ground model written: %s\n", R->ground_why.c_str());
+    }
+    return ground;
+}
+
+/* The carving's tiles (those that hold points): each held as a pb_carve_t of its points,
+ * its counts paged out to its 'c' file and back. */
+struct CarveTiles {
+    Run *R;
+    const pb_ground_t *ground;
+    pb_carve_config_t cfg;
+    struct Held { pb_carve_t *carve; long last; };   /* last: the sampled sweep that last reached it */
+    std::map<int64_t, Held> held;
+    std::vector<TilePoint> pts;                      /* the last tile read */
+    std::vector<uint8_t> bytes;
+
+    ~CarveTiles() { for (auto &h : held) pb_carve_destroy(h.second.carve); }
+
+    /* Tile k's carving made from its points (read into pts) and given its counts, if it
+     * was paged out; NULL on error. */
+    pb_carve_t *make(int64_t k, bool *was_out, pb_err_t *e)
+    {
+        if (tile_read(tile_path(R, 'p', k), &pts, e) != 0) return nullptr;
+        if (pts.empty()) return pb_err_set(e, "%s: no point in the tile", tile_path(R, 'p', k).c_str()), nullptr;
+        pb_carve_t *c = pb_carve_create(pts[0].p, pts.size(), sizeof(TilePoint) / sizeof(float), ground, &cfg);
+        const std::string counts = tile_path(R, 'c', k);
+        *was_out = read_file(counts, &bytes) == 0;
+        if (*was_out && pb_carve_load(c, bytes.data(), bytes.size()) != 0) {
+            pb_carve_destroy(c);
+            return pb_err_set(e, "%s: not this tile's counts", counts.c_str()), nullptr;
+        }
+        return c;
+    }
+
+    /* Tile k held (paged back in if it was out); NULL on error. */
+    pb_carve_t *hold(int64_t k, long sampled, pb_err_t *e)
+    {
+        auto it = held.find(k);
+        if (it == held.end()) {
+            bool was_out;
+            pb_carve_t *c = make(k, &was_out, e);
+            if (!c) return nullptr;
+            R->carve_tiles_paged_in += was_out;
+            it = held.emplace(k, Held{c, 0}).first;
+        }
+        it->second.last = sampled;
+        return it->second.carve;
+    }
+
+    /* The tiles no sampled sweep since `since` reached: their counts paged out. */
+    int page_out(long since, pb_err_t *e)
+    {
+        for (auto it = held.begin(); it != held.end();) {
+            if (it->second.last >= since) { ++it; continue; }
+            pb_carve_save(it->second.carve, &bytes);
+            pb_carve_destroy(it->second.carve);
+            const std::string path = tile_path(R, 'c', it->first);
+            it = held.erase(it);
+            R->carve_tiles_paged_out++;
+            if (tile_write(path, bytes.data(), bytes.size(), false, e) != 0) return -1;
+        }
+        return 0;
+    }
+
+    /* Every tile's verdicts: its kept points sorted by seq (map.pcd's order) to its 'k'
+     * file, the carved ones to the picture's layer. First every tile's cells carved on
+     * their own counts, so that a cell on a tile's border sees its neighbours over it. */
+    int finish(pb_err_t *err)
+    {
+        std::vector<uint64_t> gone;
+        for (int64_t k : R->carve_tiles) {
+            auto it = held.find(k);
+            if (it != held.end()) {
+                pb_carve_gone(it->second.carve, &gone);
+                continue;
+            }
+            bool was_out;
+            pb_carve_t *c = make(k, &was_out, err);
+            if (!c) return -1;
+            pb_carve_gone(c, &gone);
+            pb_carve_destroy(c);
+        }
+        std::sort(gone.begin(), gone.end());
+        std::vector<uint8_t> keep;
+        std::vector<TilePoint> kept;
+        for (int64_t k : R->carve_tiles) {
+            auto it = held.find(k);
+            pb_carve_t *c;
+            if (it == held.end()) {
+                bool was_out;
+                if (!(c = make(k, &was_out, err))) return -1;
+            } else {
+                c = it->second.carve;
+                held.erase(it);
+                if (tile_read(tile_path(R, 'p', k), &pts, err) != 0) { pb_carve_destroy(c); return -1; }
+            }
+            R->carved += pb_carve_keep(c, &gone, &keep);
+            pb_carve_destroy(c);
+            kept.clear();
+            for (size_t i = 0; i < pts.size(); i++) {
+                if (keep[i]) kept.push_back(pts[i]);
+                else R->layers.removed.insert(R->layers.removed.end(), {pts[i].p[0], pts[i].p[1], pts[i].p[2]});
+            }
+            std::sort(kept.begin(), kept.end(), [](const TilePoint &a, const TilePoint &b) { return a.seq < b.seq; });
+            R->map_points += kept.size();
+            R->kept_tiles.push_back({k, kept.empty() ? UINT32_MAX : kept[0].seq});
+            if (tile_write(tile_path(R, 'k', k), kept.data(), kept.size(), false, err) != 0) return -1;
+            std::remove(tile_path(R, 'p', k).c_str());
+            std::remove(tile_path(R, 'c', k).c_str());
+        }
+        return 0;
+    }
+};
+
+/* Pass 3: what moved is carved out of the map (core/carve.h), on a sample of the rays
+ * (every 4th sweep, every 13th point: 13 is prime to the beam count, so every beam takes
+ * its turn) of every drive placed, each an hour after the last in the carving's time (two
+ * drives' clocks may overlap), with the drive's number (pb_carve_set_drive); the band over
+ * the ground model is spared. A tile of the carving is held while the rays of the last 10
+ * sampled sweeps could reach it (max_range_m of their origins), else its counts are paged
+ * out; each ray is cast in the tiles under it. Then every tile's verdicts. */
+int pass_carve(Run *R, const pb_ground_t *ground, pb_err_t *err)
+{
+    CarveTiles tiles{R, ground, pb_carve_config_t{}, {}, {}, {}};
+    const pb_carve_config_t &ccfg = tiles.cfg;
+    const TileGrid cgrid{1.0 / ccfg.cell_m, std::max<int64_t>(1, std::lround(R->tile_m / ccfg.cell_m))};
+    const Eigen::Isometry3d bl = pb_reg_from_transform(&R->veh.base_from_lidar);
+    struct Ray { int64_t utime; Eigen::Vector3d o, e; };
+    std::vector<Ray> rays;
+    std::vector<pb_carve_t *> under;   /* the sweep's reach, row by row: the tile's carving or NULL */
+    long sampled = 0;
+    int drive = -1;
+    const Run *now = nullptr;
+    int64_t offset = 0, last = INT64_MIN;   /* drive's time + offset: the carving's */
+    int rc = for_each_drive_sweep(R, "mapper: carve", 4,
+        [&](Run *D, int64_t utime, const std::vector<float> &, const pb_points_t &pts, const pb_event_t &, pb_err_t *e) {
+            if (D != now) {   /* the next drive: an hour after the last in the carving's time */
+                now = D;
+                drive++;
+                if (last != INT64_MIN) offset = last + 3600 * (int64_t)1000000 - D->traj.front().utime;
+                last = D->traj.back().utime + offset;
+            }
+            sampled++;
+            // the sampled rays, and the extent of their origins
+            rays.clear();
+            double olo[2] = {INFINITY, INFINITY}, ohi[2] = {-INFINITY, -INFINITY};
+            int32_t cached = INT32_MIN;
+            Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+            bool have = false;
+            for (int i = 0; i < pts.n; i += 13) {
+                if (pts.offset_us[i] != cached) {   /* a column's points share their time */
+                    cached = pts.offset_us[i];
+                    pb_transform_t t;
+                    have = pb_pose_track_at(D->track, utime + cached, &t);
+                    if (have) T = pb_reg_from_transform(&t) * bl;
+                    for (int k = 0; have && k < 2; k++) {
+                        olo[k] = std::min(olo[k], T.translation()[k]);
+                        ohi[k] = std::max(ohi[k], T.translation()[k]);
+                    }
+                }
+                if (!have) continue;
+                rays.push_back({utime + cached + offset, T.translation(), T * Eigen::Vector3d(pts.x[i], pts.y[i], pts.z[i])});
+            }
+            if (rays.empty()) return 0;
+            // the tiles its rays can reach held
+            int64_t lo[2], hi[2];
+            for (int k = 0; k < 2; k++) {
+                lo[k] = cgrid.of(olo[k] - ccfg.max_range_m - 1);
+                hi[k] = cgrid.of(ohi[k] + ccfg.max_range_m + 1);
+            }
+            const int64_t w = hi[0] - lo[0] + 1;
+            under.assign((size_t)(w * (hi[1] - lo[1] + 1)), nullptr);
+            for (int64_t tx = lo[0]; tx <= hi[0]; tx++)
+                for (int64_t ty = lo[1]; ty <= hi[1]; ty++) {
+                    const int64_t k = tile_key(tx, ty);
+                    if (!R->carve_tiles.count(k)) continue;
+                    pb_carve_t *c = tiles.hold(k, sampled, e);
+                    if (!c) return -1;
+                    pb_carve_set_drive(c, drive);
+                    under[(size_t)((ty - lo[1]) * w + (tx - lo[0]))] = c;
+                }
+            R->carve_tiles_held_max = std::max(R->carve_tiles_held_max, (long)tiles.held.size());
+            // each ray cast in the tiles under it (one longer than max_range_m counts nowhere)
+            for (const Ray &r : rays) {
+                const int64_t x0 = std::max(lo[0], cgrid.of(std::min(r.o.x(), r.e.x()))),
+                              x1 = std::min(hi[0], cgrid.of(std::max(r.o.x(), r.e.x()))),
+                              y0 = std::max(lo[1], cgrid.of(std::min(r.o.y(), r.e.y()))),
+                              y1 = std::min(hi[1], cgrid.of(std::max(r.o.y(), r.e.y())));
+                for (int64_t ty = y0; ty <= y1; ty++)
+                    for (int64_t tx = x0; tx <= x1; tx++)
+                        if (pb_carve_t *c = under[(size_t)((ty - lo[1]) * w + (tx - lo[0]))])
+                            pb_carve_ray(c, r.utime, r.o.data(), r.e.data());
+            }
+            // the tiles no sampled sweep of the last 10 reached paged out
+            return sampled % 5 == 0 ? tiles.page_out(sampled - 10, e) : 0;
+        }, err);
+    if (rc != 0) return -1;
+    return tiles.finish(err);
+}
