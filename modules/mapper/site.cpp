@@ -228,6 +228,7 @@ int write_report(const Run &R, const double cpu_ms[4], double wall_s, pb_err_t *
     cJSON_AddBoolToObject(j, "gnss_held", R.hold.held);   /* pb_anchor_hold: the drift bent onto the fixes */
     cJSON_AddNumberToObject(j, "gnss_drift_ratio", R.hold.ratio);
     cJSON_AddNumberToObject(j, "gnss_held_fixes", R.hold.fixes);
+    cJSON_AddNumberToObject(j, "gnss_held_links", R.hold.links);   /* places the loops joined, kept joined */
     cJSON_AddNumberToObject(j, "gnss_held_max_change_m", R.hold.max_change_m);
     cJSON_AddNumberToObject(j, "gnss_held_step_freedom", R.hold.step_scale);
     cJSON_AddNumberToObject(j, "gnss_held_resid_p90_m", R.hold.resid_p90_m);

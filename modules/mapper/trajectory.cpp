@@ -284,21 +284,28 @@ int anchor(Run *R, pb_err_t *err)
             sp.pose = R->anchor.enu_from_map * sp.pose;
             sp.odometry = R->anchor.enu_from_map * sp.odometry;
         }
-    // a drift the fixes see beyond their own errors bent out (pb_anchor_hold; one drive: the
-    // drives of several are held together by their loops, not yet by the fixes), fitted again
-    if (placed.size() == 1) {
-        for (pb_anchor_obs_t &o : obs) o.antenna_map = R->anchor.enu_from_map * o.antenna_map;
-        std::vector<int64_t> utime;
-        std::vector<Eigen::Isometry3d> poses;
-        for (const SweepPose &sp : R->traj) { utime.push_back(sp.utime); poses.push_back(sp.pose); }
-        const Eigen::Vector3d lever(R->veh.base_from_gnss.t[0], R->veh.base_from_gnss.t[1], R->veh.base_from_gnss.t[2]);
-        if (pb_anchor_hold(utime, &poses, obs, R->anchor, lever, nullptr, &R->hold, err) != 0) return -1;
-        if (R->hold.held) {
-            for (size_t i = 0; i < poses.size(); i++) R->traj[i].pose = poses[i];
-            observe();
-            if (pb_anchor_fit(obs, nullptr, &R->anchor, err) != 0) return -1;
-            for (SweepPose &sp : R->traj) sp.pose = R->anchor.enu_from_map * sp.pose;
-        }
+    // a drift the fixes see beyond their own errors bent out (pb_anchor_hold: every placed
+    // drive on its fixes, the places the loops joined kept joined), then fitted again
+    std::vector<pb_anchor_drive_t> held(placed.size());
+    std::vector<int> index(R->drives.size(), -1);   /* drive -> its place in held */
+    for (size_t d = 0; d < placed.size(); d++) {
+        index[(size_t)placed[d]->drive] = (int)d;
+        for (const SweepPose &sp : placed[d]->traj) { held[d].utime.push_back(sp.utime); held[d].poses.push_back(sp.pose); }
+        held[d].obs = observe_fixes(fixes[d], placed[d]->traj, R->veh, R->georef);
+    }
+    std::vector<pb_anchor_link_t> links;
+    for (const auto &l : R->loop_times)
+        if (index[(size_t)l.first.first] >= 0 && index[(size_t)l.second.first] >= 0)
+            links.push_back({index[(size_t)l.first.first], l.first.second, index[(size_t)l.second.first], l.second.second});
+    const Eigen::Vector3d lever(R->veh.base_from_gnss.t[0], R->veh.base_from_gnss.t[1], R->veh.base_from_gnss.t[2]);
+    if (pb_anchor_hold(&held, links, R->anchor, lever, nullptr, &R->hold, err) != 0) return -1;
+    if (R->hold.held) {
+        for (size_t d = 0; d < placed.size(); d++)
+            for (size_t i = 0; i < held[d].poses.size(); i++) placed[d]->traj[i].pose = held[d].poses[i];
+        observe();
+        if (pb_anchor_fit(obs, nullptr, &R->anchor, err) != 0) return -1;
+        for (Run *D : placed)
+            for (SweepPose &sp : D->traj) sp.pose = R->anchor.enu_from_map * sp.pose;
     }
     for (const pb_anchor_obs_t &o : obs) R->layers.fixes.push_back(o.fix_enu);
     return 0;

@@ -137,20 +137,42 @@ struct HeldFix {
     double sigma_h;
 };
 
-/* Steps 2-4's least squares: nodes (before) joined by their steps with step_scale times the
- * configured freedom, and the fixes; solved into *solved. The fixes' p90 distance from the
- * antenna at the solution into *resid_p90. Returns 0, or -1 with err. */
-static int solve_hold(const std::vector<Eigen::Isometry3d> &before, const std::vector<HeldFix> &fixes,
-                      const pb_anchor_hold_config_t &cfg, double step_scale, std::vector<Eigen::Isometry3d> *solved,
-                      double *resid_p90, int *iterations, pb_err_t *err)
+/* The graph's nodes: a pose every node_spacing_m of each drive's path (all drives' in one
+ * list, drive after drive). */
+struct HeldNodes {
+    std::vector<Eigen::Isometry3d> before;
+    std::vector<size_t> first;                  /* per drive: its first node */
+    std::vector<std::vector<size_t>> sweep;     /* per drive: each node's sweep */
+    std::vector<std::vector<int64_t>> utime;    /* per drive: each node's time */
+
+    /* Drive d's node at or before time t (its first for earlier times). */
+    size_t at(size_t d, int64_t t) const
+    {
+        const std::vector<int64_t> &u = utime[d];
+        size_t k = (size_t)(std::upper_bound(u.begin(), u.end(), t) - u.begin());
+        return first[d] + (k ? k - 1 : 0);
+    }
+};
+
+/* Steps 2-4's least squares: nodes joined by their drive's steps with step_scale times the
+ * configured freedom, the links and the fixes; solved into *solved. The fixes' p90 distance
+ * from the antenna at the solution into *resid_p90. Returns 0, or -1 with err. */
+static int solve_hold(const HeldNodes &N, const std::vector<std::pair<size_t, size_t>> &links,
+                      const std::vector<HeldFix> &fixes, const pb_anchor_hold_config_t &cfg, double step_scale,
+                      std::vector<Eigen::Isometry3d> *solved, double *resid_p90, int *iterations, pb_err_t *err)
 {
+    const std::vector<Eigen::Isometry3d> &before = N.before;
     pb_pose_graph g(before);
     const double deg = M_PI / 180;
-    for (size_t k = 0; k + 1 < before.size(); k++) {
-        Eigen::Isometry3d rel = before[k].inverse() * before[k + 1];
-        double sm = step_scale * cfg.step_sigma_m * std::max(1.0, rel.translation().norm());
-        g.add_edge(k, k + 1, rel, pb_sqrt_info(sm, step_scale * cfg.step_sigma_deg * deg));
-    }
+    for (size_t d = 0; d < N.first.size(); d++)
+        for (size_t k = N.first[d]; k + 1 < N.first[d] + N.sweep[d].size(); k++) {
+            Eigen::Isometry3d rel = before[k].inverse() * before[k + 1];
+            double sm = step_scale * cfg.step_sigma_m * std::max(1.0, rel.translation().norm());
+            g.add_edge(k, k + 1, rel, pb_sqrt_info(sm, step_scale * cfg.step_sigma_deg * deg));
+        }
+    for (const auto &l : links)
+        g.add_edge(l.first, l.second, before[l.first].inverse() * before[l.second],
+                   pb_sqrt_info(cfg.link_sigma_m, cfg.link_sigma_deg * deg));
     ceres::CauchyLoss loss(cfg.loss_sigmas);
     for (const HeldFix &f : fixes)
         g.problem.AddResidualBlock(new ceres::AutoDiffCostFunction<FixError, 3, 4, 3>(
@@ -164,49 +186,69 @@ static int solve_hold(const std::vector<Eigen::Isometry3d> &before, const std::v
     return 0;
 }
 
-int pb_anchor_hold(const std::vector<int64_t> &utime, std::vector<Eigen::Isometry3d> *poses,
-                   const std::vector<pb_anchor_obs_t> &obs, const pb_anchor_result_t &fit,
-                   const Vec3 &antenna, const pb_anchor_hold_config_t *cfg_in,
+int pb_anchor_hold(std::vector<pb_anchor_drive_t> *drives, const std::vector<pb_anchor_link_t> &links_in,
+                   const pb_anchor_result_t &fit, const Vec3 &antenna, const pb_anchor_hold_config_t *cfg_in,
                    pb_anchor_hold_result_t *r, pb_err_t *err)
 {
     const pb_anchor_hold_config_t cfg = cfg_in ? *cfg_in : pb_anchor_hold_config_t{};
     const pb_anchor_config_t gate{};
     *r = pb_anchor_hold_result_t{};
-    const std::vector<Eigen::Isometry3d> &P = *poses;
-    if (!fit.anchored || P.size() < 2) return 0;
+    std::vector<pb_anchor_drive_t> &D = *drives;
+    if (!fit.anchored) return 0;
+    for (const pb_anchor_drive_t &dr : D)
+        if (dr.poses.size() < 2 || dr.poses.size() != dr.utime.size()) return 0;
 
-    // 1. does the trajectory disagree with the fixes beyond what they say they err?
+    // 1. do the trajectories disagree with the fixes beyond what they say they err?
     std::vector<double> acc;
-    for (const pb_anchor_obs_t &o : obs)
-        if (gated_in(o, gate)) acc.push_back(o.h_acc_m);
+    for (const pb_anchor_drive_t &dr : D)
+        for (const pb_anchor_obs_t &o : dr.obs)
+            if (gated_in(o, gate)) acc.push_back(o.h_acc_m);
     if (acc.empty()) return 0;
     const double h_acc = quantile(acc, 0.5);
     r->ratio = fit.resid_p90_m / h_acc;
     if (!(r->ratio > cfg.inconsistent_ratio)) return 0;
 
-    // 2. nodes every node_spacing_m of path
-    std::vector<size_t> node;
-    double since = 0;
-    for (size_t i = 0; i < P.size(); i++) {
-        if (i) since += (P[i].translation() - P[i - 1].translation()).norm();
-        if (i == 0 || since >= cfg.node_spacing_m || i + 1 == P.size()) { node.push_back(i); since = 0; }
+    // 2. nodes every node_spacing_m of each drive's path; the links between their nodes
+    HeldNodes N;
+    for (const pb_anchor_drive_t &dr : D) {
+        const std::vector<Eigen::Isometry3d> &P = dr.poses;
+        N.first.push_back(N.before.size());
+        N.sweep.emplace_back();
+        N.utime.emplace_back();
+        double since = 0;
+        for (size_t i = 0; i < P.size(); i++) {
+            if (i) since += (P[i].translation() - P[i - 1].translation()).norm();
+            if (i && since < cfg.node_spacing_m && i + 1 < P.size()) continue;
+            N.sweep.back().push_back(i);
+            N.utime.back().push_back(dr.utime[i]);
+            N.before.push_back(P[i]);
+            since = 0;
+        }
     }
-    const size_t n = node.size();
-    std::vector<int64_t> node_utime(n);
-    std::vector<Eigen::Isometry3d> before(n);
-    for (size_t k = 0; k < n; k++) { before[k] = P[node[k]]; node_utime[k] = utime[node[k]]; }
+    auto within = [&](int d, int64_t t) {
+        return d >= 0 && (size_t)d < D.size() && t >= D[(size_t)d].utime.front() && t <= D[(size_t)d].utime.back();
+    };
+    std::vector<std::pair<size_t, size_t>> links;
+    for (const pb_anchor_link_t &l : links_in) {
+        if (!within(l.a_drive, l.a_utime) || !within(l.b_drive, l.b_utime)) continue;
+        const size_t a = N.at((size_t)l.a_drive, l.a_utime), b = N.at((size_t)l.b_drive, l.b_utime);
+        if (a != b) links.push_back({a, b});
+    }
 
     // 3. the fixes, one per fix_every_s at most, on the antenna seen from the node before
     std::vector<HeldFix> fixes;
-    int64_t last = INT64_MIN;
-    for (const pb_anchor_obs_t &o : obs) {
-        if (!gated_in(o, gate) || o.utime < utime.front() || o.utime > utime.back()) continue;
-        if (last != INT64_MIN && double(o.utime - last) < cfg.fix_every_s * 1e6) continue;
-        last = o.utime;
-        size_t k = (size_t)(std::upper_bound(node_utime.begin(), node_utime.end(), o.utime) - node_utime.begin());
-        k = k ? k - 1 : 0;
-        /* h_acc: the horizontal RMS of two axes */
-        fixes.push_back({k, before[k].inverse() * (pose_at(utime, P, o.utime) * antenna), o.fix_enu, o.h_acc_m / std::sqrt(2.0)});
+    for (size_t d = 0; d < D.size(); d++) {
+        const pb_anchor_drive_t &dr = D[d];
+        int64_t last = INT64_MIN;
+        for (const pb_anchor_obs_t &o : dr.obs) {
+            if (!gated_in(o, gate) || !within((int)d, o.utime)) continue;
+            if (last != INT64_MIN && double(o.utime - last) < cfg.fix_every_s * 1e6) continue;
+            last = o.utime;
+            const size_t k = N.at(d, o.utime);
+            /* h_acc: the horizontal RMS of two axes */
+            fixes.push_back({k, N.before[k].inverse() * (pose_at(dr.utime, dr.poses, o.utime) * antenna), o.fix_enu,
+                             o.h_acc_m / std::sqrt(2.0)});
+        }
     }
 
     // 4. solve; while the fixes still disagree as much, the steps are given more freedom (the
@@ -214,17 +256,22 @@ int pb_anchor_hold(const std::vector<int64_t> &utime, std::vector<Eigen::Isometr
     std::vector<Eigen::Isometry3d> solved;
     double scale = 1, p90 = 0;
     for (int round = 0; round < cfg.max_rounds; round++, scale *= 3) {
-        if (solve_hold(before, fixes, cfg, scale, &solved, &p90, &r->iterations, err) != 0) return -1;
+        if (solve_hold(N, links, fixes, cfg, scale, &solved, &p90, &r->iterations, err) != 0) return -1;
         if (!(p90 / h_acc > cfg.inconsistent_ratio)) break;
     }
-    std::vector<Eigen::Isometry3d> moved = P;
-    pb_pose_graph_apply(node_utime, before, solved, utime, &moved);
-    for (size_t i = 0; i < moved.size(); i++)
-        r->max_change_m = std::max(r->max_change_m, (moved[i].translation() - P[i].translation()).norm());
-    poses->swap(moved);
+    for (size_t d = 0; d < D.size(); d++) {
+        const size_t n = N.sweep[d].size(), k0 = N.first[d];
+        std::vector<Eigen::Isometry3d> before(N.before.begin() + (long)k0, N.before.begin() + (long)(k0 + n)),
+            after(solved.begin() + (long)k0, solved.begin() + (long)(k0 + n)), moved = D[d].poses;
+        pb_pose_graph_apply(N.utime[d], before, after, D[d].utime, &moved);
+        for (size_t i = 0; i < moved.size(); i++)
+            r->max_change_m = std::max(r->max_change_m, (moved[i].translation() - D[d].poses[i].translation()).norm());
+        D[d].poses.swap(moved);
+    }
     r->held = 1;
-    r->nodes = (int)n;
+    r->nodes = (int)N.before.size();
     r->fixes = (int)fixes.size();
+    r->links = (int)links.size();
     r->step_scale = scale;
     r->resid_p90_m = p90;
     return 0;

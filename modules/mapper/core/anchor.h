@@ -17,13 +17,18 @@
  * A rigid transform cannot take out drift: when the fitted trajectory stays farther from the
  * fixes than they say they err, pb_anchor_hold bends it onto them (a pose graph).
  *
- * Pipeline of pb_anchor_hold (the trajectory already moved onto the fixes by pb_anchor_fit):
+ * Pipeline of pb_anchor_hold (the drives' trajectories already moved onto the fixes by
+ * pb_anchor_fit):
  *   1. test: held only when the fit's residual p90 exceeds inconsistent_ratio times the
  *      fixes' median reported accuracy, i.e. the fixes see a drift their own errors do not
  *      explain (a trajectory that fits them rigidly is left as it is: its shape is better
  *      than theirs over the few hundred metres their errors are correlated);
- *   2. nodes: a pose every node_spacing_m of path; steps between them are edges (the
- *      trajectory's own shape, loop closures included, with step_sigma_* freedom);
+ *   2. nodes: a pose every node_spacing_m of each drive's path; steps between them are edges
+ *      (the trajectory's own shape, with step_sigma_* freedom); the places the loops joined
+ *      (within a drive or between two) are edges too, as tight as a loop (link_sigma_*) and
+ *      never loosened: bent onto the fixes, a drive still meets itself and the other drives
+ *      where the registration said it does (held one by one, two drives would part by the
+ *      fixes' own error);
  *   3. fixes: at most one per fix_every_s (a receiver's errors are correlated over
  *      seconds: ten a second would count one error ten times), each a unary edge on the
  *      antenna's position at the fix's time, seen from the node before it; accuracy as
@@ -79,24 +84,42 @@ typedef struct {
     double step_sigma_deg = 0.05;    /* ... and this per step */
     double loss_sigmas = 3;          /* Cauchy loss scale, in sigmas of the fix */
     int max_rounds = 4;              /* solves, the steps' freedom tripled each time the fixes still disagree */
+    double link_sigma_m = 0.05;      /* a place the loops joined (pb_loops_config_t's loop edge) */
+    double link_sigma_deg = 0.1;
 } pb_anchor_hold_config_t;
+
+/* One drive for pb_anchor_hold: its poses (enu <- base, every sweep in time order, at utime;
+ * moved in place) and its fixes (the obs of pb_anchor_fit, fix_enu in the same ENU frame). */
+typedef struct {
+    std::vector<int64_t> utime;
+    std::vector<Eigen::Isometry3d> poses;
+    std::vector<pb_anchor_obs_t> obs;
+} pb_anchor_drive_t;
+
+/* Two places the loops found to be one: drive a at time a, drive b at time b (indices into
+ * the drives; a == b for a loop within a drive). */
+typedef struct {
+    int a_drive;
+    int64_t a_utime;
+    int b_drive;
+    int64_t b_utime;
+} pb_anchor_link_t;
 
 typedef struct {
     int held;                        /* 1: the trajectory was bent onto the fixes */
     double ratio;                    /* the fit's residual p90 / the fixes' median h_acc (step 1) */
-    int nodes, fixes, iterations;    /* of the graph */
+    int nodes, fixes, links, iterations;   /* of the graph */
     double max_change_m;             /* largest move of a pose */
     double step_scale;               /* the steps' freedom used, times step_sigma_* */
     double resid_p90_m;              /* the fixes' p90 distance from the held antenna */
 } pb_anchor_hold_result_t;
 
-/* Step 1-4 above on poses (enu <- base, every sweep in time order, at utime; moved in place)
- * with the fixes fit (the obs of pb_anchor_fit, fix_enu in the same ENU frame) and its
- * result. antenna: the antenna's position in base. Returns 0 (result->held tells whether it
- * bent anything), -1 with err (the graph did not solve; poses unchanged). */
-int pb_anchor_hold(const std::vector<int64_t> &utime, std::vector<Eigen::Isometry3d> *poses,
-                   const std::vector<pb_anchor_obs_t> &obs, const pb_anchor_result_t &fit,
-                   const Eigen::Vector3d &antenna, const pb_anchor_hold_config_t *cfg,
+/* Step 1-4 above on the drives (their poses moved in place) joined by links (a link outside
+ * its drives' times is not used), with pb_anchor_fit's result on all their fixes. antenna:
+ * the antenna's position in base. Returns 0 (result->held tells whether it bent anything),
+ * -1 with err (the graph did not solve; poses unchanged). */
+int pb_anchor_hold(std::vector<pb_anchor_drive_t> *drives, const std::vector<pb_anchor_link_t> &links,
+                   const pb_anchor_result_t &fit, const Eigen::Vector3d &antenna, const pb_anchor_hold_config_t *cfg,
                    pb_anchor_hold_result_t *result, pb_err_t *err);
 
 #endif
