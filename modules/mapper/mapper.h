@@ -208,8 +208,12 @@ int for_each_drive_sweep(Run *R, const char *what, long every, const DriveSweepF
 int checkpoint_ids(Run *R, pb_err_t *err);
 int checkpoint_read(Run *R, pb_err_t *err);
 int checkpoint_write(Run *R, const pb_odom_t *odom, pb_err_t *err);
+/* keyframes.bin's first n keyframes (utime, pose, where their record starts as points_key;
+ * with_points: the points too) into *kf, which must hold bytes bytes. false when it does not. */
 bool read_keyframes(const std::string &path, uint64_t n, uint64_t bytes, bool with_points,
                     std::vector<pb_keyframe_t> *kf);
+/* The points of the keyframe whose record starts at byte at of keyframes.bin (open as f). */
+int keyframe_points(FILE *f, const std::string &path, uint64_t at, std::vector<float> *xyz, pb_err_t *err);
 
 /* ---- trajectory.cpp: steps 1-3 */
 int read_poses(Run *R, pb_err_t *err);

@@ -18,6 +18,10 @@ static void put_pose(ByteWriter &w, const Eigen::Isometry3d &T)
         for (int c = 0; c < 4; c++) w.put(T.matrix()(r, c));
 }
 
+/* A keyframe's record in keyframes.bin: utime, pose (3 x 4 doubles), point count, then the
+ * points (x y z floats). */
+static const size_t kKeyframeHead = 8 + 12 * 8 + 8;
+
 static Eigen::Isometry3d get_pose(ByteReader &r)
 {
     Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
@@ -88,10 +92,10 @@ int write_file_synced(const std::string &path, std::initializer_list<const std::
     return 0;
 }
 
-/* keyframes.bin's first n keyframes (utime, pose, with_points: the points too) into *kf,
- * which must hold bytes bytes. false when it does not. */
+/* keyframes.bin's first n keyframes (utime, pose, where their record starts as points_key;
+ * with_points: the points too) into *kf, which must hold bytes bytes. false when it does not. */
 bool read_keyframes(const std::string &path, uint64_t n, uint64_t bytes, bool with_points,
-                           std::vector<pb_keyframe_t> *kf)
+                    std::vector<pb_keyframe_t> *kf)
 {
     FILE *f = std::fopen(path.c_str(), "rb");
     if (!f) return false;
@@ -99,12 +103,13 @@ bool read_keyframes(const std::string &path, uint64_t n, uint64_t bytes, bool wi
     uint64_t at = 0;
     bool ok = true;
     for (pb_keyframe_t &k : *kf) {
-        uint8_t head[8 + 12 * 8 + 8];
+        uint8_t head[kKeyframeHead];
         ok = std::fread(head, 1, sizeof head, f) == sizeof head;
         if (!ok) break;
         ByteReader r{head, head + sizeof head};
         k.utime = r.get<int64_t>();
         k.pose = get_pose(r);
+        k.points_key = at;
         const uint64_t npts = r.get<uint64_t>();
         at += sizeof head + npts * sizeof(float);
         if (!(ok = at <= bytes)) break;
@@ -118,6 +123,21 @@ bool read_keyframes(const std::string &path, uint64_t n, uint64_t bytes, bool wi
     }
     std::fclose(f);
     return ok && at == bytes;
+}
+
+int keyframe_points(FILE *f, const std::string &path, uint64_t at, std::vector<float> *xyz, pb_err_t *err)
+{
+    uint8_t head[kKeyframeHead];
+    bool ok = std::fseek(f, (long)at, SEEK_SET) == 0 && std::fread(head, 1, sizeof head, f) == sizeof head;
+    uint64_t npts = 0;
+    if (ok) std::memcpy(&npts, head + sizeof head - 8, 8);
+    ok = ok && npts < (1u << 28);
+    if (ok) {
+        xyz->resize((size_t)npts);
+        ok = std::fread(xyz->data(), sizeof(float), xyz->size(), f) == xyz->size();
+    }
+    if (!ok) return pb_err_set(err, "%s: byte %llu: cannot read a keyframe's points back", path.c_str(), (unsigned long long)at), -1;
+    return 0;
 }
 
 /* The keyframes not yet in keyframes.bin appended to it (their points then freed: read

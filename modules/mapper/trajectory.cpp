@@ -202,19 +202,35 @@ int pass_odometry(Run *R, pb_err_t *err)
  * out (said on stderr); the sweeps moved with them. */
 int close_loops(Run *R, pb_err_t *err)
 {
-    std::vector<pb_keyframe_t> kf;   /* every drive's, one drive after the other */
+    std::vector<pb_keyframe_t> kf;   /* every drive's, one drive after the other, without their points */
+    struct Files {
+        std::vector<std::string> path;
+        std::vector<FILE *> f;
+        ~Files() { for (FILE *x : f) if (x) std::fclose(x); }
+    } files;
     for (Run *D : R->drives) {
         const std::string kf_path = D->work("keyframes");
-        if (!read_keyframes(kf_path, D->kf.size(), D->kf_bytes, true, &D->kf))
+        if (!read_keyframes(kf_path, D->kf.size(), D->kf_bytes, false, &D->kf))
             return pb_err_set(err, "%s: cannot read the keyframes back", kf_path.c_str()), -1;
-        for (pb_keyframe_t &k : D->kf) {   /* the points move; D->kf keeps the times and poses */
+        for (pb_keyframe_t &k : D->kf) {
             k.drive = D->drive;
-            kf.push_back(std::move(k));
+            kf.push_back(k);
         }
+        files.path.push_back(kf_path);
+        files.f.push_back(std::fopen(kf_path.c_str(), "rb"));
+        if (!files.f.back()) return pb_err_set(err, "%s: cannot open: %s", kf_path.c_str(), std::strerror(errno)), -1;
     }
+    // the points read back from keyframes.bin as the loops need them (an hour of drive's
+    // keyframes would be most of a gigabyte)
+    const pb_keyframe_points_t points = {
+        [](void *u, const pb_keyframe_t &k, std::vector<float> *xyz, pb_err_t *e) {
+            const Files &fs = *(const Files *)u;
+            return keyframe_points(fs.f[(size_t)k.drive], fs.path[(size_t)k.drive], k.points_key, xyz, e);
+        },
+        &files};
     std::vector<Eigen::Isometry3d> solved;
     if (kf.size() >= 2) {
-        if (pb_loops_close(kf, nullptr, &solved, &R->loops, err) != 0) return -1;
+        if (pb_loops_close(kf, nullptr, &solved, &R->loops, err, &points) != 0) return -1;
         size_t at = 0;
         for (Run *D : R->drives) {
             const size_t nk = D->kf.size();

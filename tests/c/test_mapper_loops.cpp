@@ -301,6 +301,49 @@ static void test_drives_placed(const std::vector<Vec3> &world)
     CHECK(pb_loops_close(kf, nullptr, &out, &rep, &err) == -1);
 }
 
+/* The points read back through a pb_keyframe_points_t (the mapper: from keyframes.bin), a
+ * few at a time, give the same loops and poses as all of them in memory; a source that
+ * fails is an error, not a map without loops. */
+struct Store {
+    std::vector<std::vector<float>> xyz;
+    long reads = 0;
+    long fail_at = -1;   /* the read that fails */
+};
+
+static int store_read(void *u, const pb_keyframe_t &k, std::vector<float> *xyz, pb_err_t *err)
+{
+    Store *st = (Store *)u;
+    if (st->reads++ == st->fail_at) return pb_err_set(err, "keyframes.bin: byte %llu: cannot read", (unsigned long long)k.points_key), -1;
+    *xyz = st->xyz[(size_t)k.points_key];
+    return 0;
+}
+
+static void test_points_read_back(const std::vector<Vec3> &world)
+{
+    std::vector<pb_keyframe_t> kf = make_keyframes(world, 330);
+    std::vector<Eigen::Isometry3d> a, b;
+    pb_loops_report_t ra, rb;
+    pb_err_t err;
+    if (CHECK_OK(pb_loops_close(kf, nullptr, &a, &ra, &err), err.msg)) return;
+    Store st;
+    for (size_t k = 0; k < kf.size(); k++) {
+        st.xyz.push_back(kf[k].xyz);
+        kf[k].xyz.clear();
+        kf[k].points_key = k;
+    }
+    const pb_keyframe_points_t src = {store_read, &st};
+    if (CHECK_OK(pb_loops_close(kf, nullptr, &b, &rb, &err, &src), err.msg)) return;
+    bool same = a.size() == b.size() && ra.loops == rb.loops && ra.candidates == rb.candidates;
+    for (size_t k = 0; same && k < a.size(); k++) same = a[k].matrix() == b[k].matrix();
+    std::printf("points read back: %ld reads for %zu keyframes, %d loops, poses %s\n", st.reads, kf.size(), rb.verified,
+                same ? "identical" : "DIFFERENT");
+    CHECK(same && rb.verified >= 1);
+    st.fail_at = st.reads / 2;   /* fails in the middle of the verifications */
+    st.reads = 0;
+    CHECK(pb_loops_close(kf, nullptr, &b, &rb, &err, &src) == -1);
+    CHECK_CONTAINS(err.msg, "cannot read");
+}
+
 int main()
 {
     std::vector<Vec3> world = make_world(false);
@@ -311,5 +354,6 @@ int main()
     test_no_loop_keeps_the_poses(world);
     test_bad_input();
     test_drives_placed(world);
+    test_points_read_back(world);
     return pb_check_report("test_mapper_loops");
 }

@@ -3,8 +3,11 @@
 
 #include <algorithm>
 #include <array>
+#include <deque>
 #include <functional>
+#include <map>
 #include <tuple>
+#include <unordered_map>
 #include <cmath>
 #include <ceres/ceres.h>
 
@@ -23,6 +26,70 @@ struct Loop {
 
 /* Keyframes compared in full per try after the ring key (rotation invariant) */
 static const size_t kPlaceShortlist = 100;
+
+/* The keyframes' points (kf[k].xyz, or read through a pb_keyframe_points_t), their place
+ * descriptors and whether they have any, by keyframe (drive, utime: the copies made for the
+ * placed drives find theirs too). The descriptors are made once, reading every keyframe in
+ * turn; the points are read again when a submap or a match needs them, through a cache of
+ * the last kCached (consecutive candidates' submaps overlap). */
+class Points {
+public:
+    bool failed = false;
+    pb_err_t err;
+
+    Points(const std::vector<pb_keyframe_t> &kf, const pb_keyframe_points_t *src) : kf_(kf), src_(src)
+    {
+        pb_loc::places_config_t pcfg;
+        desc_.resize(kf.size());
+        has_.resize(kf.size());
+        for (size_t k = 0; k < kf.size(); k++) {
+            id_[{kf[k].drive, kf[k].utime}] = k;
+            const std::vector<float> &xyz = read(k);
+            has_[k] = !xyz.empty();
+            pb_loc::places_describe(pcfg, xyz.data(), xyz.size() / 3, &desc_[k]);
+        }
+    }
+    bool has(const pb_keyframe_t &k) const { return has_[id(k)]; }
+    const pb_loc::place_desc_t &desc(const pb_keyframe_t &k) const { return desc_[id(k)]; }
+    /* k's points; valid until the next call */
+    const std::vector<float> &get(const pb_keyframe_t &k)
+    {
+        const size_t i = id(k);
+        if (!src_) return kf_[i].xyz;
+        auto it = cache_.find(i);
+        if (it != cache_.end()) return it->second;
+        return read(i);
+    }
+
+private:
+    static const size_t kCached = 128;
+    const std::vector<pb_keyframe_t> &kf_;
+    const pb_keyframe_points_t *src_;
+    std::map<std::pair<int, int64_t>, size_t> id_;
+    std::vector<pb_loc::place_desc_t> desc_;
+    std::vector<char> has_;
+    std::unordered_map<size_t, std::vector<float>> cache_;
+    std::deque<size_t> order_;   /* cached, oldest first */
+    const std::vector<float> none_;
+
+    size_t id(const pb_keyframe_t &k) const { return id_.at({k.drive, k.utime}); }
+    const std::vector<float> &read(size_t i)
+    {
+        if (!src_) return kf_[i].xyz;
+        if (failed) return none_;
+        if (order_.size() == kCached) {
+            cache_.erase(order_.front());
+            order_.pop_front();
+        }
+        std::vector<float> &xyz = cache_[i];
+        order_.push_back(i);
+        if (src_->read(src_->user, kf_[i], &xyz, &err) != 0) {
+            failed = true;
+            xyz.clear();
+        }
+        return xyz;
+    }
+};
 
 /* Whether pose (map <- base) for keyframe j is a correction of its odometry pose that the
  * odometry can have drifted since keyframe i: at most max_correction_m + share of the path
@@ -53,16 +120,17 @@ static bool consistent(const std::vector<pb_keyframe_t> &kf, const std::vector<d
 
 /* The map of the stored keyframes before end of keyframe i's drive within submap_radius_m
  * of path around it, at least min_separation_m of path behind s_from (map frame). */
-static std::vector<float> submap(const std::vector<pb_keyframe_t> &kf, const std::vector<double> &s,
+static std::vector<float> submap(Points &P, const std::vector<pb_keyframe_t> &kf, const std::vector<double> &s,
                                  const pb_loops_config_t &cfg, size_t i, size_t end, double s_from)
 {
     std::vector<float> sub;
     for (size_t k = 0; k < end; k++) {
-        if (kf[k].xyz.empty() || kf[k].drive != kf[i].drive || std::fabs(s[k] - s[i]) > cfg.submap_radius_m ||
+        if (!P.has(kf[k]) || kf[k].drive != kf[i].drive || std::fabs(s[k] - s[i]) > cfg.submap_radius_m ||
             s_from - s[k] < cfg.min_separation_m)
             continue;
-        for (size_t q = 0; q + 2 < kf[k].xyz.size(); q += 3) {
-            Vec3 p = kf[k].pose * Vec3(kf[k].xyz[q], kf[k].xyz[q + 1], kf[k].xyz[q + 2]);
+        const std::vector<float> &xyz = P.get(kf[k]);
+        for (size_t q = 0; q + 2 < xyz.size(); q += 3) {
+            Vec3 p = kf[k].pose * Vec3(xyz[q], xyz[q + 1], xyz[q + 2]);
             sub.insert(sub.end(), {(float)p.x(), (float)p.y(), (float)p.z()});
         }
     }
@@ -95,12 +163,13 @@ static bool match(const std::vector<float> &sub, const std::vector<float> &pts, 
 /* Step 2 for one candidate: keyframe j's points registered to the earlier pass's map
  * around keyframe i from seed, searched for within radius_m when that does not fit; true
  * with *pose when the structure fits and the correction is within the drift allowed. */
-static bool verify(const std::vector<pb_keyframe_t> &kf, const std::vector<double> &s, const pb_loops_config_t &cfg,
-                   size_t i, size_t j, const Eigen::Isometry3d &seed, double radius_m, double drift_share,
-                   Eigen::Isometry3d *pose)
+static bool verify(Points &P, const std::vector<pb_keyframe_t> &kf, const std::vector<double> &s,
+                   const pb_loops_config_t &cfg, size_t i, size_t j, const Eigen::Isometry3d &seed, double radius_m,
+                   double drift_share, Eigen::Isometry3d *pose)
 {
     Eigen::Isometry3d r;
-    if (!match(submap(kf, s, cfg, i, j, s[j]), kf[j].xyz, seed, radius_m, cfg, &r)) return false;
+    const std::vector<float> sub = submap(P, kf, s, cfg, i, j, s[j]);
+    if (!match(sub, P.get(kf[j]), seed, radius_m, cfg, &r)) return false;
     if (!within_drift(kf, s, cfg, i, j, r, drift_share, 0, 0)) return false;
     *pose = r;
     return true;
@@ -139,8 +208,9 @@ static std::vector<double> path_at(const std::vector<pb_keyframe_t> &kf)
 
 /* Steps 1-4 over the keyframes (placed drives one after the other), with the loops given
  * (step 0's) besides those found. */
-static int close_placed(const std::vector<pb_keyframe_t> &kf, const pb_loops_config_t &cfg, std::vector<Loop> loops,
-                        std::vector<Eigen::Isometry3d> *out, pb_loops_report_t *rep, pb_err_t *err)
+static int close_placed(Points &P, const std::vector<pb_keyframe_t> &kf, const pb_loops_config_t &cfg,
+                        std::vector<Loop> loops, std::vector<Eigen::Isometry3d> *out, pb_loops_report_t *rep,
+                        pb_err_t *err)
 {
     const size_t n = kf.size();
     for (const Loop &l : loops) rep->loops.push_back({(int)l.i, (int)l.j});
@@ -148,15 +218,13 @@ static int close_placed(const std::vector<pb_keyframe_t> &kf, const pb_loops_con
     for (size_t k = 0; k < n; k++) (*out)[k] = kf[k].pose;
     const std::vector<double> s = path_at(kf);
 
-    // 1-2. candidates by position and by place, each verified against the earlier pass's
-    //      map; first every keyframe's place descriptor (the localizer's Scan-Context-like one)
+    // 1-2. candidates by position and by place (the localizer's Scan-Context-like
+    //      descriptor), each verified against the earlier pass's map
     pb_loc::places_config_t pcfg;
-    std::vector<pb_loc::place_desc_t> desc(n);
-    for (size_t k = 0; k < n; k++) pb_loc::places_describe(pcfg, kf[k].xyz.data(), kf[k].xyz.size() / 3, &desc[k]);
-
     size_t last_position = 0, last_place = 0;   /* the last keyframes that tried */
     for (size_t j = 1; j < n; j++) {
-        if (kf[j].xyz.empty()) continue;
+        if (!P.has(kf[j])) continue;
+        const pb_loc::place_desc_t &dj = P.desc(kf[j]);
         size_t behind = 0;   /* keyframes [0, behind) are far enough behind (an earlier drive's: all) */
         while (behind < j && (kf[behind].drive != kf[j].drive || s[j] - s[behind] >= cfg.min_separation_m)) behind++;
         if (behind == 0) continue;
@@ -182,9 +250,10 @@ static int close_placed(const std::vector<pb_keyframe_t> &kf, const pb_loops_con
             for (size_t i = 0; i < behind; i++) {
                 /* the position part of the drift bound already (yaw below) */
                 const double reach = cfg.max_correction_m + cfg.place_max_drift * (s[j] - s[i]) + cfg.place_search_m;
-                if (kf[i].xyz.empty() || (kf[i].pose.translation() - kf[j].pose.translation()).norm() > reach) continue;
+                if (!P.has(kf[i]) || (kf[i].pose.translation() - kf[j].pose.translation()).norm() > reach) continue;
+                const pb_loc::place_desc_t &di = P.desc(kf[i]);
                 double d = 0;
-                for (int r = 0; r < pb_loc::PLACE_RINGS; r++) d += std::fabs(desc[j].ring_key[r] - desc[i].ring_key[r]);
+                for (int r = 0; r < pb_loc::PLACE_RINGS; r++) d += std::fabs(dj.ring_key[r] - di.ring_key[r]);
                 rk.push_back({d, i});
             }
             size_t m = std::min(rk.size(), kPlaceShortlist);
@@ -192,7 +261,7 @@ static int close_placed(const std::vector<pb_keyframe_t> &kf, const pb_loops_con
             std::vector<std::tuple<double, size_t, double>> alike;   /* distance, keyframe, yaw */
             for (size_t q = 0; q < m; q++) {
                 size_t i = rk[q].second;
-                double yaw, d = pb_loc::places_compare(pcfg, desc[j], desc[i], &yaw);
+                double yaw, d = pb_loc::places_compare(pcfg, dj, P.desc(kf[i]), &yaw);
                 Eigen::Isometry3d at_i = kf[i].pose * Eigen::AngleAxisd(yaw, Vec3::UnitZ());
                 if (d <= cfg.place_max_distance &&
                     within_drift(kf, s, cfg, i, j, at_i, cfg.place_max_drift, cfg.place_search_m, cfg.search_yaw_deg))
@@ -219,7 +288,7 @@ static int close_placed(const std::vector<pb_keyframe_t> &kf, const pb_loops_con
                 seed = kf[i].pose * Eigen::AngleAxisd(yaw, Vec3::UnitZ());
                 radius = cfg.place_search_m;
             }
-            if (!verify(kf, s, cfg, i, j, seed, radius, by_place ? cfg.place_max_drift : cfg.max_drift, &pose)) {
+            if (!verify(P, kf, s, cfg, i, j, seed, radius, by_place ? cfg.place_max_drift : cfg.max_drift, &pose)) {
                 rep->rejected++;
                 rep->refused.push_back({(int)i, (int)j});
                 continue;
@@ -228,6 +297,7 @@ static int close_placed(const std::vector<pb_keyframe_t> &kf, const pb_loops_con
             rep->loops.push_back({(int)i, (int)j});
         }
     }
+    if (P.failed) return *err = P.err, -1;
     // 3. the loops that agree with each other pairwise (the largest such set, greedily from
     //    the loop that agrees with the most); a loop by place needs another loop to agree
     //    with (one look-alike place alone would bend the whole map)
@@ -299,38 +369,35 @@ static int close_placed(const std::vector<pb_keyframe_t> &kf, const pb_loops_con
  * its places to theirs that a second one, at least submap_radius_m of its path further on,
  * agrees with. true with *placement (map <- its frame) and the two matches (i in placed, j
  * in kf, rel unset; *poses their j's poses in the map). */
-static bool place(const std::vector<pb_keyframe_t> &placed, const std::vector<double> &ps,
+static bool place(Points &P, const std::vector<pb_keyframe_t> &placed, const std::vector<double> &ps,
                   const std::vector<pb_keyframe_t> &kf, size_t b, size_t e, const pb_loops_config_t &cfg,
                   pb_drive_report_t *dr, Eigen::Isometry3d *placement, std::vector<Loop> *two,
                   std::vector<Eigen::Isometry3d> *poses)
 {
     pb_loc::places_config_t pcfg;
-    std::vector<pb_loc::place_desc_t> desc(placed.size());
-    for (size_t k = 0; k < placed.size(); k++)
-        pb_loc::places_describe(pcfg, placed[k].xyz.data(), placed[k].xyz.size() / 3, &desc[k]);
     struct Match { size_t i, j; double sj; Eigen::Isometry3d pose; };
     std::vector<Match> found;
     double sj = 0;   /* path along the drive */
     size_t last = e;
     for (size_t j = b; j < e; j++) {
         if (j > b) sj += (kf[j].pose.translation() - kf[j - 1].pose.translation()).norm();
-        if (kf[j].xyz.empty() || (last < e && j - last < (size_t)cfg.try_every)) continue;
+        if (!P.has(kf[j]) || (last < e && j - last < (size_t)cfg.try_every)) continue;
         last = j;
-        pb_loc::place_desc_t dj;
-        pb_loc::places_describe(pcfg, kf[j].xyz.data(), kf[j].xyz.size() / 3, &dj);
+        const pb_loc::place_desc_t &dj = P.desc(kf[j]);
         /* the most alike places (a ring-key shortlist compared in full), distinct ones */
         std::vector<std::pair<double, size_t>> rk;
         for (size_t i = 0; i < placed.size(); i++) {
-            if (placed[i].xyz.empty()) continue;
+            if (!P.has(placed[i])) continue;
+            const pb_loc::place_desc_t &di = P.desc(placed[i]);
             double d = 0;
-            for (int r = 0; r < pb_loc::PLACE_RINGS; r++) d += std::fabs(dj.ring_key[r] - desc[i].ring_key[r]);
+            for (int r = 0; r < pb_loc::PLACE_RINGS; r++) d += std::fabs(dj.ring_key[r] - di.ring_key[r]);
             rk.push_back({d, i});
         }
         size_t m = std::min(rk.size(), kPlaceShortlist);
         std::partial_sort(rk.begin(), rk.begin() + (long)m, rk.end());
         std::vector<std::tuple<double, size_t, double>> alike;   /* distance, keyframe, yaw */
         for (size_t q = 0; q < m; q++) {
-            double yaw, d = pb_loc::places_compare(pcfg, dj, desc[rk[q].second], &yaw);
+            double yaw, d = pb_loc::places_compare(pcfg, dj, P.desc(placed[rk[q].second]), &yaw);
             if (d <= cfg.place_max_distance) alike.push_back({d, rk[q].second, yaw});
         }
         std::sort(alike.begin(), alike.end());
@@ -343,8 +410,9 @@ static bool place(const std::vector<pb_keyframe_t> &placed, const std::vector<do
             tried.push_back(i);
             dr->tried++;
             Eigen::Isometry3d pose;
-            if (!match(submap(placed, ps, cfg, i, placed.size(), INFINITY), kf[j].xyz,
-                       placed[i].pose * Eigen::AngleAxisd(yaw, Vec3::UnitZ()), cfg.place_search_m, cfg, &pose))
+            const std::vector<float> sub = submap(P, placed, ps, cfg, i, placed.size(), INFINITY);
+            if (!match(sub, P.get(kf[j]), placed[i].pose * Eigen::AngleAxisd(yaw, Vec3::UnitZ()), cfg.place_search_m,
+                       cfg, &pose))
                 continue;
             dr->matched++;
             /* agreement with an earlier match far enough back: the placement it gives puts
@@ -371,7 +439,8 @@ static bool place(const std::vector<pb_keyframe_t> &placed, const std::vector<do
 }
 
 int pb_loops_close(const std::vector<pb_keyframe_t> &kf, const pb_loops_config_t *cfg_in,
-                   std::vector<Eigen::Isometry3d> *out, pb_loops_report_t *rep, pb_err_t *err)
+                   std::vector<Eigen::Isometry3d> *out, pb_loops_report_t *rep, pb_err_t *err,
+                   const pb_keyframe_points_t *points)
 {
     const pb_loops_config_t cfg = cfg_in ? *cfg_in : pb_loops_config_t{};
     const size_t n = kf.size();
@@ -385,10 +454,12 @@ int pb_loops_close(const std::vector<pb_keyframe_t> &kf, const pb_loops_config_t
     }
     begin.push_back(n);
     const size_t nd = begin.size() - 1;
+    Points P(kf, points);
+    if (P.failed) return *err = P.err, -1;
     const pb_drive_report_t first = {true, "", 0, 0, 0, Eigen::Isometry3d::Identity()};
     if (nd == 1) {
         rep->drives = {first};
-        return close_placed(kf, cfg, {}, out, rep, err);
+        return close_placed(P, kf, cfg, {}, out, rep, err);
     }
     std::vector<const char *> excluded(nd, nullptr);   /* why a drive is left out */
     for (;;) {
@@ -404,7 +475,10 @@ int pb_loops_close(const std::vector<pb_keyframe_t> &kf, const pb_loops_config_t
             Eigen::Isometry3d T;
             std::vector<Loop> two;
             std::vector<Eigen::Isometry3d> poses;
-            if (!place(placed, path_at(placed), kf, begin[d], begin[d + 1], cfg, &drives[d], &T, &two, &poses)) continue;
+            if (!place(P, placed, path_at(placed), kf, begin[d], begin[d + 1], cfg, &drives[d], &T, &two, &poses)) {
+                if (P.failed) return *err = P.err, -1;
+                continue;
+            }
             drives[d].placed = true;
             drives[d].placement = T;
             const size_t at = placed.size();
@@ -423,7 +497,7 @@ int pb_loops_close(const std::vector<pb_keyframe_t> &kf, const pb_loops_config_t
         // 1-4. over the placed drives together
         pb_loops_report_t r{};
         std::vector<Eigen::Isometry3d> solved;
-        if (close_placed(placed, cfg, given, &solved, &r, err) != 0) return -1;
+        if (close_placed(P, placed, cfg, given, &solved, &r, err) != 0) return -1;
         // every placed drive must still be joined to the first by the loops kept: else it is
         // left out and all done again (the drives placed on it may have to go too)
         std::vector<int> root(nd);

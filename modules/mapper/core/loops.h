@@ -99,7 +99,16 @@ typedef struct {
     Eigen::Isometry3d pose;          /* map <- base from the odometry */
     std::vector<float> xyz;          /* base frame, deskewed, downsampled; may be empty (no submap use) */
     int drive = 0;                   /* several drives: 0, 1, ... in order (no odometry edge between two) */
+    uint64_t points_key = 0;         /* with a pb_keyframe_points_t: where it finds xyz (xyz left empty) */
 } pb_keyframe_t;
+
+/* Keyframes' points kept elsewhere (the mapper: its keyframes.bin), so that loop closure holds
+ * only those it works on (a few hundred at a time), not an hour of drive's: read fills *xyz
+ * with keyframe k's points (as pb_keyframe_t.xyz) and returns 0, or -1 with err. */
+typedef struct {
+    int (*read)(void *user, const pb_keyframe_t &k, std::vector<float> *xyz, pb_err_t *err);
+    void *user;
+} pb_keyframe_points_t;
 
 /* Per drive: how it was placed in the map of the drives before it (drive 0: the map's frame). */
 typedef struct {
@@ -122,9 +131,12 @@ typedef struct {
 } pb_loops_report_t;
 
 /* Solves the keyframes' poses (n = kf.size()) with the loops found; out gets n poses, in
- * drive 0's frame (an unplaced drive's: as given). Returns 0, or -1 with err set (fewer than
- * two keyframes, drives not numbered 0, 1, ... in order). With no loop, out = the input. */
+ * drive 0's frame (an unplaced drive's: as given). points: where the keyframes' points are
+ * read from (NULL: kf[k].xyz). Returns 0, or -1 with err set (fewer than two keyframes,
+ * drives not numbered 0, 1, ... in order, points that cannot be read). With no loop, out =
+ * the input. */
 int pb_loops_close(const std::vector<pb_keyframe_t> &kf, const pb_loops_config_t *cfg,
-                   std::vector<Eigen::Isometry3d> *out, pb_loops_report_t *report, pb_err_t *err);
+                   std::vector<Eigen::Isometry3d> *out, pb_loops_report_t *report, pb_err_t *err,
+                   const pb_keyframe_points_t *points = nullptr);
 
 #endif
