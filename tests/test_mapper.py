@@ -369,6 +369,35 @@ def kill_and_resume(log, out, checkpoint_every=20, checkpoint="checkpoint.bin"):
     return q, json.loads((out / "report.json").read_text())
 
 
+def test_restart_inside_the_later_steps(drive, tmp_path):
+    """Killed after the loops and the anchoring (poses.bin written) or after the map and the
+    carving (carved.bin), the mapper resumes there and writes the uninterrupted run's site,
+    byte for byte; a map tile changed under carved.bin is noticed and the map made again."""
+    for ck, step in (("poses.bin", "loops"), ("carved.bin", "carve")):
+        out = tmp_path / ck
+        q, rep = kill_and_resume(drive["log"], out, checkpoint=ck)
+        assert rep["resumed_after_step"] == step and rep["stage_checkpoint_refused"] == "", rep
+        for f in ("trajectory.tum", "odometry.tum", "map.pcd", "map.tiles", "ground.pgm", "report.png"):
+            assert filecmp.cmp(out / f, drive["out"] / f, shallow=False), (ck, f)
+        assert not (out / ck).exists() and not (out / "map-tiles.tmp").exists()   # a finished run leaves none
+    out = tmp_path / "changed"
+    cmd = [BIN / "mapper", "--log", drive["log"], "--out", out, "--quiet", "--checkpoint-every", 20]
+    p = subprocess.Popen([str(c) for c in cmd])
+    while p.poll() is None and not (out / "carved.bin").exists():
+        time.sleep(0.002)
+    p.kill()
+    p.wait()
+    tile = sorted((out / "map-tiles.tmp").glob("k_*.bin"), key=lambda f: -f.stat().st_size)[0]
+    data = bytearray(tile.read_bytes())
+    data[8] ^= 1
+    tile.write_bytes(bytes(data))
+    q = run(cmd[:-3])
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["resumed_after_step"] == "loops" and "not as it wrote them" in rep["stage_checkpoint_refused"], rep
+    assert "map and the carving run again" in q.stderr
+    assert filecmp.cmp(out / "map.pcd", drive["out"] / "map.pcd", shallow=False)
+
+
 def test_restart_after_a_kill(drive, tmp_path):
     """Killed (SIGKILL) in the middle of the odometry and run again, the mapper resumes from its
     checkpoint and writes the same site as the uninterrupted run (the fixture's), byte for byte

@@ -2,6 +2,7 @@
 // GNSS anchoring and carving what moved (docs/mapper.md). This file: the options and the
 // steps in order; the shell's parts are listed in mapper.h, the logic is in core/.
 #include <chrono>
+#include <filesystem>
 #include <deque>
 #include <malloc.h>
 #include <sys/stat.h>
@@ -48,7 +49,9 @@ static void usage(FILE *f)
         "so far; run the same command again after an interruption (Ctrl-C, power loss, a kill)\n"
         "and it resumes there, with the same result as a run without one. A checkpoint of\n"
         "another log, build of the mapper or --vehicle/--scan-channel is refused (said on\n"
-        "stderr and in report.json) and the run starts over; a finished run removes both.\n"
+        "stderr and in report.json) and the run starts over. The later steps checkpoint too\n"
+        "(poses.bin after the loops and anchoring, carved.bin after the map and carving, with\n"
+        "map-tiles.tmp/): a run resumes after the last one done. A finished run removes them all.\n"
         "  --log FILE          a recorded drive (repeat for several drives of the course; the\n"
         "                      first one's frame is the map's)\n"
         "  --vehicle FILE      base <- lidar (default vehicles/prius2017.yaml; scans imported from\n"
@@ -147,7 +150,7 @@ int main(int argc, char **argv)
     }
     for (Run *D : R.drives) {
         // a checkpoint of an interrupted run of this log resumed
-        if (rc == 0 && !R.poses_path) rc = checkpoint_ids(D, &err);
+        if (rc == 0) rc = checkpoint_ids(D, &err);
         if (rc == 0 && !R.poses_path) rc = checkpoint_read(D, &err);
         // 1. odometry; a keyframe every 2 m (or the poses given)
         if (rc == 0) rc = R.poses_path ? read_poses(D, &err) : pass_odometry(D, &err);
@@ -157,26 +160,37 @@ int main(int argc, char **argv)
         D->odom = nullptr;
     }
     cpu_ms[1] = pb_clock_process_cpu_ms();
-    R.peak_mb[0] = peak_rss_mb();
-    reset_peak_rss();
-    // 2. loop closure over the keyframes
-    if (rc == 0 && !R.poses_path) rc = close_loops(&R, &err);
-    // 3. GNSS anchoring
-    if (rc == 0) rc = anchor(&R, &err);
+    // what an interrupted run had done after the odometry (1: the loops and anchoring, 2: the
+    // map and the carving too)
+    int done = 0;
+    if (rc == 0) rc = stage_read(&R, &done, &err);
+    if (done >= 1) reset_peak_rss();   /* the steps done before keep their peaks */
+    if (done < 1) {
+        R.peak_mb[0] = peak_rss_mb();
+        reset_peak_rss();
+        // 2. loop closure over the keyframes
+        if (rc == 0 && !R.poses_path) rc = close_loops(&R, &err);
+        // 3. GNSS anchoring
+        if (rc == 0) rc = anchor(&R, &err);
+        R.peak_mb[1] = peak_rss_mb();
+        reset_peak_rss();
+        if (rc == 0) rc = stage_write_poses(&R, &err);
+    }
     cpu_ms[2] = pb_clock_process_cpu_ms();
-    R.peak_mb[1] = peak_rss_mb();
-    reset_peak_rss();
-    // 4. the map with the final poses
-    if (rc == 0) rc = pass_map(&R, &err);
-    R.peak_mb[2] = peak_rss_mb();
-    reset_peak_rss();
-    // 5. the ground model, and what moved carved out with it
-    pb_ground_t *ground = rc == 0 ? make_ground(&R, &err) : nullptr;
-    if (rc == 0) rc = pass_carve(&R, ground, &err);
-    pb_ground_destroy(ground);
-    for (Run *D : R.drives) pb_pose_track_destroy(D->track);
-    R.peak_mb[3] = peak_rss_mb();
-    reset_peak_rss();
+    if (done < 2) {
+        // 4. the map with the final poses
+        if (rc == 0) rc = pass_map(&R, &err);
+        R.peak_mb[2] = peak_rss_mb();
+        reset_peak_rss();
+        // 5. the ground model, and what moved carved out with it
+        pb_ground_t *ground = rc == 0 ? make_ground(&R, &err) : nullptr;
+        if (rc == 0) rc = pass_carve(&R, ground, &err);
+        pb_ground_destroy(ground);
+        for (Run *D : R.drives) pb_pose_track_destroy(D->track);
+        R.peak_mb[3] = peak_rss_mb();
+        reset_peak_rss();
+        if (rc == 0) rc = stage_write_carved(&R, &err);
+    }
     // 6. the site's other files, the report
     if (rc == 0) rc = write_site(&R, &err);
     cpu_ms[3] = pb_clock_process_cpu_ms();
@@ -190,6 +204,9 @@ int main(int argc, char **argv)
     for (Run *D : R.drives)   /* done: nothing to resume */
         for (const std::string &f : {D->work("checkpoint"), D->work("checkpoint") + ".tmp", D->work("keyframes")})
             std::remove(f.c_str());
+    for (const char *f : {"poses.bin", "carved.bin"}) std::remove(R.path(f).c_str());
+    std::error_code ec;
+    std::filesystem::remove_all(R.tiles_dir, ec);
     return 0;
 }
 

@@ -99,6 +99,12 @@ struct Run {
     std::string log_id, build_id, options_id;
     long resumed_from = 0;                   /* scans the checkpoint had read; 0: not resumed */
     std::string checkpoint_refused;          /* why a checkpoint found was not used */
+    /* restart inside the later steps (the first drive's Run: stage_*) */
+    std::string resumed_after;               /* the last step a stage checkpoint had done ("" none) */
+    std::string stage_refused;               /* why a stage checkpoint found was not used */
+    uint64_t poses_sum = 0;                  /* poses.bin's checksum (carved.bin follows it) */
+    std::vector<std::pair<uint64_t, uint64_t>> kept_sums;   /* per kept tile: bytes, checksum */
+    std::string why_kept;                    /* placement.why / anchor.why restored (they point here) */
     FILE *kf_file = nullptr;                 /* keyframes.bin, appended at each checkpoint */
     size_t kf_saved = 0;                     /* keyframes in it */
     uint64_t kf_bytes = 0;                   /* its valid length */
@@ -214,6 +220,17 @@ bool read_keyframes(const std::string &path, uint64_t n, uint64_t bytes, bool wi
                     std::vector<pb_keyframe_t> *kf);
 /* The points of the keyframe whose record starts at byte at of keyframes.bin (open as f). */
 int keyframe_points(FILE *f, const std::string &path, uint64_t at, std::vector<float> *xyz, pb_err_t *err);
+
+/* Restart inside the later steps: SITE_DIR/poses.bin after the loops and the anchoring
+ * (every drive's poses and placement, the loops' and the anchoring's results), then
+ * SITE_DIR/carved.bin after the map and the carving (its kept tiles in map-tiles.tmp/ with
+ * their sizes and checksums, and the counts). stage_read restores what matches this run
+ * (the logs, the build, the options, the poses given), *done = 0 none, 1 poses.bin, 2 both;
+ * one that does not match (or whose tiles are not as written) is refused, said on stderr
+ * and in R->stage_refused, and those steps run again. */
+int stage_read(Run *R, int *done, pb_err_t *err);
+int stage_write_poses(Run *R, pb_err_t *err);
+int stage_write_carved(Run *R, pb_err_t *err);
 
 /* ---- trajectory.cpp: steps 1-3 */
 int read_poses(Run *R, pb_err_t *err);

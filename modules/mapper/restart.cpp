@@ -239,3 +239,254 @@ int checkpoint_read(Run *R, pb_err_t *err)
                  done ? ", the odometry done" : "");
     return 0;
 }
+
+/* ---- Restart inside the later steps (mapper.h). */
+static const char kPosesMagic[8] = {'P', 'B', 'M', 'A', 'P', 'P', 'S', '1'};
+static const char kCarvedMagic[8] = {'P', 'B', 'M', 'A', 'P', 'C', 'V', '1'};
+
+/* What a stage checkpoint must match: the mapper's build, the options the later steps depend
+ * on, every drive's log (as the odometry's checkpoints) and the poses given. */
+static std::string stage_id(const Run *R)
+{
+    char buf[128];
+    std::snprintf(buf, sizeof buf, "; voxel %.17g, tile %.17g", R->voxel, R->tile_m);
+    std::string id = R->build_id + "; " + R->options_id + buf;
+    for (const Run *D : R->drives) id += "; " + D->log_id;
+    std::vector<uint8_t> poses;
+    if (R->poses_path && read_file(R->poses_path, &poses) == 0) {
+        std::snprintf(buf, sizeof buf, "; poses of %zu bytes %016llx", poses.size(),
+                      (unsigned long long)pb_fnv1a64(poses.data(), poses.size()));
+        id += buf;
+    }
+    return id;
+}
+
+/* buf (magic, the run's id, the step's state) and its checksum to SITE_DIR/name. */
+static int stage_write(Run *R, const char *name, std::vector<uint8_t> *buf, pb_err_t *err)
+{
+    std::vector<uint8_t> sum;
+    ByteWriter{&sum}.put(pb_fnv1a64(buf->data(), buf->size()));
+    return write_file_synced(R->path(name), {buf, &sum}, err);
+}
+
+/* SITE_DIR/name read and checked (magic, checksum, id); "" and r over the state, or why not. */
+static std::string stage_open(const Run *R, const char *name, const char magic[8], std::vector<uint8_t> *buf,
+                              ByteReader *r, uint64_t *sum)
+{
+    if (read_file(R->path(name), buf) != 0) return "none";
+    *r = ByteReader{buf->data(), buf->data() + buf->size()};
+    bool ok = buf->size() >= 16;
+    for (int i = 0; i < 8; i++) ok &= r->get<char>() == magic[i];
+    if (!ok) return "not a checkpoint of this version of the mapper";
+    std::memcpy(sum, buf->data() + buf->size() - 8, 8);
+    if (*sum != pb_fnv1a64(buf->data(), buf->size() - 8)) return "damaged (checksum)";
+    r->end -= 8;
+    const std::string id = r->get_string(), now = stage_id(R);
+    if (id != now) return "made for another run (" + id + "; this one: " + now + ")";
+    return "";
+}
+
+static void put_str(ByteWriter &w, const char *s) { w.put_string(s ? s : ""); }
+
+int stage_write_poses(Run *R, pb_err_t *err)
+{
+    std::vector<uint8_t> buf;
+    ByteWriter w{&buf};
+    for (char c : kPosesMagic) w.put(c);
+    w.put_string(stage_id(R));
+    for (const Run *D : R->drives) {
+        w.put((uint64_t)D->traj.size());
+        for (const SweepPose &sp : D->traj) { put_pose(w, sp.pose); put_pose(w, sp.odometry); }
+        const pb_drive_report_t &p = D->placement;
+        w.put((uint8_t)p.placed); put_str(w, p.why); w.put(p.tried); w.put(p.matched); w.put(p.links);
+        put_pose(w, p.placement);
+    }
+    const pb_loops_report_t &l = R->loops;
+    for (int v : {l.candidates, l.verified, l.rejected, l.dropped, l.place_candidates, l.place_loops, l.iterations}) w.put(v);
+    w.put(l.max_change_m);
+    w.put((uint64_t)R->loop_times.size());
+    for (const auto &lt : R->loop_times) { w.put(lt.first.first); w.put(lt.first.second); w.put(lt.second.first); w.put(lt.second.second); }
+    const pb_anchor_result_t &a = R->anchor;
+    w.put(a.anchored); put_str(w, a.why); put_pose(w, a.enu_from_map);
+    for (int v : {a.used, a.gated, a.rejected}) w.put(v);
+    for (double v : {a.resid_median_m, a.resid_p90_m, a.resid_max_m, a.extent_m}) w.put(v);
+    const pb_anchor_hold_result_t &h = R->hold;
+    for (int v : {h.held, h.nodes, h.fixes, h.links, h.iterations}) w.put(v);
+    for (double v : {h.ratio, h.max_change_m, h.step_scale, h.resid_p90_m}) w.put(v);
+    const pb_georef_t &g = R->georef;
+    for (double v : {g.lat0_deg, g.lon0_deg, g.alt0_m, g.yaw_deg}) w.put(v);
+    std::vector<double> fixes;
+    for (const Eigen::Vector3d &f : R->layers.fixes) fixes.insert(fixes.end(), {f.x(), f.y(), f.z()});
+    w.put_array(fixes.data(), fixes.size());
+    w.put(R->peak_mb[0]); w.put(R->peak_mb[1]);
+    if (stage_write(R, "poses.bin", &buf, err) != 0) return -1;
+    R->poses_sum = pb_fnv1a64(buf.data(), buf.size());
+    return 0;
+}
+
+int stage_write_carved(Run *R, pb_err_t *err)
+{
+    std::vector<uint8_t> buf;
+    ByteWriter w{&buf};
+    for (char c : kCarvedMagic) w.put(c);
+    w.put_string(stage_id(R));
+    w.put(R->poses_sum);
+    for (long v : {R->placed, R->unplaced, R->tiles_held_max, R->carve_tiles_held_max, R->tiles_paged_out,
+                   R->carve_tiles_paged_out, R->tiles_paged_in, R->carve_tiles_paged_in}) w.put((int64_t)v);
+    w.put(R->voxels_held_max); w.put((uint64_t)R->voxels); w.put((uint64_t)R->map_points); w.put((uint64_t)R->carved);
+    std::vector<int64_t> tiles(R->carve_tiles.begin(), R->carve_tiles.end());
+    w.put_array(tiles.data(), tiles.size());
+    std::vector<uint64_t> kept;   /* per kept tile: key, seq of its first point, bytes, checksum */
+    for (size_t t = 0; t < R->kept_tiles.size(); t++)
+        kept.insert(kept.end(), {(uint64_t)R->kept_tiles[t].first, R->kept_tiles[t].second, R->kept_sums[t].first,
+                                 R->kept_sums[t].second});
+    w.put_array(kept.data(), kept.size());
+    w.put_string(R->ground_why);
+    w.put_array(R->layers.removed.data(), R->layers.removed.size());
+    w.put(R->peak_mb[2]); w.put(R->peak_mb[3]);
+    return stage_write(R, "carved.bin", &buf, err);
+}
+
+/* carved.bin's kept tiles as they were written (sizes and checksums). */
+static bool kept_tiles_intact(const Run *R)
+{
+    std::vector<uint8_t> bytes;
+    for (size_t t = 0; t < R->kept_tiles.size(); t++)
+        if (read_file(tile_path(R, 'k', R->kept_tiles[t].first), &bytes) != 0 || bytes.size() != R->kept_sums[t].first ||
+            pb_fnv1a64(bytes.data(), bytes.size()) != R->kept_sums[t].second)
+            return false;
+    return true;
+}
+
+int stage_read(Run *R, int *done, pb_err_t *)
+{
+    *done = 0;
+    std::vector<uint8_t> buf;
+    ByteReader r{nullptr, nullptr};
+    uint64_t sum = 0;
+    std::string why = stage_open(R, "poses.bin", kPosesMagic, &buf, &r, &sum);
+    if (why == "none") return 0;
+    // poses.bin: every drive's poses and placement, the loops' and anchoring's results
+    std::vector<std::string> whys;
+    std::vector<std::vector<std::pair<Eigen::Isometry3d, Eigen::Isometry3d>>> poses(R->drives.size());
+    std::vector<pb_drive_report_t> placement(R->drives.size());
+    pb_loops_report_t loops{};
+    std::vector<std::pair<SweepKey, SweepKey>> loop_times;
+    pb_anchor_result_t anchor{};
+    for (size_t d = 0; why.empty() && d < R->drives.size(); d++) {
+        const uint64_t n = r.get<uint64_t>();
+        if (n != R->drives[d]->traj.size()) { why = "for another trajectory"; break; }
+        for (uint64_t i = 0; i < n && r.ok; i++) {
+            Eigen::Isometry3d p = get_pose(r);
+            poses[d].push_back({p, get_pose(r)});
+        }
+        pb_drive_report_t &p = placement[d];
+        p.placed = r.get<uint8_t>() != 0;
+        whys.push_back(r.get_string());
+        p.tried = r.get<int>(); p.matched = r.get<int>(); p.links = r.get<int>();
+        p.placement = get_pose(r);
+    }
+    if (why.empty()) {
+        for (int *v : {&loops.candidates, &loops.verified, &loops.rejected, &loops.dropped, &loops.place_candidates,
+                       &loops.place_loops, &loops.iterations}) *v = r.get<int>();
+        loops.max_change_m = r.get<double>();
+        const uint64_t nl = r.get<uint64_t>();
+        for (uint64_t i = 0; i < nl && r.ok; i++) {
+            SweepKey a, b;
+            a.first = r.get<int>(); a.second = r.get<int64_t>(); b.first = r.get<int>(); b.second = r.get<int64_t>();
+            loop_times.push_back({a, b});
+        }
+        anchor.anchored = r.get<int>();
+        whys.push_back(r.get_string());
+        anchor.enu_from_map = get_pose(r);
+        for (int *v : {&anchor.used, &anchor.gated, &anchor.rejected}) *v = r.get<int>();
+        for (double *v : {&anchor.resid_median_m, &anchor.resid_p90_m, &anchor.resid_max_m, &anchor.extent_m}) *v = r.get<double>();
+    }
+    pb_anchor_hold_result_t hold{};
+    for (int *v : {&hold.held, &hold.nodes, &hold.fixes, &hold.links, &hold.iterations}) *v = r.get<int>();
+    for (double *v : {&hold.ratio, &hold.max_change_m, &hold.step_scale, &hold.resid_p90_m}) *v = r.get<double>();
+    pb_georef_t georef{};
+    for (double *v : {&georef.lat0_deg, &georef.lon0_deg, &georef.alt0_m, &georef.yaw_deg}) *v = r.get<double>();
+    std::vector<double> fix_xyz;
+    r.get_array(&fix_xyz);
+    const double peak0 = r.get<double>(), peak1 = r.get<double>();
+    if (why.empty() && (!r.ok || r.p != r.end)) why = "damaged (truncated)";
+    if (!why.empty()) {
+        R->stage_refused = "poses.bin: " + why;
+        std::fprintf(stderr, "mapper: %s: %s; the loops and what follows run again\n", R->path("poses.bin").c_str(), why.c_str());
+        return 0;
+    }
+    // restored: the strings the reports point to kept in R->why_kept
+    size_t at = 0;
+    for (const std::string &w : whys) at += w.size() + 1;
+    R->why_kept.clear();
+    R->why_kept.reserve(at);
+    std::vector<const char *> why_at;
+    for (const std::string &w : whys) { why_at.push_back(R->why_kept.data() + R->why_kept.size()); R->why_kept.append(w).push_back('\0'); }
+    for (size_t d = 0; d < R->drives.size(); d++) {
+        Run *D = R->drives[d];
+        for (size_t i = 0; i < D->traj.size(); i++) { D->traj[i].pose = poses[d][i].first; D->traj[i].odometry = poses[d][i].second; }
+        D->placement = placement[d];
+        D->placement.why = why_at[d];
+    }
+    R->loops = loops;
+    R->loop_times = loop_times;
+    R->anchor = anchor;
+    R->anchor.why = why_at.back();
+    R->hold = hold;
+    R->georef = georef;
+    R->layers.fixes.clear();
+    for (size_t i = 0; i + 2 < fix_xyz.size(); i += 3) R->layers.fixes.emplace_back(fix_xyz[i], fix_xyz[i + 1], fix_xyz[i + 2]);
+    R->peak_mb[0] = peak0;
+    R->peak_mb[1] = peak1;
+    R->poses_sum = sum;
+    R->resumed_after = "loops";
+    *done = 1;
+    // carved.bin: the map made and carved
+    why = stage_open(R, "carved.bin", kCarvedMagic, &buf, &r, &sum);
+    if (why == "none") return 0;
+    if (why.empty() && r.get<uint64_t>() != R->poses_sum) why = "made after another poses.bin";
+    std::vector<int64_t> counts(8), tiles;
+    for (int64_t &v : counts) v = r.get<int64_t>();
+    const int64_t voxels_held_max = r.get<int64_t>();
+    const uint64_t voxels = r.get<uint64_t>(), map_points = r.get<uint64_t>(), carved = r.get<uint64_t>();
+    r.get_array(&tiles);
+    std::vector<uint64_t> kept;
+    r.get_array(&kept);
+    R->kept_tiles.clear();
+    R->kept_sums.clear();
+    for (size_t i = 0; i + 3 < kept.size(); i += 4) {
+        R->kept_tiles.push_back({(int64_t)kept[i], (uint32_t)kept[i + 1]});
+        R->kept_sums.push_back({kept[i + 2], kept[i + 3]});
+    }
+    const std::string ground_why = r.get_string();
+    std::vector<float> removed;
+    r.get_array(&removed);
+    const double peak2 = r.get<double>(), peak3 = r.get<double>();
+    if (why.empty() && (!r.ok || r.p != r.end || kept.size() % 4 != 0)) why = "damaged (truncated)";
+    struct stat st;
+    if (why.empty() && ground_why.empty() && stat(R->path("ground.yaml").c_str(), &st) != 0) why = "ground.yaml is gone";
+    if (why.empty() && !kept_tiles_intact(R)) why = "the map's tiles in map-tiles.tmp are not as it wrote them";
+    if (!why.empty()) {
+        R->kept_tiles.clear();
+        R->kept_sums.clear();
+        R->stage_refused = "carved.bin: " + why;
+        std::fprintf(stderr, "mapper: %s: %s; the map and the carving run again\n", R->path("carved.bin").c_str(), why.c_str());
+        return 0;
+    }
+    long *dst[8] = {&R->placed, &R->unplaced, &R->tiles_held_max, &R->carve_tiles_held_max, &R->tiles_paged_out,
+                    &R->carve_tiles_paged_out, &R->tiles_paged_in, &R->carve_tiles_paged_in};
+    for (int i = 0; i < 8; i++) *dst[i] = (long)counts[(size_t)i];
+    R->voxels_held_max = voxels_held_max;
+    R->voxels = (size_t)voxels;
+    R->map_points = (size_t)map_points;
+    R->carved = (size_t)carved;
+    R->carve_tiles = std::set<int64_t>(tiles.begin(), tiles.end());
+    R->ground_why = ground_why;
+    R->layers.removed = removed;
+    R->peak_mb[2] = peak2;
+    R->peak_mb[3] = peak3;
+    R->resumed_after = "carve";
+    *done = 2;
+    return 0;
+}

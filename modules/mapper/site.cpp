@@ -160,9 +160,7 @@ int write_site(Run *R, pb_err_t *err)
     pb_picture_end(as.pic);
     as = Assembly{};   /* its buffers freed before the tiles are prepared */
     malloc_trim(0);
-    std::error_code ec;
-    std::filesystem::remove_all(R->tiles_dir, ec);
-    if (rc != 0) return -1;
+    if (rc != 0) return -1;   /* the map's tiles stay for a restart (carved.bin) until the end */
     if (map_source_write_tiles(map_path.c_str(), R->path("map.tiles").c_str(), MAP_SOURCE_TILE_M, nullptr,
                                nullptr, nullptr, err) != 0)
         return -1;
@@ -244,6 +242,9 @@ int write_report(const Run &R, const double cpu_ms[4], double wall_s, pb_err_t *
     cJSON_AddNumberToObject(j, "wall_s", wall_s);
     cJSON_AddNumberToObject(j, "resumed_from_scan", (double)R.resumed_from);
     cJSON_AddStringToObject(j, "checkpoint_refused", R.checkpoint_refused.c_str());
+    /* restart inside the later steps: the last step done before ("loops", "carve"; "" none) */
+    cJSON_AddStringToObject(j, "resumed_after_step", R.resumed_after.c_str());
+    cJSON_AddStringToObject(j, "stage_checkpoint_refused", R.stage_refused.c_str());
     cJSON *peak = cJSON_AddObjectToObject(j, "peak_rss_mb");
     double peak_all = 0;
     for (int k = 0; k < 5; k++) {

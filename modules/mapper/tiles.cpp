@@ -7,6 +7,7 @@
 #include <unordered_map>
 #include <unordered_set>
 #include "mapper.h"
+#include "pb_bytes.h"
 #include "carve.h"
 #include "ground_build.h"
 
@@ -298,6 +299,7 @@ struct CarveTiles {
             std::sort(kept.begin(), kept.end(), [](const TilePoint &a, const TilePoint &b) { return a.seq < b.seq; });
             R->map_points += kept.size();
             R->kept_tiles.push_back({k, kept.empty() ? UINT32_MAX : kept[0].seq});
+            R->kept_sums.push_back({kept.size() * sizeof(TilePoint), pb_fnv1a64(kept.data(), kept.size() * sizeof(TilePoint))});
             if (tile_write(tile_path(R, 'k', k), kept.data(), kept.size(), false, err) != 0) return -1;
             std::remove(tile_path(R, 'p', k).c_str());
             std::remove(tile_path(R, 'c', k).c_str());
