@@ -229,6 +229,9 @@ int keyframe_points(FILE *f, const std::string &path, uint64_t at, std::vector<f
  * one that does not match (or whose tiles are not as written) is refused, said on stderr
  * and in R->stage_refused, and those steps run again. */
 int stage_read(Run *R, int *done, pb_err_t *err);
+/* What a stage checkpoint must match: the build, the options the later steps depend on,
+ * every drive's log (checkpoint_ids) and the poses given. */
+std::string stage_id(const Run *R);
 int stage_write_poses(Run *R, pb_err_t *err);
 int stage_write_carved(Run *R, pb_err_t *err);
 

@@ -246,7 +246,7 @@ static const char kCarvedMagic[8] = {'P', 'B', 'M', 'A', 'P', 'C', 'V', '1'};
 
 /* What a stage checkpoint must match: the mapper's build, the options the later steps depend
  * on, every drive's log (as the odometry's checkpoints) and the poses given. */
-static std::string stage_id(const Run *R)
+std::string stage_id(const Run *R)
 {
     char buf[128];
     std::snprintf(buf, sizeof buf, "; voxel %.17g, tile %.17g", R->voxel, R->tile_m);
