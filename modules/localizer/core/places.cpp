@@ -29,7 +29,7 @@ struct offset_t { int dx, dy, ring, sector; };
 
 /* Columns are held in square blocks of kBlock x kBlock, only where the map has cells
  * (and, while building, around them): memory follows the map, not its bounding box. */
-static const int kBlock = 32;
+static const int kBlock = 16;   /* >= 8: the ground fill reaches 8 columns (fill_ground) */
 
 static uint64_t block_id(int bx, int by) { return ((uint64_t)(uint32_t)bx << 32) | (uint32_t)by; }
 
@@ -302,7 +302,7 @@ void places_destroy(places_t *p) { delete p; }
 /* Serialised form (little-endian): "PBPLACE3" (3: columns in blocks; 2 held every column
  * of the bounding box), f64 ring_m, place_step_m, min_height_m, tall_m, clip_m,
  * car_clearance_m, i32 shortlist, W, H, u32 places, f64 lo[2], u32 blocks, then per block
- * i32 bx, by, f32 height[32 * 32] (row by row), then per place i32 ix, iy, f64 x, y, z,
+ * i32 bx, by, f32 height[16 * 16] (row by row), then per place i32 ix, iy, f64 x, y, z,
  * f32 ring_key[PLACE_RINGS]. */
 static const char kPlacesMagic[8] = { 'P', 'B', 'P', 'L', 'A', 'C', 'E', '3' };
 static const size_t kPlacesHeader = 8 + 6 * 8 + 4 * 4 + 2 * 8 + 4, kPlaceBytes = 8 + 3 * 8 + 4 * PLACE_RINGS,
@@ -365,6 +365,7 @@ places_t *places_decode(const uint8_t *b, size_t n, char *msg, size_t msg_len)
     uint32_t nb = get_le<uint32_t>(b + 88);
     bool ok = c.ring_m >= 0.5 && c.ring_m <= 100 && c.shortlist >= 1 && c.shortlist <= 100000 && c.clip_m > 0 &&
               c.clip_m < 1000 && std::isfinite(c.min_height_m) && std::isfinite(c.tall_m) && W > 0 && H > 0 &&
+              W <= 1000000000 && H <= 1000000000 &&   /* column + ring offsets stay within int */
               std::isfinite(lo[0]) && std::isfinite(lo[1]) &&
               (uint64_t)n == kPlacesHeader + (uint64_t)kBlockBytes * nb + (uint64_t)kPlaceBytes * np;
     if (!ok) {
