@@ -268,8 +268,7 @@ static int write_tiled(const char *pcd, FILE *out, const std::string &scratch_di
     std::vector<uint64_t> cells_at;   /* per row: where its cells for the places start */
     pb_loc::places_config_t pc;
     pb_loc::places_builder_t *pb = pb_loc::places_builder_new(pc);
-    std::unique_ptr<pb_loc::places_builder_t, void (*)(pb_loc::places_builder_t *)> pb_own(
-        pb, [](pb_loc::places_builder_t *b) { if (b) pb_loc::places_destroy(pb_loc::places_builder_finish(b)); });
+    std::unique_ptr<pb_loc::places_builder_t, void (*)(pb_loc::places_builder_t *)> pb_own(pb, pb_loc::places_builder_destroy);
     std::vector<float> xyz, cell_xyz;
     std::vector<uint8_t> tile, cell_ground;
     uint64_t cells_bytes = 0;

@@ -285,6 +285,8 @@ places_t *places_builder_finish(places_builder_t *b)
     return p;
 }
 
+void places_builder_destroy(places_builder_t *b) { delete b; }
+
 places_t *places_build(const pb_regmap_t *map, const places_config_t &cfg)
 {
     std::vector<float> xyz;

@@ -71,6 +71,8 @@ void places_builder_extent(places_builder_t *b, const float *xyz, size_t n);
 void places_builder_ground(places_builder_t *b, const float *xyz, const uint8_t *ground, size_t n);
 void places_builder_structure(places_builder_t *b, const float *xyz, const uint8_t *ground, size_t n);
 places_t *places_builder_finish(places_builder_t *b);
+/* Frees a builder not finished (an error on the way). */
+void places_builder_destroy(places_builder_t *b);
 void places_destroy(places_t *p);
 size_t places_count(const places_t *p);
 
