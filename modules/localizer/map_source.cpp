@@ -99,7 +99,8 @@ static int read_points(const char *pcd, points_fn fn, void *user, pb_err_t *err)
     char line[4096];
     while (data.empty() && std::fgets(line, sizeof line, f)) {
         std::vector<std::string> w;
-        for (char *t = std::strtok(line, " \t\r\n"); t; t = std::strtok(nullptr, " \t\r\n")) w.push_back(t);
+        char *save = nullptr;
+        for (char *t = strtok_r(line, " \t\r\n", &save); t; t = strtok_r(nullptr, " \t\r\n", &save)) w.push_back(t);
         if (w.empty() || w[0][0] == '#') continue;
         std::vector<std::string> rest(w.begin() + 1, w.end());
         if (w[0] == "FIELDS") fields = rest;
@@ -110,10 +111,22 @@ static int read_points(const char *pcd, points_fn fn, void *user, pb_err_t *err)
         else if (w[0] == "DATA" && rest.size() == 1) data = rest[0];
     }
     long data_at = std::ftell(f);
+    /* what PCL's reader would crash or stumble on is refused here */
+    const char *bad = data.empty() ? "no DATA line: not a PCD header"
+                      : data != "binary" && data != "ascii" && data != "binary_compressed" ? "unknown DATA form"
+                      : points == 0 ? "no POINTS" : nullptr;
+    if (!bad && (std::find(fields.begin(), fields.end(), "x") == fields.end() ||
+                 std::find(fields.begin(), fields.end(), "y") == fields.end() ||
+                 std::find(fields.begin(), fields.end(), "z") == fields.end()))
+        bad = "PCD has no x, y, z fields";
+    if (bad) {
+        std::fclose(f);
+        return pb_err_set(err, "%s: %s", pcd, bad);
+    }
     if (counts.empty()) counts.assign(fields.size(), "1");
     int at[3] = {-1, -1, -1};
     size_t record = 0;
-    bool plain = data == "binary" && points > 0 && sizes.size() == fields.size() && types.size() == fields.size() &&
+    bool plain = data == "binary" && sizes.size() == fields.size() && types.size() == fields.size() &&
                  counts.size() == fields.size() && data_at > 0;
     for (size_t i = 0; plain && i < fields.size(); i++) {
         int size = std::atoi(sizes[i].c_str()), count = std::atoi(counts[i].c_str());
@@ -122,8 +135,8 @@ static int read_points(const char *pcd, points_fn fn, void *user, pb_err_t *err)
                 plain &= size == 4 && types[i] == "F" && count == 1;
                 at[a] = (int)record;
             }
-        plain &= size > 0 && count > 0;
-        record += (size_t)std::max(size, 0) * (size_t)std::max(count, 0);
+        plain &= size > 0 && size <= 8 && count > 0 && count <= 4096;   /* else PCL judges the header */
+        if (plain) record += (size_t)size * (size_t)count;
     }
     if (!plain || at[0] < 0 || at[1] < 0 || at[2] < 0) {
         std::fclose(f);
