@@ -181,7 +181,7 @@ int pb_tiles_point_tiles(const pb_regmap_config_t *cfg, double tile_m, const flo
     int n = 0;
     for (int l = 0; l < 2; l++) {
         double voxel = l == 0 ? cfg->voxel_m : cfg->coarse_voxel_m;
-        int64_t per = voxels_per_tile(tile_m, voxel);
+        int64_t per = voxel > 0 ? voxels_per_tile(tile_m, voxel) : 0;
         int64_t ix, iy, iz;
         uint64_t key;
         if (per == 0 || !voxel_index_of(p[0], p[1], p[2], 1.0 / voxel, &ix, &iy, &iz) || !voxel_key(ix, iy, iz, &key))
