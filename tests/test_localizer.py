@@ -186,7 +186,7 @@ def test_bad_input_is_counted_not_fatal(drive, tmp_path):
     assert r["t_p99"] < 0.03, r      # measured 0.010 m
 
 
-@pytest.mark.parametrize("what", ["missing", "corrupt", "no-site"])
+@pytest.mark.parametrize("what", ["missing", "corrupt", "not-a-pcd", "no-site"])
 def test_map_missing_or_corrupt(drive, tmp_path, what):
     site = tmp_path / "site"
     if what != "no-site":
@@ -194,6 +194,8 @@ def test_map_missing_or_corrupt(drive, tmp_path, what):
     if what == "corrupt":
         (site / "map.pcd").write_bytes(b"# .PCD v0.7\nVERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\n"
                                       b"WIDTH 100\nHEIGHT 1\nPOINTS 100\nDATA binary\n" + b"\x00" * 40)
+    if what == "not-a-pcd":   # PCL's reader crashed on it; the header is read first now
+        (site / "map.pcd").write_bytes(b"garbage\n")
     out = tmp_path / "o.lcm"
     p = run([BIN / "localizer", "--site", site, "--replay", drive["log"], "--out", out], check=False, timeout=60)
     assert p.returncode == 1

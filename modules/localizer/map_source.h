@@ -6,8 +6,8 @@
  * place descriptors of the whole map (global search without a prior). A map.tiles
  * prepared from another map.pcd than the site's (size or CRC-32 differ) is an error
  * naming both: it would localize in yesterday's map. A site with map.pcd alone is
- * prepared at start-up into a temporary tile file (the whole map is in memory for
- * those seconds; build map.tiles once to avoid it).
+ * prepared at start-up into a temporary tile file (tile by tile, as map-tiles does;
+ * build map.tiles once to start faster).
  *
  * Shell code (file I/O). Ownership: map_source_open returns an object freed with
  * map_source_close; map_source_map's pointer is valid until then, its contents
@@ -28,13 +28,12 @@ enum { MAP_SOURCE_TILE_M = 32 };   /* default tile edge, metres */
 /* Size and CRC-32 of a map file (identifies the map.pcd a tile file was made from). */
 int map_source_file_id(const char *path, pb_tiles_source_t *id, pb_err_t *err);
 
-/* The whole map.pcd prepared (cells, rough cells, place descriptors) and encoded as a
- * tile file (out replaced). info: the prepared map's figures (may be NULL). */
-int map_source_prepare(const char *pcd, double tile_m, std::vector<uint8_t> *out, pb_regmap_info_t *info,
-                       size_t *places, pb_err_t *err);
-
-/* The same written to out_path (through out_path.tmp, renamed: a failed run leaves no half
- * file). *bytes (may be NULL) gets the file's size. */
+/* map.pcd prepared (cells, rough cells, place descriptors) and written as a tile file to
+ * out_path (through out_path.tmp, renamed: a failed run leaves no half file). Tile by tile
+ * (core/map_tiles.h): the points are streamed (binary PCD; other forms are read whole) and
+ * held per tile in scratch files beside out_path, so memory follows a tile, not the map;
+ * the file is byte for byte what a whole-map preparation gives. info (may be NULL): the
+ * points, extent and cells; *places, *bytes (may be NULL): places and the file's size. */
 int map_source_write_tiles(const char *pcd, const char *out_path, double tile_m, pb_regmap_info_t *info,
                            size_t *places, size_t *bytes, pb_err_t *err);
 

@@ -9,6 +9,7 @@
 #include <cstdio>
 #include <cstring>
 #include <cstdlib>
+#include <map>
 #include <random>
 #include <vector>
 #include <Eigen/Geometry>
@@ -375,6 +376,8 @@ static int mem_read(void *user, uint64_t off, void *buf, size_t len)
     return 0;
 }
 
+static void test_tiled_prepare(const std::vector<float> &m, const pb_regmap_t *whole);
+
 static void test_map_tiles(void)
 {
     /* a street 640 m long, driven end to end: the pager holds only the tiles near the
@@ -543,6 +546,10 @@ static void test_map_tiles(void)
     CHECK(pb_tiles_open(mem_read, &bad, bad.bytes.size(), "magic.tiles", &tc, &err) == nullptr);
     CHECK_CONTAINS(err.msg, "not a map tile file");
     bad = f;
+    bad.bytes[8] = 2;   /* version 2 (place descriptors as one grid over the bounding box) */
+    CHECK(pb_tiles_open(mem_read, &bad, bad.bytes.size(), "v2.tiles", &tc, &err) == nullptr);
+    CHECK_CONTAINS(err.msg, "v2.tiles: byte 8: tile file version 2, this localizer reads 3 (rebuild it with map-tiles)");
+    bad = f;
     bad.bytes.resize(bad.bytes.size() - 48);   /* the last tile's cells run out of the file */
     CHECK(pb_tiles_open(mem_read, &bad, bad.bytes.size(), "cut.tiles", &tc, &err) == nullptr);
     CHECK_CONTAINS(err.msg, "out of the file");
@@ -559,7 +566,90 @@ static void test_map_tiles(void)
         CHECK_CONTAINS(err.msg, "corrupt cell");
         pb_tiles_destroy(t);
     }
+    test_tiled_prepare(m, whole);
     pb_regmap_destroy(whole);
+}
+
+/* The tiled preparation (map-tiles, the mapper's site step: a tile at a time from its
+ * points and a margin of its neighbours') writes the whole map's file byte for byte. */
+static std::vector<uint8_t> tiled_file(const std::vector<float> &m, bool margin, size_t *sent)
+{
+    pb_regmap_config_t cfg;
+    pb_regmap_config_default(&cfg);
+    pb_regmap_info_t info = pb_regmap_info_t();
+    for (int a = 0; a < 3; a++) { info.min[a] = HUGE_VAL; info.max[a] = -HUGE_VAL; }
+    std::map<std::pair<int32_t, int32_t>, std::vector<float>> bucket;
+    *sent = 0;
+    for (size_t i = 0; i < m.size() / 3; i++) {
+        const float *p = &m[3 * i];
+        info.points++;
+        for (int a = 0; a < 3; a++) { info.min[a] = std::min(info.min[a], (double)p[a]); info.max[a] = std::max(info.max[a], (double)p[a]); }
+        int32_t to[9][2];
+        int k = pb_tiles_point_tiles(&cfg, 32, p, to);
+        for (int j = 0; j < k; j++) {
+            /* without the margin: only the tile the point's fine voxel lies in */
+            if (!margin && (to[j][0] != (int32_t)std::floor(p[0] / 32) || to[j][1] != (int32_t)std::floor(p[1] / 32))) continue;
+            bucket[{to[j][0], to[j][1]}].insert(bucket[{to[j][0], to[j][1]}].end(), p, p + 3);
+            (*sent)++;
+        }
+    }
+    std::vector<pb_tiles_row_t> rows;
+    std::vector<uint8_t> body, head;
+    std::vector<std::vector<float>> cell_xyz;
+    std::vector<std::vector<uint8_t>> cell_ground;
+    pb_err_t err;
+    for (const auto &b : bucket) {
+        pb_tiles_row_t row;
+        std::vector<float> x;
+        std::vector<uint8_t> g;
+        CHECK(pb_tiles_prepare_tile(&cfg, 32, b.first.first, b.first.second, b.second.data(), b.second.size() / 3, &row,
+                                    &body, &x, &g, &err) == 0);
+        if (row.fine + row.coarse + row.rough == 0) continue;
+        rows.push_back(row);
+        info.cells += row.fine;
+        info.coarse_cells += row.coarse;
+        cell_xyz.push_back(x);
+        cell_ground.push_back(g);
+    }
+    /* the places from the tiles' cells, in another order than the tiles' (any order gives the same) */
+    pb_loc::places_config_t pc;
+    pb_loc::places_builder_t *pb = pb_loc::places_builder_new(pc);
+    for (int pass = 0; pass < 3; pass++)
+        for (size_t k = cell_xyz.size(); k-- > 0;) {
+            size_t n = cell_ground[k].size();
+            if (pass == 0) pb_loc::places_builder_extent(pb, cell_xyz[k].data(), n);
+            if (pass == 1) pb_loc::places_builder_ground(pb, cell_xyz[k].data(), cell_ground[k].data(), n);
+            if (pass == 2) pb_loc::places_builder_structure(pb, cell_xyz[k].data(), cell_ground[k].data(), n);
+        }
+    pb_loc::places_t *places = pb_loc::places_builder_finish(pb);
+    std::vector<uint8_t> pbytes;
+    if (places) pb_loc::places_encode(places, &pbytes);
+    pb_loc::places_destroy(places);
+    CHECK(pb_tiles_encode_head(&cfg, 32, info, rows, pb_tiles_source_t{7, 9}, pbytes.size(), &head, &err) == 0);
+    head.insert(head.end(), body.begin(), body.end());
+    head.insert(head.end(), pbytes.begin(), pbytes.end());
+    return head;
+}
+
+static void test_tiled_prepare(const std::vector<float> &m, const pb_regmap_t *whole)
+{
+    pb_loc::places_config_t pc;
+    pb_loc::places_t *places = pb_loc::places_build(whole, pc);
+    CHECK(places != nullptr);
+    std::vector<uint8_t> pbytes, want;
+    if (places) pb_loc::places_encode(places, &pbytes);
+    pb_loc::places_destroy(places);
+    pb_err_t err;
+    CHECK(pb_tiles_encode(whole, 32, pb_tiles_source_t{7, 9}, pbytes, &want, &err) == 0);
+    size_t sent = 0, sent_own = 0;
+    std::vector<uint8_t> tiled = tiled_file(m, true, &sent);
+    std::vector<uint8_t> own = tiled_file(m, false, &sent_own);
+    std::printf("tiled preparation: %zu bytes, %s the whole map's; %zu points sent to tiles for %zu map points "
+                "(margins); without the margins %s\n", tiled.size(), tiled == want ? "identical to" : "NOT identical to",
+                sent, m.size() / 3, own == want ? "identical too (the test would not see a missing margin)" : "different");
+    CHECK(tiled == want);
+    CHECK(own != want);   /* the margin matters: the check can fail */
+    CHECK(sent > m.size() / 3 && sent < m.size() / 3 * 2);
 }
 
 /* Position error of poses against truth after removing the best rigid motion

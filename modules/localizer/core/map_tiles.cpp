@@ -19,7 +19,7 @@ using namespace pb_loc;
 namespace {
 
 const char kMagic[8] = {'P', 'B', 'T', 'I', 'L', 'E', 'S', '1'};
-const uint32_t kVersion = 2;
+const uint32_t kVersion = 3;   /* 2: dense place descriptors (PBPLACE2) */
 const size_t kHeaderBytes = 192, kTableBytes = 32, kCellBytes = 48, kRoughBytes = 8;
 
 /* voxels per tile edge, or 0 when tile_m is not a whole multiple of voxel */
@@ -59,15 +59,93 @@ void pb_tiles_config_default(pb_tiles_config_t *cfg)
     cfg->keep_radius_m = 160;
 }
 
+namespace {
+
+/* voxels per tile edge of both levels, or -1 (err set) when tile_m is not a whole
+ * multiple of them; coarse: whether the map has a coarse level */
+int tile_geometry(const pb_regmap_config_t *cfg, double tile_m, bool coarse, int64_t per[2], pb_err_t *err)
+{
+    per[0] = voxels_per_tile(tile_m, cfg->voxel_m);
+    per[1] = coarse ? voxels_per_tile(tile_m, cfg->coarse_voxel_m) : 1;
+    if (!(tile_m > 0) || per[0] == 0 || per[1] == 0)
+        return pb_err_set(err, "tile edge %g m is not a whole multiple of the voxel sizes %g and %g m", tile_m,
+                          cfg->voxel_m, cfg->coarse_voxel_m);
+    return 0;
+}
+
+/* Appends one tile's bytes: the given fine then coarse cells, then its rough keys. */
+void put_tile(const Level *lv[2], const std::array<std::vector<uint32_t>, 2> &cells, const std::vector<uint64_t> &rough,
+              std::vector<uint8_t> *out)
+{
+    size_t at = out->size();
+    out->resize(at + kCellBytes * (cells[0].size() + cells[1].size()) + kRoughBytes * rough.size(), 0);
+    for (int l = 0; l < 2; l++)
+        for (uint32_t i : cells[l]) {
+            const Cell &c = lv[l]->cells[i];
+            put<uint64_t>(out, at, lv[l]->keys[i]);
+            std::memcpy(out->data() + at + 8, c.mean, 12);
+            std::memcpy(out->data() + at + 20, c.u1, 12);
+            std::memcpy(out->data() + at + 32, c.u2, 12);
+            (*out)[at + 44] = c.kind;
+            at += kCellBytes;
+        }
+    for (uint64_t key : rough) {
+        put<uint64_t>(out, at, key);
+        at += kRoughBytes;
+    }
+}
+
+}  // namespace
+
+int pb_tiles_encode_head(const pb_regmap_config_t *cfg, double tile_m, const pb_regmap_info_t &info,
+                         const std::vector<pb_tiles_row_t> &rows, const pb_tiles_source_t &source,
+                         uint64_t places_bytes, std::vector<uint8_t> *out, pb_err_t *err)
+{
+    int64_t per[2];
+    if (tile_geometry(cfg, tile_m, info.coarse_cells > 0, per, err) != 0) return -1;
+    out->assign(kHeaderBytes + kTableBytes * rows.size(), 0);
+    uint64_t at = out->size();
+    for (const pb_tiles_row_t &r : rows) at += ((uint64_t)r.fine + r.coarse) * kCellBytes + (uint64_t)r.rough * kRoughBytes;
+    std::memcpy(out->data(), kMagic, 8);
+    put<uint32_t>(out, 8, kVersion);
+    put<uint32_t>(out, 12, (uint32_t)rows.size());
+    put<double>(out, 16, cfg->voxel_m);
+    put<double>(out, 24, info.coarse_cells > 0 ? cfg->coarse_voxel_m : 0.0);
+    put<double>(out, 32, cfg->planarity_max);
+    put<double>(out, 40, tile_m);
+    put<int32_t>(out, 48, cfg->min_points);
+    put<int64_t>(out, 56, info.points);
+    put<int64_t>(out, 64, info.cells);
+    put<int64_t>(out, 72, info.coarse_cells);
+    for (int a = 0; a < 3; a++) {
+        put<double>(out, 80 + 8 * a, info.min[a]);
+        put<double>(out, 104 + 8 * a, info.max[a]);
+    }
+    put<uint64_t>(out, 128, source.bytes);
+    put<uint32_t>(out, 136, source.crc32);
+    put<uint64_t>(out, 144, places_bytes ? at : 0);
+    put<uint64_t>(out, 152, places_bytes);
+    size_t row = kHeaderBytes;
+    at = out->size();
+    for (const pb_tiles_row_t &r : rows) {
+        put<int32_t>(out, row, r.tx);
+        put<int32_t>(out, row + 4, r.ty);
+        put<uint64_t>(out, row + 8, at);
+        put<uint32_t>(out, row + 16, r.fine);
+        put<uint32_t>(out, row + 20, r.coarse);
+        put<uint32_t>(out, row + 24, r.rough);
+        row += kTableBytes;
+        at += ((uint64_t)r.fine + r.coarse) * kCellBytes + (uint64_t)r.rough * kRoughBytes;
+    }
+    return 0;
+}
+
 int pb_tiles_encode(const pb_regmap_t *map, double tile_m, const pb_tiles_source_t &source,
                     const std::vector<uint8_t> &places, std::vector<uint8_t> *out, pb_err_t *err)
 {
     const Level *lv[2] = {&map->fine, &map->coarse};
-    int64_t per[2] = {voxels_per_tile(tile_m, map->fine.voxel), 0};
-    per[1] = map->coarse.cells.empty() ? 1 : voxels_per_tile(tile_m, map->coarse.voxel);
-    if (!(tile_m > 0) || per[0] == 0 || per[1] == 0)
-        return pb_err_set(err, "tile edge %g m is not a whole multiple of the voxel sizes %g and %g m", tile_m,
-                          map->fine.voxel, map->coarse.voxel);
+    int64_t per[2];
+    if (tile_geometry(&map->cfg, tile_m, !map->coarse.cells.empty(), per, err) != 0) return -1;
     /* cells of each tile, fine then coarse, in the map's own order (deterministic);
      * then the fine rough cells, sorted by key */
     struct TileCells { std::array<std::vector<uint32_t>, 2> cells; std::vector<uint64_t> rough; };
@@ -78,61 +156,93 @@ int pb_tiles_encode(const pb_regmap_t *map, double tile_m, const pb_tiles_source
             tile_of_key(lv[l]->keys[i], per[l], &tx, &ty);
             tiles[{tx, ty}].cells[l].push_back((uint32_t)i);
         }
-    size_t nrough = 0;
     map->fine.rough.for_each([&](uint64_t key, int32_t) {
         int32_t tx, ty;
         tile_of_key(key, per[0], &tx, &ty);
         tiles[{tx, ty}].rough.push_back(key);
-        nrough++;
     });
-    for (auto &t : tiles) std::sort(t.second.rough.begin(), t.second.rough.end());
-    size_t ncells = map->fine.cells.size() + map->coarse.cells.size();
-    size_t places_at = kHeaderBytes + kTableBytes * tiles.size() + kCellBytes * ncells + kRoughBytes * nrough;
-    out->assign(places_at + places.size(), 0);
-    std::memcpy(out->data(), kMagic, 8);
-    put<uint32_t>(out, 8, kVersion);
-    put<uint32_t>(out, 12, (uint32_t)tiles.size());
-    put<double>(out, 16, map->cfg.voxel_m);
-    put<double>(out, 24, map->coarse.cells.empty() ? 0.0 : map->cfg.coarse_voxel_m);
-    put<double>(out, 32, map->cfg.planarity_max);
-    put<double>(out, 40, tile_m);
-    put<int32_t>(out, 48, map->cfg.min_points);
-    put<int64_t>(out, 56, map->info.points);
-    put<int64_t>(out, 64, (int64_t)map->fine.cells.size());
-    put<int64_t>(out, 72, (int64_t)map->coarse.cells.size());
-    for (int a = 0; a < 3; a++) {
-        put<double>(out, 80 + 8 * a, map->info.min[a]);
-        put<double>(out, 104 + 8 * a, map->info.max[a]);
+    std::vector<pb_tiles_row_t> rows;
+    for (auto &t : tiles) {
+        std::sort(t.second.rough.begin(), t.second.rough.end());
+        rows.push_back({t.first.first, t.first.second, (uint32_t)t.second.cells[0].size(),
+                        (uint32_t)t.second.cells[1].size(), (uint32_t)t.second.rough.size()});
     }
-    put<uint64_t>(out, 128, source.bytes);
-    put<uint32_t>(out, 136, source.crc32);
-    put<uint64_t>(out, 144, places.empty() ? 0 : (uint64_t)places_at);
-    put<uint64_t>(out, 152, (uint64_t)places.size());
-    if (!places.empty()) std::memcpy(out->data() + places_at, places.data(), places.size());
-    size_t row = kHeaderBytes, at = kHeaderBytes + kTableBytes * tiles.size();
-    for (const auto &t : tiles) {
-        put<int32_t>(out, row, t.first.first);
-        put<int32_t>(out, row + 4, t.first.second);
-        put<uint64_t>(out, row + 8, (uint64_t)at);
-        put<uint32_t>(out, row + 16, (uint32_t)t.second.cells[0].size());
-        put<uint32_t>(out, row + 20, (uint32_t)t.second.cells[1].size());
-        put<uint32_t>(out, row + 24, (uint32_t)t.second.rough.size());
-        row += kTableBytes;
-        for (int l = 0; l < 2; l++)
-            for (uint32_t i : t.second.cells[l]) {
-                const Cell &c = lv[l]->cells[i];
-                put<uint64_t>(out, at, lv[l]->keys[i]);
-                std::memcpy(out->data() + at + 8, c.mean, 12);
-                std::memcpy(out->data() + at + 20, c.u1, 12);
-                std::memcpy(out->data() + at + 32, c.u2, 12);
-                (*out)[at + 44] = c.kind;
-                at += kCellBytes;
+    pb_regmap_info_t info = map->info;
+    info.cells = (int64_t)map->fine.cells.size();
+    info.coarse_cells = (int64_t)map->coarse.cells.size();
+    if (pb_tiles_encode_head(&map->cfg, tile_m, info, rows, source, places.size(), out, err) != 0) return -1;
+    for (const auto &t : tiles) put_tile(lv, t.second.cells, t.second.rough, out);
+    out->insert(out->end(), places.begin(), places.end());
+    return 0;
+}
+
+int pb_tiles_point_tiles(const pb_regmap_config_t *cfg, double tile_m, const float p[3], int32_t out[9][2])
+{
+    int n = 0;
+    for (int l = 0; l < 2; l++) {
+        double voxel = l == 0 ? cfg->voxel_m : cfg->coarse_voxel_m;
+        int64_t per = voxel > 0 ? voxels_per_tile(tile_m, voxel) : 0;
+        int64_t ix, iy, iz;
+        uint64_t key;
+        if (per == 0 || !voxel_index_of(p[0], p[1], p[2], 1.0 / voxel, &ix, &iy, &iz) || !voxel_key(ix, iy, iz, &key))
+            continue;   /* no coarse level, or a point no voxel of this level holds */
+        for (int dy = -1; dy <= 1; dy++)
+            for (int dx = -1; dx <= 1; dx++) {
+                int32_t tx = (int32_t)pb_floor_div(ix + dx, per), ty = (int32_t)pb_floor_div(iy + dy, per);
+                bool seen = false;
+                for (int k = 0; k < n && !seen; k++) seen = out[k][0] == tx && out[k][1] == ty;
+                if (!seen && n < 9) { out[n][0] = tx; out[n][1] = ty; n++; }
             }
-        for (uint64_t key : t.second.rough) {
-            put<uint64_t>(out, at, key);
-            at += kRoughBytes;
-        }
     }
+    return n;
+}
+
+int pb_tiles_prepare_tile(const pb_regmap_config_t *cfg, double tile_m, int32_t tx, int32_t ty, const float *xyz,
+                          size_t n, pb_tiles_row_t *row, std::vector<uint8_t> *out, std::vector<float> *place_xyz,
+                          std::vector<uint8_t> *place_ground, pb_err_t *err)
+{
+    int64_t per[2];
+    if (tile_geometry(cfg, tile_m, cfg->coarse_voxel_m > 0, per, err) != 0) return -1;
+    Level fine, coarse;
+    const Level *lv[2] = {&fine, &coarse};
+    std::array<std::vector<uint32_t>, 2> cells;
+    std::vector<uint64_t> rough;
+    try {
+        /* 1. both levels over the tile and its margin: the tile's own cells get their
+         *    whole neighbourhood, so the same targets as the whole map's */
+        build_level(xyz, n, cfg->voxel_m, cfg, &fine);
+        if (cfg->coarse_voxel_m > 0) build_level(xyz, n, cfg->coarse_voxel_m, cfg, &coarse);
+        /* 2. the cells of this tile, in the order of the points (the map's order) */
+        for (int l = 0; l < 2; l++)
+            for (size_t i = 0; i < lv[l]->cells.size(); i++) {
+                int32_t cx, cy;
+                tile_of_key(lv[l]->keys[i], per[l], &cx, &cy);
+                if (cx == tx && cy == ty) cells[l].push_back((uint32_t)i);
+            }
+        fine.rough.for_each([&](uint64_t key, int32_t) {
+            int32_t cx, cy;
+            tile_of_key(key, per[0], &cx, &cy);
+            if (cx == tx && cy == ty) rough.push_back(key);
+        });
+        std::sort(rough.begin(), rough.end());
+        put_tile(lv, cells, rough, out);
+        /* 3. the tile's fine cells as points for the place descriptors (as pb_regmap_cells) */
+        for (uint32_t i : cells[0]) {
+            const Cell &c = fine.cells[i];
+            place_xyz->insert(place_xyz->end(), c.mean, c.mean + 3);
+            place_ground->push_back(c.ground());
+        }
+        for (uint64_t key : rough) {
+            int64_t ix, iy, iz;
+            voxel_unkey(key, &ix, &iy, &iz);
+            float p[3] = {(float)((ix + 0.5) * fine.voxel), (float)((iy + 0.5) * fine.voxel), (float)((iz + 0.5) * fine.voxel)};
+            place_xyz->insert(place_xyz->end(), p, p + 3);
+            place_ground->push_back(0);
+        }
+    } catch (const std::bad_alloc &) {
+        return pb_err_set(err, "out of memory preparing tile (%d, %d) from %zu points", tx, ty, n);
+    }
+    *row = {tx, ty, (uint32_t)cells[0].size(), (uint32_t)cells[1].size(), (uint32_t)rough.size()};
     return 0;
 }
 

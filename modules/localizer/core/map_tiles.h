@@ -2,22 +2,27 @@
  * localizer holds only the tiles around the car and pages as it moves (maps of
  * any size, memory bounded by the load radius, not by the map).
  *
- * At map build time (tools/map-tiles, `make` for the default site) the whole
- * map is prepared once as a pb_regmap_t (planes and lines of the fine and the
- * coarse level, each fitted to its 3x3x3 neighbourhood of the whole map) and
- * every cell is stored in the tile its voxel falls in (SITE/map.tiles). A tile
- * loaded at run time therefore holds exactly the cells a whole-map load would
- * have there: where the loaded tiles cover the scan, registration gives
- * bit-identical poses with and without paging.
+ * At map build time (tools/map-tiles, `make` for the default site, the mapper's
+ * last step) the map is prepared tile by tile: each tile's cells (planes and lines
+ * of the fine and the coarse level, each fitted to its 3x3x3 neighbourhood) are
+ * fitted from the tile's points and a margin of one voxel of either level from the
+ * adjacent tiles, so each cell sees its whole neighbourhood, as in a whole-map
+ * preparation: the file is byte for byte the one pb_tiles_encode writes from the
+ * whole map, and memory follows a tile, not the map. A tile loaded at run time
+ * therefore holds exactly the cells a whole-map load would have there: where the
+ * loaded tiles cover the scan, registration gives bit-identical poses with and
+ * without paging.
  *
  * Each tile also holds the keys of its rough cells (fine voxels of structure that
  * fits no plane or line: trees, bushes, fences), which the structure test counts
  * as map evidence. The place descriptors of the whole map (core/places, for a
- * start with no prior) are stored once after the tiles: they are small (about
- * 3 MB for the default site) and a global search needs all of them.
+ * start with no prior) are stored once after the tiles: they are small (held
+ * sparsely, in the blocks of columns that have map cells) and a global search needs
+ * all of them.
  *
  * File (little-endian, written and read by this code only):
- *   header, 192 bytes: "PBTILES1", u32 version (2), u32 tiles, f64 voxel_m,
+ *   header, 192 bytes: "PBTILES1", u32 version (3; 2 had dense place
+ *     descriptors and is refused), u32 tiles, f64 voxel_m,
  *     coarse_voxel_m, planarity_max, tile_m, i32 min_points, i32 0,
  *     i64 map points, fine cells, coarse cells, f64 min[3], max[3],
  *     (128) u64 source bytes, u32 source CRC-32, u32 0 (the map.pcd it was
@@ -63,6 +68,40 @@ typedef struct {
  * place descriptors' bytes (may be empty: no global search with this file). */
 int pb_tiles_encode(const pb_regmap_t *map, double tile_m, const pb_tiles_source_t &source,
                     const std::vector<uint8_t> &places, std::vector<uint8_t> *out, pb_err_t *err);
+
+/* The tiled preparation (maps larger than memory; the shell streams the points and
+ * holds them per tile on disk):
+ * 1. every point goes to the tiles pb_tiles_point_tiles names: its own and, within one
+ *    voxel of either level of a border, the adjacent ones (their margin);
+ * 2. each tile is prepared from the points sent to it, in the map's order
+ *    (pb_tiles_prepare_tile): its cells are those a whole-map preparation has there, in
+ *    the same order; a tile with no cells is left out of the file;
+ * 3. pb_tiles_encode_head writes the header and the tile table (rows in (tx, ty) order)
+ *    that go before the tiles' bytes, which are followed by the place descriptors.
+ * The result is byte for byte pb_tiles_encode's of the whole map. */
+typedef struct {
+    int32_t tx, ty;
+    uint32_t fine, coarse, rough;   /* cells of the tile */
+} pb_tiles_row_t;
+
+/* The tiles (at most 9, written to out) whose preparation needs point p. Returns how
+ * many (0: no voxel holds it; it still counts in the map's points and extent). */
+int pb_tiles_point_tiles(const pb_regmap_config_t *cfg, double tile_m, const float p[3], int32_t out[9][2]);
+
+/* Prepares tile (tx, ty) from the n points (xyz interleaved, the map's order) sent to it:
+ * appends its bytes to out, sets *row (counts 0: no cells), and appends its fine cells
+ * and rough cells as points to place_xyz / place_ground (as pb_regmap_cells gives them,
+ * for places_builder). Returns 0, or -1 (bad tile edge, out of memory; err set). */
+int pb_tiles_prepare_tile(const pb_regmap_config_t *cfg, double tile_m, int32_t tx, int32_t ty, const float *xyz,
+                          size_t n, pb_tiles_row_t *row, std::vector<uint8_t> *out, std::vector<float> *place_xyz,
+                          std::vector<uint8_t> *place_ground, pb_err_t *err);
+
+/* The header and tile table (out replaced) of a file whose rows' tiles follow in the
+ * rows' order, then places_bytes of place descriptors. info: the map's points, extent,
+ * fine cells (cells) and coarse cells (coarse_cells). Returns 0 or -1 (bad tile edge). */
+int pb_tiles_encode_head(const pb_regmap_config_t *cfg, double tile_m, const pb_regmap_info_t &info,
+                         const std::vector<pb_tiles_row_t> &rows, const pb_tiles_source_t &source,
+                         uint64_t places_bytes, std::vector<uint8_t> *out, pb_err_t *err);
 
 /* Reads len bytes at offset into buf; returns 0, or -1 when they cannot all be read. */
 typedef int (*pb_tiles_read_fn)(void *user, uint64_t offset, void *buf, size_t len);

@@ -6,6 +6,8 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <memory>
+#include <unordered_map>
 
 namespace pb_loc {
 
@@ -25,26 +27,45 @@ struct offset_t { int dx, dy, ring, sector; };
 
 } // namespace
 
+/* Columns are held in square blocks of kBlock x kBlock, only where the map has cells
+ * (and, while building, around them): memory follows the map, not its bounding box. */
+static const int kBlock = 16;   /* >= 8: the ground fill reaches 8 columns (fill_ground) */
+
+static uint64_t block_id(int bx, int by) { return ((uint64_t)(uint32_t)bx << 32) | (uint32_t)by; }
+
 struct places {
     places_config_t cfg;
-    int W = 0, H = 0;
+    int W = 0, H = 0;                  /* the columns of the map's bounding box */
     double lo[2] = { 0, 0 };
-    std::vector<float> height;         /* per column: highest structure above the ground */
+    std::unordered_map<uint64_t, size_t> block_at;   /* blocks with structure: id -> index */
+    std::vector<std::array<int32_t, 2>> block_xy;    /* per block: bx, by */
+    std::vector<float> height;         /* per block, kBlock^2 columns: highest structure above the ground */
     std::vector<std::array<float, PLACE_RINGS>> ring_key;   /* per place (full descriptors on demand) */
-    std::vector<int> spot_col;         /* the column of each place */
+    std::vector<std::array<int32_t, 2>> spot_col;           /* the column (ix, iy) of each place */
     std::vector<place_match_t> spot;   /* x, y, z of each place (yaw, distance unused) */
     std::vector<offset_t> offsets;     /* the polar grid around a column */
 };
+
+/* A column's height (0 off the map or where no block is held); cache: the last block looked up. */
+static float height_at(const places_t *p, int jx, int jy, std::pair<uint64_t, const float *> *cache)
+{
+    if (jx < 0 || jy < 0 || jx >= p->W || jy >= p->H) return 0;
+    uint64_t id = block_id(jx / kBlock, jy / kBlock);
+    if (cache->first != id) {
+        auto it = p->block_at.find(id);
+        *cache = { id, it == p->block_at.end() ? nullptr : &p->height[it->second * kBlock * kBlock] };
+    }
+    return cache->second ? cache->second[(jy % kBlock) * kBlock + jx % kBlock] : 0;
+}
 
 /* The descriptor of the place at column (ix, iy), from the column heights. */
 static void describe_column(const places_t *p, int ix, int iy, place_desc_t *d)
 {
     for (int r = 0; r < PLACE_RINGS; r++)
         for (int s = 0; s < PLACE_SECTORS; s++) d->h[r][s] = 0;
+    std::pair<uint64_t, const float *> cache = { ~(uint64_t)0, nullptr };
     for (const offset_t &o : p->offsets) {
-        int jx = ix + o.dx, jy = iy + o.dy;
-        if (jx < 0 || jy < 0 || jx >= p->W || jy >= p->H) continue;
-        float h = p->height[(size_t)jy * p->W + jx];
+        float h = height_at(p, ix + o.dx, iy + o.dy, &cache);
         if (h > d->h[o.ring][o.sector]) d->h[o.ring][o.sector] = h;
     }
 }
@@ -95,98 +116,199 @@ static void make_offsets(places_t *p)
         }
 }
 
+struct places_builder {
+    places_config_t cfg;
+    double lo[2] = { HUGE_VAL, HUGE_VAL }, hi[2] = { -HUGE_VAL, -HUGE_VAL };
+    int W = 0, H = 0;
+    bool filled = false;
+    std::unordered_map<uint64_t, size_t> block_at;   /* id -> index */
+    std::vector<std::array<int32_t, 2>> block_xy;
+    std::vector<column_t> col;                       /* per block, kBlock^2 */
+
+    /* the column of a cell (clamped into the grid as the extent was taken) */
+    void column_of(const float *q, int *ix, int *iy) const
+    {
+        *ix = std::min(W - 1, (int)((q[0] - lo[0]) / kColumn));
+        *iy = std::min(H - 1, (int)((q[1] - lo[1]) / kColumn));
+    }
+    column_t *at(int ix, int iy, bool make)
+    {
+        if (ix < 0 || iy < 0 || ix >= W || iy >= H) return nullptr;
+        uint64_t id = block_id(ix / kBlock, iy / kBlock);
+        auto it = block_at.find(id);
+        if (it == block_at.end()) {
+            if (!make) return nullptr;
+            it = block_at.emplace(id, block_xy.size()).first;
+            block_xy.push_back({ ix / kBlock, iy / kBlock });
+            col.resize(col.size() + kBlock * kBlock);
+        }
+        return &col[it->second * kBlock * kBlock + (iy % kBlock) * kBlock + ix % kBlock];
+    }
+    float ground_at(int ix, int iy)
+    {
+        column_t *c = at(ix, iy, false);
+        return c ? c->ground : NAN;
+    }
+};
+
+places_builder_t *places_builder_new(const places_config_t &cfg)
+{
+    places_builder_t *b = new places_builder_t();
+    b->cfg = cfg;
+    return b;
+}
+
+void places_builder_extent(places_builder_t *b, const float *xyz, size_t n)
+{
+    for (size_t i = 0; i < n; i++)
+        for (int a = 0; a < 2; a++) {
+            b->lo[a] = std::min(b->lo[a], (double)xyz[3 * i + a]);
+            b->hi[a] = std::max(b->hi[a], (double)xyz[3 * i + a]);
+        }
+}
+
+void places_builder_ground(places_builder_t *b, const float *xyz, const uint8_t *ground, size_t n)
+{
+    if (b->W == 0 && b->lo[0] <= b->hi[0]) {
+        b->W = (int)((b->hi[0] - b->lo[0]) / kColumn) + 1;
+        b->H = (int)((b->hi[1] - b->lo[1]) / kColumn) + 1;
+    }
+    for (size_t i = 0; i < n; i++) {
+        if (!ground[i]) continue;
+        int ix, iy;
+        b->column_of(xyz + 3 * i, &ix, &iy);
+        column_t *c = b->at(ix, iy, true);
+        if (!c) continue;
+        if (!c->has_ground || xyz[3 * i + 2] < c->ground) c->ground = xyz[3 * i + 2];
+        c->has_ground = true;
+    }
+}
+
+/* Columns without ground (under buildings, foliage): from the neighbours, 8 passes. A
+ * column further than 8 from any ground gets none, so the blocks next to those with
+ * ground hold every column that can get one. */
+static void fill_ground(places_builder_t *b)
+{
+    b->filled = true;
+    size_t with_ground = b->block_xy.size();
+    for (size_t k = 0; k < with_ground; k++)
+        for (int dy = -1; dy <= 1; dy++)
+            for (int dx = -1; dx <= 1; dx++)
+                b->at((b->block_xy[k][0] + dx) * kBlock, (b->block_xy[k][1] + dy) * kBlock, true);
+    const size_t B2 = kBlock * kBlock;
+    std::vector<float> fill(b->col.size());
+    for (int pass = 0; pass < 8; pass++) {
+        for (size_t k = 0; k < b->block_xy.size(); k++)
+            for (size_t j = 0; j < B2; j++) {
+                fill[k * B2 + j] = NAN;
+                if (!std::isnan(b->col[k * B2 + j].ground)) continue;
+                int ix = b->block_xy[k][0] * kBlock + (int)(j % kBlock), iy = b->block_xy[k][1] * kBlock + (int)(j / kBlock);
+                double s = 0;
+                int m = 0;
+                for (int dy = -1; dy <= 1; dy++)
+                    for (int dx = -1; dx <= 1; dx++) {
+                        float g = b->ground_at(ix + dx, iy + dy);
+                        if (std::isnan(g)) continue;
+                        s += g;
+                        m++;
+                    }
+                if (m) fill[k * B2 + j] = (float)(s / m);
+            }
+        for (size_t i = 0; i < b->col.size(); i++) if (std::isnan(b->col[i].ground)) b->col[i].ground = fill[i];
+    }
+}
+
+void places_builder_structure(places_builder_t *b, const float *xyz, const uint8_t *ground, size_t n)
+{
+    if (!b->filled) fill_ground(b);
+    for (size_t i = 0; i < n; i++) {
+        if (ground[i]) continue;
+        int ix, iy;
+        b->column_of(xyz + 3 * i, &ix, &iy);
+        column_t *c = b->at(ix, iy, false);
+        if (!c || std::isnan(c->ground)) continue;
+        double h = xyz[3 * i + 2] - c->ground;
+        if (h >= 0.3 && h < b->cfg.car_clearance_m) c->low = true;
+        if (h >= b->cfg.min_height_m) c->height = std::max(c->height, (float)std::min(h, b->cfg.clip_m));
+    }
+}
+
+places_t *places_builder_finish(places_builder_t *b)
+{
+    std::unique_ptr<places_builder_t> own(b);
+    if (!b->filled) fill_ground(b);
+    const places_config_t &cfg = b->cfg;
+    const size_t B2 = kBlock * kBlock;
+    places_t *p = new places();
+    p->cfg = cfg;
+    p->W = b->W; p->H = b->H; p->lo[0] = b->lo[0]; p->lo[1] = b->lo[1];
+    /* 1. the blocks with structure, in (by, bx) order */
+    std::vector<size_t> order(b->block_xy.size());
+    for (size_t k = 0; k < order.size(); k++) order[k] = k;
+    std::sort(order.begin(), order.end(), [&](size_t u, size_t v) {
+        return std::make_pair(b->block_xy[u][1], b->block_xy[u][0]) < std::make_pair(b->block_xy[v][1], b->block_xy[v][0]);
+    });
+    for (size_t k : order) {
+        bool any = false;
+        for (size_t j = 0; j < B2 && !any; j++) any = b->col[k * B2 + j].height > 0;
+        if (!any) continue;
+        p->block_at[block_id(b->block_xy[k][0], b->block_xy[k][1])] = p->block_xy.size();
+        p->block_xy.push_back(b->block_xy[k]);
+        for (size_t j = 0; j < B2; j++) p->height.push_back(b->col[k * B2 + j].height);
+    }
+    /* 2. the polar grid as column offsets (no trigonometry per place) */
+    make_offsets(p);
+    /* 3. a place at every free ground spot of a place_step grid, in row order; only its
+     *    ring key is kept (the full descriptor is rebuilt from the columns for the shortlist) */
+    int step = std::max(1, (int)std::lround(cfg.place_step_m / kColumn));
+    std::vector<std::array<int32_t, 2>> spots;
+    for (size_t k : order)
+        for (size_t j = 0; j < B2; j++) {
+            const column_t &c = b->col[k * B2 + j];
+            int ix = b->block_xy[k][0] * kBlock + (int)(j % kBlock), iy = b->block_xy[k][1] * kBlock + (int)(j / kBlock);
+            if (c.has_ground && !c.low && ix % step == 0 && iy % step == 0) spots.push_back({ iy, ix });
+        }
+    std::sort(spots.begin(), spots.end());
+    place_desc_t d;
+    for (const auto &s : spots) {
+        int ix = s[1], iy = s[0];
+        describe_column(p, ix, iy, &d);
+        finish(cfg, &d);
+        std::array<float, PLACE_RINGS> rk;
+        std::copy(d.ring_key, d.ring_key + PLACE_RINGS, rk.begin());
+        p->ring_key.push_back(rk);
+        p->spot_col.push_back({ ix, iy });
+        p->spot.push_back({ p->lo[0] + (ix + 0.5) * kColumn, p->lo[1] + (iy + 0.5) * kColumn,
+                            b->at(ix, iy, false)->ground, 0, 0 });
+    }
+    if (p->spot.empty()) { delete p; return nullptr; }
+    return p;
+}
+
+void places_builder_destroy(places_builder_t *b) { delete b; }
+
 places_t *places_build(const pb_regmap_t *map, const places_config_t &cfg)
 {
     std::vector<float> xyz;
     std::vector<uint8_t> ground;
     pb_regmap_cells(map, &xyz, &ground);
-    size_t n = ground.size();
-    if (n == 0) return nullptr;
-    /* 1. the map in columns: ground height, then the highest structure above it */
-    double lo[2] = { HUGE_VAL, HUGE_VAL }, hi[2] = { -HUGE_VAL, -HUGE_VAL };
-    for (size_t i = 0; i < n; i++)
-        for (int a = 0; a < 2; a++) { lo[a] = std::min(lo[a], (double)xyz[3 * i + a]); hi[a] = std::max(hi[a], (double)xyz[3 * i + a]); }
-    int W = (int)((hi[0] - lo[0]) / kColumn) + 1, H = (int)((hi[1] - lo[1]) / kColumn) + 1;
-    if ((double)W * H > 4e7) return nullptr;   /* a map this large is tiled first */
-    std::vector<column_t> col((size_t)W * H);
-    auto at = [&](int ix, int iy) -> column_t & { return col[(size_t)iy * W + ix]; };
-    auto cell = [&](size_t i, int *ix, int *iy) {
-        *ix = std::min(W - 1, (int)((xyz[3 * i] - lo[0]) / kColumn));
-        *iy = std::min(H - 1, (int)((xyz[3 * i + 1] - lo[1]) / kColumn));
-    };
-    bool any = false;
-    for (size_t i = 0; i < n; i++) {
-        if (!ground[i]) continue;
-        int ix, iy;
-        cell(i, &ix, &iy);
-        column_t &c = at(ix, iy);
-        if (!c.has_ground || xyz[3 * i + 2] < c.ground) c.ground = xyz[3 * i + 2];
-        c.has_ground = any = true;
-    }
-    if (!any) return nullptr;
-    /* columns without ground (under buildings, foliage): from the neighbours */
-    for (int pass = 0; pass < 8; pass++) {
-        std::vector<float> fill((size_t)W * H, NAN);
-        for (int iy = 0; iy < H; iy++)
-            for (int ix = 0; ix < W; ix++) {
-                if (!std::isnan(at(ix, iy).ground)) continue;
-                double s = 0;
-                int k = 0;
-                for (int dy = -1; dy <= 1; dy++)
-                    for (int dx = -1; dx <= 1; dx++) {
-                        int jx = ix + dx, jy = iy + dy;
-                        if (jx < 0 || jy < 0 || jx >= W || jy >= H || std::isnan(at(jx, jy).ground)) continue;
-                        s += at(jx, jy).ground;
-                        k++;
-                    }
-                if (k) fill[(size_t)iy * W + ix] = (float)(s / k);
-            }
-        for (size_t i = 0; i < col.size(); i++) if (std::isnan(col[i].ground)) col[i].ground = fill[i];
-    }
-    for (size_t i = 0; i < n; i++) {
-        if (ground[i]) continue;
-        int ix, iy;
-        cell(i, &ix, &iy);
-        column_t &c = at(ix, iy);
-        if (std::isnan(c.ground)) continue;
-        double h = xyz[3 * i + 2] - c.ground;
-        if (h >= 0.3 && h < cfg.car_clearance_m) c.low = true;
-        if (h >= cfg.min_height_m) c.height = std::max(c.height, (float)std::min(h, cfg.clip_m));
-    }
-    places_t *p = new places();
-    p->cfg = cfg;
-    /* 2. the polar grid as column offsets (no trigonometry per place) */
-    make_offsets(p);
-    p->W = W; p->H = H; p->lo[0] = lo[0]; p->lo[1] = lo[1];
-    p->height.resize(col.size());
-    for (size_t i = 0; i < col.size(); i++) p->height[i] = col[i].height;
-    /* 3. a place at every free ground spot of a place_step grid; only its ring key is
-     *    kept (the full descriptor is rebuilt from the columns for the shortlist) */
-    int step = std::max(1, (int)std::lround(cfg.place_step_m / kColumn));
-    place_desc_t d;
-    for (int iy = 0; iy < H; iy += step)
-        for (int ix = 0; ix < W; ix += step) {
-            const column_t &c = at(ix, iy);
-            if (!c.has_ground || c.low) continue;
-            describe_column(p, ix, iy, &d);
-            finish(cfg, &d);
-            std::array<float, PLACE_RINGS> rk;
-            std::copy(d.ring_key, d.ring_key + PLACE_RINGS, rk.begin());
-            p->ring_key.push_back(rk);
-            p->spot_col.push_back(iy * W + ix);
-            p->spot.push_back({ lo[0] + (ix + 0.5) * kColumn, lo[1] + (iy + 0.5) * kColumn, c.ground, 0, 0 });
-        }
-    if (p->spot.empty()) { delete p; return nullptr; }
-    return p;
+    places_builder_t *b = places_builder_new(cfg);
+    places_builder_extent(b, xyz.data(), ground.size());
+    places_builder_ground(b, xyz.data(), ground.data(), ground.size());
+    places_builder_structure(b, xyz.data(), ground.data(), ground.size());
+    return places_builder_finish(b);
 }
 
 void places_destroy(places_t *p) { delete p; }
 
-/* Serialised form (little-endian): "PBPLACE2" (2: ring keys are mean heights), f64 ring_m, place_step_m, min_height_m,
- * tall_m, clip_m, car_clearance_m, i32 shortlist, W, H, u32 places, f64 lo[2], then
- * f32 height[W * H], then per place i32 column, f64 x, y, z, f32 ring_key[PLACE_RINGS]. */
-static const char kPlacesMagic[8] = { 'P', 'B', 'P', 'L', 'A', 'C', 'E', '2' };
-static const size_t kPlacesHeader = 8 + 6 * 8 + 4 * 4 + 2 * 8, kPlaceBytes = 4 + 3 * 8 + 4 * PLACE_RINGS;
+/* Serialised form (little-endian): "PBPLACE3" (3: columns in blocks; 2 held every column
+ * of the bounding box), f64 ring_m, place_step_m, min_height_m, tall_m, clip_m,
+ * car_clearance_m, i32 shortlist, W, H, u32 places, f64 lo[2], u32 blocks, then per block
+ * i32 bx, by, f32 height[16 * 16] (row by row), then per place i32 ix, iy, f64 x, y, z,
+ * f32 ring_key[PLACE_RINGS]. */
+static const char kPlacesMagic[8] = { 'P', 'B', 'P', 'L', 'A', 'C', 'E', '3' };
+static const size_t kPlacesHeader = 8 + 6 * 8 + 4 * 4 + 2 * 8 + 4, kPlaceBytes = 8 + 3 * 8 + 4 * PLACE_RINGS,
+                    kBlockBytes = 8 + 4 * kBlock * kBlock;
 
 template <class T> static void put_le(std::vector<uint8_t> *o, T v)
 {
@@ -198,7 +320,7 @@ template <class T> static T get_le(const uint8_t *p) { T v; std::memcpy(&v, p, s
 void places_encode(const places_t *p, std::vector<uint8_t> *out)
 {
     out->clear();
-    out->reserve(kPlacesHeader + 4 * p->height.size() + kPlaceBytes * p->spot.size());
+    out->reserve(kPlacesHeader + kBlockBytes * p->block_xy.size() + kPlaceBytes * p->spot.size());
     out->insert(out->end(), kPlacesMagic, kPlacesMagic + 8);
     const places_config_t &c = p->cfg;
     for (double v : { c.ring_m, c.place_step_m, c.min_height_m, c.tall_m, c.clip_m, c.car_clearance_m }) put_le(out, v);
@@ -208,9 +330,15 @@ void places_encode(const places_t *p, std::vector<uint8_t> *out)
     put_le<uint32_t>(out, (uint32_t)p->spot.size());
     put_le(out, p->lo[0]);
     put_le(out, p->lo[1]);
-    for (float h : p->height) put_le(out, h);
+    put_le<uint32_t>(out, (uint32_t)p->block_xy.size());
+    for (size_t k = 0; k < p->block_xy.size(); k++) {
+        put_le<int32_t>(out, p->block_xy[k][0]);
+        put_le<int32_t>(out, p->block_xy[k][1]);
+        for (size_t j = 0; j < (size_t)kBlock * kBlock; j++) put_le(out, p->height[k * kBlock * kBlock + j]);
+    }
     for (size_t i = 0; i < p->spot.size(); i++) {
-        put_le<int32_t>(out, p->spot_col[i]);
+        put_le<int32_t>(out, p->spot_col[i][0]);
+        put_le<int32_t>(out, p->spot_col[i][1]);
         put_le(out, p->spot[i].x);
         put_le(out, p->spot[i].y);
         put_le(out, p->spot[i].z);
@@ -222,11 +350,11 @@ places_t *places_decode(const uint8_t *b, size_t n, char *msg, size_t msg_len)
 {
     if (n >= 8 && std::memcmp(b, kPlacesMagic, 7) == 0 && b[7] != kPlacesMagic[7]) {
         snprintf(msg, msg_len, "byte 0: place descriptors of another version (PBPLACE%c, this localizer reads "
-                 "PBPLACE2): rebuild the site's map.tiles with map-tiles", b[7]);
+                 "PBPLACE3): rebuild the site's map.tiles with map-tiles", b[7]);
         return nullptr;
     }
     if (n < kPlacesHeader || std::memcmp(b, kPlacesMagic, 8) != 0) {
-        snprintf(msg, msg_len, "byte 0: not place descriptors (no PBPLACE2 header)");
+        snprintf(msg, msg_len, "byte 0: not place descriptors (no PBPLACE3 header)");
         return nullptr;
     }
     places_config_t c;
@@ -236,50 +364,58 @@ places_t *places_decode(const uint8_t *b, size_t n, char *msg, size_t msg_len)
     int32_t W = get_le<int32_t>(b + 60), H = get_le<int32_t>(b + 64);
     uint32_t np = get_le<uint32_t>(b + 68);
     double lo[2] = { get_le<double>(b + 72), get_le<double>(b + 80) };
+    uint32_t nb = get_le<uint32_t>(b + 88);
     bool ok = c.ring_m >= 0.5 && c.ring_m <= 100 && c.shortlist >= 1 && c.shortlist <= 100000 && c.clip_m > 0 &&
               c.clip_m < 1000 && std::isfinite(c.min_height_m) && std::isfinite(c.tall_m) && W > 0 && H > 0 &&
-              (double)W * H <= 4e7 && std::isfinite(lo[0]) && std::isfinite(lo[1]) &&
-              n == kPlacesHeader + 4 * (size_t)W * H + kPlaceBytes * (size_t)np;
+              W <= 1000000000 && H <= 1000000000 &&   /* column + ring offsets stay within int */
+              std::isfinite(lo[0]) && std::isfinite(lo[1]) &&
+              (uint64_t)n == kPlacesHeader + (uint64_t)kBlockBytes * nb + (uint64_t)kPlaceBytes * np;
     if (!ok) {
-        snprintf(msg, msg_len, "byte 8: bad place header (ring %g m, %d x %d columns, %u places, %zu bytes)", c.ring_m,
-                 W, H, np, n);
+        snprintf(msg, msg_len, "byte 8: bad place header (ring %g m, %d x %d columns, %u blocks, %u places, %zu bytes)",
+                 c.ring_m, W, H, nb, np, n);
         return nullptr;
     }
-    places_t *p = new places();
+    std::unique_ptr<places_t> p(new places());
     p->cfg = c;
     p->W = W; p->H = H; p->lo[0] = lo[0]; p->lo[1] = lo[1];
     const uint8_t *q = b + kPlacesHeader;
-    p->height.resize((size_t)W * H);
-    for (size_t i = 0; i < p->height.size(); i++, q += 4) p->height[i] = get_le<float>(q);
+    p->height.resize((size_t)nb * kBlock * kBlock);
+    for (size_t k = 0; k < nb; k++, q += kBlockBytes) {
+        int32_t bx = get_le<int32_t>(q), by = get_le<int32_t>(q + 4);
+        bool good = bx >= 0 && by >= 0 && bx <= (W - 1) / kBlock && by <= (H - 1) / kBlock &&
+                    p->block_at.emplace(block_id(bx, by), k).second;
+        for (size_t j = 0; j < (size_t)kBlock * kBlock; j++) {
+            float h = get_le<float>(q + 8 + 4 * j);
+            good &= std::isfinite(h);
+            p->height[k * kBlock * kBlock + j] = h;
+        }
+        if (!good) {
+            snprintf(msg, msg_len, "byte %zu: block %zu of column heights is damaged", (size_t)(q - b), k);
+            return nullptr;
+        }
+        p->block_xy.push_back({ bx, by });
+    }
     p->spot.resize(np);
     p->spot_col.resize(np);
     p->ring_key.resize(np);
     for (size_t i = 0; i < np; i++, q += kPlaceBytes) {
-        p->spot_col[i] = get_le<int32_t>(q);
-        p->spot[i] = { get_le<double>(q + 4), get_le<double>(q + 12), get_le<double>(q + 20), 0, 0 };
-        for (int r = 0; r < PLACE_RINGS; r++) p->ring_key[i][r] = get_le<float>(q + 28 + 4 * r);
-        bool good = p->spot_col[i] >= 0 && p->spot_col[i] < W * H && std::isfinite(p->spot[i].x) &&
-                    std::isfinite(p->spot[i].y) && std::isfinite(p->spot[i].z);
+        p->spot_col[i] = { get_le<int32_t>(q), get_le<int32_t>(q + 4) };
+        p->spot[i] = { get_le<double>(q + 8), get_le<double>(q + 16), get_le<double>(q + 24), 0, 0 };
+        for (int r = 0; r < PLACE_RINGS; r++) p->ring_key[i][r] = get_le<float>(q + 32 + 4 * r);
+        bool good = p->spot_col[i][0] >= 0 && p->spot_col[i][0] < W && p->spot_col[i][1] >= 0 && p->spot_col[i][1] < H &&
+                    std::isfinite(p->spot[i].x) && std::isfinite(p->spot[i].y) && std::isfinite(p->spot[i].z);
         for (int r = 0; r < PLACE_RINGS; r++) good &= std::isfinite(p->ring_key[i][r]);
         if (!good) {
             snprintf(msg, msg_len, "byte %zu: place %zu is damaged", (size_t)(q - b), i);
-            delete p;
             return nullptr;
         }
     }
-    for (float h : p->height)
-        if (!std::isfinite(h)) {
-            snprintf(msg, msg_len, "byte %zu: a column height is not finite", kPlacesHeader);
-            delete p;
-            return nullptr;
-        }
     if (np == 0) {
         snprintf(msg, msg_len, "byte 68: no places");
-        delete p;
         return nullptr;
     }
-    make_offsets(p);
-    return p;
+    make_offsets(p.get());
+    return p.release();
 }
 size_t places_count(const places_t *p) { return p ? p->spot.size() : 0; }
 
@@ -390,8 +526,8 @@ void places_query(const places_t *p, const place_desc_t &d, int k, std::vector<p
     /* 2. the full descriptors under every sector shift */
     place_desc_t pd;
     for (size_t j = 0; j < m; j++) {
-        int c = p->spot_col[rk[j].second];
-        describe_column(p, c % p->W, c / p->W, &pd);
+        const auto &c = p->spot_col[rk[j].second];
+        describe_column(p, c[0], c[1], &pd);
         finish(p->cfg, &pd);
         place_match_t pm = p->spot[rk[j].second];
         pm.distance = places_compare(p->cfg, d, pd, &pm.yaw);

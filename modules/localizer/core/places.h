@@ -57,8 +57,22 @@ struct place_match_t {
 typedef struct places places_t;
 
 /* Builds the descriptors of every free ground spot of the map. NULL if the map has no
- * ground. */
+ * ground. The columns are held in blocks where the map has cells, so memory follows the
+ * map's area, not its bounding box. */
 places_t *places_build(const pb_regmap_t *map, const places_config_t &cfg);
+
+/* The same from the map's cells given a part at a time (pb_regmap_cells' points and
+ * ground flags, e.g. tile by tile): every part to _extent, then every part to _ground,
+ * then every part to _structure; _finish returns what places_build would (NULL: no
+ * ground) and frees the builder. Any order of the parts gives the same places. */
+typedef struct places_builder places_builder_t;
+places_builder_t *places_builder_new(const places_config_t &cfg);
+void places_builder_extent(places_builder_t *b, const float *xyz, size_t n);
+void places_builder_ground(places_builder_t *b, const float *xyz, const uint8_t *ground, size_t n);
+void places_builder_structure(places_builder_t *b, const float *xyz, const uint8_t *ground, size_t n);
+places_t *places_builder_finish(places_builder_t *b);
+/* Frees a builder not finished (an error on the way). */
+void places_builder_destroy(places_builder_t *b);
 void places_destroy(places_t *p);
 size_t places_count(const places_t *p);
 

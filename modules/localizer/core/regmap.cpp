@@ -51,9 +51,11 @@ int fit_target(double n, const double s[3], const double ss[6], const pb_regmap_
     return 0;
 }
 
-/* Builds one level: moments per voxel, then per voxel a target fitted to the
- * points of its 3x3x3 neighbourhood. Returns the number of targets. */
-size_t build_level(const float *xyz, size_t n, double voxel, const pb_regmap_config_t *cfg, Level *lv)
+}  // namespace
+
+/* Moments per voxel, then per voxel a target fitted to the points of its 3x3x3
+ * neighbourhood (regmap_impl.h). */
+size_t pb_loc::build_level(const float *xyz, size_t n, double voxel, const pb_regmap_config_t *cfg, Level *lv)
 {
     lv->voxel = voxel;
     lv->inv_voxel = 1.0 / voxel;
@@ -133,6 +135,8 @@ size_t build_level(const float *xyz, size_t n, double voxel, const pb_regmap_con
     }
     return lv->cells.size();
 }
+
+namespace {
 
 pb_regmap_t *build(const float *xyz, size_t n, const pb_regmap_config_t *cfg, const char *what,
                    pb_err_t *err)
