@@ -134,20 +134,24 @@ static void visits_test()
 {
     /* cells at x = 10, 20, 30 (points at 0.3 0.3 0.3 in the cell): hit at 1 s and 30 s (two
      * visits: carved), at 1, 30 and 60 s (three: kept), at 1 and 6 s (one visit of 5 s, longer
-     * than transient_s: kept); six passes at 10-20 s through each */
-    std::vector<float> pts = {10.3f, 0.3f, 0.3f, 20.3f, 0.3f, 0.3f, 30.3f, 0.3f, 0.3f};
+     * than long_visit_s: kept); six passes at 10-20 s through each. x = 40, 50: hit at 1 and
+     * 4 s (a visit of 3 s: longer than transient_s, road users one after the other), passed
+     * 16 times at 10-20 s (min_passes_long: carved) or 15 times (kept) */
+    std::vector<float> pts = {10.3f, 0.3f, 0.3f, 20.3f, 0.3f, 0.3f, 30.3f, 0.3f, 0.3f, 40.3f, 0.3f, 0.3f, 50.3f, 0.3f, 0.3f};
     std::vector<Shot> shots;
-    for (double x : {10.3, 20.3, 30.3}) {
-        for (int k = 0; k < 6; k++) shots.push_back({10 + 2.0 * k, 1, x, 0.3});
+    for (double x : {10.3, 20.3, 30.3, 40.3, 50.3}) {
+        const int passes = x < 35 ? 6 : x < 45 ? 16 : 15;
+        for (int k = 0; k < passes; k++) shots.push_back({10 + 0.6 * k, 1, x, 0.3});
         shots.push_back({1, 0, x, 0.3});
     }
     shots.push_back({30, 0, 10.3, 0.3});
     for (double t : {30.0, 60.0}) shots.push_back({t, 0, 20.3, 0.3});
     shots.push_back({6, 0, 30.3, 0.3});
+    for (double x : {40.3, 50.3}) shots.push_back({4, 0, x, 0.3});
     size_t carved;
     std::vector<uint8_t> keep = shoot(pts, shots, &carved);
-    std::printf("visits: carved %zu, keep %d %d %d\n", carved, keep[0], keep[1], keep[2]);
-    CHECK(carved == 1 && keep[0] == 0 && keep[1] == 1 && keep[2] == 1);
+    std::printf("visits: carved %zu, keep %d %d %d %d %d\n", carved, keep[0], keep[1], keep[2], keep[3], keep[4]);
+    CHECK(carved == 2 && keep[0] == 0 && keep[1] == 1 && keep[2] == 1 && keep[3] == 0 && keep[4] == 1);
 
     /* eighths: a point in its cell's low corner eighth, hit at 1 s; ten passes after through
      * the cell's other corner (kept) or through its eighth (carved) */
@@ -163,8 +167,9 @@ static void visits_test()
 
     /* neighbours: three 3 x 3 squares of cells, each cell hit at 1 s. Square A: its 8 outer
      * cells passed 6 times after, its centre twice (carved with them: the same body). Square
-     * B: the same, its centre passed once (kept). Square C: 5 outer cells passed 6 times, the
-     * centre twice (kept: too few carved around it) */
+     * B: the same, its centre passed once but hit again at 8 s (a visit of 7 s: something that
+     * stayed; kept). Square C: 5 outer cells passed 6 times, the centre twice (kept: too few
+     * carved around it) */
     pts.clear();
     shots.clear();
     for (int sq = 0; sq < 3; sq++)
@@ -176,6 +181,7 @@ static void visits_test()
                 bool centre = i == 1 && j == 1;
                 int outer = i * 3 + j - (i * 3 + j > 4);   /* 0..7 for the outer cells */
                 int n = centre ? (sq == 1 ? 1 : 2) : (sq == 2 && outer >= 5 ? 0 : 6);
+                if (centre && sq == 1) shots.push_back({8, 0, x, y});
                 for (int k = 0; k < n; k++) shots.push_back({3 + 0.1 * k, 1, x, y});
             }
     keep = shoot(pts, shots, &carved);

@@ -224,11 +224,11 @@ void pb_carve_ray(pb_carve_t *c, int64_t utime, const double o[3], const double 
     }
 }
 
-/* A cell whose hits tell of a road user passing by: short visits, few enough of them. */
-static bool passing(const pb_carve_config_t &cfg, const Count &n)
+/* A cell whose hits tell of road users passing by: visits no longer than limit_s, few enough of them. */
+static bool passing(const pb_carve_config_t &cfg, const Count &n, double limit_s)
 {
     const double longest_s = n.hits ? std::max((double)n.longest_s, (double)(n.last_hit - n.visit_start) * 1e-6) : 0;
-    return !n.protect && n.visits <= cfg.max_visits && !(n.drive_flags & 4) && longest_s <= cfg.transient_s;
+    return !n.protect && n.visits <= cfg.max_visits && !(n.drive_flags & 4) && longest_s <= limit_s;
 }
 
 /* Passes enough outside the visits: min_passes for each drive that hit the cell (one drive
@@ -246,13 +246,15 @@ static bool empty(const pb_carve_config_t &cfg, const Count &n)
     return !n.protect && ((n.drive_flags & 2) || (!(n.drive_flags & 1) && n.drive_passes >= cfg.min_passes_empty));
 }
 
-/* Step 1: the cells seen through often enough outside their visits. */
+/* Step 1: the cells seen through often enough outside their visits (more often after a
+ * longer visit: several road users one after the other). */
 static std::vector<uint8_t> gone_cells(const pb_carve_t *c)
 {
     std::vector<uint8_t> gone(c->counts.size(), 0);
     for (size_t k = 0; k < c->counts.size(); k++) {
         const Count &n = c->counts[k];
-        gone[k] = (passing(c->cfg, n) && passed(n, c->cfg.min_passes)) || empty(c->cfg, n);
+        gone[k] = (passing(c->cfg, n, c->cfg.transient_s) && passed(n, c->cfg.min_passes)) ||
+                  (passing(c->cfg, n, c->cfg.long_visit_s) && passed(n, c->cfg.min_passes_long)) || empty(c->cfg, n);
     }
     return gone;
 }
@@ -282,8 +284,8 @@ size_t pb_carve_keep(const pb_carve_t *c, const std::vector<uint64_t> *gone_keys
     const size_t ncells = c->counts.size();
     // 1. the cells seen through often enough outside their visits
     const std::vector<uint8_t> gone = gone_cells(c);
-    // 2. the cells seen through less often but lying among such cells (here, or in the
-    //    other parts' gone_keys): the rest of the same body
+    // 2. the cells seen through less often (or never: the sample is sparse) but lying among
+    //    such cells (here, or in the other parts' gone_keys): the rest of the same body
     const std::vector<uint64_t> key = cell_keys(c);
     auto neighbour_gone = [&](uint64_t nk) {
         if (gone_keys) return std::binary_search(gone_keys->begin(), gone_keys->end(), nk);
@@ -295,7 +297,7 @@ size_t pb_carve_keep(const pb_carve_t *c, const std::vector<uint64_t> *gone_keys
     std::vector<uint8_t> grown(gone);
     for (size_t k = 0; k < ncells; k++) {
         const Count &n = c->counts[k];
-        if (gone[k] || !passing(cfg, n) || !passed(n, cfg.min_passes_beside)) continue;
+        if (gone[k] || !passing(cfg, n, cfg.transient_s)) continue;
         int64_t v[3];
         pb_loc::voxel_unkey(key[k], &v[0], &v[1], &v[2]);
         int around = 0;

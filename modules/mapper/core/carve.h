@@ -8,11 +8,14 @@
  * place, or one place passed at the drive's start and again at its end). Only the passes
  * outside the visits count (before the first, between them, after the last): a cell passed
  * through at least `min_passes` times so, hit on at most `max_visits` visits of at most
- * `transient_s` each, is carved: its map points go. A cell the sampled rays never hit has no
- * visit: all its passes count (its points came from rays left out of the sample). Then a
- * cell that passes the visits' test but was passed fewer times (at least
- * `min_passes_beside`) goes too when `carved_beside` of its 26 neighbours went: the rest of
- * the same body, which the sparse sample crossed less often.
+ * `transient_s` each, is carved: its map points go; so is one whose visits last up to
+ * `long_visit_s` (road users one after the other) and that was passed `min_passes_long` times.
+ * A cell the sampled rays never hit has no visit: all its passes count (its points came from
+ * rays left out of the sample). Then a cell that passes the visits' test (visits of at most
+ * `transient_s`, or none) but was passed fewer times, or never, goes too when `carved_beside`
+ * of its 26 neighbours went: the rest of the same body, which the sparse sample crossed less
+ * often or not at all (a bus's roof, higher than the LiDAR: what passes through its place
+ * after it left goes up into the sky and returns nothing).
  * Passes outside the visits tell a car that drove by (seen through after it left) from a
  * wall seen edge-on (its grazing rays pass through its cells while it is hit), and a static
  * thing hit by few sampled rays from one that was there for a moment. The first version
@@ -49,11 +52,12 @@ typedef struct {
     double raise_m = 0.1;      /* a band cell's points higher over the ground than this are judged apart */
     int min_passes = 6;        /* passes outside the visits the cell was hit in */
     double max_range_m = 60;   /* rays are cut here: farther, beams are wide and poses' errors grow */
-    double transient_s = 2;    /* a cell hit over a longer visit than this was there, not passing by */
+    double transient_s = 2;    /* a cell hit over a longer visit than this was there, not passing by ... */
+    double long_visit_s = 4;   /* ... unless passed min_passes_long times: road users one after the other */
+    int min_passes_long = 16;
     double revisit_s = 10;     /* hits farther apart than this are two visits (two road users) */
     int max_visits = 2;        /* a cell hit on more visits than this holds something that stays */
-    int min_passes_beside = 2; /* passes enough for a cell among carved ones (the same body's rest) */
-    int carved_beside = 6;     /* ... when this many of its 26 neighbours are carved by min_passes */
+    int carved_beside = 6;     /* a cell hit on short visits, if at all, goes when this many of its 26 neighbours went */
     int min_passes_empty = 12; /* several drives: passes in one drive that never hit the cell */
 } pb_carve_config_t;
 
