@@ -374,7 +374,7 @@ int pass_carve(Run *R, const pb_ground_t *ground, pb_err_t *err)
                     under[(size_t)((ty - lo[1]) * w + (tx - lo[0]))] = c;
                 }
             R->carve_tiles_held_max = std::max(R->carve_tiles_held_max, (long)tiles.held.size());
-            // each ray cast in the tiles under it (one longer than max_range_m counts nowhere)
+            // each ray cast in the tiles under it (one longer than max_range_m: those within it)
             for (const Ray &r : rays) {
                 const int64_t x0 = std::max(lo[0], cgrid.of(std::min(r.o.x(), r.e.x()))),
                               x1 = std::min(hi[0], cgrid.of(std::max(r.o.x(), r.e.x()))),

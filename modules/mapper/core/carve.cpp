@@ -143,9 +143,11 @@ void pb_carve_ray(pb_carve_t *c, int64_t utime, const double o[3], const double 
 {
     double d[3] = {e[0] - o[0], e[1] - o[1], e[2] - o[2]};
     double len = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
-    if (!(len > 1e-6) || len > c->cfg.max_range_m) return;
+    if (!(len > 1e-6)) return;
+    /* a return beyond max_range_m is no hit, but the beam was free up to there */
+    const bool beyond = len > c->cfg.max_range_m;
     uint64_t key;
-    if (pb_loc::voxel_key_of(e[0], e[1], e[2], c->inv, &key)) {
+    if (!beyond && pb_loc::voxel_key_of(e[0], e[1], e[2], c->inv, &key)) {
         int32_t k = c->index.find(key);
         if (k >= 0 && c->counts[(size_t)k].raised >= 0 && e[2] > c->counts[(size_t)k].ground_z + c->cfg.raise_m)
             k = c->counts[(size_t)k].raised;
@@ -165,7 +167,7 @@ void pb_carve_ray(pb_carve_t *c, int64_t utime, const double o[3], const double 
         }
     }
     /* the cells the ray crosses up to end_margin_m before its end, in order (a 3-D DDA) */
-    const double stop = len - c->cfg.end_margin_m;
+    const double stop = beyond ? c->cfg.max_range_m : len - c->cfg.end_margin_m;
     if (stop <= 0) return;
     /* none of them among this map's (a part's) cells: the segment misses their box grown by a cell */
     double t0 = 0, t1 = stop;

@@ -24,7 +24,8 @@
  *
  * Cells are `cell_m` cubes over the map's points. What a ray crosses near its end is not
  * counted (the end's own cell, and `end_margin_m` before it: the beam's footprint and the
- * pose's error there). Cells within `ground_band_m` above the ground model are never carved
+ * pose's error there). A ray longer than `max_range_m` counts no hit, but passes up to
+ * `max_range_m` (the beam was free there: a bus's place seen through to a hill 100 m off). Cells within `ground_band_m` above the ground model are never carved
  * (grazing rays run along the road for metres before they hit it), but their points higher
  * than `raise_m` over the ground (at the cell's centre) are judged apart, as a cell of their
  * own: hits that end there and passes of rays that stay higher through the cell (a car's
@@ -50,14 +51,14 @@ typedef struct {
     double end_margin_m = 1.0;
     double ground_band_m = 0.4;
     double raise_m = 0.1;      /* a band cell's points higher over the ground than this are judged apart */
-    int min_passes = 6;        /* passes outside the visits the cell was hit in */
-    double max_range_m = 60;   /* rays are cut here: farther, beams are wide and poses' errors grow */
+    int min_passes = 7;        /* passes outside the visits the cell was hit in */
+    double max_range_m = 60;   /* rays count up to here (a farther return: no hit, passes up to here): beams widen */
     double transient_s = 2;    /* a cell hit over a longer visit than this was there, not passing by ... */
     double long_visit_s = 4;   /* ... unless passed min_passes_long times: road users one after the other */
     int min_passes_long = 16;
     double revisit_s = 10;     /* hits farther apart than this are two visits (two road users) */
     int max_visits = 2;        /* a cell hit on more visits than this holds something that stays */
-    int carved_beside = 6;     /* a cell hit on short visits, if at all, goes when this many of its 26 neighbours went */
+    int carved_beside = 5;     /* a cell hit on short visits, if at all, goes when this many of its 26 neighbours went */
     int min_passes_empty = 12; /* several drives: passes in one drive that never hit the cell */
 } pb_carve_config_t;
 
