@@ -307,7 +307,7 @@ struct CarveTiles {
 };
 
 /* Pass 3: what moved is carved out of the map (core/carve.h), on a sample of the rays
- * (every 4th sweep, every 13th point: 13 is prime to the beam count, so every beam takes
+ * (every 2nd sweep, every 13th point: 13 is prime to the beam count, so every beam takes
  * its turn) of every drive placed, each an hour after the last in the carving's time (two
  * drives' clocks may overlap), with the drive's number (pb_carve_set_drive); the band over
  * the ground model is spared. A tile of the carving is held while the rays of the last 10
@@ -326,7 +326,7 @@ int pass_carve(Run *R, const pb_ground_t *ground, pb_err_t *err)
     int drive = -1;
     const Run *now = nullptr;
     int64_t offset = 0, last = INT64_MIN;   /* drive's time + offset: the carving's */
-    int rc = for_each_drive_sweep(R, "mapper: carve", 4,
+    int rc = for_each_drive_sweep(R, "mapper: carve", 2,
         [&](Run *D, int64_t utime, const std::vector<float> &, const pb_points_t &pts, const pb_event_t &, pb_err_t *e) {
             if (D != now) {   /* the next drive: an hour after the last in the carving's time */
                 now = D;

@@ -57,7 +57,7 @@ static void window_test()
 }
 
 /* A return beyond max_range_m (60 m) is no hit, but its beam was free up to there: a cell at
- * x = 30 hit at 1 s, then crossed by 7 beams returning at x = 100: carved; a cell at x = 65,
+ * x = 30 hit at 1 s, then crossed by 10 beams returning at x = 100: carved; a cell at x = 65,
  * beyond the range on those beams: kept (neither hit nor passed) */
 static void range_test()
 {
@@ -66,7 +66,7 @@ static void range_test()
     const double o[3] = {0, 0.2, 1.2}, near[3] = {30, 0.2, 1.2}, far[3] = {65, 0.2, 1.2}, beyond[3] = {100, 0.2, 1.2};
     pb_carve_ray(c, 1000000, o, near);
     pb_carve_ray(c, 1000000, o, far);
-    for (int k = 0; k < 7; k++) pb_carve_ray(c, 3000000 + 100000 * k, o, beyond);
+    for (int k = 0; k < 10; k++) pb_carve_ray(c, 3000000 + 100000 * k, o, beyond);
     std::vector<uint8_t> keep;
     size_t carved = pb_carve_keep(c, nullptr, &keep);
     std::printf("range: carved %zu, keep %d %d\n", carved, keep[0], keep[1]);
@@ -152,13 +152,13 @@ static void visits_test()
 {
     /* cells at x = 10, 20, 30 (points at 0.3 0.3 0.3 in the cell): hit at 1 s and 30 s (two
      * visits: carved), at 1, 30 and 60 s (three: kept), at 1 and 6 s (one visit of 5 s, longer
-     * than long_visit_s: kept); seven passes at 10-14 s through each. x = 40, 50: hit at 1 and
+     * than long_visit_s: kept); ten passes at 10-16 s through each. x = 40, 50: hit at 1 and
      * 4 s (a visit of 3 s: longer than transient_s, road users one after the other), passed
-     * 16 times at 10-20 s (min_passes_long: carved) or 15 times (kept) */
+     * 22 times at 10-23 s (min_passes_long: carved) or 21 times (kept) */
     std::vector<float> pts = {10.3f, 0.3f, 0.3f, 20.3f, 0.3f, 0.3f, 30.3f, 0.3f, 0.3f, 40.3f, 0.3f, 0.3f, 50.3f, 0.3f, 0.3f};
     std::vector<Shot> shots;
     for (double x : {10.3, 20.3, 30.3, 40.3, 50.3}) {
-        const int passes = x < 35 ? 7 : x < 45 ? 16 : 15;
+        const int passes = x < 35 ? 10 : x < 45 ? 22 : 21;
         for (int k = 0; k < passes; k++) shots.push_back({10 + 0.6 * k, 1, x, 0.3});
         shots.push_back({1, 0, x, 0.3});
     }
@@ -184,9 +184,9 @@ static void visits_test()
     CHECK(carved == 1 && keep[0] == 1 && keep[1] == 0);
 
     /* neighbours: three 3 x 3 squares of cells, each cell hit at 1 s. Square A: its 8 outer
-     * cells passed 7 times after, its centre twice (carved with them: the same body). Square
+     * cells passed 10 times after, its centre twice (carved with them: the same body). Square
      * B: the same, its centre passed once but hit again at 8 s (a visit of 7 s: something that
-     * stayed; kept). Square C: 4 outer cells passed 7 times, the centre twice (kept: too few
+     * stayed; kept). Square C: 4 outer cells passed 10 times, the centre twice (kept: too few
      * carved around it) */
     pts.clear();
     shots.clear();
@@ -198,7 +198,7 @@ static void visits_test()
                 shots.push_back({1, 0, x, y});
                 bool centre = i == 1 && j == 1;
                 int outer = i * 3 + j - (i * 3 + j > 4);   /* 0..7 for the outer cells */
-                int n = centre ? (sq == 1 ? 1 : 2) : (sq == 2 && outer >= 4 ? 0 : 7);
+                int n = centre ? (sq == 1 ? 1 : 2) : (sq == 2 && outer >= 4 ? 0 : 10);
                 if (centre && sq == 1) shots.push_back({8, 0, x, y});
                 for (int k = 0; k < n; k++) shots.push_back({3 + 0.1 * k, 1, x, y});
             }
@@ -249,7 +249,7 @@ static void visits_test()
 
 /* Two drives (pb_carve_set_drive(1) between them; the second's clock an hour on): four
  * single-point cells as in window_test. x = 2: hit through 5 s of the first drive (a car
- * parked), passed through 20 times in the second without a hit (gone): carved. x = 4: hit
+ * parked), passed through 25 times in the second without a hit (gone): carved. x = 4: hit
  * through 5 s of both: kept. x = 6: hit within 0.5 s in each drive (a bus passing both days),
  * passed through 13 times after the first drive's hits and 13 times before the second's:
  * carved (each drive's own visit, the passes outside them added up: min_passes for each
@@ -263,10 +263,10 @@ static void drives_test()
     auto pass = [&](double t, double x) { double e[3] = {2 * x, 20, 1}; pb_carve_ray(c, (int64_t)std::llround(t * 1e6), o, e); };
     for (int day = 0; day < 2; day++) {
         const double t0 = day * 3600.0;
-        for (int k = 0; k < 20; k++) {
-            if (day == 0) hit(t0 + 0.25 * k, 2);
-            else pass(t0 + 0.25 * k, 2);
-            hit(t0 + 0.25 * k, 4);
+        for (int k = 0; k < 25; k++) {
+            if (day == 0) hit(t0 + 0.2 * k, 2);
+            else pass(t0 + 0.2 * k, 2);
+            hit(t0 + 0.2 * k, 4);
         }
         for (int k = 0; k < 6; k++) { hit(t0 + 1 + 0.1 * k, 6); hit(t0 + 1 + 0.1 * k, 8); }
         for (int k = 0; k < 13; k++) pass(day == 0 ? t0 + 2 + 0.05 * k : t0 + 0.05 * k, 6);

@@ -51,15 +51,15 @@ typedef struct {
     double end_margin_m = 1.0;
     double ground_band_m = 0.4;
     double raise_m = 0.1;      /* a band cell's points higher over the ground than this are judged apart */
-    int min_passes = 7;        /* passes outside the visits the cell was hit in */
+    int min_passes = 10;       /* passes outside the visits the cell was hit in */
     double max_range_m = 60;   /* rays count up to here (a farther return: no hit, passes up to here): beams widen */
     double transient_s = 2;    /* a cell hit over a longer visit than this was there, not passing by ... */
     double long_visit_s = 4;   /* ... unless passed min_passes_long times: road users one after the other */
-    int min_passes_long = 16;
+    int min_passes_long = 22;
     double revisit_s = 10;     /* hits farther apart than this are two visits (two road users) */
     int max_visits = 2;        /* a cell hit on more visits than this holds something that stays */
     int carved_beside = 5;     /* a cell hit on short visits, if at all, goes when this many of its 26 neighbours went */
-    int min_passes_empty = 12; /* several drives: passes in one drive that never hit the cell */
+    int min_passes_empty = 24; /* several drives: passes in one drive that never hit the cell */
 } pb_carve_config_t;
 
 typedef struct pb_carve pb_carve_t;
