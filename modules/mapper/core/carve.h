@@ -19,13 +19,15 @@
  * Passes outside the visits tell a car that drove by (seen through after it left) from a
  * wall seen edge-on (its grazing rays pass through its cells while it is hit), and a static
  * thing hit by few sampled rays from one that was there for a moment. The first version
- * (all passes against five times the hits, the whole ground band spared) left 37 times as
- * many points on moving objects of the simulated loop and carved more of the static world.
+ * (all passes against five times the hits, the whole ground band spared) left 460 times as
+ * many points on moving objects of the simulated loop (44,496 against 97) and carved more of
+ * the static world (0.71 % of it against 0.47 %).
  *
  * Cells are `cell_m` cubes over the map's points. What a ray crosses near its end is not
  * counted (the end's own cell, and `end_margin_m` before it: the beam's footprint and the
  * pose's error there). A ray longer than `max_range_m` counts no hit, but passes up to
- * `max_range_m` (the beam was free there: a bus's place seen through to a hill 100 m off). Cells within `ground_band_m` above the ground model are never carved
+ * `max_range_m` (the beam was free there: a bus's place seen through to a hill 100 m off).
+ * Cells within `ground_band_m` above the ground model are never carved
  * (grazing rays run along the road for metres before they hit it), but their points higher
  * than `raise_m` over the ground (at the cell's centre) are judged apart, as a cell of their
  * own: hits that end there and passes of rays that stay higher through the cell (a car's
