@@ -183,29 +183,33 @@ static void visits_test()
     std::printf("eighths: carved %zu, keep %d %d\n", carved, keep[0], keep[1]);
     CHECK(carved == 1 && keep[0] == 1 && keep[1] == 0);
 
-    /* neighbours: three 3 x 3 squares of cells, each cell hit at 1 s. Square A: its 8 outer
+    /* neighbours: five 3 x 3 squares of cells, each cell hit at 1 s. Square A: its 8 outer
      * cells passed 10 times after, its centre twice (carved with them: the same body). Square
      * B: the same, its centre passed once but hit again at 8 s (a visit of 7 s: something that
      * stayed; kept). Square C: 4 outer cells passed 10 times, the centre twice (kept: too few
-     * carved around it) */
+     * carved around it). Squares D and E: the centre hit again at 3.5 s (a visit of 2.5 s:
+     * road users one after the other) and passed 10 times after, fewer than min_passes_long;
+     * among 8 carved cells (D: carved) or 4 (E: kept) */
     pts.clear();
     shots.clear();
-    for (int sq = 0; sq < 3; sq++)
+    for (int sq = 0; sq < 5; sq++)
         for (int i = 0; i < 3; i++)
             for (int j = 0; j < 3; j++) {
                 double x = 10 * (sq + 1) + 0.5 * i + 0.3, y = 0.5 * j + 0.3;
                 pts.insert(pts.end(), {(float)x, (float)y, 0.3f});
                 shots.push_back({1, 0, x, y});
-                bool centre = i == 1 && j == 1;
+                bool centre = i == 1 && j == 1, longer = centre && sq >= 3;
                 int outer = i * 3 + j - (i * 3 + j > 4);   /* 0..7 for the outer cells */
-                int n = centre ? (sq == 1 ? 1 : 2) : (sq == 2 && outer >= 4 ? 0 : 10);
+                int n = longer ? 10 : centre ? (sq == 1 ? 1 : 2) : ((sq == 2 || sq == 4) && outer >= 4 ? 0 : 10);
                 if (centre && sq == 1) shots.push_back({8, 0, x, y});
-                for (int k = 0; k < n; k++) shots.push_back({3 + 0.1 * k, 1, x, y});
+                if (longer) shots.push_back({3.5, 0, x, y});
+                for (int k = 0; k < n; k++) shots.push_back({(longer ? 5 : 3) + 0.1 * k, 1, x, y});
             }
     keep = shoot(pts, shots, &carved);
-    std::printf("neighbours: carved %zu, centres kept %d %d %d\n", carved, keep[4], keep[13], keep[22]);
-    CHECK(carved == 8 + 1 + 8 + 4);
-    CHECK(keep[4] == 0 && keep[13] == 1 && keep[22] == 1);
+    std::printf("neighbours: carved %zu, centres kept %d %d %d %d %d\n", carved, keep[4], keep[13], keep[22], keep[31],
+                keep[40]);
+    CHECK(carved == 8 + 1 + 8 + 4 + 8 + 1 + 4);
+    CHECK(keep[4] == 0 && keep[13] == 1 && keep[22] == 1 && keep[31] == 0 && keep[40] == 1);
 
     /* the same squares in two parts split through them (each square's middle column of cells
      * in one part, the other two in the other), every shot in both: with every part's gone

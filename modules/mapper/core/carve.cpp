@@ -316,8 +316,9 @@ size_t pb_carve_keep(const pb_carve_t *c, const std::vector<uint64_t> *gone_keys
     const size_t ncells = c->counts.size();
     // 1. the cells seen through often enough outside their visits
     const std::vector<uint8_t> gone = gone_cells(c);
-    // 2. the cells seen through less often (or never: the sample is sparse) but lying among
-    //    such cells (here, or in the other parts' gone_keys): the rest of the same body
+    // 2. the cells seen through less often (or never: the sample is sparse), or hit over a
+    //    longer visit but seen through min_passes times, lying among such cells (here, or in
+    //    the other parts' gone_keys): the rest of the same body
     const std::vector<uint64_t> key = cell_keys(c);
     auto neighbour_gone = [&](uint64_t nk) {
         if (gone_keys) return std::binary_search(gone_keys->begin(), gone_keys->end(), nk);
@@ -329,7 +330,8 @@ size_t pb_carve_keep(const pb_carve_t *c, const std::vector<uint64_t> *gone_keys
     std::vector<uint8_t> grown(gone);
     for (size_t k = 0; k < ncells; k++) {
         const Count &n = c->counts[k];
-        if (gone[k] || !passing(cfg, n, cfg.transient_s)) continue;
+        if (gone[k] || !(passing(cfg, n, cfg.transient_s) || (passing(cfg, n, cfg.long_visit_s) && passed(n, cfg.min_passes))))
+            continue;
         int64_t v[3];
         pb_loc::voxel_unkey(key[k], &v[0], &v[1], &v[2]);
         int around = 0;
