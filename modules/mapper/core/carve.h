@@ -12,16 +12,17 @@
  * `long_visit_s` (road users one after the other) and that was passed `min_passes_long` times.
  * A cell the sampled rays never hit has no visit: all its passes count (its points came from
  * rays left out of the sample). Then a cell that passes the visits' test (visits of at most
- * `transient_s`, or none) but was passed fewer times, or never, goes too when `carved_beside`
- * of its 26 neighbours went: the rest of the same body, which the sparse sample crossed less
+ * `transient_s`, or none) but was passed fewer times, or never, or one hit over visits of up
+ * to `long_visit_s` and passed `min_passes` times, goes too when `carved_beside` of its 26
+ * neighbours went: the rest of the same body, which the sparse sample crossed less
  * often or not at all (a bus's roof, higher than the LiDAR: what passes through its place
  * after it left goes up into the sky and returns nothing).
  * Passes outside the visits tell a car that drove by (seen through after it left) from a
  * wall seen edge-on (its grazing rays pass through its cells while it is hit), and a static
  * thing hit by few sampled rays from one that was there for a moment. The first version
- * (all passes against five times the hits, the whole ground band spared) left 460 times as
- * many points on moving objects of the simulated loop (44,496 against 97) and carved more of
- * the static world (0.71 % of it against 0.47 %).
+ * (all passes against five times the hits, the whole ground band spared) left 1,400 times
+ * as many points on moving objects of the simulated loop (44,496 against 31) and carved more
+ * of the static world (0.71 % of it against 0.49 %).
  *
  * Cells are `cell_m` cubes over the map's points. What a ray crosses near its end is not
  * counted (the end's own cell, and `end_margin_m` before it: the beam's footprint and the
