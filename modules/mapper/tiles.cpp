@@ -309,7 +309,7 @@ struct CarveTiles {
 };
 
 /* Pass 3: what moved is carved out of the map (core/carve.h), on a sample of the rays
- * (every 4th sweep, every 13th point: 13 is prime to the beam count, so every beam takes
+ * (every 2nd sweep, every 13th point: 13 is prime to the beam count, so every beam takes
  * its turn) of every drive placed, each an hour after the last in the carving's time (two
  * drives' clocks may overlap), with the drive's number (pb_carve_set_drive); the band over
  * the ground model is spared. A tile of the carving is held while the rays of the last 10
@@ -328,7 +328,7 @@ int pass_carve(Run *R, const pb_ground_t *ground, pb_err_t *err)
     int drive = -1;
     const Run *now = nullptr;
     int64_t offset = 0, last = INT64_MIN;   /* drive's time + offset: the carving's */
-    int rc = for_each_drive_sweep(R, "mapper: carve", 4,
+    int rc = for_each_drive_sweep(R, "mapper: carve", 2,
         [&](Run *D, int64_t utime, const std::vector<float> &, const pb_points_t &pts, const pb_event_t &, pb_err_t *e) {
             if (D != now) {   /* the next drive: an hour after the last in the carving's time */
                 now = D;
@@ -376,7 +376,7 @@ int pass_carve(Run *R, const pb_ground_t *ground, pb_err_t *err)
                     under[(size_t)((ty - lo[1]) * w + (tx - lo[0]))] = c;
                 }
             R->carve_tiles_held_max = std::max(R->carve_tiles_held_max, (long)tiles.held.size());
-            // each ray cast in the tiles under it (one longer than max_range_m counts nowhere)
+            // each ray cast in the tiles under it (one longer than max_range_m: those within it)
             for (const Ray &r : rays) {
                 const int64_t x0 = std::max(lo[0], cgrid.of(std::min(r.o.x(), r.e.x()))),
                               x1 = std::min(hi[0], cgrid.of(std::max(r.o.x(), r.e.x()))),

@@ -56,6 +56,24 @@ static void window_test()
     check_four(c, "window", {1, 0, 0, 1});
 }
 
+/* A return beyond max_range_m (60 m) is no hit, but its beam was free up to there: a cell at
+ * x = 30 hit at 1 s, then crossed by 10 beams returning at x = 100: carved; a cell at x = 65,
+ * beyond the range on those beams: kept (neither hit nor passed) */
+static void range_test()
+{
+    const float pts[] = {30, 0.2f, 1.2f, 65, 0.2f, 1.2f};
+    pb_carve_t *c = pb_carve_create(pts, 2, 3, nullptr, nullptr);
+    const double o[3] = {0, 0.2, 1.2}, near[3] = {30, 0.2, 1.2}, far[3] = {65, 0.2, 1.2}, beyond[3] = {100, 0.2, 1.2};
+    pb_carve_ray(c, 1000000, o, near);
+    pb_carve_ray(c, 1000000, o, far);
+    for (int k = 0; k < 10; k++) pb_carve_ray(c, 3000000 + 100000 * k, o, beyond);
+    std::vector<uint8_t> keep;
+    size_t carved = pb_carve_keep(c, nullptr, &keep);
+    std::printf("range: carved %zu, keep %d %d\n", carved, keep[0], keep[1]);
+    CHECK(carved == 1 && keep[0] == 0 && keep[1] == 1);
+    pb_carve_destroy(c);
+}
+
 /* The same map carved in parts (tiles of 4 m by the carving's cells, as the mapper's),
  * every ray cast in every part, and every 10th sweep the parts paged out (their counts
  * saved, the part made again from its points and given them back): each point's verdict
@@ -134,20 +152,24 @@ static void visits_test()
 {
     /* cells at x = 10, 20, 30 (points at 0.3 0.3 0.3 in the cell): hit at 1 s and 30 s (two
      * visits: carved), at 1, 30 and 60 s (three: kept), at 1 and 6 s (one visit of 5 s, longer
-     * than transient_s: kept); six passes at 10-20 s through each */
-    std::vector<float> pts = {10.3f, 0.3f, 0.3f, 20.3f, 0.3f, 0.3f, 30.3f, 0.3f, 0.3f};
+     * than long_visit_s: kept); ten passes at 10-16 s through each. x = 40, 50: hit at 1 and
+     * 4 s (a visit of 3 s: longer than transient_s, road users one after the other), passed
+     * 22 times at 10-23 s (min_passes_long: carved) or 21 times (kept) */
+    std::vector<float> pts = {10.3f, 0.3f, 0.3f, 20.3f, 0.3f, 0.3f, 30.3f, 0.3f, 0.3f, 40.3f, 0.3f, 0.3f, 50.3f, 0.3f, 0.3f};
     std::vector<Shot> shots;
-    for (double x : {10.3, 20.3, 30.3}) {
-        for (int k = 0; k < 6; k++) shots.push_back({10 + 2.0 * k, 1, x, 0.3});
+    for (double x : {10.3, 20.3, 30.3, 40.3, 50.3}) {
+        const int passes = x < 35 ? 10 : x < 45 ? 22 : 21;
+        for (int k = 0; k < passes; k++) shots.push_back({10 + 0.6 * k, 1, x, 0.3});
         shots.push_back({1, 0, x, 0.3});
     }
     shots.push_back({30, 0, 10.3, 0.3});
     for (double t : {30.0, 60.0}) shots.push_back({t, 0, 20.3, 0.3});
     shots.push_back({6, 0, 30.3, 0.3});
+    for (double x : {40.3, 50.3}) shots.push_back({4, 0, x, 0.3});
     size_t carved;
     std::vector<uint8_t> keep = shoot(pts, shots, &carved);
-    std::printf("visits: carved %zu, keep %d %d %d\n", carved, keep[0], keep[1], keep[2]);
-    CHECK(carved == 1 && keep[0] == 0 && keep[1] == 1 && keep[2] == 1);
+    std::printf("visits: carved %zu, keep %d %d %d %d %d\n", carved, keep[0], keep[1], keep[2], keep[3], keep[4]);
+    CHECK(carved == 2 && keep[0] == 0 && keep[1] == 1 && keep[2] == 1 && keep[3] == 0 && keep[4] == 1);
 
     /* eighths: a point in its cell's low corner eighth, hit at 1 s; ten passes after through
      * the cell's other corner (kept) or through its eighth (carved) */
@@ -161,36 +183,42 @@ static void visits_test()
     std::printf("eighths: carved %zu, keep %d %d\n", carved, keep[0], keep[1]);
     CHECK(carved == 1 && keep[0] == 1 && keep[1] == 0);
 
-    /* neighbours: three 3 x 3 squares of cells, each cell hit at 1 s. Square A: its 8 outer
-     * cells passed 6 times after, its centre twice (carved with them: the same body). Square
-     * B: the same, its centre passed once (kept). Square C: 5 outer cells passed 6 times, the
-     * centre twice (kept: too few carved around it) */
+    /* neighbours: five 3 x 3 squares of cells, each cell hit at 1 s. Square A: its 8 outer
+     * cells passed 10 times after, its centre twice (carved with them: the same body). Square
+     * B: the same, its centre passed once but hit again at 8 s (a visit of 7 s: something that
+     * stayed; kept). Square C: 4 outer cells passed 10 times, the centre twice (kept: too few
+     * carved around it). Squares D and E: the centre hit again at 3.5 s (a visit of 2.5 s:
+     * road users one after the other) and passed 10 times after, fewer than min_passes_long;
+     * among 8 carved cells (D: carved) or 4 (E: kept) */
     pts.clear();
     shots.clear();
-    for (int sq = 0; sq < 3; sq++)
+    for (int sq = 0; sq < 5; sq++)
         for (int i = 0; i < 3; i++)
             for (int j = 0; j < 3; j++) {
                 double x = 10 * (sq + 1) + 0.5 * i + 0.3, y = 0.5 * j + 0.3;
                 pts.insert(pts.end(), {(float)x, (float)y, 0.3f});
                 shots.push_back({1, 0, x, y});
-                bool centre = i == 1 && j == 1;
+                bool centre = i == 1 && j == 1, longer = centre && sq >= 3;
                 int outer = i * 3 + j - (i * 3 + j > 4);   /* 0..7 for the outer cells */
-                int n = centre ? (sq == 1 ? 1 : 2) : (sq == 2 && outer >= 5 ? 0 : 6);
-                for (int k = 0; k < n; k++) shots.push_back({3 + 0.1 * k, 1, x, y});
+                int n = longer ? 10 : centre ? (sq == 1 ? 1 : 2) : ((sq == 2 || sq == 4) && outer >= 4 ? 0 : 10);
+                if (centre && sq == 1) shots.push_back({8, 0, x, y});
+                if (longer) shots.push_back({3.5, 0, x, y});
+                for (int k = 0; k < n; k++) shots.push_back({(longer ? 5 : 3) + 0.1 * k, 1, x, y});
             }
     keep = shoot(pts, shots, &carved);
-    std::printf("neighbours: carved %zu, centres kept %d %d %d\n", carved, keep[4], keep[13], keep[22]);
-    CHECK(carved == 8 + 1 + 8 + 5);
-    CHECK(keep[4] == 0 && keep[13] == 1 && keep[22] == 1);
+    std::printf("neighbours: carved %zu, centres kept %d %d %d %d %d\n", carved, keep[4], keep[13], keep[22], keep[31],
+                keep[40]);
+    CHECK(carved == 8 + 1 + 8 + 4 + 8 + 1 + 4);
+    CHECK(keep[4] == 0 && keep[13] == 1 && keep[22] == 1 && keep[31] == 0 && keep[40] == 1);
 
-    /* the same squares in two parts split through them (x mod 10 < 10.8: each square's first
-     * column of cells in one part, the other two in the other), every shot in both: with
-     * every part's gone cells, the verdicts are the whole map's; with each part's own alone,
-     * square A's centre loses the three neighbours over the border (5 < 6) and is kept */
+    /* the same squares in two parts split through them (each square's middle column of cells
+     * in one part, the other two in the other), every shot in both: with every part's gone
+     * cells, the verdicts are the whole map's; with each part's own alone, square A's centre
+     * loses the six neighbours over the borders (2 < 5) and is kept */
     std::vector<float> part[2];
     std::vector<size_t> at[2];
     for (size_t i = 0; i < pts.size() / 3; i++) {
-        int p = std::fmod(pts[3 * i], 10.0) < 0.8;
+        int p = std::fabs(std::fmod(pts[3 * i], 10.0) - 0.8) < 0.1;
         part[p].insert(part[p].end(), &pts[3 * i], &pts[3 * i + 3]);
         at[p].push_back(i);
     }
@@ -225,7 +253,7 @@ static void visits_test()
 
 /* Two drives (pb_carve_set_drive(1) between them; the second's clock an hour on): four
  * single-point cells as in window_test. x = 2: hit through 5 s of the first drive (a car
- * parked), passed through 20 times in the second without a hit (gone): carved. x = 4: hit
+ * parked), passed through 25 times in the second without a hit (gone): carved. x = 4: hit
  * through 5 s of both: kept. x = 6: hit within 0.5 s in each drive (a bus passing both days),
  * passed through 13 times after the first drive's hits and 13 times before the second's:
  * carved (each drive's own visit, the passes outside them added up: min_passes for each
@@ -239,10 +267,10 @@ static void drives_test()
     auto pass = [&](double t, double x) { double e[3] = {2 * x, 20, 1}; pb_carve_ray(c, (int64_t)std::llround(t * 1e6), o, e); };
     for (int day = 0; day < 2; day++) {
         const double t0 = day * 3600.0;
-        for (int k = 0; k < 20; k++) {
-            if (day == 0) hit(t0 + 0.25 * k, 2);
-            else pass(t0 + 0.25 * k, 2);
-            hit(t0 + 0.25 * k, 4);
+        for (int k = 0; k < 25; k++) {
+            if (day == 0) hit(t0 + 0.2 * k, 2);
+            else pass(t0 + 0.2 * k, 2);
+            hit(t0 + 0.2 * k, 4);
         }
         for (int k = 0; k < 6; k++) { hit(t0 + 1 + 0.1 * k, 6); hit(t0 + 1 + 0.1 * k, 8); }
         for (int k = 0; k < 13; k++) pass(day == 0 ? t0 + 2 + 0.05 * k : t0 + 0.05 * k, 6);
@@ -324,6 +352,7 @@ int main()
     pb_carve_destroy(c);
     parts_test(pts, ground, cast, keep);
     window_test();
+    range_test();
     visits_test();
     drives_test();
     pb_ground_destroy(ground);

@@ -58,6 +58,21 @@ struct pb_carve {
     std::vector<Count> counts;
     std::vector<int32_t> point_cell;   /* per map point, its cell (-1: outside the key range) */
     int64_t lo[3] = {INT64_MAX, INT64_MAX, INT64_MAX}, hi[3] = {INT64_MIN, INT64_MIN, INT64_MIN};   /* cells' extent */
+    /* a bit per cell of the extent, set where the map has points: a ray's walk crosses mostly
+     * empty cells, and a bit is cheaper to test than the index (empty when the extent is too large) */
+    std::vector<uint64_t> occupied;
+    int64_t span[2] = {0, 0};   /* the extent's cells along x, y */
+
+    uint64_t bit_of(const int64_t v[3]) const   /* v within the extent */
+    {
+        return (uint64_t)(((v[2] - lo[2]) * span[1] + (v[1] - lo[1])) * span[0] + (v[0] - lo[0]));
+    }
+    bool maybe_occupied(const int64_t v[3]) const
+    {
+        if (occupied.empty()) return true;
+        const uint64_t b = bit_of(v);
+        return (occupied[b >> 6] >> (b & 63)) & 1;
+    }
 };
 
 pb_carve_t *pb_carve_create(const float *xyz, size_t n, size_t stride, const pb_ground_t *ground,
@@ -101,6 +116,21 @@ pb_carve_t *pb_carve_create(const float *xyz, size_t n, size_t stride, const pb_
                               std::floor(p[2] * c->inv) * c->cfg.cell_m};
         c->counts[(size_t)k].occupied |= eighth_bit(pd, lo, c->cfg.cell_m / 2);
     }
+    /* the occupied cells' bits, when the extent is at most 2^26 cells (8 MB) */
+    if (!c->counts.empty()) {
+        const int64_t nz = c->hi[2] - c->lo[2] + 1;
+        c->span[0] = c->hi[0] - c->lo[0] + 1;
+        c->span[1] = c->hi[1] - c->lo[1] + 1;
+        if (c->span[0] * c->span[1] <= (1ll << 26) / nz) {
+            c->occupied.assign((size_t)((c->span[0] * c->span[1] * nz + 63) / 64), 0);
+            c->index.for_each([&](uint64_t key, int32_t) {
+                int64_t v[3];
+                pb_loc::voxel_unkey(key, &v[0], &v[1], &v[2]);
+                const uint64_t b = c->bit_of(v);
+                c->occupied[b >> 6] |= 1ull << (b & 63);
+            });
+        }
+    }
     return c;
 }
 
@@ -143,9 +173,11 @@ void pb_carve_ray(pb_carve_t *c, int64_t utime, const double o[3], const double 
 {
     double d[3] = {e[0] - o[0], e[1] - o[1], e[2] - o[2]};
     double len = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
-    if (!(len > 1e-6) || len > c->cfg.max_range_m) return;
+    if (!(len > 1e-6)) return;
+    /* a return beyond max_range_m is no hit, but the beam was free up to there */
+    const bool beyond = len > c->cfg.max_range_m;
     uint64_t key;
-    if (pb_loc::voxel_key_of(e[0], e[1], e[2], c->inv, &key)) {
+    if (!beyond && pb_loc::voxel_key_of(e[0], e[1], e[2], c->inv, &key)) {
         int32_t k = c->index.find(key);
         if (k >= 0 && c->counts[(size_t)k].raised >= 0 && e[2] > c->counts[(size_t)k].ground_z + c->cfg.raise_m)
             k = c->counts[(size_t)k].raised;
@@ -165,7 +197,7 @@ void pb_carve_ray(pb_carve_t *c, int64_t utime, const double o[3], const double 
         }
     }
     /* the cells the ray crosses up to end_margin_m before its end, in order (a 3-D DDA) */
-    const double stop = len - c->cfg.end_margin_m;
+    const double stop = beyond ? c->cfg.max_range_m : len - c->cfg.end_margin_m;
     if (stop <= 0) return;
     /* none of them among this map's (a part's) cells: the segment misses their box grown by a cell */
     double t0 = 0, t1 = stop;
@@ -201,7 +233,7 @@ void pb_carve_ray(pb_carve_t *c, int64_t utime, const double o[3], const double 
             if (step[b] > 0 ? v[b] > c->hi[b] : v[b] < c->lo[b]) return;
             inside &= v[b] >= c->lo[b] && v[b] <= c->hi[b];
         }
-        if (inside && pb_loc::voxel_key(v[0], v[1], v[2], &key)) {
+        if (inside && c->maybe_occupied(v) && pb_loc::voxel_key(v[0], v[1], v[2], &key)) {
             int32_t k = c->index.find(key);
             const double t_out = std::min(tmax[a], stop);
             if (k >= 0 && c->counts[(size_t)k].raised >= 0) {
@@ -224,11 +256,11 @@ void pb_carve_ray(pb_carve_t *c, int64_t utime, const double o[3], const double 
     }
 }
 
-/* A cell whose hits tell of a road user passing by: short visits, few enough of them. */
-static bool passing(const pb_carve_config_t &cfg, const Count &n)
+/* A cell whose hits tell of road users passing by: visits no longer than limit_s, few enough of them. */
+static bool passing(const pb_carve_config_t &cfg, const Count &n, double limit_s)
 {
     const double longest_s = n.hits ? std::max((double)n.longest_s, (double)(n.last_hit - n.visit_start) * 1e-6) : 0;
-    return !n.protect && n.visits <= cfg.max_visits && !(n.drive_flags & 4) && longest_s <= cfg.transient_s;
+    return !n.protect && n.visits <= cfg.max_visits && !(n.drive_flags & 4) && longest_s <= limit_s;
 }
 
 /* Passes enough outside the visits: min_passes for each drive that hit the cell (one drive
@@ -246,13 +278,15 @@ static bool empty(const pb_carve_config_t &cfg, const Count &n)
     return !n.protect && ((n.drive_flags & 2) || (!(n.drive_flags & 1) && n.drive_passes >= cfg.min_passes_empty));
 }
 
-/* Step 1: the cells seen through often enough outside their visits. */
+/* Step 1: the cells seen through often enough outside their visits (more often after a
+ * longer visit: several road users one after the other). */
 static std::vector<uint8_t> gone_cells(const pb_carve_t *c)
 {
     std::vector<uint8_t> gone(c->counts.size(), 0);
     for (size_t k = 0; k < c->counts.size(); k++) {
         const Count &n = c->counts[k];
-        gone[k] = (passing(c->cfg, n) && passed(n, c->cfg.min_passes)) || empty(c->cfg, n);
+        gone[k] = (passing(c->cfg, n, c->cfg.transient_s) && passed(n, c->cfg.min_passes)) ||
+                  (passing(c->cfg, n, c->cfg.long_visit_s) && passed(n, c->cfg.min_passes_long)) || empty(c->cfg, n);
     }
     return gone;
 }
@@ -282,8 +316,9 @@ size_t pb_carve_keep(const pb_carve_t *c, const std::vector<uint64_t> *gone_keys
     const size_t ncells = c->counts.size();
     // 1. the cells seen through often enough outside their visits
     const std::vector<uint8_t> gone = gone_cells(c);
-    // 2. the cells seen through less often but lying among such cells (here, or in the
-    //    other parts' gone_keys): the rest of the same body
+    // 2. the cells seen through less often (or never: the sample is sparse), or hit over a
+    //    longer visit but seen through min_passes times, lying among such cells (here, or in
+    //    the other parts' gone_keys): the rest of the same body
     const std::vector<uint64_t> key = cell_keys(c);
     auto neighbour_gone = [&](uint64_t nk) {
         if (gone_keys) return std::binary_search(gone_keys->begin(), gone_keys->end(), nk);
@@ -295,7 +330,8 @@ size_t pb_carve_keep(const pb_carve_t *c, const std::vector<uint64_t> *gone_keys
     std::vector<uint8_t> grown(gone);
     for (size_t k = 0; k < ncells; k++) {
         const Count &n = c->counts[k];
-        if (gone[k] || !passing(cfg, n) || !passed(n, cfg.min_passes_beside)) continue;
+        if (gone[k] || !(passing(cfg, n, cfg.transient_s) || (passing(cfg, n, cfg.long_visit_s) && passed(n, cfg.min_passes))))
+            continue;
         int64_t v[3];
         pb_loc::voxel_unkey(key[k], &v[0], &v[1], &v[2]);
         int around = 0;
