@@ -168,6 +168,13 @@ static void sibling(const char *yaml_path, const char *ext, char *out, size_t le
     strncat(out, ext, len - strlen(out) - 1);
 }
 
+/* Corners beyond width or height in a block on the grid's edge: never known (a caller of
+ * pb_ground_block_make may have written them). */
+static int inside(const pb_ground_t *g, int x, int y)
+{
+    return x < g->nx && y < g->ny;
+}
+
 static long code(float z, double z0)
 {
     return isnan(z) ? 0 : lround((z - z0) / SCALE_M) + 1;
@@ -184,7 +191,9 @@ int pb_ground_save(const pb_ground_t *g, const char *yaml_path, pb_err_t *err)
         const float *b = pb_ground_block(g, bxy[2 * k], bxy[2 * k + 1]);
         int known = 0;
         for (size_t i = 0; i < BB; i++)
-            if (!isnan(b[i])) { lo = fmin(lo, b[i]); hi = fmax(hi, b[i]); known = 1; }
+            if (!isnan(b[i]) && inside(g, bxy[2 * k] * B + (int)(i % B), bxy[2 * k + 1] * B + (int)(i / B))) {
+                lo = fmin(lo, b[i]); hi = fmax(hi, b[i]); known = 1;
+            }
         if (known) { bxy[2 * kept] = bxy[2 * k]; bxy[2 * kept + 1] = bxy[2 * k + 1]; kept++; }
     }
     if (!isfinite(lo)) lo = hi = 0;
@@ -206,7 +215,10 @@ int pb_ground_save(const pb_ground_t *g, const char *yaml_path, pb_err_t *err)
             const float *b = pb_ground_block(g, bxy[2 * k], bxy[2 * k + 1]);
             put_le(rec, (uint32_t)bxy[2 * k], 4);
             put_le(rec + 4, (uint32_t)bxy[2 * k + 1], 4);
-            for (size_t i = 0; i < BB; i++) put_le(rec + 8 + 2 * i, (uint64_t)code(b[i], z0), 2);
+            for (size_t i = 0; i < BB; i++) {
+                int in = inside(g, bxy[2 * k] * B + (int)(i % B), bxy[2 * k + 1] * B + (int)(i / B));
+                put_le(rec + 8 + 2 * i, in ? (uint64_t)code(b[i], z0) : 0, 2);
+            }
             put_le(rec + 8 + 2 * BB, fnv1a64(rec, 8 + 2 * BB), 8);
             fwrite(rec, 1, RECORD_BYTES, f);
         }

@@ -1,4 +1,4 @@
-# build-ground: a site's prior map (PCD) -> its ground model (ground.yaml + ground.pgm).
+# build-ground: a site's prior map (PCD) -> its ground model (ground.yaml + ground.pgm or .blocks).
 $(eval $(call cxx_program,build-ground,tools/build-ground))
 
 # Unit test of the core: built in blocks = one dense grid, corner for corner (tests/test_c_units.py).
