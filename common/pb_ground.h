@@ -63,8 +63,8 @@ int pb_ground_car(const pb_ground_t *g, double x, double y, double yaw, double w
 const float *pb_ground_block(const pb_ground_t *g, int bx, int by);   /* NULL: not held (all unknown) */
 /* The block, made all unknown if not held; NULL if outside the grid or out of memory. */
 float *pb_ground_block_make(pb_ground_t *g, int bx, int by);
-/* The blocks held, by row then column: bxy[2k] = bx, bxy[2k + 1] = by (bxy may be NULL:
- * the count only). */
+/* The number of blocks held; and when bxy is not NULL (room for 2 ints a block), which,
+ * by row then column: bxy[2k] = bx, bxy[2k + 1] = by. */
 size_t pb_ground_blocks(const pb_ground_t *g, int *bxy);
 
 #ifdef __cplusplus
