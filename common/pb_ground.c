@@ -202,8 +202,8 @@ int pb_ground_save(const pb_ground_t *g, const char *yaml_path, pb_err_t *err)
         free(bxy);
         return pb_err_set(err, "%s: heights span %.1f m, more than the format's 65.5 m", yaml_path, hi - lo);
     }
-    /* a large grid: the blocks; else the PGM (every corner) */
-    const int blocked = (long)g->nx * g->ny > PB_GROUND_DENSE_MAX;
+    /* a large grid or one mostly unknown: the blocks; else the PGM (every corner) */
+    const int blocked = (long)g->nx * g->ny > PB_GROUND_DENSE_MAX || 4 * (long)kept < (long)g->nbx * g->nby;
     char data[1200];
     sibling(yaml_path, blocked ? ".blocks" : ".pgm", data, sizeof data);
     FILE *f = fopen(data, "wb");

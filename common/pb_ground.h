@@ -7,8 +7,8 @@
  * Format: ground.yaml (origin_x, origin_y: map position of corner (0, 0); cell_m;
  * width, height: corners; z0_m, scale_m: height = z0_m + (v - 1) scale_m; file) and
  * either a 16-bit binary PGM (P5, maxval 65535, big-endian, row 0 = y origin) where
- * v = 0 is "unknown" (no ground seen there), or, for a large grid (the extent of a long
- * drive), the blocked file (ground.yaml with `block` and `blocks`): only the blocks of
+ * v = 0 is "unknown" (no ground seen there), or, for a large or mostly unknown grid (the
+ * extent of a long drive), the blocked file (ground.yaml with `block` and `blocks`): only the blocks of
  * corners that hold known ground (docs/sites.md).
  *
  * Memory: the grid is held in blocks of PB_GROUND_BLOCK x PB_GROUND_BLOCK corners, made
@@ -39,8 +39,8 @@ double pb_ground_get(const pb_ground_t *g, int ix, int iy);        /* NAN if unk
 void pb_ground_dims(const pb_ground_t *g, double *x0, double *y0, double *cell, int *nx, int *ny);
 
 /* Writes YAML_PATH and next to it (same name) the PGM (.pgm) or, when the grid has more
- * than PB_GROUND_DENSE_MAX corners, the blocks (.blocks); heights are rounded to 1 mm.
- * 0 or -1 with err. */
+ * than PB_GROUND_DENSE_MAX corners or fewer than a quarter of its blocks hold a known
+ * corner, the blocks (.blocks); heights are rounded to 1 mm. 0 or -1 with err. */
 #define PB_GROUND_DENSE_MAX (1L << 24)
 int pb_ground_save(const pb_ground_t *g, const char *yaml_path, pb_err_t *err);
 /* Reads a ground model (either file); a bad file is refused with FILE:LINE or the PGM's

@@ -115,6 +115,20 @@ static void blocked(const char *dir)
         CHECK(h == NULL && strstr(err.msg, "b.blocks: byte 8:"));
     }
     pb_ground_destroy(g);
+    /* a small grid mostly unknown (1 of 100 blocks): blocks too; a quarter known: the PGM */
+    g = pb_ground_create(0, 0, 0.25, 640, 640);
+    for (int j = 0; j < 64; j++)
+        for (int i = 0; i < 64; i++) pb_ground_set(g, 320 + i, 192 + j, 1.0);
+    CHECK(pb_ground_save(g, path, &err) == 0 && size_of(data) == 8 + rec);
+    unlink(data);
+    for (int k = 0; k < 25; k++) pb_ground_set(g, 64 * (k % 10), 64 * (k / 10), 2.0);
+    char pgm[256];
+    snprintf(pgm, sizeof pgm, "%s/b.pgm", dir);
+    CHECK(pb_ground_save(g, path, &err) == 0 && size_of(data) == -1 && size_of(pgm) > 640 * 640 * 2);
+    h = pb_ground_load(path, &err);
+    CHECK(h != NULL && pb_ground_get(h, 330, 210) == 1.0 && pb_ground_get(h, 64, 128) == 2.0);
+    pb_ground_destroy(h);
+    pb_ground_destroy(g);
     /* a grid the size of a continent holds nothing until set */
     g = pb_ground_create(0, 0, 0.25, 1 << 28, 1 << 28);
     CHECK(g != NULL);
@@ -123,7 +137,7 @@ static void blocked(const char *dir)
         CHECK(pb_ground_blocks(g, NULL) == 1 && pb_ground_get(g, (1 << 28) - 1, 12345678) == 3.0);
         pb_ground_destroy(g);
     }
-    unlink(path); unlink(data); unlink(keep);
+    unlink(path); unlink(data); unlink(keep); unlink(pgm);
 }
 
 int main(void)
