@@ -28,7 +28,7 @@ static void usage(FILE *f)
         "and the poses are solved again with these loops (Ceres pose graph).\n"
         "Writes SITE_DIR/map.pcd (binary PCD, one point per voxel), SITE_DIR/trajectory.tum\n"
         "(base in map at the middle of each sweep, after loop closure; TUM: t x y z qx qy qz qw),\n"
-        "SITE_DIR/odometry.tum (the same before loop closure), SITE_DIR/ground.yaml (+ .pgm, the\n"
+        "SITE_DIR/odometry.tum (the same before loop closure), SITE_DIR/ground.yaml (+ .pgm or .blocks, the\n"
         "ground model), SITE_DIR/map.tiles (the map prepared for the localizer), report.json and\n"
         "SITE_DIR/report.png (top-down: map grey, trajectory before loop closure orange and after\n"
         "blue, loops green, GNSS fixes red, points carved as moving objects magenta; north up\n"

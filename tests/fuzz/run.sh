@@ -5,6 +5,7 @@
 # A target names what it links in its own header, one line each:
 #   fuzz-sources: common/pb_log.c common/pb_err.c   (compiled with it; .c or .cpp)
 #   fuzz-libs: -lcjson                              (optional extra link flags)
+#   fuzz-max-len: 20000                             (optional; default 4096 bytes an input)
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 RUNS=${FUZZ_RUNS:-1000000}
@@ -33,7 +34,8 @@ for f in tests/fuzz/fuzz_*.c tests/fuzz/fuzz_*.cpp; do
   corpus=$out/$t.corpus; mkdir -p $corpus
   [ -d tests/fuzz/seeds/$t ] && cp -n tests/fuzz/seeds/$t/* $corpus/ 2>/dev/null || true
   log=$out/$t.log
-  if $out/$t -runs=$RUNS -max_len=4096 -print_final_stats=1 $corpus > $log 2>&1; then
+  maxlen=$(sed -n 's/.*fuzz-max-len: *\([0-9]*\).*/\1/p' "$f" | head -1)
+  if $out/$t -runs=$RUNS -max_len=${maxlen:-4096} -print_final_stats=1 $corpus > $log 2>&1; then
     execs=$(grep -o 'stat::number_of_executed_units: *[0-9]*' $log | grep -o '[0-9]*$')
     summary+=("$t: clean, $execs executions")
   else

@@ -51,6 +51,16 @@ def read_ground(yaml_path):
     """A ground model (docs/sites.md) as (x0, y0, cell, heights[ny, nx] with NaN unknown)."""
     y = yaml.safe_load(open(yaml_path))
     raw = open(pathlib.Path(yaml_path).parent / y["file"], "rb").read()
+    if "block" in y:    # the blocked file: records of bx, by, B x B values, checksum
+        b, w, h = y["block"], y["width"], y["height"]
+        nbx, nby = -(-w // b), -(-h // b)
+        v = np.zeros((nby * b, nbx * b), dtype=np.uint16)
+        rec = np.frombuffer(raw, dtype=np.uint8, offset=8).reshape(y["blocks"], 8 + 2 * b * b + 8)
+        for r in rec:
+            bx, by = r[:8].view("<i4")
+            v[by * b:(by + 1) * b, bx * b:(bx + 1) * b] = r[8:8 + 2 * b * b].view("<u2").reshape(b, b)
+        v = v[:h, :w].astype(np.float64)
+        return y["origin_x"], y["origin_y"], y["cell_m"], np.where(v > 0, y["z0_m"] + (v - 1) * y["scale_m"], np.nan)
     # header: P5, comments, width height, maxval, one whitespace
     tokens, i = [], 2
     while len(tokens) < 3:

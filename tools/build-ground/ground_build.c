@@ -20,11 +20,15 @@ static int cmp_float(const void *a, const void *b)
     return (x > y) - (x < y);
 }
 
+/* The grids are pb_ground_t's: blocks of corners held where a cell has a value, so each
+ * step's memory follows the map's points, not its extent; a step works a block at a time
+ * with the corners around it it needs from its neighbours (the same model as one grid). */
+#define B PB_GROUND_BLOCK
+
 struct gb_accum {
     gb_config_t c;
-    double x0, y0;
-    int nx, ny;
-    float *zmin;
+    pb_ground_t *zmin;  /* the lowest point per cell, NAN: none */
+    int failed;         /* out of memory */
 };
 
 void gb_bounds(const float *pts, size_t n, size_t stride, double lo[2], double hi[2])
@@ -40,31 +44,31 @@ void gb_bounds(const float *pts, size_t n, size_t stride, double lo[2], double h
 gb_accum_t *gb_begin(const double lo[2], const double hi[2], const gb_config_t *c)
 {
     if (!isfinite(lo[0])) return NULL;
-    gb_accum_t *a = malloc(sizeof *a);
+    gb_accum_t *a = calloc(1, sizeof *a);
     if (!a) return NULL;
     a->c = *c;
     const double cs = c->cell_m;
-    a->x0 = floor(lo[0] / cs) * cs;
-    a->y0 = floor(lo[1] / cs) * cs;
-    a->nx = (int)ceil((hi[0] - a->x0) / cs) + 2;
-    a->ny = (int)ceil((hi[1] - a->y0) / cs) + 2;
-    size_t N = (size_t)a->nx * a->ny;
-    a->zmin = malloc(N * sizeof *a->zmin);
+    const double x0 = floor(lo[0] / cs) * cs, y0 = floor(lo[1] / cs) * cs;
+    a->zmin = pb_ground_create(x0, y0, cs, (int)ceil((hi[0] - x0) / cs) + 2, (int)ceil((hi[1] - y0) / cs) + 2);
     if (!a->zmin) { free(a); return NULL; }
-    for (size_t k = 0; k < N; k++) a->zmin[k] = INFINITY;
     return a;
 }
 
 /* 1. lowest point per cell (cells centred on the grid's corners) */
 void gb_add(gb_accum_t *a, const float *pts, size_t n, size_t stride)
 {
-    const double cs = a->c.cell_m;
+    double x0, y0, cs;
+    int nx, ny;
+    pb_ground_dims(a->zmin, &x0, &y0, &cs, &nx, &ny);
     for (size_t i = 0; i < n; i++) {
         const float *p = pts + i * stride;
         if (!isfinite(p[0]) || !isfinite(p[1]) || !isfinite(p[2])) continue;
-        int ix = (int)lround((p[0] - a->x0) / cs), iy = (int)lround((p[1] - a->y0) / cs);
-        size_t k = (size_t)iy * a->nx + ix;
-        if (p[2] < a->zmin[k]) a->zmin[k] = p[2];
+        int ix = (int)lround((p[0] - x0) / cs), iy = (int)lround((p[1] - y0) / cs);
+        if (ix < 0 || iy < 0 || ix >= nx || iy >= ny) continue;    /* outside the bounds given */
+        float *b = pb_ground_block_make(a->zmin, ix / B, iy / B);
+        if (!b) { a->failed = 1; continue; }
+        float *z = &b[(size_t)(iy % B) * B + ix % B];
+        if (isnan(*z) || p[2] < *z) *z = p[2];
     }
 }
 
@@ -79,86 +83,175 @@ pb_ground_t *gb_build(const float *pts, size_t n, size_t stride, const gb_config
     return gb_finish(a, nground);
 }
 
+static int floor_div(int v, int d)
+{
+    return v >= 0 ? v / d : -((-v + d - 1) / d);
+}
+
+/* Block (bx, by) of g with h corners all round from the blocks about it: (B + 2h)^2
+ * floats, row-major, NAN where nothing is held or outside the grid. */
+static void gather(const pb_ground_t *g, int bx, int by, int h, float *out)
+{
+    const int W = B + 2 * h, x_lo = bx * B - h, y_lo = by * B - h;
+    for (size_t k = 0; k < (size_t)W * W; k++) out[k] = NAN;
+    for (int qy = floor_div(y_lo, B); qy <= floor_div(y_lo + W - 1, B); qy++)
+        for (int qx = floor_div(x_lo, B); qx <= floor_div(x_lo + W - 1, B); qx++) {
+            const float *b = pb_ground_block(g, qx, qy);
+            if (!b) continue;
+            for (int j = 0; j < B; j++) {
+                int y = qy * B + j - y_lo;
+                if (y < 0 || y >= W) continue;
+                for (int i = 0; i < B; i++) {
+                    int x = qx * B + i - x_lo;
+                    if (x >= 0 && x < W) out[(size_t)y * W + x] = b[(size_t)j * B + i];
+                }
+            }
+        }
+}
+
+/* A block's values into out's block (made only when one is known). 0, or -1: out of memory. */
+static int put_block(pb_ground_t *out, int bx, int by, const float *v)
+{
+    size_t k = 0;
+    while (k < (size_t)B * B && isnan(v[k])) k++;
+    if (k == (size_t)B * B) return 0;
+    float *b = pb_ground_block_make(out, bx, by);
+    if (!b) return -1;
+    memcpy(b, v, (size_t)B * B * sizeof *v);
+    return 0;
+}
+
+static pb_ground_t *like(const pb_ground_t *g)
+{
+    double x0, y0, cs;
+    int nx, ny;
+    pb_ground_dims(g, &x0, &y0, &cs, &nx, &ny);
+    return pb_ground_create(x0, y0, cs, nx, ny);
+}
+
+static int cmp_i64(const void *a, const void *b)
+{
+    int64_t x = *(const int64_t *)a, y = *(const int64_t *)b;
+    return (x > y) - (x < y);
+}
+
 pb_ground_t *gb_finish(gb_accum_t *a, size_t *nground)
 {
-    const gb_config_t cfg = a->c, *c = &cfg;
-    const double cs = c->cell_m, x0 = a->x0, y0 = a->y0;
-    const int nx = a->nx, ny = a->ny;
-    size_t N = (size_t)nx * ny;
-    /* two grids in turn (8 bytes a cell: the grid spans the map's extent, it is what the
-     * step's memory is) */
-    float *g = a->zmin, *tmp = malloc(N * sizeof *tmp);
+    const gb_config_t c = a->c;
+    pb_ground_t *z = a->zmin, *ground = like(z), *med = NULL, *cur = NULL, *next = NULL;
+    const int failed = a->failed;
     free(a);
-    /* 2. the lowest point within the window (separable: rows, then columns in place, the
-     * rows above kept as they were in a ring of r + 1) */
-    int r = (int)ceil(c->window_m / cs);
-    float *ring = malloc((size_t)(r + 1) * nx * sizeof *ring);
-    for (int y = 0; y < ny; y++)
-        for (int x = 0; x < nx; x++) {
-            float m = INFINITY;
-            for (int d = -r; d <= r; d++) if (x + d >= 0 && x + d < nx) m = fminf(m, g[(size_t)y * nx + x + d]);
-            tmp[(size_t)y * nx + x] = m;
-        }
-    for (int y = 0; y < ny; y++) {
-        memcpy(&ring[(size_t)(y % (r + 1)) * nx], &tmp[(size_t)y * nx], (size_t)nx * sizeof *tmp);
-        for (int x = 0; x < nx; x++) {
-            float m = INFINITY;
-            for (int d = -r; d <= r; d++) {
-                int yy = y + d;
-                if (yy < 0 || yy >= ny) continue;
-                m = fminf(m, yy <= y ? ring[(size_t)(yy % (r + 1)) * nx + x] : tmp[(size_t)yy * nx + x]);
+    double x0, y0, cs;
+    int nx, ny;
+    pb_ground_dims(z, &x0, &y0, &cs, &nx, &ny);
+    const int r = (int)ceil(c.window_m / cs), W = B + 2 * r;
+    size_t n = pb_ground_blocks(z, NULL), count = 0, nc = 0;
+    int *bxy = malloc((5 * n + 1) * 2 * sizeof *bxy);   /* the blocks held; later their neighbours too */
+    int64_t *cand = malloc((5 * n + 1) * sizeof *cand);
+    float *buf = malloc((size_t)W * W * sizeof *buf), *row = malloc((size_t)W * B * sizeof *row),
+          *v = malloc((size_t)B * B * sizeof *v);
+    if (failed || !ground || !bxy || !cand || !buf || !row || !v) goto fail;
+    pb_ground_blocks(z, bxy);
+    /* 2. the lowest point within the window (rows, then columns, over the block and r
+     * corners around it), and a cell is ground when its lowest point is near it */
+    const double tol = c.step_m + c.grade * c.window_m;
+    for (size_t k = 0; k < n; k++) {
+        gather(z, bxy[2 * k], bxy[2 * k + 1], r, buf);
+        for (int y = 0; y < W; y++)
+            for (int x = 0; x < B; x++) {
+                float m = INFINITY;
+                for (int d = 0; d <= 2 * r; d++) m = fminf(m, buf[(size_t)y * W + x + d]);
+                row[(size_t)y * B + x] = m;
             }
-            tmp[(size_t)y * nx + x] = m;
-        }
+        for (int y = 0; y < B; y++)
+            for (int x = 0; x < B; x++) {
+                float m = INFINITY, zc = buf[(size_t)(y + r) * W + x + r];
+                for (int d = 0; d <= 2 * r; d++) m = fminf(m, row[(size_t)(y + d) * B + x]);
+                v[(size_t)y * B + x] = (!isnan(zc) && zc - m <= tol) ? zc : NAN;
+                count += !isnan(v[(size_t)y * B + x]);
+            }
+        if (put_block(ground, bxy[2 * k], bxy[2 * k + 1], v)) goto fail;
     }
-    free(ring);
-    /* a cell is ground when its lowest point is near the window's (g: the lowest points, then the ground) */
-    double tol = c->step_m + c->grade * c->window_m;
-    size_t count = 0;
-    for (size_t k = 0; k < N; k++) {
-        g[k] = (isfinite(g[k]) && g[k] - tmp[k] <= tol) ? g[k] : NAN;
-        count += !isnan(g[k]);
-    }
+    pb_ground_destroy(z);
+    z = NULL;
     /* 3. 3x3 median over ground cells (a cell keeps its own value if alone) */
-    for (int y = 0; y < ny; y++)
-        for (int x = 0; x < nx; x++) {
-            size_t k = (size_t)y * nx + x;
-            tmp[k] = g[k];
-            if (isnan(g[k])) continue;
-            float v[9];
-            int m = 0;
-            for (int dy = -1; dy <= 1; dy++)
-                for (int dx = -1; dx <= 1; dx++) {
-                    int xx = x + dx, yy = y + dy;
-                    if (xx < 0 || yy < 0 || xx >= nx || yy >= ny) continue;
-                    float z = g[(size_t)yy * nx + xx];
-                    if (!isnan(z)) v[m++] = z;
-                }
-            qsort(v, m, sizeof *v, cmp_float);
-            tmp[k] = m % 2 ? v[m / 2] : 0.5f * (v[m / 2 - 1] + v[m / 2]);
-        }
-    float *t = g; g = tmp; tmp = t;
-    /* 4. fill holes near ground: each pass, unknown cells with known 4-neighbours take their mean */
-    int passes = (int)ceil(c->fill_m / cs);
-    for (int it = 0; it < passes; it++) {
-        memcpy(tmp, g, N * sizeof *g);
-        for (int y = 1; y < ny - 1; y++)
-            for (int x = 1; x < nx - 1; x++) {
-                size_t k = (size_t)y * nx + x;
-                if (!isnan(g[k])) continue;
-                const size_t nb[4] = { k - 1, k + 1, k - nx, k + nx };
-                double s = 0;
+    med = like(ground);
+    n = pb_ground_blocks(ground, bxy);
+    if (!med) goto fail;
+    for (size_t k = 0; k < n; k++) {
+        gather(ground, bxy[2 * k], bxy[2 * k + 1], 1, buf);
+        for (int y = 0; y < B; y++)
+            for (int x = 0; x < B; x++) {
+                float *o = &v[(size_t)y * B + x];
+                *o = buf[(size_t)(y + 1) * (B + 2) + x + 1];
+                if (isnan(*o)) continue;
+                float w[9];
                 int m = 0;
-                for (int q = 0; q < 4; q++) if (!isnan(g[nb[q]])) { s += g[nb[q]]; m++; }
-                if (m) tmp[k] = (float)(s / m);
+                for (int dy = 0; dy <= 2; dy++)
+                    for (int dx = 0; dx <= 2; dx++) {
+                        float zz = buf[(size_t)(y + dy) * (B + 2) + x + dx];
+                        if (!isnan(zz)) w[m++] = zz;
+                    }
+                qsort(w, m, sizeof *w, cmp_float);
+                *o = m % 2 ? w[m / 2] : 0.5f * (w[m / 2 - 1] + w[m / 2]);
             }
-        t = g; g = tmp; tmp = t;
+        if (put_block(med, bxy[2 * k], bxy[2 * k + 1], v)) goto fail;
     }
-    free(tmp);
-    pb_ground_t *out = pb_ground_create(x0, y0, cs, nx, ny);
-    for (int y = 0; y < ny; y++)
-        for (int x = 0; x < nx; x++) pb_ground_set(out, x, y, g[(size_t)y * nx + x]);
-    free(g);
+    pb_ground_destroy(ground);
+    ground = NULL;
+    /* 4. fill holes near ground: each pass, unknown cells (not on the grid's edge) with known
+     * 4-neighbours take their mean; a pass reaches one corner into the blocks about */
+    cur = med;
+    med = NULL;
+    const int passes = (int)ceil(c.fill_m / cs);
+    double bx0, by0, bcs;
+    int nbx, nby;
+    pb_ground_dims(cur, &bx0, &by0, &bcs, &nbx, &nby);
+    nbx = (nbx + B - 1) / B; nby = (nby + B - 1) / B;
+    for (int it = 0; it < passes; it++) {
+        n = pb_ground_blocks(cur, NULL);
+        int *nb = realloc(bxy, (2 * n + 1) * sizeof *bxy);
+        int64_t *nk = realloc(cand, (5 * n + 1) * sizeof *cand);
+        if (nb) bxy = nb;
+        if (nk) cand = nk;
+        if (!nb || !nk || !(next = like(cur))) goto fail;
+        pb_ground_blocks(cur, bxy);
+        nc = 0;
+        for (size_t k = 0; k < n; k++) {
+            static const int d[5][2] = { { 0, 0 }, { -1, 0 }, { 1, 0 }, { 0, -1 }, { 0, 1 } };
+            for (int q = 0; q < 5; q++) {
+                int qx = bxy[2 * k] + d[q][0], qy = bxy[2 * k + 1] + d[q][1];
+                if (qx >= 0 && qy >= 0 && qx < nbx && qy < nby) cand[nc++] = (int64_t)qy * nbx + qx;
+            }
+        }
+        qsort(cand, nc, sizeof *cand, cmp_i64);
+        for (size_t k = 0; k < nc; k++) {
+            if (k && cand[k] == cand[k - 1]) continue;
+            const int qx = (int)(cand[k] % nbx), qy = (int)(cand[k] / nbx), Wf = B + 2;
+            gather(cur, qx, qy, 1, buf);
+            for (int y = 0; y < B; y++)
+                for (int x = 0; x < B; x++) {
+                    const float *h = &buf[(size_t)(y + 1) * Wf + x + 1];
+                    const int gx = qx * B + x, gy = qy * B + y;
+                    v[(size_t)y * B + x] = h[0];
+                    if (!isnan(h[0]) || gx < 1 || gy < 1 || gx > nx - 2 || gy > ny - 2) continue;
+                    const float nbv[4] = { h[-1], h[1], h[-Wf], h[Wf] };
+                    double s = 0;
+                    int m = 0;
+                    for (int q = 0; q < 4; q++) if (!isnan(nbv[q])) { s += nbv[q]; m++; }
+                    if (m) v[(size_t)y * B + x] = (float)(s / m);
+                }
+            if (put_block(next, qx, qy, v)) goto fail;
+        }
+        pb_ground_destroy(cur);
+        cur = next;
+        next = NULL;
+    }
+    free(bxy); free(cand); free(buf); free(row); free(v);
     if (nground) *nground = count;
-    return out;
+    return cur;
+fail:
+    free(bxy); free(cand); free(buf); free(row); free(v);
+    pb_ground_destroy(z); pb_ground_destroy(ground); pb_ground_destroy(med); pb_ground_destroy(cur); pb_ground_destroy(next);
+    return NULL;
 }

@@ -7,6 +7,9 @@
  * cells up to fill_m from ground take the mean of their known neighbours (the road
  * under a parked car). Everything else stays unknown.
  *
+ * Memory: every grid is a pb_ground_t, held in blocks where the map has points (and the
+ * filling reaches): it follows the map's points, not its extent.
+ *
  * Ownership: gb_build returns a pb_ground_t the caller destroys. */
 #ifndef GROUND_BUILD_H
 #define GROUND_BUILD_H
@@ -27,13 +30,13 @@ typedef struct {
 } gb_config_t;
 
 void gb_config_default(gb_config_t *c);
-/* points: n x (x, y, z) floats, stride floats apart. NULL if n == 0. *nground counts
- * ground cells before filling. */
+/* points: n x (x, y, z) floats, stride floats apart. NULL if n == 0 or out of memory.
+ * *nground counts ground cells before filling. */
 pb_ground_t *gb_build(const float *points, size_t n, size_t stride, const gb_config_t *c, size_t *nground);
 
 /* The same from a map given in parts (a map too large to hold at once): the extent of all
- * its points first (gb_bounds over every part), then every part added, then finished;
- * the result is gb_build's on the whole map. Ownership: gb_begin returns an object that
+ * its points first (gb_bounds over every part), then every part added (points outside
+ * those bounds are dropped), then finished; the result is gb_build's on the whole map. Ownership: gb_begin returns an object that
  * gb_finish frees (NULL: no finite point, or out of memory). */
 typedef struct gb_accum gb_accum_t;
 void gb_bounds(const float *points, size_t n, size_t stride, double lo[2], double hi[2]);   /* start lo +inf, hi -inf */

@@ -1,4 +1,5 @@
-// build-ground: a site's prior map (PCD) -> its ground model (ground.yaml + ground.pgm).
+// build-ground: a site's prior map (PCD) -> its ground model (ground.yaml + ground.pgm, or
+// ground.blocks for a large grid).
 //
 // The shell: options, the PCD through PCL, the core (ground_build.h), the files
 // (common/pb_ground.h). Works on any prior map, simulated or assembled from real scans.
@@ -24,7 +25,9 @@ static void usage(FILE *f)
         "when it is at most STEP + GRADE x WINDOW above the lowest point within WINDOW\n"
         "metres (kerbs and slopes pass, car roofs and walls do not), a 3x3 median, and\n"
         "holes up to FILL metres from ground filled from their neighbours. Writes\n"
-        "GROUND.yaml and GROUND.pgm (16-bit heights, 0 = unknown).\n");
+        "GROUND.yaml and GROUND.pgm (16-bit heights, 0 = unknown), or GROUND.blocks (the\n"
+        "same heights in 64 x 64 blocks, only where ground is known) for a grid of more\n"
+        "than 2^24 corners (docs/sites.md).\n");
 }
 
 int main(int argc, char **argv)
