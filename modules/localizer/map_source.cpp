@@ -63,28 +63,8 @@ typedef int (*points_fn)(void *user, const float *xyz, size_t n, pb_err_t *err);
 
 static int pcl_points(const char *pcd, points_fn fn, void *user, pb_err_t *err)
 {
-    pcl::PCLPointCloud2 blob;
-    int rc;
-    try {
-        pcl::PCDReader reader;
-        rc = reader.read(pcd, blob);
-    } catch (const std::exception &e) {
-        return pb_err_set(err, "%s: corrupt PCD: %s", pcd, e.what());
-    }
-    if (rc < 0) return pb_err_set(err, "%s: corrupt or unreadable PCD (PCL reader code %d)", pcd, rc);
-    bool has[3] = {false, false, false};
-    for (const auto &f : blob.fields)
-        for (int a = 0; a < 3; a++)
-            if (f.name == std::string(1, (char)('x' + a))) has[a] = true;
-    if (!has[0] || !has[1] || !has[2]) return pb_err_set(err, "%s: PCD has no x, y, z fields", pcd);
-    pcl::PointCloud<pcl::PointXYZ> cloud;
-    pcl::fromPCLPointCloud2(blob, cloud);
-    blob = pcl::PCLPointCloud2();
     std::vector<float> xyz;
-    for (const auto &p : cloud.points) {
-        if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z)) continue;
-        xyz.push_back(p.x); xyz.push_back(p.y); xyz.push_back(p.z);
-    }
+    if (pb_pcd_read_xyz(pcd, &xyz, nullptr, err) != 0) return -1;
     return fn(user, xyz.data(), xyz.size() / 3, err);
 }
 

@@ -194,6 +194,34 @@ pb_regmap_t *pb_regmap_from_points(const float *xyz, size_t n, const pb_regmap_c
     return build(xyz, n, cfg, "points", err);
 }
 
+int pb_pcd_read_xyz(const char *pcd_path, std::vector<float> *xyz, size_t *total, pb_err_t *err)
+{
+    /* PCL parses the header and every data form (ascii, binary, binary_compressed) */
+    pcl::PCLPointCloud2 blob;
+    int rc;
+    try {
+        pcl::PCDReader reader;
+        rc = reader.read(pcd_path, blob);
+    } catch (const std::exception &e) {
+        return pb_err_set(err, "%s: corrupt PCD: %s", pcd_path, e.what());
+    }
+    if (rc < 0) return pb_err_set(err, "%s: corrupt or unreadable PCD (PCL reader code %d)", pcd_path, rc);
+    bool has[3] = {false, false, false};
+    for (const auto &f : blob.fields)
+        for (int a = 0; a < 3; a++)
+            if (f.name == std::string(1, (char)('x' + a))) has[a] = true;
+    if (!has[0] || !has[1] || !has[2]) return pb_err_set(err, "%s: PCD has no x, y, z fields", pcd_path);
+    pcl::PointCloud<pcl::PointXYZ> cloud;
+    pcl::fromPCLPointCloud2(blob, cloud);
+    blob = pcl::PCLPointCloud2();
+    xyz->clear();
+    xyz->reserve(cloud.size() * 3);
+    for (const auto &p : cloud.points)
+        if (std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.z)) xyz->insert(xyz->end(), {p.x, p.y, p.z});
+    if (total) *total = cloud.size();
+    return 0;
+}
+
 pb_regmap_t *pb_regmap_load(const char *pcd_path, const pb_regmap_config_t *cfg,
                             const double center_xy[2], pb_err_t *err)
 {
@@ -213,45 +241,20 @@ pb_regmap_t *pb_regmap_load(const char *pcd_path, const pb_regmap_config_t *cfg,
         pb_err_set(err, "%s: load radius %g m needs a centre", pcd_path, cfg->load_radius_m);
         return nullptr;
     }
-    /* PCL parses the header and every data form (ascii, binary, binary_compressed) */
-    pcl::PCLPointCloud2 blob;
-    int rc;
-    try {
-        pcl::PCDReader reader;
-        rc = reader.read(pcd_path, blob);
-    } catch (const std::exception &e) {
-        pb_err_set(err, "%s: corrupt PCD: %s", pcd_path, e.what());
-        return nullptr;
-    }
-    if (rc < 0) {
-        pb_err_set(err, "%s: corrupt or unreadable PCD (PCL reader code %d)", pcd_path, rc);
-        return nullptr;
-    }
-    bool has[3] = {false, false, false};
-    for (const auto &f : blob.fields)
-        for (int a = 0; a < 3; a++)
-            if (f.name == std::string(1, (char)('x' + a))) has[a] = true;
-    if (!has[0] || !has[1] || !has[2]) {
-        pb_err_set(err, "%s: PCD has no x, y, z fields", pcd_path);
-        return nullptr;
-    }
-    pcl::PointCloud<pcl::PointXYZ> cloud;
-    pcl::fromPCLPointCloud2(blob, cloud);
-    blob = pcl::PCLPointCloud2();
-    /* keep finite points, within the load disc if one is asked for */
     std::vector<float> xyz;
-    xyz.reserve(cloud.size() * 3);
+    size_t total = 0;
+    if (pb_pcd_read_xyz(pcd_path, &xyz, &total, err) != 0) return nullptr;
+    /* within the load disc if one is asked for */
     double r2 = cfg->load_radius_m * cfg->load_radius_m;
-    for (const auto &p : cloud.points) {
-        if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z)) continue;
-        if (r2 > 0) {
-            double dx = p.x - center_xy[0], dy = p.y - center_xy[1];
+    if (r2 > 0) {
+        size_t kept = 0;
+        for (size_t i = 0; i + 2 < xyz.size(); i += 3) {
+            double dx = xyz[i] - center_xy[0], dy = xyz[i + 1] - center_xy[1];
             if (dx * dx + dy * dy > r2) continue;
+            for (int a = 0; a < 3; a++) xyz[kept++] = xyz[i + (size_t)a];
         }
-        xyz.push_back(p.x); xyz.push_back(p.y); xyz.push_back(p.z);
+        xyz.resize(kept);
     }
-    size_t total = cloud.size();
-    cloud = pcl::PointCloud<pcl::PointXYZ>();
     if (xyz.empty()) {
         if (r2 > 0)
             pb_err_set(err, "%s: none of %zu points within %g m of (%.1f, %.1f)", pcd_path, total,

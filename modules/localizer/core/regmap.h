@@ -48,6 +48,11 @@ typedef struct pb_regmap pb_regmap_t;
 pb_regmap_t *pb_regmap_load(const char *pcd_path, const pb_regmap_config_t *cfg,
                             const double center_xy[2], pb_err_t *err);
 
+/* The finite points of a PCD file (fields x y z [...]; every data form PCL reads: ascii,
+ * binary, binary_compressed) into *xyz (interleaved, replaced); *total (may be NULL) gets
+ * the file's point count. 0, or -1 with err naming the file. */
+int pb_pcd_read_xyz(const char *pcd_path, std::vector<float> *xyz, size_t *total, pb_err_t *err);
+
 /* Builds from n points (xyz interleaved, map frame, metres). load_radius_m is
  * ignored. Returns NULL (err set) if n == 0 or no cell gets a target. */
 pb_regmap_t *pb_regmap_from_points(const float *xyz, size_t n, const pb_regmap_config_t *cfg,
