@@ -175,6 +175,35 @@ static bool verify(Points &P, const std::vector<pb_keyframe_t> &kf, const std::v
     return true;
 }
 
+/* The keyframes kf[0, end) most alike a place of descriptor dj, among those with points for
+ * which keep(i) holds: a ring-key shortlist (rotation invariant) compared in full, kept when
+ * within place_max_distance and fits(i, yaw); (distance, keyframe, yaw), nearest first. */
+template <class Keep, class Fits>
+static std::vector<std::tuple<double, size_t, double>> most_alike(Points &P, const std::vector<pb_keyframe_t> &kf,
+                                                                  size_t end, const pb_loc::place_desc_t &dj,
+                                                                  const pb_loops_config_t &cfg, Keep keep, Fits fits)
+{
+    pb_loc::places_config_t pcfg;
+    std::vector<std::pair<double, size_t>> rk;
+    for (size_t i = 0; i < end; i++) {
+        if (!P.has(kf[i]) || !keep(i)) continue;
+        const pb_loc::place_desc_t &di = P.desc(kf[i]);
+        double d = 0;
+        for (int r = 0; r < pb_loc::PLACE_RINGS; r++) d += std::fabs(dj.ring_key[r] - di.ring_key[r]);
+        rk.push_back({d, i});
+    }
+    const size_t m = std::min(rk.size(), kPlaceShortlist);
+    std::partial_sort(rk.begin(), rk.begin() + (long)m, rk.end());
+    std::vector<std::tuple<double, size_t, double>> alike;
+    for (size_t q = 0; q < m; q++) {
+        const size_t i = rk[q].second;
+        double yaw, d = pb_loc::places_compare(pcfg, dj, P.desc(kf[i]), &yaw);
+        if (d <= cfg.place_max_distance && fits(i, yaw)) alike.push_back({d, i, yaw});
+    }
+    std::sort(alike.begin(), alike.end());
+    return alike;
+}
+
 /* Least squares over the odometry edges and the loops, the first keyframe fixed. */
 static int solve(const std::vector<pb_keyframe_t> &kf, const std::vector<Loop> &loops, const pb_loops_config_t &cfg,
                  std::vector<Eigen::Isometry3d> *out, int *iterations, pb_err_t *err)
@@ -220,7 +249,6 @@ static int close_placed(Points &P, const std::vector<pb_keyframe_t> &kf, const p
 
     // 1-2. candidates by position and by place (the localizer's Scan-Context-like
     //      descriptor), each verified against the earlier pass's map
-    pb_loc::places_config_t pcfg;
     size_t last_position = 0, last_place = 0;   /* the last keyframes that tried */
     for (size_t j = 1; j < n; j++) {
         if (!P.has(kf[j])) continue;
@@ -246,28 +274,15 @@ static int close_placed(Points &P, const std::vector<pb_keyframe_t> &kf, const p
          *    best distinct places, not the position candidate's */
         if (!last_place || j - last_place >= (size_t)cfg.try_every) {
             last_place = j;
-            std::vector<std::pair<double, size_t>> rk;
-            for (size_t i = 0; i < behind; i++) {
-                /* the position part of the drift bound already (yaw below) */
-                const double reach = cfg.max_correction_m + cfg.place_max_drift * (s[j] - s[i]) + cfg.place_search_m;
-                if (!P.has(kf[i]) || (kf[i].pose.translation() - kf[j].pose.translation()).norm() > reach) continue;
-                const pb_loc::place_desc_t &di = P.desc(kf[i]);
-                double d = 0;
-                for (int r = 0; r < pb_loc::PLACE_RINGS; r++) d += std::fabs(dj.ring_key[r] - di.ring_key[r]);
-                rk.push_back({d, i});
-            }
-            size_t m = std::min(rk.size(), kPlaceShortlist);
-            std::partial_sort(rk.begin(), rk.begin() + (long)m, rk.end());
-            std::vector<std::tuple<double, size_t, double>> alike;   /* distance, keyframe, yaw */
-            for (size_t q = 0; q < m; q++) {
-                size_t i = rk[q].second;
-                double yaw, d = pb_loc::places_compare(pcfg, dj, P.desc(kf[i]), &yaw);
-                Eigen::Isometry3d at_i = kf[i].pose * Eigen::AngleAxisd(yaw, Vec3::UnitZ());
-                if (d <= cfg.place_max_distance &&
-                    within_drift(kf, s, cfg, i, j, at_i, cfg.place_max_drift, cfg.place_search_m, cfg.search_yaw_deg))
-                    alike.push_back({d, i, yaw});
-            }
-            std::sort(alike.begin(), alike.end());
+            const auto alike = most_alike(P, kf, behind, dj, cfg,
+                [&](size_t i) {   /* the position part of the drift bound already (yaw below) */
+                    const double reach = cfg.max_correction_m + cfg.place_max_drift * (s[j] - s[i]) + cfg.place_search_m;
+                    return (kf[i].pose.translation() - kf[j].pose.translation()).norm() <= reach;
+                },
+                [&](size_t i, double yaw) {
+                    Eigen::Isometry3d at_i = kf[i].pose * Eigen::AngleAxisd(yaw, Vec3::UnitZ());
+                    return within_drift(kf, s, cfg, i, j, at_i, cfg.place_max_drift, cfg.place_search_m, cfg.search_yaw_deg);
+                });
             int from_place = 0;
             for (const auto &[d, i, yaw] : alike) {
                 if (from_place >= cfg.place_candidates) break;
@@ -374,7 +389,6 @@ static bool place(Points &P, const std::vector<pb_keyframe_t> &placed, const std
                   pb_drive_report_t *dr, Eigen::Isometry3d *placement, std::vector<Loop> *two,
                   std::vector<Eigen::Isometry3d> *poses)
 {
-    pb_loc::places_config_t pcfg;
     struct Match { size_t i, j; double sj; Eigen::Isometry3d pose; };
     std::vector<Match> found;
     double sj = 0;   /* path along the drive */
@@ -385,22 +399,8 @@ static bool place(Points &P, const std::vector<pb_keyframe_t> &placed, const std
         last = j;
         const pb_loc::place_desc_t &dj = P.desc(kf[j]);
         /* the most alike places (a ring-key shortlist compared in full), distinct ones */
-        std::vector<std::pair<double, size_t>> rk;
-        for (size_t i = 0; i < placed.size(); i++) {
-            if (!P.has(placed[i])) continue;
-            const pb_loc::place_desc_t &di = P.desc(placed[i]);
-            double d = 0;
-            for (int r = 0; r < pb_loc::PLACE_RINGS; r++) d += std::fabs(dj.ring_key[r] - di.ring_key[r]);
-            rk.push_back({d, i});
-        }
-        size_t m = std::min(rk.size(), kPlaceShortlist);
-        std::partial_sort(rk.begin(), rk.begin() + (long)m, rk.end());
-        std::vector<std::tuple<double, size_t, double>> alike;   /* distance, keyframe, yaw */
-        for (size_t q = 0; q < m; q++) {
-            double yaw, d = pb_loc::places_compare(pcfg, dj, P.desc(placed[rk[q].second]), &yaw);
-            if (d <= cfg.place_max_distance) alike.push_back({d, rk[q].second, yaw});
-        }
-        std::sort(alike.begin(), alike.end());
+        const auto alike = most_alike(P, placed, placed.size(), dj, cfg, [](size_t) { return true; },
+                                      [](size_t, double) { return true; });
         std::vector<size_t> tried;
         for (const auto &[d, i, yaw] : alike) {
             if ((int)tried.size() >= cfg.place_candidates) break;
