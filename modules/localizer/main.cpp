@@ -155,7 +155,7 @@ static void to_pose_msg(const pose_out_t &p, portobello_pose_t *m)
 
 static bool is_info(const std::string &c)
 {
-    return c.rfind("to_", 0) == 0 || c == "init_candidate" || c == "initial_pose";
+    return c.rfind("to_", 0) == 0 || c == "init_candidate" || c == "initial_pose" || c == "match_structure_peak";
 }
 
 /* Publishes what the core produced. t0: wall time at the start of the handler; a sweep's

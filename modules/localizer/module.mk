@@ -7,6 +7,14 @@ BENCH_TARGETS += bench-localizer-drive
 bench-localizer-drive: $(BIN)/localizer $(BIN)/simdrive $(BIN)/can $(BIN)/log-merge
 	@$(VPY) modules/localizer/bench/bench_drive.py
 
+# A street of trees (the default site without buildings; solid and porous canopies): the
+# case where real data is hard and the default site is not. Tracking over a 40 s drive and
+# the starts of bench-localizer-drive; about 5 minutes. build/bench/localizer-trees.json.
+BENCH_TARGETS += bench-localizer-trees
+.PHONY: bench-localizer-trees
+bench-localizer-trees: $(BIN)/localizer $(BIN)/simdrive $(BIN)/build-map $(BIN)/build-ground $(BIN)/map-tiles
+	@$(VPY) modules/localizer/bench/tree_street.py
+
 # Resident memory of the localizer as it runs (map paged in tiles) vs every tile held (the
 # whole map), over a one-hour replay (a 232 s lap looped 16 times; replayed faster than
 # real time, 20-40 minutes on the shared machine). LOCMEM_LOOPS=N for fewer laps.

@@ -99,7 +99,8 @@ static void *worker(void *arg)
                 int32_t mm = 0;
                 uint8_t refl = 0;
                 uint64_t h = rng_u64(seed, RNG_LIDAR_DROP, scan, (uint64_t)px);
-                int seen = world_raycast(ls->world, o, d, maxr, mov, j->nmov, mail, ls->stamp[j->tid], &hit);
+                int seen = world_raycast(ls->world, o, d, maxr, mov, j->nmov, mail, ls->stamp[j->tid],
+                                          rng_u64(seed, RNG_FOLIAGE, scan, (uint64_t)px) | 1, &hit);
                 if (ls->body_range && ls->body_range[px] < (seen ? hit.t : INFINITY)) {   /* the car's own body */
                     seen = 1;
                     hit.t = ls->body_range[px];

@@ -51,7 +51,7 @@ static void usage(FILE *f)
         "                [--site SITE_DIR] [--vehicle FILE] [--mapping] [--no-lidar] [--quiet]\n"
         "                [--scenario FILE [--head]]\n"
         "                [--driver-spread F] [--without GROUPS] [--with GROUPS] [--dwell S]...\n"
-        "                [--reverse M]\n"
+        "                [--reverse M] [--foliage-depth M]\n"
         "       simdrive --terrain-out GROUND.yaml [--site SITE_DIR]\n"
         "\n"
         "Simulates a drive around a site's route and writes DIR/drive.lcm (LCM log) and\n"
@@ -97,6 +97,9 @@ static void usage(FILE *f)
         "  --reverse M           at the first stop met, shift to R, back M metres (1 to 500)\n"
         "                        along the route at 2.5 m/s, shift to D and drive back to\n"
         "                        the stop line (a reversing manoeuvre; deterministic)\n"
+        "  --foliage-depth M     foliage as a LiDAR sees it: a beam into a canopy (class\n"
+        "                        foliage) stops at a random depth of mean M metres, or goes\n"
+        "                        through; new at every sweep (default 0: solid spheres)\n"
         "  --quiet               no progress bar\n"
         "  --terrain-out FILE    write the site's true ground (the terrain's drivable and\n"
         "                        walkable cells; others unknown) as a ground model and exit\n"
@@ -176,7 +179,7 @@ int main(int argc, char **argv)
     dwells_t dwells = { .n = 0 };
     const char *scenario = NULL;
     const char *terrain_out = NULL, *without_arg = "", *with = "", *surface_points = NULL;
-    double driver_spread = 0, reverse_m = 0;
+    double driver_spread = 0, reverse_m = 0, foliage_depth = 0;
     const pb_opt_t opts[] = {
         PB_OPT_STRING("out", &out_dir), PB_OPT_LONG("seed", &seed, 0, LONG_MAX),
         PB_OPT_DOUBLE("duration", &duration, 0.001, 24 * 3600),
@@ -185,7 +188,8 @@ int main(int argc, char **argv)
         PB_OPT_DOUBLE("driver-spread", &driver_spread, 0, 0.5), PB_OPT_STRING("without", &without_arg),
         PB_OPT_STRING("with", &with), PB_OPT_FLAG("no-lidar", &no_lidar, 1), PB_OPT_FLAG("quiet", &quiet, 1),
         PB_OPT_STRING("scenario", &scenario), PB_OPT_FLAG("head", &head, 1), PB_OPT_CALL("dwell", add_dwell, &dwells),
-        PB_OPT_DOUBLE("reverse", &reverse_m, 1, 500), PB_OPT_STRING("surface-distance", &surface_points), PB_OPT_END,
+        PB_OPT_DOUBLE("reverse", &reverse_m, 1, 500), PB_OPT_STRING("surface-distance", &surface_points),
+        PB_OPT_DOUBLE("foliage-depth", &foliage_depth, 0, 20), PB_OPT_END,
     };
     int parsed = pb_opt_parse("simdrive", opts, usage, 0, argc, argv);
     if (parsed >= 0) return parsed;
@@ -229,6 +233,7 @@ int main(int argc, char **argv)
         return 2;
     }
     world_build_grid(&world, mapping ? DAY_MAP : DAY_DRIVE, GRID_CELL_M);
+    world.foliage_depth_m = foliage_depth;
     sim_occ_t *occ = NULL;
     if (scenario) {
         char sc_path[1200];

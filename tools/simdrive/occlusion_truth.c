@@ -130,7 +130,7 @@ void sim_occ_truth(sim_occ_t *so, const body_state_t *b, int64_t utime, pb_log_o
             if (++so->stamp == 0) { memset(so->mail, 0, so->world->nprims * sizeof *so->mail); so->stamp = 1; }
             hit_t hit;
             if (len > SURFACE_EPS_M &&
-                world_raycast(so->world, eye, d, len - SURFACE_EPS_M, mov, nmov, so->mail, so->stamp, &hit)) {
+                world_raycast(so->world, eye, d, len - SURFACE_EPS_M, mov, nmov, so->mail, so->stamp, 0, &hit)) {
                 so->state[i][k] = PORTOBELLO_AGENT_OCCLUSION_T_STATE_HIDDEN;
                 so->occ_m[i][k] = (float)hit.t;
             } else {

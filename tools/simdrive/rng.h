@@ -8,7 +8,7 @@
 
 enum {  /* streams: one per use, so adding a draw never shifts another */
     RNG_LIDAR_NOISE = 1, RNG_LIDAR_DROP, RNG_LIDAR_REFL, RNG_IMU, RNG_IMU_BIAS,
-    RNG_GNSS, RNG_CAN_JITTER, RNG_DWELL, RNG_TRAFFIC, RNG_DRIVER, RNG_LEAD, RNG_ACTORS,
+    RNG_GNSS, RNG_CAN_JITTER, RNG_DWELL, RNG_TRAFFIC, RNG_DRIVER, RNG_LEAD, RNG_ACTORS, RNG_FOLIAGE,
 };
 
 static inline uint64_t rng_mix(uint64_t z)

@@ -160,6 +160,9 @@ int world_load(const char *path, const pb_route_t *route, world_t *w, pb_err_t *
         }
     }
     if (find_class(w, top.ground, root, &w->ground_cls, err)) goto out;
+    w->foliage_cls = -1;
+    for (int i = 0; i < w->nclasses; i++)
+        if (!strcmp(w->class_name[i], "foliage")) w->foliage_cls = i;
     w->paint_cls = w->ground_cls;
     if (top.paint[0] && find_class(w, top.paint, root, &w->paint_cls, err)) goto out;
     if (top.traffic) {
@@ -355,6 +358,22 @@ static inline double ray_sphere(const prim_t *p, const double o[3], const double
     return t > EPS ? t : INFINITY;
 }
 
+/* A beam into a porous canopy: it stops at an exponential depth (mean depth_m) inside the
+ * sphere, drawn from (key, id), or goes through it (INFINITY). */
+static inline double ray_canopy(const prim_t *p, const double o[3], const double d[3], double depth_m, uint64_t key,
+                                int id)
+{
+    double ox = o[0] - p->cx, oy = o[1] - p->cy, oz = o[2] - p->cz;
+    double b = ox * d[0] + oy * d[1] + oz * d[2], c = ox * ox + oy * oy + oz * oz - p->r * p->r;
+    double disc = b * b - c;
+    if (disc < 0) return INFINITY;
+    double t_in = fmax(-b - sqrt(disc), EPS), t_out = -b + sqrt(disc);
+    if (t_out <= t_in) return INFINITY;
+    double u = ((double)(rng_u64(key, RNG_FOLIAGE, (uint64_t)id, 0) >> 11) + 0.5) * (1.0 / 9007199254740992.0);
+    double t = t_in - depth_m * log(u);
+    return t < t_out ? t : INFINITY;
+}
+
 static inline double ray_prim(const prim_t *p, const double o[3], const double d[3])
 {
     switch (p->kind) {
@@ -381,8 +400,9 @@ static int ground_class_at(const world_t *w, double x, double y)
 }
 
 int world_raycast(const world_t *w, const double o[3], const double d[3], double tmax,
-                  const mover_t *movers, int nmovers, uint32_t *mail, uint32_t stamp, hit_t *hit)
+                  const mover_t *movers, int nmovers, uint32_t *mail, uint32_t stamp, uint64_t ray_key, hit_t *hit)
 {
+    const int porous = ray_key != 0 && w->foliage_depth_m > 0 && w->foliage_cls >= 0;
     double best = tmax;
     int cls = -1, ground = 0;
     double tg = terrain_raycast(&w->terrain, o, d, best);
@@ -429,7 +449,9 @@ int world_raycast(const world_t *w, const double o[3], const double d[3], double
                     int id = w->cell_items[k];
                     if (mail[id] == stamp) continue;
                     mail[id] = stamp;
-                    double t = ray_prim(&w->prims[id], o, d);
+                    const prim_t *p = &w->prims[id];
+                    double t = porous && p->kind == PRIM_SPHERE && p->cls == w->foliage_cls
+                                   ? ray_canopy(p, o, d, w->foliage_depth_m, ray_key, id) : ray_prim(p, o, d);
                     if (t < best) { best = t; cls = w->prims[id].cls; ground = 0; }
                 }
             }

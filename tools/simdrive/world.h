@@ -65,6 +65,12 @@ typedef struct {
     int32_t *cell_items;
     float *cell_maxz;
     double max_z;
+    /* Foliage as a LiDAR sees it (simdrive --foliage-depth): 0 = solid spheres; > 0 = a
+     * beam entering a canopy of class "foliage" stops at a depth drawn from an exponential
+     * of this mean (m), or passes through when that is beyond the canopy (leaves and gaps:
+     * a real canopy returns from its whole depth and differently at every sweep). */
+    double foliage_depth_m;
+    int foliage_cls;            /* -1: no class "foliage" */
 } world_t;
 
 /* Terrain rasters reach this far beyond the route (the LiDAR's range and more). */
@@ -86,9 +92,10 @@ typedef struct { double t; int cls; } hit_t;
 /* Nearest hit of the ray o + t d (d unit) with t in (0, tmax], among ground, static
  * primitives and movers. mail is per-thread scratch of nprims entries, stamp a
  * fresh value per ray (mailboxing: each primitive is tested once per ray).
- * Returns 1 on a hit. */
+ * ray_key: this ray's random key for porous foliage (w->foliage_depth_m > 0); 0 = foliage
+ * is solid for this ray (a line of sight, not a beam). Returns 1 on a hit. */
 int world_raycast(const world_t *w, const double o[3], const double d[3], double tmax,
-                  const mover_t *movers, int nmovers, uint32_t *mail, uint32_t stamp, hit_t *hit);
+                  const mover_t *movers, int nmovers, uint32_t *mail, uint32_t stamp, uint64_t ray_key, hit_t *hit);
 
 /* Distance from p to the nearest static surface of the grid's day: the ground (vertical
  * distance to the terrain) and the primitives within a grid cell of p; at most cap. For

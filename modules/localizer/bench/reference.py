@@ -26,7 +26,8 @@ Steps, each printed as it runs:
  5. the result is levelled (turned about pose 0 so that the scans' ground is z up), as
     the localizer's maps are; the input's poses are tilted with the LiDAR's mount.
 Quality, printed and in the report: agreement of skip edges with the chained
-odometry before the solve, held-out residuals, the spread of independent
+odometry before the solve, held-out residuals, the keyframes whose poses imply an
+acceleration over 5 m/s^2, the spread of independent
 registrations (every 3rd consecutive pair aligned from 4 starts 1 m off the solution), and
 the map crispness with the input and the refined poses (each scan against the scans
 within 4 of it: share of points within 0.2 m, median distance).
@@ -100,6 +101,15 @@ def rel_error(Z, Ti, Tj):
 
 
 SIG_T, SIG_R = 0.05, np.radians(0.2)
+
+
+def kinematics(poses, stamps, limit=5.0):
+    """Keyframes where the poses imply a horizontal acceleration over limit m/s^2 (a car
+    does not; the reference or the keyframe times are wrong there)."""
+    p = np.array([T[:2, 3] for T in poses])
+    v = np.diff(p, axis=0) / np.maximum(np.diff(stamps), 1e-3)[:, None]
+    a = np.linalg.norm(np.diff(v, axis=0), axis=1) / np.maximum(0.5 * (stamps[2:] - stamps[:-2]), 1e-3)
+    return [int(i) + 1 for i in np.nonzero(a > limit)[0]]
 
 
 def solve(poses, edges):
@@ -299,6 +309,8 @@ def main():
            "crisp_share_0.2m_input": crisp_in[0], "crisp_median_m_input": crisp_in[1],
            "crisp_share_0.2m_refined": crisp_out[0], "crisp_median_m_refined": crisp_out[1],
            "change_m_median": q(change, 50), "change_m_p90": q(change, 90), "change_m_max": max(change),
+           "implausible_keyframes_input": kinematics(ref[:n], stamps),
+           "implausible_keyframes_refined": kinematics(solved, stamps),
            "spread_m": spread}
     print(f"  held-out skip-3 edges: residual median {rep['heldout_skip3_resid_m_median']:.3f} m "
           f"p90 {rep['heldout_skip3_resid_m_p90']:.3f} m, rotation p90 {rep['heldout_skip3_resid_deg_p90']:.3f} deg "
@@ -309,6 +321,8 @@ def main():
           f"p90 {rep['spread_m_p90']:.3f} m")
     print(f"  map crispness (scan vs its 8 neighbours, share within 0.2 m / median distance): input "
           f"{crisp_in[0]:.2f} / {crisp_in[1]:.3f} m, refined {crisp_out[0]:.2f} / {crisp_out[1]:.3f} m")
+    print(f"  keyframes whose poses imply over 5 m/s^2 (horizontal): input {len(rep['implausible_keyframes_input'])}, "
+          f"refined {len(rep['implausible_keyframes_refined'])} {rep['implausible_keyframes_refined']}")
     print(f"  refined minus input position: median {rep['change_m_median']:.2f} m p90 {rep['change_m_p90']:.2f} m "
           f"max {rep['change_m_max']:.2f} m")
     with open(args.out, "w") as f:

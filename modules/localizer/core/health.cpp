@@ -85,6 +85,34 @@ double structure_inliers(localizer_t *L, const Eigen::Isometry3d &pose)
                                 L->cfg.structure_rough_m);
 }
 
+/* The best structure fit of the sweep's points of the last structure_inliers (L->above_ds)
+ * 1 or 2 m along, 1 m across or 3 degrees turned from pose. */
+static double structure_probe_max(const localizer_t *L, const Eigen::Isometry3d &pose)
+{
+    static const double probe[8][3] = {   /* along (m), across (m), turn (deg) in the car's frame */
+        {1, 0, 0}, {-1, 0, 0}, {2, 0, 0}, {-2, 0, 0}, {0, 1, 0}, {0, -1, 0}, {0, 0, 3}, {0, 0, -3}};
+    double best = 0;
+    for (const auto &p : probe) {
+        Eigen::Isometry3d q = pose;
+        q.translation() += pose.linear() * Vec3(p[0], p[1], 0);
+        q.linear() = Eigen::AngleAxisd(p[2] * M_PI / 180, Vec3::UnitZ()) * pose.linear();
+        best = std::max(best, pb_reg_structure_fit(L->map, L->above_ds.data(), L->above_ds.size() / 3, q,
+                                                   L->cfg.reg.inlier_m, L->cfg.structure_rough_m));
+    }
+    return best;
+}
+
+bool structure_fits(localizer_t *L, const Eigen::Isometry3d &pose, double si, outputs_t *out)
+{
+    if (!std::isfinite(si) || si >= L->cfg.min_structure_inliers) return true;
+    if (si < L->cfg.structure_peak_floor) return false;
+    double probe = structure_probe_max(L, pose);
+    if (si < L->cfg.structure_peak_ratio * probe) return false;
+    event(out, "match_structure_peak", "%.0f%% of the structure above the ground fits the map, %.1f times what fits "
+          "1-2 m or 3 deg away: the scene changed, not the pose", 100 * si, probe > 0 ? si / probe : INFINITY);
+    return true;
+}
+
 Mat6 floored(const localizer_t *L, const Mat6 &c)
 {
     Mat6 m = c;

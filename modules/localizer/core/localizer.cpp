@@ -653,15 +653,16 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
             event(out, "match_inconsistent", "%s", whybuf);
         } else {
             double si = structure_inliers(L, res.pose);
-            if (std::isfinite(si) && si < L->cfg.min_structure_inliers && !free_motion &&
-                (!L->candidate || L->cand_no_speed) && research(L, prior, guess, &res, &si)) {
+            bool fits = structure_fits(L, res.pose, si, out);
+            if (!fits && !free_motion && (!L->candidate || L->cand_no_speed) && research(L, prior, guess, &res, &si)) {
+                fits = true;   /* research() takes only a pose that fits outright */
                 cov = floored(L, res.covariance);
                 d.inlier_fraction = res.inlier_fraction;
                 d.score = res.score;
                 event(out, "match_researched", "match off the map's structure: found again around the prediction");
             }
             d.structure_inliers = si;
-            if (std::isfinite(si) && si < L->cfg.min_structure_inliers) {
+            if (!fits) {
                 snprintf(whybuf, sizeof whybuf, "only %.0f%% of the structure above the ground fits the map (need %.0f%%)",
                          100 * si, 100 * L->cfg.min_structure_inliers);
                 why = whybuf;

@@ -128,6 +128,10 @@ double gnss_gate(const localizer_t *L, double h_acc);
 double candidate_gnss_residual(const localizer_t *L, const Eigen::Isometry3d &pose, const Vec3 &vel, int64_t t);
 int64_t gnss_clock_offset(localizer_t *L, int64_t fix_utime, outputs_t *out);
 double structure_inliers(localizer_t *L, const Eigen::Isometry3d &pose);
+/* The structure test on si = structure_inliers(L, pose), called right after it: true when
+ * si is NaN (too little structure to judge), at least min_structure_inliers, or a sharp
+ * peak (structure_peak_floor, structure_peak_ratio; counted as match_structure_peak). */
+bool structure_fits(localizer_t *L, const Eigen::Isometry3d &pose, double si, outputs_t *out);
 Mat6 floored(const localizer_t *L, const Mat6 &c);
 
 } // namespace pb_loc

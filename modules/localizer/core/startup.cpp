@@ -231,7 +231,7 @@ bool try_initialize(localizer_t *L, int64_t t_ref, outputs_t *out)
     }
     double si = structure_inliers(L, res.pose);
     L->init_structure = si;
-    if (std::isfinite(si) && si < L->cfg.min_structure_inliers) {
+    if (!structure_fits(L, res.pose, si, out)) {
         event(out, "init_rejected_structure", "%s: only %.0f%% of the structure above the ground fits the map (need %.0f%%)",
               how, 100 * si, 100 * L->cfg.min_structure_inliers);
         if (L->status != ST_LOST && L->kf.initialized)
