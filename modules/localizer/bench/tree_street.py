@@ -39,7 +39,10 @@ def sh(args):
 def make_site(out, depth):
     """The default site without buildings, its map from a mapping lap with this foliage."""
     site = out / "site"
-    if (site / "map.tiles").exists():
+    tiles, tool = site / "map.tiles", lb.BIN / "map-tiles"
+    if tiles.exists():
+        if tiles.stat().st_mtime < tool.stat().st_mtime:    # a tile format this build may not read
+            sh([tool, "--map", site / "map.pcd", "--out", tiles, "--quiet"])
         return site
     site.mkdir(parents=True, exist_ok=True)
     for name in ("site.yaml", "route.yaml"):
