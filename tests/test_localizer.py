@@ -675,16 +675,10 @@ def tree_street(tmp_path_factory):
     cars, which differ between the mapping day and the drive day. The map is built from
     the mapping lap at the true poses (as make builds the default map) and cropped to a
     12 s drive (seed 5)."""
+    import tree_street
     d = tmp_path_factory.mktemp("trees")
     site = d / "site"
-    site.mkdir()
-    for name in ("site.yaml", "route.yaml"):
-        shutil.copy(ROOT / "maps" / "default" / name, site / name)
-    with open(ROOT / "maps" / "default" / "world.yaml") as src, open(site / "world.yaml", "w") as dst:
-        dst.writelines(line for line in src if "class: building" not in line)
-    run([BIN / "simdrive", "--mapping", "--quiet", "--site", site, "--out", d / "mapping"])
-    run([BIN / "build-map", "--log", d / "mapping" / "drive.lcm", "--pose-channel", "GROUND_TRUTH",
-         "--vehicle", ROOT / "vehicles" / "prius2017.yaml", "--voxel", "0.15", "--quiet", "--out", d / "full.pcd"])
+    tree_street.street_map(site, d / "full.pcd", 0, d / "mapping")
     run([BIN / "simdrive", "--seed", "5", "--duration", "12", "--site", site, "--quiet", "--out", d])
     gt = lb.read_poses(d / "drive.lcm", "GROUND_TRUTH")
     lb.crop_map(d / "full.pcd", gt, site / "map.pcd", 70)

@@ -18,7 +18,6 @@ import argparse
 import math
 import pathlib
 import shutil
-import subprocess
 import sys
 
 import numpy as np
@@ -30,31 +29,32 @@ import locbench as lb  # noqa: E402
 VEHICLE = lb.ROOT / "vehicles" / "prius2017.yaml"
 
 
-def sh(args):
-    p = subprocess.run([str(a) for a in args], capture_output=True, text=True)
-    if p.returncode != 0:
-        sys.exit(f"tree_street.py: {' '.join(map(str, args[:2]))} failed: {p.stderr.strip()}")
-
-
-def make_site(out, depth):
-    """The default site without buildings, its map from a mapping lap with this foliage."""
-    site = out / "site"
-    tiles, tool = site / "map.tiles", lb.BIN / "map-tiles"
-    if tiles.exists():
-        if tiles.stat().st_mtime < tool.stat().st_mtime:    # a tile format this build may not read
-            sh([tool, "--map", site / "map.pcd", "--out", tiles, "--quiet"])
-        return site
+def street_map(site, map_pcd, depth, work):
+    """SITE: the default site's files without its buildings; MAP_PCD: its map from a mapping
+    lap with this foliage at the true poses, as make builds the default map (also
+    tests/test_localizer.py's tree street)."""
     site.mkdir(parents=True, exist_ok=True)
     for name in ("site.yaml", "route.yaml"):
         shutil.copy(lb.ROOT / "maps" / "default" / name, site / name)
     with open(lb.ROOT / "maps" / "default" / "world.yaml") as src, open(site / "world.yaml", "w") as dst:
         dst.writelines(line for line in src if "class: building" not in line)
-    sh([lb.BIN / "simdrive", "--mapping", "--quiet", "--site", site, "--foliage-depth", depth, "--out", out / "mapping"])
-    sh([lb.BIN / "build-map", "--log", out / "mapping" / "drive.lcm", "--pose-channel", "GROUND_TRUTH",
-        "--vehicle", VEHICLE, "--voxel", "0.15", "--quiet", "--out", site / "map.pcd"])
-    sh([lb.BIN / "build-ground", "--map", site / "map.pcd", "--out", site / "ground.yaml", "--quiet"])
-    sh([lb.BIN / "map-tiles", "--map", site / "map.pcd", "--out", site / "map.tiles", "--quiet"])
-    shutil.rmtree(out / "mapping")
+    lb.sh([lb.BIN / "simdrive", "--mapping", "--quiet", "--site", site, "--foliage-depth", depth, "--out", work])
+    lb.sh([lb.BIN / "build-map", "--log", work / "drive.lcm", "--pose-channel", "GROUND_TRUTH",
+           "--vehicle", VEHICLE, "--voxel", "0.15", "--quiet", "--out", map_pcd])
+    shutil.rmtree(work)
+
+
+def make_site(out, depth):
+    """The street of trees as a site folder: map, ground model and tiles."""
+    site = out / "site"
+    tiles, tool = site / "map.tiles", lb.BIN / "map-tiles"
+    if tiles.exists():
+        if tiles.stat().st_mtime < tool.stat().st_mtime:    # a tile format this build may not read
+            lb.sh([tool, "--map", site / "map.pcd", "--out", tiles, "--quiet"])
+        return site
+    street_map(site, site / "map.pcd", depth, out / "mapping")
+    lb.sh([lb.BIN / "build-ground", "--map", site / "map.pcd", "--out", site / "ground.yaml", "--quiet"])
+    lb.sh([tool, "--map", site / "map.pcd", "--out", tiles, "--quiet"])
     return site
 
 
@@ -100,7 +100,7 @@ def main():
         site = make_site(out, depth)
         drive = out / "drive5"
         if not (drive / "drive.lcm").exists():
-            sh([lb.BIN / "simdrive", "--seed", "5", "--duration", "40", "--speed-profile", "normal", "--quiet",
+            lb.sh([lb.BIN / "simdrive", "--seed", "5", "--duration", "40", "--speed-profile", "normal", "--quiet",
                 "--site", site, "--foliage-depth", depth, "--out", drive])
         gt = lb.read_poses(drive / "drive.lcm", "GROUND_TRUTH")
         tracking = track_whole_drive(drive, site, gt)
