@@ -394,6 +394,9 @@ int align_points(const pb_regmap_t *map, const std::vector<float> &pts, const Ei
         res->iterations += gauss_newton(map->coarse, sub.data(), sub.size() / 3, pc, &T2, &conv2);
         NearCache cache2;
         res->iterations += gauss_newton(map->fine, pts.data(), m, pa, &T2, &conv2, 0, nullptr, &cache2);
+        /* an aborted run stopped on its way: finish it, so that two minima are compared,
+         * not a minimum and a pose still centimetres short of its own */
+        if (aborted) res->iterations += gauss_newton(map->fine, pts.data(), m, pa, &T, &converged, 0, nullptr, &cache);
         Accum a1, a2;
         linearise(map->fine, pts.data(), m, T, pa.min_corr, pa.kernel, pa.inlier, pa.planar_only, &a1, nullptr,
                   nullptr, &cache);
