@@ -73,15 +73,16 @@ def cached(path, site=None):
     return all(path.stat().st_mtime >= i.stat().st_mtime for i in inputs if i.exists())
 
 
-def make_drive(out_dir, seed, profile, duration, extra=()):
+def make_drive(out_dir, seed, profile, duration, extra=(), site=None):
     """simdrive drive + VEHICLE_SPEED merged in: returns the path of the merged log (cached
-    while newer than its inputs). extra: more simdrive options (e.g. --reverse 50)."""
+    while newer than its inputs). extra: more simdrive options (e.g. --reverse 50); site:
+    a site other than the default (passed to simdrive)."""
     out_dir = pathlib.Path(out_dir)
     merged = out_dir / "input.lcm"
-    if cached(merged):
+    if cached(merged, site):
         return merged
     sh([BIN / "simdrive", "--out", out_dir, "--seed", seed, "--speed-profile", profile, "--duration", duration, "--quiet",
-        *extra])
+        *(["--site", site] if site else []), *extra])
     sh([BIN / "can", "--replay", out_dir / "drive.lcm", "--out", out_dir / "speed.lcm"])
     sh([BIN / "log-merge", "--quiet", "--out", merged, out_dir / "drive.lcm", out_dir / "speed.lcm"])
     return merged

@@ -58,13 +58,14 @@ def make_site(out, depth):
     return site
 
 
-def track_whole_drive(drive, site, gt):
-    """The localizer over the whole drive from the true pose at its first sweep."""
+def track_whole_drive(drive, log, site, gt):
+    """The localizer over the whole drive (log: its sensors) from the true pose at its
+    first sweep."""
     rows = []
     for mode, keep, label in (("lidar", "LIDAR_SCAN,GROUND_TRUTH", "tracking, LiDAR alone"),
                               ("fused", "LIDAR_SCAN,IMU,VEHICLE_SPEED,GROUND_TRUTH", "tracking, IMU + CAN")):
         inp = drive / f"whole_{mode}.lcm"
-        bs.cut(drive / "drive.lcm", inp, 0.5, 39.0, keep)
+        bs.cut(log, inp, 0.5, 39.0, keep)
         g = bs.gt_at(gt, lb.read_channel_times(inp, "LIDAR_SCAN")[0])
         out = drive / f"track_{mode}.lcm"
         lb.run_localizer(inp, out, ["--site", site, "--no-gnss",
@@ -99,12 +100,11 @@ def main():
         print(f"== street of trees, canopies {name}: site, map and drive in {out}", flush=True)
         site = make_site(out, depth)
         drive = out / "drive5"
-        if not (drive / "drive.lcm").exists():
-            lb.sh([lb.BIN / "simdrive", "--seed", "5", "--duration", "40", "--speed-profile", "normal", "--quiet",
-                "--site", site, "--foliage-depth", depth, "--out", drive])
+        # with VEHICLE_SPEED decoded from its CAN frames, as on the car
+        log = lb.make_drive(drive, 5, "normal", 40, extra=["--foliage-depth", depth], site=site)
         gt = lb.read_poses(drive / "drive.lcm", "GROUND_TRUTH")
-        tracking = track_whole_drive(drive, site, gt)
-        starts = bs.run_starts([(drive, drive / "drive.lcm")], site, n_guesses=a.guesses, n_frames=10, n_gnss=0,
+        tracking = track_whole_drive(drive, log, site, gt)
+        starts = bs.run_starts([(drive, log)], site, n_guesses=a.guesses, n_frames=10, n_gnss=0,
                                n_global=a.n_global, seconds=6.0, jobs=2)
         result.append({"canopies": name, "foliage_depth_m": depth, "tracking": tracking,
                        "starts": [s for s in starts if s["starts"] > 0]})
