@@ -398,6 +398,12 @@ Eigen::Isometry3d imu_pose(const filter_t &f)
     return T;
 }
 
+/* Neither a fresh IMU nor a recent CAN speed: motion comes from the matches alone. */
+static bool lidar_alone(const localizer_t *L, int64_t t)
+{
+    return !imu_fresh(L, t) && (L->last_speed_t == 0 || t - L->last_speed_t > L->cfg.speed_timeout_us);
+}
+
 /* Predicts kf to t_ref over the buffered inputs, recording poses for deskewing. */
 static filter_t predict_to(localizer_t *L, int64_t t_ref)
 {
@@ -454,6 +460,14 @@ static void update_lidar_only_motion(localizer_t *L, int64_t t)
                            ((t - L->last_match_t) * 1e-6);
     L->last_match_pose = base;
     L->last_match_t = t;
+    /* the speed sweeps are deskewed with: smoothed over the first sweeps after a start,
+     * when the filter's speed is still metres per second off (see deskew_smooth) */
+    Vec3 vb = base.linear().transpose() * filter_base_velocity(&L->kf);
+    if (!L->deskew_vel_ok) L->deskew_vel_n = 0;
+    double a = L->deskew_vel_n < L->cfg.deskew_smooth_sweeps ? L->cfg.deskew_smooth : 0.0;
+    L->deskew_vel = L->deskew_vel_ok ? Vec3(a * L->deskew_vel + (1 - a) * vb) : vb;
+    L->deskew_vel_ok = true;
+    L->deskew_vel_n++;
     Eigen::Isometry3d cur = imu_pose(L->kf);
     if (L->has_prev_pose && t > L->prev_pose_t && !imu_fresh(L, t)) {
         double dt = (t - L->prev_pose_t) * 1e-6;
@@ -482,6 +496,7 @@ static void restart_from_two_matches(localizer_t *L, filter_t *f, const Eigen::I
     }
     /* the speed is the difference of two matches (each good to a few cm) */
     filter_reset(f, t, pose, v, omega, 0.1, 1 * M_PI / 180, std::max(0.1, 0.1 / dt));
+    L->deskew_vel_ok = false;
     L->cand_vel_unknown = false;
 }
 
@@ -578,6 +593,14 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
     }
 
     filter_t prior = predict_to(L, t_ref);
+    if (L->deskew_vel_ok && lidar_alone(L, t_ref)) {
+        /* the sweep's motion at the deskewing speed (the prior keeps the filter's) */
+        filter_t kept = L->kf;
+        Eigen::Isometry3d b = filter_base_pose(&L->kf);
+        L->kf.v += b.linear() * L->deskew_vel - filter_base_velocity(&L->kf);
+        predict_to(L, t_ref);
+        L->kf = kept;
+    }
     deskew_points(L, utime, pts, t_ref);
     pb_err_t err;
     pb_reg_result_t res;

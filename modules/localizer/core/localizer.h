@@ -111,6 +111,13 @@ struct localizer_config_t {
     double pose_sigma_floor_rad = 0.001;   /* (sd, rad) */
     int rejects_to_lost = 10;              /* consecutive rejected sweeps -> LOST */
     int verify_scans = 3;                  /* consecutive accepted sweeps to leave INITIALIZING/LOST */
+    /* LiDAR alone, after a start or restart: the speed a sweep is deskewed with is smoothed
+     * (new = a old + (1 - a) filter's) over this many accepted sweeps. A moving start's
+     * first speed comes from two matches and is often 2-3 m/s off; deskewed with it, the
+     * next match moves along the road by tenths of a metre and the speed further off.
+     * Afterwards the filter's own (a lag would cost accuracy in every acceleration). */
+    double deskew_smooth = 0.5;
+    int deskew_smooth_sweeps = 20;
     /* GNSS */
     int64_t gnss_window_us = 1000000;      /* fixes averaged by the divergence test */
     double gnss_gate_min_m = 8.0;          /* pose vs GNSS: mean residual above max(this, k*h_acc) fails */

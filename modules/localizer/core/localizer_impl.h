@@ -91,6 +91,11 @@ struct localizer {
     Eigen::Isometry3d last_match_pose = Eigen::Isometry3d::Identity();
     int64_t last_match_t = 0;
     double match_fwd_mps = 0;
+    /* LiDAR alone: the velocity sweeps are deskewed with (base frame), smoothed over
+     * the last accepted matches */
+    bool deskew_vel_ok = false;
+    int deskew_vel_n = 0;
+    Vec3 deskew_vel = Vec3::Zero();
     /* LiDAR-only turn rate from successive poses */
     bool has_prev_pose = false;
     Eigen::Isometry3d prev_pose;

@@ -254,6 +254,7 @@ bool try_initialize(localizer_t *L, int64_t t_ref, outputs_t *out)
     if (L->pred.initialized && !s.vel_known) { s.vel = filter_base_velocity(&L->pred); s.vel_known = true; }
     /* omega: the rates of the newest IMU sample (or the LiDAR-only estimate) */
     filter_reset(&L->kf, t_ref, pose, s.vel, omega, 0.3, 2 * M_PI / 180, 1.0);
+    L->deskew_vel_ok = false;
     while (!L->buf.empty() && L->buf.front().t <= t_ref) L->buf.pop_front();
     rebuild_pred(L);
     L->candidate = true;
