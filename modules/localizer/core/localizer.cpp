@@ -677,7 +677,12 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
         } else {
             double si = structure_inliers(L, res.pose);
             bool fits = structure_fits(L, res.pose, si, out);
-            if (!fits && !free_motion && (!L->candidate || L->cand_no_speed) && research(L, prior, guess, &res, &si)) {
+            /* a place from the global search is verified by sweeps that fit where its
+             * motion puts them: searched for around there, a street whose trees repeat
+             * fits at a wrong place too (seen 192 m off on the porous street). Only
+             * sweeps a second or more apart (keyframes) leave the motion that unsure. */
+            bool may_research = !L->candidate || (L->cand_no_speed && (!L->cand_global || L->scan_dt >= 1000000));
+            if (!fits && !free_motion && may_research && research(L, prior, guess, &res, &si)) {
                 fits = true;   /* research() takes only a pose that fits outright */
                 cov = floored(L, res.covariance);
                 d.inlier_fraction = res.inlier_fraction;

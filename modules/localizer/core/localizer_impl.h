@@ -54,6 +54,7 @@ struct localizer {
     bool candidate = false;     /* kf holds a pose still being verified */
     bool cand_vel_unknown = false;   /* ... whose velocity is not known yet */
     bool cand_no_speed = false;      /* ... started with the speed unknown (LiDAR alone) */
+    bool cand_global = false;        /* ... found by the global search (no prior at all) */
     bool cand_retry_hint = false;    /* ... found around an initial pose (a prior) with the speed
                                       * unknown: a failed verification searches there again */
     Eigen::Isometry3d cand_pose = Eigen::Isometry3d::Identity();

@@ -271,6 +271,7 @@ bool try_initialize(localizer_t *L, int64_t t_ref, outputs_t *out)
     L->last_match_t = 0;
     L->match_fwd_mps = 0;
     L->cand_no_speed = !s.vel_known;
+    L->cand_global = s.how && std::strcmp(s.how, "global search") == 0;
     L->cand_retry_hint = s.how && std::strcmp(s.how, "initial pose") == 0 && !s.vel_known;
     L->has_hint = false;
     event(out, "init_candidate", "%s: candidate at (%.1f, %.1f, %.1f) yaw %.1f deg, inliers %.0f%%%s", how,
