@@ -670,20 +670,27 @@ def test_reversing_keeps_tracking(reverse_drive, tmp_path, mode):
     assert np.percentile(et, 99) < bound and np.percentile(ey, 99) < 0.011, (np.percentile(et, 99), np.percentile(ey, 99))
 
 
+def street_drive(d, depth, seed, duration):
+    """The street of trees (tree_street.py) with canopies porous to depth (0: solid) in d:
+    the map from the mapping lap at the true poses (as make builds the default map) in
+    site_full, a drive (seed, duration s), and site with the map cropped to the drive."""
+    import tree_street
+    site, full = d / "site", d / "site_full"
+    tree_street.street_map(site, d / "full.pcd", depth, d / "mapping")
+    run([BIN / "simdrive", "--seed", str(seed), "--duration", str(duration), "--site", site, "--foliage-depth",
+         str(depth), "--quiet", "--out", d])
+    gt = lb.read_poses(d / "drive.lcm", "GROUND_TRUTH")
+    shutil.copytree(site, full)
+    (full / "map.pcd").symlink_to(d / "full.pcd")
+    lb.crop_map(d / "full.pcd", gt, site / "map.pcd", 70)
+    return {"log": d / "drive.lcm", "gt": gt, "site": site, "site_full": full, "dir": d}
+
+
 @pytest.fixture(scope="module")
 def tree_street(tmp_path_factory):
     """The default site without its buildings: trunks, solid canopies, poles and parked
-    cars, which differ between the mapping day and the drive day. The map is built from
-    the mapping lap at the true poses (as make builds the default map) and cropped to a
-    12 s drive (seed 5)."""
-    import tree_street
-    d = tmp_path_factory.mktemp("trees")
-    site = d / "site"
-    tree_street.street_map(site, d / "full.pcd", 0, d / "mapping")
-    run([BIN / "simdrive", "--seed", "5", "--duration", "12", "--site", site, "--quiet", "--out", d])
-    gt = lb.read_poses(d / "drive.lcm", "GROUND_TRUTH")
-    lb.crop_map(d / "full.pcd", gt, site / "map.pcd", 70)
-    return {"drive": d / "drive.lcm", "gt": gt, "site": site}
+    cars, which differ between the mapping day and the drive day; a 12 s drive (seed 5)."""
+    return street_drive(tmp_path_factory.mktemp("trees"), 0, 5, 12)
 
 
 def test_parked_cars_that_came_after_the_map_do_not_lose_a_right_pose(tree_street, tmp_path):
@@ -693,7 +700,7 @@ def test_parked_cars_that_came_after_the_map_do_not_lose_a_right_pose(tree_stree
     t = tree_street
     g = t["gt"][0]
     out = tmp_path / "o.lcm"
-    localize(t, t["drive"], out, "--no-gnss", "--no-imu", "--no-speed",
+    localize(t, t["log"], out, "--no-gnss", "--no-imu", "--no-speed",
              "--initial-pose=%f,%f,%f,0,0,%f" % (*g[1:4], math.degrees(g[4])), site=t["site"])
     poses = lb.read_poses(out, "POSE")
     k = first_tracking(poses)
@@ -710,20 +717,8 @@ def test_parked_cars_that_came_after_the_map_do_not_lose_a_right_pose(tree_stree
 @pytest.fixture(scope="module")
 def porous_street(tmp_path_factory):
     """The street of trees with porous canopies (a beam stops at a random depth inside a
-    canopy, anew every sweep, as in real foliage): the map from the mapping lap, a 31 s
-    drive (seed 8), the map cropped to it."""
-    import tree_street
-    d = tmp_path_factory.mktemp("porous")
-    site = d / "site"
-    tree_street.street_map(site, d / "full.pcd", 0.7, d / "mapping")
-    run([BIN / "simdrive", "--seed", "8", "--duration", "31", "--site", site, "--foliage-depth", "0.7", "--quiet",
-         "--out", d])
-    gt = lb.read_poses(d / "drive.lcm", "GROUND_TRUTH")
-    full = d / "site_full"
-    shutil.copytree(site, full)
-    (full / "map.pcd").symlink_to(d / "full.pcd")
-    lb.crop_map(d / "full.pcd", gt, site / "map.pcd", 70)
-    return {"log": d / "drive.lcm", "gt": gt, "site": site, "site_full": full, "dir": d}
+    canopy, anew every sweep, as in real foliage); a 31 s drive (seed 8)."""
+    return street_drive(tmp_path_factory.mktemp("porous"), 0.7, 8, 31)
 
 
 def test_global_search_takes_no_wrong_place_on_a_street_of_trees(porous_street, tmp_path):

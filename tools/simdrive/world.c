@@ -348,13 +348,22 @@ static inline double ray_cylinder(const prim_t *p, const double o[3], const doub
     return best;
 }
 
-static inline double ray_sphere(const prim_t *p, const double o[3], const double d[3])
+/* Where the line o + t d enters and leaves the sphere; 0 when it misses. */
+static inline int sphere_span(const prim_t *p, const double o[3], const double d[3], double *t_in, double *t_out)
 {
     double ox = o[0] - p->cx, oy = o[1] - p->cy, oz = o[2] - p->cz;
     double b = ox * d[0] + oy * d[1] + oz * d[2], c = ox * ox + oy * oy + oz * oz - p->r * p->r;
     double disc = b * b - c;
-    if (disc < 0) return INFINITY;
-    double t = -b - sqrt(disc);
+    if (disc < 0) return 0;
+    *t_in = -b - sqrt(disc);
+    *t_out = -b + sqrt(disc);
+    return 1;
+}
+
+static inline double ray_sphere(const prim_t *p, const double o[3], const double d[3])
+{
+    double t, t_out;
+    if (!sphere_span(p, o, d, &t, &t_out)) return INFINITY;
     return t > EPS ? t : INFINITY;
 }
 
@@ -363,11 +372,9 @@ static inline double ray_sphere(const prim_t *p, const double o[3], const double
 static inline double ray_canopy(const prim_t *p, const double o[3], const double d[3], double depth_m, uint64_t key,
                                 int id)
 {
-    double ox = o[0] - p->cx, oy = o[1] - p->cy, oz = o[2] - p->cz;
-    double b = ox * d[0] + oy * d[1] + oz * d[2], c = ox * ox + oy * oy + oz * oz - p->r * p->r;
-    double disc = b * b - c;
-    if (disc < 0) return INFINITY;
-    double t_in = fmax(-b - sqrt(disc), EPS), t_out = -b + sqrt(disc);
+    double t_in, t_out;
+    if (!sphere_span(p, o, d, &t_in, &t_out)) return INFINITY;
+    t_in = fmax(t_in, EPS);
     if (t_out <= t_in) return INFINITY;
     double u = ((double)(rng_u64(key, RNG_FOLIAGE, (uint64_t)id, 0) >> 11) + 0.5) * (1.0 / 9007199254740992.0);
     double t = t_in - depth_m * log(u);

@@ -593,8 +593,8 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
     }
 
     filter_t prior = predict_to(L, t_ref);
-    if (L->deskew_vel_ok && lidar_alone(L, t_ref)) {
-        /* the sweep's motion at the deskewing speed (the prior keeps the filter's) */
+    if (L->deskew_vel_ok && L->deskew_vel_n < L->cfg.deskew_smooth_sweeps && lidar_alone(L, t_ref)) {
+        /* the sweep's motion at the smoothed speed (the prior keeps the filter's) */
         filter_t kept = L->kf;
         Eigen::Isometry3d b = filter_base_pose(&L->kf);
         L->kf.v += b.linear() * L->deskew_vel - filter_base_velocity(&L->kf);
