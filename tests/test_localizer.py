@@ -285,8 +285,10 @@ def test_no_prior_start_on_the_paged_default_site(drive, tmp_path):
     assert rc == 0, err
     poses = lb.read_poses(out, "POSE")
     k = first_tracking(poses)
-    # measured: tracking after 0.2 s (3rd sweep), max error 0.067 m, peak RSS 63 MB; 150 MB is the target
-    assert k is not None and (poses[k, 0] - poses[0, 0]) <= 0.6e6, "tracking within 0.6 s"
+    # measured: tracking after 0.6 s (the place found on the 4th sweep, verified by sweeps
+    # deskewed with a speed their matches confirm; 0.4 s before that rule), max error
+    # 0.067 m, peak RSS 63 MB; 150 MB is the target
+    assert k is not None and (poses[k, 0] - poses[0, 0]) <= 1.5e6, "tracking within 1.5 s"
     _, et, _ = lb.errors_vs_truth(poses[k:][poses[k:, 5] == 1], drive["gt"])
     assert et.max() < 0.2, et.max()
     c = counters(last_status_msg(out))
@@ -497,9 +499,11 @@ def test_moving_start_on_sparse_sweeps(drive, tmp_path):
     localize(drive, thin, out, f"--initial-pose={x},{y},{g[3]},0,0,{math.degrees(g[4]) - 15}")
     poses = lb.read_poses(out, "POSE")
     k = first_tracking(poses)
-    # measured: tracking at the 3rd sweep (2 s); the first tracking POSE 0.03 m off, the
-    # worst 0.197 m (the 1 s prediction is metres off, the match pulls it in)
-    assert k is not None and (poses[k, 0] - poses[0, 0]) <= 3.5e6, statuses(out)
+    # measured: tracking at the 5th sweep (4 s; the 3rd before the 2nd and 3rd had to be
+    # deskewed with a speed their matches confirm: the speed from two matches 1 s apart
+    # lags an accelerating car by 2-3 m/s); the first tracking POSE 0.03 m off, the worst
+    # 0.197 m (the 1 s prediction is metres off, the match pulls it in). 5 s: the target
+    assert k is not None and (poses[k, 0] - poses[0, 0]) <= 5.0e6, statuses(out)
     _, et, ey = lb.errors_vs_truth(poses[k:][poses[k:, 5] == 1], drive["gt"])
     assert et[0] < 0.1 and et.max() < 0.6 and ey.max() < 1.5, (et, ey)
     assert 3 not in poses[k:, 5]
@@ -513,8 +517,9 @@ def test_no_prior_start_searches_the_map(drive, tmp_path):
     p = localize(drive, log, out)
     poses = lb.read_poses(out, "POSE")
     k = first_tracking(poses)
-    # measured: tracking after 0.2 s, max error 0.067 m
-    assert k is not None and (poses[k, 0] - poses[0, 0]) <= 0.6e6, "tracking within 0.6 s"
+    # measured: tracking after 0.3 s (0.2 s before sweeps had to be deskewed with a speed
+    # their matches confirm), max error 0.067 m
+    assert k is not None and (poses[k, 0] - poses[0, 0]) <= 1.0e6, "tracking within 1 s"
     _, et, _ = lb.errors_vs_truth(poses[k:][poses[k:, 5] == 1], drive["gt"])
     assert et.max() < 0.2, et.max()
     # with the search switched off there is no pose: STATUS says why, and every POSE says it is
@@ -762,6 +767,36 @@ def test_moving_lidar_only_start_settles_on_a_street_of_trees(porous_street, tmp
     _, et, _ = lb.errors_vs_truth(poses[k:][poses[k:, 5] == 1], t["gt"])
     # the start judged as bench-localizer-trees judges it: every tracking POSE within 0.2 m
     assert et.max() < 0.2, et.max()
+    assert 3 not in poses[k:, 5]
+
+
+@pytest.fixture(scope="module")
+def porous_street_seed5(tmp_path_factory):
+    """The porous street, bench-localizer-trees' drive (seed 5), its first 14 s."""
+    return street_drive(tmp_path_factory.mktemp("porous5"), 0.7, 5, 14)
+
+
+@pytest.mark.parametrize("offset", [(0.12, -0.584, 0.793, -5.069), (-1.918, -1.298, -0.465, -9.918)])
+def test_moving_lidar_only_start_verifies_deskewed_sweeps(porous_street_seed5, tmp_path, offset):
+    """LiDAR alone, the car at 8.6 m/s, priors that bench-localizer-trees draws (its starts 22
+    and 12 at 7.5 s). The first two matches are of sweeps that could not be deskewed (the
+    speed is not known yet), and the speed from them was 6 m/s off; verified by them and a
+    third deskewed with that speed, the track began 0.13 and 0.27 m behind the car (measured
+    before sweeps had to be deskewed with a speed their match confirms; 0.44 and 0.32 m on
+    the bench's 40 s drive). Measured since: tracking after 0.8 and 0.7 s, the first tracking
+    POSE 0.027 and 0.021 m off, the worst 0.068 and 0.067 m."""
+    t = porous_street_seed5
+    log, out = tmp_path / "cut.lcm", tmp_path / "o.lcm"
+    cut(t, log, 7.5, 6, "LIDAR_SCAN,GROUND_TRUTH")
+    g = t["gt"][np.searchsorted(t["gt"][:, 0], lb.read_channel_times(log, "LIDAR_SCAN")[0])]
+    dx, dy, dz, dyaw = offset
+    localize(t, log, out, f"--initial-pose={g[1] + dx},{g[2] + dy},{g[3] + dz},0,0,{math.degrees(g[4]) + dyaw}")
+    poses = lb.read_poses(out, "POSE")
+    k = first_tracking(poses)
+    assert k is not None and (poses[k, 0] - poses[0, 0]) <= 2.0e6, "tracking within 2 s"
+    _, et, _ = lb.errors_vs_truth(poses[k:][poses[k:, 5] == 1], t["gt"])
+    assert et[0] < 0.08 and et.max() < 0.2, (et[0], et.max())
+    assert counters(last_status_msg(out)).get("verify_deskew", 0) >= 1   # the rule engaged
     assert 3 not in poses[k:, 5]
 
 

@@ -593,7 +593,10 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
     }
 
     filter_t prior = predict_to(L, t_ref);
+    /* the speed (base) the sweep is deskewed with, for the verification below */
+    Vec3 swept = filter_base_pose(&prior).linear().transpose() * filter_base_velocity(&prior);
     if (L->deskew_vel_ok && L->deskew_vel_n < L->cfg.deskew_smooth_sweeps && lidar_alone(L, t_ref)) {
+        swept = L->deskew_vel;
         /* the sweep's motion at the smoothed speed (the prior keeps the filter's) */
         filter_t kept = L->kf;
         Eigen::Isometry3d b = filter_base_pose(&L->kf);
@@ -723,7 +726,12 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
     if (accept) {
         update_lidar_only_motion(L, t_ref);
         L->reject_count = 0;
-        if (L->candidate) {
+        Vec3 vb = filter_base_pose(&L->kf).linear().transpose() * filter_base_velocity(&L->kf);
+        double skew = (vb - swept).norm() * (t_ref - utime) * 1e-6 / 2;
+        if (L->candidate && skew > L->cfg.verify_deskew_m) {
+            event(out, "verify_deskew", "sweep deskewed with a speed %.1f m/s off its match (%.2f m over the sweep); "
+                  "verification waits", (vb - swept).norm(), skew);
+        } else if (L->candidate) {
             if (++L->verify_count >= L->cfg.verify_scans) {
                 L->candidate = false;
                 set_status(L, ST_TRACKING, out, "pose verified");
