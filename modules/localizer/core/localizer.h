@@ -112,8 +112,9 @@ struct localizer_config_t {
     int rejects_to_lost = 10;              /* consecutive rejected sweeps -> LOST */
     int verify_scans = 3;                  /* consecutive accepted sweeps to leave INITIALIZING/LOST */
     /* ... each deskewed with a speed that its own match confirms: one whose speed was off
-     * by dv moves its points by up to dv * sweep / 2, and its match along the road with
-     * them (a moving start on LiDAR alone: 0.3-0.45 m on the porous street) */
+     * by dv moves its points by dv * sweep / 2 on average (up to dv * sweep), and its match
+     * along the road with them (a moving start on LiDAR alone: 0.3-0.45 m on the porous
+     * street). Compared with this bound; a candidate waits while it is exceeded. */
     double verify_deskew_m = 0.1;
     /* LiDAR alone, after a start or restart: the speed a sweep is deskewed with is smoothed
      * (new = a old + (1 - a) filter's) over this many accepted sweeps. A moving start's
