@@ -220,6 +220,11 @@ Vec3 filter_base_velocity(const filter_t *f)
     return f->v - (R * f->omega).cross(lever);
 }
 
+Vec3 filter_body_velocity(const filter_t *f)
+{
+    return filter_base_pose(f).linear().transpose() * filter_base_velocity(f);
+}
+
 Vec3 filter_base_rate(const filter_t *f) { return f->base_from_imu.rotation() * f->omega; }
 
 Mat6 filter_base_covariance(const filter_t *f)

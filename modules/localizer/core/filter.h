@@ -90,6 +90,8 @@ double filter_update_speed(filter_t *f, double speed_mps);
 /* Outputs: base pose, base-origin velocity in map, angular rate in base. */
 Eigen::Isometry3d filter_base_pose(const filter_t *f);
 Vec3 filter_base_velocity(const filter_t *f);
+/* The base origin's velocity in base (forward, left, up). */
+Vec3 filter_body_velocity(const filter_t *f);
 Vec3 filter_base_rate(const filter_t *f);
 /* 6x6 covariance over (x, y, z, roll, pitch, yaw) of the base, approximated from P. */
 Mat6 filter_base_covariance(const filter_t *f);

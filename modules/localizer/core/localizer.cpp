@@ -462,7 +462,7 @@ static void update_lidar_only_motion(localizer_t *L, int64_t t)
     L->last_match_t = t;
     /* the speed sweeps are deskewed with: smoothed over the first sweeps after a start,
      * when the filter's speed is still metres per second off (see deskew_smooth) */
-    Vec3 vb = base.linear().transpose() * filter_base_velocity(&L->kf);
+    Vec3 vb = filter_body_velocity(&L->kf);
     if (!L->deskew_vel_ok) L->deskew_vel_n = 0;
     double a = L->deskew_vel_n < L->cfg.deskew_smooth_sweeps ? L->cfg.deskew_smooth : 0.0;
     L->deskew_vel = L->deskew_vel_ok ? Vec3(a * L->deskew_vel + (1 - a) * vb) : vb;
@@ -594,7 +594,7 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
 
     filter_t prior = predict_to(L, t_ref);
     /* the speed (base) the sweep is deskewed with, for the verification below */
-    Vec3 swept = filter_base_pose(&prior).linear().transpose() * filter_base_velocity(&prior);
+    Vec3 swept = filter_body_velocity(&prior);
     if (L->deskew_vel_ok && L->deskew_vel_n < L->cfg.deskew_smooth_sweeps && lidar_alone(L, t_ref)) {
         swept = L->deskew_vel;
         /* the sweep's motion at the smoothed speed (the prior keeps the filter's) */
@@ -726,13 +726,13 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
     if (accept) {
         update_lidar_only_motion(L, t_ref);
         L->reject_count = 0;
-        Vec3 vb = filter_base_pose(&L->kf).linear().transpose() * filter_base_velocity(&L->kf);
-        double skew = (vb - swept).norm() * (t_ref - utime) * 1e-6 / 2;
-        if (L->candidate && skew > L->cfg.verify_deskew_m) {
-            event(out, "verify_deskew", "sweep deskewed with a speed %.1f m/s off its match (%.2f m over the sweep); "
-                  "verification waits", (vb - swept).norm(), skew);
-        } else if (L->candidate) {
-            if (++L->verify_count >= L->cfg.verify_scans) {
+        if (L->candidate) {
+            double dv = (filter_body_velocity(&L->kf) - swept).norm();
+            double skew = dv * (t_ref - utime) * 1e-6 / 2;
+            if (skew > L->cfg.verify_deskew_m) {
+                event(out, "verify_deskew", "sweep deskewed with a speed %.1f m/s off its match (%.2f m over the sweep); "
+                      "verification waits", dv, skew);
+            } else if (++L->verify_count >= L->cfg.verify_scans) {
                 L->candidate = false;
                 set_status(L, ST_TRACKING, out, "pose verified");
             }
@@ -751,8 +751,7 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
                 L->has_hint = true;
                 L->hint = filter_base_pose(&L->kf);
                 L->hint_t = t_ref;
-                L->hint_body_vel = L->cand_vel_unknown ? Vec3::Zero()
-                                                       : Vec3(L->hint.linear().transpose() * filter_base_velocity(&L->kf));
+                L->hint_body_vel = L->cand_vel_unknown ? Vec3::Zero() : filter_body_velocity(&L->kf);
             }
             if (L->status == ST_INITIALIZING) { L->kf.initialized = false; L->pred.initialized = false; }
             event(out, "candidate_dropped", "candidate pose dropped: %s", why ? why : "?");

@@ -292,8 +292,7 @@ void localizer_initial_pose(localizer_t *L, int64_t utime, const Eigen::Isometry
     L->hint = T;
     L->hint_t = utime;
     L->hint_tries = 0;
-    L->hint_body_vel = L->pred.initialized ? Vec3(filter_base_pose(&L->pred).linear().transpose() * filter_base_velocity(&L->pred))
-                                           : Vec3::Zero();
+    L->hint_body_vel = L->pred.initialized ? filter_body_velocity(&L->pred) : Vec3::Zero();
     /* the current track (if any) keeps running on prediction until the hint is verified,
      * so a wrong hint can fall back on it */
     L->candidate = false;
