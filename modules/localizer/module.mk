@@ -124,4 +124,4 @@ bench-localizer-real: $(BIN)/bench-localizer $(BIN)/import-scans $(DEPS)
 	    --times $(LOCREG_REAL)/odd/times.txt --vehicle vehicles/lidar_mast.yaml --out $(LOCREG_REAL)/odd/odd.lcm --quiet && \
 	nice $(VPY) modules/localizer/bench/real_starts.py --log $(LOCREG_REAL)/odd/odd.lcm --site $(LOCREG_REAL)/site \
 	    --vehicle vehicles/lidar_mast.yaml --cuts $(LOCREAL_CUTS) --guesses $(LOCREAL_GUESSES) --global $(LOCREAL_GLOBAL) \
-	    --json $(LOCREG_REAL)/starts.json
+	    --report $(LOCREG_REAL)/reference-report.json --times $(MULRAN)/times.txt --json $(LOCREG_REAL)/starts.json
