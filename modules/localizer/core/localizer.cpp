@@ -616,28 +616,8 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
     double reach = free_motion ? std::min(L->cfg.max_speed_mps * (t_ref - L->cand_t) * 1e-6, 40.0) : 0;
     int rc;
     if (reach > 1.0) {
-        /* seeds along arcs that turn by up to max_yaw_rate * dt (a turn between sparse
-         * sweeps), 10 degrees apart, each searched 1.5 m and 5 degrees around */
-        double dt = (t_ref - L->cand_t) * 1e-6;
-        double turn = std::min(L->cfg.max_yaw_rate_dps * dt, 60.0) * M_PI / 180;
-        int nturn = int(std::floor(turn / (10 * M_PI / 180)));
-        /* at most ~40 seeds (a few hundred ms: live, the sweeps keep coming): a longer gap
-         * spaces them wider */
-        double step = std::max(2.0, 2 * reach * (2 * nturn + 1) / 40.0);
-        std::vector<Eigen::Isometry3d> seeds;
-        for (int k = -nturn; k <= nturn; k++)
-            for (double along = -std::floor(reach / step) * step; along <= reach + 1e-9; along += step) {
-                double phi = k * 10 * M_PI / 180, sgn = along < 0 ? -1 : 1;
-                /* an arc of length |along| turning by phi: its chord, at half the turn */
-                double chord = std::fabs(phi) > 1e-9 ? 2 * std::fabs(along) / std::fabs(phi) * std::sin(std::fabs(phi) / 2)
-                                                     : std::fabs(along);
-                Eigen::AngleAxisd half(sgn * phi / 2, Vec3::UnitZ()), full(sgn * phi, Vec3::UnitZ());
-                Eigen::Isometry3d T = guess;
-                T.translation() += (half * guess.linear().col(0)) * (sgn * chord);
-                T.linear() = full * guess.linear();
-                seeds.push_back(T);
-                if (k != 0 && std::fabs(along) < 1e-9) seeds.pop_back();   /* no distance, no turn */
-            }
+        double step;
+        std::vector<Eigen::Isometry3d> seeds = motion_seeds(L, guess, (t_ref - L->cand_t) * 1e-6, &step);
         double fit;
         rc = search_seeds(L, seeds, std::max(1.5, 0.75 * step), 5 * M_PI / 180, false, &res, &fit, nullptr)
                  ? res.status : PB_REG_FEW_POINTS;
@@ -750,7 +730,7 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
             if (L->cand_retry_hint && L->hint_tries < L->cfg.hint_retries) {
                 L->has_hint = true;
                 L->hint = filter_base_pose(&L->kf);
-                L->hint_t = t_ref;
+                L->hint_t = L->cand_vel_unknown ? L->cand_t : t_ref;   /* unknown speed: it has not moved on */
                 L->hint_body_vel = L->cand_vel_unknown ? Vec3::Zero() : filter_body_velocity(&L->kf);
             }
             if (L->status == ST_INITIALIZING) { L->kf.initialized = false; L->pred.initialized = false; }

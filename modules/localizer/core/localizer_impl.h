@@ -122,6 +122,8 @@ void rebuild_pred(localizer_t *L);
 Eigen::Isometry3d imu_pose(const filter_t &f);
 
 /* startup.cpp: start-up or relocalisation on this sweep; true with kf reset at a candidate */
+std::vector<Eigen::Isometry3d> motion_seeds(const localizer_t *L, const Eigen::Isometry3d &from, double dt_s,
+                                            double *step);
 bool search_seeds(localizer_t *L, const std::vector<Eigen::Isometry3d> &seeds, double radius, double yaw_range,
                   bool page, pb_reg_result_t *res, double *fit, double *rival);
 bool global_search(localizer_t *L, pb_reg_result_t *res, outputs_t *out);

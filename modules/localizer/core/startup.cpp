@@ -17,6 +17,7 @@ struct start_t {
     Vec3 vel = Vec3::Zero();
     bool vel_known = false;
     const char *how = nullptr;
+    std::vector<Eigen::Isometry3d> seeds;   /* instead of seed: where a car of unknown speed may be */
 };
 
 /* The base on the map's ground at (x, y): a start's height (and a GNSS height, MSL or
@@ -44,6 +45,7 @@ static bool choose_start(localizer_t *L, int64_t t_ref, start_t *s)
         s->seed = L->hint;
         s->vel = s->seed.linear() * L->hint_body_vel;
         if (s->vel.isZero() && fix_fresh(L, t_ref) && L->fix.speed_mps > 0.5) s->vel = course_velocity(L, L->fix);
+        if (L->hint_t == 0) L->hint_t = t_ref;   /* --initial-pose: valid at the first sweep */
         /* the hint is for its own time; the car moved on since */
         if (L->hint_t != 0 && t_ref > L->hint_t && t_ref - L->hint_t < 2000000)
             s->seed.translation() += s->vel * ((t_ref - L->hint_t) * 1e-6);
@@ -54,6 +56,15 @@ static bool choose_start(localizer_t *L, int64_t t_ref, start_t *s)
         s->radius = L->cfg.hint_radius_m;
         s->yaw_range = L->cfg.hint_yaw_deg * M_PI / 180;
         s->how = "initial pose";
+        /* a prior for a moving car of unknown speed, tried again later (its first sweeps
+         * did not fit, or a candidate from it failed): the car is somewhere along its axis
+         * by now, not within the prior's disc */
+        double dt = L->hint_t != 0 && t_ref > L->hint_t ? (t_ref - L->hint_t) * 1e-6 : 0;
+        if (!s->vel_known && std::min(L->cfg.max_speed_mps * dt, 40.0) > s->radius) {
+            double step;
+            s->seeds = motion_seeds(L, s->seed, dt, &step);
+            s->radius = std::max(1.5, 0.75 * step);
+        }
         return true;
     }
     if (fix_fresh(L, t_ref) && L->has_geo) {
@@ -91,6 +102,36 @@ static bool choose_start(localizer_t *L, int64_t t_ref, start_t *s)
         return true;
     }
     return false;
+}
+
+/* Where a car whose speed is not known may be dt_s after it was at `from`: seeds along
+ * arcs either way along its axis (reversing, or a LiDAR mounted facing backwards), as far
+ * as max_speed * dt (at most 40 m), turning by up to max_yaw_rate * dt (at most 60
+ * degrees), 10 degrees apart. *step: their spacing along the arcs (search each about
+ * 0.75 * step around). At most ~40 seeds (a few hundred ms: live, the sweeps keep
+ * coming), so a longer gap spaces them wider. */
+std::vector<Eigen::Isometry3d> motion_seeds(const localizer_t *L, const Eigen::Isometry3d &from, double dt_s,
+                                            double *step)
+{
+    double reach = std::min(L->cfg.max_speed_mps * dt_s, 40.0);
+    double turn = std::min(L->cfg.max_yaw_rate_dps * dt_s, 60.0) * M_PI / 180;
+    int nturn = int(std::floor(turn / (10 * M_PI / 180)));
+    *step = std::max(2.0, 2 * reach * (2 * nturn + 1) / 40.0);
+    std::vector<Eigen::Isometry3d> seeds;
+    for (int k = -nturn; k <= nturn; k++)
+        for (double along = -std::floor(reach / *step) * *step; along <= reach + 1e-9; along += *step) {
+            if (k != 0 && std::fabs(along) < 1e-9) continue;   /* no distance, no turn */
+            double phi = k * 10 * M_PI / 180, sgn = along < 0 ? -1 : 1;
+            /* an arc of length |along| turning by phi: its chord, at half the turn */
+            double chord = std::fabs(phi) > 1e-9 ? 2 * std::fabs(along) / std::fabs(phi) * std::sin(std::fabs(phi) / 2)
+                                                 : std::fabs(along);
+            Eigen::AngleAxisd half(sgn * phi / 2, Vec3::UnitZ()), full(sgn * phi, Vec3::UnitZ());
+            Eigen::Isometry3d T = from;
+            T.translation() += (half * from.linear().col(0)) * (sgn * chord);
+            T.linear() = full * from.linear();
+            seeds.push_back(T);
+        }
+    return seeds;
 }
 
 /* The best of several seeds: each searched within radius / yaw_range by registration,
@@ -210,7 +251,20 @@ bool try_initialize(localizer_t *L, int64_t t_ref, outputs_t *out)
     pb_reg_result_t res;
     start_t s;
     Vec3 omega = L->kf.initialized ? L->pred.omega : L->kf.omega;
-    if (choose_start(L, t_ref, &s)) {
+    if (choose_start(L, t_ref, &s) && !s.seeds.empty()) {
+        double fit, rival;
+        if (!search_seeds(L, s.seeds, s.radius, s.yaw_range, false, &res, &fit, &rival)) {
+            event(out, "init_rejected", "%s: no match along the car's axis (where it may be %.1f s after the prior) "
+                  "explains %.0f%% of the sweep", s.how, (t_ref - L->hint_t) * 1e-6, 100 * L->cfg.min_inlier_fraction);
+            return false;
+        }
+        /* seeds metres apart along a road whose trees repeat: as in the global search */
+        if (fit >= L->cfg.min_structure_inliers && rival > L->cfg.rival_ratio * fit) {
+            event(out, "init_ambiguous", "%s: two places %.0f+ m apart along the car's axis fit this sweep alike "
+                  "(%.0f%% and %.0f%% of the structure); still searching", s.how, L->cfg.rival_m, 100 * fit, 100 * rival);
+            return false;
+        }
+    } else if (s.how) {
         int rc = pb_reg_align_global(L->map, L->xyz.data(), L->xyz.size() / 3, s.seed, s.radius, s.yaw_range,
                                      &L->cfg.reg, &res, &err);
         if (rc < 0) { event(out, "init_failed", "%s: %s", s.how, err.msg); return false; }
