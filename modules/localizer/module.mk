@@ -73,9 +73,9 @@ MULRAN := $(abspath $(TOP)/../shared/data/lidar_seq_mulran_riverside02_part1)
 LOCREG_REAL := $(BUILD)/bench/localizer-real
 LOCREAL_STARTS ?= 20
 LOCREAL_BASE_EVERY ?= 3
-LOCREAL_CUTS ?= 10
-LOCREAL_GUESSES ?= 30
-LOCREAL_GLOBAL ?= 10
+LOCREAL_CUTS ?= 30
+LOCREAL_GUESSES ?= 90
+LOCREAL_GLOBAL ?= 30
 LOCREAL_BENCH = --global 3,15 --converge 0.2 --ndt-res 1,2
 bench-localizer-real: $(BIN)/bench-localizer $(BIN)/import-scans $(DEPS)
 	@mkdir -p $(LOCREG_REAL)/hdl32/scans && \
