@@ -613,7 +613,7 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
      * car can since (sweeps may be sparse: skipped while searching, or keyframes), either
      * way (reversing, or a LiDAR mounted facing backwards) */
     bool free_motion = L->candidate && L->cand_vel_unknown;
-    double reach = free_motion ? std::min(L->cfg.max_speed_mps * (t_ref - L->cand_t) * 1e-6, 40.0) : 0;
+    double reach = free_motion ? motion_reach_m(L, (t_ref - L->cand_t) * 1e-6) : 0;
     int rc;
     if (reach > 1.0) {
         double step;

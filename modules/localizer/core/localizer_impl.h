@@ -122,6 +122,7 @@ void rebuild_pred(localizer_t *L);
 Eigen::Isometry3d imu_pose(const filter_t &f);
 
 /* startup.cpp: start-up or relocalisation on this sweep; true with kf reset at a candidate */
+double motion_reach_m(const localizer_t *L, double dt_s);   /* how far a car of unknown speed may go */
 std::vector<Eigen::Isometry3d> motion_seeds(const localizer_t *L, const Eigen::Isometry3d &from, double dt_s,
                                             double *step);
 bool search_seeds(localizer_t *L, const std::vector<Eigen::Isometry3d> &seeds, double radius, double yaw_range,

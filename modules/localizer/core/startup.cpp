@@ -47,8 +47,8 @@ static bool choose_start(localizer_t *L, int64_t t_ref, start_t *s)
         if (s->vel.isZero() && fix_fresh(L, t_ref) && L->fix.speed_mps > 0.5) s->vel = course_velocity(L, L->fix);
         if (L->hint_t == 0) L->hint_t = t_ref;   /* --initial-pose: valid at the first sweep */
         /* the hint is for its own time; the car moved on since */
-        if (L->hint_t != 0 && t_ref > L->hint_t && t_ref - L->hint_t < 2000000)
-            s->seed.translation() += s->vel * ((t_ref - L->hint_t) * 1e-6);
+        double dt = t_ref > L->hint_t ? (t_ref - L->hint_t) * 1e-6 : 0;
+        if (dt < 2.0) s->seed.translation() += s->vel * dt;
         s->vel_known = !s->vel.isZero();
         /* a start that fails is tried again on later sweeps, unless a track runs to fall back on */
         if (L->kf.initialized || ++L->hint_tries >= L->cfg.hint_retries) L->has_hint = false;
@@ -59,8 +59,7 @@ static bool choose_start(localizer_t *L, int64_t t_ref, start_t *s)
         /* a prior for a moving car of unknown speed, tried again later (its first sweeps
          * did not fit, or a candidate from it failed): the car is somewhere along its axis
          * by now, not within the prior's disc */
-        double dt = L->hint_t != 0 && t_ref > L->hint_t ? (t_ref - L->hint_t) * 1e-6 : 0;
-        if (!s->vel_known && std::min(L->cfg.max_speed_mps * dt, 40.0) > s->radius) {
+        if (!s->vel_known && motion_reach_m(L, dt) > s->radius) {
             double step;
             s->seeds = motion_seeds(L, s->seed, dt, &step);
             s->radius = std::max(1.5, 0.75 * step);
@@ -110,10 +109,12 @@ static bool choose_start(localizer_t *L, int64_t t_ref, start_t *s)
  * degrees), 10 degrees apart. *step: their spacing along the arcs (search each about
  * 0.75 * step around). At most ~40 seeds (a few hundred ms: live, the sweeps keep
  * coming), so a longer gap spaces them wider. */
+double motion_reach_m(const localizer_t *L, double dt_s) { return std::min(L->cfg.max_speed_mps * dt_s, 40.0); }
+
 std::vector<Eigen::Isometry3d> motion_seeds(const localizer_t *L, const Eigen::Isometry3d &from, double dt_s,
                                             double *step)
 {
-    double reach = std::min(L->cfg.max_speed_mps * dt_s, 40.0);
+    double reach = motion_reach_m(L, dt_s);
     double turn = std::min(L->cfg.max_yaw_rate_dps * dt_s, 60.0) * M_PI / 180;
     int nturn = int(std::floor(turn / (10 * M_PI / 180)));
     *step = std::max(2.0, 2 * reach * (2 * nturn + 1) / 40.0);
@@ -132,6 +133,13 @@ std::vector<Eigen::Isometry3d> motion_seeds(const localizer_t *L, const Eigen::I
             seeds.push_back(T);
         }
     return seeds;
+}
+
+/* A place that fits while another one far from it (rival: its fit, < 0 for none) fits
+ * about as well is not known yet. */
+static bool ambiguous(const localizer_t *L, double fit, double rival)
+{
+    return fit >= L->cfg.min_structure_inliers && rival > L->cfg.rival_ratio * fit;
 }
 
 /* The best of several seeds: each searched within radius / yaw_range by registration,
@@ -236,7 +244,7 @@ bool global_search(localizer_t *L, pb_reg_result_t *res, outputs_t *out)
     }
     /* rows of trees, parallel carriageways, a road alike both ways: a place that another
      * one far from it (or the other way round) fits about as well is not known yet */
-    if (fit >= L->cfg.min_structure_inliers && rival > L->cfg.rival_ratio * fit) {
+    if (ambiguous(L, fit, rival)) {
         event(out, "global_ambiguous", "global search: two places %.0f+ m or %.0f+ deg apart fit this sweep alike "
               "(%.0f%% and %.0f%% of the structure); still searching", L->cfg.rival_m, L->cfg.rival_yaw_deg, 100 * fit,
               100 * rival);
@@ -259,7 +267,7 @@ bool try_initialize(localizer_t *L, int64_t t_ref, outputs_t *out)
             return false;
         }
         /* seeds metres apart along a road whose trees repeat: as in the global search */
-        if (fit >= L->cfg.min_structure_inliers && rival > L->cfg.rival_ratio * fit) {
+        if (ambiguous(L, fit, rival)) {
             event(out, "init_ambiguous", "%s: two places %.0f+ m apart along the car's axis fit this sweep alike "
                   "(%.0f%% and %.0f%% of the structure); still searching", s.how, L->cfg.rival_m, 100 * fit, 100 * rival);
             return false;
