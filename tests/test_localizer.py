@@ -22,6 +22,7 @@ import pytest
 from conftest import BIN, ROOT, SHARED_DATA, read_log, run
 
 sys.path.insert(0, str(ROOT / "modules" / "localizer" / "bench"))
+import bench_starts as bs  # noqa: E402
 import locbench as lb  # noqa: E402
 
 FAULT = ROOT / "tools" / "log-fault" / "log_fault.py"
@@ -829,8 +830,25 @@ def test_prior_for_a_moving_car_is_searched_where_the_car_may_be_by_now(porous_s
 
 # ---------------------------------------------------------------- real data (make test-real)
 
+MULRAN = SHARED_DATA / "lidar_seq_mulran_riverside02_part1"
+
+
+@pytest.fixture(scope="module")
+def mulran_reference(tmp_path_factory):
+    """The MulRan keyframes' refined reference (reference.py, one thread: the same file every
+    build) and its report (the keyframes it judges implausible)."""
+    if not MULRAN.exists():
+        pytest.skip(f"{MULRAN} is absent (real data lives in ../shared/data)")
+    d = tmp_path_factory.mktemp("mulran")
+    run([sys.executable, ROOT / "modules/localizer/bench/reference.py", "--scans", MULRAN / "Scans",
+         "--poses", MULRAN / "optimized_poses.txt", "--times", MULRAN / "times.txt", "--threads", "1",
+         "--out", d / "refined_poses.txt", "--report", d / "report.json"], timeout=900)
+    return {"dir": d, "poses": d / "refined_poses.txt",
+            "implausible": json.loads((d / "report.json").read_text())["implausible_keyframes_refined"]}
+
+
 @pytest.mark.real
-def test_real_mulran_tracking_against_refined_reference(tmp_path):
+def test_real_mulran_tracking_against_refined_reference(mulran_reference, tmp_path):
     """Registration from tracking starts (5 cm, as a filter's prediction) on the 83 odd MulRan
     keyframes, the map from the even ones at the refined reference (reference.py, one thread:
     the same file every build). Measured 26 Nov 2026: 98.8% within 0.2 m, median 0.028 m, p99
@@ -843,14 +861,8 @@ def test_real_mulran_tracking_against_refined_reference(tmp_path):
     (docs/localizer.md, "Finished minima"). Judged against the reference where it is
     plausible (61 keyframes): 100%, median 0.025 m, p99 0.095 m; and a miss anywhere else
     fails."""
-    mulran = SHARED_DATA / "lidar_seq_mulran_riverside02_part1"
-    if not mulran.exists():
-        pytest.skip(f"{mulran} is absent (real data lives in ../shared/data)")
-    ref = tmp_path / "refined_poses.txt"
-    run([sys.executable, ROOT / "modules/localizer/bench/reference.py", "--scans", mulran / "Scans",
-         "--poses", mulran / "optimized_poses.txt", "--times", mulran / "times.txt", "--threads", "1",
-         "--out", ref, "--report", tmp_path / "report.json"], timeout=900)
-    common = ["--scans", mulran / "Scans", "--poses", ref, "--times", mulran / "times.txt", "--quiet"]
+    common = ["--scans", MULRAN / "Scans", "--poses", mulran_reference["poses"], "--times", MULRAN / "times.txt",
+              "--quiet"]
     run([BIN / "import-scans", *common, "--every", "2", "--map-out", tmp_path / "map.pcd", "--voxel", "0.15",
          "--out", tmp_path / "even.lcm"])
     run([BIN / "import-scans", *common, "--out", tmp_path / "all.lcm"])
@@ -861,7 +873,7 @@ def test_real_mulran_tracking_against_refined_reference(tmp_path):
     assert track["n"] == 83
     err = {int(m[1]): float(m[2]) for m in re.finditer(r"^scan (\d+) tracking: err ([\d.]+) m", p.stdout, re.M)}
     assert len(err) == 83, p.stdout[-500:]
-    implausible = json.loads((tmp_path / "report.json").read_text())["implausible_keyframes_refined"]
+    implausible = mulran_reference["implausible"]
     doubtful = {k for k in err if any(abs(k - b) <= 3 for b in implausible)}
     plausible = np.array([e for k, e in err.items() if k not in doubtful])
     assert len(plausible) >= 55, (len(plausible), implausible)     # 61 measured
@@ -871,3 +883,45 @@ def test_real_mulran_tracking_against_refined_reference(tmp_path):
     misses = sorted(k for k, e in err.items() if e > 0.2)
     assert set(misses) <= doubtful, (misses, implausible)
     assert track["t_median"] <= 0.08, track
+
+
+@pytest.mark.real
+def test_real_mulran_no_prior_starts_on_a_tree_lined_road(mulran_reference, tmp_path):
+    """The whole localizer on the odd MulRan keyframes (LiDAR alone, keyframes about 1 s apart)
+    with no prior at all, in the site of the even ones, as bench-localizer-real runs it: two
+    8 s cuts of the straight tree-lined road (85 and 90 s into the drive, where the reference
+    is plausible) must track within 5 s of their first keyframe (the issue's target), every
+    tracking POSE within 0.2 m of the reference. There the true place ranked below the 8th
+    of the place descriptors on some keyframes, and the 8 best fitted 32-52 % of the structure
+    at places 2-93 m along the road: with 8 places verified a sweep they tracked after 5.4 and
+    6.4 s; with 16, measured 28 Nov 2026: 2.8 and 1.4 s, worst error 0.07 and 0.04 m."""
+    scans = sorted((MULRAN / "Scans").iterdir())
+    ref = mulran_reference["poses"].read_text().splitlines()
+    times = (MULRAN / "times.txt").read_text().splitlines()
+    odd = tmp_path / "odd"
+    (odd / "scans").mkdir(parents=True)
+    for f in scans[1::2]:
+        (odd / "scans" / f.name).symlink_to(f)
+    (odd / "poses.txt").write_text("\n".join(ref[1::2]) + "\n")
+    (odd / "times.txt").write_text("\n".join(times[1::2]) + "\n")
+    site = tmp_path / "site"
+    site.mkdir()
+    mast = ["--vehicle", ROOT / "vehicles" / "lidar_mast.yaml", "--quiet"]
+    run([BIN / "import-scans", "--scans", MULRAN / "Scans", "--poses", mulran_reference["poses"], "--times",
+         MULRAN / "times.txt", "--every", "2", "--map-out", site / "map.pcd", "--voxel", "0.15",
+         "--out", site / "even.lcm", *mast])
+    run([BIN / "import-scans", "--scans", odd / "scans", "--poses", odd / "poses.txt", "--times", odd / "times.txt",
+         "--out", odd / "odd.lcm", *mast])
+    gt = lb.read_poses(odd / "odd.lcm", "GROUND_TRUTH")
+    for at in (85.0, 90.0):
+        c, out = tmp_path / f"cut_{at:g}.lcm", tmp_path / f"out_{at:g}.lcm"
+        bs.cut(odd / "odd.lcm", c, at, 8.0, "LIDAR_SCAN,GROUND_TRUTH")
+        cut_gt = lb.read_poses(c, "GROUND_TRUTH")
+        flagged = [float(times[k]) for k in mulran_reference["implausible"]]
+        assert not any(cut_gt[0, 0] * 1e-6 - 1 <= t <= cut_gt[-1, 0] * 1e-6 + 1 for t in flagged), "a plausible cut"
+        localize({"site": site}, c, out, "--vehicle", ROOT / "vehicles" / "lidar_mast.yaml", "--no-gnss",
+                 "--no-imu", "--no-speed")
+        r = bs.judge(gt, out)
+        print(f"cut {at:g} s: tracking {r['tracking_s']} s after the first keyframe, worst {r['max_m']} m")
+        assert r["tracking_s"] is not None and r["tracking_s"] <= 5.0, r["tracking_s"]
+        assert r["converged"] and r["lost"] == 0, (r["max_m"], r["lost"])
