@@ -23,6 +23,7 @@ from conftest import BIN, ROOT, SHARED_DATA, read_log, run
 
 sys.path.insert(0, str(ROOT / "modules" / "localizer" / "bench"))
 import bench_starts as bs  # noqa: E402
+import keyframe_site  # noqa: E402
 import locbench as lb  # noqa: E402
 import real_starts  # noqa: E402
 
@@ -896,31 +897,17 @@ def test_real_mulran_no_prior_starts_on_a_tree_lined_road(mulran_reference, tmp_
     of the place descriptors on some keyframes, and the 8 best fitted 32-52 % of the structure
     at places 2-93 m along the road: with 8 places verified a sweep they tracked after 5.4 and
     6.4 s; with 16, measured 28 Nov 2026: 2.8 and 1.4 s, worst error 0.07 and 0.04 m."""
-    scans = sorted((MULRAN / "Scans").iterdir())
-    ref = mulran_reference["poses"].read_text().splitlines()
     times = (MULRAN / "times.txt").read_text().splitlines()
-    odd = tmp_path / "odd"
-    (odd / "scans").mkdir(parents=True)
-    for f in scans[1::2]:
-        (odd / "scans" / f.name).symlink_to(f)
-    (odd / "poses.txt").write_text("\n".join(ref[1::2]) + "\n")
-    (odd / "times.txt").write_text("\n".join(times[1::2]) + "\n")
-    site = tmp_path / "site"
-    site.mkdir()
-    mast = ["--vehicle", ROOT / "vehicles" / "lidar_mast.yaml", "--quiet"]
-    run([BIN / "import-scans", "--scans", MULRAN / "Scans", "--poses", mulran_reference["poses"], "--times",
-         MULRAN / "times.txt", "--every", "2", "--map-out", site / "map.pcd", "--voxel", "0.15",
-         "--out", site / "even.lcm", *mast])
-    run([BIN / "import-scans", "--scans", odd / "scans", "--poses", odd / "poses.txt", "--times", odd / "times.txt",
-         "--out", odd / "odd.lcm", *mast])
-    gt = lb.read_poses(odd / "odd.lcm", "GROUND_TRUTH")
+    site, odd_log = keyframe_site.split(MULRAN / "Scans", mulran_reference["poses"], MULRAN / "times.txt",
+                                        ROOT / "vehicles" / "lidar_mast.yaml", tmp_path)
+    gt = lb.read_poses(odd_log, "GROUND_TRUTH")
     flagged = [float(times[k]) for k in mulran_reference["implausible"]]
     for at in (85.0, 90.0):
         c, out = tmp_path / f"cut_{at:g}.lcm", tmp_path / f"out_{at:g}.lcm"
-        bs.cut(odd / "odd.lcm", c, at, 8.0, "LIDAR_SCAN,GROUND_TRUTH")
+        bs.cut(odd_log, c, at, 8.0, "LIDAR_SCAN,GROUND_TRUTH")
         assert real_starts.reference_plausible(lb.read_poses(c, "GROUND_TRUTH"), flagged), at
-        localize({"site": site}, c, out, "--vehicle", ROOT / "vehicles" / "lidar_mast.yaml", "--no-gnss",
-                 "--no-imu", "--no-speed")
+        localize(None, c, out, "--vehicle", ROOT / "vehicles" / "lidar_mast.yaml", "--no-gnss", "--no-imu",
+                 "--no-speed", site=site)
         r = bs.judge(gt, out)
         print(f"cut {at:g} s: tracking {r['tracking_s']} s after the first keyframe, worst {r['max_m']} m")
         assert r["tracking_s"] is not None and r["tracking_s"] <= 5.0, r["tracking_s"]

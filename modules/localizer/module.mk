@@ -117,15 +117,8 @@ bench-localizer-real: $(BIN)/bench-localizer $(BIN)/import-scans $(DEPS)
 	    --dump $(LOCREG_REAL)/baseline.bin --json $(LOCREG_REAL)/results.json && \
 	$(VPY) modules/localizer/bench/bench_gicp.py $(LOCREG_REAL)/baseline.bin $(LOCREG_REAL)/results.json && \
 	echo "== MulRan Riverside02, the whole localizer: the odd scans replayed, LiDAR alone, site = the even scans" && \
-	rm -rf $(LOCREG_REAL)/odd $(LOCREG_REAL)/site && mkdir -p $(LOCREG_REAL)/odd/scans $(LOCREG_REAL)/site && \
-	for f in $$(ls $(MULRAN)/Scans | awk 'NR % 2 == 0'); do ln -s $(MULRAN)/Scans/$$f $(LOCREG_REAL)/odd/scans/; done && \
-	awk 'NR % 2 == 0' $(LOCREG_REAL)/refined_poses.txt > $(LOCREG_REAL)/odd/poses.txt && \
-	awk 'NR % 2 == 0' $(MULRAN)/times.txt > $(LOCREG_REAL)/odd/times.txt && \
-	$(BIN)/import-scans --scans $(MULRAN)/Scans --poses $(LOCREG_REAL)/refined_poses.txt --times $(MULRAN)/times.txt \
-	    --vehicle vehicles/lidar_mast.yaml --every 2 --map-out $(LOCREG_REAL)/site/map.pcd --voxel 0.15 \
-	    --out $(LOCREG_REAL)/site/even.lcm --quiet && \
-	$(BIN)/import-scans --scans $(LOCREG_REAL)/odd/scans --poses $(LOCREG_REAL)/odd/poses.txt \
-	    --times $(LOCREG_REAL)/odd/times.txt --vehicle vehicles/lidar_mast.yaml --out $(LOCREG_REAL)/odd/odd.lcm --quiet && \
+	$(VPY) modules/localizer/bench/keyframe_site.py --scans $(MULRAN)/Scans --poses $(LOCREG_REAL)/refined_poses.txt \
+	    --times $(MULRAN)/times.txt --vehicle vehicles/lidar_mast.yaml --out $(LOCREG_REAL) && \
 	nice $(VPY) modules/localizer/bench/real_starts.py --log $(LOCREG_REAL)/odd/odd.lcm --site $(LOCREG_REAL)/site \
 	    --vehicle vehicles/lidar_mast.yaml --cuts $(LOCREAL_CUTS) --guesses $(LOCREAL_GUESSES) --global $(LOCREAL_GLOBAL) \
 	    --report $(LOCREG_REAL)/reference-report.json --times $(MULRAN)/times.txt --json $(LOCREG_REAL)/starts.json
