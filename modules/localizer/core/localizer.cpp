@@ -494,8 +494,10 @@ static void restart_from_two_matches(localizer_t *L, filter_t *f, const Eigen::I
         Eigen::AngleAxisd aa(L->cand_pose.linear().transpose() * pose.linear());
         omega = L->ex.base_from_imu.linear().transpose() * (aa.axis() * aa.angle() / dt);
     }
-    /* the speed is the difference of two matches (each good to a few cm) */
-    filter_reset(f, t, pose, v, omega, 0.1, 1 * M_PI / 180, std::max(0.1, 0.1 / dt));
+    /* the speed is the difference of two matches (each good to a few cm): the mean over
+     * their interval, so the speed now differs from it by what the car's acceleration
+     * changed in half that interval (keyframes seconds apart: metres per second) */
+    filter_reset(f, t, pose, v, omega, 0.1, 1 * M_PI / 180, std::max({ 0.1, 0.1 / dt, f->cfg.cv_accel_noise * dt / 2 }));
     L->deskew_vel_ok = false;
     L->cand_vel_unknown = false;
 }
@@ -638,6 +640,19 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
         why = "too few points matched the map";
         event(out, "match_few_points", "LIDAR_SCAN: %d of %d points matched the map", res.points_matched, res.points_used);
     } else {
+        /* a candidate's verifying sweep whose prediction is less sure than one
+         * registration pulls in (sweeps seconds apart): the match is the best fit within
+         * the prediction's spread, not the minimum nearest to it (MulRan keyframes: 1.6 m
+         * along a road that hardly fixes the pose along it, or no fit after a turn) */
+        pb_reg_result_t r2;
+        double si2;
+        if (L->candidate && !free_motion && 3 * prediction_sigma_m(prior) >= 1.0 && research(L, prior, guess, &r2, &si2)) {
+            double si1 = res.inlier_fraction >= L->cfg.min_inlier_fraction ? structure_inliers(L, res.pose) : -1;
+            if (si2 > (std::isfinite(si1) ? si1 : -1)) {
+                res = r2;
+                event(out, "match_researched", "candidate's match: a better fit found around the prediction");
+            }
+        }
         d.matched = true;
         d.inlier_fraction = res.inlier_fraction;
         d.score = res.score;

@@ -46,9 +46,12 @@ static bool choose_start(localizer_t *L, int64_t t_ref, start_t *s)
         s->vel = s->seed.linear() * L->hint_body_vel;
         if (s->vel.isZero() && fix_fresh(L, t_ref) && L->fix.speed_mps > 0.5) s->vel = course_velocity(L, L->fix);
         if (L->hint_t == 0) L->hint_t = t_ref;   /* --initial-pose: valid at the first sweep */
-        /* the hint is for its own time; the car moved on since */
+        /* the hint is for its own time; the car moved on since. Its speed says where
+         * to for a short while only (in 2 s a car brakes by 10 m/s or turns by 35
+         * degrees): older, the car is somewhere along its axis (the seeds below) */
         double dt = t_ref > L->hint_t ? (t_ref - L->hint_t) * 1e-6 : 0;
-        if (dt < 2.0) s->seed.translation() += s->vel * dt;
+        if (dt >= 2.0) s->vel = Vec3::Zero();
+        s->seed.translation() += s->vel * dt;
         s->vel_known = !s->vel.isZero();
         /* a start that fails is tried again on later sweeps, unless a track runs to fall back on */
         if (L->kf.initialized || ++L->hint_tries >= L->cfg.hint_retries) L->has_hint = false;
