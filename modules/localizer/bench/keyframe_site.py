@@ -1,12 +1,15 @@
 #!/usr/bin/env python3
 """A keyframe sequence split for the whole localizer: the site (map.pcd) from the even
 keyframes, the odd ones imported as the log to localize (LIDAR_SCAN + GROUND_TRUTH, base
-poses of --vehicle). For bench-localizer-real and tests/test_localizer.py alike.
+poses of --vehicle); with --log even the other way round (the same sequence as a second,
+independent trial: the starts are not tuned to one split). For bench-localizer-real and
+tests/test_localizer.py alike.
 
-usage: keyframe_site.py --scans DIR --poses POSES.txt --times TIMES.txt --vehicle FILE --out DIR
+usage: keyframe_site.py --scans DIR --poses POSES.txt --times TIMES.txt --vehicle FILE --out DIR [--log odd|even]
 
-Writes DIR/site/map.pcd (voxel 0.15 m) and DIR/odd/odd.lcm; DIR/odd/{scans,poses.txt,times.txt}
-hold the odd keyframes (scans as links). Existing files under DIR are replaced.
+Writes DIR/site/map.pcd (voxel 0.15 m) and DIR/odd/odd.lcm (DIR/even/even.lcm);
+DIR/odd/{scans,poses.txt,times.txt} hold the odd keyframes (scans as links). Existing files
+under DIR are replaced.
 """
 import argparse
 import pathlib
@@ -21,35 +24,50 @@ def lines(path):
     return pathlib.Path(path).read_text().splitlines()
 
 
-def split(scans, poses, times, vehicle, out):
-    """Builds the site and the odd log under out; returns (site dir, odd log)."""
+def split(scans, poses, times, vehicle, out, log="odd"):
+    """Builds the site and the log of the `log` keyframes (odd or even) under out; returns
+    (site dir, log)."""
     scans, out = pathlib.Path(scans), pathlib.Path(out)
-    site, odd = out / "site", out / "odd"
-    for d in (site, odd):
+    site, lg = out / "site", out / log
+    for d in (site, lg):
         shutil.rmtree(d, ignore_errors=True)
     site.mkdir(parents=True)
-    (odd / "scans").mkdir(parents=True)
+    (lg / "scans").mkdir(parents=True)
     # the 2nd, 4th, ... scan in name order goes with the 2nd, 4th, ... pose and time line
-    for f in sorted(scans.iterdir())[1::2]:
-        (odd / "scans" / f.name).symlink_to(f.resolve())
-    (odd / "poses.txt").write_text("\n".join(lines(poses)[1::2]) + "\n")
-    (odd / "times.txt").write_text("\n".join(lines(times)[1::2]) + "\n")
+    first = 1 if log == "odd" else 0
+    for f in sorted(scans.iterdir())[first::2]:
+        (lg / "scans" / f.name).symlink_to(f.resolve())
+    (lg / "poses.txt").write_text("\n".join(lines(poses)[first::2]) + "\n")
+    (lg / "times.txt").write_text("\n".join(lines(times)[first::2]) + "\n")
     mast = ["--vehicle", str(vehicle), "--quiet"]
-    subprocess.run([str(BIN / "import-scans"), "--scans", str(scans), "--poses", str(poses), "--times", str(times),
-                    "--every", "2", "--map-out", str(site / "map.pcd"), "--voxel", "0.15",
-                    "--out", str(site / "even.lcm"), *mast], check=True)
-    subprocess.run([str(BIN / "import-scans"), "--scans", str(odd / "scans"), "--poses", str(odd / "poses.txt"),
-                    "--times", str(odd / "times.txt"), "--out", str(odd / "odd.lcm"), *mast], check=True)
-    return site, odd / "odd.lcm"
+    if log == "odd":
+        map_in = ["--scans", str(scans), "--poses", str(poses), "--times", str(times), "--every", "2"]
+    else:
+        # the odd keyframes: import-scans takes every Nth from the first, so they are listed
+        mp = out / "site_keyframes"
+        shutil.rmtree(mp, ignore_errors=True)
+        (mp / "scans").mkdir(parents=True)
+        for f in sorted(scans.iterdir())[1::2]:
+            (mp / "scans" / f.name).symlink_to(f.resolve())
+        (mp / "poses.txt").write_text("\n".join(lines(poses)[1::2]) + "\n")
+        (mp / "times.txt").write_text("\n".join(lines(times)[1::2]) + "\n")
+        map_in = ["--scans", str(mp / "scans"), "--poses", str(mp / "poses.txt"), "--times", str(mp / "times.txt")]
+    subprocess.run([str(BIN / "import-scans"), *map_in, "--map-out", str(site / "map.pcd"), "--voxel", "0.15",
+                    "--out", str(site / "map_keyframes.lcm"), *mast], check=True)
+    subprocess.run([str(BIN / "import-scans"), "--scans", str(lg / "scans"), "--poses", str(lg / "poses.txt"),
+                    "--times", str(lg / "times.txt"), "--out", str(lg / f"{log}.lcm"), *mast], check=True)
+    return site, lg / f"{log}.lcm"
 
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     for name in ("scans", "poses", "times", "vehicle", "out"):
         ap.add_argument(f"--{name}", required=True)
+    ap.add_argument("--log", choices=("odd", "even"), default="odd",
+                    help="the keyframes to localize (the site from the others; default odd)")
     a = ap.parse_args()
     try:
-        split(a.scans, a.poses, a.times, a.vehicle, a.out)
+        split(a.scans, a.poses, a.times, a.vehicle, a.out, a.log)
     except (OSError, subprocess.CalledProcessError) as e:
         sys.exit(f"keyframe_site.py: {e}")
 
