@@ -24,38 +24,34 @@ def lines(path):
     return pathlib.Path(path).read_text().splitlines()
 
 
+def link_keyframes(scans, poses, times, dest, first):
+    """dest/{scans,poses.txt,times.txt}: every 2nd keyframe from index `first` (scans as
+    links; the k-th scan in name order goes with the k-th pose and time line)."""
+    (dest / "scans").mkdir(parents=True)
+    for f in sorted(scans.iterdir())[first::2]:
+        (dest / "scans" / f.name).symlink_to(f.resolve())
+    (dest / "poses.txt").write_text("\n".join(lines(poses)[first::2]) + "\n")
+    (dest / "times.txt").write_text("\n".join(lines(times)[first::2]) + "\n")
+    return ["--scans", str(dest / "scans"), "--poses", str(dest / "poses.txt"), "--times", str(dest / "times.txt")]
+
+
 def split(scans, poses, times, vehicle, out, log="odd"):
     """Builds the site and the log of the `log` keyframes (odd or even) under out; returns
     (site dir, log)."""
     scans, out = pathlib.Path(scans), pathlib.Path(out)
-    site, lg = out / "site", out / log
-    for d in (site, lg):
+    site, lg, mp = out / "site", out / log, out / "site_keyframes"
+    for d in (site, lg, mp):
         shutil.rmtree(d, ignore_errors=True)
     site.mkdir(parents=True)
-    (lg / "scans").mkdir(parents=True)
-    # the 2nd, 4th, ... scan in name order goes with the 2nd, 4th, ... pose and time line
-    first = 1 if log == "odd" else 0
-    for f in sorted(scans.iterdir())[first::2]:
-        (lg / "scans" / f.name).symlink_to(f.resolve())
-    (lg / "poses.txt").write_text("\n".join(lines(poses)[first::2]) + "\n")
-    (lg / "times.txt").write_text("\n".join(lines(times)[first::2]) + "\n")
-    mast = ["--vehicle", str(vehicle), "--quiet"]
-    if log == "odd":
+    log_in = link_keyframes(scans, poses, times, lg, 1 if log == "odd" else 0)
+    if log == "odd":   # the even keyframes: import-scans takes every Nth from the first
         map_in = ["--scans", str(scans), "--poses", str(poses), "--times", str(times), "--every", "2"]
     else:
-        # the odd keyframes: import-scans takes every Nth from the first, so they are listed
-        mp = out / "site_keyframes"
-        shutil.rmtree(mp, ignore_errors=True)
-        (mp / "scans").mkdir(parents=True)
-        for f in sorted(scans.iterdir())[1::2]:
-            (mp / "scans" / f.name).symlink_to(f.resolve())
-        (mp / "poses.txt").write_text("\n".join(lines(poses)[1::2]) + "\n")
-        (mp / "times.txt").write_text("\n".join(lines(times)[1::2]) + "\n")
-        map_in = ["--scans", str(mp / "scans"), "--poses", str(mp / "poses.txt"), "--times", str(mp / "times.txt")]
+        map_in = link_keyframes(scans, poses, times, mp, 1)
+    mast = ["--vehicle", str(vehicle), "--quiet"]
     subprocess.run([str(BIN / "import-scans"), *map_in, "--map-out", str(site / "map.pcd"), "--voxel", "0.15",
                     "--out", str(site / "map_keyframes.lcm"), *mast], check=True)
-    subprocess.run([str(BIN / "import-scans"), "--scans", str(lg / "scans"), "--poses", str(lg / "poses.txt"),
-                    "--times", str(lg / "times.txt"), "--out", str(lg / f"{log}.lcm"), *mast], check=True)
+    subprocess.run([str(BIN / "import-scans"), *log_in, "--out", str(lg / f"{log}.lcm"), *mast], check=True)
     return site, lg / f"{log}.lcm"
 
 

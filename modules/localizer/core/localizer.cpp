@@ -511,8 +511,9 @@ static double prediction_sigma_m(const filter_t &prior)
 
 /* A match whose structure does not fit the map while tracking, or while verifying a
  * candidate whose motion was unknown at its start (LiDAR alone: its speed comes from two
- * matches): the prediction may be off by more than one registration pulls in (a
- * turn between sparse sweeps). Searched again around it, as far as its covariance says;
+ * matches), and any verifying sweep whose prediction is unsure by a metre: the
+ * prediction may be off by more than one registration pulls in (a turn between sparse
+ * sweeps). Searched again around it, as far as its covariance says;
  * true with the result when that fits and agrees with the prediction (the motion gate). */
 static bool research(localizer_t *L, const filter_t &prior, const Eigen::Isometry3d &guess, pb_reg_result_t *res,
                      double *si)
@@ -646,7 +647,8 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
          * along a road that hardly fixes the pose along it, or no fit after a turn) */
         pb_reg_result_t r2;
         double si2;
-        if (L->candidate && !free_motion && 3 * prediction_sigma_m(prior) >= 1.0 && research(L, prior, guess, &r2, &si2)) {
+        if (L->candidate && !free_motion && 3 * prediction_sigma_m(prior) >= 1.0 &&
+            research(L, prior, guess, &r2, &si2)) {
             double si1 = res.inlier_fraction >= L->cfg.min_inlier_fraction ? structure_inliers(L, res.pose) : -1;
             if (si2 > (std::isfinite(si1) ? si1 : -1)) {
                 res = r2;
