@@ -72,7 +72,7 @@ $(OBJ)/tests/c/test_registration.o: CPPFLAGS += -I$(TOP)/modules/localizer/core
 #    from the start). Baselines (PCL NDT at 1 and 2 m, small_gicp GICP and VGICP) on
 #    every LOCREAL_BASE_EVERY-th of those scans, same reduced points and starts.
 #    The whole localizer's starts (real_starts.py) run on two splits: the odd keyframes in
-#    the site of the even ones (starts.json), and the even ones in the site of the odd
+#    the site of the even ones (starts-odd.json), and the even ones in the site of the odd
 #    ones (starts-even.json): one sequence, two trials, so a rule tuned to one split shows.
 # 2. The HDL-32E pair (tests/data, BSD-3): the first scan is the map, the second is
 #    localized from 100 starts within 3 m / 15 deg; reference = relative.txt.
@@ -119,16 +119,12 @@ bench-localizer-real: $(BIN)/bench-localizer $(BIN)/import-scans $(DEPS)
 	    $(LOCREAL_BENCH) --starts $(LOCREAL_STARTS) --baseline-every $(LOCREAL_BASE_EVERY) --timing-runs 5 --seed 1 \
 	    --dump $(LOCREG_REAL)/baseline.bin --json $(LOCREG_REAL)/results.json && \
 	$(VPY) modules/localizer/bench/bench_gicp.py $(LOCREG_REAL)/baseline.bin $(LOCREG_REAL)/results.json && \
-	echo "== MulRan Riverside02, the whole localizer: the odd scans replayed, LiDAR alone, site = the even scans" && \
-	$(VPY) modules/localizer/bench/keyframe_site.py --scans $(MULRAN)/Scans --poses $(LOCREG_REAL)/refined_poses.txt \
-	    --times $(MULRAN)/times.txt --vehicle vehicles/lidar_mast.yaml --out $(LOCREG_REAL) && \
-	nice $(VPY) modules/localizer/bench/real_starts.py --log $(LOCREG_REAL)/odd/odd.lcm --site $(LOCREG_REAL)/site \
-	    --vehicle vehicles/lidar_mast.yaml --cuts $(LOCREAL_CUTS) --guesses $(LOCREAL_GUESSES) --global $(LOCREAL_GLOBAL) \
-	    --report $(LOCREG_REAL)/reference-report.json --times $(MULRAN)/times.txt --json $(LOCREG_REAL)/starts.json && \
-	echo "== the same, split the other way: the even scans replayed, site = the odd scans (a second trial of the same rules)" && \
-	$(VPY) modules/localizer/bench/keyframe_site.py --scans $(MULRAN)/Scans --poses $(LOCREG_REAL)/refined_poses.txt \
-	    --times $(MULRAN)/times.txt --vehicle vehicles/lidar_mast.yaml --out $(LOCREG_REAL)/split-even --log even && \
-	nice $(VPY) modules/localizer/bench/real_starts.py --log $(LOCREG_REAL)/split-even/even/even.lcm \
-	    --site $(LOCREG_REAL)/split-even/site \
-	    --vehicle vehicles/lidar_mast.yaml --cuts $(LOCREAL_CUTS) --guesses $(LOCREAL_GUESSES) --global $(LOCREAL_GLOBAL) \
-	    --report $(LOCREG_REAL)/reference-report.json --times $(MULRAN)/times.txt --json $(LOCREG_REAL)/starts-even.json
+	for split in odd even; do \
+	  echo "== MulRan Riverside02, the whole localizer, LiDAR alone: the $$split scans replayed in the site of the others" && \
+	  $(VPY) modules/localizer/bench/keyframe_site.py --scans $(MULRAN)/Scans --poses $(LOCREG_REAL)/refined_poses.txt \
+	      --times $(MULRAN)/times.txt --vehicle vehicles/lidar_mast.yaml --out $(LOCREG_REAL)/split-$$split --log $$split && \
+	  nice $(VPY) modules/localizer/bench/real_starts.py --log $(LOCREG_REAL)/split-$$split/$$split/$$split.lcm \
+	      --site $(LOCREG_REAL)/split-$$split/site --vehicle vehicles/lidar_mast.yaml --cuts $(LOCREAL_CUTS) \
+	      --guesses $(LOCREAL_GUESSES) --global $(LOCREAL_GLOBAL) --report $(LOCREG_REAL)/reference-report.json \
+	      --times $(MULRAN)/times.txt --json $(LOCREG_REAL)/starts-$$split.json || exit 1; \
+	done

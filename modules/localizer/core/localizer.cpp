@@ -647,8 +647,8 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
          * along a road that hardly fixes the pose along it, or no fit after a turn) */
         pb_reg_result_t r2;
         double si2;
-        if (L->candidate && !free_motion && 3 * prediction_sigma_m(prior) >= 1.0 &&
-            research(L, prior, guess, &r2, &si2)) {
+        bool searched = L->candidate && !free_motion && 3 * prediction_sigma_m(prior) >= 1.0;
+        if (searched && research(L, prior, guess, &r2, &si2)) {
             double si1 = res.inlier_fraction >= L->cfg.min_inlier_fraction ? structure_inliers(L, res.pose) : -1;
             if (si2 > (std::isfinite(si1) ? si1 : -1)) {
                 res = r2;
@@ -681,7 +681,9 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
              * motion puts them: searched for around there, a street whose trees repeat
              * fits at a wrong place too (seen 192 m off on the porous street). Only
              * sweeps a second or more apart (keyframes) leave the motion that unsure. */
-            bool may_research = !L->candidate || (L->cand_no_speed && (!L->cand_global || L->scan_dt >= 1000000));
+            /* (not again when it was searched around the prediction above: the same search) */
+            bool may_research = !searched &&
+                                (!L->candidate || (L->cand_no_speed && (!L->cand_global || L->scan_dt >= 1000000)));
             if (!fits && !free_motion && may_research && research(L, prior, guess, &res, &si)) {
                 fits = true;   /* research() takes only a pose that fits outright */
                 cov = floored(L, res.covariance);
