@@ -297,10 +297,11 @@ static void test_poor_guess_settles(void)
 {
     /* starts 0.36 m and 1 deg off along the street: the fine run stops early (it
      * moves more than its gate in 3 steps) and the coarse-to-fine run takes over;
-     * the two are compared as finished minima. When the stopped run was compared
-     * unfinished it won on inlier count at 6 of 11 places, 2-7 cm short along x
-     * (measured: 0.021-0.071 m); finished, every place ends as from the truth
-     * (max 0.0128 m; from the truth itself 0.0126 m) */
+     * the stopped run is finished (or, with no prior as here, ends where it reaches
+     * the coarse-to-fine minimum). When the stopped run was compared unfinished it won
+     * on inlier count at 6 of 11 places, 2-7 cm short along x (measured: 0.021-0.071
+     * m); finished, every place ends as from the truth (max 0.0128 m, 0.0126 m since it
+     * may end in the coarse-to-fine minimum; from the truth itself 0.0126 m) */
     std::vector<float> m;
     street(&m, true, -20, 220);
     pb_regmap_t *map = regmap_of(m);

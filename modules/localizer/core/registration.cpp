@@ -203,9 +203,12 @@ Eigen::Matrix3d exp_so3(const Eigen::Vector3d &w)
 }
 
 /* Gauss-Newton on one level from T (updated in place). Returns iterations and
- * whether the step became small. */
+ * whether the step became small. Stops early (*aborted) when abort_far_m > 0 and its
+ * first steps go far (see align_points), or when it comes within min_corr / 1 deg of
+ * basin, a minimum already known (taken as where it would end). */
 int gauss_newton(const Level &lv, const float *pts, size_t n, const Params &pa, Eigen::Isometry3d *T,
-                 bool *converged, double abort_far_m = 0, bool *aborted = nullptr, NearCache *cache = nullptr)
+                 bool *converged, double abort_far_m = 0, bool *aborted = nullptr, NearCache *cache = nullptr,
+                 const Eigen::Isometry3d *basin = nullptr)
 {
     NearCache local;
     if (!cache) cache = &local;
@@ -241,6 +244,14 @@ int gauss_newton(const Level &lv, const float *pts, size_t n, const Params &pa, 
             break;
         }
         if (small && gate <= pa.min_corr) { *converged = true; break; }
+        /* within min_corr / 1 deg of a known minimum: taken as ending there */
+        if (basin) {
+            Eigen::Isometry3d Db = basin->inverse() * *T;
+            if (Db.translation().norm() <= pa.min_corr && Eigen::AngleAxisd(Db.linear()).angle() <= M_PI / 180) {
+                if (aborted) *aborted = true;
+                break;
+            }
+        }
         /* the gate follows the step: shrink towards min_corr as we settle */
         gate = std::max(pa.min_corr, std::min(gate, 0.5 * gate + 5.0 * step_t + 10.0 * step_r));
     }
@@ -375,6 +386,29 @@ void pb_reg_downsample(const float *xyz, size_t n, const pb_reg_config_t *cfg, s
 
 namespace {
 
+/* Whether minimum T2 explains more of the scan than T (d1: how far the run to T had
+ * gone from the guess when it stopped or ended). Two distinct minima (more than
+ * min_corr or 1 deg apart) with a prior (prior_sigma_m > 0): one beyond 3 sigma of the
+ * guess must explain clearly more (3 sigma of a count) than the one nearer. On sparse
+ * or corridor-like real scans minima metres apart often differ by a handful of
+ * inliers, and taking the larger count slid tracking away. Otherwise (one basin, or
+ * no prior) more inliers wins. */
+bool second_wins(const Level &lv, const float *pts, size_t m, const Params &pa, double prior_sigma_m,
+                 const Eigen::Isometry3d &guess, const Eigen::Isometry3d &T, double d1, const Eigen::Isometry3d &T2,
+                 NearCache *cache, NearCache *cache2)
+{
+    Accum a1, a2;
+    linearise(lv, pts, m, T, pa.min_corr, pa.kernel, pa.inlier, pa.planar_only, &a1, nullptr, nullptr, cache);
+    linearise(lv, pts, m, T2, pa.min_corr, pa.kernel, pa.inlier, pa.planar_only, &a2, nullptr, nullptr, cache2);
+    Eigen::Isometry3d D12 = T.inverse() * T2;
+    bool distinct = D12.translation().norm() > pa.min_corr || Eigen::AngleAxisd(D12.linear()).angle() > M_PI / 180;
+    double d2 = (guess.inverse() * T2).translation().norm();
+    bool far_unlikely = prior_sigma_m > 0 && std::max(d1, d2) > 3 * prior_sigma_m;
+    double margin = distinct && far_unlikely ? 3.0 * std::sqrt((double)(d2 < d1 ? a2 : a1).inliers) : 0.0;
+    /* the farther result pays the margin */
+    return a2.inliers - (d2 < d1 ? 0.0 : margin) > a1.inliers - (d2 < d1 ? margin : 0.0);
+}
+
 /* Steps 2-4 of pb_reg_align on points already reduced by step 1 (res started). */
 int align_points(const pb_regmap_t *map, const std::vector<float> &pts, const Eigen::Isometry3d &guess,
                  const pb_reg_config_t *cfg, pb_reg_result_t *res)
@@ -408,25 +442,20 @@ int align_points(const pb_regmap_t *map, const std::vector<float> &pts, const Ei
         NearCache cache2;
         res->iterations += gauss_newton(map->fine, pts.data(), m, pa, &T2, &conv2, 0, nullptr, &cache2);
         /* an aborted run stopped on its way: finish it, so that two minima are compared,
-         * not a minimum and a pose still centimetres short of its own */
-        if (aborted) res->iterations += gauss_newton(map->fine, pts.data(), m, pa, &T, &converged, 0, nullptr, &cache);
-        Accum a1, a2;
-        linearise(map->fine, pts.data(), m, T, pa.min_corr, pa.kernel, pa.inlier, pa.planar_only, &a1, nullptr,
-                  nullptr, &cache);
-        linearise(map->fine, pts.data(), m, T2, pa.min_corr, pa.kernel, pa.inlier, pa.planar_only, &a2, nullptr,
-                  nullptr, &cache2);
-        /* two distinct minima: the guess is a prior, so one beyond 3 sigma of it
-         * must explain clearly more of the scan (3 sigma of a count) than the one
-         * nearer. On sparse or corridor-like real scans minima metres apart often
-         * differ by a handful of inliers, and taking the larger count slid tracking
-         * away. Otherwise (one basin, or no prior) more inliers wins. */
-        Eigen::Isometry3d D12 = T.inverse() * T2;
-        bool distinct = D12.translation().norm() > pa.min_corr || Eigen::AngleAxisd(D12.linear()).angle() > M_PI / 180;
-        double d1 = D.translation().norm(), d2 = (guess.inverse() * T2).translation().norm();
-        bool far_unlikely = cfg->prior_sigma_m > 0 && std::max(d1, d2) > 3 * cfg->prior_sigma_m;
-        double margin = distinct && far_unlikely ? 3.0 * std::sqrt((double)(d2 < d1 ? a2 : a1).inliers) : 0.0;
-        /* the farther result pays the margin */
-        bool use_t2 = a2.inliers - (d2 < d1 ? 0.0 : margin) > a1.inliers - (d2 < d1 ? margin : 0.0);
+         * not a minimum and a pose still centimetres short of its own. Without a prior
+         * the guess has no claim on its own minimum: the run is followed on every 4th
+         * point first, and where it comes within min_corr / 1 deg of the coarse-to-fine
+         * result it is taken to end in that minimum, which stands (from a metre off a
+         * whole finish is up to 12 steps on all points, mostly to the same minimum) */
+        bool prior = cfg->prior_sigma_m > 0, in_basin = false, settled;
+        if (aborted && !prior)
+            res->iterations += gauss_newton(map->fine, sub.data(), sub.size() / 3, pa, &T, &settled, 0, &in_basin,
+                                            nullptr, &T2);
+        if (aborted && !in_basin)
+            res->iterations += gauss_newton(map->fine, pts.data(), m, pa, &T, &converged, 0, &in_basin, &cache,
+                                            prior ? nullptr : &T2);
+        bool use_t2 = in_basin || second_wins(map->fine, pts.data(), m, pa, cfg->prior_sigma_m, guess, T,
+                                              D.translation().norm(), T2, &cache, &cache2);
         if (use_t2) {
             T = T2;
             converged = conv2;

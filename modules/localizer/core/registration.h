@@ -18,8 +18,10 @@
  *      update, shrink the gate, stop on a small step;
  *   3. only if that did not converge or moved more than min_corr_m / 1 deg
  *      (a poor guess): again from the guess, first a few steps on the coarse
- *      map level (every 4th point, wide gate), then the fine level; the
- *      result with the larger inlier_fraction wins;
+ *      map level (every 4th point, wide gate), then the fine level; the fine
+ *      run, if it stopped early, is finished (without a prior, followed on
+ *      every 4th point first: arriving in the coarse-to-fine minimum, it ends
+ *      there) and the result with more inliers wins (see prior_sigma_m);
  *   4. at the result: covariance, scores and divergence evidence.
  *
  * Ownership: a pb_reg_result_t is a plain value. pb_reg_align does not keep any
@@ -57,7 +59,8 @@ typedef struct {
     double prior_sigma_m = 0;     /* the guess's horizontal standard deviation (a tracking filter's prediction);
                                    * when step 3 finds a minimum distinct from the fine run's and more than
                                    * 3 sigma from the guess, it must explain clearly more of the scan to be
-                                   * taken; 0 = no prior: more inliers wins */
+                                   * taken; 0 = no prior: more inliers wins, and a fine run stopped early
+                                   * ends where it comes near the coarse-to-fine minimum (step 3) */
     double body_box[6] = {};      /* drop points inside this box of base (the car's own body: xmin, ymin, zmin,
                                    * xmax, ymax, zmax); all 0 = none */
 } pb_reg_config_t;
