@@ -20,8 +20,8 @@
  *      (a poor guess): again from the guess, first a few steps on the coarse
  *      map level (every 4th point, wide gate), then the fine level; the fine
  *      run, if it stopped early, is finished (without a prior, followed on
- *      every 4th point first: arriving in the coarse-to-fine minimum, it ends
- *      there) and the result with more inliers wins (see prior_sigma_m);
+ *      every 4th point first: arriving near the coarse-to-fine minimum, it is
+ *      taken to end there) and the result with more inliers wins (see prior_sigma_m);
  *   4. at the result: covariance, scores and divergence evidence.
  *
  * Ownership: a pb_reg_result_t is a plain value. pb_reg_align does not keep any
