@@ -43,11 +43,9 @@ def split(scans, poses, times, vehicle, out, log="odd"):
     for d in (site, lg, mp):
         shutil.rmtree(d, ignore_errors=True)
     site.mkdir(parents=True)
-    log_in = link_keyframes(scans, poses, times, lg, 1 if log == "odd" else 0)
-    if log == "odd":   # the even keyframes: import-scans takes every Nth from the first
-        map_in = ["--scans", str(scans), "--poses", str(poses), "--times", str(times), "--every", "2"]
-    else:
-        map_in = link_keyframes(scans, poses, times, mp, 1)
+    first = 1 if log == "odd" else 0
+    log_in = link_keyframes(scans, poses, times, lg, first)
+    map_in = link_keyframes(scans, poses, times, mp, 1 - first)
     mast = ["--vehicle", str(vehicle), "--quiet"]
     subprocess.run([str(BIN / "import-scans"), *map_in, "--map-out", str(site / "map.pcd"), "--voxel", "0.15",
                     "--out", str(site / "map_keyframes.lcm"), *mast], check=True)

@@ -202,6 +202,14 @@ Eigen::Matrix3d exp_so3(const Eigen::Vector3d &w)
     return Eigen::AngleAxisd(a, w / a).toRotationMatrix();
 }
 
+/* Whether poses a and b are more than m or 1 degree apart: distinct minima, or a
+ * run that moved far. */
+bool apart(const Eigen::Isometry3d &a, const Eigen::Isometry3d &b, double m)
+{
+    Eigen::Isometry3d D = a.inverse() * b;
+    return D.translation().norm() > m || Eigen::AngleAxisd(D.linear()).angle() > M_PI / 180;
+}
+
 /* Gauss-Newton on one level from T (updated in place). Returns iterations and
  * whether the step became small. Stops early (*aborted) when abort_far_m > 0 and its
  * first steps go far (see align_points), or when it comes within min_corr / 1 deg of
@@ -245,12 +253,9 @@ int gauss_newton(const Level &lv, const float *pts, size_t n, const Params &pa, 
         }
         if (small && gate <= pa.min_corr) { *converged = true; break; }
         /* within min_corr / 1 deg of a known minimum: taken as ending there */
-        if (basin) {
-            Eigen::Isometry3d Db = basin->inverse() * *T;
-            if (Db.translation().norm() <= pa.min_corr && Eigen::AngleAxisd(Db.linear()).angle() <= M_PI / 180) {
-                if (aborted) *aborted = true;
-                break;
-            }
+        if (basin && !apart(*basin, *T, pa.min_corr)) {
+            if (aborted) *aborted = true;
+            break;
         }
         /* the gate follows the step: shrink towards min_corr as we settle */
         gate = std::max(pa.min_corr, std::min(gate, 0.5 * gate + 5.0 * step_t + 10.0 * step_r));
@@ -400,8 +405,7 @@ bool second_wins(const Level &lv, const float *pts, size_t m, const Params &pa, 
     Accum a1, a2;
     linearise(lv, pts, m, T, pa.min_corr, pa.kernel, pa.inlier, pa.planar_only, &a1, nullptr, nullptr, cache);
     linearise(lv, pts, m, T2, pa.min_corr, pa.kernel, pa.inlier, pa.planar_only, &a2, nullptr, nullptr, cache2);
-    Eigen::Isometry3d D12 = T.inverse() * T2;
-    bool distinct = D12.translation().norm() > pa.min_corr || Eigen::AngleAxisd(D12.linear()).angle() > M_PI / 180;
+    bool distinct = apart(T, T2, pa.min_corr);
     double d2 = (guess.inverse() * T2).translation().norm();
     bool far_unlikely = prior_sigma_m > 0 && std::max(d1, d2) > 3 * prior_sigma_m;
     double margin = distinct && far_unlikely ? 3.0 * std::sqrt((double)(d2 < d1 ? a2 : a1).inliers) : 0.0;
@@ -429,8 +433,8 @@ int align_points(const pb_regmap_t *map, const std::vector<float> &pts, const Ei
      *    keep whichever result has more inliers (the fine run stops early when
      *    it moves more than min_corr or 1 deg in its first 3 steps, or is still
      *    taking large steps at the 3rd) */
-    Eigen::Isometry3d D = guess.inverse() * T;
-    bool moved_far = D.translation().norm() > pa.min_corr || Eigen::AngleAxisd(D.linear()).angle() > 1.0 * M_PI / 180;
+    bool moved_far = apart(guess, T, pa.min_corr);
+    double d1 = (guess.inverse() * T).translation().norm();   /* how far the fine run went */
     if (can_coarse && (aborted || !converged || moved_far)) {
         std::vector<float> sub;
         sub.reserve(pts.size() / 4 + 3);
@@ -455,7 +459,7 @@ int align_points(const pb_regmap_t *map, const std::vector<float> &pts, const Ei
             res->iterations += gauss_newton(map->fine, pts.data(), m, pa, &T, &converged, 0, &in_basin, &cache,
                                             prior ? nullptr : &T2);
         bool use_t2 = in_basin || second_wins(map->fine, pts.data(), m, pa, cfg->prior_sigma_m, guess, T,
-                                              D.translation().norm(), T2, &cache, &cache2);
+                                              d1, T2, &cache, &cache2);
         if (use_t2) {
             T = T2;
             converged = conv2;
