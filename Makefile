@@ -154,12 +154,15 @@ all: $(LIB_TYPES) $(LIB_COMMON) $(PROGRAMS) $(TEST_PROGRAMS) maps
 programs: $(PROGRAMS)
 
 # pytest drives everything: the C unit tests, the tools, the logs.
+# A passing test's scratch folder is removed (a session writes several GB of logs
+# and maps); a failing test's is kept for inspection.
+PYTEST = $(VPY) -m pytest -q -p no:cacheprovider -o tmp_path_retention_policy=failed
 test: all
-	@$(VPY) -m pytest -q -p no:cacheprovider tests $(PYTEST_ARGS)
+	@$(PYTEST) tests $(PYTEST_ARGS)
 
 # Optional: tests on ../shared/data that may not be copied into the project.
 test-real: all
-	@$(VPY) -m pytest -q -p no:cacheprovider -m real tests $(PYTEST_ARGS)
+	@$(PYTEST) -m real tests $(PYTEST_ARGS)
 
 DEMO_DIR ?= $(BUILD)/demo
 # The demo needs the programs and the default site only (not the tests or maps/hills):
