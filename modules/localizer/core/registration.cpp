@@ -202,21 +202,27 @@ Eigen::Matrix3d exp_so3(const Eigen::Vector3d &w)
     return Eigen::AngleAxisd(a, w / a).toRotationMatrix();
 }
 
-/* Whether poses a and b are more than m or 1 degree apart: distinct minima, or a
- * run that moved far. */
-bool apart(const Eigen::Isometry3d &a, const Eigen::Isometry3d &b, double m)
+/* Whether poses a and b are more than m or rad apart (by default 1 degree: distinct
+ * minima, or a run that moved far). */
+bool apart(const Eigen::Isometry3d &a, const Eigen::Isometry3d &b, double m, double rad = M_PI / 180)
 {
     Eigen::Isometry3d D = a.inverse() * b;
-    return D.translation().norm() > m || Eigen::AngleAxisd(D.linear()).angle() > M_PI / 180;
+    return D.translation().norm() > m || Eigen::AngleAxisd(D.linear()).angle() > rad;
 }
+
+/* A minimum already known, and how near a run must come to be taken as ending in it. */
+struct Basin {
+    Eigen::Isometry3d at;
+    double m, rad;
+};
 
 /* Gauss-Newton on one level from T (updated in place). Returns iterations and
  * whether the step became small. Stops early (*aborted) when abort_far_m > 0 and its
- * first steps go far (see align_points), or when it comes within min_corr / 1 deg of
- * basin, a minimum already known (taken as where it would end). */
+ * first steps go far (see align_points), or when it comes within basin->m and ->rad of
+ * basin->at (taken as where it would end). */
 int gauss_newton(const Level &lv, const float *pts, size_t n, const Params &pa, Eigen::Isometry3d *T,
                  bool *converged, double abort_far_m = 0, bool *aborted = nullptr, NearCache *cache = nullptr,
-                 const Eigen::Isometry3d *basin = nullptr)
+                 const Basin *basin = nullptr)
 {
     NearCache local;
     if (!cache) cache = &local;
@@ -253,7 +259,7 @@ int gauss_newton(const Level &lv, const float *pts, size_t n, const Params &pa, 
         }
         if (small && gate <= pa.min_corr) { *converged = true; break; }
         /* within min_corr / 1 deg of a known minimum: taken as ending there */
-        if (basin && !apart(*basin, *T, pa.min_corr)) {
+        if (basin && !apart(basin->at, *T, basin->m, basin->rad)) {
             if (aborted) *aborted = true;
             break;
         }
@@ -413,9 +419,12 @@ bool second_wins(const Level &lv, const float *pts, size_t m, const Params &pa, 
     return a2.inliers - (d2 < d1 ? 0.0 : margin) > a1.inliers - (d2 < d1 ? margin : 0.0);
 }
 
-/* Steps 2-4 of pb_reg_align on points already reduced by step 1 (res started). */
+/* Steps 2-4 of pb_reg_align on points already reduced by step 1 (res started). With
+ * `known` (a minimum already found) and no coarse retry, a fine run that comes into it
+ * stops there and sets *same (res then holds no result). */
 int align_points(const pb_regmap_t *map, const std::vector<float> &pts, const Eigen::Isometry3d &guess,
-                 const pb_reg_config_t *cfg, pb_reg_result_t *res)
+                 const pb_reg_config_t *cfg, pb_reg_result_t *res, const Basin *known = nullptr,
+                 bool *same = nullptr)
 {
     size_t m = pts.size() / 3;
     Params pa = params_of(cfg);
@@ -426,7 +435,8 @@ int align_points(const pb_regmap_t *map, const std::vector<float> &pts, const Ei
     bool can_coarse = cfg->coarse_iterations > 0 && !map->coarse.cells.empty();
     NearCache cache;
     res->iterations = gauss_newton(map->fine, pts.data(), m, pa, &T, &converged, can_coarse ? pa.min_corr : 0,
-                                   &aborted, &cache);
+                                   &aborted, &cache, can_coarse ? nullptr : known);
+    if (same && (*same = !can_coarse && known && aborted)) return res->status;
     /* 3. if that did not settle, or had to move far (a poor guess), retry
      *    coarse-to-fine: a few steps on the coarse level (every 4th point, planes
      *    over ~3 coarse cells, wide gate) pull in starts a metre or degrees off;
@@ -452,12 +462,13 @@ int align_points(const pb_regmap_t *map, const std::vector<float> &pts, const Ei
          * result it is taken to end in that minimum, which stands (from a metre off a
          * whole finish is up to 12 steps on all points, mostly to the same minimum) */
         bool prior = cfg->prior_sigma_m > 0, in_basin = false, settled;
+        const Basin b2 = { T2, pa.min_corr, M_PI / 180 };
         if (aborted && !prior)
             res->iterations += gauss_newton(map->fine, sub.data(), sub.size() / 3, pa, &T, &settled, 0, &in_basin,
-                                            nullptr, &T2);
+                                            nullptr, &b2);
         if (aborted && !in_basin)
             res->iterations += gauss_newton(map->fine, pts.data(), m, pa, &T, &converged, 0, &in_basin, &cache,
-                                            prior ? nullptr : &T2);
+                                            prior ? nullptr : &b2);
         bool use_t2 = in_basin || second_wins(map->fine, pts.data(), m, pa, cfg->prior_sigma_m, guess, T,
                                               d1, T2, &cache, &cache2);
         if (use_t2) {
@@ -519,11 +530,15 @@ int pb_reg_align_global(const pb_regmap_t *map, const float *xyz, size_t n, cons
     /* 3. the candidates are refined on 2/5 of the points (every 2.5th), without the
      *    coarse retry (each is within a cell and a yaw step of its minimum) and to steps
      *    of a millimetre or two (enough to rank them): near-equals (a road alike both
-     *    ways) are told apart by their inliers. The best is then refined on all the
-     *    points from the wide gate, as any guess is: the gate's narrowing settles closer
-     *    to the truth than a start at the narrow gate, and a wide window (a sparse
-     *    moving start searches 20 m around its seeds) can leave the best cell metres
-     *    from the minimum (the coarse retry). A refinement that ran out of steps (a
+     *    ways) are told apart by their inliers; a candidate whose run comes within
+     *    2 cm / 0.1 deg of the best minimum so far is that minimum again and is dropped
+     *    there (on the HDL-32E pair most windows give two candidates, and the second
+     *    ended in the first's minimum; within 0.3 m / 1 deg cost LiDAR-alone starts on
+     *    the porous street of trees, where minima that near differ). The best is then
+     *    refined on all the points from the wide gate, as any guess is: the gate's
+     *    narrowing settles closer to the truth than a start at the narrow gate, and a
+     *    wide window (a sparse moving start searches 20 m around its seeds) can leave
+     *    the best cell metres from the minimum (the coarse retry). A refinement that ran out of steps (a
      *    weakly held direction, as along a street) goes on from its result. */
     std::vector<float> sub;
     for (size_t i = 0; 5 * i / 2 < pts.size() / 3; i++) {
@@ -540,8 +555,11 @@ int pb_reg_align_global(const pb_regmap_t *map, const float *xyz, size_t n, cons
     for (const window_candidate_t &c : cand) {
         pb_reg_result_t r;
         if (!start_result(map, sub.data(), sub.size() / 3, c.pose, &r, err)) break;
-        align_points(map, sub, c.pose, &quick, &r);
+        bool same = false;
+        const Basin best = { from, 0.02, 0.1 * M_PI / 180 };
+        align_points(map, sub, c.pose, &quick, &r, most >= 0 ? &best : nullptr, &same);
         total_it += r.iterations;
+        if (same) continue;
         if (r.status != PB_REG_FEW_POINTS && r.inlier_fraction > most) {
             most = r.inlier_fraction;
             from = r.pose;
