@@ -258,7 +258,7 @@ int gauss_newton(const Level &lv, const float *pts, size_t n, const Params &pa, 
             break;
         }
         if (small && gate <= pa.min_corr) { *converged = true; break; }
-        /* within min_corr / 1 deg of a known minimum: taken as ending there */
+        /* within the basin's reach of a known minimum: taken as ending there */
         if (basin && !apart(basin->at, *T, basin->m, basin->rad)) {
             if (aborted) *aborted = true;
             break;
@@ -538,8 +538,9 @@ int pb_reg_align_global(const pb_regmap_t *map, const float *xyz, size_t n, cons
      *    refined on all the points from the wide gate, as any guess is: the gate's
      *    narrowing settles closer to the truth than a start at the narrow gate, and a
      *    wide window (a sparse moving start searches 20 m around its seeds) can leave
-     *    the best cell metres from the minimum (the coarse retry). A refinement that ran out of steps (a
-     *    weakly held direction, as along a street) goes on from its result. */
+     *    the best cell metres from the minimum (the coarse retry). A refinement that
+     *    ran out of steps (a weakly held direction, as along a street) goes on from its
+     *    result. */
     std::vector<float> sub;
     for (size_t i = 0; 5 * i / 2 < pts.size() / 3; i++) {
         const float *q = &pts[3 * (5 * i / 2)];

@@ -119,8 +119,8 @@ int pb_reg_align(const pb_regmap_t *map, const float *xyz, size_t n,
  * window is scored by branch and bound on the map's structure above the ground
  * (window_search.h); the best few distinct ones are refined with pb_reg_align (one
  * whose refinement comes within 2 cm / 0.1 deg of a minimum already found stops
- * there), and the one with the most inliers is returned. result->inlier_fraction and ->overlap
- * tell whether to trust it. */
+ * there), and the one with the most inliers is returned. result->inlier_fraction
+ * and ->overlap tell whether to trust it. */
 int pb_reg_align_global(const pb_regmap_t *map, const float *xyz, size_t n,
                         const Eigen::Isometry3d &seed, double radius_m, double yaw_range_rad,
                         const pb_reg_config_t *cfg, pb_reg_result_t *result, pb_err_t *err);
