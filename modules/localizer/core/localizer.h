@@ -145,6 +145,10 @@ struct localizer_config_t {
      * 8, two no-prior starts of 20 took 5.4 and 6.4 s (keyframes 1 s apart), with 16 they
      * took 2.8 and 1.4 s; a search costs twice as long (MulRan median 0.11 -> 0.25 s) */
     int global_candidates = 16;
+    /* a place fitting less of the structure than global_sure_fit is taken only when the
+     * search, waiting one sweep more, would run past global_patience_s (sweep time) */
+    double global_sure_fit = 0.8;
+    double global_patience_s = 1.0;
     /* a place is taken only when no other place further than rival_m (or turned more than
      * rival_yaw_deg) from it fits the sweep's structure within rival_ratio of it (MulRan:
      * a tree-lined road fits 0.75-0.8 at 180 degrees and 13 m to the side, the true pose

@@ -67,6 +67,7 @@ struct localizer {
     void *pager_user = nullptr;
     bool places_failed = false;
     int64_t global_round = 0;
+    int64_t global_since = 0;       /* sweep time the global search began (0: not searching) */
     bool has_hint = false;
     int hint_tries = 0;
     int lost_searches = 0;     /* dead-reckoned searches since lost */
@@ -127,7 +128,7 @@ std::vector<Eigen::Isometry3d> motion_seeds(const localizer_t *L, const Eigen::I
                                             double *step);
 bool search_seeds(localizer_t *L, const std::vector<Eigen::Isometry3d> &seeds, double radius, double yaw_range,
                   bool page, pb_reg_result_t *res, double *fit, double *rival);
-bool global_search(localizer_t *L, pb_reg_result_t *res, outputs_t *out);
+bool global_search(localizer_t *L, double searching_s, pb_reg_result_t *res, outputs_t *out);
 bool try_initialize(localizer_t *L, int64_t t_ref, outputs_t *out);
 
 /* health.cpp */

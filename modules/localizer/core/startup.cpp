@@ -186,8 +186,9 @@ bool search_seeds(localizer_t *L, const std::vector<Eigen::Isometry3d> &seeds, d
 
 /* No prior at all: the places most like this sweep (places.h), each verified by a small
  * registration search; returns the one whose structure fits the map best. Successive
- * sweeps try successive ranks, so a start keeps trying until a place is verified. */
-bool global_search(localizer_t *L, pb_reg_result_t *res, outputs_t *out)
+ * sweeps try successive ranks, so a start keeps trying until a place is verified.
+ * searching_s: how long this search has run (sweep time). */
+bool global_search(localizer_t *L, double searching_s, pb_reg_result_t *res, outputs_t *out)
 {
     if (!L->places && !L->places_failed && L->pager) {
         /* a paged map holds only the tiles around one place: descriptors built from it
@@ -253,6 +254,17 @@ bool global_search(localizer_t *L, pb_reg_result_t *res, outputs_t *out)
               100 * rival);
         return false;
     }
+    /* a look-alike fits a street of trees so-so (porous street: 0.6-0.7 at places 100-280
+     * m along it, the truth 0.97 but not among the best-ranked places of some sweeps):
+     * when the next sweep comes soon, wait for a place that fits surely (the next ranks).
+     * Not with sweeps a second or more apart (keyframes), nor before the rate is known:
+     * MulRan's true places fit 0.7-0.9, and a keyframe's wait took starts past 5 s */
+    if (fit < L->cfg.global_sure_fit && L->scan_dt > 0 &&
+        searching_s + L->scan_dt * 1e-6 <= L->cfg.global_patience_s) {
+        event(out, "global_unsure", "global search: the best place fits %.0f%% of the structure; looking for one that "
+              "fits %.0f%% for up to %.1f s", 100 * fit, 100 * L->cfg.global_sure_fit, L->cfg.global_patience_s);
+        return false;
+    }
     return true;
 }
 
@@ -281,7 +293,8 @@ bool try_initialize(localizer_t *L, int64_t t_ref, outputs_t *out)
         if (rc < 0) { event(out, "init_failed", "%s: %s", s.how, err.msg); return false; }
     } else if (L->cfg.global_search) {
         s.how = "global search";
-        if (!global_search(L, &res, out)) return false;
+        if (!L->global_since) L->global_since = t_ref;
+        if (!global_search(L, (t_ref - L->global_since) * 1e-6, &res, out)) return false;
     } else {
         event(out, "no_start", "no pose: waiting for INITIAL_POSE or a GNSS fix");
         return false;
@@ -323,6 +336,7 @@ bool try_initialize(localizer_t *L, int64_t t_ref, outputs_t *out)
     while (!L->buf.empty() && L->buf.front().t <= t_ref) L->buf.pop_front();
     rebuild_pred(L);
     L->candidate = true;
+    L->global_since = 0;
     L->lost_searches = 0;
     L->cand_vel_unknown = !s.vel_known;
     L->cand_pose = pose;
