@@ -293,7 +293,7 @@ bool try_initialize(localizer_t *L, int64_t t_ref, outputs_t *out)
         if (rc < 0) { event(out, "init_failed", "%s: %s", s.how, err.msg); return false; }
     } else if (L->cfg.global_search) {
         s.how = "global search";
-        if (!L->global_since) L->global_since = t_ref;
+        if (!L->global_since || t_ref < L->global_since) L->global_since = t_ref;   /* (a clock stepped back) */
         if (!global_search(L, (t_ref - L->global_since) * 1e-6, &res, out)) return false;
     } else {
         event(out, "no_start", "no pose: waiting for INITIAL_POSE or a GNSS fix");
