@@ -493,6 +493,11 @@ static void restart_from_two_matches(localizer_t *L, filter_t *f, const Eigen::I
     if (!imu_fresh(L, t)) {
         Eigen::AngleAxisd aa(L->cand_pose.linear().transpose() * pose.linear());
         omega = L->ex.base_from_imu.linear().transpose() * (aa.axis() * aa.angle() / dt);
+        /* the chord of a constant turn: the velocity at its end is turned by half the turn
+         * further, and the arc is longer than the chord by (a/2)/sin(a/2) */
+        double half = 0.5 * aa.angle();
+        if (half > 1e-6 && half < M_PI / 2)
+            v = Eigen::AngleAxisd(half, L->cand_pose.linear() * aa.axis()) * v * (half / std::sin(half));
     }
     /* the speed is the difference of two matches (each good to a few cm): the mean over
      * their interval, so the speed now differs from it by what the car's acceleration
@@ -631,6 +636,7 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
         rc = pb_reg_align(L->map, L->xyz.data(), L->xyz.size() / 3, guess, &reg, &res, &err);
     }
     bool accept = false;
+    double structure_miss = NAN;   /* the structure fit of a match that failed only that test */
     const char *why = nullptr;
     char whybuf[1200];
     if (rc < 0) {
@@ -696,6 +702,7 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
                 snprintf(whybuf, sizeof whybuf, "only %.0f%% of the structure above the ground fits the map (need %.0f%%)",
                          100 * si, 100 * L->cfg.min_structure_inliers);
                 why = whybuf;
+                structure_miss = si;
                 event(out, "match_structure_mismatch", "%s", whybuf);
             } else {
                 accept = true;
@@ -740,7 +747,12 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
         }
     } else {
         ++L->reject_count;
-        if (L->candidate) {
+        if (L->candidate && structure_miss >= L->cfg.structure_peak_floor &&
+            L->cand_holds < L->cfg.verify_scans - 1) {
+            ++L->cand_holds;
+            event(out, "candidate_held", "candidate kept through a sweep that neither verifies nor drops it: %s",
+                  why ? why : "?");
+        } else if (L->candidate) {
             /* a candidate that fails is dropped: search again on the next sweep, around
              * where it would be now when it came from a prior with tries left and the
              * car's speed unknown (then its motion, not the place, may have failed it;

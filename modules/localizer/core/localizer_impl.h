@@ -60,6 +60,7 @@ struct localizer {
     Eigen::Isometry3d cand_pose = Eigen::Isometry3d::Identity();
     int64_t cand_t = 0;
     int verify_count = 0, reject_count = 0;
+    int cand_holds = 0;              /* structure misses the candidate was kept through */
     bool lidar_gap_reported = false;
 
     places_t *places = nullptr;     /* place descriptors of the map (given, or built at the first global search) */

@@ -342,6 +342,7 @@ bool try_initialize(localizer_t *L, int64_t t_ref, outputs_t *out)
     L->cand_pose = pose;
     L->cand_t = t_ref;
     L->verify_count = 1;
+    L->cand_holds = 0;
     L->reject_count = 0;
     L->gnss_res.clear();
     L->has_prev_pose = false;
