@@ -923,6 +923,33 @@ def test_real_mulran_no_prior_starts_on_a_tree_lined_road(mulran_reference, tmp_
         assert r["converged"] and r["lost"] == 0, (r["max_m"], r["lost"])
 
 
+def mulran_even_cut(mulran_reference, tmp_path, at):
+    """The even MulRan keyframes in the site of the odd ones (bench-localizer-real's second
+    trial), cut 8 s from AT s into the drive, where the reference is plausible:
+    (site, GROUND_TRUTH, cut log)."""
+    times = (MULRAN / "times.txt").read_text().splitlines()
+    site, log = keyframe_site.split(MULRAN / "Scans", mulran_reference["poses"], MULRAN / "times.txt",
+                                    ROOT / "vehicles" / "lidar_mast.yaml", tmp_path, "even")
+    gt = lb.read_poses(log, "GROUND_TRUTH")
+    c = tmp_path / "cut.lcm"
+    bs.cut(log, c, at, 8.0, "LIDAR_SCAN,GROUND_TRUTH")
+    assert real_starts.reference_plausible(lb.read_poses(c, "GROUND_TRUTH"),
+                                           [float(times[k]) for k in mulran_reference["implausible"]])
+    return site, gt, c
+
+
+def mulran_priors(gt, cut_log):
+    """Three --initial-pose options 2-3 m and 10-15 degrees off the reference at the cut's
+    first keyframe."""
+    g = bs.gt_at(gt, lb.read_channel_times(cut_log, "LIDAR_SCAN")[0])
+    out = []
+    for along, across, dyaw in ((2.5, 0.0, 10.0), (-2.0, 1.5, -12.0), (0.5, -2.5, 15.0)):
+        x = g[1] + along * math.cos(g[4]) - across * math.sin(g[4])
+        y = g[2] + along * math.sin(g[4]) + across * math.cos(g[4])
+        out.append(f"--initial-pose={x:.3f},{y:.3f},{g[3]:.3f},0,0,{math.degrees(g[4]) + dyaw:.3f}")
+    return out
+
+
 @pytest.mark.real
 def test_real_mulran_start_in_a_turn_between_sparse_keyframes(mulran_reference, tmp_path):
     """The even MulRan keyframes in the site of the odd ones, cut 50.5 s into the drive: the
@@ -933,23 +960,12 @@ def test_real_mulran_start_in_a_turn_between_sparse_keyframes(mulran_reference, 
     no prior tracked within the cut. Now the weak sweep neither verifies nor drops the
     candidate, and the prediction follows the turn (measured: three priors 2-3 m / 10-15
     degrees off tracking at the fourth keyframe, worst 0.02 m)."""
-    times = (MULRAN / "times.txt").read_text().splitlines()
-    site, log = keyframe_site.split(MULRAN / "Scans", mulran_reference["poses"], MULRAN / "times.txt",
-                                    ROOT / "vehicles" / "lidar_mast.yaml", tmp_path, "even")
-    gt = lb.read_poses(log, "GROUND_TRUTH")
-    c = tmp_path / "cut.lcm"
-    bs.cut(log, c, 50.5, 8.0, "LIDAR_SCAN,GROUND_TRUTH")
-    assert real_starts.reference_plausible(lb.read_poses(c, "GROUND_TRUTH"),
-                                           [float(times[k]) for k in mulran_reference["implausible"]])
+    site, gt, c = mulran_even_cut(mulran_reference, tmp_path, 50.5)
     assert len(lb.read_channel_times(c, "LIDAR_SCAN")) == 4
-    g = bs.gt_at(gt, lb.read_channel_times(c, "LIDAR_SCAN")[0])
-    for k, (along, across, dyaw) in enumerate(((2.5, 0.0, 10.0), (-2.0, 1.5, -12.0), (0.5, -2.5, 15.0))):
-        x = g[1] + along * math.cos(g[4]) - across * math.sin(g[4])
-        y = g[2] + along * math.sin(g[4]) + across * math.cos(g[4])
+    for k, prior in enumerate(mulran_priors(gt, c)):
         out = tmp_path / f"out_{k}.lcm"
         localize(None, c, out, "--vehicle", ROOT / "vehicles" / "lidar_mast.yaml", "--no-gnss", "--no-imu",
-                 "--no-speed", f"--initial-pose={x:.3f},{y:.3f},{g[3]:.3f},0,0,{math.degrees(g[4]) + dyaw:.3f}",
-                 site=site)
+                 "--no-speed", prior, site=site)
         r = bs.judge(gt, out)
         print(f"start {k}: tracking {r['tracking_s']} s after the first keyframe, worst {r['max_m']} m")
         assert r["tracking_s"] is not None and r["converged"] and r["lost"] == 0, (k, r["tracking_s"], r["max_m"])
@@ -967,20 +983,8 @@ def test_real_mulran_verifying_sweep_after_a_long_gap_takes_the_best_fit(mulran_
     whose prediction is unsure by a metre or more is searched around it (28 Nov 2026), no
     prior and three priors 2-3 m / 10-15 degrees off track with every POSE within 0.2 m
     (measured: worst 0.04 m); before, every one of the four was 1.58 m off at that sweep."""
-    times = (MULRAN / "times.txt").read_text().splitlines()
-    site, log = keyframe_site.split(MULRAN / "Scans", mulran_reference["poses"], MULRAN / "times.txt",
-                                    ROOT / "vehicles" / "lidar_mast.yaml", tmp_path, "even")
-    gt = lb.read_poses(log, "GROUND_TRUTH")
-    c = tmp_path / "cut.lcm"
-    bs.cut(log, c, 53.0, 8.0, "LIDAR_SCAN,GROUND_TRUTH")
-    assert real_starts.reference_plausible(lb.read_poses(c, "GROUND_TRUTH"),
-                                           [float(times[k]) for k in mulran_reference["implausible"]])
-    g = bs.gt_at(gt, lb.read_channel_times(c, "LIDAR_SCAN")[0])
-    starts = [[]]
-    for along, across, dyaw in ((2.5, 0.0, 10.0), (-2.0, 1.5, -12.0), (0.5, -2.5, 15.0)):
-        x = g[1] + along * math.cos(g[4]) - across * math.sin(g[4])
-        y = g[2] + along * math.sin(g[4]) + across * math.cos(g[4])
-        starts.append([f"--initial-pose={x:.3f},{y:.3f},{g[3]:.3f},0,0,{math.degrees(g[4]) + dyaw:.3f}"])
+    site, gt, c = mulran_even_cut(mulran_reference, tmp_path, 53.0)
+    starts = [[]] + [[p] for p in mulran_priors(gt, c)]
     for k, prior in enumerate(starts):
         out = tmp_path / f"out_{k}.lcm"
         localize(None, c, out, "--vehicle", ROOT / "vehicles" / "lidar_mast.yaml", "--no-gnss", "--no-imu",
