@@ -621,15 +621,20 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
      * car can since (sweeps may be sparse: skipped while searching, or keyframes), either
      * way (reversing, or a LiDAR mounted facing backwards) */
     bool free_motion = L->candidate && L->cand_vel_unknown;
+    double along_fit = -1, along_rival = -1;   /* the match's structure fit and a far place's as good (sparse sweeps) */
     double reach = free_motion ? motion_reach_m(L, (t_ref - L->cand_t) * 1e-6) : 0;
     int rc;
     if (reach > 1.0) {
         double step;
         std::vector<Eigen::Isometry3d> seeds = motion_seeds(L, guess, (t_ref - L->cand_t) * 1e-6, &step);
-        double fit;
-        rc = search_seeds(L, seeds, std::max(1.5, 0.75 * step), 5 * M_PI / 180, false, &res, &fit, nullptr)
+        double fit, rival;
+        rc = search_seeds(L, seeds, std::max(1.5, 0.75 * step), 5 * M_PI / 180, false, &res, &fit, &rival)
                  ? res.status : PB_REG_FEW_POINTS;
         if (rc == PB_REG_FEW_POINTS) { res.points_matched = 0; res.points_used = int(L->xyz.size() / 3); }
+        /* sparse sweeps reach tens of metres along a road: a place that another one as far
+         * along fits about as well does not say how far the car went (MulRan keyframes: a
+         * right place, then one 34 m along a straight road 2.6 s later) */
+        else if (ambiguous(L, fit, rival)) { along_fit = fit; along_rival = rival; }
     } else {
         pb_reg_config_t reg = L->cfg.reg;
         reg.prior_sigma_m = prediction_sigma_m(prior);
@@ -646,6 +651,11 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
     } else if (rc == PB_REG_FEW_POINTS) {
         why = "too few points matched the map";
         event(out, "match_few_points", "LIDAR_SCAN: %d of %d points matched the map", res.points_matched, res.points_used);
+    } else if (along_rival >= 0) {
+        snprintf(whybuf, sizeof whybuf, "how far the car went is not known: a place more than %.0f m from the match "
+                 "fits %.0f%% of the structure, the match %.0f%%", L->cfg.rival_m, 100 * along_rival, 100 * along_fit);
+        why = whybuf;
+        event(out, "match_ambiguous", "%s", whybuf);
     } else {
         /* a candidate's verifying sweep whose prediction is less sure than one
          * registration pulls in (sweeps seconds apart): the match is the best fit within

@@ -129,6 +129,9 @@ std::vector<Eigen::Isometry3d> motion_seeds(const localizer_t *L, const Eigen::I
                                             double *step);
 bool search_seeds(localizer_t *L, const std::vector<Eigen::Isometry3d> &seeds, double radius, double yaw_range,
                   bool page, pb_reg_result_t *res, double *fit, double *rival);
+/* A place that fits while another one far from it (rival: its fit, < 0 for none) fits
+ * about as well is not known yet. */
+bool ambiguous(const localizer_t *L, double fit, double rival);
 bool global_search(localizer_t *L, double searching_s, pb_reg_result_t *res, outputs_t *out);
 bool try_initialize(localizer_t *L, int64_t t_ref, outputs_t *out);
 
