@@ -923,10 +923,10 @@ def test_real_mulran_no_prior_starts_on_a_tree_lined_road(mulran_reference, tmp_
         assert r["converged"] and r["lost"] == 0, (r["max_m"], r["lost"])
 
 
-def mulran_even_cut(mulran_reference, tmp_path, at):
+def mulran_even_cut(mulran_reference, tmp_path, at, plausible=True):
     """The even MulRan keyframes in the site of the odd ones (bench-localizer-real's second
-    trial), cut 8 s from AT s into the drive, where the reference is plausible:
-    (site, GROUND_TRUTH, cut log)."""
+    trial), cut 8 s from AT s into the drive, where the reference is plausible (or is
+    not): (site, GROUND_TRUTH, cut log)."""
     times = (MULRAN / "times.txt").read_text().splitlines()
     site, log = keyframe_site.split(MULRAN / "Scans", mulran_reference["poses"], MULRAN / "times.txt",
                                     ROOT / "vehicles" / "lidar_mast.yaml", tmp_path, "even")
@@ -934,7 +934,7 @@ def mulran_even_cut(mulran_reference, tmp_path, at):
     c = tmp_path / "cut.lcm"
     bs.cut(log, c, at, 8.0, "LIDAR_SCAN,GROUND_TRUTH")
     assert real_starts.reference_plausible(lb.read_poses(c, "GROUND_TRUTH"),
-                                           [float(times[k]) for k in mulran_reference["implausible"]])
+                                           [float(times[k]) for k in mulran_reference["implausible"]]) == plausible
     return site, gt, c
 
 
@@ -970,6 +970,27 @@ def test_real_mulran_start_in_a_turn_between_sparse_keyframes(mulran_reference, 
         print(f"start {k}: tracking {r['tracking_s']} s after the first keyframe, worst {r['max_m']} m")
         assert r["tracking_s"] is not None and r["converged"] and r["lost"] == 0, (k, r["tracking_s"], r["max_m"])
         assert r["max_m"] < 0.06, r["max_m"]   # measured 0.02 m
+
+
+@pytest.mark.real
+def test_real_mulran_start_refuses_a_place_as_good_far_along_the_road(mulran_reference, tmp_path):
+    """The even split cut 62.5 s into the drive (a stretch whose reference reference.py
+    flags nearby, so the bench counts it apart). A start's second keyframe, its speed
+    unknown, is searched tens of metres along the road, where places far apart fit alike.
+    Before 28 Nov 2026 (evening) such a match was taken and no prior tracked within the cut;
+    now a match that a place more than 5 m from it fits as well is refused and the start
+    searched again (measured: the three priors track 3.7 s after the cut, worst 0.04 m
+    from the reference)."""
+    site, gt, c = mulran_even_cut(mulran_reference, tmp_path, 62.5, plausible=False)
+    for k, prior in enumerate(mulran_priors(gt, c)):
+        out = tmp_path / f"out_{k}.lcm"
+        localize(None, c, out, "--vehicle", ROOT / "vehicles" / "lidar_mast.yaml", "--no-gnss", "--no-imu",
+                 "--no-speed", prior, site=site)
+        r = bs.judge(gt, out)
+        print(f"start {k}: tracking {r['tracking_s']} s after the first keyframe, worst {r['max_m']} m")
+        assert r["tracking_s"] is not None and r["converged"] and r["lost"] == 0, (k, r["tracking_s"], r["max_m"])
+        assert r["max_m"] < 0.12, r["max_m"]   # measured 0.04 m
+        assert counters(last_status_msg(out)).get("match_ambiguous", 0) >= 1   # the rule engaged
 
 
 @pytest.mark.real
