@@ -950,6 +950,21 @@ def mulran_priors(gt, cut_log):
     return out
 
 
+def mulran_prior_starts(site, gt, cut_log, tmp_path):
+    """The localizer from each of mulran_priors, LiDAR alone: (output log, bench_starts'
+    judgement) of each, every one tracking within the cut, converged, never LOST."""
+    runs = []
+    for k, prior in enumerate(mulran_priors(gt, cut_log)):
+        out = tmp_path / f"out_{k}.lcm"
+        localize(None, cut_log, out, "--vehicle", ROOT / "vehicles" / "lidar_mast.yaml", "--no-gnss", "--no-imu",
+                 "--no-speed", prior, site=site)
+        r = bs.judge(gt, out)
+        print(f"start {k}: tracking {r['tracking_s']} s after the first keyframe, worst {r['max_m']} m")
+        assert r["tracking_s"] is not None and r["converged"] and r["lost"] == 0, (k, r["tracking_s"], r["max_m"])
+        runs.append((out, r))
+    return runs
+
+
 @pytest.mark.real
 def test_real_mulran_start_in_a_turn_between_sparse_keyframes(mulran_reference, tmp_path):
     """The even MulRan keyframes in the site of the odd ones, cut 50.5 s into the drive: the
@@ -962,13 +977,7 @@ def test_real_mulran_start_in_a_turn_between_sparse_keyframes(mulran_reference, 
     degrees off tracking at the fourth keyframe, worst 0.02 m)."""
     site, gt, c = mulran_even_cut(mulran_reference, tmp_path, 50.5)
     assert len(lb.read_channel_times(c, "LIDAR_SCAN")) == 4
-    for k, prior in enumerate(mulran_priors(gt, c)):
-        out = tmp_path / f"out_{k}.lcm"
-        localize(None, c, out, "--vehicle", ROOT / "vehicles" / "lidar_mast.yaml", "--no-gnss", "--no-imu",
-                 "--no-speed", prior, site=site)
-        r = bs.judge(gt, out)
-        print(f"start {k}: tracking {r['tracking_s']} s after the first keyframe, worst {r['max_m']} m")
-        assert r["tracking_s"] is not None and r["converged"] and r["lost"] == 0, (k, r["tracking_s"], r["max_m"])
+    for out, r in mulran_prior_starts(site, gt, c, tmp_path):
         assert r["max_m"] < 0.06, r["max_m"]   # measured 0.02 m
 
 
@@ -982,13 +991,7 @@ def test_real_mulran_start_refuses_a_place_as_good_far_along_the_road(mulran_ref
     searched again (measured: the three priors track 3.7 s after the cut, worst 0.04 m
     from the reference)."""
     site, gt, c = mulran_even_cut(mulran_reference, tmp_path, 62.5, plausible=False)
-    for k, prior in enumerate(mulran_priors(gt, c)):
-        out = tmp_path / f"out_{k}.lcm"
-        localize(None, c, out, "--vehicle", ROOT / "vehicles" / "lidar_mast.yaml", "--no-gnss", "--no-imu",
-                 "--no-speed", prior, site=site)
-        r = bs.judge(gt, out)
-        print(f"start {k}: tracking {r['tracking_s']} s after the first keyframe, worst {r['max_m']} m")
-        assert r["tracking_s"] is not None and r["converged"] and r["lost"] == 0, (k, r["tracking_s"], r["max_m"])
+    for out, r in mulran_prior_starts(site, gt, c, tmp_path):
         assert r["max_m"] < 0.12, r["max_m"]   # measured 0.04 m
         assert counters(last_status_msg(out)).get("match_ambiguous", 0) >= 1   # the rule engaged
 
