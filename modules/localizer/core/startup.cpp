@@ -138,8 +138,7 @@ std::vector<Eigen::Isometry3d> motion_seeds(const localizer_t *L, const Eigen::I
     return seeds;
 }
 
-/* A place that fits while another one far from it (rival: its fit, < 0 for none) fits
- * about as well is not known yet. */
+/* (localizer_impl.h) */
 bool ambiguous(const localizer_t *L, double fit, double rival)
 {
     return fit >= L->cfg.min_structure_inliers && rival > L->cfg.rival_ratio * fit;
