@@ -533,6 +533,12 @@ static void test_map_tiles(void)
             for (size_t i = 0; same && i < qa.size(); i++)
                 same = qa[i].x == qb[i].x && qa[i].y == qb[i].y && qa[i].yaw == qb[i].yaw && qa[i].distance == qb[i].distance;
             CHECK(same);
+            /* the answers are distinct places: a search around one covers its neighbours
+             * (with a place every metre, the best 8 would otherwise be neighbours of one or two) */
+            bool apart = qa.size() == 8;
+            for (size_t i = 0; i < qa.size(); i++)
+                for (size_t j = 0; j < i; j++) apart &= std::hypot(qa[i].x - qa[j].x, qa[i].y - qa[j].y) >= 3.0;   /* the default separation_m */
+            CHECK(apart);
             /* a car pitched on a 4 % grade sees the same place: heights are taken above
              * the ground around each bin, not above its tilted base plane (which is 1.6 m
              * off the ground 40 m ahead) */

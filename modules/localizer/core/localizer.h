@@ -144,7 +144,7 @@ struct localizer_config_t {
     double max_yaw_rate_dps = 30.0;        /* ... and turned (a 20 m radius at 10 m/s) */
     /* no prior at all: global relocalisation in the whole map (place descriptor, see startup.cpp) */
     bool global_search = true;
-    /* places verified by registration per sweep (successive sweeps take the next ranks).
+    /* places verified by registration per sweep (the best-ranked, distinct ones).
      * MulRan's tree-lined roads rank the true place below the 8th on some keyframes: with
      * 8, two no-prior starts of 20 took 5.4 and 6.4 s (keyframes 1 s apart), with 16 they
      * took 2.8 and 1.4 s; a search costs twice as long (MulRan median 0.11 -> 0.25 s) */

@@ -67,7 +67,6 @@ struct localizer {
     localizer_pager_fn pager = nullptr;   /* pages the map around a place (NULL: a whole map) */
     void *pager_user = nullptr;
     bool places_failed = false;
-    int64_t global_round = 0;
     int64_t global_since = 0;       /* sweep time the global search began (0: not searching) */
     bool has_hint = false;
     int hint_tries = 0;

@@ -23,7 +23,6 @@ struct column_t {
     bool low = false;         /* structure below car height here: no place */
 };
 
-struct offset_t { int dx, dy, ring, sector; };
 
 } // namespace
 
@@ -43,31 +42,32 @@ struct places {
     std::vector<std::array<float, PLACE_RINGS>> ring_key;   /* per place (full descriptors on demand) */
     std::vector<std::array<int32_t, 2>> spot_col;           /* the column (ix, iy) of each place */
     std::vector<place_match_t> spot;   /* x, y, z of each place (yaw, distance unused) */
-    std::vector<offset_t> offsets;     /* the polar grid around a column */
+    int reach = 0;                     /* the polar grid reaches this many columns */
+    std::vector<int16_t> bin_of;       /* its bin (ring * PLACE_SECTORS + sector, -1 none) per
+                                        * column offset, (2 reach + 1)^2 row by row */
 };
 
-/* A column's height (0 off the map or where no block is held); cache: the last block looked up. */
-static float height_at(const places_t *p, int jx, int jy, std::pair<uint64_t, const float *> *cache)
-{
-    if (jx < 0 || jy < 0 || jx >= p->W || jy >= p->H) return 0;
-    uint64_t id = block_id(jx / kBlock, jy / kBlock);
-    if (cache->first != id) {
-        auto it = p->block_at.find(id);
-        *cache = { id, it == p->block_at.end() ? nullptr : &p->height[it->second * kBlock * kBlock] };
-    }
-    return cache->second ? cache->second[(jy % kBlock) * kBlock + jx % kBlock] : 0;
-}
-
-/* The descriptor of the place at column (ix, iy), from the column heights. */
+/* The descriptor of the place at column (ix, iy): the highest column of each bin. Block by
+ * block, each looked up once (a query describes thousands of places). */
 static void describe_column(const places_t *p, int ix, int iy, place_desc_t *d)
 {
-    for (int r = 0; r < PLACE_RINGS; r++)
-        for (int s = 0; s < PLACE_SECTORS; s++) d->h[r][s] = 0;
-    std::pair<uint64_t, const float *> cache = { ~(uint64_t)0, nullptr };
-    for (const offset_t &o : p->offsets) {
-        float h = height_at(p, ix + o.dx, iy + o.dy, &cache);
-        if (h > d->h[o.ring][o.sector]) d->h[o.ring][o.sector] = h;
-    }
+    float *h = &d->h[0][0];
+    std::fill(h, h + PLACE_RINGS * PLACE_SECTORS, 0.f);
+    const int R = p->reach, side = 2 * R + 1;
+    for (int by = std::max(0, (iy - R) / kBlock); by <= (iy + R) / kBlock; by++)
+        for (int bx = std::max(0, (ix - R) / kBlock); bx <= (ix + R) / kBlock; bx++) {
+            auto it = p->block_at.find(block_id(bx, by));
+            if (it == p->block_at.end()) continue;
+            const float *col = &p->height[it->second * kBlock * kBlock];
+            const int x0 = std::max(bx * kBlock, ix - R), x1 = std::min(bx * kBlock + kBlock - 1, ix + R);
+            const int y0 = std::max(by * kBlock, iy - R), y1 = std::min(by * kBlock + kBlock - 1, iy + R);
+            for (int y = y0; y <= y1; y++) {
+                const float *row = col + (y - by * kBlock) * kBlock - bx * kBlock;   /* row[x]: column x */
+                const int16_t *bin = &p->bin_of[(size_t)(y - iy + R) * side + R - ix];   /* bin[x] */
+                for (int x = x0; x <= x1; x++)
+                    if (bin[x] >= 0 && row[x] > h[bin[x]]) h[bin[x]] = row[x];
+            }
+        }
 }
 
 static int sector_of(double dx, double dy)
@@ -102,17 +102,18 @@ static void finish(const places_config_t &cfg, place_desc_t *d)
         d->sector_key[s] = sector_n[s] ? (float)(sector_sum[s] / (sector_n[s] * cfg.clip_m)) : -1.f;
 }
 
-/* The polar grid of a place as column offsets. */
+/* The polar grid of a place as a table of column offsets. */
 static void make_offsets(places_t *p)
 {
-    int R = (int)std::ceil(PLACE_RINGS * p->cfg.ring_m / kColumn);
-    p->offsets.clear();
+    const int R = (int)std::ceil(PLACE_RINGS * p->cfg.ring_m / kColumn), side = 2 * R + 1;
+    p->reach = R;
+    p->bin_of.assign((size_t)side * side, -1);
     for (int dy = -R; dy <= R; dy++)
         for (int dx = -R; dx <= R; dx++) {
             double r = std::hypot(dx, dy) * kColumn;
             int ring = (int)(r / p->cfg.ring_m);
             if (ring >= PLACE_RINGS || r < 1e-9) continue;
-            p->offsets.push_back({ dx, dy, ring, sector_of(dx, dy) });
+            p->bin_of[(size_t)(dy + R) * side + dx + R] = (int16_t)(ring * PLACE_SECTORS + sector_of(dx, dy));
         }
 }
 
@@ -464,19 +465,34 @@ void places_describe(const places_config_t &cfg, const float *xyz, size_t n, pla
     finish(cfg, d);
 }
 
+/* Adds |a - b| over the n bins known on both sides to *sum, and their count to *k. */
+static void known_diff(const float *a, const float *b, int n, double *sum, int *k)
+{
+    float s = 0;
+    int c = 0;
+    for (int i = 0; i < n; i++) {
+        bool known = a[i] >= 0 && b[i] >= 0;
+        s += known ? std::fabs(a[i] - b[i]) : 0.f;
+        c += known;
+    }
+    *sum += s;
+    *k += c;
+}
+
+/* a's sectors against b's shifted by shift (a's sector s with b's s + shift) */
+static void shifted_diff(const float *a, const float *b, int shift, double *sum, int *k)
+{
+    known_diff(a, b + shift, PLACE_SECTORS - shift, sum, k);
+    known_diff(a + PLACE_SECTORS - shift, b, shift, sum, k);
+}
+
 /* Mean height difference over bins known on both sides, scan sector s against map
  * sector s + shift; 1 when too few bins are comparable. */
 static double compare(const places_config_t &cfg, const place_desc_t &a, const place_desc_t &m, int shift)
 {
     double sum = 0;
     int k = 0;
-    for (int r = 0; r < PLACE_RINGS; r++)
-        for (int s = 0; s < PLACE_SECTORS; s++) {
-            float ha = a.h[r][s], hm = m.h[r][(s + shift) % PLACE_SECTORS];
-            if (ha < 0 || hm < 0) continue;
-            sum += std::fabs(ha - hm);
-            k++;
-        }
+    for (int r = 0; r < PLACE_RINGS; r++) shifted_diff(a.h[r], m.h[r], shift, &sum, &k);
     if (k < PLACE_RINGS * PLACE_SECTORS / 10) return 1.0;
     return sum / (k * cfg.clip_m);
 }
@@ -489,20 +505,18 @@ double places_compare(const places_config_t &cfg, const place_desc_t &a, const p
     for (int sh = 0; sh < PLACE_SECTORS; sh++) {
         double sum = 0;
         int k = 0;
-        for (int s = 0; s < PLACE_SECTORS; s++) {
-            float ka = a.sector_key[s], kb = b.sector_key[(s + sh) % PLACE_SECTORS];
-            if (ka < 0 || kb < 0) continue;
-            sum += std::fabs(ka - kb);
-            k++;
-        }
+        shifted_diff(a.sector_key, b.sector_key, sh, &sum, &k);
         sk[sh] = { k ? sum / k : HUGE_VAL, sh };
     }
     std::partial_sort(sk.begin(), sk.begin() + kShifts, sk.end());
     double best = HUGE_VAL;
     int best_shift = 0;
+    bool tried[PLACE_SECTORS] = {};
     for (int i = 0; i < kShifts; i++)
         for (int ds = -1; ds <= 1; ds++) {
             int sh = (sk[i].second + ds + PLACE_SECTORS) % PLACE_SECTORS;
+            if (tried[sh]) continue;
+            tried[sh] = true;
             double c = compare(cfg, a, b, sh);
             if (c < best) { best = c; best_shift = sh; }
         }
@@ -536,7 +550,15 @@ void places_query(const places_t *p, const place_desc_t &d, int k, std::vector<p
     std::stable_sort(out->begin(), out->end(), [](const place_match_t &a, const place_match_t &b) {
         return a.distance < b.distance;
     });
-    if ((int)out->size() > k) out->resize(k);
+    /* a place's neighbours are the same place to a search around it */
+    std::vector<place_match_t> kept;
+    for (const place_match_t &q : *out) {
+        bool near = false;
+        for (const place_match_t &o : kept) near |= std::hypot(q.x - o.x, q.y - o.y) < p->cfg.separation_m;
+        if (!near) kept.push_back(q);
+        if ((int)kept.size() >= k) break;
+    }
+    out->swap(kept);
 }
 
 } // namespace pb_loc

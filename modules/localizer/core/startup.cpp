@@ -184,9 +184,10 @@ bool search_seeds(localizer_t *L, const std::vector<Eigen::Isometry3d> &seeds, d
 }
 
 /* No prior at all: the places most like this sweep (places.h), each verified by a small
- * registration search; returns the one whose structure fits the map best. Successive
- * sweeps try successive ranks, so a start keeps trying until a place is verified.
- * searching_s: how long this search has run (sweep time). */
+ * registration search; returns the one whose structure fits the map best. Every sweep
+ * tries the best-ranked places, so a place that fits as well as the one taken is among
+ * those tried (a sweep trying ranks 17-32 took a road the wrong way round, 44 m off, on
+ * MulRan). searching_s: how long this search has run (sweep time). */
 bool global_search(localizer_t *L, double searching_s, pb_reg_result_t *res, outputs_t *out)
 {
     if (!L->places && !L->places_failed && L->pager) {
@@ -208,12 +209,10 @@ bool global_search(localizer_t *L, double searching_s, pb_reg_result_t *res, out
     }
     place_desc_t d;
     places_describe(L->places, L->xyz.data(), L->xyz.size() / 3, &d);
-    int k = L->cfg.global_candidates, rounds = 3;
     std::vector<place_match_t> pm;
-    places_query(L->places, d, k * rounds, &pm);
-    size_t first = (size_t)(L->global_round++ % rounds) * k;
+    places_query(L->places, d, L->cfg.global_candidates, &pm);
     std::vector<Eigen::Isometry3d> seeds;
-    for (size_t i = first; i < pm.size() && i < first + k; i++) {
+    for (size_t i = 0; i < pm.size(); i++) {
         Eigen::Isometry3d seed = Eigen::Isometry3d::Identity();
         seed.linear() = Eigen::AngleAxisd(pm[i].yaw, Vec3::UnitZ()).toRotationMatrix();
         seed.translation() = Vec3(pm[i].x, pm[i].y, pm[i].z);
