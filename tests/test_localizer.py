@@ -272,9 +272,9 @@ def test_default_site_is_paged(drive, tmp_path):
     # measured: tracking after 0.2 s, median 0.005 m, p99 0.009 m
     assert r["first_tracking_s"] <= 0.6 and r["lost_after_tracking"] == 0, r
     assert r["t_median"] < 0.015 and r["t_p99"] < 0.03, r
-    # measured (28 Nov 2026, a place descriptor every metre: 121,082 places): peak RSS 64 MB
-    # on this 12 s drive, 67 MB on the 232 s lap (bench-localizer-memory; every tile held:
-    # 126 MB); 150 MB is the target
+    # measured (28 Nov 2026, a place descriptor every metre: 121,082 places of 52 bytes):
+    # peak RSS 56 MB on this 12 s drive, 58 MB on the 232 s lap (bench-localizer-memory;
+    # every tile held: 116 MB); 150 MB is the target
     print(f"default site, GNSS start, 12 s: peak RSS {peak:.1f} MB")
     assert peak < 150, peak
 
@@ -290,7 +290,7 @@ def test_no_prior_start_on_the_paged_default_site(drive, tmp_path):
     poses = lb.read_poses(out, "POSE")
     k = first_tracking(poses)
     # measured: tracking after 0.3 s (0.6 s with a place every 3 m: found on the 4th sweep),
-    # max error 0.067 m, peak RSS 65 MB; 150 MB is the target
+    # max error 0.067 m, peak RSS 56 MB; 150 MB is the target
     assert k is not None and (poses[k, 0] - poses[0, 0]) <= 1.0e6, "tracking within 1 s"
     _, et, _ = lb.errors_vs_truth(poses[k:][poses[k:, 5] == 1], drive["gt"])
     assert et.max() < 0.2, et.max()

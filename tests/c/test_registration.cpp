@@ -571,6 +571,10 @@ static void test_map_tiles(void)
         bad = pbytes;
         std::memset(bad.data() + 8, 0xff, 8);   /* ring width NaN */
         CHECK(pb_loc::places_decode(bad.data(), bad.size(), msg, sizeof msg) == nullptr);
+        bad = pbytes;
+        bad[7] = '3';   /* the previous version (a place every 3 m, 112 bytes each) */
+        CHECK(pb_loc::places_decode(bad.data(), bad.size(), msg, sizeof msg) == nullptr);
+        CHECK_CONTAINS(msg, "(PBPLACE3, this localizer reads PBPLACE4): rebuild the site's map.tiles");
         pb_loc::places_destroy(built);
     }
 

@@ -28,6 +28,7 @@ struct column_t {
 
 /* Columns are held in square blocks of kBlock x kBlock, only where the map has cells
  * (and, while building, around them): memory follows the map, not its bounding box. */
+static const float kKeyScale = 65535;   /* a place's ring key is stored in 1/kKeyScale */
 static const int kBlock = 16;   /* >= 8: the ground fill reaches 8 columns (fill_ground) */
 
 static uint64_t block_id(int bx, int by) { return ((uint64_t)(uint32_t)bx << 32) | (uint32_t)by; }
@@ -39,9 +40,12 @@ struct places {
     std::unordered_map<uint64_t, size_t> block_at;   /* blocks with structure: id -> index */
     std::vector<std::array<int32_t, 2>> block_xy;    /* per block: bx, by */
     std::vector<float> height;         /* per block, kBlock^2 columns: highest structure above the ground */
-    std::vector<std::array<float, PLACE_RINGS>> ring_key;   /* per place (full descriptors on demand) */
-    std::vector<std::array<int32_t, 2>> spot_col;           /* the column (ix, iy) of each place */
-    std::vector<place_match_t> spot;   /* x, y, z of each place (yaw, distance unused) */
+    /* per place, 52 bytes (one every metre of free ground: 121,082 on the default site):
+     * its ring key in 1/65535 (full descriptors on demand; in 1/255 the true place
+     * ranked lower on MulRan), column and ground height */
+    std::vector<std::array<uint16_t, PLACE_RINGS>> ring_key;
+    std::vector<std::array<int32_t, 2>> spot_col;
+    std::vector<float> spot_z;
     int reach = 0;                     /* the polar grid reaches this many columns */
     std::vector<int16_t> bin_of;       /* its bin (ring * PLACE_SECTORS + sector, -1 none) per
                                         * column offset, (2 reach + 1)^2 row by row */
@@ -275,14 +279,13 @@ places_t *places_builder_finish(places_builder_t *b)
         int ix = s[1], iy = s[0];
         describe_column(p, ix, iy, &d);
         finish(cfg, &d);
-        std::array<float, PLACE_RINGS> rk;
-        std::copy(d.ring_key, d.ring_key + PLACE_RINGS, rk.begin());
+        std::array<uint16_t, PLACE_RINGS> rk;
+        for (int r = 0; r < PLACE_RINGS; r++) rk[r] = (uint16_t)std::lround(std::min(1.f, std::max(0.f, d.ring_key[r])) * kKeyScale);
         p->ring_key.push_back(rk);
         p->spot_col.push_back({ ix, iy });
-        p->spot.push_back({ p->lo[0] + (ix + 0.5) * kColumn, p->lo[1] + (iy + 0.5) * kColumn,
-                            b->at(ix, iy, false)->ground, 0, 0 });
+        p->spot_z.push_back(b->at(ix, iy, false)->ground);
     }
-    if (p->spot.empty()) { delete p; return nullptr; }
+    if (p->spot_z.empty()) { delete p; return nullptr; }
     return p;
 }
 
@@ -302,13 +305,14 @@ places_t *places_build(const pb_regmap_t *map, const places_config_t &cfg)
 
 void places_destroy(places_t *p) { delete p; }
 
-/* Serialised form (little-endian): "PBPLACE3" (3: columns in blocks; 2 held every column
+/* Serialised form (little-endian): "PBPLACE4" (4: places every metre, 52 bytes each; 3
+ * held 112 bytes a place, 2 every column
  * of the bounding box), f64 ring_m, place_step_m, min_height_m, tall_m, clip_m,
  * car_clearance_m, i32 shortlist, W, H, u32 places, f64 lo[2], u32 blocks, then per block
  * i32 bx, by, f32 height[16 * 16] (row by row), then per place i32 ix, iy, f64 x, y, z,
- * f32 ring_key[PLACE_RINGS]. */
-static const char kPlacesMagic[8] = { 'P', 'B', 'P', 'L', 'A', 'C', 'E', '3' };
-static const size_t kPlacesHeader = 8 + 6 * 8 + 4 * 4 + 2 * 8 + 4, kPlaceBytes = 8 + 3 * 8 + 4 * PLACE_RINGS,
+ * u16 ring_key[PLACE_RINGS] (in 1/65535). */
+static const char kPlacesMagic[8] = { 'P', 'B', 'P', 'L', 'A', 'C', 'E', '4' };
+static const size_t kPlacesHeader = 8 + 6 * 8 + 4 * 4 + 2 * 8 + 4, kPlaceBytes = 8 + 4 + 2 * PLACE_RINGS,
                     kBlockBytes = 8 + 4 * kBlock * kBlock;
 
 template <class T> static void put_le(std::vector<uint8_t> *o, T v)
@@ -321,14 +325,14 @@ template <class T> static T get_le(const uint8_t *p) { T v; std::memcpy(&v, p, s
 void places_encode(const places_t *p, std::vector<uint8_t> *out)
 {
     out->clear();
-    out->reserve(kPlacesHeader + kBlockBytes * p->block_xy.size() + kPlaceBytes * p->spot.size());
+    out->reserve(kPlacesHeader + kBlockBytes * p->block_xy.size() + kPlaceBytes * p->spot_z.size());
     out->insert(out->end(), kPlacesMagic, kPlacesMagic + 8);
     const places_config_t &c = p->cfg;
     for (double v : { c.ring_m, c.place_step_m, c.min_height_m, c.tall_m, c.clip_m, c.car_clearance_m }) put_le(out, v);
     put_le<int32_t>(out, c.shortlist);
     put_le<int32_t>(out, p->W);
     put_le<int32_t>(out, p->H);
-    put_le<uint32_t>(out, (uint32_t)p->spot.size());
+    put_le<uint32_t>(out, (uint32_t)p->spot_z.size());
     put_le(out, p->lo[0]);
     put_le(out, p->lo[1]);
     put_le<uint32_t>(out, (uint32_t)p->block_xy.size());
@@ -337,13 +341,11 @@ void places_encode(const places_t *p, std::vector<uint8_t> *out)
         put_le<int32_t>(out, p->block_xy[k][1]);
         for (size_t j = 0; j < (size_t)kBlock * kBlock; j++) put_le(out, p->height[k * kBlock * kBlock + j]);
     }
-    for (size_t i = 0; i < p->spot.size(); i++) {
+    for (size_t i = 0; i < p->spot_z.size(); i++) {
         put_le<int32_t>(out, p->spot_col[i][0]);
         put_le<int32_t>(out, p->spot_col[i][1]);
-        put_le(out, p->spot[i].x);
-        put_le(out, p->spot[i].y);
-        put_le(out, p->spot[i].z);
-        for (float k : p->ring_key[i]) put_le(out, k);
+        put_le(out, p->spot_z[i]);
+        for (uint16_t k : p->ring_key[i]) put_le(out, k);
     }
 }
 
@@ -351,11 +353,11 @@ places_t *places_decode(const uint8_t *b, size_t n, char *msg, size_t msg_len)
 {
     if (n >= 8 && std::memcmp(b, kPlacesMagic, 7) == 0 && b[7] != kPlacesMagic[7]) {
         snprintf(msg, msg_len, "byte 0: place descriptors of another version (PBPLACE%c, this localizer reads "
-                 "PBPLACE3): rebuild the site's map.tiles with map-tiles", b[7]);
+                 "PBPLACE4): rebuild the site's map.tiles with map-tiles", b[7]);
         return nullptr;
     }
     if (n < kPlacesHeader || std::memcmp(b, kPlacesMagic, 8) != 0) {
-        snprintf(msg, msg_len, "byte 0: not place descriptors (no PBPLACE3 header)");
+        snprintf(msg, msg_len, "byte 0: not place descriptors (no PBPLACE4 header)");
         return nullptr;
     }
     places_config_t c;
@@ -396,16 +398,15 @@ places_t *places_decode(const uint8_t *b, size_t n, char *msg, size_t msg_len)
         }
         p->block_xy.push_back({ bx, by });
     }
-    p->spot.resize(np);
+    p->spot_z.resize(np);
     p->spot_col.resize(np);
     p->ring_key.resize(np);
     for (size_t i = 0; i < np; i++, q += kPlaceBytes) {
         p->spot_col[i] = { get_le<int32_t>(q), get_le<int32_t>(q + 4) };
-        p->spot[i] = { get_le<double>(q + 8), get_le<double>(q + 16), get_le<double>(q + 24), 0, 0 };
-        for (int r = 0; r < PLACE_RINGS; r++) p->ring_key[i][r] = get_le<float>(q + 32 + 4 * r);
+        p->spot_z[i] = get_le<float>(q + 8);
+        for (int r = 0; r < PLACE_RINGS; r++) p->ring_key[i][r] = get_le<uint16_t>(q + 12 + 2 * r);
         bool good = p->spot_col[i][0] >= 0 && p->spot_col[i][0] < W && p->spot_col[i][1] >= 0 && p->spot_col[i][1] < H &&
-                    std::isfinite(p->spot[i].x) && std::isfinite(p->spot[i].y) && std::isfinite(p->spot[i].z);
-        for (int r = 0; r < PLACE_RINGS; r++) good &= std::isfinite(p->ring_key[i][r]);
+                    std::isfinite(p->spot_z[i]);
         if (!good) {
             snprintf(msg, msg_len, "byte %zu: place %zu is damaged", (size_t)(q - b), i);
             return nullptr;
@@ -418,7 +419,7 @@ places_t *places_decode(const uint8_t *b, size_t n, char *msg, size_t msg_len)
     make_offsets(p.get());
     return p.release();
 }
-size_t places_count(const places_t *p) { return p ? p->spot.size() : 0; }
+size_t places_count(const places_t *p) { return p ? p->spot_z.size() : 0; }
 
 void places_describe(const places_t *p, const float *xyz, size_t n, place_desc_t *d)
 {
@@ -527,12 +528,14 @@ double places_compare(const places_config_t &cfg, const place_desc_t &a, const p
 void places_query(const places_t *p, const place_desc_t &d, int k, std::vector<place_match_t> *out)
 {
     out->clear();
-    size_t n = p->spot.size();
+    size_t n = p->spot_z.size();
+    float key[PLACE_RINGS];   /* the sweep's ring key in the places' units */
+    for (int r = 0; r < PLACE_RINGS; r++) key[r] = d.ring_key[r] * kKeyScale;
     /* 1. shortlist by the ring key (rotation invariant) */
     std::vector<std::pair<double, size_t>> rk(n);
     for (size_t i = 0; i < n; i++) {
         double s = 0;
-        for (int r = 0; r < PLACE_RINGS; r++) s += std::fabs(d.ring_key[r] - p->ring_key[i][r]);
+        for (int r = 0; r < PLACE_RINGS; r++) s += std::fabs(key[r] - p->ring_key[i][r]);
         rk[i] = { s, i };
     }
     size_t m = std::min(n, (size_t)std::max(k, p->cfg.shortlist));
@@ -543,7 +546,8 @@ void places_query(const places_t *p, const place_desc_t &d, int k, std::vector<p
         const auto &c = p->spot_col[rk[j].second];
         describe_column(p, c[0], c[1], &pd);
         finish(p->cfg, &pd);
-        place_match_t pm = p->spot[rk[j].second];
+        place_match_t pm = { p->lo[0] + (c[0] + 0.5) * kColumn, p->lo[1] + (c[1] + 0.5) * kColumn,
+                             p->spot_z[rk[j].second], 0, 0 };
         pm.distance = places_compare(p->cfg, d, pd, &pm.yaw);
         out->push_back(pm);
     }
