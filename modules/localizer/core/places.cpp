@@ -309,8 +309,8 @@ void places_destroy(places_t *p) { delete p; }
  * held 112 bytes a place, 2 every column
  * of the bounding box), f64 ring_m, place_step_m, min_height_m, tall_m, clip_m,
  * car_clearance_m, i32 shortlist, W, H, u32 places, f64 lo[2], u32 blocks, then per block
- * i32 bx, by, f32 height[16 * 16] (row by row), then per place i32 ix, iy, f64 x, y, z,
- * u16 ring_key[PLACE_RINGS] (in 1/65535). */
+ * i32 bx, by, f32 height[16 * 16] (row by row), then per place i32 ix, iy, f32 z (the
+ * ground's height), u16 ring_key[PLACE_RINGS] (in 1/65535). */
 static const char kPlacesMagic[8] = { 'P', 'B', 'P', 'L', 'A', 'C', 'E', '4' };
 static const size_t kPlacesHeader = 8 + 6 * 8 + 4 * 4 + 2 * 8 + 4, kPlaceBytes = 8 + 4 + 2 * PLACE_RINGS,
                     kBlockBytes = 8 + 4 * kBlock * kBlock;

@@ -43,8 +43,9 @@ struct places_config_t {
     int shortlist = 2700;         /* places compared in full after the ring key. MulRan, 83
                                    * keyframes of each split against the other's map: the
                                    * true place among the best 16 for 45 / 38 at a 3 m step
-                                   * and 300, 53 / 52 at 1 m and 900, 60 / 58 at 1 m and
-                                   * 2700 (odd split: 55 with every place compared in full) */
+                                   * and 300, 53 / 52 at 1 m and 900 (answers 2 m apart),
+                                   * 60 / 58 at 1 m and 2700 (3 m apart; odd split: 55 with
+                                   * every place compared in full) */
 };
 
 /* One descriptor: height (m, 0 = free) per bin, -1 unknown (hidden). */
