@@ -254,7 +254,7 @@ bool global_search(localizer_t *L, double searching_s, pb_reg_result_t *res, out
     }
     /* a look-alike fits a street of trees so-so (porous street: 0.6-0.7 at places 100-280
      * m along it, the truth 0.97 but not among the best-ranked places of some sweeps):
-     * when the next sweep comes soon, wait for a place that fits surely (the next ranks).
+     * when the next sweep comes soon, wait for a place that fits surely (the next sweep's best).
      * Not with sweeps a second or more apart (keyframes), nor before the rate is known:
      * MulRan's true places fit 0.7-0.9, and a keyframe's wait took starts past 5 s */
     if (fit < L->cfg.global_sure_fit && L->scan_dt > 0 &&
