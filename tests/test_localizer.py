@@ -896,6 +896,17 @@ def test_real_mulran_tracking_against_refined_reference(mulran_reference, tmp_pa
     assert track["t_median"] <= 0.08, track
 
 
+def mulran_start(gt, cut_log, out, site, *prior):
+    """The localizer on a cut of MulRan keyframes as bench-localizer-real runs it (LiDAR alone,
+    the mast vehicle file), from prior (none: a global search): bench_starts' judgement."""
+    localize(None, cut_log, out, "--vehicle", ROOT / "vehicles" / "lidar_mast.yaml", "--no-gnss", "--no-imu",
+             "--no-speed", *prior, site=site)
+    r = bs.judge(gt, out)
+    print(f"{cut_log.name}, {prior[0] if prior else 'no prior'}: tracking {r['tracking_s']} s after the first "
+          f"keyframe, worst {r['max_m']} m")
+    return r
+
+
 @pytest.mark.real
 def test_real_mulran_no_prior_starts_on_a_tree_lined_road(mulran_reference, tmp_path):
     """The whole localizer on the odd MulRan keyframes (LiDAR alone, keyframes about 1 s apart)
@@ -916,10 +927,7 @@ def test_real_mulran_no_prior_starts_on_a_tree_lined_road(mulran_reference, tmp_
         c, out = tmp_path / f"cut_{at:g}.lcm", tmp_path / f"out_{at:g}.lcm"
         bs.cut(odd_log, c, at, 8.0, "LIDAR_SCAN,GROUND_TRUTH")
         assert real_starts.reference_plausible(lb.read_poses(c, "GROUND_TRUTH"), flagged), at
-        localize(None, c, out, "--vehicle", ROOT / "vehicles" / "lidar_mast.yaml", "--no-gnss", "--no-imu",
-                 "--no-speed", site=site)
-        r = bs.judge(gt, out)
-        print(f"cut {at:g} s: tracking {r['tracking_s']} s after the first keyframe, worst {r['max_m']} m")
+        r = mulran_start(gt, c, out, site)
         assert r["tracking_s"] is not None and r["tracking_s"] <= 5.0, r["tracking_s"]
         assert r["converged"] and r["lost"] == 0, (r["max_m"], r["lost"])
 
@@ -957,10 +965,7 @@ def mulran_prior_starts(site, gt, cut_log, tmp_path):
     runs = []
     for k, prior in enumerate(mulran_priors(gt, cut_log)):
         out = tmp_path / f"out_{k}.lcm"
-        localize(None, cut_log, out, "--vehicle", ROOT / "vehicles" / "lidar_mast.yaml", "--no-gnss", "--no-imu",
-                 "--no-speed", prior, site=site)
-        r = bs.judge(gt, out)
-        print(f"start {k}: tracking {r['tracking_s']} s after the first keyframe, worst {r['max_m']} m")
+        r = mulran_start(gt, cut_log, out, site, prior)
         assert r["tracking_s"] is not None and r["converged"] and r["lost"] == 0, (k, r["tracking_s"], r["max_m"])
         runs.append((out, r))
     return runs
@@ -1012,10 +1017,7 @@ def test_real_mulran_verifying_sweep_after_a_long_gap_takes_the_best_fit(mulran_
     starts = [[]] + [[p] for p in mulran_priors(gt, c)]
     for k, prior in enumerate(starts):
         out = tmp_path / f"out_{k}.lcm"
-        localize(None, c, out, "--vehicle", ROOT / "vehicles" / "lidar_mast.yaml", "--no-gnss", "--no-imu",
-                 "--no-speed", *prior, site=site)
-        r = bs.judge(gt, out)
-        print(f"start {prior or 'no prior'}: tracking {r['tracking_s']} s after the first keyframe, worst {r['max_m']} m")
+        r = mulran_start(gt, c, out, site, *prior)
         assert r["tracking_s"] is not None and r["converged"] and r["lost"] == 0, (prior, r["tracking_s"], r["max_m"])
 
 
@@ -1034,9 +1036,6 @@ def test_real_mulran_no_prior_start_between_places_of_the_old_grid(mulran_refere
         d.mkdir()
         site, gt, c = mulran_even_cut(mulran_reference, d, at)
         out = d / "out.lcm"
-        localize(None, c, out, "--vehicle", ROOT / "vehicles" / "lidar_mast.yaml", "--no-gnss", "--no-imu",
-                 "--no-speed", site=site)
-        r = bs.judge(gt, out)
-        print(f"cut {at:g} s, no prior: tracking {r['tracking_s']} s after the first keyframe, worst {r['max_m']} m")
+        r = mulran_start(gt, c, out, site)
         assert r["tracking_s"] is not None and r["tracking_s"] <= 5.0, r["tracking_s"]
         assert r["converged"] and r["lost"] == 0 and r["max_m"] < 0.06, (r["max_m"], r["lost"])

@@ -35,7 +35,8 @@ struct places_config_t {
                                    * step leaves the truth up to 2.1 m from a place, and the
                                    * inner rings differ: see shortlist) */
     double separation_m = 3.0;    /* a query's answers lie this far apart at least (the
-                                   * neighbours of a place are that place to a search) */
+                                   * neighbours of a place are that place to a search; a
+                                   * query setting, not stored with the places) */
     double min_height_m = 0.7;    /* structure starts this high above the ground */
     double tall_m = 2.5;          /* a bin this high hides the bins behind it */
     double clip_m = 5.0;          /* heights are clipped here (the sweep sees little higher nearby) */
