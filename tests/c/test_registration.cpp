@@ -374,9 +374,16 @@ static void test_hdl32_pair(void)
     CHECK(drot < 0.5);
     /* start-up search on real data: starts 3 m off in eight directions, yaw 15 deg off
      * either way, searched within 3 m / 15 deg; and one 150 deg off, searched over the
-     * full turn (a GNSS fix without heading). Each must end on the reference. */
+     * full turn (a GNSS fix without heading). Each must end on the reference. The
+     * search runs twice: as configured, and with every candidate refined to its end
+     * (same_minimum_m 0). Candidates that stop in the best minimum so far must leave
+     * the answer where the full runs put it (within 5 mm / 0.05 deg) and save steps
+     * (measured: 171 against 199 in all). */
     Eigen::Isometry3d ref_pose(ref);
-    int on_ref = 0, starts = 0;
+    pb_reg_config_t full;
+    pb_reg_config_default(&full);
+    full.same_minimum_m = 0;
+    int on_ref = 0, starts = 0, iterations = 0, iterations_full = 0, same_answer = 0;
     double worst = 0;
     for (int k = 0; k < 9; k++) {
         Eigen::Isometry3d start = ref_pose;
@@ -388,11 +395,22 @@ static void test_hdl32_pair(void)
         double e = (r.pose.translation() - ref_pose.translation()).norm();
         double er = Eigen::AngleAxisd(r.pose.linear().transpose() * ref_pose.linear()).angle() * 180 / M_PI;
         worst = std::max(worst, e);
+        iterations += r.iterations;
         starts++;
         on_ref += rc >= 0 && e < 0.05 && er < 0.5;
+        pb_reg_result_t f;
+        CHECK(pb_reg_align_global(map, xyz.data(), xyz.size() / 3, start, 3.0, range, &full, &f, &err) >= 0);
+        iterations_full += f.iterations;
+        double dt2 = (f.pose.translation() - r.pose.translation()).norm();
+        double dr2 = Eigen::AngleAxisd(f.pose.linear().transpose() * r.pose.linear()).angle() * 180 / M_PI;
+        same_answer += dt2 < 0.005 && dr2 < 0.05;
     }
-    std::printf("hdl32 pair, start-up search: %d of %d starts on the reference (worst %.3f m)\n", on_ref, starts, worst);
+    std::printf("hdl32 pair, start-up search: %d of %d starts on the reference (worst %.3f m); %d iterations, "
+                "%d with every candidate refined to its end (same answer for %d)\n",
+                on_ref, starts, worst, iterations, iterations_full, same_answer);
     CHECK(on_ref == starts);
+    CHECK(same_answer == starts);
+    CHECK(iterations < iterations_full);
     pb_regmap_destroy(map);
 }
 

@@ -557,8 +557,9 @@ int pb_reg_align_global(const pb_regmap_t *map, const float *xyz, size_t n, cons
         pb_reg_result_t r;
         if (!start_result(map, sub.data(), sub.size() / 3, c.pose, &r, err)) break;
         bool same = false;
-        const Basin best = { from, 0.02, 0.1 * M_PI / 180 };
-        align_points(map, sub, c.pose, &quick, &r, most >= 0 ? &best : nullptr, &same);
+        const Basin best = { from, cfg->same_minimum_m, cfg->same_minimum_rad };
+        bool stop = most >= 0 && cfg->same_minimum_m > 0;
+        align_points(map, sub, c.pose, &quick, &r, stop ? &best : nullptr, &same);
         total_it += r.iterations;
         if (same) continue;
         if (r.status != PB_REG_FEW_POINTS && r.inlier_fraction > most) {

@@ -63,6 +63,9 @@ typedef struct {
                                    * ends where it comes near the coarse-to-fine minimum (step 3) */
     double body_box[6] = {};      /* drop points inside this box of base (the car's own body: xmin, ymin, zmin,
                                    * xmax, ymax, zmax); all 0 = none */
+    double same_minimum_m = 0.02; /* pb_reg_align_global: a candidate whose refinement comes within this ... */
+    double same_minimum_rad = 1.7453292519943296e-3;   /* ... and this (0.1 degree) of the best minimum so
+                                   * far stops there, as that minimum again; 0 = each refined to its end */
 } pb_reg_config_t;
 
 void pb_reg_config_default(pb_reg_config_t *cfg);
@@ -118,8 +121,8 @@ int pb_reg_align(const pb_regmap_t *map, const float *xyz, size_t n,
  * of seed's yaw (z, roll and pitch taken from seed). Every position and yaw of that
  * window is scored by branch and bound on the map's structure above the ground
  * (window_search.h); the best few distinct ones are refined with pb_reg_align (one
- * whose refinement comes within 2 cm / 0.1 deg of a minimum already found stops
- * there), and the one with the most inliers is returned. result->inlier_fraction
+ * whose refinement comes within cfg->same_minimum_m / _rad of a minimum already
+ * found stops there), and the one with the most inliers is returned. result->inlier_fraction
  * and ->overlap tell whether to trust it. */
 int pb_reg_align_global(const pb_regmap_t *map, const float *xyz, size_t n,
                         const Eigen::Isometry3d &seed, double radius_m, double yaw_range_rad,
