@@ -67,7 +67,7 @@ static void usage(FILE *f)
         "  --timing-runs N  every tracking align of the subsample (ours reduced, NDT; small_gicp reads it\n"
         "                   from the JSON) is run N times and timed by the median: one scan's single\n"
         "                   millisecond is noise on a shared machine (default 1)\n"
-        "  --verbose        one line per scan (ours, tracking start)\n"
+        "  --verbose        one line per scan (ours, tracking start; then each NDT resolution's error)\n"
         "  --target-points N, --coarse-iterations N   override the registration defaults\n");
 }
 
@@ -435,6 +435,7 @@ int main(int argc, char **argv)
                     into->add(ms, Eigen::Isometry3d(ndt.getFinalTransformation().cast<double>()), sc.gt);
                 };
                 run(sc.track_start, timing_runs, &ndt_track[ri]);
+                if (verbose) std::printf("scan %d tracking: NDT %.1f m err %.3f m\n", sc.index, ndt_res[ri], ndt_track[ri].terr.back());
                 for (const Eigen::Isometry3d &start : sc.off_starts) run(start, 1, &ndt_off[ri]);
                 if (ri == 0 && df) {
                     // per scan: n, points, number of starts, then truth, tracking start, each start (row-major 4x4)
