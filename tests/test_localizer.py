@@ -932,6 +932,24 @@ def test_real_mulran_no_prior_starts_on_a_tree_lined_road(mulran_reference, tmp_
         assert r["converged"] and r["lost"] == 0, (r["max_m"], r["lost"])
 
 
+
+def test_real_starts_earliest_tracking_follows_the_verification(tmp_path):
+    """bench-localizer-real's per-cut "earliest": no start tracks before the localizer's
+    verify_scans-th sweep (read from localizer.h, so the figure follows the code). A log of
+    sweeps at 0, 0.9, 2.3 and 5.3 s (MulRan's odd split, cut 45.0 s) gives 2.3 s for three
+    sweeps; fewer sweeps than that: None."""
+    import lcm
+    log = lcm.EventLog(str(tmp_path / "cut.lcm"), "w", overwrite=True)
+    for t in (0.0, 0.9, 2.3, 5.3):
+        log.write_event(int(1e15 + t * 1e6), "LIDAR_SCAN", b"x")
+        log.write_event(int(1e15 + t * 1e6 + 10), "GROUND_TRUTH", b"x")
+    log.close()
+    text = (ROOT / "modules" / "localizer" / "core" / "localizer.h").read_text()
+    assert real_starts.verify_sweeps() == int(re.search(r"int verify_scans = (\d+);", text).group(1))
+    assert real_starts.earliest_tracking_s(tmp_path / "cut.lcm", 3) == pytest.approx(2.3)
+    assert real_starts.earliest_tracking_s(tmp_path / "cut.lcm", 4) == pytest.approx(5.3)
+    assert real_starts.earliest_tracking_s(tmp_path / "cut.lcm", 5) is None
+
 def mulran_even_cut(mulran_reference, tmp_path, at, plausible=True):
     """The even MulRan keyframes in the site of the odd ones (bench-localizer-real's second
     trial), cut 8 s from AT s into the drive, where the reference is plausible (or is
