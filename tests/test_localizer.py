@@ -949,6 +949,12 @@ def test_real_starts_earliest_tracking_follows_the_verification(tmp_path):
     assert real_starts.earliest_tracking_s(tmp_path / "cut.lcm", 3) == pytest.approx(2.3)
     assert real_starts.earliest_tracking_s(tmp_path / "cut.lcm", 4) == pytest.approx(5.3)
     assert real_starts.earliest_tracking_s(tmp_path / "cut.lcm", 5) is None
+    # the picture of where the starts succeed and fail: one cut, a late no-prior start
+    gt = np.array([[1e15 + t * 1e6, 10.0 * t, 0.0, 0.0, 0.0, 0] for t in np.arange(0, 6, 0.5)])
+    late = {"converged": True, "tracking_s": 5.3, "max_m": 0.04}
+    png = tmp_path / "starts.png"
+    real_starts.plot_starts(png, "test", gt, [tmp_path / "cut.lcm"], [True], [2.3], [late, late], [late], [1e9 + 1.0])
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10000
 
 def mulran_even_cut(mulran_reference, tmp_path, at, plausible=True):
     """The even MulRan keyframes in the site of the odd ones (bench-localizer-real's second

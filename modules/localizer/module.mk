@@ -126,5 +126,6 @@ bench-localizer-real: $(BIN)/bench-localizer $(BIN)/import-scans $(DEPS)
 	  nice $(VPY) modules/localizer/bench/real_starts.py --log $(LOCREG_REAL)/split-$$split/$$split/$$split.lcm \
 	      --site $(LOCREG_REAL)/split-$$split/site --vehicle vehicles/lidar_mast.yaml --cuts $(LOCREAL_CUTS) \
 	      --guesses $(LOCREAL_GUESSES) --global $(LOCREAL_GLOBAL) --report $(LOCREG_REAL)/reference-report.json \
-	      --times $(MULRAN)/times.txt --json $(LOCREG_REAL)/starts-$$split.json || exit 1; \
+	      --times $(MULRAN)/times.txt --json $(LOCREG_REAL)/starts-$$split.json \
+	      --plot $(LOCREG_REAL)/starts-$$split.png || exit 1; \
 	done

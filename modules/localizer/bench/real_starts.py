@@ -4,6 +4,7 @@ for bench-localizer-real.
 
 usage: real_starts.py --log SCANS.lcm --site DIR --vehicle FILE --json OUT.json
                       --report REFERENCE-REPORT.json --times TIMES.txt [--cuts 10] [--guesses 30] [--global 10] [--seconds 8] [--jobs 2]
+                      [--plot PNG]
 
 SCANS.lcm: LIDAR_SCAN + GROUND_TRUTH (base poses) from import-scans --vehicle FILE,
 of scans that are not in DIR/map.pcd (bench-localizer-real: the odd keyframes, the
@@ -77,6 +78,55 @@ def print_by_cut(cuts, plausible, earliest, prior_runs, global_runs):
               f"{sum(r['converged'] for r in pr):>4} of {len(pr):<3} {e:>8}  {g or '-'}")
 
 
+def plot_starts(path, title, gt, cuts, plausible, earliest, prior_runs, global_runs, flagged_s):
+    """Where the starts succeed and fail, on the route: each cut's first keyframe coloured
+    by its no-prior start, hollow where the reference is implausible, with the prior starts
+    that converged beside it; the keyframes reference.py flags as black crosses."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    span = np.ptp(gt[:, 1:3], axis=0) + 20.0
+    fig, ax = plt.subplots(figsize=(11, min(11, max(4.5, 11 * span[1] / span[0] + 1.5))))
+    ax.plot(gt[:, 1], gt[:, 2], color="0.8", lw=3, zorder=1, label="reference path")
+    flagged = [bs.gt_at(gt, t * 1e6) for t in flagged_s if gt[0, 0] <= t * 1e6 <= gt[-1, 0]]
+    if flagged:
+        ax.scatter([f[1] for f in flagged], [f[2] for f in flagged], marker="x", color="k", s=40, zorder=2,
+                   label="keyframe the reference flags (over 5 m/s\u00b2)")
+    kinds = {"tracking within 5 s": "tab:green", "later: its 3rd sweep comes after 5 s": "tab:blue",
+             "later than 5 s, or never": "tab:orange", "tracking far from the reference": "tab:red"}
+    shown = set()
+    for k, c in enumerate(cuts):
+        g = bs.gt_at(gt, lb.read_channel_times(c, "LIDAR_SCAN")[0])
+        gl, pr = global_runs[k::len(cuts)], prior_runs[k::len(cuts)]
+        if any(r.get("max_m") is not None and r["max_m"] > bs.WRONG_M for r in gl):
+            kind = "tracking far from the reference"
+        elif all(r["converged"] and r["tracking_s"] is not None and r["tracking_s"] <= 5.0 for r in gl):
+            kind = "tracking within 5 s"
+        elif earliest[k] is None or earliest[k] > 5.0:
+            kind = "later: its 3rd sweep comes after 5 s"
+        else:
+            kind = "later than 5 s, or never"
+        col = kinds[kind]
+        ax.scatter([g[1]], [g[2]], s=90, zorder=3, edgecolors=col, linewidths=2,
+                   facecolors=col if plausible[k] else "none")
+        shown.add(kind)
+        ok = sum(r["converged"] for r in pr)
+        ax.annotate(c.stem[4:] + ("" if ok == len(pr) else f" (prior {ok}/{len(pr)})"), (g[1], g[2]),
+                    xytext=(0, 9 if k % 2 else -15), textcoords="offset points", fontsize=7, ha="center")
+    for kind, col in kinds.items():
+        if kind in shown:
+            ax.scatter([], [], s=90, color=col, label=f"no prior: {kind}")
+    ax.scatter([], [], s=90, edgecolors="0.3", facecolors="none", label="hollow: reference implausible there")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_title(title, fontsize=10)
+    ax.legend(loc="best", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--log", required=True)
@@ -91,6 +141,7 @@ def main():
     ap.add_argument("--seconds", type=float, default=8.0)
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--seed", type=int, default=9)
+    ap.add_argument("--plot", help="also draw where the starts succeed and fail on the route (PNG)")
     a = ap.parse_args()
     log, site = pathlib.Path(a.log), pathlib.Path(a.site)
     work = log.parent / "starts"
@@ -146,6 +197,13 @@ def main():
     for r in rows:
         bs.print_row(r)
     print_by_cut(cuts, plausible, earliest, prior_runs, runs)
+    if a.plot:
+        title = (f"{log.stem} keyframes in the site of the others; labels: the cut (s into the log), and the prior "
+                 f"starts converged where not all did\nno prior within 5 s: {rows[2]['converged_pct']:.1f} % of all, "
+                 f"{rows[3]['converged_pct']:.1f} % where the reference is plausible, "
+                 f"{rows[4]['converged_pct']:.1f} % there when the 3rd sweep comes within 5 s")
+        plot_starts(a.plot, title, gt, cuts, plausible, earliest, prior_runs, runs, [times[k] for k in flagged])
+        print(f"real_starts: picture {a.plot}")
     print(f"reference implausible (reference.py: over 5 m/s^2 at keyframes {flagged}) on {plausible.count(False)} of {len(cuts)} cuts: "
           + ", ".join(f"{c.stem}" for c, k in zip(cuts, plausible) if not k))
     print("targets: >= 99% of perturbed starts within 0.2 m; tracking median <= 0.05 m, p99 <= 0.15 m, "
