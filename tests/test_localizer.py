@@ -953,7 +953,7 @@ def test_real_starts_earliest_tracking_follows_the_verification(tmp_path):
     gt = np.array([[1e15 + t * 1e6, 10.0 * t, 0.0, 0.0, 0.0, 0] for t in np.arange(0, 6, 0.5)])
     late = {"converged": True, "tracking_s": 5.3, "max_m": 0.04}
     png = tmp_path / "starts.png"
-    real_starts.plot_starts(png, "test", gt, [tmp_path / "cut.lcm"], [True], [2.3], [late, late], [late], [1e9 + 1.0])
+    real_starts.plot_starts(png, "test", gt, [tmp_path / "cut.lcm"], [True], [2.3], 3, [late, late], [late], [1e9 + 1.0])
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10000
 
 def mulran_even_cut(mulran_reference, tmp_path, at, plausible=True):

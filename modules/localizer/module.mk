@@ -73,7 +73,8 @@ $(OBJ)/tests/c/test_registration.o: CPPFLAGS += -I$(TOP)/modules/localizer/core
 #    every LOCREAL_BASE_EVERY-th of those scans, same reduced points and starts.
 #    The whole localizer's starts (real_starts.py) run on two splits: the odd keyframes in
 #    the site of the even ones (starts-odd.json), and the even ones in the site of the odd
-#    ones (starts-even.json): one sequence, two trials, so a rule tuned to one split shows.
+#    ones (starts-even.json): one sequence, two trials, so a rule tuned to one split shows;
+#    starts-odd.png / starts-even.png draw where on the route they succeed and fail.
 # 2. The HDL-32E pair (tests/data, BSD-3): the first scan is the map, the second is
 #    localized from 100 starts within 3 m / 15 deg; reference = relative.txt.
 MULRAN := $(abspath $(TOP)/../shared/data/lidar_seq_mulran_riverside02_part1)

@@ -78,7 +78,7 @@ def print_by_cut(cuts, plausible, earliest, prior_runs, global_runs):
               f"{sum(r['converged'] for r in pr):>4} of {len(pr):<3} {e:>8}  {g or '-'}")
 
 
-def plot_starts(path, title, gt, cuts, plausible, earliest, prior_runs, global_runs, flagged_s):
+def plot_starts(path, title, gt, cuts, plausible, earliest, sweeps, prior_runs, global_runs, flagged_s):
     """Where the starts succeed and fail, on the route: each cut's first keyframe coloured
     by its no-prior start, hollow where the reference is implausible, with the prior starts
     that converged beside it; the keyframes reference.py flags as black crosses."""
@@ -92,7 +92,8 @@ def plot_starts(path, title, gt, cuts, plausible, earliest, prior_runs, global_r
     if flagged:
         ax.scatter([f[1] for f in flagged], [f[2] for f in flagged], marker="x", color="k", s=40, zorder=2,
                    label="keyframe the reference flags (over 5 m/s\u00b2)")
-    kinds = {"tracking within 5 s": "tab:green", "later: its 3rd sweep comes after 5 s": "tab:blue",
+    late = f"later: its sweep {sweeps} comes after 5 s"
+    kinds = {"tracking within 5 s": "tab:green", late: "tab:blue",
              "later than 5 s, or never": "tab:orange", "tracking far from the reference": "tab:red"}
     shown = set()
     for k, c in enumerate(cuts):
@@ -103,7 +104,7 @@ def plot_starts(path, title, gt, cuts, plausible, earliest, prior_runs, global_r
         elif all(r["converged"] and r["tracking_s"] is not None and r["tracking_s"] <= 5.0 for r in gl):
             kind = "tracking within 5 s"
         elif earliest[k] is None or earliest[k] > 5.0:
-            kind = "later: its 3rd sweep comes after 5 s"
+            kind = late
         else:
             kind = "later than 5 s, or never"
         col = kinds[kind]
@@ -201,8 +202,8 @@ def main():
         title = (f"{log.stem} keyframes in the site of the others; labels: the cut (s into the log), and the prior "
                  f"starts converged where not all did\nno prior within 5 s: {rows[2]['converged_pct']:.1f} % of all, "
                  f"{rows[3]['converged_pct']:.1f} % where the reference is plausible, "
-                 f"{rows[4]['converged_pct']:.1f} % there when the 3rd sweep comes within 5 s")
-        plot_starts(a.plot, title, gt, cuts, plausible, earliest, prior_runs, runs, [times[k] for k in flagged])
+                 f"{rows[4]['converged_pct']:.1f} % there when sweep {sweeps} comes within 5 s")
+        plot_starts(a.plot, title, gt, cuts, plausible, earliest, sweeps, prior_runs, runs, [times[k] for k in flagged])
         print(f"real_starts: picture {a.plot}")
     print(f"reference implausible (reference.py: over 5 m/s^2 at keyframes {flagged}) on {plausible.count(False)} of {len(cuts)} cuts: "
           + ", ".join(f"{c.stem}" for c, k in zip(cuts, plausible) if not k))
