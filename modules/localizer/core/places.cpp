@@ -23,7 +23,6 @@ struct column_t {
     bool low = false;         /* structure below car height here: no place */
 };
 
-
 } // namespace
 
 /* Columns are held in square blocks of kBlock x kBlock, only where the map has cells
