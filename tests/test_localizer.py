@@ -26,6 +26,8 @@ import bench_starts as bs  # noqa: E402
 import keyframe_site  # noqa: E402
 import locbench as lb  # noqa: E402
 import real_starts  # noqa: E402
+import reference  # noqa: E402
+import bench_gicp  # noqa: E402
 
 FAULT = ROOT / "tools" / "log-fault" / "log_fault.py"
 
@@ -885,7 +887,7 @@ def test_real_mulran_tracking_against_refined_reference(mulran_reference, tmp_pa
     err = {int(m[1]): float(m[2]) for m in re.finditer(r"^scan (\d+) tracking: err ([\d.]+) m", p.stdout, re.M)}
     assert len(err) == 83, p.stdout[-500:]
     implausible = mulran_reference["implausible"]
-    doubtful = {k for k in err if any(abs(k - b) <= 3 for b in implausible)}
+    doubtful = {k for k, ok in zip(err, reference.plausible(err, implausible)) if not ok}
     plausible = np.array([e for k, e in err.items() if k not in doubtful])
     assert len(plausible) >= 55, (len(plausible), implausible)     # 61 measured
     # bounds near three times the measured misses and errors
@@ -955,6 +957,35 @@ def test_real_starts_earliest_tracking_follows_the_verification(tmp_path):
     png = tmp_path / "starts.png"
     real_starts.plot_starts(png, "test", gt, [tmp_path / "cut.lcm"], [True], [2.3], 3, [late, late], [late], [1e9 + 1.0])
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10000
+
+def test_registration_bench_compares_accuracy_where_the_reference_is_plausible(tmp_path, capsys):
+    """bench-localizer-real's second table: the same runs' errors on the baseline scans away
+    from the keyframes reference.py flags (within 3 keyframes: the real-data test's rule).
+    Four scans, two starts each; scan 9 lies within 3 of flagged keyframe 10 and is left
+    out, and with it the one error that made ours worse than NDT."""
+    assert reference.plausible([1, 5, 9, 13, 17], [10, 20]) == [True, True, False, False, False]
+    report = tmp_path / "report.json"
+    report.write_text(json.dumps({"implausible_keyframes_refined": [10]}))
+
+    def run(errors):
+        return {"n": len(errors), "errors": errors, "yaw_errors": [0.1] * len(errors)}
+    ours = {"baseline_scan_index": [1, 5, 9, 33], "ndt_res": [2.0],
+            "ours_track_red": run([0.02, 0.03, 0.50, 0.04]), "ndt2_track": run([0.03, 0.03, 0.10, 0.05]),
+            "ours_off_red": run([0.02, 0.02, 0.03, 0.03, 0.9, 0.9, 0.04, 0.04]),
+            "ndt2_off": run([0.02, 3.0, 0.03, 0.03, 0.1, 0.1, 0.04, 0.04])}
+    table = {f"{m}_{s}": run(ours[f"ndt2_{s}"]["errors"]) for m in ("gicp", "vgicp") for s in ("track", "off")}
+    bench_gicp.plausible_accuracy(report, ours, table, (2.0, None), ["track", "off"],
+                                  {"track": "tracking", "off": "3m/15deg"}, 0.2)
+    out = ours["where_reference_plausible"]
+    assert (out["baseline_scans"], out["plausible_scans"]) == (4, 3)
+    assert out["ours_track_red"]["n"] == 3 and out["ours_track_red"]["t_median"] == pytest.approx(0.03)
+    assert out["ours_off_red"]["n"] == 6 and out["ours_off_red"]["converged"] == 1.0
+    assert out["ndt2_off"]["converged"] == pytest.approx(5 / 6)
+    text = capsys.readouterr().out
+    assert "3 of 4 baseline scans" in text and "WORSE" not in text
+    # a run without per-run errors (an older results file) gives no row, not a wrong one
+    assert bench_gicp.accuracy_on({"n": 4}, [True] * 4, 0.2) is None
+
 
 def mulran_even_cut(mulran_reference, tmp_path, at, plausible=True):
     """The even MulRan keyframes in the site of the odd ones (bench-localizer-real's second

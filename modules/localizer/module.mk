@@ -80,7 +80,7 @@ $(OBJ)/tests/c/test_registration.o: CPPFLAGS += -I$(TOP)/modules/localizer/core
 MULRAN := $(abspath $(TOP)/../shared/data/lidar_seq_mulran_riverside02_part1)
 LOCREG_REAL := $(BUILD)/bench/localizer-real
 LOCREAL_STARTS ?= 20
-LOCREAL_BASE_EVERY ?= 3
+LOCREAL_BASE_EVERY ?= 1
 LOCREAL_CUTS ?= 30
 LOCREAL_GUESSES ?= 90
 LOCREAL_GLOBAL ?= 30
@@ -119,7 +119,8 @@ bench-localizer-real: $(BIN)/bench-localizer $(BIN)/import-scans $(DEPS)
 	$(BIN)/bench-localizer --log $(LOCREG_REAL)/all.lcm --map $(LOCREG_REAL)/map.pcd --odd --every 2 \
 	    $(LOCREAL_BENCH) --starts $(LOCREAL_STARTS) --baseline-every $(LOCREAL_BASE_EVERY) --timing-runs 5 --seed 1 \
 	    --dump $(LOCREG_REAL)/baseline.bin --json $(LOCREG_REAL)/results.json && \
-	$(VPY) modules/localizer/bench/bench_gicp.py $(LOCREG_REAL)/baseline.bin $(LOCREG_REAL)/results.json && \
+	$(VPY) modules/localizer/bench/bench_gicp.py $(LOCREG_REAL)/baseline.bin $(LOCREG_REAL)/results.json \
+	    --reference-report $(LOCREG_REAL)/reference-report.json && \
 	for split in odd even; do \
 	  echo "== MulRan Riverside02, the whole localizer, LiDAR alone: the $$split scans replayed in the site of the others" && \
 	  $(VPY) modules/localizer/bench/keyframe_site.py --scans $(MULRAN)/Scans --poses $(LOCREG_REAL)/refined_poses.txt \

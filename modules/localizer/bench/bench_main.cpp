@@ -139,9 +139,17 @@ static void json_run(FILE *f, const char *name, const Run &r, bool last)
         return;
     }
     std::fprintf(f, "  \"%s\": {\"n\": %zu, \"ms_median\": %.4f, \"ms_p99\": %.4f, \"t_median\": %.5f, "
-                 "\"t_p99\": %.5f, \"yaw_p99\": %.5f, \"converged\": %.4f}%s\n", name, r.ms.size(),
+                 "\"t_p99\": %.5f, \"yaw_p99\": %.5f, \"converged\": %.4f,\n", name, r.ms.size(),
                  pct(r.ms, 50), pct(r.ms, 99), pct(r.terr, 50), pct(r.terr, 99), pct(r.yerr, 99),
-                 share_below(r.terr, g_converge), last ? "" : ",");
+                 share_below(r.terr, g_converge));
+    /* each run's errors, in scan order (a scan's starts together), for figures on a subset */
+    for (int which = 0; which < 2; which++) {
+        const std::vector<double> &v = which ? r.yerr : r.terr;
+        std::fprintf(f, "    \"%s\": [", which ? "yaw_errors" : "errors");
+        for (size_t i = 0; i < v.size(); i++) std::fprintf(f, "%s%.5f", i ? ", " : "", v[i]);
+        std::fprintf(f, "]%s\n", which ? "" : ",");
+    }
+    std::fprintf(f, "  }%s\n", last ? "" : ",");
 }
 
 /* What the log gives: the GROUND_TRUTH track and poses (for velocities), the LIDAR_SCAN
@@ -503,6 +511,12 @@ int main(int argc, char **argv)
                      "  \"starts_per_scan\": %ld, \"timing_runs\": %ld, \"converge_m\": %g, \"start\": \"%s\", \"ndt_res\": [",
                      scans.size(), nsub, base_every, global ? "true" : "false", nstarts, timing_runs, g_converge, start);
         for (size_t ri = 0; ri < ndt_res.size(); ri++) std::fprintf(f, "%s%g", ri ? ", " : "", ndt_res[ri]);
+        /* which log scans (LIDAR_SCAN k of the log) the runs are of: every benchmarked scan, the baselines' */
+        for (int which = 0; which < 2; which++) {
+            std::fprintf(f, "],\n  \"%s\": [", which ? "baseline_scan_index" : "scan_index");
+            size_t step = which ? (size_t)base_every : 1;
+            for (size_t k = 0; step > 0 && k < scans.size(); k += step) std::fprintf(f, "%s%d", k ? ", " : "", scans[k].index);
+        }
         std::fprintf(f, "],\n");
         json_run(f, "ours_track", ours_track, false);
         json_run(f, "ours_off", ours_off, false);

@@ -112,6 +112,13 @@ def kinematics(poses, stamps, limit=5.0):
     return [int(i) + 1 for i in np.nonzero(a > limit)[0]]
 
 
+def plausible(keyframes, flagged, reach=3):
+    """Per keyframe index: whether the reference is to be believed there, i.e. no keyframe
+    that kinematics() flags lies within `reach` keyframes of it (a flagged acceleration
+    comes from a pose or a time that is off, and bends the poses on both sides)."""
+    return [not any(abs(k - f) <= reach for f in flagged) for k in keyframes]
+
+
 def solve(poses, edges):
     """Robust least squares over the edges (i, j, Z = T_i^-1 T_j); pose 0 held."""
     n = len(poses)
