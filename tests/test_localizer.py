@@ -958,10 +958,11 @@ def test_real_starts_earliest_tracking_follows_the_verification(tmp_path):
     real_starts.plot_starts(png, "test", gt, [tmp_path / "cut.lcm"], [True], [2.3], 3, [late, late], [late], [1e9 + 1.0])
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10000
 
+
 def test_registration_bench_compares_accuracy_where_the_reference_is_plausible(tmp_path, capsys):
     """bench-localizer-real's second table: the same runs' errors on the baseline scans away
     from the keyframes reference.py flags (within 3 keyframes: the real-data test's rule).
-    Four scans, two starts each; scan 9 lies within 3 of flagged keyframe 10 and is left
+    Four scans, a tracking start and two far starts each; scan 9 lies within 3 of flagged keyframe 10 and is left
     out, and with it the one error that made ours worse than NDT."""
     assert reference.plausible([1, 5, 9, 13, 17], [10, 20]) == [True, True, False, False, False]
     report = tmp_path / "report.json"
