@@ -50,13 +50,17 @@ def errors(T, gt):
     return terr, float(yerr)
 
 
+def accuracy(te, ye, conv):
+    """Accuracy figures of translation (m) and yaw (deg) errors, one per run."""
+    return {"n": int(len(te)), "t_median": float(np.median(te)), "t_p99": float(np.percentile(te, 99)),
+            "yaw_p99": float(np.percentile(ye, 99)), "converged": float(np.mean(te < conv))}
+
+
 def summary(rows, conv):
     ms = np.array([r[0] for r in rows])
     te = np.array([r[1] for r in rows])
     ye = np.array([r[2] for r in rows])
-    return {"n": len(rows), "ms_median": float(np.median(ms)), "ms_p99": float(np.percentile(ms, 99)),
-            "t_median": float(np.median(te)), "t_p99": float(np.percentile(te, 99)),
-            "yaw_p99": float(np.percentile(ye, 99)), "converged": float(np.mean(te < conv)),
+    return {"ms_median": float(np.median(ms)), "ms_p99": float(np.percentile(ms, 99)), **accuracy(te, ye, conv),
             "errors": te.tolist(), "yaw_errors": ye.tolist()}
 
 
@@ -66,13 +70,14 @@ def accuracy_on(run, keep, conv):
     te, ye = run.get("errors"), run.get("yaw_errors")
     if not te or len(te) % len(keep):
         return None
-    per = len(te) // len(keep)
-    mask = np.repeat(np.asarray(keep), per)
-    te, ye = np.asarray(te)[mask], np.asarray(ye)[mask]
-    if not len(te):
-        return None
-    return {"n": int(len(te)), "t_median": float(np.median(te)), "t_p99": float(np.percentile(te, 99)),
-            "yaw_p99": float(np.percentile(ye, 99)), "converged": float(np.mean(te < conv))}
+    mask = np.repeat(np.asarray(keep), len(te) // len(keep))
+    return accuracy(np.asarray(te)[mask], np.asarray(ye)[mask], conv) if mask.any() else None
+
+
+def print_head(hdr):
+    """A markdown table's header row and rule."""
+    print(hdr)
+    print("|" + "|".join("-" * (len(c)) for c in hdr.split("|")[1:-1]) + "|")
 
 
 def better_or_equal(o, b):
@@ -90,9 +95,8 @@ def plausible_accuracy(report, ours, table, best, starts, label, conv):
     keep = reference.plausible(ours.get("baseline_scan_index") or [], flagged)
     print(f"\nwhere the reference is plausible ({sum(keep)} of {len(keep)} baseline scans: none within 3 keyframes "
           f"of one reference.py flags, {flagged}):")
-    hdr = f"| {'method':26} | {'start':9} | {'runs':>5} | {'err med':>8} | {'err p99':>8} | {'yaw p99':>7} | {'conv':>7} |"
-    print(hdr)
-    print("|" + "|".join("-" * (len(c)) for c in hdr.split("|")[1:-1]) + "|")
+    print_head(f"| {'method':26} | {'start':9} | {'runs':>5} | {'err med':>8} | {'err p99':>8} | {'yaw p99':>7} | "
+               f"{'conv':>7} |")
     out = {"baseline_scans": len(keep), "plausible_scans": int(sum(keep)), "flagged": flagged}
     for s in starts:
         rows = [("ours, reduced input", f"ours_{s}_red", ours.get(f"ours_{s}_red"))]
@@ -169,8 +173,7 @@ def main():
           f"conv = share of runs ending within {conv:g} m")
     hdr = f"| {'method':26} | {'start':9} | {'runs':>5} | {'ms med':>8} | {'ms p99':>8} | {'err med':>8} | " \
           f"{'err p99':>8} | {'yaw p99':>7} | {'conv':>7} |"
-    print(hdr)
-    print("|" + "|".join("-" * (len(c)) for c in hdr.split("|")[1:-1]) + "|")
+    print_head(hdr)
     table = {}
     for s in starts:
         rows = [("ours, raw scan in", ours[f"ours_{s}_sub"]), ("ours, reduced input", ours[f"ours_{s}_red"])]

@@ -143,12 +143,13 @@ static void json_run(FILE *f, const char *name, const Run &r, bool last)
                  pct(r.ms, 50), pct(r.ms, 99), pct(r.terr, 50), pct(r.terr, 99), pct(r.yerr, 99),
                  share_below(r.terr, g_converge));
     /* each run's errors, in scan order (a scan's starts together), for figures on a subset */
-    for (int which = 0; which < 2; which++) {
-        const std::vector<double> &v = which ? r.yerr : r.terr;
-        std::fprintf(f, "    \"%s\": [", which ? "yaw_errors" : "errors");
+    auto list = [f](const char *key, const std::vector<double> &v, const char *end) {
+        std::fprintf(f, "    \"%s\": [", key);
         for (size_t i = 0; i < v.size(); i++) std::fprintf(f, "%s%.5f", i ? ", " : "", v[i]);
-        std::fprintf(f, "]%s\n", which ? "" : ",");
-    }
+        std::fprintf(f, "]%s\n", end);
+    };
+    list("errors", r.terr, ",");
+    list("yaw_errors", r.yerr, "");
     std::fprintf(f, "  }%s\n", last ? "" : ",");
 }
 
@@ -512,11 +513,12 @@ int main(int argc, char **argv)
                      scans.size(), nsub, base_every, global ? "true" : "false", nstarts, timing_runs, g_converge, start);
         for (size_t ri = 0; ri < ndt_res.size(); ri++) std::fprintf(f, "%s%g", ri ? ", " : "", ndt_res[ri]);
         /* which log scans (LIDAR_SCAN k of the log) the runs are of: every benchmarked scan, the baselines' */
-        for (int which = 0; which < 2; which++) {
-            std::fprintf(f, "],\n  \"%s\": [", which ? "baseline_scan_index" : "scan_index");
-            size_t step = which ? (size_t)base_every : 1;
-            for (size_t k = 0; step > 0 && k < scans.size(); k += step) std::fprintf(f, "%s%d", k ? ", " : "", scans[k].index);
-        }
+        auto indices = [&](const char *key, long step) {
+            std::fprintf(f, "],\n  \"%s\": [", key);
+            for (size_t k = 0; step > 0 && k < scans.size(); k += (size_t)step) std::fprintf(f, "%s%d", k ? ", " : "", scans[k].index);
+        };
+        indices("scan_index", 1);
+        indices("baseline_scan_index", base_every);
         std::fprintf(f, "],\n");
         json_run(f, "ours_track", ours_track, false);
         json_run(f, "ours_off", ours_off, false);
