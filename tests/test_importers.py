@@ -423,6 +423,58 @@ def test_tum_poses_give_times(tmp_path):
     assert same_rotation(truth[1].orientation, [math.sqrt(0.5), 0, 0, math.sqrt(0.5)])
 
 
+def test_timed_poses_are_interpolated_at_the_scan_times(tmp_path):
+    """Ground truth at its own instants (an INS, MulRan's global_pose.csv: nanoseconds, a
+    3x4, commas): each scan takes the pose at its --times instant; scans before, after or
+    in a gap of over 1 s are left out and counted."""
+    make_bin_scans(tmp_path / "s", n=6)
+    t0 = 1566000000.0
+    pose_at = {0.0: 0, 0.1: 1, 0.2: 2, 0.3: 3, 2.0: 4, 3.5: 5}     # s after t0: yaw 10 deg/s, x 10 m/s
+    rows = []
+    for dt in pose_at:
+        R = rot_z(10.0 * dt)
+        M = np.hstack([R, [[10.0 * dt], [0.0], [1.5]]])
+        rows.append("%d," % round((t0 + dt) * 1e9) + ",".join("%.12f" % v for v in M.ravel()))
+    (tmp_path / "global_pose.csv").write_text("\n".join(rows) + "\n")
+    scan_dt = [-0.5, 0.05, 0.15, 0.25, 1.0, 4.0]
+    (tmp_path / "times.txt").write_text("".join("%.6f\n" % (t0 + dt) for dt in scan_dt))
+    out = tmp_path / "i.lcm"
+    p = run([BIN / "import-scans", "--scans", tmp_path / "s", "--poses", tmp_path / "global_pose.csv",
+             "--times", tmp_path / "times.txt", "--out", out])
+    assert "3 of 6 scans have no pose at their time" in p.stderr, p.stderr
+    assert "1 before its first, 1 after its last, 1 in gaps over 1.0 s" in p.stderr, p.stderr
+    scans, truth = scans_and_truth(out)
+    assert [s.npoints for s in scans] == [49, 52, 53]                 # scans 1 (51, a NaN and an inf dropped), 2, 3
+    assert [t.utime for t in truth] == [round((t0 + dt) * 1e6) for dt in (0.05, 0.15, 0.25)]
+    for dt, t in zip((0.05, 0.15, 0.25), truth):
+        assert np.allclose(t.position, [10.0 * dt, 0, 1.5], atol=1e-9)
+        assert np.allclose(matrix_from_quat(t.orientation), rot_z(10.0 * dt), atol=1e-9)
+    assert np.allclose(truth[1].velocity, [10.0, 0, 0], atol=1e-6)
+
+
+def test_poses_at_the_scan_instants_pair_by_index(tmp_path):
+    """TUM poses whose times are the --times ones: scan k with pose k, as without --times."""
+    make_bin_scans(tmp_path / "s", n=2)
+    (tmp_path / "tum.txt").write_text("1700000000.25 1 2 3 0 0 0 1\n1700000000.35 4 5 6 0 0 0 1\n")
+    (tmp_path / "times.txt").write_text("1700000000.2502\n1700000000.35\n")    # 0.2 ms apart: the same instant
+    run([BIN / "import-scans", "--scans", tmp_path / "s", "--poses", tmp_path / "tum.txt",
+         "--times", tmp_path / "times.txt", "--out", tmp_path / "t.lcm"])
+    _, truth = scans_and_truth(tmp_path / "t.lcm")
+    assert [t.utime for t in truth] == [1700000000250200, 1700000000350000]
+    assert np.allclose([t.position for t in truth], [[1, 2, 3], [4, 5, 6]])
+
+
+def test_timed_poses_that_miss_every_scan_are_an_error(tmp_path):
+    make_bin_scans(tmp_path / "s", n=2)
+    (tmp_path / "tum.txt").write_text("1700000000.25 1 2 3 0 0 0 1\n1700000000.35 4 5 6 0 0 0 1\n")
+    (tmp_path / "times.txt").write_text("1600000000.0\n1600000000.1\n")
+    p = run([BIN / "import-scans", "--scans", tmp_path / "s", "--poses", tmp_path / "tum.txt",
+             "--times", tmp_path / "times.txt", "--out", tmp_path / "t.lcm"], check=False)
+    assert p.returncode == 1
+    assert "no scan time lies within the poses of" in p.stderr and "1600000000.000000" in p.stderr, p.stderr
+    assert not (tmp_path / "t.lcm").exists()
+
+
 def test_count_mismatch_imports_the_minimum_with_a_warning(tmp_path):
     make_bin_scans(tmp_path / "s", n=3)
     (tmp_path / "p.txt").write_text("1 0 0 0 0 1 0 0 0 0 1 0\n" * 2)
@@ -439,6 +491,9 @@ def test_count_mismatch_imports_the_minimum_with_a_warning(tmp_path):
     ("1 0 0 0 0 1 0 0 0 0 1 0\n0 0 0 0 0 0 0 0\n", 2, "started as KITTI"),
     ("2 0 0 0 0 1 0 0 0 0 1 0\n", 1, "not a rotation"),
     ("1700000000 0 0 0 0 0 0 0\n", 1, "zero quaternion"),
+    ("17000000000000000 1 2 3 0 0 0 1\n", 1, "bad time"),                  # 17 digits: no unit
+    ("1700000000.2 1 2 3 0 0 0 1\n1700000000.1 1 2 3 0 0 0 1\n", 2, "not after"),
+    ("1566000000000000000,1,0,0,0,0,1,0,0,0,0\n", 1, "expected 12 numbers"),     # commas, 11 numbers
 ])
 def test_bad_pose_line_names_file_and_line(tmp_path, content, line, what):
     make_bin_scans(tmp_path / "s", n=2)

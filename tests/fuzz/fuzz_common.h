@@ -33,7 +33,7 @@ static inline const char *fuzz_input_file(const char *name, const char *suffix, 
 /* A heap copy of exactly n bytes (one byte when n is 0, never read); the caller frees it. */
 static inline uint8_t *fuzz_copy(const uint8_t *data, size_t n)
 {
-    uint8_t *p = malloc(n ? n : 1);
+    uint8_t *p = (uint8_t *)malloc(n ? n : 1);
     memcpy(p, data, n);
     return p;
 }

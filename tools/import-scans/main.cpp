@@ -4,7 +4,9 @@
 //
 // Scan k goes with pose k and time k; when the counts differ the minimum is
 // imported and a warning names both counts (MulRan keyframe folders, e.g., hold
-// one pose fewer than scans).
+// one pose fewer than scans). Poses with their own times (TUM, or a time and a
+// 3x4, as MulRan's global_pose.csv) at other instants than the scans' --times are
+// interpolated at each scan's time instead (ground truth from an INS at 100 Hz).
 #include <algorithm>
 #include <cctype>
 #include <cerrno>
@@ -29,6 +31,7 @@
 #include "pb_progress.h"
 #include "pb_scan.h"
 #include "pb_vehicle.h"
+#include "pose_files.h"
 #include "portobello_lidar_scan_t.h"
 #include "portobello_pose_t.h"
 
@@ -47,18 +50,24 @@ static void usage(FILE *f)
         "\n"
         "Imports the scans of DIR (KITTI .bin float32 x y z i, or .pcd with fields x y z and\n"
         "optionally intensity, t [ns] or time [s], ring) in file-name order. Scan k goes with\n"
-        "pose k (and time k). Writes per scan, at the same utime, GROUND_TRUTH (pose_t, source\n"
+        "pose k (and time k), unless the poses carry times of their own at other instants than\n"
+        "--times: then each scan takes the pose interpolated at its time (linear, slerp), and a\n"
+        "scan outside the poses' span or in a gap of more than 1 s between two of them is left\n"
+        "out (counted). Writes per scan, at the same utime, GROUND_TRUTH (pose_t, source\n"
         "GROUND_TRUTH: the LiDAR pose in map, or the base pose with --vehicle) and LIDAR_SCAN (point form; ring 255 and offset 0\n"
         "when the file has none). Non-finite points are dropped and counted.\n"
-        "  --poses FILE   KITTI (12 numbers a line: 3x4 row-major) or TUM (8: t x y z qx qy qz qw),\n"
-        "                 detected by the column count; '#' lines are comments\n"
+        "  --poses FILE   KITTI (12 numbers a line: 3x4 row-major), TUM (8: t x y z qx qy qz qw)\n"
+        "                 or timed KITTI (13: t and the 3x4, as MulRan's global_pose.csv),\n"
+        "                 detected by the column count; spaces or commas between numbers; '#'\n"
+        "                 lines are comments. A time is seconds (up to 12 integer digits and any\n"
+        "                 decimals), or an integer of 16 digits (microseconds) or 19 (nanoseconds)\n"
         "  --calib FILE   KITTI calib with a Tr: line (velo -> cam). KITTI poses are camera poses;\n"
         "                 the LiDAR pose is then Tr^-1 * P * Tr, i.e. the map frame is the LiDAR\n"
         "                 frame at the first pose (z up), not the camera's (y down)\n"
         "  --vehicle FILE the poses are still LiDAR poses, but GROUND_TRUTH then carries the base\n"
         "                 pose (map <- lidar composed with lidar <- base from the vehicle file)\n"
-        "  --times FILE   one UNIX time in seconds a line (e.g. MulRan times.txt); else the TUM\n"
-        "                 times; else 10 Hz from 2020-01-01T00:00:00Z\n"
+        "  --times FILE   one UNIX time a line (e.g. MulRan times.txt); else the poses' times;\n"
+        "                 else 10 Hz from 2020-01-01T00:00:00Z\n"
         "  --map-out MAP  also assemble the prior map (binary PCD, x y z intensity) with voxel\n"
         "                 --voxel metres (default 0.15; 0 keeps every point). A folder holding\n"
         "                 only this file as map.pcd is a loadable site\n"
@@ -68,185 +77,6 @@ static void usage(FILE *f)
         "                 module run with another vehicle file can tell and refuse the log\n"
         "If the numbers of scans, poses and times differ, the first min(...) are imported and a\n"
         "warning names the counts. Errors name FILE:LINE (text files) or FILE: byte N (.bin).\n");
-}
-
-// ---------------------------------------------------------------- text helpers
-
-// Seconds as a decimal string -> microseconds, exact up to 6 fractional
-// digits and rounded half up beyond (MulRan stamps have 7). Falls back to
-// strtod for exponents. Returns 0 or -1.
-static int parse_time_us(const std::string &s, int64_t *out)
-{
-    size_t i = 0;
-    bool neg = false;
-    if (i < s.size() && (s[i] == '-' || s[i] == '+')) neg = s[i++] == '-';
-    int64_t sec = 0, us = 0;
-    int nint = 0, nfrac = 0, round_digit = 0;
-    for (; i < s.size() && std::isdigit((unsigned char)s[i]); i++, nint++) {
-        if (nint >= 12) return -1;
-        sec = sec * 10 + (s[i] - '0');
-    }
-    if (i < s.size() && s[i] == '.') {
-        for (i++; i < s.size() && std::isdigit((unsigned char)s[i]); i++, nfrac++) {
-            if (nfrac < 6) us = us * 10 + (s[i] - '0');
-            else if (nfrac == 6) round_digit = s[i] - '0';
-        }
-    }
-    if (i != s.size() || nint + nfrac == 0) {
-        char *end;
-        double v = std::strtod(s.c_str(), &end);
-        if (*end || end == s.c_str() || !std::isfinite(v) || std::fabs(v) > 1e12) return -1;
-        *out = std::llround(v * 1e6);
-        return 0;
-    }
-    for (int k = nfrac; k < 6; k++) us *= 10;
-    int64_t v = sec * 1000000 + us + (round_digit >= 5 ? 1 : 0);
-    *out = neg ? -v : v;
-    return 0;
-}
-
-static void split_ws(const std::string &line, std::vector<std::string> &tok)
-{
-    tok.clear();
-    size_t i = 0;
-    while (i < line.size()) {
-        while (i < line.size() && std::isspace((unsigned char)line[i])) i++;
-        size_t j = i;
-        while (j < line.size() && !std::isspace((unsigned char)line[j])) j++;
-        if (j > i) tok.push_back(line.substr(i, j - i));
-        i = j;
-    }
-}
-
-static bool to_double(const std::string &s, double *v)
-{
-    char *end;
-    errno = 0;
-    *v = std::strtod(s.c_str(), &end);
-    return end != s.c_str() && *end == '\0' && errno != ERANGE && std::isfinite(*v);
-}
-
-// ---------------------------------------------------------------- poses
-
-// Calls fn(lineno, tokens, line) for each line of a text file with tokens (blank
-// lines skipped). fn returns 0 to go on, 1 to stop (done), -1 on error (err set).
-// Returns 0 at the end of the file or when fn stopped, -1 on an error.
-template <typename Fn>
-static int for_each_line(const char *path, pb_err_t *err, Fn fn)
-{
-    std::ifstream in(path);
-    if (!in) return pb_err_set(err, "%s: %s", path, std::strerror(errno));
-    std::string line;
-    std::vector<std::string> tok;
-    long lineno = 0;
-    while (std::getline(in, line)) {
-        lineno++;
-        split_ws(line, tok);
-        if (tok.empty()) continue;
-        int r = fn(lineno, tok, line);
-        if (r < 0) return -1;
-        if (r > 0) return 0;
-    }
-    if (in.bad()) return pb_err_set(err, "%s: read error", path);
-    return 0;
-}
-
-static int rotation_from_rows(const double *m12, Eigen::Isometry3d *T)
-{
-    Eigen::Matrix3d R;
-    R << m12[0], m12[1], m12[2], m12[4], m12[5], m12[6], m12[8], m12[9], m12[10];
-    if ((R.transpose() * R - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff() > 1e-2 || R.determinant() < 0)
-        return -1;
-    Eigen::Quaterniond q(R);    // KITTI rows carry ~6 digits: re-orthonormalise through the quaternion
-    q.normalize();
-    T->setIdentity();
-    T->linear() = q.toRotationMatrix();
-    T->translation() = Eigen::Vector3d(m12[3], m12[7], m12[11]);
-    return 0;
-}
-
-enum PoseFormat { FMT_NONE, FMT_KITTI, FMT_TUM };
-
-// Reads a KITTI or TUM file into poses (and TUM times). Returns 0 or -1.
-static int read_poses(const char *path, std::vector<Eigen::Isometry3d> &poses, std::vector<int64_t> &times,
-                      PoseFormat *fmt, pb_err_t *err)
-{
-    *fmt = FMT_NONE;
-    int rc = for_each_line(path, err, [&](long lineno, const std::vector<std::string> &tok, const std::string &) {
-        if (tok[0][0] == '#') return 0;
-        PoseFormat f = tok.size() == 12 ? FMT_KITTI : tok.size() == 8 ? FMT_TUM : FMT_NONE;
-        if (f == FMT_NONE)
-            return pb_err_set(err, "%s:%ld: expected 12 numbers (KITTI 3x4) or 8 (TUM t x y z qx qy qz qw), got %zu",
-                              path, lineno, tok.size());
-        if (*fmt == FMT_NONE) *fmt = f;
-        if (f != *fmt)
-            return pb_err_set(err, "%s:%ld: %zu numbers, but the file started as %s", path, lineno, tok.size(),
-                              *fmt == FMT_KITTI ? "KITTI (12)" : "TUM (8)");
-        double v[12];
-        for (size_t k = 0; k < tok.size(); k++)
-            if (!to_double(tok[k], &v[k]))
-                return pb_err_set(err, "%s:%ld: column %zu: not a finite number: '%s'", path, lineno, k + 1,
-                                  tok[k].c_str());
-        Eigen::Isometry3d T;
-        if (f == FMT_KITTI) {
-            if (rotation_from_rows(v, &T) != 0)
-                return pb_err_set(err, "%s:%ld: the 3x3 part is not a rotation matrix", path, lineno);
-        } else {
-            int64_t us;
-            if (parse_time_us(tok[0], &us) != 0)
-                return pb_err_set(err, "%s:%ld: column 1: bad time '%s'", path, lineno, tok[0].c_str());
-            Eigen::Quaterniond q(v[7], v[4], v[5], v[6]);
-            if (q.norm() < 1e-6) return pb_err_set(err, "%s:%ld: zero quaternion", path, lineno);
-            q.normalize();
-            T.setIdentity();
-            T.linear() = q.toRotationMatrix();
-            T.translation() = Eigen::Vector3d(v[1], v[2], v[3]);
-            times.push_back(us);
-        }
-        poses.push_back(T);
-        return 0;
-    });
-    if (rc != 0) return -1;
-    if (poses.empty()) return pb_err_set(err, "%s: no poses", path);
-    return 0;
-}
-
-static int read_calib_tr(const char *path, Eigen::Isometry3d *Tr, pb_err_t *err)
-{
-    bool found = false;
-    int rc = for_each_line(path, err, [&](long lineno, const std::vector<std::string> &tok, const std::string &) {
-        if (tok[0] != "Tr:" && tok[0] != "Tr_velo_to_cam:" && tok[0] != "Tr_velo_cam:") return 0;
-        if (tok.size() != 13)
-            return pb_err_set(err, "%s:%ld: %s expects 12 numbers, got %zu", path, lineno, tok[0].c_str(),
-                              tok.size() - 1);
-        double v[12];
-        for (int k = 0; k < 12; k++)
-            if (!to_double(tok[k + 1], &v[k]))
-                return pb_err_set(err, "%s:%ld: column %d: not a finite number: '%s'", path, lineno, k + 2,
-                                  tok[k + 1].c_str());
-        if (rotation_from_rows(v, Tr) != 0)
-            return pb_err_set(err, "%s:%ld: the 3x3 part of Tr is not a rotation matrix", path, lineno);
-        found = true;
-        return 1;
-    });
-    if (rc != 0) return -1;
-    if (!found) return pb_err_set(err, "%s: no 'Tr:' line (velodyne -> camera transform)", path);
-    return 0;
-}
-
-static int read_times(const char *path, std::vector<int64_t> &times, pb_err_t *err)
-{
-    int rc = for_each_line(path, err, [&](long lineno, const std::vector<std::string> &tok, const std::string &line) {
-        if (tok[0][0] == '#') return 0;
-        int64_t us;
-        if (tok.size() != 1 || parse_time_us(tok[0], &us) != 0)
-            return pb_err_set(err, "%s:%ld: expected one time in seconds, got '%s'", path, lineno, line.c_str());
-        times.push_back(us);
-        return 0;
-    });
-    if (rc != 0) return -1;
-    if (times.empty()) return pb_err_set(err, "%s: no times", path);
-    return 0;
 }
 
 // ---------------------------------------------------------------- scans
@@ -360,6 +190,74 @@ static std::string lower_ext(const fs::path &p)
 
 // ---------------------------------------------------------------- main
 
+// ---------------------------------------------------------------- poses at the scans' times
+
+// A gap between two poses longer than this holds no ground truth for a scan inside it.
+static const int64_t MAX_POSE_GAP_US = 1000000;
+
+// Whether the poses' times are the scans' (the same count, each within half a millisecond).
+static bool same_instants(const std::vector<int64_t> &pose_times, const std::vector<int64_t> &scan_times)
+{
+    if (pose_times.size() != scan_times.size()) return false;
+    for (size_t k = 0; k < pose_times.size(); k++)
+        if (std::llabs(pose_times[k] - scan_times[k]) > 500) return false;
+    return true;
+}
+
+// Replaces *poses (timed, increasing) by one pose per scan: interpolated at the scan's
+// time; scans with no pose there (before the first, after the last, or in a gap of
+// more than MAX_POSE_GAP_US) are dropped from *files and *times, and counted in a
+// warning. Returns 0, or -1 after an error message when no scan is left.
+static int pair_by_time(const char *poses_path, std::vector<fs::path> *files, std::vector<int64_t> *times,
+                        std::vector<Eigen::Isometry3d> *poses, const std::vector<int64_t> &pose_times)
+{
+    pb_pose_track_t *track = pb_pose_track_create();
+    for (size_t k = 0; k < poses->size(); k++) {
+        Eigen::Quaterniond q((*poses)[k].linear());
+        const Eigen::Vector3d &t = (*poses)[k].translation();
+        pb_transform_t x = {{t.x(), t.y(), t.z()}, {q.w(), q.x(), q.y(), q.z()}};
+        pb_pose_track_add(track, pose_times[k], &x);
+    }
+    size_t n = std::min(files->size(), times->size());
+    if (files->size() != times->size())
+        std::fprintf(stderr, "import-scans: warning: %zu scans but %zu times: pairing the first %zu with the poses\n",
+                     files->size(), times->size(), n);
+    std::vector<fs::path> kept_files;
+    std::vector<int64_t> kept_times;
+    std::vector<Eigen::Isometry3d> kept_poses;
+    size_t before = 0, after = 0, gap = 0;
+    for (size_t k = 0; k < n; k++) {
+        int64_t t = (*times)[k];
+        auto hi = std::lower_bound(pose_times.begin(), pose_times.end(), t);
+        pb_transform_t x;
+        if (hi == pose_times.begin() && (hi == pose_times.end() || *hi != t)) { before++; continue; }
+        if (hi == pose_times.end()) { after++; continue; }
+        if (*hi != t && *hi - *(hi - 1) > MAX_POSE_GAP_US) { gap++; continue; }
+        if (!pb_pose_track_at(track, t, &x)) { after++; continue; }
+        Eigen::Isometry3d P = Eigen::Isometry3d::Identity();
+        P.linear() = Eigen::Quaterniond(x.q[0], x.q[1], x.q[2], x.q[3]).normalized().toRotationMatrix();
+        P.translation() = Eigen::Vector3d(x.t[0], x.t[1], x.t[2]);
+        kept_files.push_back((*files)[k]);
+        kept_times.push_back(t);
+        kept_poses.push_back(P);
+    }
+    pb_pose_track_destroy(track);
+    if (before + after + gap)
+        std::fprintf(stderr, "import-scans: warning: %zu of %zu scans have no pose at their time in %s (%zu before its "
+                     "first, %zu after its last, %zu in gaps over %.1f s): left out\n", before + after + gap, n,
+                     poses_path, before, after, gap, MAX_POSE_GAP_US * 1e-6);
+    if (kept_files.empty()) {
+        std::fprintf(stderr, "import-scans: no scan time lies within the poses of %s (scans %.6f-%.6f s, poses "
+                     "%.6f-%.6f s): are both UNIX times?\n", poses_path, n ? (*times)[0] * 1e-6 : 0.0,
+                     n ? (*times)[n - 1] * 1e-6 : 0.0, pose_times.front() * 1e-6, pose_times.back() * 1e-6);
+        return -1;
+    }
+    files->swap(kept_files);
+    times->swap(kept_times);
+    poses->swap(kept_poses);
+    return 0;
+}
+
 int main(int argc, char **argv)
 {
     const char *scans_dir = nullptr, *poses_path = nullptr, *calib_path = nullptr, *times_path = nullptr;
@@ -397,9 +295,9 @@ int main(int argc, char **argv)
     }
 
     std::vector<Eigen::Isometry3d> poses;
-    std::vector<int64_t> tum_times, times;
+    std::vector<int64_t> pose_times, times;
     PoseFormat fmt = FMT_NONE;
-    if (read_poses(poses_path, poses, tum_times, &fmt, &err) != 0) {
+    if (read_poses(poses_path, poses, pose_times, &fmt, &err) != 0) {
         std::fprintf(stderr, "import-scans: %s\n", err.msg);
         return 1;
     }
@@ -419,13 +317,17 @@ int main(int argc, char **argv)
             return 1;
         }
         time_src = times_path;
-    } else if (fmt == FMT_TUM) {
-        times = tum_times;
-        time_src = "the TUM poses";
+    } else if (!pose_times.empty()) {
+        times = pose_times;
+        time_src = "the poses";
     } else {
         time_src = "10 Hz from 2020-01-01T00:00:00Z";
     }
 
+    // Poses at other instants than the scans: each scan takes the pose at its own time.
+    if (times_path && !pose_times.empty() && !same_instants(pose_times, times) &&
+        pair_by_time(poses_path, &files, &times, &poses, pose_times) != 0)
+        return 1;
     size_t n = std::min(files.size(), poses.size());
     if (!times.empty()) n = std::min(n, times.size());
     if (files.size() != poses.size())
@@ -601,7 +503,7 @@ int main(int argc, char **argv)
     if (status == 0 && !quiet) {
         double dt = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
         std::fprintf(stderr, "import-scans: %zu scans (%s poses, times from %s), %ld points -> %s", pick.size(),
-                     fmt == FMT_KITTI ? "KITTI" : "TUM", time_src, total_points, out_path);
+                     format_name(fmt), time_src, total_points, out_path);
         if (map)
             std::fprintf(stderr, "; map %lld points (voxel %.3f m) -> %s", (long long)pb_map_builder_size(map), voxel,
                          map_path);
