@@ -452,6 +452,31 @@ def test_timed_poses_are_interpolated_at_the_scan_times(tmp_path):
     assert np.allclose(truth[1].velocity, [10.0, 0, 0], atol=1e-6)
 
 
+def test_scan_names_as_times(tmp_path):
+    """MulRan's Ouster folder: each .bin named by its time in nanoseconds; poses (TUM)
+    at 100 Hz are interpolated at those times."""
+    d = tmp_path / "Ouster"
+    d.mkdir()
+    t0_ns = 1566000000123456789
+    for k, dt_ns in enumerate((0, 100_000_000, 200_000_400)):
+        write_bin(d / f"{t0_ns + dt_ns}.bin", np.full((10 + k, 4), float(k)))
+    t0 = t0_ns * 1e-9
+    (tmp_path / "tum.txt").write_text("".join("%.6f %.3f 0 0 0 0 0 1\n" % (t0 - 0.005 + 0.01 * i, 0.1 * i)
+                                              for i in range(30)))    # 10 m/s along x
+    out = tmp_path / "n.lcm"
+    p = run([BIN / "import-scans", "--scans", d, "--poses", tmp_path / "tum.txt", "--times", "names", "--out", out])
+    assert "times from the scans' names" in p.stderr, p.stderr
+    scans, truth = scans_and_truth(out)
+    assert [s.utime for s in scans] == [1566000000123457, 1566000000223457, 1566000000323457]
+    assert [s.npoints for s in scans] == [10, 11, 12]
+    for t in truth:
+        assert abs(t.position[0] - 10.0 * ((t.utime * 1e-6 - t0) + 0.005)) < 2e-5   # microsecond stamps: 1e-5 m
+    (d / "not_a_time.bin").write_bytes(b"")
+    p = run([BIN / "import-scans", "--scans", d, "--poses", tmp_path / "tum.txt", "--times", "names", "--out", out],
+            check=False)
+    assert p.returncode == 1 and "not_a_time.bin: the name is not a time" in p.stderr, p.stderr
+
+
 def test_poses_at_the_scan_instants_pair_by_index(tmp_path):
     """TUM poses whose times are the --times ones: scan k with pose k, as without --times."""
     make_bin_scans(tmp_path / "s", n=2)

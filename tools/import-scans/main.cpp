@@ -66,8 +66,9 @@ static void usage(FILE *f)
         "                 frame at the first pose (z up), not the camera's (y down)\n"
         "  --vehicle FILE the poses are still LiDAR poses, but GROUND_TRUTH then carries the base\n"
         "                 pose (map <- lidar composed with lidar <- base from the vehicle file)\n"
-        "  --times FILE   one UNIX time a line (e.g. MulRan times.txt); else the poses' times;\n"
-        "                 else 10 Hz from 2020-01-01T00:00:00Z\n"
+        "  --times FILE   one UNIX time a line (e.g. MulRan times.txt); 'names': each scan's file\n"
+        "                 name is its time (MulRan's Ouster/*.bin, in nanoseconds); else the poses'\n"
+        "                 times; else 10 Hz from 2020-01-01T00:00:00Z\n"
         "  --map-out MAP  also assemble the prior map (binary PCD, x y z intensity) with voxel\n"
         "                 --voxel metres (default 0.15; 0 keeps every point). A folder holding\n"
         "                 only this file as map.pcd is a loadable site\n"
@@ -311,7 +312,18 @@ int main(int argc, char **argv)
         for (auto &P : poses) P = Tri * P * Tr;
     }
     const char *time_src;
-    if (times_path) {
+    if (times_path && std::strcmp(times_path, "names") == 0) {
+        for (const fs::path &f : files) {
+            int64_t us;
+            if (parse_time_us(f.stem().string(), &us) != 0) {
+                std::fprintf(stderr, "import-scans: --times names: %s: the name is not a time (seconds, or an integer "
+                             "of 16 digits for microseconds or 19 for nanoseconds)\n", f.c_str());
+                return 1;
+            }
+            times.push_back(us);
+        }
+        time_src = "the scans' names";
+    } else if (times_path) {
         if (read_times(times_path, times, &err) != 0) {
             std::fprintf(stderr, "import-scans: %s\n", err.msg);
             return 1;

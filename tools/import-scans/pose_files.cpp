@@ -16,7 +16,7 @@
 // digits and rounded half up beyond (MulRan stamps have 7). An integer of 16
 // digits is microseconds, of 19 nanoseconds (rounded half up; MulRan's CSV
 // files and scan names). Falls back to strtod for exponents. Returns 0 or -1.
-static int parse_time_us(const std::string &s, int64_t *out)
+int parse_time_us(const std::string &s, int64_t *out)
 {
     size_t i = 0;
     bool neg = false;

@@ -8,6 +8,7 @@
 #define IMPORT_SCANS_POSE_FILES_H
 
 #include <stdint.h>
+#include <string>
 #include <vector>
 #include <Eigen/Geometry>
 #include "pb_err.h"
@@ -23,6 +24,9 @@ int read_poses(const char *path, std::vector<Eigen::Isometry3d> &poses, std::vec
 
 /* The calib's Tr (velodyne -> camera). */
 int read_calib_tr(const char *path, Eigen::Isometry3d *Tr, pb_err_t *err);
+
+/* A time as the files hold it (see above) -> microseconds. Returns 0 or -1. */
+int parse_time_us(const std::string &s, int64_t *out);
 
 /* One time a line, microseconds, appended. */
 int read_times(const char *path, std::vector<int64_t> &times, pb_err_t *err);
