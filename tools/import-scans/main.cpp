@@ -206,20 +206,32 @@ static bool same_instants(const std::vector<int64_t> &pose_times, const std::vec
     return true;
 }
 
-// Replaces *poses (timed, increasing) by one pose per scan: interpolated at the scan's
-// time; scans with no pose there (before the first, after the last, or in a gap of
-// more than MAX_POSE_GAP_US) are dropped from *files and *times, and counted in a
-// warning. Returns 0, or -1 after an error message when no scan is left.
-static int pair_by_time(const char *poses_path, std::vector<fs::path> *files, std::vector<int64_t> *times,
-                        std::vector<Eigen::Isometry3d> *poses, const std::vector<int64_t> &pose_times)
+static pb_transform_t transform_of(const Eigen::Isometry3d &T)
+{
+    Eigen::Quaterniond q(T.linear());
+    return {{T.translation().x(), T.translation().y(), T.translation().z()}, {q.w(), q.x(), q.y(), q.z()}};
+}
+
+// The poses at their times, for pb_pose_track_at; the caller destroys it.
+static pb_pose_track_t *track_of(const std::vector<Eigen::Isometry3d> &poses, const std::vector<int64_t> &times)
 {
     pb_pose_track_t *track = pb_pose_track_create();
-    for (size_t k = 0; k < poses->size(); k++) {
-        Eigen::Quaterniond q((*poses)[k].linear());
-        const Eigen::Vector3d &t = (*poses)[k].translation();
-        pb_transform_t x = {{t.x(), t.y(), t.z()}, {q.w(), q.x(), q.y(), q.z()}};
-        pb_pose_track_add(track, pose_times[k], &x);
+    for (size_t k = 0; k < poses.size() && k < times.size(); k++) {
+        pb_transform_t x = transform_of(poses[k]);
+        pb_pose_track_add(track, times[k], &x);
     }
+    return track;
+}
+
+// Replaces *poses (timed, increasing; track holds them) by one pose per scan:
+// interpolated at the scan's time; scans with no pose there (before the first, after
+// the last, or in a gap of more than MAX_POSE_GAP_US) are dropped from *files and
+// *times, and counted in a warning. Returns 0, or -1 after an error message when no
+// scan is left.
+static int pair_by_time(const char *poses_path, const pb_pose_track_t *track, std::vector<fs::path> *files,
+                        std::vector<int64_t> *times, std::vector<Eigen::Isometry3d> *poses,
+                        const std::vector<int64_t> &pose_times)
+{
     size_t n = std::min(files->size(), times->size());
     if (files->size() != times->size())
         std::fprintf(stderr, "import-scans: warning: %zu scans but %zu times: pairing the first %zu with the poses\n",
@@ -243,7 +255,6 @@ static int pair_by_time(const char *poses_path, std::vector<fs::path> *files, st
         kept_times.push_back(t);
         kept_poses.push_back(P);
     }
-    pb_pose_track_destroy(track);
     if (before + after + gap)
         std::fprintf(stderr, "import-scans: warning: %zu of %zu scans have no pose at their time in %s (%zu before its "
                      "first, %zu after its last, %zu in gaps over %.1f s): left out\n", before + after + gap, n,
@@ -337,10 +348,16 @@ int main(int argc, char **argv)
         time_src = "10 Hz from 2020-01-01T00:00:00Z";
     }
 
-    // Poses at other instants than the scans: each scan takes the pose at its own time.
-    if (times_path && !pose_times.empty() && !same_instants(pose_times, times) &&
-        pair_by_time(poses_path, &files, &times, &poses, pose_times) != 0)
-        return 1;
+    // Poses at other instants than the scans: each scan takes the pose at its own time
+    // (and the map's points theirs, from the same track).
+    pb_pose_track_t *track = nullptr;
+    if (times_path && !pose_times.empty() && !same_instants(pose_times, times)) {
+        track = track_of(poses, pose_times);
+        if (pair_by_time(poses_path, track, &files, &times, &poses, pose_times) != 0) {
+            pb_pose_track_destroy(track);
+            return 1;
+        }
+    }
     size_t n = std::min(files.size(), poses.size());
     if (!times.empty()) n = std::min(n, times.size());
     if (files.size() != poses.size())
@@ -386,19 +403,17 @@ int main(int argc, char **argv)
         }
 
     pb_map_builder_t *map = nullptr;
-    pb_pose_track_t *track = nullptr;
     if (map_path) {
         map = pb_map_builder_create(voxel, &err);
         if (!map) {
             std::fprintf(stderr, "import-scans: %s\n", err.msg);
             return 1;
         }
-        track = pb_pose_track_create();
-        for (size_t k : pick) {
-            Eigen::Quaterniond q(poses[k].linear());
-            pb_transform_t x = {{poses[k].translation().x(), poses[k].translation().y(), poses[k].translation().z()},
-                                {q.w(), q.x(), q.y(), q.z()}};
-            pb_pose_track_add(track, times[k], &x);
+        if (!track) {   /* the imported poses at the scans' times */
+            std::vector<Eigen::Isometry3d> at;
+            std::vector<int64_t> t;
+            for (size_t k : pick) { at.push_back(poses[k]); t.push_back(times[k]); }
+            track = track_of(at, t);
         }
     }
     pb_log_t *log = pb_log_open_write(out_path, &err);
@@ -484,9 +499,7 @@ int main(int argc, char **argv)
                                s.ring.data()};
             // the points are the LiDAR's: placed with the LiDAR pose (P is the base's with --vehicle)
             const Eigen::Isometry3d &L = poses[k];
-            Eigen::Quaterniond ql(L.linear());
-            pb_transform_t x = {{L.translation().x(), L.translation().y(), L.translation().z()},
-                                {ql.w(), ql.x(), ql.y(), ql.z()}};
+            pb_transform_t x = transform_of(L);
             int r = s.has_time ? pb_map_builder_add_timed(map, &pts, utime, track, nullptr, &err) : 0;
             if (r == 0) {   // no per-point time, or times beyond the poses: the scan's own pose
                 if (s.has_time) timed_fallback++;
