@@ -3,6 +3,11 @@
 Tests marked `real` read ../shared/data (captures whose licence keeps them out of
 the project). They run only with `make test-real` (pytest -m real) or PB_REAL=1,
 and skip with a message when the data is absent.
+
+Tests marked `live` run processes in real time (a live LCM bus, a page talking to it):
+`make test` runs every other test first, on every core (pytest-xdist, one module per
+worker), then these alone, so their timing does not depend on other work. A new test
+that runs anything live must carry the mark.
 """
 import os
 import pathlib
@@ -23,6 +28,8 @@ sys.path.insert(0, str(BUILD / "python"))
 
 def pytest_configure(config):
     config.addinivalue_line("markers", "real: needs ../shared/data (run with make test-real)")
+    config.addinivalue_line("markers", "live: runs in real time (a live bus, a browser page that "
+                            "talks to it): `make test` runs these alone, after the others")
 
 
 def pytest_collection_modifyitems(config, items):

@@ -289,6 +289,7 @@ def test_bad_dbc_and_options(tmp_path):
     assert p.returncode == 1 and "missing.log" in p.stderr
 
 
+@pytest.mark.live
 def test_live_bus_from_stdin():
     """`candump -L can0 | can --candump - --realtime` in miniature: the sample on stdin,
     published on the live bus (real UDP multicast, private port, ttl=0) at its own pace

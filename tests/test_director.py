@@ -427,6 +427,7 @@ def test_same_scenario_same_event_sequence_in_the_lab_and_on_the_road(tmp, road,
 URL = "udpm://239.255.76.67:7771?ttl=0&recv_buf_size=8388608"
 
 
+@pytest.mark.live
 def test_live_bus_poses_in_agents_and_events_out():
     lc = lcm.LCM(URL)
     got = {"AGENTS": [], "SCENARIO_EVENT": [], "STATUS": []}
@@ -480,6 +481,7 @@ def test_help_and_bad_options():
     assert p.returncode == 2
 
 
+@pytest.mark.live
 def test_live_closed_loop_with_the_lab_twin_yields_to_the_crossing_pedestrian():
     """director and lab_vehicle live on one bus: the twin waits at sl01 until the
     synchronised pedestrian has crossed (AGENTS), so no virtual collision happens."""

@@ -285,6 +285,7 @@ def test_command_line(tmp_path):
     assert p.returncode == 2
 
 
+@pytest.mark.live
 def test_live_serial_pty_to_bus():
     """A real serial device path (pseudo-terminal): Python writes a capture into the
     master side in small chunks; gnss reads the raw tty and publishes on the bus."""

@@ -405,6 +405,7 @@ class Listener:
         return dict(zip(s.counter_names, s.counter_values))
 
 
+@pytest.mark.live
 def test_live_waits_for_proceed_and_holds_for_a_pedestrian():
     lis = Listener()
     proc = subprocess.Popen([str(LV), "--lcm-url", URL, "--start-s", "55", "--depart-delay", "0.2",
@@ -471,6 +472,7 @@ def test_live_waits_for_proceed_and_holds_for_a_pedestrian():
     assert proc.returncode == 0, err
 
 
+@pytest.mark.live
 def test_live_keyboard_enter_is_a_proceed_press():
     lis = Listener()
     inputs = []

@@ -343,6 +343,7 @@ def wait_heartbeat(got):
     assert got["STATUS"], "no STATUS heartbeat"
 
 
+@pytest.mark.live
 def test_live_bus(drive, tmp_path):
     """Live: the first 3 s of the drive published on a private bus; POSE, POSE_PREDICTED and
     STATUS come back, and SIGINT stops the localizer cleanly. Counts are loose (UDP)."""
@@ -380,6 +381,7 @@ def test_live_bus(drive, tmp_path):
 STALE_URL = "udpm://239.255.76.67:7761?ttl=0&recv_buf_size=8388608"
 
 
+@pytest.mark.live
 def test_live_search_skips_sweeps_that_went_stale_in_the_queue(drive, tmp_path):
     """Live with no prior, LiDAR alone: a global search can cost hundreds of ms a sweep (a
     second on a loaded machine), and sweeps queue meanwhile. Searching each queued sweep in
@@ -680,13 +682,18 @@ def test_reversing_keeps_tracking(reverse_drive, tmp_path, mode):
     assert np.percentile(et, 99) < bound and np.percentile(ey, 99) < 0.011, (np.percentile(et, 99), np.percentile(ey, 99))
 
 
-def street_drive(d, depth, seed, duration):
+def street_drive(d, depth, seed, duration, street=None):
     """The street of trees (tree_street.py) with canopies porous to depth (0: solid) in d:
     the map from the mapping lap at the true poses (as make builds the default map) in
-    site_full, a drive (seed, duration s), and site with the map cropped to the drive."""
+    site_full, a drive (seed, duration s), and site with the map cropped to the drive.
+    street: a folder where street_map already wrote this depth's site/ and full.pcd."""
     import tree_street
     site, full = d / "site", d / "site_full"
-    tree_street.street_map(site, d / "full.pcd", depth, d / "mapping")
+    if street is None:
+        tree_street.street_map(site, d / "full.pcd", depth, d / "mapping")
+    else:
+        shutil.copytree(street / "site", site)
+        (d / "full.pcd").symlink_to(street / "full.pcd")
     run([BIN / "simdrive", "--seed", str(seed), "--duration", str(duration), "--site", site, "--foliage-depth",
          str(depth), "--quiet", "--out", d])
     gt = lb.read_poses(d / "drive.lcm", "GROUND_TRUTH")
@@ -725,10 +732,20 @@ def test_parked_cars_that_came_after_the_map_do_not_lose_a_right_pose(tree_stree
 
 
 @pytest.fixture(scope="module")
-def porous_street(tmp_path_factory):
+def porous_map(tmp_path_factory):
     """The street of trees with porous canopies (a beam stops at a random depth inside a
-    canopy, anew every sweep, as in real foliage); a 31 s drive (seed 8)."""
-    return street_drive(tmp_path_factory.mktemp("porous"), 0.7, 8, 31)
+    canopy, anew every sweep, as in real foliage): its site files and whole map, made once
+    for the two drives below."""
+    import tree_street
+    d = tmp_path_factory.mktemp("porous_map")
+    tree_street.street_map(d / "site", d / "full.pcd", 0.7, d / "mapping")
+    return d
+
+
+@pytest.fixture(scope="module")
+def porous_street(tmp_path_factory, porous_map):
+    """The porous street; a 31 s drive (seed 8)."""
+    return street_drive(tmp_path_factory.mktemp("porous"), 0.7, 8, 31, porous_map)
 
 
 @pytest.mark.parametrize("seed,at,fused", [(7, 21.5, False), (6, 24.0, True)])
@@ -785,9 +802,9 @@ def test_moving_lidar_only_start_settles_on_a_street_of_trees(porous_street, tmp
 
 
 @pytest.fixture(scope="module")
-def porous_street_seed5(tmp_path_factory):
+def porous_street_seed5(tmp_path_factory, porous_map):
     """The porous street, bench-localizer-trees' drive (seed 5), its first 14 s."""
-    return street_drive(tmp_path_factory.mktemp("porous5"), 0.7, 5, 14)
+    return street_drive(tmp_path_factory.mktemp("porous5"), 0.7, 5, 14, porous_map)
 
 
 @pytest.mark.parametrize("offset", [(0.12, -0.584, 0.793, -5.069), (-1.918, -1.298, -0.465, -9.918)])

@@ -615,6 +615,7 @@ def test_low_data_rate_profile(tmp_path):
 
 # ---------------------------------------------------------------- live UDP on loopback
 
+@pytest.mark.live
 def test_live_udp_replay_on_loopback(tmp_path):
     import lcm
     lidar_port, imu_port = 7801, 7802

@@ -140,6 +140,7 @@ def test_bad_arguments(tmp_path):
     assert "usage: log-summary" in p.stdout
 
 
+@pytest.mark.live
 def test_live_bus_and_clean_stop_on_signal():
     """log-summary on the live bus (real UDP multicast, private port, ttl=0): it counts
     what Python publishes and prints the summary after SIGINT."""

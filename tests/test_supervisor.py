@@ -176,6 +176,7 @@ def test_bad_stack_file_names_file_and_line(tmp_path):
     assert "usage: supervisorctl" in p.stdout
 
 
+@pytest.mark.live
 def test_fault_kill_hang_recording_and_no_trigger_twice(drive, tmp_path):
     """kill -9 can, localizer and director in turn during a supervised live replay, then
     SIGSTOP the director; count the recording against the played log."""
@@ -267,6 +268,7 @@ def live(drive, tmp_path_factory):
     return tmp
 
 
+@pytest.mark.live
 def test_live_supervised_replay_equals_the_offline_chain(drive, live):
     rec = recording(live)
     off = live / "offline"
@@ -328,6 +330,7 @@ class Tables(html.parser.HTMLParser):
             self.cell += data
 
 
+@pytest.mark.live
 def test_demo_report_renders_and_its_tables_match_the_logs(drive, live, tmp_path):
     """The demo's report on the live run and a lab run: drawn in headless Chromium (not
     blank), and its event table is the two logs' SCENARIO_EVENT sequences."""
@@ -413,6 +416,7 @@ def ctl(port, *args, check=True):
     return run([BIN / "supervisorctl", "--stack", "small", "--timeout", "15", *args], check=check, env=env)
 
 
+@pytest.mark.live
 def test_supervisorctl_failed_recovery_rotation_and_recorder_stop(tmp_path):
     port = 7985
     stack = tmp_path / "small.yaml"

@@ -50,6 +50,7 @@ def test_bad_or_missing_map_is_named_and_pages_get_no_cloud(tmp_path):
         sitedata.Site(site)
 
 
+@pytest.mark.live
 def test_every_page_renders_on_the_default_site(site, tmp_path):
     b = start(site, 18001, 8021)
     feed = Feeder(b.lcm_url, pose_hz=50, agents_hz=20)
@@ -106,6 +107,7 @@ def test_every_page_renders_on_the_default_site(site, tmp_path):
         b.stop()
 
 
+@pytest.mark.live
 def test_proceed_publishes_exactly_one_input_per_press(site):
     import portobello
     b = start(site, 18002, 8022)
@@ -140,6 +142,7 @@ def test_proceed_publishes_exactly_one_input_per_press(site):
         b.stop()
 
 
+@pytest.mark.live
 def test_pages_publish_only_what_they_need(site, tmp_path):
     import portobello
     b = start(site, 18003, 8023)
@@ -210,6 +213,7 @@ def _editor(site, http_port, lcm_port, scenario):
         b.stop()
 
 
+@pytest.mark.live
 def test_editor_drag_agent_save_check_and_run(site, tmp_path):
     f = site / "scenarios" / "cw01_look_and_cross.yaml"
     before = f.read_text()
@@ -249,6 +253,7 @@ def test_editor_drag_agent_save_check_and_run(site, tmp_path):
     assert {"car_approaches", "car_stopped"} <= triggers
 
 
+@pytest.mark.live
 def test_editor_illegal_edit_shows_error_and_saves_nothing(site):
     f = site / "scenarios" / "cw01_look_and_cross.yaml"
     before = f.read_bytes()
@@ -271,6 +276,7 @@ def test_editor_illegal_edit_shows_error_and_saves_nothing(site):
     assert sorted(p.name for p in f.parent.iterdir()) == sorted(p.name for p in (ROOT / "maps/default/scenarios").iterdir())
 
 
+@pytest.mark.live
 def test_csharp_client_against_the_bridge(site, tmp_path):
     """The Unity client (modules/webui/unity/PortobelloClient.cs) compiled with Debian's mono
     and run against the bridge: poses and agents arrive converted to Unity's frame."""
