@@ -166,14 +166,16 @@ programs: $(PROGRAMS)
 PYTEST = $(VPY) -m pytest -q -p no:cacheprovider -o tmp_path_retention_policy=failed
 # Two phases: the offline tests (replays, simulated drives, files) on every core, one test
 # module per worker (pytest-xdist), then the tests marked `live` (real time on a bus, a
-# browser, a kill at a moment) alone, so no other work slows them. Both phases always run;
-# make fails if either did (5: the phase selected no test, e.g. with PYTEST_ARGS=-k).
+# page talking to it) alone, so no other work slows them. Both phases always run; make
+# fails if either failed, or if neither selected a test (pytest's 5; one phase may select
+# none, e.g. with PYTEST_ARGS=-k).
 TEST_JOBS ?= $(shell nproc 2>/dev/null || echo 2)
 test: all
-	@rc=0; \
-	$(PYTEST) -n $(TEST_JOBS) --dist loadfile -m "not live" tests $(PYTEST_ARGS) || { r=$$?; [ $$r -eq 5 ] || rc=$$r; }; \
+	@rc=0; none=0; \
+	$(PYTEST) -n $(TEST_JOBS) --dist loadfile -m "not live" tests $(PYTEST_ARGS) || { r=$$?; [ $$r -eq 5 ] && none=$$((none+1)) || rc=$$r; }; \
 	echo "make test: the live tests, alone"; \
-	$(PYTEST) -m live tests $(PYTEST_ARGS) || { r=$$?; [ $$r -eq 5 ] || rc=$$r; }; \
+	$(PYTEST) -m live tests $(PYTEST_ARGS) || { r=$$?; [ $$r -eq 5 ] && none=$$((none+1)) || rc=$$r; }; \
+	[ $$none -lt 2 ] || { echo "make test: no test selected" >&2; rc=5; }; \
 	exit $$rc
 
 # Optional: tests on ../shared/data that may not be copied into the project.
