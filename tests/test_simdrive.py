@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import yaml
 
-from conftest import VEHICLE
+from conftest import VEHICLE, read_log
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 BIN = ROOT / "build" / "bin" / "simdrive"
@@ -270,6 +270,19 @@ def test_same_seed_same_content(short_drives):
         s1, s2 = a.scan(i), a2.scan(i)
         assert s1.utime == s2.utime and s1.seq == s2.seq
         assert s1.range_mm == s2.range_mm and s1.reflectivity == s2.reflectivity
+
+
+def test_lidar_from_gives_the_whole_drives_sweeps_from_then_on(short_drives, tmp_path):
+    """--lidar-from 9.05: no sweep before 9.05 s; the sweeps from then on and every other
+    message are the whole drive's, byte for byte (a sweep's noise is drawn from its index)."""
+    simdrive(tmp_path, "--seed", 1, "--duration", 12, "--speed-profile", "aggressive", "--lidar-from", 9.05)
+    whole = list(read_log(short_drives["a"].folder / "drive.lcm"))
+    late = list(read_log(tmp_path / "drive.lcm"))
+    t0 = whole[0][1]
+    assert late[0][1] == t0
+    first = next(t for ch, t, _ in whole if ch == "LIDAR_SCAN" and t - t0 >= 9.05e6)
+    assert [e for e in whole if e[0] != "LIDAR_SCAN" or e[1] >= first] == late
+    assert sum(ch == "LIDAR_SCAN" for ch, _, _ in late) == 29      # sweeps 91-119 of 120
 
 
 def test_different_seed_differs(short_drives):

@@ -85,6 +85,9 @@ static void usage(FILE *f)
         "                        returns from the car's own body, where the mount lets beams\n"
         "                        reach it); not with --mapping\n"
         "  --no-lidar            skip LIDAR_SCAN (fast drives for IMU, CAN and GNSS studies)\n"
+        "  --lidar-from S        LIDAR_SCAN only from S seconds into the drive on (a LiDAR\n"
+        "                        that starts with the car already moving); those sweeps are\n"
+        "                        the whole drive's, byte for byte\n"
         "  --scenario FILE       stage the scenario's agents (the director's core on ground\n"
         "                        truth): AGENTS (~33 Hz) and OCCLUSION_TRUTH at every sweep end\n"
         "                        (analytic visibility of each body sample from the eye);\n"
@@ -179,7 +182,7 @@ int main(int argc, char **argv)
     dwells_t dwells = { .n = 0 };
     const char *scenario = NULL;
     const char *terrain_out = NULL, *without_arg = "", *with = "", *surface_points = NULL;
-    double driver_spread = 0, reverse_m = 0, foliage_depth = 0;
+    double driver_spread = 0, reverse_m = 0, foliage_depth = 0, lidar_from = 0;
     const pb_opt_t opts[] = {
         PB_OPT_STRING("out", &out_dir), PB_OPT_LONG("seed", &seed, 0, LONG_MAX),
         PB_OPT_DOUBLE("duration", &duration, 0.001, 24 * 3600),
@@ -189,7 +192,8 @@ int main(int argc, char **argv)
         PB_OPT_STRING("with", &with), PB_OPT_FLAG("no-lidar", &no_lidar, 1), PB_OPT_FLAG("quiet", &quiet, 1),
         PB_OPT_STRING("scenario", &scenario), PB_OPT_FLAG("head", &head, 1), PB_OPT_CALL("dwell", add_dwell, &dwells),
         PB_OPT_DOUBLE("reverse", &reverse_m, 1, 500), PB_OPT_STRING("surface-distance", &surface_points),
-        PB_OPT_DOUBLE("foliage-depth", &foliage_depth, 0, 20), PB_OPT_END,
+        PB_OPT_DOUBLE("foliage-depth", &foliage_depth, 0, 20), PB_OPT_DOUBLE("lidar-from", &lidar_from, 0, 24 * 3600),
+        PB_OPT_END,
     };
     int parsed = pb_opt_parse("simdrive", opts, usage, 0, argc, argv);
     if (parsed >= 0) return parsed;
@@ -325,6 +329,11 @@ int main(int argc, char **argv)
     const int64_t phase[S_COUNT] = { 0, 0, 0, 0, 2000, 5000, lm.col_off_us[LIDAR_COLS - 1], 7000 };
     int gear_sent = -1;     /* the gear of the last GEAR_PACKET (sent at 1 Hz and at every shift) */
     int64_t k[S_COUNT] = { 0 };
+    /* --lidar-from: start at the first sweep that begins then (a sweep's noise is drawn from
+     * its own index, so it is the whole drive's) */
+    const int64_t lidar_from_us = (int64_t)llround(lidar_from * 1e6);
+    if (lidar_from_us > phase[S_LIDAR])
+        k[S_LIDAR] = (lidar_from_us - phase[S_LIDAR] + period[S_LIDAR] - 1) / period[S_LIDAR];
     int64_t counts[S_COUNT] = { 0 };
     pb_progress_t prog;
     pb_progress_start(&prog, "simdrive", end_us, quiet);
