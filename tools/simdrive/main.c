@@ -330,8 +330,8 @@ int main(int argc, char **argv)
     int gear_sent = -1;     /* the gear of the last GEAR_PACKET (sent at 1 Hz and at every shift) */
     int64_t k[S_COUNT] = { 0 };
     /* --lidar-from: start at the first sweep that begins then (a sweep's noise is drawn from
-     * its own index, so it is the whole drive's) */
-    const int64_t lidar_from_us = (int64_t)llround(lidar_from * 1e6);
+     * its own index, so it is the whole drive's); --no-lidar: from the drive's end */
+    const int64_t lidar_from_us = no_lidar ? end_us : (int64_t)llround(lidar_from * 1e6);
     if (lidar_from_us > phase[S_LIDAR])
         k[S_LIDAR] = (lidar_from_us - phase[S_LIDAR] + period[S_LIDAR] - 1) / period[S_LIDAR];
     int64_t counts[S_COUNT] = { 0 };
@@ -344,7 +344,6 @@ int main(int argc, char **argv)
             int64_t t = phase[s] + k[s] * period[s];
             if (s == S_CAN_WS || s == S_CAN_SPD || s == S_CAN_GEAR)
                 t += (int64_t)llround((rng_uniform(seed, RNG_CAN_JITTER, (uint64_t)s, (uint64_t)k[s]) - 0.5) * 2 * CAN_JITTER_US);
-            if (s == S_LIDAR && no_lidar) continue;
             if (s == S_TRUTH && (!occ || mapping)) continue;
             if (t < end_us && (best < 0 || t < tb)) { best = s; tb = t; }
         }
