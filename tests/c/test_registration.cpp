@@ -604,9 +604,9 @@ static void test_map_tiles(void)
     CHECK(pb_tiles_open(mem_read, &bad, bad.bytes.size(), "magic.tiles", &tc, &err) == nullptr);
     CHECK_CONTAINS(err.msg, "not a map tile file");
     bad = f;
-    bad.bytes[8] = 3;   /* version 3 (planes through their neighbourhood's centroid) */
-    CHECK(pb_tiles_open(mem_read, &bad, bad.bytes.size(), "v3.tiles", &tc, &err) == nullptr);
-    CHECK_CONTAINS(err.msg, "v3.tiles: byte 8: tile file version 3, this localizer reads 4 (rebuild it with map-tiles)");
+    bad.bytes[8] = 2;   /* version 2 (place descriptors as one grid over the bounding box) */
+    CHECK(pb_tiles_open(mem_read, &bad, bad.bytes.size(), "v2.tiles", &tc, &err) == nullptr);
+    CHECK_CONTAINS(err.msg, "v2.tiles: byte 8: tile file version 2, this localizer reads 3 (rebuild it with map-tiles)");
     bad = f;
     bad.bytes.resize(bad.bytes.size() - 48);   /* the last tile's cells run out of the file */
     CHECK(pb_tiles_open(mem_read, &bad, bad.bytes.size(), "cut.tiles", &tc, &err) == nullptr);

@@ -19,7 +19,7 @@ using namespace pb_loc;
 namespace {
 
 const char kMagic[8] = {'P', 'B', 'T', 'I', 'L', 'E', 'S', '1'};
-const uint32_t kVersion = 4;   /* 3: planes through their neighbourhood's centroid; 2: dense place descriptors (PBPLACE2) */
+const uint32_t kVersion = 3;   /* 2: dense place descriptors (PBPLACE2) */
 const size_t kHeaderBytes = 192, kTableBytes = 32, kCellBytes = 48, kRoughBytes = 8;
 
 /* voxels per tile edge, or 0 when tile_m is not a whole multiple of voxel */

@@ -21,8 +21,8 @@
  * all of them.
  *
  * File (little-endian, written and read by this code only):
- *   header, 192 bytes: "PBTILES1", u32 version (4; 3 anchored planes at their
- *     neighbourhood's centroid, 2 had dense place descriptors: both refused), u32 tiles, f64 voxel_m,
+ *   header, 192 bytes: "PBTILES1", u32 version (3; 2 had dense place
+ *     descriptors and is refused), u32 tiles, f64 voxel_m,
  *     coarse_voxel_m, planarity_max, tile_m, i32 min_points, i32 0,
  *     i64 map points, fine cells, coarse cells, f64 min[3], max[3],
  *     (128) u64 source bytes, u32 source CRC-32, u32 0 (the map.pcd it was

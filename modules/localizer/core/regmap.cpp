@@ -116,11 +116,6 @@ size_t pb_loc::build_level(const float *xyz, size_t n, double voxel, const pb_re
         const Moments &own = moments[c];
         Eigen::Vector3d mu, u1, u2;
         int kind = fit_target(N, S, SS, cfg, &mu, &u1, &u2);
-        /* the plane through the cell's own points when they are as many as a plane
-         * needs: on a curved surface (a trunk, a canopy, a crest) the neighbourhood's
-         * centroid lies inside it by the sagitta, and every match that uses the cell
-         * carries that offset; the centroid of a few points is noise instead */
-        if (kind == CELL_PLANE && own.n >= cfg->min_points) mu = Eigen::Vector3d(own.s[0], own.s[1], own.s[2]) / own.n;
         if (!kind) kind = fit_target(own.n, own.s, own.ss, cfg, &mu, &u1, &u2);
         if (!kind) {   /* scattered (foliage) or too few points: no reliable target */
             bool inserted;

@@ -1,12 +1,9 @@
 /* regmap: the prior map, prepared once for scan-to-map registration.
  *
  * The map's points (map frame, metres) are reduced to a voxel hash of local
- * planes: each occupied cell of edge `voxel_m` stores the normal of the map points
- * in its 3x3x3 neighbourhood and the centroid of its own points when they are at
- * least `min_points` (so a scan point finds its plane in O(1), in its own cell; the
- * plane's tilt is supported by ~3x the cell size, its offset by the cell's points:
- * on a curved surface the neighbourhood's centroid lies inside it by the
- * sagitta). Cells
+ * planes: each occupied cell of edge `voxel_m` stores the centroid and normal of
+ * the map points in its 3x3x3 neighbourhood (so a scan point finds its plane in
+ * O(1), in its own cell, and the plane is supported by ~3x the cell size). Cells
  * whose neighbourhood is not planar (e.g. foliage, poles) keep their centroid
  * and are flagged; registration then uses them as point-to-point targets.
  * A second, coarser level (`coarse_voxel_m`) serves pb_reg_align_global.

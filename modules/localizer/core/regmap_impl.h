@@ -12,10 +12,8 @@ namespace pb_loc {
 
 enum { CELL_PLANE = 1, CELL_LINE = 2 };
 
-/* One target: a plane (normal u1 of the neighbourhood, through the centroid `mean`
- * of the cell's own points when they are min_points or more, else the
- * neighbourhood's; residual u1 . (q - mean)) or a line through the
- * neighbourhood's centroid (u1, u2 orthonormal and perpendicular to it; two
+/* One target around the neighbourhood centroid: a plane (normal u1; residual
+ * u1 . (q - mean)) or a line (u1, u2 orthonormal and perpendicular to it; two
  * residuals). */
 struct Cell {
     float mean[3];
