@@ -760,12 +760,12 @@ def test_global_search_takes_no_wrong_place_on_a_street_of_trees(porous_street, 
     now taken only when no surer one came within 1 s of sweeps."""
     t = porous_street
     d = t["dir"] / f"seed{seed}"
-    # the LiDAR from 1 s before the cut (its sweeps are the whole drive's): less to simulate
-    src = lb.make_drive(d, seed, "normal", int(at + 7), ("--foliage-depth", "0.7", "--lidar-from", str(at - 1)),
-                        t["site_full"]) if fused else d / "drive.lcm"
+    # porous canopies; the LiDAR from 1 s before the cut (its sweeps are the whole drive's)
+    world = ("--foliage-depth", "0.7", "--lidar-from", str(at - 1))
+    src = lb.make_drive(d, seed, "normal", int(at + 7), world, t["site_full"]) if fused else d / "drive.lcm"
     if not fused and not src.exists():
         run([BIN / "simdrive", "--seed", str(seed), "--duration", str(int(at + 6.5)), "--site", t["site_full"],
-             "--foliage-depth", "0.7", "--lidar-from", str(at - 1), "--quiet", "--out", d])
+             *world, "--quiet", "--out", d])
     gt = lb.read_poses(d / "drive.lcm", "GROUND_TRUTH")
     log, out = tmp_path / "cut.lcm", tmp_path / "o.lcm"
     cut({"log": src}, log, at, 6, "LIDAR_SCAN,IMU,VEHICLE_SPEED,GROUND_TRUTH" if fused else "LIDAR_SCAN,GROUND_TRUTH")
