@@ -1,7 +1,7 @@
 /* occlusion-bench: the cost of the occlusion pipeline and of stock OctoMap on the same
  * sweeps and queries (one thread; CPU time of the thread, so other load on the machine
  * does not count).
- *   occlusion-bench --log DRIVE.lcm --out OUT.lcm [--stock-from N] [--stock-count M]
+ *   occlusion-bench --log DRIVE.lcm --out OUT.lcm [--stock-from N] [--stock-count M] [--times FILE]
  * For every sweep of DRIVE (simdrive with --scenario): ours integrates it (timed) and
  * queries 100 agents (the scene's agents in range, repeated to 100; timed). For sweeps
  * N .. N+M-1 (after N-10 untimed warm-up sweeps) stock OctoMap insertPointCloud takes
@@ -18,6 +18,7 @@
 #include <pcl/point_types.h>
 
 #include <algorithm>
+#include <cerrno>
 #include <dirent.h>
 #include <fstream>
 #include <cmath>
@@ -100,8 +101,9 @@ static int8_t stock_query(const octomap::OcTree &tree, const occ_config_t &c, co
 
 static void usage(FILE *f)
 {
-    fprintf(f, "usage: occlusion-bench --log DRIVE.lcm --out OUT.lcm [--stock-from N] [--stock-count M]\n"
+    fprintf(f, "usage: occlusion-bench --log DRIVE.lcm --out OUT.lcm [--stock-from N] [--stock-count M] [--times FILE]\n"
                "       occlusion-bench --real DIR [--ring-gap-deg G --col-gap-deg G]\n"
+               "       occlusion-bench --noise N [--noise-ms MS]\n"
                "Times the occlusion pipeline on every sweep of a simdrive --scenario log, and stock\n"
                "OctoMap insertPointCloud + castRay on sweeps N..N+M-1; writes both answers to OUT.\n"
                "--real: two real sweeps (DIR/*.pcd in name order, DIR/relative.txt = 4x4 pose of the\n"
@@ -109,7 +111,10 @@ static void usage(FILE *f)
                "points, same origins), timed; then both answer samples whose state the first sweep's\n"
                "own beams tell (1 m behind a return: hidden; 1 m before it: visible) from its origin.\n"
                "--ring-gap-deg / --col-gap-deg: the sensor's beam gaps (the PCDs carry no rings);\n"
-               "without them the config's (64 x 1024). Prints one JSON object.\n");
+               "without them the config's (64 x 1024).\n"
+               "--times: writes each sweep's integrate time (ms, thread CPU), one line a sweep.\n"
+               "--noise: the host's own noise, for reading the p99: the same fixed work (about MS ms,\n"
+               "default 11) timed N times as the sweeps are. Prints one JSON object.\n");
 }
 
 /* What stock OctoMap is given of a sweep: every return, as ours is (insertPointCloud with
@@ -262,9 +267,40 @@ static int real_bench(const std::string &dir, double ring_gap, double col_gap)
     return 0;
 }
 
+/* --noise: fixed work (random updates of a table larger than the caches, as the map's are)
+ * sized to about ms once, then timed n times with the sweeps' clock. The work never changes,
+ * so its spread is the host's: a p99 far above its median says the same of the sweeps'. */
+static int noise_bench(long n, double ms)
+{
+    std::vector<uint32_t> table(1 << 22);
+    uint32_t x = 1;
+    auto work = [&](long k) {
+        for (long i = 0; i < k; i++) { x = x * 1664525u + 1013904223u; table[x >> 10] += x; }
+    };
+    long k = 1 << 16;
+    double best = 1e9;
+    for (int i = 0; i < 20; i++) {      /* the fastest of 20 is the work's own cost */
+        double t0 = pb_clock_thread_cpu_ms();
+        work(k);
+        best = std::min(best, pb_clock_thread_cpu_ms() - t0);
+    }
+    k = std::max(1L, (long)(k * ms / std::max(best, 1e-3)));
+    std::vector<double> t;
+    for (long i = 0; i < n; i++) {
+        double t0 = pb_clock_thread_cpu_ms();
+        work(k);
+        t.push_back(pb_clock_thread_cpu_ms() - t0);
+    }
+    printf("{\"runs\": %ld, \"work_ms_p50\": %.3f, \"work_ms_p99\": %.3f, \"work_ms_max\": %.3f, \"check\": %u}\n", n,
+           pct(t, 0.5), pct(t, 0.99), pct(t, 1.0), table[x >> 10]);
+    return 0;
+}
+
 int main(int argc, char **argv)
 {
-    const char *log_path = nullptr, *out_path = nullptr, *real_dir = nullptr;
+    const char *log_path = nullptr, *out_path = nullptr, *real_dir = nullptr, *times_path = nullptr;
+    long noise_runs = 0;
+    double noise_ms = 11;
     std::string vehicle = std::string(PB_SOURCE_DIR) + "/vehicles/prius2017.yaml";
     long stock_from = 300, stock_count = 30;
     double ring_gap_deg = 0, col_gap_deg = 0;
@@ -272,17 +308,21 @@ int main(int argc, char **argv)
         PB_OPT_STRING("log", &log_path), PB_OPT_STRING("out", &out_path), PB_OPT_STRING("real", &real_dir),
         PB_OPT_LONG("stock-from", &stock_from, 0, 1L << 40), PB_OPT_LONG("stock-count", &stock_count, 0, 1L << 40),
         PB_OPT_DOUBLE("ring-gap-deg", &ring_gap_deg, 0, 30), PB_OPT_DOUBLE("col-gap-deg", &col_gap_deg, 0, 30),
-        PB_OPT_END,
+        PB_OPT_STRING("times", &times_path), PB_OPT_LONG("noise", &noise_runs, 1, 1000000),
+        PB_OPT_DOUBLE("noise-ms", &noise_ms, 0.01, 10000), PB_OPT_END,
     };
     int parsed = pb_opt_parse("occlusion-bench", opts, usage, 0, argc, argv);
     if (parsed >= 0) return parsed;
     if (real_dir) return real_bench(real_dir, ring_gap_deg * M_PI / 180, col_gap_deg * M_PI / 180);
+    if (noise_runs) return noise_bench(noise_runs, noise_ms);
     if (!log_path || !out_path) { usage(stderr); return 2; }
     pb_err_t err;
     pb_vehicle_t veh;
     if (pb_vehicle_load(vehicle.c_str(), &veh, &err)) { fprintf(stderr, "occlusion-bench: %s\n", err.msg); return 1; }
     pb_log_t *in = pb_log_open_read(log_path, &err);
     if (!in) { fprintf(stderr, "occlusion-bench: %s\n", err.msg); return 1; }
+    FILE *times = times_path ? fopen(times_path, "w") : nullptr;
+    if (times_path && !times) { fprintf(stderr, "occlusion-bench: %s: %s\n", times_path, strerror(errno)); return 1; }
     pb_log_out_t out = {};
     out.log = pb_log_open_write(out_path, &err);
     if (!out.log) { fprintf(stderr, "occlusion-bench: %s\n", err.msg); return 1; }
@@ -351,6 +391,7 @@ int main(int argc, char **argv)
             write_occ(&out, "OCCLUSION", o);
             if (!o.pose_ok) { sweep++; continue; }
             integ.push_back(o.integrate_ms);
+            if (times) fprintf(times, "%.3f\n", o.integrate_ms);
             if (sweep % 600 == 0) {     /* memory once a minute of drive */
                 int64_t lv, by;
                 occ_map_size(occlusion_map(occ), &lv, &by);
@@ -434,6 +475,7 @@ int main(int argc, char **argv)
            (long)ru.ru_maxrss, rss_kb(), integ.size(), pct(integ, 0.5), pct(integ, 0.99), pct(query100, 0.5), pct(query100, 0.99), pct(ours_rays_us, 0.5),
            stock_insert.size(), pct(stock_insert, 0.5), pct(stock_insert, 0.99), pct(stock_query100, 0.5),
            pct(stock_rays_us, 0.5), (long long)leaves, (long long)bytes, mem_rows.c_str());
+    if (times && fclose(times)) { fprintf(stderr, "occlusion-bench: %s: %s\n", times_path, strerror(errno)); r = -1; }
     pb_log_close(out.log, &err);
     pb_log_close(in, &err);
     occlusion_destroy(occ);
