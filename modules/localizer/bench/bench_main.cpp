@@ -12,6 +12,7 @@
 //             pb_reg_align_global (the relocalisation path); --starts K of them per scan
 // PCL NDT runs at each resolution of --ndt-res on the same reduced points and starts.
 #include <algorithm>
+#include <climits>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -68,7 +69,12 @@ static void usage(FILE *f)
         "                   from the JSON) is run N times and timed by the median: one scan's single\n"
         "                   millisecond is noise on a shared machine (default 1)\n"
         "  --verbose        one line per scan (ours, tracking start; then each NDT resolution's error)\n"
-        "  --target-points N, --coarse-iterations N   override the registration defaults\n");
+        "  --target-points N, --coarse-iterations N   override the registration defaults\n"
+        "\n"
+        "       bench-localizer --time-dump DUMP --map MAP.pcd [--global R,DEG] [--timing-runs N]\n"
+        "Times ours alone on a --dump file's points and starts (the 'reduced input' rows' work)\n"
+        "and prints the CPU ms of each run as JSON, so bench_gicp.py can time ours and small_gicp\n"
+        "in turn, round after round, on a machine whose speed wanders.\n");
 }
 
 struct Scan {
@@ -202,16 +208,82 @@ static int parse_ndt_res(const char *prog, const char *arg, void *var)
     return 0;
 }
 
+/* Our map and the registration's configs (tcfg: a tracking start, which carries the spread
+ * it was drawn with, as the localizer's filter gives its own). NULL after a message. */
+static pb_regmap_t *load_ours(const char *map_path, double voxel, long target_points, long coarse_iterations,
+                              pb_reg_config_t *rcfg, pb_reg_config_t *tcfg, double *ms_load)
+{
+    pb_regmap_config_t mcfg;
+    pb_regmap_config_default(&mcfg);
+    mcfg.voxel_m = voxel;
+    pb_err_t err;
+    double t0 = pb_clock_thread_cpu_ms();
+    pb_regmap_t *map = pb_regmap_load(map_path, &mcfg, nullptr, &err);
+    if (!map) { std::fprintf(stderr, "bench-localizer: %s\n", err.msg); return nullptr; }
+    *ms_load = pb_clock_thread_cpu_ms() - t0;
+    pb_reg_config_default(rcfg);
+    if (target_points >= 0) rcfg->target_points = (int)target_points;
+    if (coarse_iterations >= 0) rcfg->coarse_iterations = (int)coarse_iterations;
+    *tcfg = *rcfg;
+    tcfg->prior_sigma_m = kTrackSigma;
+    return map;
+}
+
+/* --time-dump: ours on the dumped reduced points and starts, as the 'reduced input' rows
+ * run them: {"track_ms": [one per scan, median of timing_runs], "off_ms": [one per start]} */
+static int time_dump(const char *dump, const pb_regmap_t *map, const pb_reg_config_t &rcfg, const pb_reg_config_t &tcfg,
+                     bool global, double radius, double yaw_rad, long timing_runs)
+{
+    FILE *f = std::fopen(dump, "rb");
+    if (!f) { std::fprintf(stderr, "bench-localizer: %s: %s\n", dump, std::strerror(errno)); return 1; }
+    std::vector<double> track_ms, off_ms;
+    pb_reg_result_t r;
+    pb_err_t err;
+    long scan = 0;
+    for (int32_t n; std::fread(&n, 4, 1, f) == 1; scan++) {
+        std::vector<float> pts(3 * (size_t)std::max(n, 0));
+        int32_t ns = -1;
+        bool ok = n > 0 && std::fread(pts.data(), 4, pts.size(), f) == pts.size() && std::fread(&ns, 4, 1, f) == 1 && ns >= 0;
+        std::vector<Eigen::Isometry3d> mats;
+        for (int32_t k = 0; ok && k < 2 + ns; k++) {
+            Eigen::Matrix<double, 4, 4, Eigen::RowMajor> M;
+            ok = std::fread(M.data(), 8, 16, f) == 16;
+            mats.push_back(Eigen::Isometry3d(Eigen::Matrix4d(M)));
+        }
+        if (!ok) {
+            std::fprintf(stderr, "bench-localizer: %s: scan %ld (byte %ld) is cut short or malformed\n", dump, scan, std::ftell(f));
+            std::fclose(f);
+            return 1;
+        }
+        track_ms.push_back(median_ms(timing_runs, [&] { pb_reg_align(map, pts.data(), (size_t)n, mats[1], &tcfg, &r, &err); }));
+        for (int32_t k = 0; k < ns; k++) {
+            double c0 = pb_clock_thread_cpu_ms();
+            if (global) pb_reg_align_global(map, pts.data(), (size_t)n, mats[2 + k], radius, yaw_rad, &rcfg, &r, &err);
+            else pb_reg_align(map, pts.data(), (size_t)n, mats[2 + k], &rcfg, &r, &err);
+            off_ms.push_back(pb_clock_thread_cpu_ms() - c0);
+        }
+    }
+    std::fclose(f);
+    auto list = [](const std::vector<double> &v) {
+        std::string s;
+        for (double x : v) s += (s.empty() ? "" : ", ") + std::to_string(x);
+        return s;
+    };
+    std::printf("{\"track_ms\": [%s], \"off_ms\": [%s]}\n", list(track_ms).c_str(), list(off_ms).c_str());
+    return 0;
+}
+
 int main(int argc, char **argv)
 {
-    const char *log_path = nullptr, *map_path = nullptr, *vehicle_path = nullptr, *dump = nullptr, *json = nullptr;
+    const char *log_path = nullptr, *map_path = nullptr, *vehicle_path = nullptr, *dump = nullptr, *json = nullptr,
+               *time_dump_path = nullptr;
     double voxel = 0.5, global_search[2] = { -1, -1 };   /* radius, yaw (deg); < 0: no --global */
     long every = 1, base_every = 10, max_scans = 1000000, seed = 1, nstarts = 1, timing_runs = 1;
     std::vector<double> ndt_res;
     bool odd = false, verbose = false;
     long target_points = -1, coarse_iterations = -1;
     const pb_opt_t opts[] = {
-        PB_OPT_REQUIRED("log", &log_path), PB_OPT_REQUIRED("map", &map_path), PB_OPT_STRING("vehicle", &vehicle_path),
+        PB_OPT_STRING("log", &log_path), PB_OPT_REQUIRED("map", &map_path), PB_OPT_STRING("time-dump", &time_dump_path), PB_OPT_STRING("vehicle", &vehicle_path),
         PB_OPT_DOUBLE("voxel", &voxel, 0.05, 10), PB_OPT_LONG("every", &every, 1, 100000),
         PB_OPT_LONG("baseline-every", &base_every, 0, 100000), PB_OPT_LONG("max-scans", &max_scans, 1, 100000000),
         PB_OPT_BOOL("odd", &odd, 1), PB_OPT_CALL("global", parse_global, global_search), PB_OPT_STRING("dump", &dump),
@@ -225,8 +297,18 @@ int main(int argc, char **argv)
     if (parsed >= 0) return parsed;
     const bool global = global_search[0] >= 0;
     const double g_radius = global_search[0], g_yaw_deg = global_search[1];
+    if (!log_path && !time_dump_path) { std::fprintf(stderr, "bench-localizer: --log or --time-dump is required\n"); return 2; }
     if (ndt_res.empty()) ndt_res.push_back(voxel);
     if (!global) nstarts = 1;
+    if (time_dump_path) {
+        double ms_load;
+        pb_reg_config_t rcfg, tcfg;
+        pb_regmap_t *map = load_ours(map_path, voxel, target_points, coarse_iterations, &rcfg, &tcfg, &ms_load);
+        if (!map) return 1;
+        int rc = time_dump(time_dump_path, map, rcfg, tcfg, global, global_search[0], global_search[1] * M_PI / 180, timing_runs);
+        pb_regmap_destroy(map);
+        return rc;
+    }
     pb_err_t err;
     pb_transform_t base_from_lidar = {{0, 0, 0}, {1, 0, 0, 0}};
     if (vehicle_path) {
@@ -310,22 +392,12 @@ int main(int argc, char **argv)
     if (scans.empty()) { std::fprintf(stderr, "bench-localizer: %s: no LIDAR_SCAN within GROUND_TRUTH\n", log_path); return 1; }
 
     // ---- our registration: map prepared once, then every scan
-    pb_regmap_config_t mcfg;
-    pb_regmap_config_default(&mcfg);
-    mcfg.voxel_m = voxel;
-    double t0 = pb_clock_thread_cpu_ms();
-    pb_regmap_t *map = pb_regmap_load(map_path, &mcfg, nullptr, &err);
-    if (!map) { std::fprintf(stderr, "bench-localizer: %s\n", err.msg); return 1; }
-    double ms_load = pb_clock_thread_cpu_ms() - t0;
+    double ms_load = 0;
+    pb_reg_config_t rcfg, tcfg;
+    pb_regmap_t *map = load_ours(map_path, voxel, target_points, coarse_iterations, &rcfg, &tcfg, &ms_load);
+    if (!map) return 1;
     pb_regmap_info_t info;
     pb_regmap_info(map, &info);
-    pb_reg_config_t rcfg;
-    pb_reg_config_default(&rcfg);
-    if (target_points >= 0) rcfg.target_points = (int)target_points;
-    if (coarse_iterations >= 0) rcfg.coarse_iterations = (int)coarse_iterations;
-    // a tracking start carries the spread it was drawn with, as the localizer's filter gives its own
-    pb_reg_config_t tcfg = rcfg;
-    tcfg.prior_sigma_m = kTrackSigma;
     Run ours_track, ours_off, ours_track_sub, ours_off_sub, ours_track_red, ours_off_red;
     std::vector<std::vector<float>> reduced(scans.size());
     for (size_t k = 0; k < scans.size(); k++) {
@@ -429,7 +501,7 @@ int main(int argc, char **argv)
             ndt.setTransformationEpsilon(1e-4);   // PCL 1.13 compares it with the squared step
             ndt.setStepSize(0.1);
             ndt.setMaximumIterations(35);
-            t0 = pb_clock_thread_cpu_ms();
+            double t0 = pb_clock_thread_cpu_ms();
             ndt.setInputTarget(crop);
             ms_ndt_target[ri] = pb_clock_thread_cpu_ms() - t0;
             for (size_t k = 0; k < scans.size(); k += (size_t)base_every) {
@@ -508,7 +580,13 @@ int main(int argc, char **argv)
     if (json) {
         FILE *f = std::fopen(json, "w");
         if (!f) { std::fprintf(stderr, "bench-localizer: %s: cannot write\n", json); return 1; }
-        std::fprintf(f, "{\n  \"scans\": %zu, \"baseline_scans\": %zu, \"baseline_every\": %ld, \"global\": %s,\n"
+        /* what bench_gicp.py needs to time ours again on the dump (--time-dump) */
+        char map_abs[PATH_MAX];
+        if (!realpath(map_path, map_abs)) std::snprintf(map_abs, sizeof map_abs, "%s", map_path);
+        std::fprintf(f, "{\n  \"map\": \"%s\", \"voxel\": %g, \"global_radius_m\": %g, \"global_yaw_deg\": %g, "
+                     "\"target_points\": %ld, \"coarse_iterations\": %ld,\n", map_abs, voxel, g_radius, g_yaw_deg,
+                     target_points, coarse_iterations);
+        std::fprintf(f, "  \"scans\": %zu, \"baseline_scans\": %zu, \"baseline_every\": %ld, \"global\": %s,\n"
                      "  \"starts_per_scan\": %ld, \"timing_runs\": %ld, \"converge_m\": %g, \"start\": \"%s\", \"ndt_res\": [",
                      scans.size(), nsub, base_every, global ? "true" : "false", nstarts, timing_runs, g_converge, start);
         for (size_t ri = 0; ri < ndt_res.size(); ri++) std::fprintf(f, "%s%g", ri ? ", " : "", ndt_res[ri]);
