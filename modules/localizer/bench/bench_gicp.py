@@ -3,12 +3,15 @@
 that build/bin/bench-localizer dumped (--dump FILE, FILE.map), single thread, and
 the combined table with the ratios the issue asks for.
 
-usage: bench_gicp.py DUMP RESULTS.json [--voxel 0.5] [--reference-report R.json]
+usage: bench_gicp.py DUMP RESULTS.json [--voxel 0.5] [--rounds 5] [--reference-report R.json]
 DUMP holds, per baseline scan: int32 n, float32 xyz[n] (base frame, the localizer's
 own downsampling), int32 k, float64 4x4 row-major truth, tracking start, k offset starts.
 PCL NDT comes from RESULTS.json (one entry per resolution); the ratios are taken
 against NDT at its best resolution on this data (most converged starts, then the
 smallest median error).
+Ours and VGICP are also timed in turn, --rounds rounds of the same work (ours through
+bench-localizer --time-dump), and the VGICP verdict takes the median of the rounds' ratios:
+one pass of each, minutes apart, compares two speeds of a shared machine.
 With --reference-report (reference.py's report), the accuracy is also compared on the
 scans where the reference is plausible: not within 3 keyframes of one whose poses imply
 an acceleration no car makes (the rule of the real-data test).
