@@ -229,10 +229,27 @@ static pb_regmap_t *load_ours(const char *map_path, double voxel, long target_po
     return map;
 }
 
+/* How an offset start is aligned: searched (--global R,DEG) or aligned from where it is. */
+struct OffSearch {
+    bool global;
+    double radius_m, yaw_rad;
+};
+
+/* Ours from one offset start, timed: CPU ms of this thread. */
+static double align_off(const pb_regmap_t *map, const float *pts, size_t n, const Eigen::Isometry3d &start,
+                        const OffSearch &how, const pb_reg_config_t &cfg, pb_reg_result_t *r)
+{
+    pb_err_t err;
+    double c0 = pb_clock_thread_cpu_ms();
+    if (how.global) pb_reg_align_global(map, pts, n, start, how.radius_m, how.yaw_rad, &cfg, r, &err);
+    else pb_reg_align(map, pts, n, start, &cfg, r, &err);
+    return pb_clock_thread_cpu_ms() - c0;
+}
+
 /* --time-dump: ours on the dumped reduced points and starts, as the 'reduced input' rows
  * run them: {"track_ms": [one per scan, median of timing_runs], "off_ms": [one per start]} */
 static int time_dump(const char *dump, const pb_regmap_t *map, const pb_reg_config_t &rcfg, const pb_reg_config_t &tcfg,
-                     bool global, double radius, double yaw_rad, long timing_runs)
+                     const OffSearch &how, long timing_runs)
 {
     FILE *f = std::fopen(dump, "rb");
     if (!f) { std::fprintf(stderr, "bench-localizer: %s: %s\n", dump, std::strerror(errno)); return 1; }
@@ -256,12 +273,7 @@ static int time_dump(const char *dump, const pb_regmap_t *map, const pb_reg_conf
             return 1;
         }
         track_ms.push_back(median_ms(timing_runs, [&] { pb_reg_align(map, pts.data(), (size_t)n, mats[1], &tcfg, &r, &err); }));
-        for (int32_t k = 0; k < ns; k++) {
-            double c0 = pb_clock_thread_cpu_ms();
-            if (global) pb_reg_align_global(map, pts.data(), (size_t)n, mats[2 + k], radius, yaw_rad, &rcfg, &r, &err);
-            else pb_reg_align(map, pts.data(), (size_t)n, mats[2 + k], &rcfg, &r, &err);
-            off_ms.push_back(pb_clock_thread_cpu_ms() - c0);
-        }
+        for (int32_t k = 0; k < ns; k++) off_ms.push_back(align_off(map, pts.data(), (size_t)n, mats[2 + k], how, rcfg, &r));
     }
     std::fclose(f);
     auto list = [](const std::vector<double> &v) {
@@ -305,7 +317,7 @@ int main(int argc, char **argv)
         pb_reg_config_t rcfg, tcfg;
         pb_regmap_t *map = load_ours(map_path, voxel, target_points, coarse_iterations, &rcfg, &tcfg, &ms_load);
         if (!map) return 1;
-        int rc = time_dump(time_dump_path, map, rcfg, tcfg, global, global_search[0], global_search[1] * M_PI / 180, timing_runs);
+        int rc = time_dump(time_dump_path, map, rcfg, tcfg, { global, g_radius, g_yaw_deg * M_PI / 180 }, timing_runs);
         pb_regmap_destroy(map);
         return rc;
     }
@@ -398,6 +410,7 @@ int main(int argc, char **argv)
     if (!map) return 1;
     pb_regmap_info_t info;
     pb_regmap_info(map, &info);
+    const OffSearch off_search = { global, g_radius, g_yaw_deg * deg };
     Run ours_track, ours_off, ours_track_sub, ours_off_sub, ours_track_red, ours_off_red;
     std::vector<std::vector<float>> reduced(scans.size());
     for (size_t k = 0; k < scans.size(); k++) {
@@ -427,13 +440,7 @@ int main(int argc, char **argv)
             size_t off0 = ours_off.terr.size();
             std::vector<double> off_inl;
             for (const Eigen::Isometry3d &start : sc.off_starts) {
-                c0 = pb_clock_thread_cpu_ms();
-                if (global)
-                    pb_reg_align_global(map, sc.pts.data(), sc.pts.size() / 3, start, g_radius, g_yaw_deg * deg,
-                                        &rcfg, &r, &err);
-                else
-                    pb_reg_align(map, sc.pts.data(), sc.pts.size() / 3, start, &rcfg, &r, &err);
-                ms = pb_clock_thread_cpu_ms() - c0;
+                ms = align_off(map, sc.pts.data(), sc.pts.size() / 3, start, off_search, rcfg, &r);
                 ours_off.add(ms, r.pose, sc.gt);
                 off_inl.push_back(r.inlier_fraction);
                 if (sub) ours_off_sub.add(ms, r.pose, sc.gt);
@@ -456,14 +463,8 @@ int main(int argc, char **argv)
             // the same reduced points the baselines get, through our whole call again
             pb_reg_downsample(sc.pts.data(), sc.pts.size() / 3, &rcfg, &reduced[k]);
             const std::vector<float> &rp = reduced[k];
-            for (const Eigen::Isometry3d &start : sc.off_starts) {
-                double c0 = pb_clock_thread_cpu_ms();
-                if (global)
-                    pb_reg_align_global(map, rp.data(), rp.size() / 3, start, g_radius, g_yaw_deg * deg, &rcfg, &r, &err);
-                else
-                    pb_reg_align(map, rp.data(), rp.size() / 3, start, &rcfg, &r, &err);
-                ours_off_red.add(pb_clock_thread_cpu_ms() - c0, r.pose, sc.gt);
-            }
+            for (const Eigen::Isometry3d &start : sc.off_starts)
+                ours_off_red.add(align_off(map, rp.data(), rp.size() / 3, start, off_search, rcfg, &r), r.pose, sc.gt);
             double ms = median_ms(timing_runs, [&] { pb_reg_align(map, rp.data(), rp.size() / 3, sc.track_start, &tcfg, &r, &err); });
             ours_track_red.add(ms, r.pose, sc.gt);
         }
