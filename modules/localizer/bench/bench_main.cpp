@@ -309,7 +309,10 @@ int main(int argc, char **argv)
     if (parsed >= 0) return parsed;
     const bool global = global_search[0] >= 0;
     const double g_radius = global_search[0], g_yaw_deg = global_search[1];
-    if (!log_path && !time_dump_path) { std::fprintf(stderr, "bench-localizer: --log or --time-dump is required\n"); return 2; }
+    if (!log_path == !time_dump_path) {
+        std::fprintf(stderr, "bench-localizer: give one of --log (a benchmark run) and --time-dump (ours timed on a dump)\n");
+        return 2;
+    }
     if (ndt_res.empty()) ndt_res.push_back(voxel);
     if (!global) nstarts = 1;
     if (time_dump_path) {
