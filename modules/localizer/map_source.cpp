@@ -11,6 +11,7 @@
 #include <cstring>
 #include <algorithm>
 #include <cmath>
+#include <future>
 #include <map>
 #include <memory>
 #include <pcl/io/pcd_io.h>
@@ -262,37 +263,58 @@ static int write_tiled(const char *pcd, FILE *out, const std::string &scratch_di
     pb_loc::places_config_t pc;
     pb_loc::places_builder_t *pb = pb_loc::places_builder_new(pc);
     std::unique_ptr<pb_loc::places_builder_t, void (*)(pb_loc::places_builder_t *)> pb_own(pb, pb_loc::places_builder_destroy);
-    std::vector<float> xyz, cell_xyz;
-    std::vector<uint8_t> tile, cell_ground;
-    uint64_t cells_bytes = 0;
-    for (const auto &part : t.parts) {
-        xyz.clear();
-        for (const auto &c : part.second) {
-            size_t at = xyz.size();
-            xyz.resize(at + 3 * (size_t)c.second);
-            if (read_back(t.spill, c.first, xyz.data() + at, 12 * (size_t)c.second) != 0)
-                return pb_err_set(err, "%s: scratch file of the tiles: cannot read back byte %" PRIu64, pcd, c.first);
-        }
+    /* two tiles at a time, the second on another thread (a tile's preparation reads only
+     * its own points), each written in turn: the same file as one at a time */
+    struct Prepared {
+        std::vector<float> xyz, cell_xyz;
+        std::vector<uint8_t> tile, cell_ground;
         pb_tiles_row_t row;
-        tile.clear(); cell_xyz.clear(); cell_ground.clear();
-        if (pb_tiles_prepare_tile(&t.cfg, tile_m, part.first.first, part.first.second, xyz.data(), xyz.size() / 3,
-                                  &row, &tile, &cell_xyz, &cell_ground, err) != 0) {
-            char msg[sizeof err->msg];
-            snprintf(msg, sizeof msg, "%s", err->msg);
-            return pb_err_set(err, "%s: %s", pcd, msg);
+        pb_err_t err;
+        int rc = 0;
+    } pair[2];
+    std::vector<float> cell_xyz;
+    std::vector<uint8_t> cell_ground;
+    uint64_t cells_bytes = 0;
+    for (auto part = t.parts.begin(); part != t.parts.end();) {
+        int k = 0;
+        std::future<void> second;
+        for (; k < 2 && part != t.parts.end(); k++, ++part) {
+            Prepared &P = pair[k];
+            P.xyz.clear();
+            for (const auto &c : part->second) {
+                size_t at = P.xyz.size();
+                P.xyz.resize(at + 3 * (size_t)c.second);
+                if (read_back(t.spill, c.first, P.xyz.data() + at, 12 * (size_t)c.second) != 0) {
+                    if (second.valid()) second.get();
+                    return pb_err_set(err, "%s: scratch file of the tiles: cannot read back byte %" PRIu64, pcd, c.first);
+                }
+            }
+            const int32_t tx = part->first.first, ty = part->first.second;
+            auto prepare = [&t, &P, tile_m, tx, ty] {
+                P.tile.clear(); P.cell_xyz.clear(); P.cell_ground.clear();
+                P.rc = pb_tiles_prepare_tile(&t.cfg, tile_m, tx, ty, P.xyz.data(), P.xyz.size() / 3, &P.row, &P.tile,
+                                             &P.cell_xyz, &P.cell_ground, &P.err);
+            };
+            if (k == 0) second = std::async(std::launch::async, prepare);
+            else prepare();
         }
-        if (tile.empty()) continue;
-        uint32_t n = (uint32_t)cell_ground.size();
-        if (std::fwrite(tile.data(), 1, tile.size(), t.body) != tile.size() ||
-            std::fwrite(&n, 4, 1, t.cells) != 1 || std::fwrite(cell_xyz.data(), 12, n, t.cells) != n ||
-            std::fwrite(cell_ground.data(), 1, n, t.cells) != n)
-            return pb_err_set(err, "%s: scratch file of the tiles: cannot write (disk full?)", pcd);
-        cells_at.push_back(cells_bytes);
-        cells_bytes += 4 + 13 * (uint64_t)n;
-        pb_loc::places_builder_extent(pb, cell_xyz.data(), n);
-        rows.push_back(row);
-        t.info.cells += row.fine;
-        t.info.coarse_cells += row.coarse;
+        second.get();
+        for (int i = 0; i < k; i++) {
+            Prepared &P = pair[i];
+            if (P.rc != 0) return pb_err_set(err, "%s: %s", pcd, P.err.msg);
+            if (P.tile.empty()) continue;
+            uint32_t n = (uint32_t)P.cell_ground.size();
+            if (std::fwrite(P.tile.data(), 1, P.tile.size(), t.body) != P.tile.size() ||
+                std::fwrite(&n, 4, 1, t.cells) != 1 || std::fwrite(P.cell_xyz.data(), 12, n, t.cells) != n ||
+                std::fwrite(P.cell_ground.data(), 1, n, t.cells) != n)
+                return pb_err_set(err, "%s: scratch file of the tiles: cannot write (disk full?)", pcd);
+            cells_at.push_back(cells_bytes);
+            cells_bytes += 4 + 13 * (uint64_t)n;
+            pb_loc::places_builder_extent(pb, P.cell_xyz.data(), n);
+            rows.push_back(P.row);
+            t.info.cells += P.row.fine;
+            t.info.coarse_cells += P.row.coarse;
+        }
     }
     t.parts.clear();
     std::fclose(t.spill);

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
+#include <future>
 #include <map>
 #include <unordered_map>
 #include <unordered_set>
@@ -376,17 +377,24 @@ int pass_carve(Run *R, const pb_ground_t *ground, pb_err_t *err)
                     under[(size_t)((ty - lo[1]) * w + (tx - lo[0]))] = c;
                 }
             R->carve_tiles_held_max = std::max(R->carve_tiles_held_max, (long)tiles.held.size());
-            // each ray cast in the tiles under it (one longer than max_range_m: those within it)
-            for (const Ray &r : rays) {
-                const int64_t x0 = std::max(lo[0], cgrid.of(std::min(r.o.x(), r.e.x()))),
-                              x1 = std::min(hi[0], cgrid.of(std::max(r.o.x(), r.e.x()))),
-                              y0 = std::max(lo[1], cgrid.of(std::min(r.o.y(), r.e.y()))),
-                              y1 = std::min(hi[1], cgrid.of(std::max(r.o.y(), r.e.y())));
-                for (int64_t ty = y0; ty <= y1; ty++)
-                    for (int64_t tx = x0; tx <= x1; tx++)
-                        if (pb_carve_t *c = under[(size_t)((ty - lo[1]) * w + (tx - lo[0]))])
-                            pb_carve_ray(c, r.utime, r.o.data(), r.e.data());
-            }
+            // each ray cast in the tiles under it (one longer than max_range_m: those within it),
+            // the tiles of one checkerboard colour on another thread (a tile's counts are its
+            // own: each sees its rays in the same order either way)
+            auto cast = [&](int colour) {
+                for (const Ray &r : rays) {
+                    const int64_t x0 = std::max(lo[0], cgrid.of(std::min(r.o.x(), r.e.x()))),
+                                  x1 = std::min(hi[0], cgrid.of(std::max(r.o.x(), r.e.x()))),
+                                  y0 = std::max(lo[1], cgrid.of(std::min(r.o.y(), r.e.y()))),
+                                  y1 = std::min(hi[1], cgrid.of(std::max(r.o.y(), r.e.y())));
+                    for (int64_t ty = y0; ty <= y1; ty++)
+                        for (int64_t tx = x0 + ((x0 + ty + colour) & 1); tx <= x1; tx += 2)
+                            if (pb_carve_t *c = under[(size_t)((ty - lo[1]) * w + (tx - lo[0]))])
+                                pb_carve_ray(c, r.utime, r.o.data(), r.e.data());
+                }
+            };
+            std::future<void> other = std::async(std::launch::async, cast, 1);
+            cast(0);
+            other.get();
             // the tiles no sampled sweep of the last 10 reached paged out
             return sampled % 5 == 0 ? tiles.page_out(sampled - 10, e) : 0;
         }, err);

@@ -127,7 +127,7 @@ int main(void)
 {
     char dir[] = "/tmp/pb_test_bus_XXXXXX";
     if (!mkdtemp(dir)) return 2;
-    char in[300], out[300], out2[300], trunc[300], cmd[900];
+    char in[300], out[300], out2[300], trunc[300], cmd[1400];
     snprintf(in, sizeof in, "%s/in.lcm", dir);
     snprintf(out, sizeof out, "%s/out.lcm", dir);
     snprintf(out2, sizeof out2, "%s/out2.lcm", dir);

@@ -325,7 +325,8 @@ void places_encode(const places_t *p, std::vector<uint8_t> *out)
 {
     out->clear();
     out->reserve(kPlacesHeader + kBlockBytes * p->block_xy.size() + kPlaceBytes * p->spot_z.size());
-    out->insert(out->end(), kPlacesMagic, kPlacesMagic + 8);
+    out->resize(sizeof kPlacesMagic);
+    std::memcpy(out->data(), kPlacesMagic, sizeof kPlacesMagic);
     const places_config_t &c = p->cfg;
     for (double v : { c.ring_m, c.place_step_m, c.min_height_m, c.tall_m, c.clip_m, c.car_clearance_m }) put_le(out, v);
     put_le<int32_t>(out, c.shortlist);

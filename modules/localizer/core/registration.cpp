@@ -44,19 +44,24 @@ void voxel_centroids(const float *xyz, size_t n, double voxel, VoxelHash *hash,
     hash->reset(std::min<size_t>(n / 2 + 16, 1 << 15));
     sums->clear();
     counts->clear();
+    uint64_t last_key = VoxelHash::kEmpty;   /* neighbouring points often share a voxel: no lookup then */
+    int32_t k = -1;
     for (size_t i = 0; i < n; i++) {
         const float *p = xyz + 3 * i;
         uint64_t key;
         if (!voxel_key_of(p[0], p[1], p[2], inv, &key)) continue;
-        bool inserted;
-        int32_t k = hash->insert(key, (int32_t)counts->size(), &inserted);
-        if (inserted) { sums->insert(sums->end(), {0.f, 0.f, 0.f}); counts->push_back(0); }
+        if (key != last_key) {
+            bool inserted;
+            k = hash->insert(key, (int32_t)counts->size(), &inserted);
+            if (inserted) { sums->insert(sums->end(), {0.f, 0.f, 0.f}); counts->push_back(0); }
+            last_key = key;
+        }
         float *s = sums->data() + 3 * (size_t)k;
         s[0] += p[0]; s[1] += p[1]; s[2] += p[2];
         (*counts)[(size_t)k]++;
     }
-    for (size_t k = 0; k < counts->size(); k++)
-        for (int a = 0; a < 3; a++) (*sums)[3 * k + a] /= (float)(*counts)[k];
+    for (size_t j = 0; j < counts->size(); j++)
+        for (int a = 0; a < 3; a++) (*sums)[3 * j + a] /= (float)(*counts)[j];
 }
 
 struct Params {

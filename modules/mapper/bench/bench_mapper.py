@@ -23,9 +23,11 @@ OUTDIR/report.json. Both are scored against the reference (base poses in map):
                       100, 200, ..., 800 m of reference path (lengths shorter than the path) of
                       translation error / length and rotation error / length
   ATE rmse, max       position error after a rigid SE(3) (Umeyama, no scale) alignment
-  ms med, p99         CPU ms per frame (KISS-ICP: one core; ours: its main thread, from its report)
-  ms mean             CPU ms per frame, mean (ours: both of its threads, the one that builds the
-                      registration maps too, over the odometry pass): the figure compared
+  ms med, p99         CPU ms per frame (KISS-ICP: one core; ours: its main thread, from its
+                      report, without adding the sweep to the local map, done on another thread)
+  ms mean             CPU ms per frame, mean (ours: every thread of the process over the odometry
+                      pass, those that add to the local map and build the registration maps
+                      too): the figure compared
   RTF                 real-time factor: scan period (median spacing of the drive's sweeps) /
                       mean CPU time per frame
 The simulated drives' maps are also scored against the simulated world (simdrive --surface-distance

@@ -46,6 +46,10 @@ struct pb_odom {
     int64_t next_sweep = 0;   /* the sweep it is swapped in before ... */
     Vec3 next_from = Vec3::Zero();   /* ... or once the car is kSwapAfterM from where it started */
     std::string next_err;
+    /* the last sweep's points going into the cells on another thread, while the next sweep
+     * is registered (the registration reads the registration map, not the cells); settled
+     * before anything reads or changes the cells */
+    mutable std::future<void> adding;
     /* the car's own motion samples: from the newest one at or before the last sweep's middle on */
     std::vector<pb_odom_speed_t> speed;
     std::vector<pb_odom_rate_t> rate;
@@ -73,9 +77,15 @@ pb_odom_t *pb_odom_create(const pb_odom_config_t *cfg, const pb_reg_config_t *re
     return o;
 }
 
+static void settle(const pb_odom_t *o)
+{
+    if (o->adding.valid()) o->adding.get();
+}
+
 void pb_odom_destroy(pb_odom_t *o)
 {
     if (!o) return;
+    settle(o);
     if (o->next.valid()) pb_regmap_destroy(o->next.get());
     pb_regmap_destroy(o->regmap);
     delete o;
@@ -93,13 +103,18 @@ static Eigen::Isometry3d exp_step(const Vec3 &v, const Vec3 &w, double dt)
 static void add_to_map(pb_odom_t *o, const std::vector<float> &xyz, const Eigen::Isometry3d &pose)
 {
     const double inv = 1.0 / o->cfg.cell_m;
+    uint64_t last_key = pb_loc::VoxelHash::kEmpty;   /* neighbouring points often share a cell: no lookup then */
+    int32_t k = -1;
     for (size_t i = 0; i + 2 < xyz.size(); i += 3) {
         Vec3 p = pose * Vec3(xyz[i], xyz[i + 1], xyz[i + 2]);
         uint64_t key;
         if (!pb_loc::voxel_key_of(p.x(), p.y(), p.z(), inv, &key)) continue;
-        bool fresh;
-        int32_t k = o->index.insert(key, (int32_t)o->cells.size(), &fresh);
-        if (fresh) o->cells.push_back(Cell{{0, 0, 0}, 0});
+        if (key != last_key) {
+            bool fresh;
+            k = o->index.insert(key, (int32_t)o->cells.size(), &fresh);
+            if (fresh) o->cells.push_back(Cell{{0, 0, 0}, 0});
+            last_key = key;
+        }
         Cell &c = o->cells[(size_t)k];
         if (c.n >= kCellFull) continue;
         c.sum[0] += p.x(); c.sum[1] += p.y(); c.sum[2] += p.z();
@@ -339,8 +354,10 @@ int pb_odom_add(pb_odom_t *o, int64_t utime, const float *xyz, const int32_t *of
         o->motion_known = true;
     }
 
-    // 5. the sweep into the local map; the registration map rebuilt every few metres
-    add_to_map(o, pts, r.pose);
+    // 5. the sweep into the local map (on another thread unless the registration map is
+    //    rebuilt from it now); the registration map rebuilt every few metres
+    settle(o);
+    o->last_sweep.swap(pts);
     o->sweeps++;
     o->last_utime = t_ref;
     o->last_pose = r.pose;
@@ -351,13 +368,15 @@ int pb_odom_add(pb_odom_t *o, int64_t utime, const float *xyz, const int32_t *of
     }
     if (!o->regmap || (r.pose.translation() - o->built_at).norm() >= o->cfg.rebuild_m ||
         o->sweeps - o->built_sweep >= o->cfg.rebuild_sweeps) {
+        add_to_map(o, o->last_sweep, r.pose);
         if (rebuild(o, r.pose.translation(), err) != 0) return -1;
         r.rebuilt = 1;
+    } else {
+        const Eigen::Isometry3d pose = r.pose;
+        o->adding = std::async(std::launch::async, [o, pose]() { add_to_map(o, o->last_sweep, pose); });
     }
-    r.map_cells = (int64_t)o->cells.size();
     drop_before(&o->speed, t_ref);   /* the sample held at this middle starts the next reckoning */
     drop_before(&o->rate, t_ref);
-    o->last_sweep.swap(pts);
     *out = r;
     return 0;
 }
@@ -377,6 +396,7 @@ static Vec3 get_vec3(ByteReader &r)
 
 void pb_odom_save(const pb_odom_t *o, std::vector<uint8_t> *out)
 {
+    settle(o);   /* the cells with the last sweep's points */
     out->clear();
     out->reserve(256 + 28 * o->cells.size() + 12 * o->index.size() +
                  4 * (o->regmap_src.size() + o->next_src.size()) + 16 * o->speed.size() +

@@ -93,7 +93,6 @@ typedef struct {
     Eigen::Vector3d v_base;       /* the motion the sweep was deskewed with: m/s ... */
     Eigen::Vector3d w_base;       /* ... and rad/s, both in base */
     double inlier_fraction;       /* of the match (registration.h); NaN for FIRST/PREDICTED */
-    int64_t map_cells;            /* cells in the local map after this sweep */
     int rebuilt;                  /* 1 if a new registration map was started or swapped in after this sweep */
 } pb_odom_result_t;
 
