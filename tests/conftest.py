@@ -33,8 +33,9 @@ def pytest_configure(config):
 
 
 # The files that take longest (measured 2 Dec 2026: each 45-250 s of one worker), handed to
-# the workers first: `make test` gives each worker a file at a time, and one of these started
-# last kept one core busy alone for a minute and a half after the other had finished.
+# the workers first: `make test` gives each worker a file at a time in this order
+# (--no-loadscope-reorder; xdist's own order, by the number of tests in a file, put a file of
+# few but slow tests last, and one core worked alone for a minute and a half at the end).
 SLOWEST_FILES = ["test_mapper.py", "test_localizer.py", "test_simdrive.py", "test_world_actors.py",
                  "test_study_report.py", "test_terrain.py"]
 
