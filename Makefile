@@ -175,7 +175,7 @@ PYTEST = $(VPY) -m pytest -q -p no:cacheprovider -o tmp_path_retention_policy=fa
 TEST_JOBS ?= $(shell nproc 2>/dev/null || echo 2)
 test: all
 	@rc=0; none=0; \
-	$(PYTEST) -n $(TEST_JOBS) --dist loadfile --no-loadscope-reorder -m "not live" tests $(PYTEST_ARGS) || { r=$$?; [ $$r -eq 5 ] && none=$$((none+1)) || rc=$$r; }; \
+	$(PYTEST) -n $(TEST_JOBS) --dist loadfile -m "not live" tests $(PYTEST_ARGS) || { r=$$?; [ $$r -eq 5 ] && none=$$((none+1)) || rc=$$r; }; \
 	echo "make test: the live tests, alone"; \
 	$(PYTEST) -m live tests $(PYTEST_ARGS) || { r=$$?; [ $$r -eq 5 ] && none=$$((none+1)) || rc=$$r; }; \
 	[ $$none -lt 2 ] || { echo "make test: no test selected" >&2; rc=5; }; \

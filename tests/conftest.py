@@ -32,17 +32,7 @@ def pytest_configure(config):
                             "talks to it): `make test` runs these alone, after the others")
 
 
-# The files that take longest (measured 2 Dec 2026: each 45-250 s of one worker), handed to
-# the workers first: `make test` gives each worker a file at a time in this order
-# (--no-loadscope-reorder; xdist's own order, by the number of tests in a file, put a file of
-# few but slow tests last, and one core worked alone for a minute and a half at the end).
-SLOWEST_FILES = ["test_mapper.py", "test_localizer.py", "test_simdrive.py", "test_world_actors.py",
-                 "test_study_report.py", "test_terrain.py"]
-
-
 def pytest_collection_modifyitems(config, items):
-    rank = {name: k for k, name in enumerate(SLOWEST_FILES)}
-    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))   # stable: the rest keep their order
     if "real" in (config.getoption("-m") or "") or os.environ.get("PB_REAL") == "1":
         return
     skip = pytest.mark.skip(reason="real-data test: run `make test-real`")
