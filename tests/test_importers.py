@@ -313,6 +313,26 @@ def test_hdl_pair_map_with_a_vehicle_file_is_the_same_map(hdl_import, tmp_path):
     assert np.allclose(got.mean(axis=0), want.mean(axis=0), atol=1e-6)
 
 
+def test_hdl_pair_point_times_from_azimuth(hdl_import, tmp_path):
+    """The real HDL-32E sweeps carry no point times. Their PCD holds the points in firing
+    order (32 beams a firing, turning clockwise), so --spin cw finds where each sweep starts
+    and gives the points 0-100 ms; the other way round is an error naming the turn."""
+    d = hdl_import["dir"]
+    out = tmp_path / "spun.lcm"
+    p = run([BIN / "import-scans", "--scans", d / "scans", "--poses", d / "poses.txt", "--out", out, "--spin", "cw"])
+    assert "no point times" not in p.stderr
+    for s in scans_and_truth(out)[0]:
+        t = np.array(s.point_offset_us)
+        az = np.degrees(np.arctan2(np.array(s.y), np.array(s.x)))
+        assert t[0] == 0 and t.min() == 0 and 99000 <= t.max() <= 100000, (t[0], t.max())
+        # clockwise: a point a quarter turn on from the first (90 degrees less) at 25 ms
+        quarter = np.abs(((az[0] - az) % 360) - 90) < 0.5
+        assert quarter.sum() > 100 and np.all(np.abs(t[quarter] - 25000) < 200)
+    p = run([BIN / "import-scans", "--scans", d / "scans", "--poses", d / "poses.txt", "--out", out, "--spin", "ccw"],
+            check=False)
+    assert p.returncode == 1 and "its points turn clockwise" in p.stderr, p.stderr
+
+
 def test_hdl_pair_map_is_the_aligned_union(hdl_import):
     site = hdl_import["site"]
     assert sorted(os.listdir(site)) == ["map.pcd"]          # loadable as a site
@@ -541,6 +561,111 @@ def test_truncated_bin_names_byte_offset(tmp_path):
     assert "000001.bin: byte 816:" in p.stderr, p.stderr     # 51 points * 16 bytes
     scans, _ = scans_and_truth(tmp_path / "x.lcm")           # the scans before it are kept
     assert len(scans) == 1
+
+
+def spinning_sweep(rings=16, cols=900, seam_deg=37.0, sweep_s=0.1, ccw=False):
+    """A sweep of a spinning LiDAR in firing order (ring by ring, each turning from the seam):
+    (n, 6) float32 x y z i ring t, t in seconds after the sweep's start. The ranges vary
+    (a wall 12-18 m off), so neighbours in the file are neighbours in space."""
+    turn = np.arange(cols) / cols
+    az = np.radians(seam_deg) + (1 if ccw else -1) * 2 * np.pi * turn
+    rows = []
+    for r in range(rings):
+        el = np.radians(-15 + 30 * r / (rings - 1))
+        rng = 15 + 3 * np.sin(3 * az)
+        rows.append(np.column_stack([rng * np.cos(el) * np.cos(az), rng * np.cos(el) * np.sin(az),
+                                     rng * np.sin(el), np.full(cols, 10.0 + r), np.full(cols, r), turn * sweep_s]))
+    return np.vstack(rows).astype("<f4")
+
+
+def import_one(tmp_path, pts, *extra, check=True):
+    d = tmp_path / "s"
+    d.mkdir(exist_ok=True)
+    write_bin(d / "000000.bin", pts)
+    (tmp_path / "p.txt").write_text("1 0 0 0 0 1 0 0 0 0 1 0\n")
+    out = tmp_path / "x.lcm"
+    p = run([BIN / "import-scans", "--scans", d, "--poses", tmp_path / "p.txt", "--out", out, *extra], check=check)
+    return p, (scans_and_truth(out)[0] if p.returncode == 0 else None)
+
+
+def test_bin_fields_give_rings_and_point_times(tmp_path):
+    sweep = spinning_sweep()
+    p, scans = import_one(tmp_path, sweep, "--bin-fields", "x,y,z,i,ring,t")
+    s = scans[0]
+    assert np.array_equal(scan_array(s), sweep[:, :4])
+    assert np.array_equal(np.frombuffer(s.ring, np.uint8), sweep[:, 4].astype(np.uint8))
+    assert np.array_equal(np.array(s.point_offset_us), np.round(sweep[:, 5].astype(float) * 1e6).astype(int))
+    assert "no point times" not in p.stderr
+    # a field skipped with _: no intensity, no ring (255), no times (0) and a note saying so
+    p, scans = import_one(tmp_path, sweep, "--bin-fields", "x,y,z,_,_,_")
+    assert np.array_equal(scan_array(scans[0])[:, :3], sweep[:, :3])
+    assert set(scans[0].intensity) == {0.0} and set(scans[0].ring) == {255} and set(scans[0].point_offset_us) == {0}
+    assert "1 scans have no point times: imported as motion-compensated" in p.stderr, p.stderr
+
+
+def test_bin_of_another_point_size_is_an_error_naming_the_size(tmp_path):
+    """nuScenes' .bin holds 5 floats a point; read 4 at a time, x y z come from other fields.
+    With 900 points a ring the file is a multiple of 16 bytes, so only the points can tell."""
+    sweep = spinning_sweep()[:, :5]
+    p, _ = import_one(tmp_path, sweep, check=False)
+    assert p.returncode == 1
+    assert "000000.bin: read as 4 float32 a point" in p.stderr and "likely 5 floats each" in p.stderr, p.stderr
+    assert "--bin-fields" in p.stderr
+    _, scans = import_one(tmp_path, sweep, "--bin-fields", "x,y,z,i,ring")
+    assert np.array_equal(scan_array(scans[0]), sweep[:, :4])
+    # a cloud in no order (filtered, shuffled) is not judged: it imports as given
+    shuffled = sweep[np.random.default_rng(3).permutation(len(sweep))][:, :4]
+    _, scans = import_one(tmp_path, shuffled)
+    assert scans[0].npoints == len(shuffled)
+
+
+@pytest.mark.parametrize("ccw", [False, True])
+def test_spin_gives_point_times_from_azimuth(tmp_path, ccw):
+    """Raw sweeps without point times (x y z i): --spin takes each point's time from its
+    azimuth, the sweep starting at the file's first point."""
+    sweep = spinning_sweep(ccw=ccw)
+    truth = np.round(sweep[:, 5].astype(float) * 1e6)
+    p, scans = import_one(tmp_path, sweep[:, :4], "--spin", "ccw" if ccw else "cw")
+    got = np.array(scans[0].point_offset_us, dtype=float)
+    # within a microsecond but where float32 azimuths fall either side of the seam (a whole sweep)
+    near = np.abs(got - truth) <= 1
+    assert near.mean() > 0.99 and np.all(near | (np.abs(np.abs(got - truth) - 1e5) <= 1)), np.abs(got - truth).max()
+    assert "no point times" not in p.stderr
+    # the seam given: the same times; the other direction: an error naming it
+    _, scans = import_one(tmp_path, sweep[:, :4], "--spin", "ccw" if ccw else "cw", "--seam-deg", "37")
+    assert np.mean(np.abs(np.array(scans[0].point_offset_us) - truth) <= 1) > 0.99
+    p, _ = import_one(tmp_path, sweep[:, :4], "--spin", "cw" if ccw else "ccw", check=False)
+    assert p.returncode == 1
+    assert f"points turn {'counter-clockwise' if ccw else 'clockwise'}" in p.stderr, p.stderr
+
+
+def test_spin_needs_a_seam_for_points_in_no_order(tmp_path):
+    sweep = spinning_sweep()
+    shuffled = sweep[np.random.default_rng(5).permutation(len(sweep))]
+    p, _ = import_one(tmp_path, shuffled[:, :4], "--spin", "cw", check=False)
+    assert p.returncode == 1 and "not in firing order" in p.stderr and "--seam-deg" in p.stderr, p.stderr
+    _, scans = import_one(tmp_path, shuffled[:, :4], "--spin", "cw", "--seam-deg", "37")
+    got, truth = np.array(scans[0].point_offset_us), np.round(shuffled[:, 5].astype(float) * 1e6)
+    assert np.mean(np.abs(got - truth) <= 1) > 0.99
+    # point times of their own win over --spin, with a note
+    p, scans = import_one(tmp_path, sweep, "--bin-fields", "x,y,z,i,ring,t", "--spin", "cw")
+    assert np.array_equal(np.array(scans[0].point_offset_us), np.round(sweep[:, 5].astype(float) * 1e6))
+    assert "1 scans carry point times of their own: --spin not used" in p.stderr
+
+
+@pytest.mark.parametrize("fields,what", [("x,y,q", "'q' is not a field"), ("x,y,i", "x, y and z are needed"),
+                                         ("x,y,z,x", "'x' twice")])
+def test_bad_bin_fields(tmp_path, fields, what):
+    p, _ = import_one(tmp_path, spinning_sweep()[:, :4], "--bin-fields", fields, check=False)
+    assert p.returncode != 0 and what in p.stderr, p.stderr
+
+
+def test_bin_point_time_beyond_a_sweep_names_its_byte(tmp_path):
+    sweep = spinning_sweep()
+    sweep[20, 5] = 1.6e9     # an absolute time cannot be held by a float32 to the microsecond
+    p, _ = import_one(tmp_path, sweep, "--bin-fields", "x,y,z,i,ring,t", check=False)
+    assert p.returncode == 1
+    assert f"000000.bin: byte {20 * 24 + 20}: point time 1.6e+09 s" in p.stderr, p.stderr
 
 
 # ---------------------------------------------------------------- build-map

@@ -1,5 +1,6 @@
 /* map_source: the paged prior map from a site folder (see map_source.h). */
 #include "map_source.h"
+#include "pb_pcd.h"
 
 #include <fcntl.h>
 #include <sys/stat.h>
@@ -93,13 +94,16 @@ static int read_points(const char *pcd, points_fn fn, void *user, pb_err_t *err)
     }
     long data_at = std::ftell(f);
     /* what PCL's reader would crash or stumble on is refused here */
-    const char *bad = data.empty() ? "no DATA line: not a PCD header"
-                      : data != "binary" && data != "ascii" && data != "binary_compressed" ? "unknown DATA form"
-                      : points == 0 ? "no POINTS" : nullptr;
-    if (!bad && (std::find(fields.begin(), fields.end(), "x") == fields.end() ||
-                 std::find(fields.begin(), fields.end(), "y") == fields.end() ||
-                 std::find(fields.begin(), fields.end(), "z") == fields.end()))
-        bad = "PCD has no x, y, z fields";
+    if (pb_pcd_check(pcd, nullptr, err) != 0) {
+        std::fclose(f);
+        return -1;
+    }
+    const char *bad = points == 0 ? "no POINTS"
+                      : std::find(fields.begin(), fields.end(), "x") == fields.end() ||
+                                std::find(fields.begin(), fields.end(), "y") == fields.end() ||
+                                std::find(fields.begin(), fields.end(), "z") == fields.end()
+                            ? "PCD has no x, y, z fields"
+                            : nullptr;
     if (bad) {
         std::fclose(f);
         return pb_err_set(err, "%s: %s", pcd, bad);

@@ -19,6 +19,14 @@ BENCH_TARGETS += bench-localizer-trees
 bench-localizer-trees: $(BIN)/localizer $(BIN)/simdrive $(BIN)/build-map $(BIN)/build-ground $(BIN)/map-tiles
 	@$(VPY) modules/localizer/bench/tree_street.py
 
+# Raw sweeps without point times (a dataset's x y z i .bin): a 60 s simulated drive exported,
+# imported with its point times, with none and with times from azimuth (import-scans --spin),
+# localized LiDAR alone; about 2 minutes. build/bench/localizer-untimed.json.
+BENCH_TARGETS += bench-localizer-untimed
+.PHONY: bench-localizer-untimed
+bench-localizer-untimed: $(BIN)/localizer $(BIN)/simdrive $(BIN)/scan-export $(BIN)/import-scans
+	@$(VPY) modules/localizer/bench/bench_untimed.py
+
 # Resident memory of the localizer as it runs (map paged in tiles) vs every tile held (the
 # whole map), over a one-hour replay (a 232 s lap looped 16 times; replayed faster than
 # real time, 20-40 minutes on the shared machine). LOCMEM_LOOPS=N for fewer laps.

@@ -13,6 +13,7 @@
 #include "pb_err.h"
 #include "pb_ground.h"
 #include "pb_opt.h"
+#include "pb_pcd.h"
 
 static void usage(FILE *f)
 {
@@ -45,8 +46,18 @@ int main(int argc, char **argv)
     int parsed = pb_opt_parse("build-ground", opts, usage, 0, argc, argv);
     if (parsed >= 0) return parsed;
     pcl::PointCloud<pcl::PointXYZ> cloud;
-    if (pcl::io::loadPCDFile(map_path, cloud) < 0) {
-        std::fprintf(stderr, "build-ground: %s: cannot read as PCD\n", map_path);
+    pb_err_t perr;
+    if (pb_pcd_check(map_path, nullptr, &perr) != 0) {   /* PCL's reader trusts the header */
+        std::fprintf(stderr, "build-ground: %s\n", perr.msg);
+        return 1;
+    }
+    try {
+        if (pcl::io::loadPCDFile(map_path, cloud) < 0) {
+            std::fprintf(stderr, "build-ground: %s: cannot read as PCD\n", map_path);
+            return 1;
+        }
+    } catch (const std::exception &e) {
+        std::fprintf(stderr, "build-ground: %s: corrupt PCD: %s\n", map_path, e.what());
         return 1;
     }
     std::vector<float> xyz(cloud.size() * 3);

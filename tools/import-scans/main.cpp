@@ -21,8 +21,6 @@
 #include <vector>
 
 #include <Eigen/Geometry>
-#include <pcl/PCLPointCloud2.h>
-#include <pcl/io/pcd_io.h>
 
 #include "pb_err.h"
 #include "pb_log.h"
@@ -32,6 +30,7 @@
 #include "pb_scan.h"
 #include "pb_vehicle.h"
 #include "pose_files.h"
+#include "scan_files.h"
 #include "portobello_lidar_scan_t.h"
 #include "portobello_pose_t.h"
 
@@ -74,6 +73,20 @@ static void usage(FILE *f)
         "                 --voxel metres (default 0.15; 0 keeps every point). A folder holding\n"
         "                 only this file as map.pcd is a loadable site\n"
         "  --every N      import every Nth scan only (default 1)\n"
+        "  --bin-fields L the float32 fields of a .bin point, in order (default x,y,z,i: KITTI,\n"
+        "                 MulRan): names x y z i ring t (seconds after the scan's time) and _ (a\n"
+        "                 field to skip), e.g. x,y,z,i,ring (nuScenes). The first scan is checked:\n"
+        "                 read with the wrong point size, neighbours in the file jump apart, and\n"
+        "                 that is an error naming the size that fits\n"
+        "  --spin cw|ccw  scans without point times are raw sweeps of a LiDAR spinning this way\n"
+        "                 seen from above (Velodyne and Ouster: cw): each point's time from its\n"
+        "                 azimuth. Without it such scans are taken as motion-compensated (KITTI's\n"
+        "                 odometry scans are), every point at the scan's time\n"
+        "  --seam-deg D   with --spin: the azimuth (degrees, from the scan's x toward y) where a\n"
+        "                 sweep starts, at the scan's time. Default: a scan in firing order (as\n"
+        "                 sensors and KITTI-style .bin write them) starts at its first point; its\n"
+        "                 points must turn the way --spin says, else it is an error\n"
+        "  --sweep-ms MS  with --spin: the time of one turn (default 100, 10 Hz)\n"
         "  --sensor NAME  LIDAR_SCAN sensor name (default \"imported\"); the sensor string written is\n"
         "                 VEHICLE:NAME with --vehicle (the vehicle file's name), else lidar:NAME, so a\n"
         "                 module run with another vehicle file can tell and refuse the log\n"
@@ -81,106 +94,14 @@ static void usage(FILE *f)
         "warning names the counts. Errors name FILE:LINE (text files) or FILE: byte N (.bin).\n");
 }
 
-// ---------------------------------------------------------------- scans
+// ---------------------------------------------------------------- main
 
-struct Scan {
-    std::vector<float> x, y, z, intensity;
-    std::vector<int32_t> offset_us;
-    std::vector<uint8_t> ring;
-    bool has_time = false, has_ring = false;
-    long dropped = 0;
-    void clear()
-    {
-        x.clear(); y.clear(); z.clear(); intensity.clear(); offset_us.clear(); ring.clear();
-        has_time = has_ring = false;
-        dropped = 0;
-    }
-};
-
-static int read_bin(const std::string &path, Scan &s, pb_err_t *err)
+static int bin_fields_option(const char *prog, const char *arg, void *var)
 {
-    FILE *f = std::fopen(path.c_str(), "rb");
-    if (!f) return pb_err_set(err, "%s: %s", path.c_str(), std::strerror(errno));
-    std::fseek(f, 0, SEEK_END);
-    long size = std::ftell(f);
-    std::fseek(f, 0, SEEK_SET);
-    if (size < 0) {
-        std::fclose(f);
-        return pb_err_set(err, "%s: cannot size the file", path.c_str());
-    }
-    if (size % 16) {
-        std::fclose(f);
-        return pb_err_set(err, "%s: byte %ld: truncated point (file size %ld is not a multiple of 16 = 4 float32 "
-                          "x y z i)", path.c_str(), size - size % 16, size);
-    }
-    std::vector<float> buf(size_t(size) / 4);   // KITTI .bin is little-endian float32, as is this host
-    size_t got = buf.empty() ? 0 : std::fread(buf.data(), 16, size_t(size) / 16, f);
-    std::fclose(f);
-    if (got != size_t(size) / 16)
-        return pb_err_set(err, "%s: byte %zu: read error", path.c_str(), got * 16);
-    for (size_t i = 0; i < got; i++) {
-        const float *p = &buf[4 * i];
-        if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2])) { s.dropped++; continue; }
-        s.x.push_back(p[0]); s.y.push_back(p[1]); s.z.push_back(p[2]);
-        s.intensity.push_back(std::isfinite(p[3]) ? p[3] : 0.f);
-    }
-    return 0;
-}
-
-static double field_value(const uint8_t *p, uint8_t datatype)
-{
-    switch (datatype) {
-    case pcl::PCLPointField::INT8:    { int8_t v;   std::memcpy(&v, p, 1); return v; }
-    case pcl::PCLPointField::UINT8:   { uint8_t v;  std::memcpy(&v, p, 1); return v; }
-    case pcl::PCLPointField::INT16:   { int16_t v;  std::memcpy(&v, p, 2); return v; }
-    case pcl::PCLPointField::UINT16:  { uint16_t v; std::memcpy(&v, p, 2); return v; }
-    case pcl::PCLPointField::INT32:   { int32_t v;  std::memcpy(&v, p, 4); return v; }
-    case pcl::PCLPointField::UINT32:  { uint32_t v; std::memcpy(&v, p, 4); return v; }
-    case pcl::PCLPointField::FLOAT32: { float v;    std::memcpy(&v, p, 4); return v; }
-    case pcl::PCLPointField::FLOAT64: { double v;   std::memcpy(&v, p, 8); return v; }
-    default: return NAN;
-    }
-}
-
-static int read_pcd(const std::string &path, Scan &s, pb_err_t *err)
-{
-    pcl::PCLPointCloud2 c;
-    if (pcl::io::loadPCDFile(path, c) < 0) return pb_err_set(err, "%s: not a readable PCD file", path.c_str());
-    const pcl::PCLPointField *fx = nullptr, *fy = nullptr, *fz = nullptr, *fi = nullptr, *ft = nullptr, *fr = nullptr;
-    double tscale = 0;  // field units -> us
-    for (const auto &f : c.fields) {
-        if (f.name == "x") fx = &f;
-        else if (f.name == "y") fy = &f;
-        else if (f.name == "z") fz = &f;
-        else if (f.name == "intensity" || (f.name == "i" && !fi)) fi = &f;
-        else if (f.name == "t") { ft = &f; tscale = 1e-3; }        // Ouster: ns after the sweep start
-        else if (f.name == "time" && !ft) { ft = &f; tscale = 1e6; }  // Velodyne: s after the sweep start
-        else if (f.name == "ring") fr = &f;
-    }
-    if (!fx || !fy || !fz) return pb_err_set(err, "%s: PCD has no x y z fields", path.c_str());
-    s.has_time = ft != nullptr;
-    s.has_ring = fr != nullptr;
-    size_t n = size_t(c.width) * c.height;
-    if (c.data.size() < n * c.point_step) return pb_err_set(err, "%s: PCD data shorter than its header says", path.c_str());
-    for (size_t k = 0; k < n; k++) {
-        size_t row = k / c.width, col = k % c.width;
-        const uint8_t *p = c.data.data() + row * c.row_step + col * c.point_step;
-        double x = field_value(p + fx->offset, fx->datatype), y = field_value(p + fy->offset, fy->datatype),
-               z = field_value(p + fz->offset, fz->datatype);
-        if (!std::isfinite(x) || !std::isfinite(y) || !std::isfinite(z)) { s.dropped++; continue; }
-        s.x.push_back(float(x)); s.y.push_back(float(y)); s.z.push_back(float(z));
-        double i = fi ? field_value(p + fi->offset, fi->datatype) : 0.0;
-        s.intensity.push_back(std::isfinite(i) ? float(i) : 0.f);
-        if (ft) {
-            double t = field_value(p + ft->offset, ft->datatype) * tscale;
-            s.offset_us.push_back(std::isfinite(t) && std::fabs(t) < 2e9 ? int32_t(std::llround(t)) : 0);
-        }
-        if (fr) {
-            double r = field_value(p + fr->offset, fr->datatype);
-            s.ring.push_back(r >= 0 && r < 255 ? uint8_t(r) : 255);
-        }
-    }
-    return 0;
+    pb_err_t err;
+    if (parse_bin_fields(arg, static_cast<BinLayout *>(var), &err) == 0) return 0;
+    std::fprintf(stderr, "%s: --bin-fields: %s\n", prog, err.msg);
+    return -1;
 }
 
 static std::string lower_ext(const fs::path &p)
@@ -275,14 +196,18 @@ int main(int argc, char **argv)
 {
     const char *scans_dir = nullptr, *poses_path = nullptr, *calib_path = nullptr, *times_path = nullptr;
     const char *out_path = nullptr, *map_path = nullptr, *sensor = "imported", *vehicle_path = nullptr;
-    double voxel = 0.15;
+    double voxel = 0.15, seam_deg = NAN, sweep_ms = 100;
     long every = 1;
-    int quiet = 0;
+    int quiet = 0, spin = 0;
+    BinLayout layout;
+    static const char *const spins[] = {"none", "cw", "ccw"};
     const pb_opt_t opts[] = {
         PB_OPT_REQUIRED("scans", &scans_dir), PB_OPT_REQUIRED("poses", &poses_path), PB_OPT_STRING("calib", &calib_path),
         PB_OPT_STRING("times", &times_path), PB_OPT_REQUIRED("out", &out_path), PB_OPT_STRING("map-out", &map_path),
         PB_OPT_STRING("sensor", &sensor), PB_OPT_STRING("vehicle", &vehicle_path), PB_OPT_DOUBLE("voxel", &voxel, 0, 1000),
-        PB_OPT_LONG("every", &every, 1, 1000000), PB_OPT_FLAG("quiet", &quiet, 1), PB_OPT_END,
+        PB_OPT_LONG("every", &every, 1, 1000000), PB_OPT_FLAG("quiet", &quiet, 1),
+        PB_OPT_CALL("bin-fields", bin_fields_option, &layout), PB_OPT_CHOICE("spin", &spin, spins, 3),
+        PB_OPT_DOUBLE("seam-deg", &seam_deg, -360, 360), PB_OPT_DOUBLE("sweep-ms", &sweep_ms, 1, 1000), PB_OPT_END,
     };
     int parsed = pb_opt_parse("import-scans", opts, usage, 0, argc, argv);
     if (parsed >= 0) return parsed;
@@ -426,14 +351,14 @@ int main(int argc, char **argv)
     pb_progress_start(&prog, "import-scans", int64_t(pick.size()), quiet);
     Scan s;
     std::vector<uint8_t> buf;
-    long total_points = 0, total_dropped = 0, timed_fallback = 0;
+    long total_points = 0, total_dropped = 0, timed_fallback = 0, untimed = 0, spun_but_timed = 0;
     int status = 0;
     for (size_t j = 0; j < pick.size() && status == 0; j++) {
         size_t k = pick[j];
         pb_progress_update(&prog, int64_t(j));
         const std::string path = files[k].string();
         s.clear();
-        int rc = lower_ext(files[k]) == ".bin" ? read_bin(path, s, &err) : read_pcd(path, s, &err);
+        int rc = lower_ext(files[k]) == ".bin" ? read_bin(path, layout, j == 0, s, &err) : read_pcd(path, s, &err);
         if (rc != 0) {
             std::fprintf(stderr, "import-scans: %s\n", err.msg);
             status = 1;
@@ -442,7 +367,16 @@ int main(int argc, char **argv)
         int np = int(s.x.size());
         total_points += np;
         total_dropped += s.dropped;
-        if (!s.has_time) s.offset_us.assign(size_t(np), 0);
+        if (s.has_time && spin) spun_but_timed++;
+        else if (spin && times_from_azimuth(path, s, spin == 2, seam_deg * M_PI / 180, sweep_ms * 1000, &err) != 0) {
+            std::fprintf(stderr, "import-scans: %s\n", err.msg);
+            status = 1;
+            break;
+        }
+        if (!s.has_time) {
+            untimed++;
+            s.offset_us.assign(size_t(np), 0);
+        }
         if (!s.has_ring) s.ring.assign(size_t(np), 255);
         int64_t utime = times[k];
 
@@ -523,6 +457,12 @@ int main(int argc, char **argv)
     }
     if (total_dropped)
         std::fprintf(stderr, "import-scans: %ld non-finite points dropped\n", total_dropped);
+    if (untimed)
+        std::fprintf(stderr, "import-scans: %ld scans have no point times: imported as motion-compensated sweeps (every "
+                     "point at the scan's time); raw sweeps of a spinning LiDAR need --spin (see --help)\n", untimed);
+    if (spun_but_timed)
+        std::fprintf(stderr, "import-scans: %ld scans carry point times of their own: --spin not used for them\n",
+                     spun_but_timed);
     if (timed_fallback)
         std::fprintf(stderr, "import-scans: %ld scans had point times beyond the poses: placed with their scan pose\n",
                      timed_fallback);

@@ -221,3 +221,16 @@ class Listener:
 
     def __exit__(self, *exc):
         self.close()
+
+
+def lidar_poses_tum(export_dir, out):
+    """The LiDAR's poses in map (TUM) from a scan-export folder: its ground_truth.tum (base
+    in map) composed with base_from_lidar.txt, as import-scans --poses wants them."""
+    from scipy.spatial.transform import Rotation
+    export_dir = pathlib.Path(export_dir)
+    base_from_lidar = np.loadtxt(export_dir / "base_from_lidar.txt").reshape(4, 4)
+    gt = np.loadtxt(export_dir / "ground_truth.tum").reshape(-1, 8)
+    R = Rotation.from_quat(gt[:, 4:8])   # x y z w
+    pos = gt[:, 1:4] + R.apply(base_from_lidar[:3, 3])
+    q = (R * Rotation.from_matrix(base_from_lidar[:3, :3])).as_quat()
+    np.savetxt(out, np.column_stack([gt[:, 0], pos, q]), fmt="%.6f %.6f %.6f %.6f %.9f %.9f %.9f %.9f")

@@ -1,6 +1,7 @@
 /* regmap: prior map -> voxel hash of local planes (see regmap.h). */
 #include "regmap.h"
 #include "regmap_impl.h"
+#include "pb_pcd.h"
 
 #include <sys/stat.h>
 #include <cerrno>
@@ -196,7 +197,9 @@ pb_regmap_t *pb_regmap_from_points(const float *xyz, size_t n, const pb_regmap_c
 
 int pb_pcd_read_xyz(const char *pcd_path, std::vector<float> *xyz, size_t *total, pb_err_t *err)
 {
-    /* PCL parses the header and every data form (ascii, binary, binary_compressed) */
+    /* PCL parses the header and every data form (ascii, binary, binary_compressed), once
+     * the header is known not to crash it */
+    if (pb_pcd_check(pcd_path, nullptr, err) != 0) return -1;
     pcl::PCLPointCloud2 blob;
     int rc;
     try {
