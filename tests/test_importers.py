@@ -429,6 +429,25 @@ def test_kitti_bin_with_calib_and_times(tmp_path):
     assert np.allclose(truth[1].velocity, v / (1565943984.5 - 1565943983.5248752), rtol=1e-5)
 
 
+def test_every_and_first_split_a_sequence(tmp_path):
+    """--every 2 for the map's scans, --every 2 --first 1 for the others to localize in it."""
+    scans = make_bin_scans(tmp_path / "s", n=5)
+    (tmp_path / "p.txt").write_text("".join(f"1 0 0 {k} 0 1 0 0 0 0 1 0\n" for k in range(5)))
+    got = {}
+    for first in (0, 1):
+        out = tmp_path / f"x{first}.lcm"
+        run([BIN / "import-scans", "--scans", tmp_path / "s", "--poses", tmp_path / "p.txt", "--out", out,
+             "--every", "2", "--first", str(first)])
+        got[first] = scans_and_truth(out)
+    assert [t.position[0] for t in got[0][1]] == [0, 2, 4] and [t.position[0] for t in got[1][1]] == [1, 3]
+    assert [s.utime for s in got[1][0]] == [t.utime for t in got[1][1]]
+    keep = np.all(np.isfinite(scans[1][:, :3]), axis=1)
+    assert np.array_equal(scan_array(got[1][0][0]), scans[1][keep])
+    p = run([BIN / "import-scans", "--scans", tmp_path / "s", "--poses", tmp_path / "p.txt", "--out", tmp_path / "y.lcm",
+             "--first", "5"], check=False)
+    assert p.returncode == 1 and "no scan to import: 5 scans pair with poses and times, and --first is 5" in p.stderr
+
+
 def test_tum_poses_give_times(tmp_path):
     make_bin_scans(tmp_path / "s", n=2)
     (tmp_path / "tum.txt").write_text(

@@ -44,7 +44,7 @@ static void usage(FILE *f)
 {
     std::fprintf(f,
         "usage: import-scans --scans DIR --poses FILE [--calib FILE] [--times FILE] --out LOG.lcm\n"
-        "                    [--vehicle FILE] [--map-out MAP.pcd] [--voxel 0.15] [--every N]\n"
+        "                    [--vehicle FILE] [--map-out MAP.pcd] [--voxel 0.15] [--every N [--first K]]\n"
         "                    [--sensor NAME] [--quiet]\n"
         "\n"
         "Imports the scans of DIR (KITTI .bin float32 x y z i, or .pcd with fields x y z and\n"
@@ -73,6 +73,8 @@ static void usage(FILE *f)
         "                 --voxel metres (default 0.15; 0 keeps every point). A folder holding\n"
         "                 only this file as map.pcd is a loadable site\n"
         "  --every N      import every Nth scan only (default 1)\n"
+        "  --first K      ... from scan K on (0-based, default 0): --every 2 builds a map from the\n"
+        "                 even scans, --every 2 --first 1 gives the odd ones to localize in it\n"
         "  --bin-fields L the float32 fields of a .bin point, in order (default x,y,z,i: KITTI,\n"
         "                 MulRan): names x y z i ring t (seconds after the scan's time) and _ (a\n"
         "                 field to skip), e.g. x,y,z,i,ring (nuScenes). The first scan is checked:\n"
@@ -197,7 +199,7 @@ int main(int argc, char **argv)
     const char *scans_dir = nullptr, *poses_path = nullptr, *calib_path = nullptr, *times_path = nullptr;
     const char *out_path = nullptr, *map_path = nullptr, *sensor = "imported", *vehicle_path = nullptr;
     double voxel = 0.15, seam_deg = NAN, sweep_ms = 100;
-    long every = 1;
+    long every = 1, first = 0;
     int quiet = 0, spin = 0;
     BinLayout layout;
     static const char *const spins[] = {"none", "cw", "ccw"};
@@ -205,7 +207,8 @@ int main(int argc, char **argv)
         PB_OPT_REQUIRED("scans", &scans_dir), PB_OPT_REQUIRED("poses", &poses_path), PB_OPT_STRING("calib", &calib_path),
         PB_OPT_STRING("times", &times_path), PB_OPT_REQUIRED("out", &out_path), PB_OPT_STRING("map-out", &map_path),
         PB_OPT_STRING("sensor", &sensor), PB_OPT_STRING("vehicle", &vehicle_path), PB_OPT_DOUBLE("voxel", &voxel, 0, 1000),
-        PB_OPT_LONG("every", &every, 1, 1000000), PB_OPT_FLAG("quiet", &quiet, 1),
+        PB_OPT_LONG("every", &every, 1, 1000000), PB_OPT_LONG("first", &first, 0, 1000000000),
+        PB_OPT_FLAG("quiet", &quiet, 1),
         PB_OPT_CALL("bin-fields", bin_fields_option, &layout), PB_OPT_CHOICE("spin", &spin, spins, 3),
         PB_OPT_DOUBLE("seam-deg", &seam_deg, -360, 360), PB_OPT_DOUBLE("sweep-ms", &sweep_ms, 1, 1000), PB_OPT_END,
     };
@@ -317,9 +320,14 @@ int main(int argc, char **argv)
     std::vector<Eigen::Isometry3d> gt_poses;
     for (const auto &P : poses) gt_poses.push_back(P * lidar_from_base);
 
-    // The imported subset (every Nth), with its times and poses.
+    // The imported subset (every Nth from the first), with its times and poses.
     std::vector<size_t> pick;
-    for (size_t k = 0; k < n; k += size_t(every)) pick.push_back(k);
+    for (size_t k = size_t(first); k < n; k += size_t(every)) pick.push_back(k);
+    if (pick.empty()) {
+        std::fprintf(stderr, "import-scans: no scan to import: %zu scans pair with poses and times, and --first is %ld\n",
+                     n, first);
+        return 1;
+    }
     for (size_t j = 1; j < pick.size(); j++)
         if (times[pick[j]] <= times[pick[j - 1]]) {
             std::fprintf(stderr, "import-scans: warning: times from %s do not increase at scan %zu (%s)\n", time_src,
