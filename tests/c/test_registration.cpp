@@ -228,6 +228,28 @@ static void test_degenerate_corridor(void)
     pb_regmap_destroy(map);
 }
 
+/* The fits split between two threads give the same level as on one: the same cells, keys
+ * and rough voxels in the same order (the street has more voxels than a split needs). */
+static void test_build_split(void)
+{
+    std::vector<float> m;
+    street(&m, true, 0, 100);
+    pb_regmap_config_t cfg;
+    pb_regmap_config_default(&cfg);
+    pb_loc::Level one, two;
+    const size_t n1 = pb_loc::build_level(m.data(), m.size() / 3, cfg.voxel_m, &cfg, &one, false);
+    CHECK(n1 > 2 * 4096);
+    CHECK(pb_loc::build_level(m.data(), m.size() / 3, cfg.voxel_m, &cfg, &two, true) == n1);
+    CHECK(two.keys == one.keys);
+    CHECK(two.cells.size() == one.cells.size() &&
+          std::memcmp(two.cells.data(), one.cells.data(), one.cells.size() * sizeof(pb_loc::Cell)) == 0);
+    std::vector<uint64_t> r1, r2;
+    one.rough.for_each([&](uint64_t k, int32_t) { r1.push_back(k); });
+    two.rough.for_each([&](uint64_t k, int32_t) { r2.push_back(k); });
+    CHECK(!r1.empty() && r1 == r2);
+    for (size_t i = 0; i < one.keys.size(); i += 997) CHECK(two.index.find(one.keys[i]) == (int32_t)i);
+}
+
 static void test_regmap_errors(void)
 {
     pb_err_t err;
@@ -792,6 +814,7 @@ int main(void)
     test_align_street();
     test_degenerate_corridor();
     test_regmap_errors();
+    test_build_split();
     test_load_radius();
     test_poor_guess_settles();
     test_deskew();

@@ -1,5 +1,6 @@
 /* places: Scan-Context-like place recognition in the prior map (see places.h). */
 #include "places.h"
+#include "pb_split.h"
 
 #include <algorithm>
 #include <array>
@@ -273,17 +274,21 @@ places_t *places_builder_finish(places_builder_t *b)
             if (c.has_ground && !c.low && ix % step == 0 && iy % step == 0) spots.push_back({ iy, ix });
         }
     std::sort(spots.begin(), spots.end());
-    place_desc_t d;
-    for (const auto &s : spots) {
-        int ix = s[1], iy = s[0];
-        describe_column(p, ix, iy, &d);
-        finish(cfg, &d);
-        std::array<uint16_t, PLACE_RINGS> rk;
-        for (int r = 0; r < PLACE_RINGS; r++) rk[r] = (uint16_t)std::lround(std::min(1.f, std::max(0.f, d.ring_key[r])) * kKeyScale);
-        p->ring_key.push_back(rk);
-        p->spot_col.push_back({ ix, iy });
-        p->spot_z.push_back(b->at(ix, iy, false)->ground);
-    }
+    p->ring_key.resize(spots.size());
+    p->spot_col.resize(spots.size());
+    p->spot_z.resize(spots.size());
+    pb_split2(spots.size(), [&](size_t i0, size_t i1) {   /* each place its own */
+        place_desc_t d;
+        for (size_t i = i0; i < i1; i++) {
+            int ix = spots[i][1], iy = spots[i][0];
+            describe_column(p, ix, iy, &d);
+            finish(cfg, &d);
+            for (int r = 0; r < PLACE_RINGS; r++)
+                p->ring_key[i][r] = (uint16_t)std::lround(std::min(1.f, std::max(0.f, d.ring_key[r])) * kKeyScale);
+            p->spot_col[i] = { ix, iy };
+            p->spot_z[i] = b->at(ix, iy, false)->ground;
+        }
+    });
     if (p->spot_z.empty()) { delete p; return nullptr; }
     return p;
 }

@@ -2,12 +2,16 @@
 #include "regmap.h"
 #include "regmap_impl.h"
 #include "pb_pcd.h"
+#include "pb_split.h"
 
 #include <sys/stat.h>
 #include <cerrno>
 #include <cmath>
+#include <algorithm>
 #include <cstring>
+#include <future>
 #include <limits>
+#include <system_error>
 #include <new>
 #include <Eigen/Eigenvalues>
 #include <pcl/io/pcd_io.h>
@@ -52,11 +56,54 @@ int fit_target(double n, const double s[3], const double ss[6], const pb_regmap_
     return 0;
 }
 
+/* What the voxel of `key` holds (kRough, CELL_PLANE or CELL_LINE; 0 for nothing): the
+ * target fitted to its 3x3x3 neighbourhood's moments (shifted to this voxel's corner),
+ * else (at a junction such as a wall's foot) to its own points alone, in *cell. */
+const uint8_t kRough = 3;
+uint8_t fit_voxel(const VoxelHash &moment_index, const std::vector<Moments> &moments, uint64_t key,
+                  const Moments &own, double voxel, const pb_regmap_config_t *cfg, Cell *cell)
+{
+    int64_t ix, iy, iz;
+    voxel_unkey(key, &ix, &iy, &iz);
+    double N = 0, S[3] = {0, 0, 0}, SS[6] = {0, 0, 0, 0, 0, 0};
+    for (int dx = -1; dx <= 1; dx++)
+        for (int dy = -1; dy <= 1; dy++)
+            for (int dz = -1; dz <= 1; dz++) {
+                uint64_t nkey;
+                if (!voxel_key(ix + dx, iy + dy, iz + dz, &nkey)) continue;
+                int32_t k = moment_index.find(nkey);
+                if (k < 0) continue;
+                const Moments &m = moments[(size_t)k];
+                /* shift sums from the neighbour's corner by o = (dx,dy,dz)*voxel */
+                double o[3] = {dx * voxel, dy * voxel, dz * voxel};
+                double s[3] = {m.s[0] + m.n * o[0], m.s[1] + m.n * o[1], m.s[2] + m.n * o[2]};
+                SS[0] += m.ss[0] + 2 * o[0] * m.s[0] + m.n * o[0] * o[0];
+                SS[1] += m.ss[1] + o[0] * m.s[1] + o[1] * m.s[0] + m.n * o[0] * o[1];
+                SS[2] += m.ss[2] + o[0] * m.s[2] + o[2] * m.s[0] + m.n * o[0] * o[2];
+                SS[3] += m.ss[3] + 2 * o[1] * m.s[1] + m.n * o[1] * o[1];
+                SS[4] += m.ss[4] + o[1] * m.s[2] + o[2] * m.s[1] + m.n * o[1] * o[2];
+                SS[5] += m.ss[5] + 2 * o[2] * m.s[2] + m.n * o[2] * o[2];
+                N += m.n;
+                for (int a = 0; a < 3; a++) S[a] += s[a];
+            }
+    Eigen::Vector3d mu, u1, u2;
+    int kind = fit_target(N, S, SS, cfg, &mu, &u1, &u2);
+    if (!kind) kind = fit_target(own.n, own.s, own.ss, cfg, &mu, &u1, &u2);
+    if (!kind) return own.n >= 2 ? kRough : 0;   /* scattered (foliage) or too few points: no reliable target */
+    cell->kind = (uint8_t)kind;
+    cell->mean[0] = (float)(mu(0) + ix * voxel);
+    cell->mean[1] = (float)(mu(1) + iy * voxel);
+    cell->mean[2] = (float)(mu(2) + iz * voxel);
+    for (int a = 0; a < 3; a++) { cell->u1[a] = (float)u1(a); cell->u2[a] = (float)u2(a); }
+    return (uint8_t)kind;
+}
+
 }  // namespace
 
 /* Moments per voxel, then per voxel a target fitted to the points of its 3x3x3
  * neighbourhood (regmap_impl.h). */
-size_t pb_loc::build_level(const float *xyz, size_t n, double voxel, const pb_regmap_config_t *cfg, Level *lv)
+size_t pb_loc::build_level(const float *xyz, size_t n, double voxel, const pb_regmap_config_t *cfg, Level *lv,
+                          bool split)
 {
     lv->voxel = voxel;
     lv->inv_voxel = 1.0 / voxel;
@@ -81,7 +128,17 @@ size_t pb_loc::build_level(const float *xyz, size_t n, double voxel, const pb_re
         m.ss[3] += d[1] * d[1]; m.ss[4] += d[1] * d[2]; m.ss[5] += d[2] * d[2];
     }
     /* 2. per voxel: gather the neighbourhood's moments (shifted to this voxel's
-     *    corner), fit mean and covariance, classify by eigenvalues */
+     *    corner), fit mean and covariance, classify by eigenvalues (on two threads when
+     *    `split`: each voxel's fit is its own) */
+    std::vector<Cell> fitted(keys.size());
+    std::vector<uint8_t> fit_kind(keys.size());   /* 0 nothing, kRough, or CELL_* */
+    auto fit_run = [&](size_t c0, size_t c1) {
+        for (size_t c = c0; c < c1; c++)
+            fit_kind[c] = fit_voxel(moment_index, moments, keys[c], moments[c], voxel, cfg, &fitted[c]);
+    };
+    if (split) pb_split2(keys.size(), fit_run);
+    else fit_run(0, keys.size());
+    /* 3. the targets in the order their voxels first appear */
     lv->index.reset(keys.size());
     lv->rough.reset(16);
     lv->cells.clear();
@@ -89,49 +146,11 @@ size_t pb_loc::build_level(const float *xyz, size_t n, double voxel, const pb_re
     lv->keys.clear();
     lv->keys.reserve(keys.size());
     for (size_t c = 0; c < keys.size(); c++) {
-        int64_t ix, iy, iz;
-        voxel_unkey(keys[c], &ix, &iy, &iz);
-        double N = 0, S[3] = {0, 0, 0}, SS[6] = {0, 0, 0, 0, 0, 0};
-        for (int dx = -1; dx <= 1; dx++)
-            for (int dy = -1; dy <= 1; dy++)
-                for (int dz = -1; dz <= 1; dz++) {
-                    uint64_t key;
-                    if (!voxel_key(ix + dx, iy + dy, iz + dz, &key)) continue;
-                    int32_t k = moment_index.find(key);
-                    if (k < 0) continue;
-                    const Moments &m = moments[(size_t)k];
-                    /* shift sums from the neighbour's corner by o = (dx,dy,dz)*voxel */
-                    double o[3] = {dx * voxel, dy * voxel, dz * voxel};
-                    double s[3] = {m.s[0] + m.n * o[0], m.s[1] + m.n * o[1], m.s[2] + m.n * o[2]};
-                    SS[0] += m.ss[0] + 2 * o[0] * m.s[0] + m.n * o[0] * o[0];
-                    SS[1] += m.ss[1] + o[0] * m.s[1] + o[1] * m.s[0] + m.n * o[0] * o[1];
-                    SS[2] += m.ss[2] + o[0] * m.s[2] + o[2] * m.s[0] + m.n * o[0] * o[2];
-                    SS[3] += m.ss[3] + 2 * o[1] * m.s[1] + m.n * o[1] * o[1];
-                    SS[4] += m.ss[4] + o[1] * m.s[2] + o[2] * m.s[1] + m.n * o[1] * o[2];
-                    SS[5] += m.ss[5] + 2 * o[2] * m.s[2] + m.n * o[2] * o[2];
-                    N += m.n;
-                    for (int a = 0; a < 3; a++) S[a] += s[a];
-                }
-        /* the neighbourhood's plane, else (at a junction such as a wall's foot)
-         * the cell's own points alone */
-        const Moments &own = moments[c];
-        Eigen::Vector3d mu, u1, u2;
-        int kind = fit_target(N, S, SS, cfg, &mu, &u1, &u2);
-        if (!kind) kind = fit_target(own.n, own.s, own.ss, cfg, &mu, &u1, &u2);
-        if (!kind) {   /* scattered (foliage) or too few points: no reliable target */
-            bool inserted;
-            if (own.n >= 2) lv->rough.insert(keys[c], 0, &inserted);
-            continue;
-        }
-        Cell cell;
-        cell.kind = (uint8_t)kind;
-        cell.mean[0] = (float)(mu(0) + ix * voxel);
-        cell.mean[1] = (float)(mu(1) + iy * voxel);
-        cell.mean[2] = (float)(mu(2) + iz * voxel);
-        for (int a = 0; a < 3; a++) { cell.u1[a] = (float)u1(a); cell.u2[a] = (float)u2(a); }
         bool inserted;
+        if (fit_kind[c] == kRough) lv->rough.insert(keys[c], 0, &inserted);
+        if (fit_kind[c] != CELL_PLANE && fit_kind[c] != CELL_LINE) continue;
         lv->index.insert(keys[c], (int32_t)lv->cells.size(), &inserted);
-        lv->cells.push_back(cell);
+        lv->cells.push_back(fitted[c]);
         lv->keys.push_back(keys[c]);
     }
     return lv->cells.size();
@@ -164,12 +183,23 @@ pb_regmap_t *build(const float *xyz, size_t n, const pb_regmap_config_t *cfg, co
             if (v < info.min[a]) info.min[a] = v;
             if (v > info.max[a]) info.max[a] = v;
         }
+    /* two threads: the coarse level while the fine one takes its moments, then the fine
+     * level's fits split between them (the same cells as on one) */
+    std::future<size_t> coarse;
+    auto build_coarse = [xyz, n, cfg, m]() { return build_level(xyz, n, cfg->coarse_voxel_m, cfg, &m->coarse); };
     try {
-        info.cells = (int64_t)build_level(xyz, n, cfg->voxel_m, cfg, &m->fine);
-        if (cfg->coarse_voxel_m > 0)
-            info.coarse_cells = (int64_t)build_level(xyz, n, cfg->coarse_voxel_m, cfg, &m->coarse);
+        if (cfg->coarse_voxel_m > 0) {
+            try {
+                coarse = std::async(std::launch::async, build_coarse);
+            } catch (const std::system_error &) {   /* no thread to be had: here */
+                info.coarse_cells = (int64_t)build_coarse();
+            }
+        }
+        info.cells = (int64_t)build_level(xyz, n, cfg->voxel_m, cfg, &m->fine, true);
         columns_build(m->fine, &m->columns);
+        if (coarse.valid()) info.coarse_cells = (int64_t)coarse.get();
     } catch (const std::bad_alloc &) {
+        if (coarse.valid()) coarse.wait();   /* it writes into m */
         delete m;
         pb_err_set(err, "%s: out of memory preparing %zu map points", what, n);
         return nullptr;

@@ -64,8 +64,10 @@ struct Level {
 
 /* Builds one level of edge `voxel` from n points (xyz interleaved): moments per voxel,
  * then per voxel a target fitted to the points of its 3x3x3 neighbourhood. Cells come in
- * the order their voxel first appears in the points. Returns the number of targets. */
-size_t build_level(const float *xyz, size_t n, double voxel, const pb_regmap_config_t *cfg, Level *lv);
+ * the order their voxel first appears in the points; the same when `split` (the fits on
+ * two threads). Returns the number of targets. */
+size_t build_level(const float *xyz, size_t n, double voxel, const pb_regmap_config_t *cfg, Level *lv,
+                   bool split = false);
 
 }  // namespace pb_loc
 
