@@ -7,7 +7,6 @@
 #include <sys/stat.h>
 #include <cerrno>
 #include <cmath>
-#include <algorithm>
 #include <cstring>
 #include <future>
 #include <limits>
