@@ -1,10 +1,12 @@
-/* pb_split: a loop over independent items run on two threads.
+/* pb_split: independent work run on two threads.
  *
- * pb_split2(n, fn) calls fn(0, n / 2) on this thread and fn(n / 2, n) on another, and
- * returns when both are done; both on this thread when no thread can start. fn must write
- * only what belongs to its own items, so the result is the same as fn(0, n) alone: a
- * split never changes an answer, only the wall time. Below `min_items` it is not worth
- * a thread: fn(0, n) here. */
+ * pb_both(a, b) calls a() on this thread and b() on another, and returns when both are
+ * done (when a throws, after b is done too); both on this thread when no thread can
+ * start. a and b must not write what the other reads or writes, so the result is the same
+ * as a(); b(): running them at once never changes an answer, only the wall time.
+ *
+ * pb_split2(n, fn) is pb_both for a loop over n independent items: fn(0, n / 2) here and
+ * fn(n / 2, n) on another thread. Below `min_items` it is not worth a thread: fn(0, n). */
 #ifndef PB_SPLIT_H
 #define PB_SPLIT_H
 
@@ -12,18 +14,24 @@
 #include <future>
 #include <system_error>
 
+template <class A, class B>
+void pb_both(A a, B b)
+{
+    std::future<void> other;   /* std::async's future waits for b when it is destroyed */
+    try {
+        other = std::async(std::launch::async, b);
+    } catch (const std::system_error &) {
+        b();
+    }
+    a();
+    if (other.valid()) other.get();
+}
+
 template <class F>
 void pb_split2(size_t n, F fn, size_t min_items = 4096)
 {
     if (n < min_items) { fn((size_t)0, n); return; }
-    std::future<void> second;
-    try {
-        second = std::async(std::launch::async, [&fn, n]() { fn(n / 2, n); });
-    } catch (const std::system_error &) {
-        fn(n / 2, n);
-    }
-    fn((size_t)0, n / 2);
-    if (second.valid()) second.get();
+    pb_both([&fn, n]() { fn((size_t)0, n / 2); }, [&fn, n]() { fn(n / 2, n); });
 }
 
 #endif

@@ -8,9 +8,7 @@
 #include <cerrno>
 #include <cmath>
 #include <cstring>
-#include <future>
 #include <limits>
-#include <system_error>
 #include <new>
 #include <Eigen/Eigenvalues>
 #include <pcl/io/pcd_io.h>
@@ -184,21 +182,16 @@ pb_regmap_t *build(const float *xyz, size_t n, const pb_regmap_config_t *cfg, co
         }
     /* two threads: the coarse level while the fine one takes its moments, then the fine
      * level's fits split between them (the same cells as on one) */
-    std::future<size_t> coarse;
-    auto build_coarse = [xyz, n, cfg, m]() { return build_level(xyz, n, cfg->coarse_voxel_m, cfg, &m->coarse); };
     try {
-        if (cfg->coarse_voxel_m > 0) {
-            try {
-                coarse = std::async(std::launch::async, build_coarse);
-            } catch (const std::system_error &) {   /* no thread to be had: here */
-                info.coarse_cells = (int64_t)build_coarse();
-            }
-        }
-        info.cells = (int64_t)build_level(xyz, n, cfg->voxel_m, cfg, &m->fine, true);
-        columns_build(m->fine, &m->columns);
-        if (coarse.valid()) info.coarse_cells = (int64_t)coarse.get();
+        pb_both([&]() {
+                    info.cells = (int64_t)build_level(xyz, n, cfg->voxel_m, cfg, &m->fine, true);
+                    columns_build(m->fine, &m->columns);
+                },
+                [&]() {
+                    if (cfg->coarse_voxel_m > 0)
+                        info.coarse_cells = (int64_t)build_level(xyz, n, cfg->coarse_voxel_m, cfg, &m->coarse);
+                });
     } catch (const std::bad_alloc &) {
-        if (coarse.valid()) coarse.wait();   /* it writes into m */
         delete m;
         pb_err_set(err, "%s: out of memory preparing %zu map points", what, n);
         return nullptr;
