@@ -11,6 +11,7 @@
 #include "pb_bytes.h"
 #include "carve.h"
 #include "ground_build.h"
+#include "pb_split.h"
 
 /* The tiles of grid within reach of a sweep's points (range_m from the LiDAR, or its
  * farthest point's range when range_m < 0), into [lo, hi] (x, y): around the base's
@@ -212,16 +213,17 @@ struct CarveTiles {
 
     ~CarveTiles() { for (auto &h : held) pb_carve_destroy(h.second.carve); }
 
-    /* Tile k's carving made from its points (read into pts) and given its counts, if it
-     * was paged out; NULL on error. */
-    pb_carve_t *make(int64_t k, bool *was_out, pb_err_t *e)
+    /* Tile k's carving made from its points (read into *pts) and given its counts (through
+     * *bytes), if it was paged out; NULL on error. Reads only the tile's files: tiles can be
+     * made on two threads at once, each with its own buffers. */
+    pb_carve_t *make(int64_t k, bool *was_out, std::vector<TilePoint> *pts, std::vector<uint8_t> *bytes, pb_err_t *e) const
     {
-        if (tile_read(tile_path(R, 'p', k), &pts, e) != 0) return nullptr;
-        if (pts.empty()) return pb_err_set(e, "%s: no point in the tile", tile_path(R, 'p', k).c_str()), nullptr;
-        pb_carve_t *c = pb_carve_create(pts[0].p, pts.size(), sizeof(TilePoint) / sizeof(float), ground, &cfg);
+        if (tile_read(tile_path(R, 'p', k), pts, e) != 0) return nullptr;
+        if (pts->empty()) return pb_err_set(e, "%s: no point in the tile", tile_path(R, 'p', k).c_str()), nullptr;
+        pb_carve_t *c = pb_carve_create((*pts)[0].p, pts->size(), sizeof(TilePoint) / sizeof(float), ground, &cfg);
         const std::string counts = tile_path(R, 'c', k);
-        *was_out = read_file(counts, &bytes) == 0;
-        if (*was_out && pb_carve_load(c, bytes.data(), bytes.size()) != 0) {
+        *was_out = read_file(counts, bytes) == 0;
+        if (*was_out && pb_carve_load(c, bytes->data(), bytes->size()) != 0) {
             pb_carve_destroy(c);
             return pb_err_set(e, "%s: not this tile's counts", counts.c_str()), nullptr;
         }
@@ -234,7 +236,7 @@ struct CarveTiles {
         auto it = held.find(k);
         if (it == held.end()) {
             bool was_out;
-            pb_carve_t *c = make(k, &was_out, e);
+            pb_carve_t *c = make(k, &was_out, &pts, &bytes, e);
             if (!c) return nullptr;
             R->carve_tiles_paged_in += was_out;
             it = held.emplace(k, Held{c, 0}).first;
@@ -260,50 +262,90 @@ struct CarveTiles {
 
     /* Every tile's verdicts: its kept points sorted by seq (map.pcd's order) to its 'k'
      * file, the carved ones to the picture's layer. First every tile's cells carved on
-     * their own counts, so that a cell on a tile's border sees its neighbours over it. */
+     * their own counts, so that a cell on a tile's border sees its neighbours over it. Each
+     * step on two threads, half the tiles each (a tile's verdicts read only its own files
+     * and the sorted keys of all), the results then taken in tile order: the same files. */
     int finish(pb_err_t *err)
     {
-        std::vector<uint64_t> gone;
-        for (int64_t k : R->carve_tiles) {
+        const std::vector<int64_t> keys(R->carve_tiles.begin(), R->carve_tiles.end());
+        struct Half {
+            std::vector<TilePoint> pts;
+            std::vector<uint8_t> bytes, keep;
+            std::vector<uint64_t> gone;
+            pb_err_t err;
+            int rc = 0;
+        } half[2];
+        /* the tile's carving: the one held, else made (and destroyed by the caller: *made) */
+        auto carving = [&](int64_t k, Half &H, bool *made) -> pb_carve_t * {
             auto it = held.find(k);
-            if (it != held.end()) {
-                pb_carve_gone(it->second.carve, &gone);
-                continue;
-            }
+            *made = it == held.end();
+            if (!*made) return it->second.carve;
             bool was_out;
-            pb_carve_t *c = make(k, &was_out, err);
-            if (!c) return -1;
-            pb_carve_gone(c, &gone);
-            pb_carve_destroy(c);
-        }
+            pb_carve_t *c = make(k, &was_out, &H.pts, &H.bytes, &H.err);
+            if (!c) H.rc = -1;
+            return c;
+        };
+        // 1. the cells each tile carves on its own counts
+        pb_split2(keys.size(), [&](size_t a, size_t b) {
+            Half &H = half[a == 0 ? 0 : 1];
+            for (size_t i = a; i < b && H.rc == 0; i++) {
+                bool made;
+                pb_carve_t *c = carving(keys[i], H, &made);
+                if (!c) break;
+                pb_carve_gone(c, &H.gone);
+                if (made) pb_carve_destroy(c);
+            }
+        }, 2);
+        for (const Half &H : half)
+            if (H.rc != 0) return *err = H.err, -1;
+        std::vector<uint64_t> gone = std::move(half[0].gone);
+        gone.insert(gone.end(), half[1].gone.begin(), half[1].gone.end());
         std::sort(gone.begin(), gone.end());
-        std::vector<uint8_t> keep;
-        std::vector<TilePoint> kept;
-        for (int64_t k : R->carve_tiles) {
-            auto it = held.find(k);
-            pb_carve_t *c;
-            if (it == held.end()) {
-                bool was_out;
-                if (!(c = make(k, &was_out, err))) return -1;
-            } else {
-                c = it->second.carve;
-                held.erase(it);
-                if (tile_read(tile_path(R, 'p', k), &pts, err) != 0) { pb_carve_destroy(c); return -1; }
+        // 2. each tile's kept points to its 'k' file, what it carved kept for the picture
+        struct Verdict {
+            size_t carved = 0, kept = 0;
+            uint32_t first = UINT32_MAX;
+            std::pair<uint64_t, uint64_t> sum;
+            std::vector<float> removed;
+        };
+        std::vector<Verdict> verdicts(keys.size());
+        pb_split2(keys.size(), [&](size_t a, size_t b) {
+            Half &H = half[a == 0 ? 0 : 1];
+            std::vector<TilePoint> kept;
+            for (size_t i = a; i < b && H.rc == 0; i++) {
+                const int64_t k = keys[i];
+                bool made;
+                pb_carve_t *c = carving(k, H, &made);
+                if (!c) break;
+                if (!made && tile_read(tile_path(R, 'p', k), &H.pts, &H.err) != 0) { H.rc = -1; break; }
+                Verdict &V = verdicts[i];
+                V.carved = pb_carve_keep(c, &gone, &H.keep);
+                if (made) pb_carve_destroy(c);
+                kept.clear();
+                for (size_t j = 0; j < H.pts.size(); j++) {
+                    if (H.keep[j]) kept.push_back(H.pts[j]);
+                    else V.removed.insert(V.removed.end(), {H.pts[j].p[0], H.pts[j].p[1], H.pts[j].p[2]});
+                }
+                std::sort(kept.begin(), kept.end(), [](const TilePoint &x, const TilePoint &y) { return x.seq < y.seq; });
+                V.kept = kept.size();
+                V.first = kept.empty() ? UINT32_MAX : kept[0].seq;
+                V.sum = {kept.size() * sizeof(TilePoint), pb_fnv1a64(kept.data(), kept.size() * sizeof(TilePoint))};
+                if (tile_write(tile_path(R, 'k', k), kept.data(), kept.size(), false, &H.err) != 0) { H.rc = -1; break; }
+                std::remove(tile_path(R, 'p', k).c_str());
+                std::remove(tile_path(R, 'c', k).c_str());
             }
-            R->carved += pb_carve_keep(c, &gone, &keep);
-            pb_carve_destroy(c);
-            kept.clear();
-            for (size_t i = 0; i < pts.size(); i++) {
-                if (keep[i]) kept.push_back(pts[i]);
-                else R->layers.removed.insert(R->layers.removed.end(), {pts[i].p[0], pts[i].p[1], pts[i].p[2]});
-            }
-            std::sort(kept.begin(), kept.end(), [](const TilePoint &a, const TilePoint &b) { return a.seq < b.seq; });
-            R->map_points += kept.size();
-            R->kept_tiles.push_back({k, kept.empty() ? UINT32_MAX : kept[0].seq});
-            R->kept_sums.push_back({kept.size() * sizeof(TilePoint), pb_fnv1a64(kept.data(), kept.size() * sizeof(TilePoint))});
-            if (tile_write(tile_path(R, 'k', k), kept.data(), kept.size(), false, err) != 0) return -1;
-            std::remove(tile_path(R, 'p', k).c_str());
-            std::remove(tile_path(R, 'c', k).c_str());
+        }, 2);
+        for (auto &h : held) pb_carve_destroy(h.second.carve);
+        held.clear();
+        for (const Half &H : half)
+            if (H.rc != 0) return *err = H.err, -1;
+        for (size_t i = 0; i < keys.size(); i++) {
+            const Verdict &V = verdicts[i];
+            R->carved += V.carved;
+            R->layers.removed.insert(R->layers.removed.end(), V.removed.begin(), V.removed.end());
+            R->map_points += V.kept;
+            R->kept_tiles.push_back({keys[i], V.first});
+            R->kept_sums.push_back(V.sum);
         }
         return 0;
     }

@@ -6,6 +6,7 @@
  * whole map, corrupt files named) and the multi-scan pose refinement on a
  * simulated sequence with known truth. */
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <cstdlib>
@@ -650,6 +651,52 @@ static void test_map_tiles(void)
     pb_regmap_destroy(whole);
 }
 
+/* pb_tiles_point_tiles names the tiles of a point's voxel and its 8 neighbours at both
+ * levels, each once, in the order of a walk by rows over the fine level's, then the coarse
+ * one's new ones (the tiles' margins, and so map.tiles, follow that order): against that
+ * walk written out, on points near tile borders and corners on both sides of the origin,
+ * for tiles of 32 m, and of 0.5 and 1 m (a fine voxel a tile, where all 9 neighbours
+ * differ; no coarse voxel fits them). */
+static void test_point_tiles_walk()
+{
+    pb_regmap_config_t cfg;
+    pb_regmap_config_default(&cfg);
+    std::mt19937 rng(7);
+    std::uniform_real_distribution<double> off(-1.2, 1.2);
+    std::uniform_int_distribution<int> border(-4, 4);
+    long same = 0, runs = 0, tiles = 0;
+    for (double tile_m : {32.0, 0.5, 1.0}) {
+        for (int i = 0; i < 20000; i++) {
+            const float p[3] = {(float)(border(rng) * tile_m + off(rng)), (float)(border(rng) * tile_m + off(rng)),
+                                (float)off(rng)};
+            int32_t walk[18][2];
+            int n = 0;
+            for (int l = 0; l < 2; l++) {
+                const double voxel = l == 0 ? cfg.voxel_m : cfg.coarse_voxel_m;
+                const double k = tile_m / voxel;
+                const int64_t per = std::fabs(k - std::round(k)) < 1e-9 * k && k >= 1 ? (int64_t)std::llround(k) : 0;
+                if (per == 0) continue;
+                const int64_t ix = (int64_t)std::floor(p[0] / voxel), iy = (int64_t)std::floor(p[1] / voxel);
+                for (int dy = -1; dy <= 1; dy++)
+                    for (int dx = -1; dx <= 1; dx++) {
+                        const int32_t tx = (int32_t)std::floor((double)(ix + dx) / per),
+                                      ty = (int32_t)std::floor((double)(iy + dy) / per);
+                        bool seen = false;
+                        for (int j = 0; j < n && !seen; j++) seen = walk[j][0] == tx && walk[j][1] == ty;
+                        if (!seen && n < 9) { walk[n][0] = tx; walk[n][1] = ty; n++; }
+                    }
+            }
+            int32_t got[9][2];
+            const int k = pb_tiles_point_tiles(&cfg, tile_m, p, got);
+            same += k == n && std::memcmp(got, walk, sizeof(int32_t) * 2 * (size_t)n) == 0;
+            runs++;
+            tiles += k;
+        }
+    }
+    std::printf("point tiles: %ld of %ld points name the walk's tiles in its order (%ld tiles)\n", same, runs, tiles);
+    CHECK(same == runs && tiles > 2 * runs);
+}
+
 /* The tiled preparation (map-tiles, the mapper's site step: a tile at a time from its
  * points and a margin of its neighbours') writes the whole map's file byte for byte. */
 static std::vector<uint8_t> tiled_file(const std::vector<float> &m, bool margin, size_t *sent)
@@ -820,6 +867,7 @@ int main(void)
     test_deskew();
     test_hdl32_pair();
     test_window_search();
+    test_point_tiles_walk();
     test_map_tiles();
     test_refine();
     return pb_check_report("test_registration");

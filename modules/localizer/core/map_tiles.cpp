@@ -186,12 +186,25 @@ int pb_tiles_point_tiles(const pb_regmap_config_t *cfg, double tile_m, const flo
         uint64_t key;
         if (per == 0 || !voxel_index_of(p[0], p[1], p[2], 1.0 / voxel, &ix, &iy, &iz) || !voxel_key(ix, iy, iz, &key))
             continue;   /* no coarse level, or a point no voxel of this level holds */
-        for (int dy = -1; dy <= 1; dy++)
-            for (int dx = -1; dx <= 1; dx++) {
-                int32_t tx = (int32_t)pb_floor_div(ix + dx, per), ty = (int32_t)pb_floor_div(iy + dy, per);
+        /* the tiles of the voxel's column and its 8 neighbours, in the order of a walk over
+         * them by rows (dy, then dx): one division an axis, as a neighbour is in the next tile
+         * only across a border; each distinct tile once, those of the fine level first */
+        const int64_t cx = pb_floor_div(ix, per), cy = pb_floor_div(iy, per);
+        const int64_t rx = ix - cx * per, ry = iy - cy * per;
+        int32_t xs[3], ys[3];
+        int nx = 0, ny = 0;
+        for (int d = -1; d <= 1; d++) {   /* non-decreasing: a repeat follows its first */
+            const int32_t x = (int32_t)(cx - (d < 0 && rx == 0) + (d > 0 && rx == per - 1)),
+                          y = (int32_t)(cy - (d < 0 && ry == 0) + (d > 0 && ry == per - 1));
+            if (nx == 0 || xs[nx - 1] != x) xs[nx++] = x;
+            if (ny == 0 || ys[ny - 1] != y) ys[ny++] = y;
+        }
+        const int before = n;   /* the fine level's: the coarse one's may repeat them */
+        for (int j = 0; j < ny; j++)
+            for (int i = 0; i < nx; i++) {
                 bool seen = false;
-                for (int k = 0; k < n && !seen; k++) seen = out[k][0] == tx && out[k][1] == ty;
-                if (!seen && n < 9) { out[n][0] = tx; out[n][1] = ty; n++; }
+                for (int k = 0; k < before && !seen; k++) seen = out[k][0] == xs[i] && out[k][1] == ys[j];
+                if (!seen && n < 9) { out[n][0] = xs[i]; out[n][1] = ys[j]; n++; }
             }
     }
     return n;

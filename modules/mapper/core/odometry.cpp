@@ -105,20 +105,37 @@ static void add_to_map(pb_odom_t *o, const std::vector<float> &xyz, const Eigen:
     const double inv = 1.0 / o->cfg.cell_m;
     uint64_t last_key = pb_loc::VoxelHash::kEmpty;   /* neighbouring points often share a cell: no lookup then */
     int32_t k = -1;
-    for (size_t i = 0; i + 2 < xyz.size(); i += 3) {
-        Vec3 p = pose * Vec3(xyz[i], xyz[i + 1], xyz[i + 2]);
-        uint64_t key;
-        if (!pb_loc::voxel_key_of(p.x(), p.y(), p.z(), inv, &key)) continue;
-        if (key != last_key) {
-            bool fresh;
-            k = o->index.insert(key, (int32_t)o->cells.size(), &fresh);
-            if (fresh) o->cells.push_back(Cell{{0, 0, 0}, 0});
-            last_key = key;
+    /* a batch of points keyed and their slots prefetched, then their cells, then added in
+     * order (the index and cells of a 100 m local map are far larger than the caches: the
+     * misses overlap instead of coming one after the other) */
+    const int kBatch = 32;
+    Vec3 p[kBatch];
+    uint64_t key[kBatch];
+    const size_t n = xyz.size() / 3;
+    for (size_t i = 0; i < n;) {
+        int m = 0;
+        for (; i < n && m < kBatch; i++) {
+            p[m] = pose * Vec3(xyz[3 * i], xyz[3 * i + 1], xyz[3 * i + 2]);
+            if (!pb_loc::voxel_key_of(p[m].x(), p[m].y(), p[m].z(), inv, &key[m])) continue;
+            o->index.prefetch(key[m]);
+            m++;
         }
-        Cell &c = o->cells[(size_t)k];
-        if (c.n >= kCellFull) continue;
-        c.sum[0] += p.x(); c.sum[1] += p.y(); c.sum[2] += p.z();
-        c.n++;
+        for (int j = 0; j < m; j++) {
+            const int32_t c = o->index.find(key[j]);
+            if (c >= 0) __builtin_prefetch(&o->cells[(size_t)c], 1);
+        }
+        for (int j = 0; j < m; j++) {
+            if (key[j] != last_key) {
+                bool fresh;
+                k = o->index.insert(key[j], (int32_t)o->cells.size(), &fresh);
+                if (fresh) o->cells.push_back(Cell{{0, 0, 0}, 0});
+                last_key = key[j];
+            }
+            Cell &c = o->cells[(size_t)k];
+            if (c.n >= kCellFull) continue;
+            c.sum[0] += p[j].x(); c.sum[1] += p[j].y(); c.sum[2] += p[j].z();
+            c.n++;
+        }
     }
 }
 
