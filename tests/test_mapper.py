@@ -78,6 +78,11 @@ def test_trajectory_from_a_moving_start(drive):
     rep = json.loads((drive["out"] / "report.json").read_text())
     assert rep["scans"] == rep["scans_in_log"] == len(t) == 80
     assert rep["scans_weak"] == 0 and rep["scans_predicted"] == 0
+    # where the wall time went: every step ran, and the steps make up the whole
+    steps = rep["wall_s_steps"]
+    assert list(steps) == ["odometry", "loops", "map", "carve", "site"], steps
+    assert steps["odometry"] > 0 and steps["map"] > 0 and steps["carve"] > 0 and steps["site"] > 0, steps
+    assert abs(sum(steps.values()) - rep["wall_s"]) < 0.05 + 0.02 * rep["wall_s"], (steps, rep["wall_s"])
     truth_p, truth_r, _ = truth_in_map_frame(drive, t)
     err = np.linalg.norm(p - truth_p, axis=1)
     path = np.sum(np.linalg.norm(np.diff(truth_p, axis=0), axis=1))
@@ -378,6 +383,8 @@ def test_restart_inside_the_later_steps(drive, tmp_path):
         out = tmp_path / ck
         q, rep = kill_and_resume(drive["log"], out, checkpoint=ck)
         assert rep["resumed_after_step"] == step and rep["stage_checkpoint_refused"] == "", rep
+        if step == "carve":   # the map and carving steps were done before the restart: no time here
+            assert rep["wall_s_steps"]["map"] == 0 and rep["wall_s_steps"]["carve"] == 0, rep["wall_s_steps"]
         for f in ("trajectory.tum", "odometry.tum", "map.pcd", "map.tiles", "ground.pgm", "report.png"):
             assert filecmp.cmp(out / f, drive["out"] / f, shallow=False), (ck, f)
         assert not (out / ck).exists() and not (out / "map-tiles.tmp").exists()   # a finished run leaves none

@@ -128,6 +128,12 @@ int main(int argc, char **argv)
     R.log_path = logs[0];
     const auto wall0 = std::chrono::steady_clock::now();
     double cpu_ms[4] = {pb_clock_process_cpu_ms(), 0, 0, 0};
+    auto lap_at = wall0;   /* step k's wall time: since the last step ended */
+    auto lap = [&](int k) {
+        const auto now = std::chrono::steady_clock::now();
+        R.wall_s[k] = std::chrono::duration<double>(now - lap_at).count();
+        lap_at = now;
+    };
     pb_err_t err;
     int rc = pb_vehicle_load(vehicle, &R.veh, &err);
     std::deque<Run> later;   /* drives 2..n: the same options and vehicle */
@@ -160,6 +166,7 @@ int main(int argc, char **argv)
         D->odom = nullptr;
     }
     cpu_ms[1] = pb_clock_process_cpu_ms();
+    lap(0);
     // what an interrupted run had done after the odometry (1: the loops and anchoring, 2: the
     // map and the carving too)
     int done = 0;
@@ -177,11 +184,13 @@ int main(int argc, char **argv)
         if (rc == 0) rc = stage_write_poses(&R, &err);
     }
     cpu_ms[2] = pb_clock_process_cpu_ms();
+    lap(1);
     if (done < 2) {
         // 4. the map with the final poses
         if (rc == 0) rc = pass_map(&R, &err);
         R.peak_mb[2] = peak_rss_mb();
         reset_peak_rss();
+        lap(2);
         // 5. the ground model, and what moved carved out with it
         pb_ground_t *ground = rc == 0 ? make_ground(&R, &err) : nullptr;
         if (rc == 0) rc = pass_carve(&R, ground, &err);
@@ -190,11 +199,13 @@ int main(int argc, char **argv)
         R.peak_mb[3] = peak_rss_mb();
         reset_peak_rss();
         if (rc == 0) rc = stage_write_carved(&R, &err);
+        lap(3);
     }
     // 6. the site's other files, the report
     if (rc == 0) rc = write_site(&R, &err);
     cpu_ms[3] = pb_clock_process_cpu_ms();
     R.peak_mb[4] = peak_rss_mb();
+    lap(4);
     if (rc == 0)
         rc = write_report(R, cpu_ms, std::chrono::duration<double>(std::chrono::steady_clock::now() - wall0).count(), &err);
     if (rc != 0) {

@@ -95,6 +95,7 @@ struct Run {
     size_t carved = 0;
     double m_per_px = 0;
     double peak_mb[5] = {};                  /* peak resident memory of each step (kPeakStep) */
+    double wall_s[5] = {};                   /* wall time of each step (kPeakStep; 0: done before a restart) */
     /* restart (checkpoint_*): what a checkpoint must match, and the odometry pass's state */
     std::string log_id, build_id, options_id;
     long resumed_from = 0;                   /* scans the checkpoint had read; 0: not resumed */

@@ -252,6 +252,9 @@ int write_report(const Run &R, const double cpu_ms[4], double wall_s, pb_err_t *
         peak_all = std::max(peak_all, R.peak_mb[k]);
     }
     cJSON_AddNumberToObject(peak, "all", std::round(peak_all));
+    /* where the wall time went (the loops step holds the anchoring; carve the ground model) */
+    cJSON *steps = cJSON_AddObjectToObject(j, "wall_s_steps");
+    for (int k = 0; k < 5; k++) cJSON_AddNumberToObject(steps, kPeakStep[k], std::round(R.wall_s[k] * 100) / 100);
     cJSON_AddStringToObject(j, "picture", "report.png");
     cJSON_AddNumberToObject(j, "picture_m_per_px", R.m_per_px);
     cJSON_AddNumberToObject(j, "map_points", (double)R.map_points);

@@ -663,7 +663,10 @@ def print_table(result):
                   f"the whole mapper (odometry and map.pcd, 2 threads) {o['whole_mapper_rtf_wall']:.1f} x real time (wall"
                   + (f", median of {o['runs']} runs: " + " / ".join(f"{w:.1f}" for w in o["wall_s_runs"]) + " s; their "
                      + ("files the same byte for byte" if o["runs_identical"] else
-                        "files NOT the same: " + "; ".join(o["runs_differ"])) if o.get("runs", 1) > 1 else "") + ")")
+                        "files NOT the same: " + "; ".join(o["runs_differ"])) if o.get("runs", 1) > 1 else "") + ")"
+                  + ("; the last run's steps: " + ", ".join(f"{k} {v:.1f} s" for k, v in
+                                                            o["report"]["wall_s_steps"].items())
+                     if "wall_s_steps" in o.get("report", {}) else ""))
         mw = drv.get("map_vs_world")
         if mw:
             print(f"{dname}: the map against the simulated world: {mw['points']:,} points, {100 * mw['within_0.05']:.1f} % "
