@@ -105,12 +105,15 @@ static void add_to_map(pb_odom_t *o, const std::vector<float> &xyz, const Eigen:
     const double inv = 1.0 / o->cfg.cell_m;
     uint64_t last_key = pb_loc::VoxelHash::kEmpty;   /* neighbouring points often share a cell: no lookup then */
     int32_t k = -1;
-    /* a batch of points keyed and their slots prefetched, then their cells, then added in
-     * order (the index and cells of a 100 m local map are far larger than the caches: the
-     * misses overlap instead of coming one after the other) */
+    /* a batch of points keyed and their slots prefetched, then looked up and their cells
+     * prefetched, then added in order (the index and cells of a 100 m local map are far
+     * larger than the caches: the misses overlap instead of coming one after the other); a
+     * key found in the look-up is there still, one not found may have come in with an
+     * earlier point of the batch, so only those are inserted */
     const int kBatch = 32;
     Vec3 p[kBatch];
     uint64_t key[kBatch];
+    int32_t found[kBatch];
     const size_t n = xyz.size() / 3;
     for (size_t i = 0; i < n;) {
         int m = 0;
@@ -121,13 +124,13 @@ static void add_to_map(pb_odom_t *o, const std::vector<float> &xyz, const Eigen:
             m++;
         }
         for (int j = 0; j < m; j++) {
-            const int32_t c = o->index.find(key[j]);
-            if (c >= 0) __builtin_prefetch(&o->cells[(size_t)c], 1);
+            found[j] = o->index.find(key[j]);
+            if (found[j] >= 0) __builtin_prefetch(&o->cells[(size_t)found[j]], 1);
         }
         for (int j = 0; j < m; j++) {
             if (key[j] != last_key) {
-                bool fresh;
-                k = o->index.insert(key[j], (int32_t)o->cells.size(), &fresh);
+                bool fresh = false;
+                k = found[j] >= 0 ? found[j] : o->index.insert(key[j], (int32_t)o->cells.size(), &fresh);
                 if (fresh) o->cells.push_back(Cell{{0, 0, 0}, 0});
                 last_key = key[j];
             }
