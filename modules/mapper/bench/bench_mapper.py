@@ -634,6 +634,20 @@ def print_localizer_table(result):
     print()
 
 
+def whole_mapper_wall(o):
+    """The whole mapper's real-time factor, its runs, whether their files agreed, its steps."""
+    text = f"{o['whole_mapper_rtf_wall']:.1f} x real time (wall"
+    if o.get("runs", 1) > 1:
+        same = ("files the same byte for byte" if o["runs_identical"]
+                else "files NOT the same: " + "; ".join(o["runs_differ"]))
+        text += f", median of {o['runs']} runs: " + " / ".join(f"{w:.1f}" for w in o["wall_s_runs"]) + f" s; their {same}"
+    text += ")"
+    steps = o.get("report", {}).get("wall_s_steps")
+    if steps:
+        text += "; the last run's steps: " + ", ".join(f"{k} {v:.1f} s" for k, v in steps.items())
+    return text
+
+
 def print_table(result):
     hdr = (f"{'drive':<8} {'reference':<26} {'method':<10} {'scans':>5} {'path m':>7} {'drift %':>7} {'deg/100m':>8} "
            f"{'ATE rmse':>8} {'ATE max':>8} {'ms med':>7} {'ms p99':>7} {'ms mean':>7} {'RTF':>6}")
@@ -660,13 +674,7 @@ def print_table(result):
         if "ours_speedup_vs_kiss_icp" in drv:
             print(f"{dname}: ours {drv['ours_speedup_vs_kiss_icp']:.1f} x faster than KISS-ICP (mean CPU per sweep, "
                   f"{o['cpu_ms_mean']:.1f} ms with the map-building thread vs {drv['methods']['kiss_icp']['cpu_ms_mean']:.1f} ms); "
-                  f"the whole mapper (odometry and map.pcd, 2 threads) {o['whole_mapper_rtf_wall']:.1f} x real time (wall"
-                  + (f", median of {o['runs']} runs: " + " / ".join(f"{w:.1f}" for w in o["wall_s_runs"]) + " s; their "
-                     + ("files the same byte for byte" if o["runs_identical"] else
-                        "files NOT the same: " + "; ".join(o["runs_differ"])) if o.get("runs", 1) > 1 else "") + ")"
-                  + ("; the last run's steps: " + ", ".join(f"{k} {v:.1f} s" for k, v in
-                                                            o["report"]["wall_s_steps"].items())
-                     if "wall_s_steps" in o.get("report", {}) else ""))
+                  f"the whole mapper (odometry and map.pcd, 2 threads) {whole_mapper_wall(o)}")
         mw = drv.get("map_vs_world")
         if mw:
             print(f"{dname}: the map against the simulated world: {mw['points']:,} points, {100 * mw['within_0.05']:.1f} % "
