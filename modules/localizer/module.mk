@@ -129,6 +129,10 @@ bench-localizer-real: $(BIN)/bench-localizer $(BIN)/import-scans $(DEPS)
 	    --dump $(LOCREG_REAL)/baseline.bin --json $(LOCREG_REAL)/results.json && \
 	$(VPY) modules/localizer/bench/bench_gicp.py $(LOCREG_REAL)/baseline.bin $(LOCREG_REAL)/results.json \
 	    --reference-report $(LOCREG_REAL)/reference-report.json && \
+	echo "== MulRan Riverside02, the same scans and starts, ours with rough targets (foliage's Gaussians; off by default)" && \
+	$(BIN)/bench-localizer --log $(LOCREG_REAL)/all.lcm --map $(LOCREG_REAL)/map.pcd --odd --every 2 \
+	    $(LOCREAL_BENCH) --starts $(LOCREAL_STARTS) --baseline-every 0 --timing-runs 5 --seed 1 --rough-targets 1 \
+	    --json $(LOCREG_REAL)/results-rough.json && \
 	for split in odd even; do \
 	  echo "== MulRan Riverside02, the whole localizer, LiDAR alone: the $$split scans replayed in the site of the others" && \
 	  $(VPY) modules/localizer/bench/keyframe_site.py --scans $(MULRAN)/Scans --poses $(LOCREG_REAL)/refined_poses.txt \

@@ -2,7 +2,7 @@
  * descriptors stored in it (core/places) from arbitrary bytes: open, page at a few
  * places, read and decode the descriptors, query them; and the descriptors' decoder
  * on the bytes alone. Errors are expected; crashes and undefined behaviour are not.
- * fuzz-sources: modules/localizer/core/map_tiles.cpp modules/localizer/core/regmap.cpp modules/localizer/core/places.cpp modules/localizer/core/window_search.cpp common/pb_err.c
+ * fuzz-sources: modules/localizer/core/map_tiles.cpp modules/localizer/core/regmap.cpp modules/localizer/core/places.cpp modules/localizer/core/window_search.cpp common/pb_err.c common/pb_pcd.c
  * fuzz-libs: -Wno-deprecated -Imodules/localizer/core -I/usr/include/pcl-1.13 -I/usr/include/eigen3 -lpcl_io -lpcl_common */
 #include <cstdint>
 #include <cstring>

@@ -138,7 +138,7 @@ def interleaved(a, ours, scans, run, timing_runs):
            "--timing-runs", str(timing_runs)]
     if ours.get("global"):
         cmd += ["--global", f"{ours['global_radius_m']:g},{ours['global_yaw_deg']:g}"]
-    for opt in ("target_points", "coarse_iterations"):
+    for opt in ("target_points", "coarse_iterations", "rough_targets"):
         if ours.get(opt, -1) >= 0:
             cmd += ["--" + opt.replace("_", "-"), str(ours[opt])]
     rounds = []

@@ -69,7 +69,7 @@ static void usage(FILE *f)
         "                   from the JSON) is run N times and timed by the median: one scan's single\n"
         "                   millisecond is noise on a shared machine (default 1)\n"
         "  --verbose        one line per scan (ours, tracking start; then each NDT resolution's error)\n"
-        "  --target-points N, --coarse-iterations N   override the registration defaults\n"
+        "  --target-points N, --coarse-iterations N, --rough-targets 0|1   override the registration defaults\n"
         "\n"
         "       bench-localizer --time-dump DUMP --map MAP.pcd [--global R,DEG] [--timing-runs N]\n"
         "Times ours alone on a --dump file's points and starts (the 'reduced input' rows' work)\n"
@@ -211,7 +211,7 @@ static int parse_ndt_res(const char *prog, const char *arg, void *var)
 /* Our map and the registration's configs (tcfg: a tracking start, which carries the spread
  * it was drawn with, as the localizer's filter gives its own). NULL after a message. */
 static pb_regmap_t *load_ours(const char *map_path, double voxel, long target_points, long coarse_iterations,
-                              pb_reg_config_t *rcfg, pb_reg_config_t *tcfg, double *ms_load)
+                              long rough_targets, pb_reg_config_t *rcfg, pb_reg_config_t *tcfg, double *ms_load)
 {
     pb_regmap_config_t mcfg;
     pb_regmap_config_default(&mcfg);
@@ -224,6 +224,7 @@ static pb_regmap_t *load_ours(const char *map_path, double voxel, long target_po
     pb_reg_config_default(rcfg);
     if (target_points >= 0) rcfg->target_points = (int)target_points;
     if (coarse_iterations >= 0) rcfg->coarse_iterations = (int)coarse_iterations;
+    if (rough_targets >= 0) rcfg->rough_targets = (int)rough_targets;
     *tcfg = *rcfg;
     tcfg->prior_sigma_m = kTrackSigma;
     return map;
@@ -293,7 +294,7 @@ int main(int argc, char **argv)
     long every = 1, base_every = 10, max_scans = 1000000, seed = 1, nstarts = 1, timing_runs = 1;
     std::vector<double> ndt_res;
     bool odd = false, verbose = false;
-    long target_points = -1, coarse_iterations = -1;
+    long target_points = -1, coarse_iterations = -1, rough_targets = -1;
     const pb_opt_t opts[] = {
         PB_OPT_STRING("log", &log_path), PB_OPT_REQUIRED("map", &map_path), PB_OPT_STRING("time-dump", &time_dump_path), PB_OPT_STRING("vehicle", &vehicle_path),
         PB_OPT_DOUBLE("voxel", &voxel, 0.05, 10), PB_OPT_LONG("every", &every, 1, 100000),
@@ -302,7 +303,7 @@ int main(int argc, char **argv)
         PB_OPT_STRING("json", &json), PB_OPT_LONG("seed", &seed, 0, 1L << 40), PB_OPT_BOOL("verbose", &verbose, 1),
         PB_OPT_LONG("starts", &nstarts, 1, 10000), PB_OPT_DOUBLE("converge", &g_converge, 0.001, 100),
         PB_OPT_CALL("ndt-res", parse_ndt_res, &ndt_res), PB_OPT_LONG("target-points", &target_points, 0, 1000000),
-        PB_OPT_LONG("coarse-iterations", &coarse_iterations, 0, 100),
+        PB_OPT_LONG("coarse-iterations", &coarse_iterations, 0, 100), PB_OPT_LONG("rough-targets", &rough_targets, 0, 1),
         PB_OPT_LONG("timing-runs", &timing_runs, 1, 1000), PB_OPT_END,
     };
     int parsed = pb_opt_parse("bench-localizer", opts, usage, 0, argc, argv);
@@ -318,7 +319,7 @@ int main(int argc, char **argv)
     if (time_dump_path) {
         double ms_load;
         pb_reg_config_t rcfg, tcfg;
-        pb_regmap_t *map = load_ours(map_path, voxel, target_points, coarse_iterations, &rcfg, &tcfg, &ms_load);
+        pb_regmap_t *map = load_ours(map_path, voxel, target_points, coarse_iterations, rough_targets, &rcfg, &tcfg, &ms_load);
         if (!map) return 1;
         int rc = time_dump(time_dump_path, map, rcfg, tcfg, { global, g_radius, g_yaw_deg * M_PI / 180 }, timing_runs);
         pb_regmap_destroy(map);
@@ -409,7 +410,7 @@ int main(int argc, char **argv)
     // ---- our registration: map prepared once, then every scan
     double ms_load = 0;
     pb_reg_config_t rcfg, tcfg;
-    pb_regmap_t *map = load_ours(map_path, voxel, target_points, coarse_iterations, &rcfg, &tcfg, &ms_load);
+    pb_regmap_t *map = load_ours(map_path, voxel, target_points, coarse_iterations, rough_targets, &rcfg, &tcfg, &ms_load);
     if (!map) return 1;
     pb_regmap_info_t info;
     pb_regmap_info(map, &info);
@@ -588,8 +589,8 @@ int main(int argc, char **argv)
         char map_abs[PATH_MAX];
         if (!realpath(map_path, map_abs)) std::snprintf(map_abs, sizeof map_abs, "%s", map_path);
         std::fprintf(f, "{\n  \"map\": \"%s\", \"voxel\": %g, \"global_radius_m\": %g, \"global_yaw_deg\": %g, "
-                     "\"target_points\": %ld, \"coarse_iterations\": %ld,\n", map_abs, voxel, g_radius, g_yaw_deg,
-                     target_points, coarse_iterations);
+                     "\"target_points\": %ld, \"coarse_iterations\": %ld, \"rough_targets\": %ld,\n", map_abs, voxel,
+                     g_radius, g_yaw_deg, target_points, coarse_iterations, rough_targets);
         std::fprintf(f, "  \"scans\": %zu, \"baseline_scans\": %zu, \"baseline_every\": %ld, \"global\": %s,\n"
                      "  \"starts_per_scan\": %ld, \"timing_runs\": %ld, \"converge_m\": %g, \"start\": \"%s\", \"ndt_res\": [",
                      scans.size(), nsub, base_every, global ? "true" : "false", nstarts, timing_runs, g_converge, start);

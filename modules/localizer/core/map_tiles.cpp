@@ -19,8 +19,8 @@ using namespace pb_loc;
 namespace {
 
 const char kMagic[8] = {'P', 'B', 'T', 'I', 'L', 'E', 'S', '1'};
-const uint32_t kVersion = 3;   /* 2: dense place descriptors (PBPLACE2) */
-const size_t kHeaderBytes = 192, kTableBytes = 32, kCellBytes = 48, kRoughBytes = 8;
+const uint32_t kVersion = 4;   /* 3: rough cells were keys alone; 2: dense place descriptors (PBPLACE2) */
+const size_t kHeaderBytes = 192, kTableBytes = 32, kCellBytes = 48, kRoughBytes = 48;
 
 /* voxels per tile edge, or 0 when tile_m is not a whole multiple of voxel */
 int64_t voxels_per_tile(double tile_m, double voxel)
@@ -73,7 +73,8 @@ int tile_geometry(const pb_regmap_config_t *cfg, double tile_m, bool coarse, int
     return 0;
 }
 
-/* Appends one tile's bytes: the given fine then coarse cells, then its rough keys. */
+/* Appends one tile's bytes: the given fine then coarse cells, then its rough cells (keys of
+ * the fine level's, with their Gaussians). */
 void put_tile(const Level *lv[2], const std::array<std::vector<uint32_t>, 2> &cells, const std::vector<uint64_t> &rough,
               std::vector<uint8_t> *out)
 {
@@ -90,7 +91,10 @@ void put_tile(const Level *lv[2], const std::array<std::vector<uint32_t>, 2> &ce
             at += kCellBytes;
         }
     for (uint64_t key : rough) {
+        const Rough &r = lv[0]->roughs[(size_t)lv[0]->rough.find(key)];
         put<uint64_t>(out, at, key);
+        std::memcpy(out->data() + at + 8, r.mean, 12);
+        std::memcpy(out->data() + at + 20, r.w, 24);
         at += kRoughBytes;
     }
 }
@@ -270,7 +274,7 @@ struct pb_tiles {
     std::vector<TileEntry> table;
     std::unordered_map<uint64_t, size_t> by_id;   /* tile id -> table row */
     std::vector<char> loaded;                     /* per table row */
-    std::vector<uint64_t> rough;                  /* rough keys of the loaded tiles */
+    std::vector<uint64_t> rough;                  /* rough keys of the loaded tiles (their targets: map->fine.roughs) */
     pb_tiles_source_t source;
     uint64_t places_offset = 0, places_bytes = 0;
     int tiles_loaded = 0;
@@ -424,20 +428,25 @@ void compact(const pb_tiles_t *t, int l, Level *lv)
     lv->keys.resize(w);
 }
 
-/* Drops the rough keys of unloaded tiles. */
+/* Drops the rough cells of unloaded tiles (keys and targets alike). */
 void compact_rough(pb_tiles_t *t)
 {
+    std::vector<Rough> &roughs = t->map->fine.roughs;
     size_t w = 0;
-    for (uint64_t key : t->rough) {
+    for (size_t i = 0; i < t->rough.size(); i++) {
         int32_t tx, ty;
-        tile_of_key(key, t->per_tile[0], &tx, &ty);
+        tile_of_key(t->rough[i], t->per_tile[0], &tx, &ty);
         auto it = t->by_id.find(tile_id(tx, ty));
         if (it == t->by_id.end() || !t->loaded[it->second]) continue;
-        t->rough[w++] = key;
+        t->rough[w] = t->rough[i];
+        roughs[w] = roughs[i];
+        w++;
     }
     t->rough.resize(w);
+    roughs.resize(w);
 }
 
+/* rough: the level's rough keys, the i-th of lv->roughs[i] (NULL: none) */
 void reindex(Level *lv, const std::vector<uint64_t> *rough)
 {
     lv->index.reset(lv->cells.size());
@@ -445,7 +454,7 @@ void reindex(Level *lv, const std::vector<uint64_t> *rough)
     for (size_t i = 0; i < lv->keys.size(); i++) lv->index.insert(lv->keys[i], (int32_t)i, &inserted);
     lv->rough.reset(rough ? rough->size() : 0);
     if (rough)
-        for (uint64_t key : *rough) lv->rough.insert(key, 0, &inserted);
+        for (size_t i = 0; i < rough->size(); i++) lv->rough.insert((*rough)[i], (int32_t)i, &inserted);
 }
 
 /* Reads one tile and appends its cells; on error nothing is appended. */
@@ -471,13 +480,26 @@ int load_tile(pb_tiles_t *t, size_t row, pb_err_t *err)
     }
     const uint8_t *rough = t->buf.data() + n * kCellBytes;
     for (size_t i = 0; i < e.rough; i++) {
+        const uint8_t *r = rough + i * kRoughBytes;
         int32_t tx, ty;
-        tile_of_key(get<uint64_t>(rough + i * kRoughBytes), t->per_tile[0], &tx, &ty);
+        tile_of_key(get<uint64_t>(r), t->per_tile[0], &tx, &ty);
         if (tx != e.tx || ty != e.ty)
             return pb_err_set(err, "%s: byte %" PRIu64 ": rough cell of another tile in tile (%d, %d)", t->name.c_str(),
                               e.offset + n * kCellBytes + i * kRoughBytes, e.tx, e.ty);
+        bool finite = true;
+        for (int k = 0; k < 9; k++) finite &= std::isfinite(get<float>(r + 8 + 4 * k));
+        if (!finite || get<float>(r + 20) < 0)   /* w[0], C^-1/2's first diagonal entry: > 0, or 0 for none */
+            return pb_err_set(err, "%s: byte %" PRIu64 ": corrupt rough cell in tile (%d, %d)", t->name.c_str(),
+                              e.offset + n * kCellBytes + i * kRoughBytes, e.tx, e.ty);
     }
-    for (size_t i = 0; i < e.rough; i++) t->rough.push_back(get<uint64_t>(rough + i * kRoughBytes));
+    for (size_t i = 0; i < e.rough; i++) {
+        const uint8_t *r = rough + i * kRoughBytes;
+        Rough g;
+        std::memcpy(g.mean, r + 8, 12);
+        std::memcpy(g.w, r + 20, 24);
+        t->rough.push_back(get<uint64_t>(r));
+        t->map->fine.roughs.push_back(g);
+    }
     for (size_t i = 0; i < n; i++) {
         const uint8_t *r = t->buf.data() + i * kCellBytes;
         Level &lv = i < e.fine ? t->map->fine : t->map->coarse;

@@ -13,16 +13,16 @@
  * loaded tiles cover the scan, registration gives bit-identical poses with and
  * without paging.
  *
- * Each tile also holds the keys of its rough cells (fine voxels of structure that
- * fits no plane or line: trees, bushes, fences), which the structure test counts
- * as map evidence. The place descriptors of the whole map (core/places, for a
+ * Each tile also holds its rough cells (fine voxels of structure that fits no plane
+ * or line: trees, bushes, fences) with their Gaussians: registration's target where
+ * no plane or line is near, and map evidence for the structure test. The place descriptors of the whole map (core/places, for a
  * start with no prior) are stored once after the tiles: they are small (held
  * sparsely, in the blocks of columns that have map cells) and a global search needs
  * all of them.
  *
  * File (little-endian, written and read by this code only):
- *   header, 192 bytes: "PBTILES1", u32 version (3; 2 had dense place
- *     descriptors and is refused), u32 tiles, f64 voxel_m,
+ *   header, 192 bytes: "PBTILES1", u32 version (4; 3 had rough cells without
+ *     their Gaussians, 2 dense place descriptors: both refused), u32 tiles, f64 voxel_m,
  *     coarse_voxel_m, planarity_max, tile_m, i32 min_points, i32 0,
  *     i64 map points, fine cells, coarse cells, f64 min[3], max[3],
  *     (128) u64 source bytes, u32 source CRC-32, u32 0 (the map.pcd it was
@@ -31,7 +31,8 @@
  *     u64 byte offset, u32 fine cells, u32 coarse cells, u32 rough cells, u32 0
  *   a tile: its fine cells then its coarse cells, 48 bytes each: u64 voxel
  *     key, f32 mean[3], u1[3], u2[3], u8 kind (1 plane, 2 line), 3 bytes 0;
- *     then its rough cells, u64 voxel key each
+ *     then its rough cells, 48 bytes each: u64 voxel key, f32 mean[3], f32 w[6]
+ *     (C^-1/2's upper triangle; w[0] = 0: too few points for a target), 4 bytes 0
  *   places: the bytes of places_encode (core/places.h)
  *
  * Pure: reading is through a callback the caller provides (the shell does the

@@ -66,6 +66,7 @@ Match match_to_others(const std::vector<std::vector<float>> &scans, const std::v
     pb_reg_config_t rc;
     pb_reg_config_default(&rc);
     rc.coarse_iterations = cfg->coarse_iterations;
+    rc.rough_targets = 0;   /* the others' scans at disturbed poses: a thick surface is their misalignment */
     pb_reg_result_t r;
     pb_reg_config_t ev = rc;
     ev.max_iterations = 0;
@@ -131,6 +132,7 @@ std::vector<Edge> measure_edges(const std::vector<std::vector<float>> &scans, co
     pb_reg_config_t rc;
     pb_reg_config_default(&rc);
     rc.coarse_iterations = cfg->coarse_iterations;
+    rc.rough_targets = 0;   /* one sparse scan's scattered cells are too few points for a Gaussian */
     std::vector<Edge> edges;
     for (size_t i = 0; i < poses.size(); i++)
         for (size_t j : neighbours(poses, i, cfg)) {

@@ -67,7 +67,7 @@ void voxel_centroids(const float *xyz, size_t n, double voxel, VoxelHash *hash,
 struct Params {
     int max_iterations;
     double max_corr, min_corr, kernel, eps_m, eps_rad, inlier;
-    bool planar_only;
+    bool rough_targets;
 };
 
 struct Accum {
@@ -91,6 +91,7 @@ struct NearCache {
     std::vector<uint64_t> key;        /* voxel key of each point at its last look-up */
     std::vector<uint8_t> n;
     std::vector<const Cell *> near;   /* 7 per point */
+    std::vector<const Rough *> rough; /* the point's rough target when no cell is near, else NULL */
 
     /* for npts points on level (emptied when either changes) */
     void prepare(const Level &level, size_t npts)
@@ -100,21 +101,38 @@ struct NearCache {
         key.assign(npts, ~(uint64_t)0);
         n.assign(npts, 0);
         near.assign(7 * npts, nullptr);
+        rough.assign(npts, nullptr);
     }
 
-    /* the targets near point i, now at q */
-    int lookup(size_t i, const Eigen::Vector3d &q, const Cell *const **out)
+    /* the targets near point i, now at q; *r (when r is given, as it is for every call of
+     * one align or none): its rough target when there are none */
+    int lookup(size_t i, const Eigen::Vector3d &q, const Cell *const **out, const Rough **r)
     {
         uint64_t k;
         *out = &near[7 * i];
+        if (r) *r = nullptr;
         if (!voxel_key_of(q(0), q(1), q(2), lv->inv_voxel, &k)) return 0;
         if (key[i] != k) {
             key[i] = k;
             n[i] = (uint8_t)lv->lookup_near(q(0), q(1), q(2), &near[7 * i]);
+            rough[i] = n[i] || !r ? nullptr : rough_at(*lv, k);
         }
+        if (r) *r = rough[i];
         return n[i];
     }
+
+    /* the rough target of voxel k, or NULL */
+    static const Rough *rough_at(const Level &lv, uint64_t k)
+    {
+        if (lv.roughs.empty()) return nullptr;
+        int32_t j = lv.rough.find(k);
+        return j >= 0 && lv.roughs[(size_t)j].target() ? &lv.roughs[(size_t)j] : nullptr;
+    }
 };
+
+/* A rough target's residual gate, in standard deviations: a point farther from the
+ * Gaussian is not of it. */
+const double kRoughGate = 3.0;
 
 bool cell_upright(const Cell *c)
 {
@@ -133,11 +151,36 @@ inline void rank_update(double h[6][6], const Eigen::Matrix<double, 6, 1> &j, do
     }
 }
 
+/* A point among foliage, against its cell's Gaussian (NDT's target, here only where no plane
+ * or line is near): three residuals kernel * C^-1/2 (q - mean), so one standard deviation
+ * off weighs as one kernel off a plane, with the same Geman-McClure weight on the whole
+ * distance. They steer the steps but are no inliers: the inlier share and the checks built
+ * on it still count planes and lines only. */
+inline void add_rough(const Rough &r, const Eigen::Vector3d &q, const Eigen::Vector3d &s, double kernel,
+                      double h[6][6], Accum *acc)
+{
+    const Eigen::Vector3d d(q(0) - r.mean[0], q(1) - r.mean[1], q(2) - r.mean[2]);
+    const Eigen::Vector3d rows[3] = {{r.w[0], r.w[1], r.w[2]}, {r.w[1], r.w[3], r.w[4]}, {r.w[2], r.w[4], r.w[5]}};
+    double m[3], m2 = 0;
+    for (int a = 0; a < 3; a++) { m[a] = rows[a].dot(d); m2 += m[a] * m[a]; }
+    if (m2 > kRoughGate * kRoughGate) return;
+    double w = 1.0 / (1.0 + m2);   /* k^2 / (k^2 + e^2) with e = kernel m */
+    w *= w;
+    for (int a = 0; a < 3; a++) {
+        const Eigen::Vector3d u = kernel * rows[a];
+        Eigen::Matrix<double, 6, 1> j;
+        j.head<3>() = u;
+        j.tail<3>() = s.cross(u);
+        rank_update(h, j, w);
+        acc->g.noalias() += (w * kernel * m[a]) * j;
+    }
+}
+
 /* Linearises every point at pose T: J^T W J and J^T W r over the points whose
  * cell residual is within gate, with Geman-McClure weights of scale kernel.
  * cache: the points' targets from an earlier pass over the same points (NULL: none). */
 void linearise(const Level &lv, const float *pts, size_t n, const Eigen::Isometry3d &T, double gate,
-               double kernel, double inlier, bool planar_only, Accum *acc,
+               double kernel, double inlier, bool rough_targets, Accum *acc,
                std::vector<float> *abs_residuals, Upright *up = nullptr, NearCache *cache = nullptr)
 {
     if (cache) cache->prepare(lv, n);
@@ -156,24 +199,34 @@ void linearise(const Level &lv, const float *pts, size_t n, const Eigen::Isometr
         /* the own cell's target, else the nearest of the face neighbours' */
         const Cell *buf[7];
         const Cell *const *near = buf;
-        int nn = cache ? cache->lookup(i, q, &near) : lv.lookup_near(q(0), q(1), q(2), buf);
-        const Cell *c = nullptr, *c_any = nullptr;
-        double r1 = 0, r2 = 0, best = HUGE_VAL, best_any = HUGE_VAL;
+        const Rough *rough = nullptr;
+        int nn;
+        if (cache) {
+            nn = cache->lookup(i, q, &near, rough_targets ? &rough : nullptr);
+        } else {
+            nn = lv.lookup_near(q(0), q(1), q(2), buf);
+            uint64_t k;
+            if (nn == 0 && rough_targets && voxel_key_of(q(0), q(1), q(2), lv.inv_voxel, &k))
+                rough = NearCache::rough_at(lv, k);
+        }
+        const Cell *c = nullptr;
+        double r1 = 0, r2 = 0, best = HUGE_VAL;
         Eigen::Vector3d u1, u2;
         for (int k = 0; k < nn; k++) {
             const Cell *ck = near[k];
             Eigen::Vector3d d(q(0) - ck->mean[0], q(1) - ck->mean[1], q(2) - ck->mean[2]);
             Eigen::Vector3d a(ck->u1[0], ck->u1[1], ck->u1[2]), b(ck->u2[0], ck->u2[1], ck->u2[2]);
             double ra = a.dot(d), rb = ck->kind == CELL_LINE ? b.dot(d) : 0.0;
-            if (ra * ra + rb * rb < best_any) { best_any = ra * ra + rb * rb; c_any = ck; }
-            if (planar_only && ck->kind != CELL_PLANE) continue;
             if (ra * ra + rb * rb < best) { best = ra * ra + rb * rb; c = ck; r1 = ra; r2 = rb; u1 = a; u2 = b; }
         }
-        if (up && c_any && cell_upright(c_any)) {
+        if (up && c && cell_upright(c)) {
             up->points++;
-            if (best_any < inlier * inlier) up->inliers++;
+            if (best < inlier * inlier) up->inliers++;
         }
-        if (!c) continue;
+        if (!c) {
+            if (rough && rough_targets) add_rough(*rough, q, s, kernel, h, acc);
+            continue;
+        }
         double e2 = r1 * r1 + r2 * r2;
         if (e2 > gate2) continue;
         acc->matched++;
@@ -241,7 +294,7 @@ int gauss_newton(const Level &lv, const float *pts, size_t n, const Params &pa, 
         it++;
         /* the kernel widens with the gate so that far-off starts still pull */
         double kernel = std::max(pa.kernel, gate / 3.0);
-        linearise(lv, pts, n, *T, gate, kernel, pa.inlier, pa.planar_only, &acc, nullptr, nullptr, cache);
+        linearise(lv, pts, n, *T, gate, kernel, pa.inlier, pa.rough_targets, &acc, nullptr, nullptr, cache);
         if (acc.matched < 30) break;
         Eigen::Matrix<double, 6, 6> H = acc.H;
         /* light damping keeps unobservable directions (e.g. along a straight
@@ -284,7 +337,7 @@ void fill_result(const Level &lv, const float *pts, size_t n, const Eigen::Isome
     absr.reserve(n);
     Accum acc;
     Upright up;
-    linearise(lv, pts, n, T, pa.min_corr, pa.kernel, pa.inlier, pa.planar_only, &acc, &absr, &up, cache);
+    linearise(lv, pts, n, T, pa.min_corr, pa.kernel, pa.inlier, pa.rough_targets, &acc, &absr, &up, cache);
     res->points_used = (int)n;
     res->points_matched = acc.matched;
     res->overlap = n ? (double)acc.matched / (double)n : 0;
@@ -329,7 +382,7 @@ Params params_of(const pb_reg_config_t *cfg)
     pa.eps_m = cfg->step_eps_m;
     pa.eps_rad = cfg->step_eps_rad;
     pa.inlier = cfg->inlier_m;
-    pa.planar_only = cfg->planar_only != 0;
+    pa.rough_targets = cfg->rough_targets != 0;
     return pa;
 }
 
@@ -414,8 +467,8 @@ bool second_wins(const Level &lv, const float *pts, size_t m, const Params &pa, 
                  NearCache *cache, NearCache *cache2)
 {
     Accum a1, a2;
-    linearise(lv, pts, m, T, pa.min_corr, pa.kernel, pa.inlier, pa.planar_only, &a1, nullptr, nullptr, cache);
-    linearise(lv, pts, m, T2, pa.min_corr, pa.kernel, pa.inlier, pa.planar_only, &a2, nullptr, nullptr, cache2);
+    linearise(lv, pts, m, T, pa.min_corr, pa.kernel, pa.inlier, pa.rough_targets, &a1, nullptr, nullptr, cache);
+    linearise(lv, pts, m, T2, pa.min_corr, pa.kernel, pa.inlier, pa.rough_targets, &a2, nullptr, nullptr, cache2);
     bool distinct = apart(T, T2, pa.min_corr);
     double d2 = (guess.inverse() * T2).translation().norm();
     bool far_unlikely = prior_sigma_m > 0 && std::max(d1, d2) > 3 * prior_sigma_m;

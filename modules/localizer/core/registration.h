@@ -54,7 +54,11 @@ typedef struct {
     double step_eps_m = 5e-4;     /* stop when translation step < this (0.5 mm, a tenth of the error) ... */
     double step_eps_rad = 5e-5;   /* ... and rotation step < this */
     double inlier_m = 0.1;        /* |point-to-plane| for the inlier fraction */
-    int planar_only = 0;          /* 1 = never use line (pole) cells */
+    int rough_targets = 0;        /* 1 = a point with no plane or line near is pulled by its rough cell's
+                                   * Gaussian (foliage). Off by default: on MulRan it tracks better, on the
+                                   * simulated porous street LiDAR-only moving starts fail more often
+                                   * (docs/localizer-registration.md); never for refinement of disturbed
+                                   * poses, where a thick surface is misalignment, not foliage */
     int coarse_iterations = 16;   /* Gauss-Newton steps on the coarse level in step 3, 0 = never */
     double prior_sigma_m = 0;     /* the guess's horizontal standard deviation (a tracking filter's prediction);
                                    * when step 3 finds a minimum distinct from the fine run's and more than

@@ -5,6 +5,7 @@
 #include "pb_split.h"
 
 #include <sys/stat.h>
+#include <algorithm>
 #include <cerrno>
 #include <cmath>
 #include <cstring>
@@ -53,12 +54,38 @@ int fit_target(double n, const double s[3], const double ss[6], const pb_regmap_
     return 0;
 }
 
+/* A rough cell's Gaussian from n points given by their sums s and scatter ss (relative to
+ * one corner, `corner` in the map): mean and C^-1/2, whose eigenvalues are floored at 5 % of
+ * the largest and at (5 cm)^2 (a sheet of leaves is nearly flat, and NDT floors them alike)
+ * so that no direction is infinitely stiff. */
+void fit_rough(double n, const double s[3], const double ss[6], const double corner[3],
+               const pb_regmap_config_t *cfg, Rough *r)
+{
+    *r = Rough();
+    if (n < cfg->min_points) return;
+    Eigen::Vector3d mu(s[0] / n, s[1] / n, s[2] / n);
+    Eigen::Matrix3d C;
+    C << ss[0] / n, ss[1] / n, ss[2] / n, ss[1] / n, ss[3] / n, ss[4] / n, ss[2] / n, ss[4] / n, ss[5] / n;
+    C -= mu * mu.transpose();
+    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
+    es.computeDirect(C);
+    const Eigen::Vector3d ev = es.eigenvalues();   /* ascending */
+    const double floor = std::max(0.05 * ev(2), 0.0025);
+    Eigen::Vector3d inv_sd;
+    for (int a = 0; a < 3; a++) inv_sd(a) = 1.0 / std::sqrt(std::max(ev(a), floor));
+    const Eigen::Matrix3d W = es.eigenvectors() * inv_sd.asDiagonal() * es.eigenvectors().transpose();
+    const int upper[6][2] = {{0, 0}, {0, 1}, {0, 2}, {1, 1}, {1, 2}, {2, 2}};
+    for (int k = 0; k < 6; k++) r->w[k] = (float)W(upper[k][0], upper[k][1]);
+    for (int a = 0; a < 3; a++) r->mean[a] = (float)(mu(a) + corner[a]);
+}
+
 /* What the voxel of `key` holds (kRough, CELL_PLANE or CELL_LINE; 0 for nothing): the
  * target fitted to its 3x3x3 neighbourhood's moments (shifted to this voxel's corner),
- * else (at a junction such as a wall's foot) to its own points alone, in *cell. */
+ * else (at a junction such as a wall's foot) to its own points alone, in *cell; a rough
+ * cell's Gaussian (of the neighbourhood) in *rough. */
 const uint8_t kRough = 3;
 uint8_t fit_voxel(const VoxelHash &moment_index, const std::vector<Moments> &moments, uint64_t key,
-                  const Moments &own, double voxel, const pb_regmap_config_t *cfg, Cell *cell)
+                  const Moments &own, double voxel, const pb_regmap_config_t *cfg, Cell *cell, Rough *rough)
 {
     int64_t ix, iy, iz;
     voxel_unkey(key, &ix, &iy, &iz);
@@ -86,7 +113,13 @@ uint8_t fit_voxel(const VoxelHash &moment_index, const std::vector<Moments> &mom
     Eigen::Vector3d mu, u1, u2;
     int kind = fit_target(N, S, SS, cfg, &mu, &u1, &u2);
     if (!kind) kind = fit_target(own.n, own.s, own.ss, cfg, &mu, &u1, &u2);
-    if (!kind) return own.n >= 2 ? kRough : 0;   /* scattered (foliage) or too few points: no reliable target */
+    if (!kind) {
+        if (own.n < 2) return 0;   /* a stray point */
+        /* scattered (foliage): no plane or line, but where the points are and how they spread */
+        const double corner[3] = {ix * voxel, iy * voxel, iz * voxel};
+        fit_rough(N, S, SS, corner, cfg, rough);
+        return kRough;
+    }
     cell->kind = (uint8_t)kind;
     cell->mean[0] = (float)(mu(0) + ix * voxel);
     cell->mean[1] = (float)(mu(1) + iy * voxel);
@@ -129,22 +162,27 @@ size_t pb_loc::build_level(const float *xyz, size_t n, double voxel, const pb_re
      *    `split`: each voxel's fit is its own) */
     std::vector<Cell> fitted(keys.size());
     std::vector<uint8_t> fit_kind(keys.size());   /* 0 nothing, kRough, or CELL_* */
+    std::vector<Rough> rough_fit(keys.size());
     auto fit_run = [&](size_t c0, size_t c1) {
         for (size_t c = c0; c < c1; c++)
-            fit_kind[c] = fit_voxel(moment_index, moments, keys[c], moments[c], voxel, cfg, &fitted[c]);
+            fit_kind[c] = fit_voxel(moment_index, moments, keys[c], moments[c], voxel, cfg, &fitted[c], &rough_fit[c]);
     };
     if (split) pb_split2(keys.size(), fit_run);
     else fit_run(0, keys.size());
     /* 3. the targets in the order their voxels first appear */
     lv->index.reset(keys.size());
     lv->rough.reset(16);
+    lv->roughs.clear();
     lv->cells.clear();
     lv->cells.reserve(keys.size());
     lv->keys.clear();
     lv->keys.reserve(keys.size());
     for (size_t c = 0; c < keys.size(); c++) {
         bool inserted;
-        if (fit_kind[c] == kRough) lv->rough.insert(keys[c], 0, &inserted);
+        if (fit_kind[c] == kRough) {
+            lv->rough.insert(keys[c], (int32_t)lv->roughs.size(), &inserted);
+            lv->roughs.push_back(rough_fit[c]);
+        }
         if (fit_kind[c] != CELL_PLANE && fit_kind[c] != CELL_LINE) continue;
         lv->index.insert(keys[c], (int32_t)lv->cells.size(), &inserted);
         lv->cells.push_back(fitted[c]);
@@ -188,8 +226,10 @@ pb_regmap_t *build(const float *xyz, size_t n, const pb_regmap_config_t *cfg, co
                     columns_build(m->fine, &m->columns);
                 },
                 [&]() {
-                    if (cfg->coarse_voxel_m > 0)
+                    if (cfg->coarse_voxel_m > 0) {
                         info.coarse_cells = (int64_t)build_level(xyz, n, cfg->coarse_voxel_m, cfg, &m->coarse);
+                        m->coarse.roughs.clear();   /* a 2 m Gaussian is a whole tree: planes and lines only */
+                    }
                 });
     } catch (const std::bad_alloc &) {
         delete m;

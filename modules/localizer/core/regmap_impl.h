@@ -24,6 +24,17 @@ struct Cell {
     bool ground() const { return kind == CELL_PLANE && (u1[2] >= 0.8f || u1[2] <= -0.8f); }
 };
 
+/* The target of a rough cell (foliage, scattered structure: no plane or line fits): the
+ * points of its 3x3x3 neighbourhood as a Gaussian. w is the upper triangle of C^-1/2
+ * (w00 w01 w02 w11 w12 w22), so |W (q - mean)| is q's Mahalanobis distance; w[0] = 0
+ * when the neighbourhood has too few points for a covariance (no target). */
+struct Rough {
+    float mean[3];
+    float w[6];
+
+    bool target() const { return w[0] > 0; }
+};
+
 struct Level {
     double voxel = 0, inv_voxel = 0;
     VoxelHash index;
@@ -31,7 +42,8 @@ struct Level {
     std::vector<uint64_t> keys;   /* voxel key of each cell (for tiling and paging) */
     /* cells the map's points occupy without a reliable target (foliage, scattered
      * structure): no registration target, but evidence for the structure test */
-    VoxelHash rough;
+    VoxelHash rough;            /* voxel key -> index in roughs */
+    std::vector<Rough> roughs;  /* the fine level's only (the coarse level steps on planes and lines) */
 
     const Cell *lookup(double x, double y, double z) const
     {
