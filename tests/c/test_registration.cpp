@@ -485,7 +485,10 @@ static void test_map_tiles(void)
     pb_regmap_info(whole, &wi);
     int64_t max_cells = 0, max_first_half = 0, max_second_half = 0;
     int max_tiles = 0;
-    int identical = 0, steps = 0, fit_identical = 0, global_identical = 0, global_steps = 0;
+    int identical = 0, steps = 0, fit_identical = 0, global_identical = 0, global_steps = 0, rough_identical = 0;
+    pb_reg_config_t with_rough;
+    pb_reg_config_default(&with_rough);
+    with_rough.rough_targets = 1;
     int64_t max_rough = 0;
     for (double x = 0; x <= 600; x += 10) {
         CHECK(pb_tiles_page(t, x, 0, &err) >= 0);
@@ -501,6 +504,10 @@ static void test_map_tiles(void)
         pb_reg_align(whole, scan.data(), scan.size() / 3, pose(x + 0.1, -0.2, 3), nullptr, &a, &err);
         pb_reg_align(pb_tiles_map(t), scan.data(), scan.size() / 3, pose(x + 0.1, -0.2, 3), nullptr, &b, &err);
         identical += a.pose.matrix() == b.pose.matrix() && a.inlier_fraction == b.inlier_fraction;
+        /* with rough targets too: the bushes' Gaussians come back from the tiles as built */
+        pb_reg_align(whole, scan.data(), scan.size() / 3, pose(x + 0.1, -0.2, 3), &with_rough, &a, &err);
+        pb_reg_align(pb_tiles_map(t), scan.data(), scan.size() / 3, pose(x + 0.1, -0.2, 3), &with_rough, &b, &err);
+        rough_identical += a.pose.matrix() == b.pose.matrix() && a.inlier_fraction == b.inlier_fraction;
         /* the start-up search too: the columns it scores are built again with each page */
         if (std::fmod(x, 100) == 0) {
             pb_reg_align_global(whole, scan.data(), scan.size() / 3, pose(x + 2.0, 1.2, 14), 3.0, 15 * M_PI / 180,
@@ -527,6 +534,7 @@ static void test_map_tiles(void)
                 (long long)wi.cells, (long long)max_cells, max_tiles, (long long)max_first_half,
                 (long long)max_second_half, (long long)st.loads, (long long)st.drops, identical, steps);
     CHECK(identical == steps);
+    CHECK(rough_identical == steps);
     CHECK(fit_identical == steps);
     std::printf("tiles: start-up search %d/%d identical to the whole map's and on the truth\n", global_identical,
                 global_steps);
@@ -645,6 +653,33 @@ static void test_map_tiles(void)
     if (t) {
         CHECK(pb_tiles_page(t, tx * 32.0 + 16, 0, &err) == -1);
         CHECK_CONTAINS(err.msg, "corrupt cell");
+        pb_tiles_destroy(t);
+    }
+    /* a rough cell whose Gaussian is not one (C^-1/2's first diagonal entry negative) */
+    bad = f;
+    uint32_t ntiles;
+    std::memcpy(&ntiles, bad.bytes.data() + 12, 4);
+    int rough_tile = -1;
+    for (uint32_t i = 0; i < ntiles && rough_tile < 0; i++) {
+        const uint8_t *row = bad.bytes.data() + 192 + 32 * i;
+        uint32_t fine, coarse, rough;
+        uint64_t off;
+        std::memcpy(&off, row + 8, 8);
+        std::memcpy(&fine, row + 16, 4); std::memcpy(&coarse, row + 20, 4); std::memcpy(&rough, row + 24, 4);
+        if (rough == 0) continue;
+        rough_tile = (int)i;
+        const float neg = -1.0f;
+        std::memcpy(bad.bytes.data() + off + 48 * ((uint64_t)fine + coarse) + 20, &neg, 4);
+        std::memcpy(&tx, row, 4);
+    }
+    CHECK(rough_tile >= 0);
+    t = pb_tiles_open(mem_read, &bad, bad.bytes.size(), "rough.tiles", &tc, &err);
+    CHECK(t != nullptr);
+    if (t) {
+        int32_t ty;
+        std::memcpy(&ty, bad.bytes.data() + 192 + 32 * rough_tile + 4, 4);
+        CHECK(pb_tiles_page(t, tx * 32.0 + 16, ty * 32.0 + 16, &err) == -1);
+        CHECK_CONTAINS(err.msg, "corrupt rough cell");
         pb_tiles_destroy(t);
     }
     test_tiled_prepare(m, whole);
