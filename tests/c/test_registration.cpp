@@ -642,45 +642,41 @@ static void test_map_tiles(void)
     bad.bytes.resize(bad.bytes.size() - 48);   /* the last tile's cells run out of the file */
     CHECK(pb_tiles_open(mem_read, &bad, bad.bytes.size(), "cut.tiles", &tc, &err) == nullptr);
     CHECK_CONTAINS(err.msg, "out of the file");
+    /* tile i's row of the table (after the 192-byte header, 32 bytes a row): its tile, where
+     * its cells begin, and how many (48 bytes each; then its rough cells) */
+    struct TileRow { int32_t tx, ty; uint64_t off; uint32_t fine, coarse, rough; };
+    auto tile_row = [](const MemFile &file, uint32_t i) {
+        const uint8_t *row = file.bytes.data() + 192 + 32 * i;
+        TileRow r;
+        std::memcpy(&r.tx, row, 4); std::memcpy(&r.ty, row + 4, 4); std::memcpy(&r.off, row + 8, 8);
+        std::memcpy(&r.fine, row + 16, 4); std::memcpy(&r.coarse, row + 20, 4); std::memcpy(&r.rough, row + 24, 4);
+        return r;
+    };
+    /* a damaged tile opens, and paging it in names it */
+    auto page_fails = [&](MemFile &file, const char *name, const TileRow &r, const char *what) {
+        pb_tiles_t *tb = pb_tiles_open(mem_read, &file, file.bytes.size(), name, &tc, &err);
+        CHECK(tb != nullptr);
+        if (!tb) return;
+        CHECK(pb_tiles_page(tb, r.tx * 32.0 + 16, r.ty * 32.0 + 16, &err) == -1);
+        CHECK_CONTAINS(err.msg, what);
+        pb_tiles_destroy(tb);
+    };
     bad = f;
-    uint64_t first_cells;
-    std::memcpy(&first_cells, bad.bytes.data() + 192 + 8, 8);
-    bad.bytes[first_cells + 44] = 7;   /* a cell kind that does not exist, in the first tile */
-    int32_t tx;
-    std::memcpy(&tx, bad.bytes.data() + 192, 4);
-    t = pb_tiles_open(mem_read, &bad, bad.bytes.size(), "kind.tiles", &tc, &err);
-    CHECK(t != nullptr);
-    if (t) {
-        CHECK(pb_tiles_page(t, tx * 32.0 + 16, 0, &err) == -1);
-        CHECK_CONTAINS(err.msg, "corrupt cell");
-        pb_tiles_destroy(t);
-    }
+    const TileRow first = tile_row(bad, 0);
+    bad.bytes[first.off + 44] = 7;   /* a cell kind that does not exist, in the first tile */
+    page_fails(bad, "kind.tiles", first, "corrupt cell");
     /* a rough cell whose Gaussian is not one (C^-1/2's first diagonal entry negative) */
     bad = f;
     uint32_t ntiles;
     std::memcpy(&ntiles, bad.bytes.data() + 12, 4);
-    int rough_tile = -1;
-    for (uint32_t i = 0; i < ntiles && rough_tile < 0; i++) {
-        const uint8_t *row = bad.bytes.data() + 192 + 32 * i;
-        uint32_t fine, coarse, rough;
-        uint64_t off;
-        std::memcpy(&off, row + 8, 8);
-        std::memcpy(&fine, row + 16, 4); std::memcpy(&coarse, row + 20, 4); std::memcpy(&rough, row + 24, 4);
-        if (rough == 0) continue;
-        rough_tile = (int)i;
+    uint32_t i = 0;
+    while (i < ntiles && tile_row(bad, i).rough == 0) i++;
+    CHECK(i < ntiles);
+    if (i < ntiles) {
+        const TileRow r = tile_row(bad, i);
         const float neg = -1.0f;
-        std::memcpy(bad.bytes.data() + off + 48 * ((uint64_t)fine + coarse) + 20, &neg, 4);
-        std::memcpy(&tx, row, 4);
-    }
-    CHECK(rough_tile >= 0);
-    t = pb_tiles_open(mem_read, &bad, bad.bytes.size(), "rough.tiles", &tc, &err);
-    CHECK(t != nullptr);
-    if (t) {
-        int32_t ty;
-        std::memcpy(&ty, bad.bytes.data() + 192 + 32 * rough_tile + 4, 4);
-        CHECK(pb_tiles_page(t, tx * 32.0 + 16, ty * 32.0 + 16, &err) == -1);
-        CHECK_CONTAINS(err.msg, "corrupt rough cell");
-        pb_tiles_destroy(t);
+        std::memcpy(bad.bytes.data() + r.off + 48 * ((uint64_t)r.fine + r.coarse) + 20, &neg, 4);
+        page_fails(bad, "rough.tiles", r, "corrupt rough cell");
     }
     test_tiled_prepare(m, whole);
     pb_regmap_destroy(whole);
