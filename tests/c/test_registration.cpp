@@ -251,6 +251,115 @@ static void test_build_split(void)
     for (size_t i = 0; i < one.keys.size(); i += 997) CHECK(two.index.find(one.keys[i]) == (int32_t)i);
 }
 
+/* The fine cell of the voxel holding (x, y, z), or nullptr. */
+static pb_loc::Cell *cell_at(pb_regmap_t *m, double x, double y, double z)
+{
+    const pb_loc::Cell *c = m->fine.lookup(x, y, z);
+    return const_cast<pb_loc::Cell *>(c);
+}
+
+static bool same_level(const pb_loc::Level &a, const pb_loc::Level &b)
+{
+    std::vector<uint64_t> ra, rb;
+    a.rough.for_each([&](uint64_t k, int32_t) { ra.push_back(k); });
+    b.rough.for_each([&](uint64_t k, int32_t) { rb.push_back(k); });
+    return a.keys == b.keys && a.cells.size() == b.cells.size() &&
+           std::memcmp(a.cells.data(), b.cells.data(), a.cells.size() * sizeof(pb_loc::Cell)) == 0 && ra == rb &&
+           a.roughs.size() == b.roughs.size() &&
+           std::memcmp(a.roughs.data(), b.roughs.data(), a.roughs.size() * sizeof(pb_loc::Rough)) == 0;
+}
+
+/* A map built again from mostly the same points (pb_regmap_rebuild: the mapper's rolling
+ * local map) is the one built from scratch, byte for byte; a voxel whose neighbourhood did
+ * not change takes the earlier map's fit (seen by tampering with it), and one beside a
+ * changed, removed or new voxel is fitted again. */
+static void test_rebuild(void)
+{
+    std::vector<float> a;
+    street(&a, true, 0, 60);
+    std::mt19937 rng(5);
+    std::normal_distribution<float> g(0, 0.6f);
+    for (int i = 0; i < 3000; i++) a.insert(a.end(), {30 + g(rng), 4 + g(rng), 2 + g(rng)});   /* a bush: rough cells */
+    pb_err_t err;
+    pb_regmap_t *prev = pb_regmap_rebuild(nullptr, a.data(), a.size() / 3, nullptr, &err);
+    CHECK(prev != nullptr);
+    if (!prev) return;
+    CHECK(!prev->fine.roughs.empty());
+    /* the next points: the first 5 m dropped (the car moved on), one wall voxel's points
+     * moved by 2 cm (x 40-41, z 3-3.5), 10 m more street appended, in the same order */
+    std::vector<float> b;
+    for (size_t i = 0; i < a.size(); i += 3) {
+        float x = a[i], y = a[i + 1], z = a[i + 2];
+        if (x < 5) continue;
+        if (x >= 40 && x < 41 && y > 7.9f && y < 8.1f && z >= 3 && z < 3.5f) y += 0.02f;
+        b.insert(b.end(), {x, y, z});
+    }
+    street(&b, true, 60, 70);
+    /* and the same with a new point far away: the changed voxels' box is then too large
+     * for a bitmap, and the neighbours are looked up instead */
+    std::vector<float> far = b;
+    far.insert(far.end(), {3000.f, 3000.f, 60.f});
+    /* that lone point is no target, so both give the same levels: the fits over the bitmap
+     * of the voxels there are (b) and by looking each neighbour up (far) agree */
+    {
+        pb_regmap_t *bits = pb_regmap_from_points(b.data(), b.size() / 3, nullptr, &err);
+        pb_regmap_t *lookups = pb_regmap_from_points(far.data(), far.size() / 3, nullptr, &err);
+        CHECK(bits && lookups && same_level(bits->fine, lookups->fine) && same_level(bits->coarse, lookups->coarse));
+        pb_regmap_destroy(bits);
+        pb_regmap_destroy(lookups);
+    }
+    for (const std::vector<float> *pts : {&b, &far}) {
+        pb_regmap_t *scratch = pb_regmap_from_points(pts->data(), pts->size() / 3, nullptr, &err);
+        pb_regmap_t *again = pb_regmap_rebuild(prev, pts->data(), pts->size() / 3, nullptr, &err);
+        CHECK(scratch && again);
+        if (!scratch || !again) return;
+        CHECK(same_level(again->fine, scratch->fine));
+        CHECK(same_level(again->coarse, scratch->coarse));
+        CHECK(std::memcmp(&again->info, &scratch->info, sizeof(pb_regmap_info_t)) == 0);
+        /* a map built again is built again from it in turn */
+        pb_regmap_t *third = pb_regmap_rebuild(again, pts->data(), pts->size() / 3, nullptr, &err);
+        CHECK(third && same_level(third->fine, scratch->fine));
+        pb_regmap_destroy(third);
+        /* prev tampered with: a far voxel's fit is taken from it; the voxels beside the moved
+         * one (x 41-41.5), the removed ones (x 5-5.5) and the new ones (x 59.5-60) are not */
+        const double kept[3] = {20.2, 8.0, 6.2};
+        const double refit[3][3] = {{41.2, 8.0, 3.2}, {5.2, 8.0, 6.2}, {59.7, 8.0, 6.2}};
+        pb_loc::Cell saved[4];
+        pb_loc::Cell *t[4] = {cell_at(prev, kept[0], kept[1], kept[2]), nullptr, nullptr, nullptr};
+        for (int k = 0; k < 3; k++) t[k + 1] = cell_at(prev, refit[k][0], refit[k][1], refit[k][2]);
+        bool all = true;
+        for (int k = 0; k < 4; k++) all = all && t[k];
+        CHECK(all);
+        if (!all) return;
+        for (int k = 0; k < 4; k++) { saved[k] = *t[k]; t[k]->mean[0] += 1.0f; }
+        pb_regmap_t *tampered = pb_regmap_rebuild(prev, pts->data(), pts->size() / 3, nullptr, &err);
+        for (int k = 0; k < 4; k++) *t[k] = saved[k];
+        CHECK(tampered != nullptr);
+        if (!tampered) return;
+        const pb_loc::Cell *s0 = cell_at(scratch, kept[0], kept[1], kept[2]);
+        const pb_loc::Cell *k0 = cell_at(tampered, kept[0], kept[1], kept[2]);
+        CHECK(s0 && k0 && k0->mean[0] == s0->mean[0] + 1.0f);
+        for (int k = 0; k < 3; k++) {
+            const pb_loc::Cell *sk = cell_at(scratch, refit[k][0], refit[k][1], refit[k][2]);
+            const pb_loc::Cell *tk = cell_at(tampered, refit[k][0], refit[k][1], refit[k][2]);
+            CHECK(sk && tk && std::memcmp(sk, tk, sizeof(pb_loc::Cell)) == 0);
+        }
+        pb_regmap_destroy(tampered);
+        pb_regmap_destroy(again);
+        pb_regmap_destroy(scratch);
+    }
+    /* another config: built from scratch, not from prev's fits */
+    pb_regmap_config_t other;
+    pb_regmap_config_default(&other);
+    other.planarity_max = 0.05;
+    pb_regmap_t *o1 = pb_regmap_rebuild(prev, b.data(), b.size() / 3, &other, &err);
+    pb_regmap_t *o2 = pb_regmap_from_points(b.data(), b.size() / 3, &other, &err);
+    CHECK(o1 && o2 && same_level(o1->fine, o2->fine));
+    pb_regmap_destroy(o1);
+    pb_regmap_destroy(o2);
+    pb_regmap_destroy(prev);
+}
+
 static void test_regmap_errors(void)
 {
     pb_err_t err;
@@ -954,6 +1063,7 @@ int main(void)
     test_degenerate_corridor();
     test_regmap_errors();
     test_build_split();
+    test_rebuild();
     test_load_radius();
     test_poor_guess_settles();
     test_foliage();

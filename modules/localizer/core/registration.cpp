@@ -36,32 +36,52 @@ void pb_reg_to_transform(const Eigen::Isometry3d &T, pb_transform_t *out)
 
 namespace {
 
-/* One voxel-grid pass: centroid per voxel, in first-seen order (deterministic). */
-void voxel_centroids(const float *xyz, size_t n, double voxel, VoxelHash *hash,
-                     std::vector<float> *sums, std::vector<int> *counts)
+/* A voxel's sum and count side by side (one cache line a point, not two). */
+struct VoxelSum {
+    float s[3];
+    int n;
+};
+
+/* One voxel-grid pass: centroid per voxel, in first-seen order (deterministic), into out;
+ * returns the number of voxels. hash and acc are scratch. */
+size_t voxel_centroids(const float *xyz, size_t n, double voxel, VoxelHash *hash, std::vector<VoxelSum> *acc,
+                       std::vector<float> *out)
 {
     double inv = 1.0 / voxel;
     hash->reset(std::min<size_t>(n / 2 + 16, 1 << 15));
-    sums->clear();
-    counts->clear();
+    acc->clear();
     uint64_t last_key = VoxelHash::kEmpty;   /* neighbouring points often share a voxel: no lookup then */
-    int32_t k = -1;
-    for (size_t i = 0; i < n; i++) {
-        const float *p = xyz + 3 * i;
-        uint64_t key;
-        if (!voxel_key_of(p[0], p[1], p[2], inv, &key)) continue;
-        if (key != last_key) {
-            bool inserted;
-            k = hash->insert(key, (int32_t)counts->size(), &inserted);
-            if (inserted) { sums->insert(sums->end(), {0.f, 0.f, 0.f}); counts->push_back(0); }
-            last_key = key;
+    VoxelSum *v = nullptr;
+    /* a batch of points keyed and their slots prefetched, then added in order (the misses
+     * overlap instead of coming one after the other) */
+    const int kBatch = 32;
+    uint64_t bkey[kBatch];
+    size_t bpt[kBatch];
+    for (size_t i = 0; i < n;) {
+        int b = 0;
+        for (; i < n && b < kBatch; i++) {
+            const float *p = xyz + 3 * i;
+            if (!voxel_key_of(p[0], p[1], p[2], inv, &bkey[b])) continue;
+            hash->prefetch(bkey[b]);
+            bpt[b++] = i;
         }
-        float *s = sums->data() + 3 * (size_t)k;
-        s[0] += p[0]; s[1] += p[1]; s[2] += p[2];
-        (*counts)[(size_t)k]++;
+        for (int j = 0; j < b; j++) {
+            const float *p = xyz + 3 * bpt[j];
+            if (bkey[j] != last_key) {
+                bool inserted;
+                const int32_t k = hash->insert(bkey[j], (int32_t)acc->size(), &inserted);
+                if (inserted) acc->push_back(VoxelSum{{0.f, 0.f, 0.f}, 0});
+                v = &(*acc)[(size_t)k];
+                last_key = bkey[j];
+            }
+            v->s[0] += p[0]; v->s[1] += p[1]; v->s[2] += p[2];
+            v->n++;
+        }
     }
-    for (size_t j = 0; j < counts->size(); j++)
-        for (int a = 0; a < 3; a++) (*sums)[3 * j + a] /= (float)(*counts)[j];
+    out->resize(3 * acc->size());
+    for (size_t j = 0; j < acc->size(); j++)
+        for (int a = 0; a < 3; a++) (*out)[3 * j + a] = (*acc)[j].s[a] / (float)(*acc)[j].n;
+    return acc->size();
 }
 
 struct Params {
@@ -440,16 +460,16 @@ void pb_reg_downsample(const float *xyz, size_t n, const pb_reg_config_t *cfg, s
     }
     kept.resize(3 * nk);
     VoxelHash hash;
-    std::vector<int> counts;
+    std::vector<VoxelSum> acc;
     double voxel = cfg->scan_voxel_m;
-    voxel_centroids(kept.data(), kept.size() / 3, voxel, &hash, out, &counts);
+    size_t voxels = voxel_centroids(kept.data(), kept.size() / 3, voxel, &hash, &acc, out);
     /* adaptive: coarsen the already reduced cloud until near the target count */
     size_t target = cfg->target_points > 0 ? (size_t)cfg->target_points : 0;
     std::vector<float> tmp;
-    while (target && counts.size() > target + target / 4 && voxel < 8.0) {
-        voxel *= std::sqrt((double)counts.size() / (double)target) > 1.3 ? 1.3 : 1.1;
+    while (target && voxels > target + target / 4 && voxel < 8.0) {
+        voxel *= std::sqrt((double)voxels / (double)target) > 1.3 ? 1.3 : 1.1;
         tmp.swap(*out);
-        voxel_centroids(tmp.data(), tmp.size() / 3, voxel, &hash, out, &counts);
+        voxels = voxel_centroids(tmp.data(), tmp.size() / 3, voxel, &hash, &acc, out);
     }
 }
 

@@ -24,12 +24,6 @@ void pb_regmap_config_default(pb_regmap_config_t *cfg)
 
 namespace {
 
-/* Moments of the points of one voxel, relative to the voxel's corner (keeps
- * the sums small so float-sized scatter stays exact in double). */
-struct Moments {
-    double n = 0, s[3] = {0, 0, 0}, ss[6] = {0, 0, 0, 0, 0, 0};
-};
-
 /* Fits a plane (or a line) to n points given by their sums s and scatter ss
  * (relative to one corner). Returns CELL_PLANE, CELL_LINE or 0 (too few points,
  * or neither planar nor linear). */
@@ -79,20 +73,63 @@ void fit_rough(double n, const double s[3], const double ss[6], const double cor
     for (int a = 0; a < 3; a++) r->mean[a] = (float)(mu(a) + corner[a]);
 }
 
+/* A set of voxels as bits over a box (z fastest, so a voxel's 27 neighbours lie in 9 runs
+ * of 3 bits): a test costs a cached read where a hash look-up of a voxel that is not there
+ * costs a miss. */
+struct VoxelBits {
+    int64_t lo[3] = {0, 0, 0}, hi[3] = {-1, -1, -1}, ny = 0, nz = 0;
+    std::vector<uint64_t> words;
+
+    /* The box of keys grown by margin, empty; false (nothing held) when it would take more
+     * than max_bits. */
+    bool cover(const std::vector<uint64_t> &keys, int margin, int64_t max_bits)
+    {
+        words.clear();
+        if (keys.empty()) return false;
+        for (int a = 0; a < 3; a++) { lo[a] = INT64_MAX; hi[a] = INT64_MIN; }
+        for (uint64_t key : keys) {
+            int64_t v[3];
+            voxel_unkey(key, &v[0], &v[1], &v[2]);
+            for (int a = 0; a < 3; a++) { lo[a] = std::min(lo[a], v[a] - margin); hi[a] = std::max(hi[a], v[a] + margin); }
+        }
+        const int64_t nx = hi[0] - lo[0] + 1;
+        ny = hi[1] - lo[1] + 1;
+        nz = hi[2] - lo[2] + 1;
+        if (nx * ny > max_bits / nz) return false;
+        words.assign((size_t)((nx * ny * nz + 63) / 64), 0);
+        return true;
+    }
+    bool inside(int64_t x, int64_t y, int64_t z) const
+    {
+        return x >= lo[0] && x <= hi[0] && y >= lo[1] && y <= hi[1] && z >= lo[2] && z <= hi[2];
+    }
+    uint64_t at(int64_t x, int64_t y, int64_t z) const { return (uint64_t)(((x - lo[0]) * ny + (y - lo[1])) * nz + (z - lo[2])); }
+    void set(uint64_t key)
+    {
+        int64_t x, y, z;
+        voxel_unkey(key, &x, &y, &z);
+        const uint64_t b = at(x, y, z);
+        words[b >> 6] |= (uint64_t)1 << (b & 63);
+    }
+    bool get(uint64_t b) const { return (words[b >> 6] >> (b & 63)) & 1; }
+};
+
 /* What the voxel of `key` holds (kRough, CELL_PLANE or CELL_LINE; 0 for nothing): the
  * target fitted to its 3x3x3 neighbourhood's moments (shifted to this voxel's corner),
  * else (at a junction such as a wall's foot) to its own points alone, in *cell; a rough
  * cell's Gaussian (of the neighbourhood) in *rough. */
 const uint8_t kRough = 3;
-uint8_t fit_voxel(const VoxelHash &moment_index, const std::vector<Moments> &moments, uint64_t key,
-                  const Moments &own, double voxel, const pb_regmap_config_t *cfg, Cell *cell, Rough *rough)
+uint8_t fit_voxel(const VoxelHash &moment_index, const std::vector<Moments> &moments, const VoxelBits &occupied,
+                  uint64_t key, const Moments &own, double voxel, const pb_regmap_config_t *cfg, Cell *cell, Rough *rough)
 {
     int64_t ix, iy, iz;
     voxel_unkey(key, &ix, &iy, &iz);
+    const bool bits = !occupied.words.empty();   /* else every neighbour is looked up */
     double N = 0, S[3] = {0, 0, 0}, SS[6] = {0, 0, 0, 0, 0, 0};
     for (int dx = -1; dx <= 1; dx++)
         for (int dy = -1; dy <= 1; dy++)
             for (int dz = -1; dz <= 1; dz++) {
+                if (bits && !occupied.get(occupied.at(ix + dx, iy + dy, iz + dz))) continue;
                 uint64_t nkey;
                 if (!voxel_key(ix + dx, iy + dy, iz + dz, &nkey)) continue;
                 int32_t k = moment_index.find(nkey);
@@ -128,44 +165,150 @@ uint8_t fit_voxel(const VoxelHash &moment_index, const std::vector<Moments> &mom
     return (uint8_t)kind;
 }
 
+/* Sets reuse[c] = -1 for every voxel c (keys[c]) with a changed voxel among its 27
+ * neighbours: over a bitmap of the changed voxels when their box is small (a rolling local
+ * map: a few MB), else by looking up the 27 neighbours of each changed voxel. */
+void mark_near_changed(const std::vector<uint64_t> &keys, const std::vector<uint64_t> &changed,
+                       const VoxelHash &index, std::vector<int32_t> *reuse)
+{
+    /* the box grown by 2: a voxel with a changed neighbour lies within 1 of it, and its own
+     * neighbours within 2 */
+    VoxelBits near;
+    if (near.cover(changed, 2, (int64_t)1 << 30)) {
+        for (uint64_t key : changed) near.set(key);
+        for (size_t c = 0; c < keys.size(); c++) {
+            if ((*reuse)[c] < 0) continue;
+            int64_t x, y, z;
+            voxel_unkey(keys[c], &x, &y, &z);
+            if (!near.inside(x - 1, y - 1, z - 1) || !near.inside(x + 1, y + 1, z + 1)) continue;
+            bool any = false;
+            for (int dx = -1; dx <= 1 && !any; dx++)
+                for (int dy = -1; dy <= 1 && !any; dy++) {
+                    const uint64_t b = near.at(x + dx, y + dy, z - 1);
+                    any = near.get(b) || near.get(b + 1) || near.get(b + 2);
+                }
+            if (any) (*reuse)[c] = -1;
+        }
+        return;
+    }
+    for (uint64_t key : changed) {
+        int64_t ix, iy, iz;
+        voxel_unkey(key, &ix, &iy, &iz);
+        for (int dx = -1; dx <= 1; dx++)
+            for (int dy = -1; dy <= 1; dy++)
+                for (int dz = -1; dz <= 1; dz++) {
+                    uint64_t nkey;
+                    if (!voxel_key(ix + dx, iy + dy, iz + dz, &nkey)) continue;
+                    const int32_t c = index.find(nkey);
+                    if (c >= 0) (*reuse)[(size_t)c] = -1;
+                }
+    }
+}
+
 }  // namespace
 
 /* Moments per voxel, then per voxel a target fitted to the points of its 3x3x3
  * neighbourhood (regmap_impl.h). */
 size_t pb_loc::build_level(const float *xyz, size_t n, double voxel, const pb_regmap_config_t *cfg, Level *lv,
-                          bool split)
+                          bool split, const Level *prev, bool keep)
 {
     lv->voxel = voxel;
     lv->inv_voxel = 1.0 / voxel;
-    /* 1. moments per occupied voxel */
-    VoxelHash moment_index(n / 8 + 16);
+    /* 1. moments per occupied voxel (a batch of points keyed and their slots prefetched,
+     *    then looked up and their moments prefetched, then added in order: the table and
+     *    the moments are far larger than the caches) */
+    const Memo *pm = prev && !prev->memo.keys.empty() && prev->voxel == voxel ? &prev->memo : nullptr;
+    const size_t expect = pm ? pm->keys.size() + pm->keys.size() / 8 + 16 : n / 8 + 16;   /* no growing on the way */
+    VoxelHash moment_index(expect);
     std::vector<Moments> moments;
     std::vector<uint64_t> keys;
-    for (size_t i = 0; i < n; i++) {
-        const float *p = xyz + 3 * i;
-        uint64_t key;
-        if (!voxel_key_of(p[0], p[1], p[2], lv->inv_voxel, &key)) continue;
-        bool inserted;
-        int32_t k = moment_index.insert(key, (int32_t)moments.size(), &inserted);
-        if (inserted) { moments.emplace_back(); keys.push_back(key); }
-        int64_t ix, iy, iz;
-        voxel_unkey(key, &ix, &iy, &iz);
-        double d[3] = {p[0] - ix * voxel, p[1] - iy * voxel, p[2] - iz * voxel};
-        Moments &m = moments[(size_t)k];
-        m.n += 1;
-        for (int a = 0; a < 3; a++) m.s[a] += d[a];
-        m.ss[0] += d[0] * d[0]; m.ss[1] += d[0] * d[1]; m.ss[2] += d[0] * d[2];
-        m.ss[3] += d[1] * d[1]; m.ss[4] += d[1] * d[2]; m.ss[5] += d[2] * d[2];
+    moments.reserve(expect);
+    keys.reserve(expect);
+    const int kBatch = 32;
+    uint64_t bkey[kBatch];
+    size_t bpt[kBatch];
+    for (size_t i = 0; i < n;) {
+        int b = 0;
+        for (; i < n && b < kBatch; i++) {
+            const float *p = xyz + 3 * i;
+            if (!voxel_key_of(p[0], p[1], p[2], lv->inv_voxel, &bkey[b])) continue;
+            moment_index.prefetch(bkey[b]);
+            bpt[b++] = i;
+        }
+        int32_t found[kBatch];
+        for (int j = 0; j < b; j++) {
+            found[j] = moment_index.find(bkey[j]);
+            if (found[j] >= 0) __builtin_prefetch(&moments[(size_t)found[j]], 1);
+        }
+        for (int j = 0; j < b; j++) {
+            const float *p = xyz + 3 * bpt[j];
+            const uint64_t key = bkey[j];
+            /* a key found is there still; one not found may have come with an earlier point */
+            bool inserted = false;
+            int32_t k = found[j] >= 0 ? found[j] : moment_index.insert(key, (int32_t)moments.size(), &inserted);
+            if (inserted) { moments.emplace_back(); keys.push_back(key); }
+            int64_t ix, iy, iz;
+            voxel_unkey(key, &ix, &iy, &iz);
+            double d[3] = {p[0] - ix * voxel, p[1] - iy * voxel, p[2] - iz * voxel};
+            Moments &m = moments[(size_t)k];
+            m.n += 1;
+            for (int a = 0; a < 3; a++) m.s[a] += d[a];
+            m.ss[0] += d[0] * d[0]; m.ss[1] += d[0] * d[1]; m.ss[2] += d[0] * d[2];
+            m.ss[3] += d[1] * d[1]; m.ss[4] += d[1] * d[2]; m.ss[5] += d[2] * d[2];
+        }
+    }
+    /* 1b. with a previous build: the voxels whose neighbourhood changed (a voxel new, gone,
+     *     or with other moments changes its 26 neighbours' fits and its own); the others
+     *     take prev's fit (fit_voxel is a function of the 27 moments alone) */
+    std::vector<int32_t> reuse;   /* prev's memo index of a voxel whose fit is prev's, else -1 */
+    if (pm) {
+        reuse.assign(keys.size(), -1);
+        std::vector<uint64_t> changed;
+        /* (in batches whose look-ups are prefetched, as above) */
+        for (size_t c0 = 0; c0 < keys.size(); c0 += kBatch) {
+            const size_t c1 = std::min(keys.size(), c0 + kBatch);
+            for (size_t c = c0; c < c1; c++) pm->index.prefetch(keys[c]);
+            for (size_t c = c0; c < c1; c++) {
+                reuse[c] = pm->index.find(keys[c]);
+                if (reuse[c] >= 0) __builtin_prefetch(&pm->moments[(size_t)reuse[c]]);
+            }
+            for (size_t c = c0; c < c1; c++) {
+                const int32_t k = reuse[c];
+                if (k >= 0 && std::memcmp(&pm->moments[(size_t)k], &moments[c], sizeof(Moments)) == 0) continue;
+                reuse[c] = -1;
+                changed.push_back(keys[c]);
+            }
+        }
+        for (size_t k0 = 0; k0 < pm->keys.size(); k0 += kBatch) {
+            const size_t k1 = std::min(pm->keys.size(), k0 + kBatch);
+            for (size_t k = k0; k < k1; k++) moment_index.prefetch(pm->keys[k]);
+            for (size_t k = k0; k < k1; k++)
+                if (moment_index.find(pm->keys[k]) < 0) changed.push_back(pm->keys[k]);
+        }
+        mark_near_changed(keys, changed, moment_index, &reuse);
     }
     /* 2. per voxel: gather the neighbourhood's moments (shifted to this voxel's
      *    corner), fit mean and covariance, classify by eigenvalues (on two threads when
      *    `split`: each voxel's fit is its own) */
+    VoxelBits occupied;   /* the voxels there are, so that a neighbour not there is not looked up */
+    if (occupied.cover(keys, 1, (int64_t)1 << 28))
+        for (uint64_t key : keys) occupied.set(key);
     std::vector<Cell> fitted(keys.size());
     std::vector<uint8_t> fit_kind(keys.size());   /* 0 nothing, kRough, or CELL_* */
     std::vector<Rough> rough_fit(keys.size());
     auto fit_run = [&](size_t c0, size_t c1) {
-        for (size_t c = c0; c < c1; c++)
-            fit_kind[c] = fit_voxel(moment_index, moments, keys[c], moments[c], voxel, cfg, &fitted[c], &rough_fit[c]);
+        for (size_t c = c0; c < c1; c++) {
+            const int32_t k = pm ? reuse[c] : -1;
+            if (k < 0) {
+                fit_kind[c] = fit_voxel(moment_index, moments, occupied, keys[c], moments[c], voxel, cfg, &fitted[c], &rough_fit[c]);
+                continue;
+            }
+            const uint8_t kind = pm->kind[(size_t)k];
+            const size_t slot = (size_t)pm->slot[(size_t)k];
+            fit_kind[c] = kind;
+            if (kind == CELL_PLANE || kind == CELL_LINE) fitted[c] = prev->cells[slot];
+            else if (kind == kRough && slot < prev->roughs.size()) rough_fit[c] = prev->roughs[slot];
+        }
     };
     if (split) pb_split2(keys.size(), fit_run);
     else fit_run(0, keys.size());
@@ -177,16 +320,28 @@ size_t pb_loc::build_level(const float *xyz, size_t n, double voxel, const pb_re
     lv->cells.reserve(keys.size());
     lv->keys.clear();
     lv->keys.reserve(keys.size());
+    std::vector<int32_t> slot(keep ? keys.size() : 0, -1);
     for (size_t c = 0; c < keys.size(); c++) {
         bool inserted;
         if (fit_kind[c] == kRough) {
+            if (keep) slot[c] = (int32_t)lv->roughs.size();
             lv->rough.insert(keys[c], (int32_t)lv->roughs.size(), &inserted);
             lv->roughs.push_back(rough_fit[c]);
         }
         if (fit_kind[c] != CELL_PLANE && fit_kind[c] != CELL_LINE) continue;
+        if (keep) slot[c] = (int32_t)lv->cells.size();
         lv->index.insert(keys[c], (int32_t)lv->cells.size(), &inserted);
         lv->cells.push_back(fitted[c]);
         lv->keys.push_back(keys[c]);
+    }
+    if (keep) {
+        lv->memo.index = std::move(moment_index);
+        lv->memo.keys = std::move(keys);
+        lv->memo.moments = std::move(moments);
+        lv->memo.kind = std::move(fit_kind);
+        lv->memo.slot = std::move(slot);
+    } else {
+        lv->memo = Memo();
     }
     return lv->cells.size();
 }
@@ -194,7 +349,7 @@ size_t pb_loc::build_level(const float *xyz, size_t n, double voxel, const pb_re
 namespace {
 
 pb_regmap_t *build(const float *xyz, size_t n, const pb_regmap_config_t *cfg, const char *what,
-                   pb_err_t *err)
+                   pb_err_t *err, const pb_regmap_t *prev = nullptr, bool keep = false)
 {
     if (!(cfg->voxel_m > 0.01) || cfg->coarse_voxel_m < 0 || cfg->min_points < 3 ||
         !(cfg->planarity_max > 0 && cfg->planarity_max < 1)) {
@@ -222,12 +377,14 @@ pb_regmap_t *build(const float *xyz, size_t n, const pb_regmap_config_t *cfg, co
      * level's fits split between them (the same cells as on one) */
     try {
         pb_both([&]() {
-                    info.cells = (int64_t)build_level(xyz, n, cfg->voxel_m, cfg, &m->fine, true);
+                    info.cells = (int64_t)build_level(xyz, n, cfg->voxel_m, cfg, &m->fine, true,
+                                                      prev ? &prev->fine : nullptr, keep);
                     columns_build(m->fine, &m->columns);
-                },
+                                },
                 [&]() {
                     if (cfg->coarse_voxel_m > 0) {
-                        info.coarse_cells = (int64_t)build_level(xyz, n, cfg->coarse_voxel_m, cfg, &m->coarse);
+                        info.coarse_cells = (int64_t)build_level(xyz, n, cfg->coarse_voxel_m, cfg, &m->coarse, false,
+                                                                 prev ? &prev->coarse : nullptr, keep);
                         m->coarse.roughs.clear();   /* a 2 m Gaussian is a whole tree: planes and lines only */
                     }
                 });
@@ -255,6 +412,18 @@ pb_regmap_t *pb_regmap_from_points(const float *xyz, size_t n, const pb_regmap_c
     pb_regmap_config_default(&def);
     if (!cfg) cfg = &def;
     return build(xyz, n, cfg, "points", err);
+}
+
+pb_regmap_t *pb_regmap_rebuild(const pb_regmap_t *prev, const float *xyz, size_t n,
+                              const pb_regmap_config_t *cfg, pb_err_t *err)
+{
+    pb_regmap_config_t def;
+    pb_regmap_config_default(&def);
+    if (!cfg) cfg = &def;
+    /* prev's fits are this config's only if they came from the same one */
+    const bool same = prev && prev->cfg.voxel_m == cfg->voxel_m && prev->cfg.coarse_voxel_m == cfg->coarse_voxel_m &&
+                      prev->cfg.min_points == cfg->min_points && prev->cfg.planarity_max == cfg->planarity_max;
+    return build(xyz, n, cfg, "points", err, same ? prev : nullptr, true);
 }
 
 int pb_pcd_read_xyz(const char *pcd_path, std::vector<float> *xyz, size_t *total, pb_err_t *err)

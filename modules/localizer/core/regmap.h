@@ -12,7 +12,7 @@
  * a centre, for maps too large for memory; the caller reloads around the car
  * when pb_regmap_covers() says the car is leaving the loaded disc.
  *
- * Ownership: pb_regmap_load / pb_regmap_from_points return a map the caller
+ * Ownership: pb_regmap_load / pb_regmap_from_points / pb_regmap_rebuild return a map the caller
  * frees with pb_regmap_destroy (NULL is a no-op). No pointer into the inputs is
  * kept. A loaded map is read-only: several threads may align against it.
  *
@@ -57,6 +57,16 @@ int pb_pcd_read_xyz(const char *pcd_path, std::vector<float> *xyz, size_t *total
  * ignored. Returns NULL (err set) if n == 0 or no cell gets a target. */
 pb_regmap_t *pb_regmap_from_points(const float *xyz, size_t n, const pb_regmap_config_t *cfg,
                                    pb_err_t *err);
+
+/* As pb_regmap_from_points, for a map built again and again from mostly the same points in
+ * the same order (the mapper's rolling local map): a voxel whose 3x3x3 neighbourhood holds
+ * the same points as in prev keeps prev's fit, the others are fitted again. The result is
+ * the same, byte for byte, as pb_regmap_from_points'. prev NULL (or built otherwise, or with
+ * another config) = a build from scratch. The map returned keeps each voxel's moments for
+ * the next rebuild (about 110 bytes a voxel more). prev is only read: another thread may
+ * align against it meanwhile, and it may be destroyed after. */
+pb_regmap_t *pb_regmap_rebuild(const pb_regmap_t *prev, const float *xyz, size_t n,
+                              const pb_regmap_config_t *cfg, pb_err_t *err);
 
 void pb_regmap_destroy(pb_regmap_t *m);
 

@@ -35,6 +35,24 @@ struct Rough {
     bool target() const { return w[0] > 0; }
 };
 
+/* Moments of the points of one voxel, relative to the voxel's corner (keeps the sums small
+ * so float-sized scatter stays exact in double). */
+struct Moments {
+    double n = 0, s[3] = {0, 0, 0}, ss[6] = {0, 0, 0, 0, 0, 0};
+};
+
+/* A level's voxels as they were built (kept by pb_regmap_rebuild only): each voxel's moments
+ * and what its fit gave (kind: 0, CELL_PLANE, CELL_LINE or 3 = rough; slot: its index in
+ * cells or roughs), so that the next build from mostly the same points fits only the voxels
+ * whose neighbourhood changed. */
+struct Memo {
+    VoxelHash index;               /* voxel key -> i */
+    std::vector<uint64_t> keys;
+    std::vector<Moments> moments;
+    std::vector<uint8_t> kind;
+    std::vector<int32_t> slot;
+};
+
 struct Level {
     double voxel = 0, inv_voxel = 0;
     VoxelHash index;
@@ -44,6 +62,7 @@ struct Level {
      * structure): no registration target, but evidence for the structure test */
     VoxelHash rough;            /* voxel key -> index in roughs */
     std::vector<Rough> roughs;  /* the fine level's only (the coarse level steps on planes and lines) */
+    Memo memo;                  /* empty unless built by pb_regmap_rebuild */
 
     const Cell *lookup(double x, double y, double z) const
     {
@@ -77,9 +96,12 @@ struct Level {
 /* Builds one level of edge `voxel` from n points (xyz interleaved): moments per voxel,
  * then per voxel a target fitted to the points of its 3x3x3 neighbourhood. Cells come in
  * the order their voxel first appears in the points; the same when `split` (the fits on
- * two threads). Returns the number of targets. */
+ * two threads). With `prev` (a level of the same edge and config that kept its memo), a
+ * voxel whose 27 neighbours' moments are bitwise those of prev takes prev's fit: the same
+ * result as fitting it again. `keep` keeps this level's memo. Returns the number of
+ * targets. */
 size_t build_level(const float *xyz, size_t n, double voxel, const pb_regmap_config_t *cfg, Level *lv,
-                   bool split = false);
+                   bool split = false, const Level *prev = nullptr, bool keep = false);
 
 }  // namespace pb_loc
 

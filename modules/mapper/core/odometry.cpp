@@ -239,7 +239,9 @@ static void start_next(pb_odom_t *o)
 {
     o->next = std::async(std::launch::async, [o]() {
         pb_err_t e;
-        pb_regmap_t *m = pb_regmap_from_points(o->next_src.data(), o->next_src.size() / 3, nullptr, &e);
+        /* most of the cells are the last map's: only the voxels whose neighbourhood changed
+         * are fitted again (o->regmap is only read, by both threads, until swap_in) */
+        pb_regmap_t *m = pb_regmap_rebuild(o->regmap, o->next_src.data(), o->next_src.size() / 3, nullptr, &e);
         if (!m) o->next_err = e.msg;
         return m;
     });
@@ -273,7 +275,7 @@ static int rebuild(pb_odom_t *o, const Vec3 &at, pb_err_t *err)
     o->built_at = at;
     o->built_sweep = o->sweeps;
     if (!o->regmap) {
-        o->regmap = pb_regmap_from_points(pts.data(), pts.size() / 3, nullptr, err);
+        o->regmap = pb_regmap_rebuild(nullptr, pts.data(), pts.size() / 3, nullptr, err);
         o->regmap_src.swap(pts);
         return o->regmap ? 0 : -1;
     }
@@ -529,8 +531,8 @@ pb_odom_t *pb_odom_restore(const uint8_t *data, size_t n, const pb_odom_config_t
         pb_odom_destroy(o);
         return pb_err_set(err, "odometry state: damaged (a value out of its range)"), nullptr;
     }
-    /* the registration maps again from their points (pb_regmap_from_points is deterministic) */
-    if (!o->regmap_src.empty() && !(o->regmap = pb_regmap_from_points(o->regmap_src.data(), o->regmap_src.size() / 3, nullptr, err))) {
+    /* the registration maps again from their points (a build is deterministic) */
+    if (!o->regmap_src.empty() && !(o->regmap = pb_regmap_rebuild(nullptr, o->regmap_src.data(), o->regmap_src.size() / 3, nullptr, err))) {
         pb_odom_destroy(o);
         return nullptr;
     }
