@@ -52,27 +52,16 @@ size_t voxel_centroids(const float *xyz, size_t n, double voxel, VoxelHash *hash
     acc->clear();
     uint64_t last_key = VoxelHash::kEmpty;   /* neighbouring points often share a voxel: no lookup then */
     VoxelSum *v = nullptr;
-    /* a batch of points keyed and their slots prefetched, then added in order (the misses
-     * overlap instead of coming one after the other) */
-    const int kBatch = 32;
-    uint64_t bkey[kBatch];
-    size_t bpt[kBatch];
-    for (size_t i = 0; i < n;) {
-        int b = 0;
-        for (; i < n && b < kBatch; i++) {
-            const float *p = xyz + 3 * i;
-            if (!voxel_key_of(p[0], p[1], p[2], inv, &bkey[b])) continue;
-            hash->prefetch(bkey[b]);
-            bpt[b++] = i;
-        }
-        for (int j = 0; j < b; j++) {
-            const float *p = xyz + 3 * bpt[j];
-            if (bkey[j] != last_key) {
+    KeyBatch batch;
+    for (size_t i = 0; batch.next(xyz, n, &i, inv, *hash) > 0;) {
+        for (int j = 0; j < batch.n; j++) {
+            const float *p = xyz + 3 * batch.point[j];
+            if (batch.key[j] != last_key) {
                 bool inserted;
-                const int32_t k = hash->insert(bkey[j], (int32_t)acc->size(), &inserted);
+                const int32_t k = hash->insert(batch.key[j], (int32_t)acc->size(), &inserted);
                 if (inserted) acc->push_back(VoxelSum{{0.f, 0.f, 0.f}, 0});
                 v = &(*acc)[(size_t)k];
-                last_key = bkey[j];
+                last_key = batch.key[j];
             }
             v->s[0] += p[0]; v->s[1] += p[1]; v->s[2] += p[2];
             v->n++;

@@ -224,25 +224,17 @@ size_t pb_loc::build_level(const float *xyz, size_t n, double voxel, const pb_re
     std::vector<uint64_t> keys;
     moments.reserve(expect);
     keys.reserve(expect);
-    const int kBatch = 32;
-    uint64_t bkey[kBatch];
-    size_t bpt[kBatch];
-    for (size_t i = 0; i < n;) {
-        int b = 0;
-        for (; i < n && b < kBatch; i++) {
-            const float *p = xyz + 3 * i;
-            if (!voxel_key_of(p[0], p[1], p[2], lv->inv_voxel, &bkey[b])) continue;
-            moment_index.prefetch(bkey[b]);
-            bpt[b++] = i;
-        }
+    KeyBatch batch;
+    const int kBatch = KeyBatch::kMax;
+    for (size_t i = 0; batch.next(xyz, n, &i, lv->inv_voxel, moment_index) > 0;) {
         int32_t found[kBatch];
-        for (int j = 0; j < b; j++) {
-            found[j] = moment_index.find(bkey[j]);
+        for (int j = 0; j < batch.n; j++) {
+            found[j] = moment_index.find(batch.key[j]);
             if (found[j] >= 0) __builtin_prefetch(&moments[(size_t)found[j]], 1);
         }
-        for (int j = 0; j < b; j++) {
-            const float *p = xyz + 3 * bpt[j];
-            const uint64_t key = bkey[j];
+        for (int j = 0; j < batch.n; j++) {
+            const float *p = xyz + 3 * batch.point[j];
+            const uint64_t key = batch.key[j];
             /* a key found is there still; one not found may have come with an earlier point */
             bool inserted = false;
             int32_t k = found[j] >= 0 ? found[j] : moment_index.insert(key, (int32_t)moments.size(), &inserted);

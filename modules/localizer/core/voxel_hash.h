@@ -140,5 +140,29 @@ private:
     int shift_ = 60;
 };
 
+/* The voxel keys of the next points of a cloud, a batch at a time, each key's slot in a
+ * hash prefetched: the caller then adds the batch's points in order, and the misses of a
+ * table far larger than the caches overlap instead of coming one after the other. */
+struct KeyBatch {
+    static constexpr int kMax = 32;
+    uint64_t key[kMax];
+    size_t point[kMax];   /* the point's index in the cloud */
+    int n = 0;
+
+    /* The next points of xyz (n_points, interleaved) from *i on, without those that have no
+     * key; *i moves past them. Returns the batch's size (0: the cloud is done). */
+    int next(const float *xyz, size_t n_points, size_t *i, double inv_voxel, const VoxelHash &hash)
+    {
+        n = 0;
+        for (; *i < n_points && n < kMax; ++*i) {
+            const float *p = xyz + 3 * *i;
+            if (!voxel_key_of(p[0], p[1], p[2], inv_voxel, &key[n])) continue;
+            hash.prefetch(key[n]);
+            point[n++] = *i;
+        }
+        return n;
+    }
+};
+
 }  // namespace pb_loc
 #endif
