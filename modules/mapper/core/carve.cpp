@@ -225,15 +225,18 @@ void pb_carve_ray(pb_carve_t *c, int64_t utime, const double o[3], const double 
         double frac = u > 0 ? (double)(v[a] + 1) - x : x - (double)v[a];
         tmax[a] = u != 0 ? frac * c->cfg.cell_m / std::fabs(u) : INFINITY;
     }
+    /* the walk leaves the cells' box once and for all (each axis moves one way): checked on
+     * the axis that steps; `outside` counts the axes on which the cell is not in the box */
+    auto out_on = [&](int b) { return v[b] < c->lo[b] || v[b] > c->hi[b]; };
+    int outside = 0;
+    for (int b = 0; b < 3; b++) {
+        if (step[b] > 0 ? v[b] > c->hi[b] : v[b] < c->lo[b]) return;
+        outside += out_on(b);
+    }
     double t_in = 0;
     for (;;) {
         int a = tmax[0] < tmax[1] ? (tmax[0] < tmax[2] ? 0 : 2) : (tmax[1] < tmax[2] ? 1 : 2);
-        bool inside = true;   /* the walk leaves the cells' box once and for all (each axis moves one way) */
-        for (int b = 0; b < 3; b++) {
-            if (step[b] > 0 ? v[b] > c->hi[b] : v[b] < c->lo[b]) return;
-            inside &= v[b] >= c->lo[b] && v[b] <= c->hi[b];
-        }
-        if (inside && c->maybe_occupied(v) && pb_loc::voxel_key(v[0], v[1], v[2], &key)) {
+        if (!outside && c->maybe_occupied(v) && pb_loc::voxel_key(v[0], v[1], v[2], &key)) {
             int32_t k = c->index.find(key);
             const double t_out = std::min(tmax[a], stop);
             if (k >= 0 && c->counts[(size_t)k].raised >= 0) {
@@ -251,7 +254,10 @@ void pb_carve_ray(pb_carve_t *c, int64_t utime, const double o[3], const double 
         }
         if (tmax[a] > stop) break;
         t_in = tmax[a];
+        outside -= out_on(a);
         v[a] += step[a];
+        if (step[a] > 0 ? v[a] > c->hi[a] : v[a] < c->lo[a]) return;
+        outside += out_on(a);
         tmax[a] += tdelta[a];
     }
 }
