@@ -73,47 +73,6 @@ void fit_rough(double n, const double s[3], const double ss[6], const double cor
     for (int a = 0; a < 3; a++) r->mean[a] = (float)(mu(a) + corner[a]);
 }
 
-/* A set of voxels as bits over a box (z fastest, so a voxel's 27 neighbours lie in 9 runs
- * of 3 bits): a test costs a cached read where a hash look-up of a voxel that is not there
- * costs a miss. */
-struct VoxelBits {
-    int64_t lo[3] = {0, 0, 0}, hi[3] = {-1, -1, -1}, ny = 0, nz = 0;
-    std::vector<uint64_t> words;
-
-    /* The box of keys grown by margin, empty; false (nothing held) when it would take more
-     * than max_bits. */
-    bool cover(const std::vector<uint64_t> &keys, int margin, int64_t max_bits)
-    {
-        words.clear();
-        if (keys.empty()) return false;
-        for (int a = 0; a < 3; a++) { lo[a] = INT64_MAX; hi[a] = INT64_MIN; }
-        for (uint64_t key : keys) {
-            int64_t v[3];
-            voxel_unkey(key, &v[0], &v[1], &v[2]);
-            for (int a = 0; a < 3; a++) { lo[a] = std::min(lo[a], v[a] - margin); hi[a] = std::max(hi[a], v[a] + margin); }
-        }
-        const int64_t nx = hi[0] - lo[0] + 1;
-        ny = hi[1] - lo[1] + 1;
-        nz = hi[2] - lo[2] + 1;
-        if (nx * ny > max_bits / nz) return false;
-        words.assign((size_t)((nx * ny * nz + 63) / 64), 0);
-        return true;
-    }
-    bool inside(int64_t x, int64_t y, int64_t z) const
-    {
-        return x >= lo[0] && x <= hi[0] && y >= lo[1] && y <= hi[1] && z >= lo[2] && z <= hi[2];
-    }
-    uint64_t at(int64_t x, int64_t y, int64_t z) const { return (uint64_t)(((x - lo[0]) * ny + (y - lo[1])) * nz + (z - lo[2])); }
-    void set(uint64_t key)
-    {
-        int64_t x, y, z;
-        voxel_unkey(key, &x, &y, &z);
-        const uint64_t b = at(x, y, z);
-        words[b >> 6] |= (uint64_t)1 << (b & 63);
-    }
-    bool get(uint64_t b) const { return (words[b >> 6] >> (b & 63)) & 1; }
-};
-
 /* What the voxel of `key` holds (kRough, CELL_PLANE or CELL_LINE; 0 for nothing): the
  * target fitted to its 3x3x3 neighbourhood's moments (shifted to this voxel's corner),
  * else (at a junction such as a wall's foot) to its own points alone, in *cell; a rough
@@ -129,7 +88,7 @@ uint8_t fit_voxel(const VoxelHash &moment_index, const std::vector<Moments> &mom
     for (int dx = -1; dx <= 1; dx++)
         for (int dy = -1; dy <= 1; dy++)
             for (int dz = -1; dz <= 1; dz++) {
-                if (bits && !occupied.get(occupied.at(ix + dx, iy + dy, iz + dz))) continue;
+                if (bits && !occupied.has(ix + dx, iy + dy, iz + dz)) continue;
                 uint64_t nkey;
                 if (!voxel_key(ix + dx, iy + dy, iz + dz, &nkey)) continue;
                 int32_t k = moment_index.find(nkey);
@@ -174,7 +133,7 @@ void mark_near_changed(const std::vector<uint64_t> &keys, const std::vector<uint
     /* the box grown by 2: a voxel with a changed neighbour lies within 1 of it, and its own
      * neighbours within 2 */
     VoxelBits near;
-    if (near.cover(changed, 2, (int64_t)1 << 30)) {
+    if (near.cover_keys(changed, 2, (int64_t)1 << 30)) {
         for (uint64_t key : changed) near.set(key);
         for (size_t c = 0; c < keys.size(); c++) {
             if ((*reuse)[c] < 0) continue;
@@ -283,7 +242,7 @@ size_t pb_loc::build_level(const float *xyz, size_t n, double voxel, const pb_re
      *    corner), fit mean and covariance, classify by eigenvalues (on two threads when
      *    `split`: each voxel's fit is its own) */
     VoxelBits occupied;   /* the voxels there are, so that a neighbour not there is not looked up */
-    if (occupied.cover(keys, 1, (int64_t)1 << 28))
+    if (occupied.cover_keys(keys, 1, (int64_t)1 << 28))
         for (uint64_t key : keys) occupied.set(key);
     std::vector<Cell> fitted(keys.size());
     std::vector<uint8_t> fit_kind(keys.size());   /* 0 nothing, kRough, or CELL_* */
@@ -299,6 +258,7 @@ size_t pb_loc::build_level(const float *xyz, size_t n, double voxel, const pb_re
             const size_t slot = (size_t)pm->slot[(size_t)k];
             fit_kind[c] = kind;
             if (kind == CELL_PLANE || kind == CELL_LINE) fitted[c] = prev->cells[slot];
+            /* (the coarse level drops its roughs once built: only the voxel's kind is prev's then) */
             else if (kind == kRough && slot < prev->roughs.size()) rough_fit[c] = prev->roughs[slot];
         }
     };
@@ -372,7 +332,7 @@ pb_regmap_t *build(const float *xyz, size_t n, const pb_regmap_config_t *cfg, co
                     info.cells = (int64_t)build_level(xyz, n, cfg->voxel_m, cfg, &m->fine, true,
                                                       prev ? &prev->fine : nullptr, keep);
                     columns_build(m->fine, &m->columns);
-                                },
+                },
                 [&]() {
                     if (cfg->coarse_voxel_m > 0) {
                         info.coarse_cells = (int64_t)build_level(xyz, n, cfg->coarse_voxel_m, cfg, &m->coarse, false,

@@ -4,6 +4,7 @@
 #ifndef PB_LOC_VOXEL_HASH_H
 #define PB_LOC_VOXEL_HASH_H
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <vector>
@@ -138,6 +139,55 @@ private:
     std::vector<int32_t> vals_;
     size_t mask_ = 0, size_ = 0;
     int shift_ = 60;
+};
+
+/* A set of voxels as bits over a box of voxel indices (z fastest, so a voxel's 27 neighbours
+ * lie in 9 runs of 3 bits): a test costs a cached read where a hash look-up of a voxel that
+ * is not there costs a miss. */
+struct VoxelBits {
+    int64_t lo[3] = {0, 0, 0}, hi[3] = {-1, -1, -1}, ny = 0, nz = 0;
+    std::vector<uint64_t> words;   /* empty: nothing held (the box was too large) */
+
+    /* No bit set over the box lo..hi (inclusive); false, and nothing held, when it would
+     * take more than max_bits. */
+    bool cover(const int64_t box_lo[3], const int64_t box_hi[3], int64_t max_bits)
+    {
+        words.clear();
+        for (int a = 0; a < 3; a++) { lo[a] = box_lo[a]; hi[a] = box_hi[a]; }
+        const int64_t nx = hi[0] - lo[0] + 1;
+        ny = hi[1] - lo[1] + 1;
+        nz = hi[2] - lo[2] + 1;
+        if (nx < 1 || ny < 1 || nz < 1 || nx * ny > max_bits / nz) return false;
+        words.assign((size_t)((nx * ny * nz + 63) / 64), 0);
+        return true;
+    }
+    /* The same over the box of keys grown by margin. */
+    bool cover_keys(const std::vector<uint64_t> &keys, int margin, int64_t max_bits)
+    {
+        int64_t l[3] = {INT64_MAX, INT64_MAX, INT64_MAX}, h[3] = {INT64_MIN, INT64_MIN, INT64_MIN};
+        for (uint64_t key : keys) {
+            int64_t v[3];
+            voxel_unkey(key, &v[0], &v[1], &v[2]);
+            for (int a = 0; a < 3; a++) { l[a] = std::min(l[a], v[a] - margin); h[a] = std::max(h[a], v[a] + margin); }
+        }
+        if (keys.empty()) { words.clear(); return false; }
+        return cover(l, h, max_bits);
+    }
+    bool inside(int64_t x, int64_t y, int64_t z) const
+    {
+        return x >= lo[0] && x <= hi[0] && y >= lo[1] && y <= hi[1] && z >= lo[2] && z <= hi[2];
+    }
+    /* the bit of (x, y, z), which must lie in the box */
+    uint64_t at(int64_t x, int64_t y, int64_t z) const { return (uint64_t)(((x - lo[0]) * ny + (y - lo[1])) * nz + (z - lo[2])); }
+    bool get(uint64_t b) const { return (words[b >> 6] >> (b & 63)) & 1; }
+    bool has(int64_t x, int64_t y, int64_t z) const { return get(at(x, y, z)); }
+    void set(uint64_t key)
+    {
+        int64_t x, y, z;
+        voxel_unkey(key, &x, &y, &z);
+        const uint64_t b = at(x, y, z);
+        words[b >> 6] |= (uint64_t)1 << (b & 63);
+    }
 };
 
 /* The voxel keys of the next points of a cloud, a batch at a time, each key's slot in a

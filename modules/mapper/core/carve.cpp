@@ -59,19 +59,12 @@ struct pb_carve {
     std::vector<int32_t> point_cell;   /* per map point, its cell (-1: outside the key range) */
     int64_t lo[3] = {INT64_MAX, INT64_MAX, INT64_MAX}, hi[3] = {INT64_MIN, INT64_MIN, INT64_MIN};   /* cells' extent */
     /* a bit per cell of the extent, set where the map has points: a ray's walk crosses mostly
-     * empty cells, and a bit is cheaper to test than the index (empty when the extent is too large) */
-    std::vector<uint64_t> occupied;
-    int64_t span[2] = {0, 0};   /* the extent's cells along x, y */
+     * empty cells, and a bit is cheaper to test than the index (none when the extent is too large) */
+    pb_loc::VoxelBits occupied;
 
-    uint64_t bit_of(const int64_t v[3]) const   /* v within the extent */
+    bool maybe_occupied(const int64_t v[3]) const   /* v within the extent */
     {
-        return (uint64_t)(((v[2] - lo[2]) * span[1] + (v[1] - lo[1])) * span[0] + (v[0] - lo[0]));
-    }
-    bool maybe_occupied(const int64_t v[3]) const
-    {
-        if (occupied.empty()) return true;
-        const uint64_t b = bit_of(v);
-        return (occupied[b >> 6] >> (b & 63)) & 1;
+        return occupied.words.empty() || occupied.has(v[0], v[1], v[2]);
     }
 };
 
@@ -117,20 +110,8 @@ pb_carve_t *pb_carve_create(const float *xyz, size_t n, size_t stride, const pb_
         c->counts[(size_t)k].occupied |= eighth_bit(pd, lo, c->cfg.cell_m / 2);
     }
     /* the occupied cells' bits, when the extent is at most 2^26 cells (8 MB) */
-    if (!c->counts.empty()) {
-        const int64_t nz = c->hi[2] - c->lo[2] + 1;
-        c->span[0] = c->hi[0] - c->lo[0] + 1;
-        c->span[1] = c->hi[1] - c->lo[1] + 1;
-        if (c->span[0] * c->span[1] <= (1ll << 26) / nz) {
-            c->occupied.assign((size_t)((c->span[0] * c->span[1] * nz + 63) / 64), 0);
-            c->index.for_each([&](uint64_t key, int32_t) {
-                int64_t v[3];
-                pb_loc::voxel_unkey(key, &v[0], &v[1], &v[2]);
-                const uint64_t b = c->bit_of(v);
-                c->occupied[b >> 6] |= 1ull << (b & 63);
-            });
-        }
-    }
+    if (!c->counts.empty() && c->occupied.cover(c->lo, c->hi, (int64_t)1 << 26))
+        c->index.for_each([&](uint64_t key, int32_t) { c->occupied.set(key); });
     return c;
 }
 
