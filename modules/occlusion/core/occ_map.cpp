@@ -134,8 +134,6 @@ struct occ_map_t {
     std::vector<shape_t> shapes;
     std::vector<uint64_t> halo_bits;        /* voxels this sweep's returns reach into (half a column gap around each) */
     std::vector<uint32_t> halo_list;        /* their bit indices (cleared at the next sweep) */
-    size_t halo_last_bi[9];                 /* per neighbour direction, the voxel the previous halo reached and its slot */
-    int halo_last_slot[9];
     size_t sub_last_bi = SIZE_MAX;          /* the voxel of the previous return and its slot (neighbouring returns often share one) */
     int sub_last_slot = -1;
     std::vector<block_node_t> fine_blocks, obs_blocks;   /* block nodes of both trees (block_node_t) */
@@ -227,7 +225,6 @@ void occ_map_clear(occ_map_t *m)
     std::fill(m->hit_bits.begin(), m->hit_bits.end(), 0);
     std::fill(m->halo_bits.begin(), m->halo_bits.end(), 0);
     m->halo_list.clear();
-    std::fill(m->halo_last_bi, m->halo_last_bi + 9, SIZE_MAX);
     std::fill(m->shapes.begin(), m->shapes.end(), occ_map_t::shape_t{ 0, 0, 0 });
     m->hit_list.clear();
     m->fill_list.clear();
@@ -760,17 +757,8 @@ static void sub_add(occ_map_t *m, size_t bi, const OcTreeKey &k, double x, doubl
                     const uint32_t mk = rows * ((2u << lx1) - (1u << lx0));    /* lx0..lx1 in each row */
                     OcTreeKey nk((uint16_t)(k[0] + dx), (uint16_t)(k[1] + dy), k[2]);
                     size_t nb = fine_bit(nk);
-                    const int j = (dy + 1) * 3 + dx + 1;
-                    if (m->halo_last_bi[j] == nb) {      /* the previous return reached the same voxel */
-                        occ_map_t::sub_t &e = m->sub[m->halo_last_slot[j]];
-                        e.mask |= mk;
-                        e.top = std::max(e.top, top);
-                        continue;
-                    }
                     int h = sub_slot(m, nb, nk);
                     if (h < 0) continue;
-                    m->halo_last_bi[j] = nb;
-                    m->halo_last_slot[j] = h;
                     occ_map_t::sub_t &e = m->sub[h];
                     e.mask |= mk;
                     e.top = std::max(e.top, top);
@@ -849,7 +837,6 @@ void occ_map_integrate(occ_map_t *m, const occ_sweep_t *sw, occ_integrate_stats_
     m->sub_last_bi = SIZE_MAX;
     for (uint32_t b : m->halo_list) clr_bit(m->halo_bits, b);
     m->halo_list.clear();
-    std::fill(m->halo_last_bi, m->halo_last_bi + 9, SIZE_MAX);
     /* the bitmaps are rings of FZ voxels in z: exact for the FZ around the car's height
      * (everything the eye rays cross); returns beyond that band skip the per-sweep shortcuts */
     OcTreeKey car_key;
