@@ -117,7 +117,7 @@ static void usage(FILE *f)
                "Times the occlusion pipeline on every sweep of a simdrive --scenario log (answers to\n"
                "OUT); --stock-out: writes sweeps N-10..N+M-1 (returns, origin, ours' answers) to JOBS.\n"
                "--stock-in: stock OctoMap alone, in a process of its own, on those jobs: insertPointCloud\n"
-               "(the first 10 untimed) and castRay for the same queries, timed; answers to STOCK.lcm\n"
+               "(the warm-up sweeps untimed) and castRay for the same queries, timed; answers to STOCK.lcm\n"
                "(OCCLUSION_STOCK).\n"
                "--real: two real sweeps (DIR/*.pcd in name order, DIR/relative.txt = 4x4 pose of the\n"
                "second in the first's frame), integrated in turn by ours and by stock OctoMap (same\n"
@@ -150,7 +150,7 @@ static octomap::Pointcloud stock_cloud(const float *x, const float *y, const flo
 struct stock_job_t {
     long sweep;
     bool timed;                         /* false: a warm-up sweep (integrated, not timed or asked) */
-    std::vector<float> xyz;             /* finite returns, map frame */
+    std::vector<float> x, y, z;         /* the sweep's returns as ours got them, map frame */
     float origin[3];
     double ground_z;                    /* the car's base height (stock_query passes the ground below it) */
     occ_output_t out;
@@ -162,7 +162,8 @@ template <class T> static bool get(FILE *f, T *v) { return fread(v, sizeof *v, 1
 
 static void stock_job_write(FILE *f, const stock_job_t &j)
 {
-    put(f, j.sweep); put(f, j.timed); put(f, (uint32_t)j.xyz.size()); fwrite(j.xyz.data(), sizeof(float), j.xyz.size(), f);
+    put(f, j.sweep); put(f, j.timed); put(f, (uint32_t)j.x.size());
+    for (const std::vector<float> *c : { &j.x, &j.y, &j.z }) fwrite(c->data(), sizeof(float), c->size(), f);
     fwrite(j.origin, sizeof j.origin, 1, f); put(f, j.ground_z);
     put(f, j.out.utime); fwrite(j.out.viewer, sizeof j.out.viewer, 1, f); put(f, j.out.eye_source); put(f, j.out.pose_ok);
     put(f, (uint32_t)j.out.agents.size());
@@ -184,8 +185,11 @@ static bool stock_job_read(FILE *f, stock_job_t *j, bool *bad)
     if (!get(f, &j->sweep)) return false;
     *bad = true;
     if (!get(f, &j->timed) || !get(f, &n) || n > (1u << 26)) return false;
-    j->xyz.resize(n);
-    if (fread(j->xyz.data(), sizeof(float), n, f) != n || fread(j->origin, sizeof j->origin, 1, f) != 1 || !get(f, &j->ground_z) ||
+    for (std::vector<float> *c : { &j->x, &j->y, &j->z }) {
+        c->resize(n);
+        if (fread(c->data(), sizeof(float), n, f) != n) return false;
+    }
+    if (fread(j->origin, sizeof j->origin, 1, f) != 1 || !get(f, &j->ground_z) ||
         !get(f, &j->out.utime) || fread(j->out.viewer, sizeof j->out.viewer, 1, f) != 1 || !get(f, &j->out.eye_source) ||
         !get(f, &j->out.pose_ok) || !get(f, &na) || na > 100000)
         return false;
@@ -379,7 +383,7 @@ static int noise_bench(long n, double ms)
     return 0;
 }
 
-/* --stock-in: stock OctoMap alone on the jobs of a drive's run, in order (the first 10 untimed):
+/* --stock-in: stock OctoMap alone on the jobs of a drive's run, in order (warm-up sweeps untimed):
  * insertPointCloud, then castRay for 100 agents (timed) and for every agent (answers to OUT). */
 static int stock_bench(const char *jobs_path, const char *out_path)
 {
@@ -395,8 +399,7 @@ static int stock_bench(const char *jobs_path, const char *out_path)
     stock_job_t j;
     bool bad = false;
     while (stock_job_read(f, &j, &bad)) {
-        octomap::Pointcloud cloud;
-        for (size_t i = 0; i + 2 < j.xyz.size(); i += 3) cloud.push_back(j.xyz[i], j.xyz[i + 1], j.xyz[i + 2]);
+        octomap::Pointcloud cloud = stock_cloud(j.x.data(), j.y.data(), j.z.data(), (int)j.x.size());
         double t0 = pb_clock_thread_cpu_ms();
         stock.insertPointCloud(cloud, octomap::point3d(j.origin[0], j.origin[1], j.origin[2]), cfg.range_m);
         double t1 = pb_clock_thread_cpu_ms();
@@ -491,7 +494,6 @@ int main(int argc, char **argv)
 
     std::vector<double> integ, integ_stock_sweeps, query100, ours_rays_us;
     std::vector<occ_output_t> res;
-    std::vector<stock_job_t> stock_jobs;    /* stock's sweeps, integrated after ours' drive */
     std::string mem_rows;   /* sweep, map leaves, map bytes, RSS kB; ... */
     std::vector<occ_event_t> ev;
     pb_points_t pts = {};
@@ -573,16 +575,13 @@ int main(int argc, char **argv)
                 query100.push_back(dt);
                 ours_rays_us.push_back(dt * 1e3 / rays);
             }
-            /* stock OctoMap's sweeps (warm-up sweeps untimed) are kept, and integrated after ours
-             * has done the whole drive: interleaved, each stock insert (about 1 s) emptied the
-             * caches ours then ran in (ours took 8.4 ms on those sweeps against 6.3-7.3 ms alone) */
+            /* stock OctoMap's sweeps (and the warm-up before them) to the jobs file (stock_job_t) */
             occ_sweep_t sw;
             if (stock_file && sweep >= stock_from - 10 && sweep < stock_from + stock_count && occlusion_last_sweep(occ, &sw)) {
                 stock_job_t j;
                 j.sweep = sweep;
                 j.timed = sweep >= stock_from;
-                for (int i = 0; i < sw.n; i++)
-                    if (std::isfinite(sw.x[i]) && std::isfinite(sw.y[i]) && std::isfinite(sw.z[i])) j.xyz.insert(j.xyz.end(), { sw.x[i], sw.y[i], sw.z[i] });
+                j.x.assign(sw.x, sw.x + sw.n); j.y.assign(sw.y, sw.y + sw.n); j.z.assign(sw.z, sw.z + sw.n);
                 for (int i = 0; i < 3; i++) j.origin[i] = (float)sw.mid_origin[i];
                 j.ground_z = last_pose[2];
                 j.out = o;
@@ -607,12 +606,10 @@ int main(int argc, char **argv)
     occlusion_finish(occ, &res, &ev);
     int64_t leaves, bytes;
     occ_map_size(occlusion_map(occ), &leaves, &bytes);
-    struct rusage ru;
-    getrusage(RUSAGE_SELF, &ru);     /* peak resident memory of the whole run (stock tree included) */
     printf("{\"rss_max_kb\": %ld, \"rss_end_kb\": %ld, \"sweeps\": %zu, \"integrate_ms_p50\": %.3f, \"integrate_ms_p99\": %.3f, \"query100_ms_p50\": %.4f, "
            "\"query100_ms_p99\": %.4f, \"ours_us_per_ray_p50\": %.4f, \"integrate_ms_stock_sweeps_p50\": %.3f, "
            "\"map_leaves_end\": %lld, \"map_bytes_end\": %lld, \"memory_per_minute\": [%s]}\n",
-           (long)ru.ru_maxrss, rss_kb(), integ.size(), pct(integ, 0.5), pct(integ, 0.99), pct(query100, 0.5), pct(query100, 0.99), pct(ours_rays_us, 0.5),
+           peak_rss_kb(), rss_kb(), integ.size(), pct(integ, 0.5), pct(integ, 0.99), pct(query100, 0.5), pct(query100, 0.99), pct(ours_rays_us, 0.5),
            pct(integ_stock_sweeps, 0.5), (long long)leaves, (long long)bytes, mem_rows.c_str());
     if (stock_file && fclose(stock_file)) { fprintf(stderr, "occlusion-bench: %s: %s\n", stock_out, strerror(errno)); r = -1; }
     if (times && fclose(times)) { fprintf(stderr, "occlusion-bench: %s: %s\n", times_path, strerror(errno)); r = -1; }
