@@ -134,7 +134,7 @@ struct occ_map_t {
     std::vector<shape_t> shapes;
     std::vector<uint64_t> halo_bits;        /* voxels this sweep's returns reach into (half a column gap around each) */
     std::vector<uint32_t> halo_list;        /* their bit indices (cleared at the next sweep) */
-    size_t sub_last_bi = SIZE_MAX;          /* the voxel of the previous return and its slot (neighbouring returns often share one) */
+    size_t sub_last_bi = SIZE_MAX;          /* the voxel of the last return added and its slot (the hit it queues marks that slot fresh) */
     int sub_last_slot = -1;
     std::vector<block_node_t> fine_blocks, obs_blocks;   /* block nodes of both trees (block_node_t) */
     std::vector<uint64_t> hit_keys, obs_keys;   /* this sweep's queued updates: hits of fine, new cells of observed */
@@ -771,12 +771,6 @@ static void sub_add(occ_map_t *m, size_t bi, const OcTreeKey &k, double x, doubl
                 }
             }
         }
-    }
-    if (bi == m->sub_last_bi) {
-        occ_map_t::sub_t &e = m->sub[m->sub_last_slot];
-        e.mask |= v;
-        e.top = std::max(e.top, top);
-        return;
     }
     int h = sub_slot(m, bi, k);
     if (h < 0) return;
