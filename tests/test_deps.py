@@ -4,6 +4,8 @@ the benchmarks) that is not installed or at another version."""
 import os
 import shutil
 
+import pytest
+
 from conftest import ROOT, run
 
 
@@ -30,3 +32,25 @@ def test_check_names_a_missing_oracle_and_a_wrong_version(tmp_path):
     assert p.returncode == 1
     assert "pyubx2-not-installed" in p.stderr and "not installed" in p.stderr, p.stderr
     assert "small_gicp==0.0.0+" in p.stderr and "installed 1." in p.stderr, p.stderr
+
+
+@pytest.mark.parametrize("script, usage", [
+    ("deps.sh", "tools/deps.sh [--check]"),
+    ("demo.sh", "tools/demo.sh [OUT_DIR]"),
+    ("demo-study.sh", "tools/demo-study.sh [OUT_DIR]"),
+    ("demo-study-report.sh", "tools/demo-study-report.sh OUT_DIR LAB_LOG... -- ROAD_RECORDING..."),
+])
+def test_scripts_help_and_unknown_options(script, usage, tmp_path):
+    # --help prints the header (its usage line among it) and does nothing else. Before,
+    # demo.sh and demo-study.sh took "--help" for their output folder (`mkdir -p --help`
+    # printed mkdir's help, and a 300 MB drive went into ./--help), and deps.sh went on
+    # to install
+    p = run(["bash", ROOT / "tools" / script, "--help"], check=False, timeout=30, cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    assert usage in p.stdout, p.stdout
+    assert not p.stdout.startswith("#!") and "set -euo" not in p.stdout, p.stdout
+    p = run(["bash", ROOT / "tools" / script, "--no-such-option"], check=False, timeout=30, cwd=tmp_path)
+    assert p.returncode == 2
+    assert f"{script}: unknown option '--no-such-option'" in p.stderr, p.stderr
+    # the scripts work from the checkout's top: nothing may be made there under either name
+    assert not (ROOT / "--help").exists() and not (ROOT / "--no-such-option").exists()
