@@ -5,8 +5,8 @@
 # live bus, possibly split into several files by size).
 #   tools/demo-study-report.sh OUT_DIR LAB_LOG... -- ROAD_RECORDING...
 set -euo pipefail
-# --help prints the comment above; an option this script does not take is an error
-case "${1:-}" in -h|--help) sed -n '2,/^set -euo/{/^#/s/^# \{0,1\}//p}' "$0"; exit 0;; -*) echo "demo-study-report.sh: unknown option '$1' (see --help)" >&2; exit 2;; esac
+# --help, and arguments this script does not take (tools/script-args.sh)
+. "$(dirname "$0")/script-args.sh" options -- "$@"
 cd "$(dirname "$0")/.."
 out=$1; shift
 site=${SITE:-maps/default}

@@ -9,8 +9,8 @@
 # Exit 1 if any pair differs.
 #   tools/demo-study.sh [OUT_DIR]     (default build/demo-study; SITE=... for another site)
 set -euo pipefail
-# --help prints the comment above; an option this script does not take is an error
-case "${1:-}" in -h|--help) sed -n '2,/^set -euo/{/^#/s/^# \{0,1\}//p}' "$0"; exit 0;; -*) echo "demo-study.sh: unknown option '$1' (see --help)" >&2; exit 2;; esac
+# --help, and arguments this script does not take (tools/script-args.sh)
+. "$(dirname "$0")/script-args.sh" options -- "$@"
 cd "$(dirname "$0")/.."
 out=${1:-build/demo-study}
 site=${SITE:-maps/default}

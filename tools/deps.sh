@@ -5,8 +5,8 @@
 # make demo when the stamp is missing or older than this script).
 #   tools/deps.sh [--check]   (--check: installs nothing; exit 0 when nothing is missing)
 set -euo pipefail
-# --help prints the comment above; an option this script does not take is an error
-case "${1:-}" in -h|--help) sed -n '2,/^set -euo/{/^#/s/^# \{0,1\}//p}' "$0"; exit 0;; --check) ;; -*) echo "deps.sh: unknown option '$1' (see --help)" >&2; exit 2;; esac
+# --help, and arguments this script does not take (tools/script-args.sh)
+. "$(dirname "$0")/script-args.sh" options --check -- "$@"
 cd "$(dirname "$0")/.."
 
 APT_PKGS="build-essential pkg-config python3 python3-venv python3-pip libglib2.0-0 libglib2.0-dev \

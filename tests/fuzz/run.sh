@@ -7,8 +7,8 @@
 #   fuzz-libs: -lcjson                              (optional extra link flags)
 #   fuzz-max-len: 20000                             (optional; default 4096 bytes an input)
 set -euo pipefail
-# --help prints the comment above; this script takes no arguments
-case "${1:-}" in -h|--help) sed -n '2,/^set -euo/{/^#/s/^# \{0,1\}//p}' "$0"; exit 0;; ?*) echo "run.sh: unknown argument '$1' (see --help)" >&2; exit 2;; esac
+# --help, and arguments this script does not take (tools/script-args.sh)
+. "$(dirname "$0")/../../tools/script-args.sh" none -- "$@"
 cd "$(dirname "$0")/../.."
 RUNS=${FUZZ_RUNS:-1000000}
 for p in clang libclang-rt-14-dev; do

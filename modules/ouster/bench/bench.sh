@@ -4,8 +4,8 @@
 # two baselines measured in the same run on the same packets: a raw copy of the packets,
 # and ouster-sdk 1.0.1 (PyPI; installed into build/bench/ouster-sdk-venv on first use).
 set -euo pipefail
-# --help prints the comment above; this script takes no arguments
-case "${1:-}" in -h|--help) sed -n '2,/^set -euo/{/^#/s/^# \{0,1\}//p}' "$0"; exit 0;; ?*) echo "bench.sh: unknown argument '$1' (see --help)" >&2; exit 2;; esac
+# --help, and arguments this script does not take (tools/script-args.sh)
+. "$(dirname "$0")/../../../tools/script-args.sh" none -- "$@"
 cd "$(dirname "$0")/../../.."
 FRAMES=${FRAMES:-300}
 PCAP=tests/data/ouster/OS-1-64_1024x10_fw20.pcap
