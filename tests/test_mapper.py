@@ -567,6 +567,29 @@ def test_two_drives_merged(hills_drives, tmp_path):
     assert s["beyond_0.5"] < 0.0025, s
 
 
+def test_sweeps_a_second_apart(hills_drives, tmp_path):
+    """One sweep a second (a dataset's keyframes, a LiDAR that drops sweeps), LiDAR alone, on
+    the hills: steps of up to 14 m. Each sweep is registered to a map that holds the one
+    before it, from a prediction whose spread grows with the gap."""
+    log = tmp_path / "sparse.lcm"
+    w = lcm.EventLog(str(log), "w", overwrite=True)
+    k = 0
+    for ev in lcm.EventLog(str(hills_drives["logs"][0]), "r"):
+        if ev.channel == "LIDAR_SCAN":
+            k += 1
+            if k % 10 != 1:
+                continue
+        w.write_event(ev.timestamp, ev.channel, ev.data)
+    w.close()
+    run([BIN / "mapper", "--log", log, "--out", tmp_path / "out", "--quiet"])
+    rep = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert rep["scans"] == rep["scans_in_log"] >= 24, rep
+    _, (err,) = to_site_frame(tmp_path / "out", hills_drives["gt"][:1], ("odometry.tum",))
+    # measured (4 Dec): ATE max 0.087 m over 158 m (with the map a few sweeps behind and the
+    # 10 Hz prior: 46 m); bound three times that
+    assert err.max() < 0.26, f"ATE max {err.max():.3f} m"
+
+
 def test_two_drives_restart_after_a_kill(hills_drives, tmp_path):
     """Killed (SIGKILL) once the second drive's odometry has written its first checkpoint
     and run again, the merge resumes both drives (the first from its finished pass, the

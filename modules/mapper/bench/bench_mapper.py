@@ -462,6 +462,85 @@ def run_and_score(log_path, out_dir, vehicle, refs, period, runs=1):
     return ores
 
 
+MULRAN_STARTS = (0, 6, 12, 20, 30, 45, 64, 80, 96, 110, 120, 140)
+
+
+def steps_agreeing(times, poses, ref_times, ref_poses, implausible, tol_m=0.3, tol_deg=1.0):
+    """(agreeing, counted): the steps between consecutive poses whose relative motion lies
+    within tol_m and tol_deg of the reference's, leaving out steps from or to a keyframe the
+    reference itself makes implausible."""
+    inside, ref = tm.poses_at(ref_times, ref_poses, times)
+    est, t = poses[inside], times[inside]
+    idx = [int(np.argmin(np.abs(ref_times - x))) for x in t]
+    ok = n = 0
+    for i in range(1, len(est)):
+        if idx[i] in implausible or idx[i - 1] in implausible:
+            continue
+        d = np.linalg.inv(np.linalg.inv(ref[i - 1]) @ ref[i]) @ (np.linalg.inv(est[i - 1]) @ est[i])
+        n += 1
+        ok += np.linalg.norm(d[:3, 3]) < tol_m and tm.rot_angle(d[:3, :3]) * 180 / np.pi < tol_deg
+    return ok, n
+
+
+def starts_on_real_scans(log_path, vehicle, refined, result, keep_scans=False):
+    """One run from the drive's start says little on keyframes this sparse: where a method
+    loses the car's speed it stays lost, and where it is lost depends on where it began. Ours
+    and KISS-ICP from each of MULRAN_STARTS: the share of steps that agree with the refined
+    reference, and the drift."""
+    rep_path = refined.parent / "reference-report.json"
+    d = OUT / "mulran" / "starts"
+    drive = result["drives"]["mulran"]
+    if not refined.exists() or not rep_path.exists():
+        drive["notes"].append("starts: no refined reference (make bench-localizer-real)")
+        return
+    implausible = set(json.loads(rep_path.read_text())["implausible_keyframes_refined"])
+    ex = export(log_path, OUT / "mulran" / "export", vehicle)
+    times, files, B = read_export(ex)
+    ref_label, ref_t, ref_P = mulran_refined_reference(B, refined)[0]
+    from kiss_icp.kiss_icp import KissICP
+    events = list(lcm.EventLog(str(log_path), "r"))
+    scan_utimes = [ev.timestamp for ev in events if ev.channel == "LIDAR_SCAN"]
+    rows = []
+    for k in MULRAN_STARTS:
+        if k >= len(files) - 10:
+            continue
+        log(f"[mulran] from keyframe {k}: ours and KISS-ICP ...")
+        d.mkdir(parents=True, exist_ok=True)
+        cut = d / f"from_{k}.lcm"
+        w = lcm.EventLog(str(cut), "w", overwrite=True)
+        for ev in events:
+            if ev.timestamp >= scan_utimes[k] - 1:
+                w.write_event(ev.timestamp, ev.channel, ev.data)
+        w.close()
+        o = run_ours(str(BIN / "mapper"), cut, d / f"ours_{k}", vehicle)
+        cut.unlink()
+        row = {"from_keyframe": k}
+        if "error" in o:
+            row["ours_error"] = o["error"]
+        else:
+            ot, oP = o["odometry"] if "odometry" in o else o["trajectory"]
+            row["ours_steps_agreeing"], row["steps"] = steps_agreeing(ot, oP, ref_t, ref_P, implausible)
+            row["ours_drift_pct"] = score(ot, oP, ref_t, ref_P)["drift_pct"]
+        odom = KissICP(config=kiss_config(OS1_64_RANGE_M))
+        kp = []
+        for f in files[k:]:
+            a = np.fromfile(f, dtype="<f4").reshape(-1, 4)
+            odom.register_frame(a[:, :3].astype(np.float64), np.zeros(0))   # no per-point times
+            kp.append(odom.last_pose.copy())
+        kb = np.array(kp) @ np.linalg.inv(B)
+        row["kiss_steps_agreeing"], _ = steps_agreeing(times[k:], kb, ref_t, ref_P, implausible)
+        row["kiss_drift_pct"] = score(times[k:], kb, ref_t, ref_P)["drift_pct"]
+        rows.append(row)
+    if not keep_scans:
+        shutil.rmtree(ex / "scans", ignore_errors=True)
+        (ex / "times.txt").unlink(missing_ok=True)
+    tot = lambda key: sum(r.get(key, 0) for r in rows)
+    drive["starts"] = {"reference": ref_label, "tolerance": "0.3 m and 1 degree of the reference's step",
+                       "implausible_keyframes_left_out": sorted(implausible), "rows": rows,
+                       "ours_share": tot("ours_steps_agreeing") / max(tot("steps"), 1),
+                       "kiss_share": tot("kiss_steps_agreeing") / max(tot("steps"), 1)}
+
+
 def carving_on_real_scans(log_path, refined, result):
     """The odometry does not hold on the MulRan keyframes, so the carving of real scans is
     shown with the refined reference's poses (mapper --poses): report.png, the carved points in
@@ -684,6 +763,18 @@ def print_table(result):
                   f"points on moving objects: {mw['on_moving']:,} ({100 * mw['on_moving_share']:.3f} %, target 0)")
         for line in drv.get("notes", []):
             print(f"{dname}: {line}")
+        st = drv.get("starts")
+        if st:
+            print(f"{dname}: from {len(st['rows'])} starts, the steps within {st['tolerance']} ({st['reference']}; "
+                  f"keyframes it makes implausible left out):")
+            print(f"  {'from keyframe':>13} {'steps':>5} {'ours':>6} {'KISS-ICP':>8} {'ours drift %':>12} {'KISS drift %':>12}")
+            for r in st["rows"]:
+                if "ours_error" in r:
+                    print(f"  {r['from_keyframe']:>13} ours failed: {r['ours_error'].strip().splitlines()[-1][:80]}")
+                    continue
+                print(f"  {r['from_keyframe']:>13} {r['steps']:>5} {r['ours_steps_agreeing']:>6} {r['kiss_steps_agreeing']:>8} "
+                      f"{fmt(r['ours_drift_pct'], '{:.1f}'):>12} {fmt(r['kiss_drift_pct'], '{:.1f}'):>12}")
+            print(f"  {'all':>13} {'':>5} {100 * st['ours_share']:>5.1f}% {100 * st['kiss_share']:>7.1f}%")
 
 
 def main():
@@ -750,6 +841,8 @@ def main():
                 "keyframes 0.5-5.5 s apart (median 0.5 s), deskewed and downsampled already: no per-point times; "
                 "RTF is against the keyframe spacing, the sensor itself runs at 10 Hz"]
             carving_on_real_scans(log_path, pathlib.Path(args.refined), result)
+            starts_on_real_scans(log_path, ROOT / "vehicles" / "lidar_mast.yaml", pathlib.Path(args.refined), result,
+                                 args.keep_scans)
     result["load_avg_end"] = os.getloadavg()
     mr = f"{args.kiss_max_range:g} m" if args.kiss_max_range else "the sensor's range"
     print(f"bench-mapper: KISS-ICP {result['kiss_icp_version']} (Python API, default config, max_range = {mr}, "

@@ -248,8 +248,8 @@ static void start_next(pb_odom_t *o)
 }
 
 /* Drops the cells beyond the local radius and starts building the next registration map
- * from the cells kept (at the first sweep, built at once). */
-static int rebuild(pb_odom_t *o, const Vec3 &at, pb_err_t *err)
+ * from the cells kept (at the first sweep, or when now is set, built at once). */
+static int rebuild(pb_odom_t *o, const Vec3 &at, bool now, pb_err_t *err)
 {
     const double r2 = o->cfg.local_radius_m * o->cfg.local_radius_m;
     std::vector<Cell> kept;
@@ -274,10 +274,15 @@ static int rebuild(pb_odom_t *o, const Vec3 &at, pb_err_t *err)
     }
     o->built_at = at;
     o->built_sweep = o->sweeps;
-    if (!o->regmap) {
-        o->regmap = pb_regmap_rebuild(nullptr, pts.data(), pts.size() / 3, nullptr, err);
+    if (!o->regmap || now) {
+        if (o->next.valid()) pb_regmap_destroy(o->next.get());   /* the map being built is older */
+        o->next_src.clear();
+        pb_regmap_t *m = pb_regmap_rebuild(o->regmap, pts.data(), pts.size() / 3, nullptr, err);
+        if (!m) return -1;
+        pb_regmap_destroy(o->regmap);
+        o->regmap = m;
         o->regmap_src.swap(pts);
-        return o->regmap ? 0 : -1;
+        return 0;
     }
     if (swap_in(o, err) != 0) return -1;
     o->next_sweep = o->sweeps + kSwapAfter;
@@ -308,6 +313,7 @@ int pb_odom_add(pb_odom_t *o, int64_t utime, const float *xyz, const int32_t *of
     if (o->sweeps > 0 && t_ref <= o->last_utime)
         return pb_err_set(err, "sweep at utime %lld is not after the last one", (long long)utime), -1;
     const double dt = o->sweeps > 0 ? (t_ref - o->last_utime) * 1e-6 : 0;
+    const bool sparse = dt > o->cfg.sparse_gap_s;
     if (dt > o->cfg.max_gap_s) o->motion_known = false;
     append_in_order(&o->speed, motion->speed, motion->n_speed);
     append_in_order(&o->rate, motion->rate, motion->n_rate);
@@ -344,7 +350,7 @@ int pb_odom_add(pb_odom_t *o, int64_t utime, const float *xyz, const int32_t *of
         // 3. registration from the prediction; a search around it when that is not enough
         const bool predicted = measured || o->motion_known;
         pb_reg_config_t tcfg = o->reg;
-        tcfg.prior_sigma_m = predicted ? o->cfg.prior_sigma_m : 0;
+        tcfg.prior_sigma_m = !predicted ? 0 : sparse ? o->cfg.sparse_prior_sigma_mps * dt : o->cfg.prior_sigma_m;
         pb_reg_result_t m;
         int rc = predicted ? pb_reg_align(o->regmap, pts.data(), n, pred, &tcfg, &m, err) : PB_REG_FEW_POINTS;
         if (rc < 0) return -1;
@@ -388,10 +394,10 @@ int pb_odom_add(pb_odom_t *o, int64_t utime, const float *xyz, const int32_t *of
         if (swap_in(o, err) != 0) return -1;
         r.rebuilt = 1;
     }
-    if (!o->regmap || (r.pose.translation() - o->built_at).norm() >= o->cfg.rebuild_m ||
+    if (!o->regmap || sparse || (r.pose.translation() - o->built_at).norm() >= o->cfg.rebuild_m ||
         o->sweeps - o->built_sweep >= o->cfg.rebuild_sweeps) {
         add_to_map(o, o->last_sweep, r.pose);
-        if (rebuild(o, r.pose.translation(), err) != 0) return -1;
+        if (rebuild(o, r.pose.translation(), sparse, err) != 0) return -1;
         r.rebuilt = 1;
     } else {
         const Eigen::Isometry3d pose = r.pose;

@@ -18,7 +18,8 @@
  *      (pb_reg_align_global);
  *   4. the step from the last pose gives the next motion;
  *   5. add the sweep's points to the local map (one centroid per cell), and every
- *      few metres rebuild the registration map from the cells near the car.
+ *      few metres rebuild the registration map from the cells near the car (after
+ *      every sweep, at once, when the sweeps come far apart).
  *
  * No I/O and no clock: the same sweeps give the same poses.
  * Ownership: pb_odom_create and pb_odom_restore return an object the caller frees with
@@ -48,6 +49,13 @@ typedef struct {
     double search_radius_m = 10;     /* that search: within this of the prediction ... */
     double search_yaw_deg = 30;      /* ... and this of its yaw */
     double prior_sigma_m = 0.5;      /* spread of the constant-velocity prediction (registration.h) */
+    double sparse_gap_s = 0.3;       /* sweeps further apart than this are sparse (a dataset's keyframes,
+                                      * a LiDAR that drops sweeps): the registration map is rebuilt with
+                                      * each at once, not on another thread a few sweeps later (it would
+                                      * lie metres behind the car), and ... */
+    double sparse_prior_sigma_mps = 10; /* ... the prediction's spread is this times the gap (the last
+                                      * step's speed, from sweeps 0.5 s apart, holds for the next one
+                                      * only roughly; held at 0.5 m it kept a wrong speed for good) */
     double max_gap_s = 1.0;          /* a longer gap between sweeps forgets the motion (searched again);
                                       * dead reckoning bridges it */
     double max_sample_age_s = 0.2;   /* a speed or rate sample older than this at the sweep's middle is
