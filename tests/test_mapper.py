@@ -78,6 +78,7 @@ def test_trajectory_from_a_moving_start(drive):
     rep = json.loads((drive["out"] / "report.json").read_text())
     assert rep["scans"] == rep["scans_in_log"] == len(t) == 80
     assert rep["scans_weak"] == 0 and rep["scans_predicted"] == 0
+    assert rep["scans_sparse"] == 0 and "sweeps came more than" not in drive["stderr"]
     # where the wall time went: every step ran, and the steps make up the whole
     steps = rep["wall_s_steps"]
     assert list(steps) == ["odometry", "loops", "map", "carve", "site"], steps
@@ -581,9 +582,12 @@ def test_sweeps_a_second_apart(hills_drives, tmp_path):
                 continue
         w.write_event(ev.timestamp, ev.channel, ev.data)
     w.close()
-    run([BIN / "mapper", "--log", log, "--out", tmp_path / "out", "--quiet"])
+    p = run([BIN / "mapper", "--log", log, "--out", tmp_path / "out"])
     rep = json.loads((tmp_path / "out" / "report.json").read_text())
     assert rep["scans"] == rep["scans_in_log"] >= 24, rep
+    # the report and the warning say the sweeps came far apart
+    assert rep["scans_sparse"] == rep["scans"] - 1, rep
+    assert f"warning: {rep['scans'] - 1} of {rep['scans']} sweeps came more than 0.3 s after" in p.stderr, p.stderr
     _, (err,) = to_site_frame(tmp_path / "out", hills_drives["gt"][:1], ("odometry.tum",))
     # measured (4 Dec): ATE max 0.087 m over 158 m (with the map a few sweeps behind and the
     # 10 Hz prior: 46 m); bound three times that

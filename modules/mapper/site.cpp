@@ -180,7 +180,8 @@ int write_site(Run *R, pb_err_t *err)
 /* report.json (cJSON: names and messages escaped) and the summary line. */
 int write_report(const Run &R, const double cpu_ms[4], double wall_s, pb_err_t *err)
 {
-    long by_status[5] = {}, by_motion[3] = {};
+    long by_status[5] = {}, by_motion[3] = {}, sparse = 0;
+    const int64_t sparse_gap_us = (int64_t)(pb_odom_config_t{}.sparse_gap_s * 1e6);
     double path_m = 0;
     std::vector<double> ms, inl;
     for (size_t i = 0; i < R.traj.size(); i++) {
@@ -188,6 +189,7 @@ int write_report(const Run &R, const double cpu_ms[4], double wall_s, pb_err_t *
         if (s.status != kGiven) by_status[s.status]++;
         if (s.motion != kGiven) by_motion[s.motion]++;
         if (i > 0) path_m += (s.pose.translation() - R.traj[i - 1].pose.translation()).norm();
+        if (i > 0 && s.utime - R.traj[i - 1].utime > sparse_gap_us) sparse++;
         ms.push_back(s.cpu_ms);
         if (std::isfinite(s.inlier_fraction)) inl.push_back(s.inlier_fraction);
     }
@@ -205,6 +207,9 @@ int write_report(const Run &R, const double cpu_ms[4], double wall_s, pb_err_t *
     cJSON_AddNumberToObject(j, "scans_motion_measured", (double)by_motion[PB_ODOM_MOTION_MEASURED]);
     cJSON_AddNumberToObject(j, "scans_motion_constant", (double)by_motion[PB_ODOM_MOTION_CONSTANT]);
     cJSON_AddNumberToObject(j, "scans_motion_none", (double)by_motion[PB_ODOM_MOTION_NONE]);
+    /* sweeps far apart (a dataset's keyframes, dropped sweeps): the odometry's sparse path
+     * (odometry.h), which holds less well than on a live 10 Hz drive */
+    cJSON_AddNumberToObject(j, "scans_sparse", (double)sparse);
     cJSON_AddNumberToObject(j, "loop_candidates", R.loops.candidates);
     cJSON_AddNumberToObject(j, "loop_candidates_by_place", R.loops.place_candidates);
     cJSON_AddNumberToObject(j, "loops", R.loops.verified);
@@ -298,6 +303,10 @@ int write_report(const Run &R, const double cpu_ms[4], double wall_s, pb_err_t *
     if (f) ok &= std::fclose(f) == 0;
     cJSON_free(text);
     if (!ok) return pb_err_set(err, "%s: cannot write", rep_path.c_str()), -1;
+    if (!R.quiet && !R.poses_path && 2 * sparse > (long)R.traj.size())
+        std::fprintf(stderr, "mapper: warning: %ld of %zu sweeps came more than %.1f s after the one before (keyframes, "
+                     "or a LiDAR dropping sweeps): the odometry holds less well on sweeps this far apart "
+                     "(docs/mapper.md, \"Keyframe logs\")\n", sparse, R.traj.size(), sparse_gap_us * 1e-6);
     if (!R.quiet && R.poses_path)
         std::fprintf(stderr, "mapper: %zu poses of %s over %.1f m in %.1f s of drive; %zu map points (%zu carved: moved); "
                      "%.1f s wall\n", R.traj.size(), R.poses_path, path_m, span_s, R.map_points, R.carved, wall_s);
