@@ -478,7 +478,7 @@ def steps_agreeing(times, poses, ref_times, ref_poses, implausible, tol_m=0.3, t
             continue
         d = np.linalg.inv(np.linalg.inv(ref[i - 1]) @ ref[i]) @ (np.linalg.inv(est[i - 1]) @ est[i])
         n += 1
-        ok += np.linalg.norm(d[:3, 3]) < tol_m and tm.rot_angle(d[:3, :3]) * 180 / np.pi < tol_deg
+        ok += bool(np.linalg.norm(d[:3, 3]) < tol_m and tm.rot_angle(d[:3, :3]) * 180 / np.pi < tol_deg)
     return ok, n
 
 
