@@ -79,6 +79,8 @@ def test_trajectory_from_a_moving_start(drive):
     assert rep["scans"] == rep["scans_in_log"] == len(t) == 80
     assert rep["scans_weak"] == 0 and rep["scans_predicted"] == 0
     assert rep["scans_sparse"] == 0 and "sweeps came more than" not in drive["stderr"]
+    # no step implies an acceleration a car does not make (measured, 4 Dec: at most 2.38 m/s^2)
+    assert rep["odometry_implausible_at_s"] == [] and "which no car does" not in drive["stderr"], rep
     # where the wall time went: every step ran, and the steps make up the whole
     steps = rep["wall_s_steps"]
     assert list(steps) == ["odometry", "loops", "map", "carve", "site"], steps
@@ -315,7 +317,23 @@ def test_given_poses(drive, tmp_path):
     # the rest, the bus the 8 s drive is too short to carve. Bounds: three times the share
     # outside 5 cm and the median
     assert d["within_0.05"] > 0.95 and d["median_m"] < 0.003, d
+    # the truth implies no acceleration a car does not make (measured, 4 Dec: at most 2.30 m/s^2
+    # over 14 half-second steps); a trajectory with a jump does, and is reported and warned about
+    assert rep["odometry_implausible_at_s"] == [] and rep["odometry_accel_checked"] >= 13, rep
+    assert "which no car does" not in p.stderr, p.stderr
     lines = drive["gt"].read_text().splitlines()
+    t, xyz, _ = read_tum(drive["gt"])
+    k = int(np.searchsorted(t, t[0] + 4.0))   # one pose 1 m sideways for 0.3 s, 4 s in
+    jumped = [ln.split() for ln in lines]
+    for i in range(k, k + len([x for x in t if t[k] <= x < t[k] + 0.3])):
+        jumped[i][2] = "%.6f" % (float(jumped[i][2]) + 1.0)
+    f = tmp_path / "jump.tum"
+    f.write_text("\n".join(" ".join(x) for x in jumped) + "\n")
+    p = run([BIN / "mapper", "--log", drive["log"], "--out", tmp_path / "jump", "--poses", f])
+    rep = json.loads((tmp_path / "jump" / "report.json").read_text())
+    assert rep["odometry_implausible_at_s"] and rep["odometry_accel_max_mps2"] > 5, rep
+    assert all(3.0 < s < 5.5 for s in rep["odometry_implausible_at_s"]), rep
+    assert "the poses given imply more than 5 m/s^2" in p.stderr, p.stderr
     for bad, what in ((lines[:5] + ["1.0 2 3"] + lines[5:], ":6: expected 8 numbers"),
                       (lines[:3] + [lines[1]] + lines[3:], ":4: time"),
                       (lines[:2] + ["%s 0 0 0 0 0 0 0" % lines[2].split()[0]] + lines[3:], ":3: not a pose")):

@@ -177,6 +177,34 @@ int write_site(Run *R, pb_err_t *err)
     return 0;
 }
 
+/* Where the odometry (or the poses given) implies a horizontal acceleration no car makes (over
+ * 5 m/s^2, the bound the MulRan reference is judged by), from its positions at least half a
+ * second apart (closer ones' noise would pass for acceleration): the times (s after the first
+ * pose) of the middle poses that break it; *checked the accelerations computed, *max_mps2 the
+ * largest. An odometry lost by jumps shows many of these, a right one none or a few; one that
+ * slides smoothly along a featureless road shows none. */
+static std::vector<double> implausible_steps(const std::vector<SweepPose> &traj, int *checked, double *max_mps2)
+{
+    const int64_t kGapUs = 500000;
+    const double kLimitMps2 = 5.0;
+    std::vector<const SweepPose *> at;
+    for (const SweepPose &s : traj)
+        if (at.empty() || s.utime - at.back()->utime >= kGapUs) at.push_back(&s);
+    std::vector<double> bad;
+    *checked = 0;
+    *max_mps2 = 0;
+    for (size_t i = 2; i < at.size(); i++) {
+        const double t0 = at[i - 2]->utime * 1e-6, t1 = at[i - 1]->utime * 1e-6, t2 = at[i]->utime * 1e-6;
+        const Eigen::Vector2d v1 = (at[i - 1]->odometry.translation() - at[i - 2]->odometry.translation()).head<2>() / (t1 - t0),
+                              v2 = (at[i]->odometry.translation() - at[i - 1]->odometry.translation()).head<2>() / (t2 - t1);
+        const double a = (v2 - v1).norm() / (0.5 * (t2 - t0));
+        (*checked)++;
+        *max_mps2 = std::max(*max_mps2, a);
+        if (a > kLimitMps2) bad.push_back((at[i - 1]->utime - traj.front().utime) * 1e-6);
+    }
+    return bad;
+}
+
 /* report.json (cJSON: names and messages escaped) and the summary line. */
 int write_report(const Run &R, const double cpu_ms[4], double wall_s, pb_err_t *err)
 {
@@ -210,6 +238,13 @@ int write_report(const Run &R, const double cpu_ms[4], double wall_s, pb_err_t *
     /* sweeps far apart (a dataset's keyframes, dropped sweeps): the odometry's sparse path
      * (odometry.h), which holds less well than on a live 10 Hz drive */
     cJSON_AddNumberToObject(j, "scans_sparse", (double)sparse);
+    int accel_checked = 0;
+    double accel_max = 0;
+    const std::vector<double> implausible = implausible_steps(R.traj, &accel_checked, &accel_max);
+    cJSON_AddNumberToObject(j, "odometry_accel_checked", accel_checked);
+    cJSON_AddNumberToObject(j, "odometry_accel_max_mps2", accel_max);
+    cJSON *bad = cJSON_AddArrayToObject(j, "odometry_implausible_at_s");
+    for (double t : implausible) cJSON_AddItemToArray(bad, cJSON_CreateNumber(t));
     cJSON_AddNumberToObject(j, "loop_candidates", R.loops.candidates);
     cJSON_AddNumberToObject(j, "loop_candidates_by_place", R.loops.place_candidates);
     cJSON_AddNumberToObject(j, "loops", R.loops.verified);
@@ -307,6 +342,12 @@ int write_report(const Run &R, const double cpu_ms[4], double wall_s, pb_err_t *
         std::fprintf(stderr, "mapper: warning: %ld of %zu sweeps came more than %.1f s after the one before (keyframes, "
                      "or a LiDAR dropping sweeps): the odometry holds less well on sweeps this far apart "
                      "(docs/mapper.md, \"Keyframe logs\")\n", sparse, R.traj.size(), sparse_gap_us * 1e-6);
+    if (!R.quiet && 10 * implausible.size() > (size_t)accel_checked)
+        std::fprintf(stderr, "mapper: warning: the %s imply more than 5 m/s^2, which no car does, at %zu of %d "
+                     "half-second steps (the first %.1f s after the start): %s there, and the map with it "
+                     "(report.json: odometry_implausible_at_s)\n", R.poses_path ? "poses given" : "odometry's poses",
+                     implausible.size(), accel_checked, implausible.front(),
+                     R.poses_path ? "they are likely wrong" : "it is likely lost");
     if (!R.quiet && R.poses_path)
         std::fprintf(stderr, "mapper: %zu poses of %s over %.1f m in %.1f s of drive; %zu map points (%zu carved: moved); "
                      "%.1f s wall\n", R.traj.size(), R.poses_path, path_m, span_s, R.map_points, R.carved, wall_s);
