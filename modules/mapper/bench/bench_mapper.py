@@ -198,12 +198,13 @@ def kiss_config(max_range):
     return cfg
 
 
-def run_kiss(export_dir, max_range):
-    """KISS-ICP on every exported sweep. Returns (pose times s, lidar poses (n, 4, 4) in the
-    first sweep's frame, CPU ms per frame, config dict, notes)."""
+def run_kiss(export_dir, max_range, first=0):
+    """KISS-ICP on every exported sweep from the first-th on. Returns (pose times s, lidar poses
+    (n, 4, 4) in that sweep's frame, CPU ms per frame, config dict, notes)."""
     from kiss_icp.kiss_icp import KissICP
     import kiss_icp
     times, files, _ = read_export(export_dir)
+    times, files = times[first:], files[first:]
     cfg = kiss_config(max_range)
     odom = KissICP(config=cfg)
     poses, ptimes, cpu_ms, wall_ms = [], [], [], []
@@ -495,9 +496,8 @@ def starts_on_real_scans(log_path, vehicle, refined, result, keep_scans=False):
         return
     implausible = set(json.loads(rep_path.read_text())["implausible_keyframes_refined"])
     ex = export(log_path, OUT / "mulran" / "export", vehicle)
-    times, files, B = read_export(ex)
+    _, files, B = read_export(ex)
     ref_label, ref_t, ref_P = mulran_refined_reference(B, refined)[0]
-    from kiss_icp.kiss_icp import KissICP
     events = list(lcm.EventLog(str(log_path), "r"))
     scan_utimes = [ev.timestamp for ev in events if ev.channel == "LIDAR_SCAN"]
     rows = []
@@ -521,15 +521,10 @@ def starts_on_real_scans(log_path, vehicle, refined, result, keep_scans=False):
             ot, oP = o["odometry"] if "odometry" in o else o["trajectory"]
             row["ours_steps_agreeing"], row["steps"] = steps_agreeing(ot, oP, ref_t, ref_P, implausible)
             row["ours_drift_pct"] = score(ot, oP, ref_t, ref_P)["drift_pct"]
-        odom = KissICP(config=kiss_config(OS1_64_RANGE_M))
-        kp = []
-        for f in files[k:]:
-            a = np.fromfile(f, dtype="<f4").reshape(-1, 4)
-            odom.register_frame(a[:, :3].astype(np.float64), np.zeros(0))   # no per-point times
-            kp.append(odom.last_pose.copy())
-        kb = np.array(kp) @ np.linalg.inv(B)
-        row["kiss_steps_agreeing"], _ = steps_agreeing(times[k:], kb, ref_t, ref_P, implausible)
-        row["kiss_drift_pct"] = score(times[k:], kb, ref_t, ref_P)["drift_pct"]
+        kt, kp, _, _, _, _ = run_kiss(ex, OS1_64_RANGE_M, first=k)
+        kb = kp @ np.linalg.inv(B)
+        row["kiss_steps_agreeing"], _ = steps_agreeing(kt, kb, ref_t, ref_P, implausible)
+        row["kiss_drift_pct"] = score(kt, kb, ref_t, ref_P)["drift_pct"]
         rows.append(row)
     if not keep_scans:
         shutil.rmtree(ex / "scans", ignore_errors=True)
