@@ -93,6 +93,8 @@ struct Run {
     size_t map_points = 0;                   /* in map.pcd */
     std::string ground_why;                  /* empty: ground.yaml written */
     size_t carved = 0;
+    size_t carved_groups = 0;                /* of those, in groups that views saw through */
+    long views = 0;                          /* sweeps taken as views by the carving */
     double m_per_px = 0;
     double peak_mb[5] = {};                  /* peak resident memory of each step (kPeakStep) */
     double wall_s[5] = {};                   /* wall time of each step (kPeakStep; 0: done before a restart) */

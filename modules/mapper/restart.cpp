@@ -242,7 +242,7 @@ int checkpoint_read(Run *R, pb_err_t *err)
 
 /* ---- Restart inside the later steps (mapper.h). */
 static const char kPosesMagic[8] = {'P', 'B', 'M', 'A', 'P', 'P', 'S', '1'};
-static const char kCarvedMagic[8] = {'P', 'B', 'M', 'A', 'P', 'C', 'V', '1'};
+static const char kCarvedMagic[8] = {'P', 'B', 'M', 'A', 'P', 'C', 'V', '2'};
 
 /* What a stage checkpoint must match: the mapper's build, the options the later steps depend
  * on, every drive's log (as the odometry's checkpoints) and the poses given. */
@@ -334,6 +334,7 @@ int stage_write_carved(Run *R, pb_err_t *err)
     for (long v : {R->placed, R->unplaced, R->tiles_held_max, R->carve_tiles_held_max, R->tiles_paged_out,
                    R->carve_tiles_paged_out, R->tiles_paged_in, R->carve_tiles_paged_in}) w.put((int64_t)v);
     w.put(R->voxels_held_max); w.put((uint64_t)R->voxels); w.put((uint64_t)R->map_points); w.put((uint64_t)R->carved);
+    w.put((uint64_t)R->carved_groups); w.put((int64_t)R->views);
     std::vector<int64_t> tiles(R->carve_tiles.begin(), R->carve_tiles.end());
     w.put_array(tiles.data(), tiles.size());
     std::vector<uint64_t> kept;   /* per kept tile: key, seq of its first point, bytes, checksum */
@@ -450,6 +451,8 @@ int stage_read(Run *R, int *done, pb_err_t *)
     for (int64_t &v : counts) v = r.get<int64_t>();
     const int64_t voxels_held_max = r.get<int64_t>();
     const uint64_t voxels = r.get<uint64_t>(), map_points = r.get<uint64_t>(), carved = r.get<uint64_t>();
+    const uint64_t carved_groups = r.get<uint64_t>();
+    const int64_t views = r.get<int64_t>();
     r.get_array(&tiles);
     std::vector<uint64_t> kept;
     r.get_array(&kept);
@@ -481,6 +484,8 @@ int stage_read(Run *R, int *done, pb_err_t *)
     R->voxels = (size_t)voxels;
     R->map_points = (size_t)map_points;
     R->carved = (size_t)carved;
+    R->carved_groups = (size_t)carved_groups;
+    R->views = (long)views;
     R->carve_tiles = std::set<int64_t>(tiles.begin(), tiles.end());
     R->ground_why = ground_why;
     R->layers.removed = removed;

@@ -299,6 +299,8 @@ int write_report(const Run &R, const double cpu_ms[4], double wall_s, pb_err_t *
     cJSON_AddNumberToObject(j, "picture_m_per_px", R.m_per_px);
     cJSON_AddNumberToObject(j, "map_points", (double)R.map_points);
     cJSON_AddNumberToObject(j, "map_points_carved", (double)R.carved);
+    cJSON_AddNumberToObject(j, "map_points_carved_seen_through", (double)R.carved_groups);
+    cJSON_AddNumberToObject(j, "carving_views", (double)R.views);
     cJSON_AddNumberToObject(j, "map_voxel_m", R.voxel);
     /* the map in tiles: how many, the most held at once (pass 2: tiles and voxels; carving) */
     cJSON_AddNumberToObject(j, "map_tile_m", R.tile_m);

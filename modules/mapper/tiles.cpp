@@ -271,7 +271,8 @@ struct CarveTiles {
         struct Half {
             std::vector<TilePoint> pts;
             std::vector<uint8_t> bytes, keep;
-            std::vector<uint64_t> gone;
+            std::vector<uint64_t> gone, seeds;
+            std::vector<pb_carve_group_cell_t> cells;
             pb_err_t err;
             int rc = 0;
         } half[2];
@@ -285,7 +286,13 @@ struct CarveTiles {
             if (!c) H.rc = -1;
             return c;
         };
-        // 1. the cells each tile carves on its own counts
+        /* every tile's results of one step, in key order, sorted */
+        auto gather = [&](auto Half::*field) {
+            auto all = std::move(half[0].*field);
+            all.insert(all.end(), (half[1].*field).begin(), (half[1].*field).end());
+            return all;
+        };
+        // 1. the cells each tile carves on its own counts, and the points over the ground views saw through
         pb_split2(keys.size(), [&](size_t a, size_t b) {
             Half &H = half[a == 0 ? 0 : 1];
             for (size_t i = a; i < b && H.rc == 0; i++) {
@@ -293,17 +300,36 @@ struct CarveTiles {
                 pb_carve_t *c = carving(keys[i], H, &made);
                 if (!c) break;
                 pb_carve_gone(c, &H.gone);
+                pb_carve_seeds(c, &H.seeds);
                 if (made) pb_carve_destroy(c);
             }
         }, 2);
         for (const Half &H : half)
             if (H.rc != 0) return *err = H.err, -1;
-        std::vector<uint64_t> gone = std::move(half[0].gone);
-        gone.insert(gone.end(), half[1].gone.begin(), half[1].gone.end());
+        std::vector<uint64_t> gone = gather(&Half::gone), seeds = gather(&Half::seeds);
         std::sort(gone.begin(), gone.end());
+        std::sort(seeds.begin(), seeds.end());
+        seeds.erase(std::unique(seeds.begin(), seeds.end()), seeds.end());
+        // 1b. the kept points over the ground near those, by group cell; then the groups that go
+        if (!seeds.empty())
+            pb_split2(keys.size(), [&](size_t a, size_t b) {
+                Half &H = half[a == 0 ? 0 : 1];
+                for (size_t i = a; i < b && H.rc == 0; i++) {
+                    bool made;
+                    pb_carve_t *c = carving(keys[i], H, &made);
+                    if (!c) break;
+                    pb_carve_group_cells(c, &gone, seeds, &H.cells);
+                    if (made) pb_carve_destroy(c);
+                }
+            }, 2);
+        for (const Half &H : half)
+            if (H.rc != 0) return *err = H.err, -1;
+        std::vector<pb_carve_group_cell_t> cells = gather(&Half::cells);
+        std::vector<uint64_t> group_gone;
+        pb_carve_groups(&cells, &cfg, &group_gone);
         // 2. each tile's kept points to its 'k' file, what it carved kept for the picture
         struct Verdict {
-            size_t carved = 0, kept = 0;
+            size_t carved = 0, kept = 0, grouped = 0;
             uint32_t first = UINT32_MAX;
             std::pair<uint64_t, uint64_t> sum;
             std::vector<float> removed;
@@ -319,7 +345,7 @@ struct CarveTiles {
                 if (!c) break;
                 if (!made && tile_read(tile_path(R, 'p', k), &H.pts, &H.err) != 0) { H.rc = -1; break; }
                 Verdict &V = verdicts[i];
-                V.carved = pb_carve_keep(c, &gone, &H.keep);
+                V.carved = pb_carve_keep(c, &gone, &group_gone, &H.keep, &V.grouped);
                 if (made) pb_carve_destroy(c);
                 kept.clear();
                 for (size_t j = 0; j < H.pts.size(); j++) {
@@ -342,6 +368,7 @@ struct CarveTiles {
         for (size_t i = 0; i < keys.size(); i++) {
             const Verdict &V = verdicts[i];
             R->carved += V.carved;
+            R->carved_groups += V.grouped;
             R->layers.removed.insert(R->layers.removed.end(), V.removed.begin(), V.removed.end());
             R->map_points += V.kept;
             R->kept_tiles.push_back({keys[i], V.first});
@@ -368,7 +395,45 @@ int pass_carve(Run *R, const pb_ground_t *ground, pb_err_t *err)
     std::vector<Ray> rays;
     std::vector<pb_carve_t *> under;   /* the sweep's reach, row by row: the tile's carving or NULL */
     long sampled = 0;
-    int drive = -1;
+    int drive = -1, view_drive = -1;
+    int64_t last_view = 0;
+    std::vector<double> returns;   /* the sweep's returns in the map frame, and their beams */
+    std::vector<uint8_t> beam;
+    /* The sweep as a view (every return at its own time, seen from the LiDAR at the sweep's
+     * middle) counted by every tile held in reach, half the tiles on another thread; none when
+     * the trajectory does not reach the sweep's middle. */
+    auto look = [&](Run *D, int64_t utime, const pb_points_t &pts, const std::vector<pb_carve_t *> &tiles_in_reach) {
+        returns.clear();
+        beam.clear();
+        int32_t cached = INT32_MIN, olo = INT32_MAX, ohi = INT32_MIN;
+        Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+        bool have = false;
+        for (int i = 0; i < pts.n; i++) {
+            if (pts.offset_us[i] != cached) {
+                cached = pts.offset_us[i];
+                pb_transform_t t;
+                have = pb_pose_track_at(D->track, utime + cached, &t);
+                if (have) T = pb_reg_from_transform(&t) * bl;
+                olo = std::min(olo, cached);
+                ohi = std::max(ohi, cached);
+            }
+            if (!have || !std::isfinite(pts.x[i])) continue;
+            const Eigen::Vector3d q = T * Eigen::Vector3d(pts.x[i], pts.y[i], pts.z[i]);
+            returns.insert(returns.end(), {q.x(), q.y(), q.z()});
+            beam.push_back(pts.ring ? pts.ring[i] : 255);
+        }
+        pb_transform_t t;
+        if (returns.empty() || !pb_pose_track_at(D->track, utime + (olo + (int64_t)ohi) / 2, &t)) return;
+        const Eigen::Isometry3d M = pb_reg_from_transform(&t) * bl;
+        Eigen::Matrix<double, 3, 3, Eigen::RowMajor> Rm = M.rotation();
+        pb_carve_view_t *v = pb_carve_view_create(returns.data(), beam.data(), beam.size(), M.translation().data(), Rm.data());
+        std::vector<pb_carve_t *> parts;
+        for (pb_carve_t *c : tiles_in_reach)
+            if (c) parts.push_back(c);
+        pb_split2(parts.size(), [&](size_t a, size_t b) { for (size_t i = a; i < b; i++) pb_carve_look(parts[i], v); }, 2);
+        if (v) R->views++;
+        pb_carve_view_destroy(v);
+    };
     const Run *now = nullptr;
     int64_t offset = 0, last = INT64_MIN;   /* drive's time + offset: the carving's */
     int rc = for_each_drive_sweep(R, "mapper: carve", 2,
@@ -437,6 +502,12 @@ int pass_carve(Run *R, const pb_ground_t *ground, pb_err_t *err)
             std::future<void> other = std::async(std::launch::async, cast, 1);
             cast(0);
             other.get();
+            // about once a second of the drive, the whole sweep as a view of the tiles in reach
+            if (view_drive != drive || utime - last_view >= (int64_t)1000000) {
+                view_drive = drive;
+                last_view = utime;
+                look(D, utime, pts, under);
+            }
             // the tiles no sampled sweep of the last 10 reached paged out
             return sampled % 5 == 0 ? tiles.page_out(sampled - 10, e) : 0;
         }, err);

@@ -2,7 +2,7 @@
  * wall 10 m to its left; a box (a car) stands between them for one second (2-3 s, as the
  * sensor passes it) and is gone after; rays to the wall. What the rays saw of the box must
  * go, the wall's and the ground's points stay. And which passes count (window_test), visits,
- * eighths and neighbours (visits_test). */
+ * eighths and neighbours (visits_test), and the views' groups (views_test). */
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -17,7 +17,7 @@
 static void check_four(pb_carve_t *c, const char *what, const std::vector<uint8_t> &expected)
 {
     std::vector<uint8_t> keep;
-    size_t carved = pb_carve_keep(c, nullptr, &keep);
+    size_t carved = pb_carve_keep(c, nullptr, nullptr, &keep);
     std::printf("%s: carved %zu, keep %d %d %d %d\n", what, carved, keep[0], keep[1], keep[2], keep[3]);
     CHECK(carved == 2);
     CHECK(keep == expected);
@@ -68,7 +68,7 @@ static void range_test()
     pb_carve_ray(c, 1000000, o, far);
     for (int k = 0; k < 10; k++) pb_carve_ray(c, 3000000 + 100000 * k, o, beyond);
     std::vector<uint8_t> keep;
-    size_t carved = pb_carve_keep(c, nullptr, &keep);
+    size_t carved = pb_carve_keep(c, nullptr, nullptr, &keep);
     std::printf("range: carved %zu, keep %d %d\n", carved, keep[0], keep[1]);
     CHECK(carved == 1 && keep[0] == 0 && keep[1] == 1);
     pb_carve_destroy(c);
@@ -112,7 +112,7 @@ static void parts_test(const std::vector<float> &pts, const pb_ground_t *ground,
     size_t same = 0, n = 0, k = 0;
     for (const auto &t : tiles) {
         std::vector<uint8_t> keep;
-        pb_carve_keep(parts[k].c, &gone, &keep);
+        pb_carve_keep(parts[k].c, &gone, nullptr, &keep);
         for (size_t j = 0; j < t.second.size(); j++) { same += keep[j] == whole[t.second[j]]; n++; }
         pb_carve_destroy(parts[k++].c);
     }
@@ -143,7 +143,7 @@ static std::vector<uint8_t> shoot(const std::vector<float> &pts, std::vector<Sho
         pb_carve_ray(c, (int64_t)std::llround(s.t * 1e6), o, e);
     }
     std::vector<uint8_t> keep;
-    *carved = pb_carve_keep(c, nullptr, &keep);
+    *carved = pb_carve_keep(c, nullptr, nullptr, &keep);
     pb_carve_destroy(c);
     return keep;
 }
@@ -237,8 +237,8 @@ static void visits_test()
     size_t same_all = 0, same_own = 0;
     for (int p = 0; p < 2; p++) {
         std::vector<uint8_t> with_all, with_own;
-        pb_carve_keep(pc[p], &gone, &with_all);
-        pb_carve_keep(pc[p], nullptr, &with_own);
+        pb_carve_keep(pc[p], &gone, nullptr, &with_all);
+        pb_carve_keep(pc[p], nullptr, nullptr, &with_own);
         for (size_t j = 0; j < at[p].size(); j++) {
             same_all += with_all[j] == keep[at[p][j]];
             same_own += with_own[j] == keep[at[p][j]];
@@ -278,6 +278,150 @@ static void drives_test()
         if (day == 0) pb_carve_set_drive(c, 1);
     }
     check_four(c, "drives", {0, 1, 0, 1});
+}
+
+
+/* The views' groups: a sensor at 1.8 m drives along y = 0, a view every 5 m (x = 10 ... 35, a
+ * second apart), 36 beams 1 degree apart (-20 to +15), 900 columns, cast against the ground
+ * (z = 0), a wall (y = 12) and boxes: a car (x 20-24, y 4-5.8, z 0.3-1.5) there in the first
+ * two views and gone after; a post (8 cm square, 3 m tall, at x = 30, y = 4) hit in the first
+ * two views and missed by the beams after (a thin object, as real ones are); a railing (x
+ * 40-50, y 4-4.05, z 0.3-1.2) hit in every other view and seen through in the others (its
+ * bars). The map holds all of them. The car must go; the post (too narrow for a road user),
+ * the railing (seen through between its hits), the wall and the ground stay. */
+struct Box { double lo[3], hi[3]; };
+
+/* The range along unit direction u from o to the nearest of the ground, the wall and boxes. */
+static double cast_scene(const double o[3], const double u[3], const std::vector<Box> &boxes)
+{
+    double best = INFINITY;
+    if (u[2] < 0) best = std::min(best, -o[2] / u[2]);
+    if (u[1] > 0) {
+        double t = (12 - o[1]) / u[1], z = o[2] + u[2] * t, x = o[0] + u[0] * t;
+        if (z >= 0 && z <= 4 && x >= 0 && x <= 60) best = std::min(best, t);
+    }
+    for (const Box &b : boxes) {   /* slabs */
+        double t0 = 0, t1 = INFINITY;
+        for (int a = 0; a < 3; a++) {
+            if (u[a] == 0) {
+                if (o[a] < b.lo[a] || o[a] > b.hi[a]) t0 = INFINITY;
+                continue;
+            }
+            double ta = (b.lo[a] - o[a]) / u[a], tb = (b.hi[a] - o[a]) / u[a];
+            t0 = std::max(t0, std::min(ta, tb));
+            t1 = std::min(t1, std::max(ta, tb));
+        }
+        if (t0 <= t1) best = std::min(best, t0);
+    }
+    return best;
+}
+
+static void views_test(const pb_ground_t *ground)
+{
+    const Box car{{20, 4, 0.3}, {24, 5.8, 1.5}}, post{{30, 4, 0}, {30.08, 4.08, 3}}, railing{{40, 4, 0.3}, {50, 4.05, 1.2}};
+    std::vector<float> pts;
+    std::vector<int> kind;   /* 0 wall, 1 car, 2 ground, 3 post, 4 railing */
+    auto add = [&](double x, double y, double z, int k) { pts.insert(pts.end(), {(float)x, (float)y, (float)z}); kind.push_back(k); };
+    for (double x = 0; x <= 60; x += 0.1)
+        for (double z = 0.05; z <= 4; z += 0.1) add(x, 12, z, 0);
+    for (double x = 20; x <= 24; x += 0.1)
+        for (double z = 0.35; z <= 1.5; z += 0.1) add(x, 4, z, 1);
+    for (double x = 0; x <= 60; x += 0.2)
+        for (double y = -5; y <= 12; y += 0.2) add(x, y, 0, 2);
+    for (double z = 0.05; z <= 3; z += 0.1) add(30.04, 4, z, 3);
+    for (double x = 40; x <= 50; x += 0.1)
+        for (double z = 0.35; z <= 1.2; z += 0.1) add(x, 4, z, 4);
+    pb_carve_t *c = pb_carve_create(pts.data(), pts.size() / 3, 3, ground, nullptr);
+    /* and the same map in parts of 2 m (the car spans several), each shown every view */
+    std::map<std::pair<int, int>, std::vector<size_t>> tiles;
+    for (size_t i = 0; i < pts.size() / 3; i++)
+        tiles[{(int)std::floor(std::floor(pts[3 * i] * 2.0) / 4), (int)std::floor(std::floor(pts[3 * i + 1] * 2.0) / 4)}].push_back(i);
+    std::vector<std::vector<float>> part_xyz;
+    std::vector<pb_carve_t *> parts;
+    for (const auto &t : tiles) {
+        part_xyz.emplace_back();
+        for (size_t i : t.second) part_xyz.back().insert(part_xyz.back().end(), &pts[3 * i], &pts[3 * i + 3]);
+        parts.push_back(pb_carve_create(part_xyz.back().data(), t.second.size(), 3, ground, nullptr));
+    }
+    const double R[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
+    for (int v = 0; v < 6; v++) {
+        const double o[3] = {10.0 + 5 * v, 0, 1.8};
+        std::vector<Box> boxes;
+        if (v < 2) boxes.push_back(car);
+        if (v < 2) boxes.push_back(post);
+        if (v % 2 == 0) boxes.push_back(railing);
+        std::vector<double> ret;
+        std::vector<uint8_t> ring;
+        for (int e = 0; e < 36; e++)
+            for (int a = 0; a < 900; a++) {
+                const double el = (-20.0 + e) * M_PI / 180, az = (a * 0.4 - 180) * M_PI / 180;
+                const double u[3] = {std::cos(el) * std::cos(az), std::cos(el) * std::sin(az), std::sin(el)};
+                const double t = cast_scene(o, u, boxes);
+                if (!(t < 80)) continue;
+                ret.insert(ret.end(), {o[0] + u[0] * t, o[1] + u[1] * t, o[2] + u[2] * t});
+                ring.push_back((uint8_t)e);
+            }
+        pb_carve_view_t *view = pb_carve_view_create(ret.data(), ring.data(), ring.size(), o, R);
+        CHECK(view != nullptr);
+        pb_carve_look(c, view);
+        for (pb_carve_t *p : parts) pb_carve_look(p, view);
+        pb_carve_view_destroy(view);
+    }
+    /* the parts' verdicts, with every part's seeds and cells: the whole map's */
+    std::vector<uint64_t> seeds, group_gone;
+    std::vector<pb_carve_group_cell_t> cells;
+    for (pb_carve_t *p : parts) pb_carve_seeds(p, &seeds);
+    std::sort(seeds.begin(), seeds.end());
+    for (pb_carve_t *p : parts) pb_carve_group_cells(p, nullptr, seeds, &cells);
+    pb_carve_groups(&cells, nullptr, &group_gone);
+    std::vector<uint8_t> by_parts(kind.size(), 1);
+    size_t k = 0;
+    for (const auto &t : tiles) {
+        std::vector<uint8_t> part_keep;
+        pb_carve_keep(parts[k], nullptr, &group_gone, &part_keep);
+        for (size_t j = 0; j < t.second.size(); j++) by_parts[t.second[j]] = part_keep[j];
+        pb_carve_destroy(parts[k++]);
+    }
+    /* paged out and back between the views and the verdict: the same counts */
+    std::vector<uint8_t> bytes;
+    pb_carve_save(c, &bytes);
+    pb_carve_t *back = pb_carve_create(pts.data(), pts.size() / 3, 3, ground, nullptr);
+    CHECK(pb_carve_load(back, bytes.data(), bytes.size()) == 0);
+    CHECK(pb_carve_load(back, bytes.data(), bytes.size() - 1) == -1);
+    std::vector<uint8_t> keep, keep_back;
+    size_t grouped = 0, grouped_back = 0;
+    const size_t carved = pb_carve_keep(c, nullptr, nullptr, &keep, &grouped);
+    pb_carve_keep(back, nullptr, nullptr, &keep_back, &grouped_back);
+    size_t lost[5] = {0, 0, 0, 0, 0}, count[5] = {0, 0, 0, 0, 0};
+    for (size_t i = 0; i < kind.size(); i++) {
+        count[kind[i]]++;
+        lost[kind[i]] += !keep[i];
+    }
+    std::printf("views: carved %zu (%zu as groups); car %zu of %zu, wall %zu, ground %zu, post %zu, railing %zu of %zu\n",
+                carved, grouped, lost[1], count[1], lost[0], lost[2], lost[3], lost[4], count[4]);
+    CHECK(grouped == carved);               /* no ray was cast: the cells carve nothing */
+    CHECK(lost[1] == count[1]);             /* the car, whole */
+    CHECK(lost[0] == 0 && lost[2] == 0);    /* wall, ground */
+    CHECK(lost[3] == 0);                    /* the post: too narrow */
+    CHECK(lost[4] == 0);                    /* the railing: seen through between its hits */
+    CHECK(keep_back == keep && grouped_back == grouped);
+    size_t parts_same = 0;
+    for (size_t i = 0; i < kind.size(); i++) parts_same += by_parts[i] == keep[i];
+    std::printf("views in %zu parts: %zu of %zu points judged as the whole map's\n", parts.size(), parts_same, kind.size());
+    CHECK(parts.size() > 100 && parts_same == kind.size());
+    pb_carve_destroy(back);
+    pb_carve_destroy(c);
+    /* what keeps the post is its width: a road user of any width takes it (and nothing else more) */
+    pb_carve_config_t any_width;
+    any_width.group_min_width_m = 0;
+    c = pb_carve_create(pts.data(), pts.size() / 3, 3, ground, &any_width);
+    CHECK(pb_carve_load(c, bytes.data(), bytes.size()) == 0);
+    pb_carve_keep(c, nullptr, nullptr, &keep);
+    size_t post_lost = 0, others_lost = 0;
+    for (size_t i = 0; i < kind.size(); i++) (kind[i] == 3 ? post_lost : others_lost) += !keep[i];
+    std::printf("views, any width: post %zu lost, others %zu\n", post_lost, others_lost);
+    CHECK(post_lost > 0 && others_lost == lost[1]);
+    pb_carve_destroy(c);
 }
 
 int main()
@@ -329,7 +473,7 @@ int main()
             }
     }
     std::vector<uint8_t> keep;
-    size_t carved = pb_carve_keep(c, nullptr, &keep);
+    size_t carved = pb_carve_keep(c, nullptr, nullptr, &keep);
     size_t box = 0, box_kept = 0, wall_lost = 0, ground_lost = 0;
     for (size_t i = 0; i < kind.size(); i++) {
         if (kind[i] == 1) { box++; box_kept += keep[i]; }
@@ -355,6 +499,7 @@ int main()
     range_test();
     visits_test();
     drives_test();
+    views_test(ground);
     pb_ground_destroy(ground);
     return pb_check_report("test_mapper_carve");
 }

@@ -4,6 +4,8 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <array>
+#include <unordered_map>
 
 #include "voxel_hash.h"
 
@@ -52,6 +54,13 @@ inline uint8_t eighth_bit(const double p[3], const double lo[3], double half_m)
 
 struct pb_carve {
     pb_carve_config_t cfg;
+    /* the views' points: those more than group_ground_m over the ground (only they join
+     * groups), and per such point its x y z, its height, and (saturating) the views that saw
+     * through it, that saw it, that hit it (its bin's return at it), that saw through it after
+     * its last hit so far, and between two hits */
+    std::vector<uint32_t> over;
+    std::vector<float> xyz, height;
+    std::vector<uint8_t> through, seen, hit, since_hit, inside;
     double inv;
     pb_loc::VoxelHash index;
     uint8_t drive = 0;                 /* the drive the rays now come from */
@@ -78,6 +87,12 @@ pb_carve_t *pb_carve_create(const float *xyz, size_t n, size_t stride, const pb_
     c->point_cell.assign(n, -1);
     for (size_t i = 0; i < n; i++) {
         const float *p = xyz + i * stride;
+        double g;
+        if (ground && pb_ground_height(ground, p[0], p[1], &g) == 0 && p[2] - g > c->cfg.group_ground_m) {
+            c->over.push_back((uint32_t)i);
+            c->xyz.insert(c->xyz.end(), p, p + 3);
+            c->height.push_back((float)(p[2] - g));
+        }
         uint64_t key;
         int64_t v[3];
         if (!pb_loc::voxel_index_of(p[0], p[1], p[2], c->inv, &v[0], &v[1], &v[2]) ||
@@ -109,6 +124,7 @@ pb_carve_t *pb_carve_create(const float *xyz, size_t n, size_t stride, const pb_
                               std::floor(p[2] * c->inv) * c->cfg.cell_m};
         c->counts[(size_t)k].occupied |= eighth_bit(pd, lo, c->cfg.cell_m / 2);
     }
+    for (auto *v : {&c->through, &c->seen, &c->hit, &c->since_hit, &c->inside}) v->assign(c->over.size(), 0);
     /* the occupied cells' bits, when the extent is at most 2^26 cells (8 MB) */
     if (!c->counts.empty() && c->occupied.cover(c->lo, c->hi, (int64_t)1 << 26))
         c->index.for_each([&](uint64_t key, int32_t) { c->occupied.set(key); });
@@ -243,6 +259,320 @@ void pb_carve_ray(pb_carve_t *c, int64_t utime, const double o[3], const double 
     }
 }
 
+/* A view's range image, rows of elevation and columns of azimuth in the LiDAR's frame, sized
+ * to the sweep: a row per beam gap when the returns name their beams (else square bins),
+ * and about as many bins as returns, so that a sweep thinned to a keyframe (MulRan's: 14,000
+ * returns) is binned as coarsely as its returns are spread. Per bin the nearest return
+ * (INFINITY: none), and the nearest in the 3 x 3 bins around it when 5 or more of them
+ * returned (else 0: too little seen there to see through). */
+struct pb_carve_view {
+    double o[3], R[9];
+    double low = 0, row = 1;   /* elevation of row 0's lower edge, a row's height (rad) */
+    int rows = 0, cols = 0;
+    std::vector<float> near, around;
+
+    /* p's direction from the origin in the LiDAR's frame: elevation, azimuth; and its range. */
+    void look_at(const double p[3], double *el, double *az, double *r) const
+    {
+        const double d[3] = {p[0] - o[0], p[1] - o[1], p[2] - o[2]};
+        double l[3];
+        for (int a = 0; a < 3; a++) l[a] = R[a] * d[0] + R[3 + a] * d[1] + R[6 + a] * d[2];   /* R^T d */
+        const double h = std::hypot(l[0], l[1]);
+        *r = std::sqrt(h * h + l[2] * l[2]);
+        *el = std::atan2(l[2], h);
+        *az = std::atan2(l[1], l[0]);
+    }
+    /* The bin of p (false: outside the rows), and its range. */
+    bool bin(const double p[3], int *row_i, int *col_i, double *r) const
+    {
+        double el, az;
+        look_at(p, &el, &az, r);
+        const int e = (int)std::floor((el - low) / row);
+        if (e < 0 || e >= rows) return false;
+        *row_i = e;
+        *col_i = std::min(cols - 1, (int)((az + M_PI) * (cols / (2 * M_PI))));
+        return true;
+    }
+};
+
+pb_carve_view_t *pb_carve_view_create(const double *xyz, const uint8_t *ring, size_t n, const double origin[3],
+                                      const double R[9])
+{
+    if (n == 0) return nullptr;
+    pb_carve_view_t *v = new pb_carve_view();
+    std::memcpy(v->o, origin, sizeof v->o);
+    std::memcpy(v->R, R, sizeof v->R);
+    // the bins: the returns' span of elevation, cut by beam gaps or into squares
+    double lo = INFINITY, hi = -INFINITY;
+    uint64_t beams[4] = {0, 0, 0, 0};
+    for (size_t i = 0; i < n; i++) {
+        double el, az, r;
+        v->look_at(xyz + 3 * i, &el, &az, &r);
+        if (!(r > 0.5)) continue;
+        lo = std::min(lo, el);
+        hi = std::max(hi, el);
+        if (ring && ring[i] != 255) beams[ring[i] >> 6] |= (uint64_t)1 << (ring[i] & 63);
+    }
+    if (!(hi >= lo)) { delete v; return nullptr; }
+    const int nbeams = __builtin_popcountll(beams[0]) + __builtin_popcountll(beams[1]) + __builtin_popcountll(beams[2]) +
+                       __builtin_popcountll(beams[3]);
+    const double span = std::max(hi - lo, 1e-3);
+    v->row = nbeams >= 2 ? span / (nbeams - 1) : std::sqrt(span * 2 * M_PI / (double)n);
+    v->rows = (int)std::floor(span / v->row) + 2;
+    v->low = lo - 0.5 * v->row;
+    v->cols = std::max(8, std::min(8192, (int)std::lround((double)n / v->rows)));
+    const int W = v->cols, H = v->rows;
+    v->near.assign((size_t)W * H, INFINITY);
+    for (size_t i = 0; i < n; i++) {
+        int row, col;
+        double r;
+        if (v->bin(xyz + 3 * i, &row, &col, &r) && r > 0.5) {
+            float &b = v->near[(size_t)row * W + col];
+            b = std::min(b, (float)r);
+        }
+    }
+    v->around.assign((size_t)W * H, 0.0f);
+    for (int row = 0; row < H; row++)
+        for (int col = 0; col < W; col++) {
+            float m = INFINITY;
+            int known = 0;
+            for (int dr = -1; dr <= 1; dr++) {
+                if (row + dr < 0 || row + dr >= H) continue;
+                for (int dc = -1; dc <= 1; dc++) {
+                    float b = v->near[(size_t)(row + dr) * W + (col + dc + W) % W];   /* azimuth wraps */
+                    known += std::isfinite(b);
+                    m = std::min(m, b);
+                }
+            }
+            v->around[(size_t)row * W + col] = known >= 5 ? m : 0.0f;
+        }
+    return v;
+}
+
+void pb_carve_view_destroy(pb_carve_view_t *v) { delete v; }
+
+void pb_carve_look(pb_carve_t *c, const pb_carve_view_t *v)
+{
+    if (!v) return;
+    const float reach = (float)c->cfg.max_range_m, o[3] = {(float)v->o[0], (float)v->o[1], (float)v->o[2]};
+    float R[9];
+    for (int a = 0; a < 9; a++) R[a] = (float)v->R[a];
+    const float low = (float)v->low, per_row = (float)(1 / v->row), per_col = (float)(v->cols / (2 * M_PI));
+    auto add = [](uint8_t &n, int k) { n = (uint8_t)std::min(255, n + k); };
+    for (size_t i = 0; i < c->over.size(); i++) {
+        const float d[3] = {c->xyz[3 * i] - o[0], c->xyz[3 * i + 1] - o[1], c->xyz[3 * i + 2] - o[2]};
+        if (std::fabs(d[0]) > reach || std::fabs(d[1]) > reach) continue;
+        const float r2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+        if (r2 < 4 || r2 > reach * reach) continue;
+        // its bin: the direction in the LiDAR's frame (R^T d)
+        float l[3];
+        for (int a = 0; a < 3; a++) l[a] = R[a] * d[0] + R[3 + a] * d[1] + R[6 + a] * d[2];
+        const int row = (int)std::floor((std::atan2(l[2], std::sqrt(l[0] * l[0] + l[1] * l[1])) - low) * per_row);
+        if (row < 0 || row >= v->rows) continue;
+        const int col = std::min(v->cols - 1, (int)((std::atan2(l[1], l[0]) + (float)M_PI) * per_col));
+        const size_t b = (size_t)row * v->cols + col;
+        const float r = std::sqrt(r2), margin = std::max((float)c->cfg.view_margin_m, (float)c->cfg.view_margin_share * r);
+        const bool through = v->around[b] > r + margin, hit = !through && std::fabs(v->near[b] - r) <= margin;
+        if (through) {
+            add(c->through[i], 1);
+            if (c->hit[i]) add(c->since_hit[i], 1);
+        }
+        if (through || (std::isfinite(v->near[b]) && v->near[b] > r - margin)) add(c->seen[i], 1);
+        if (hit) {   /* seen through between two hits: something that stays, seen through in part (a railing, leaves) */
+            add(c->inside[i], c->since_hit[i]);
+            c->since_hit[i] = 0;
+            add(c->hit[i], 1);
+        }
+    }
+}
+
+/* View point i (of over) seen through by enough views, and never between two hits. */
+static bool seen_through(const pb_carve_t *c, size_t i)
+{
+    return c->through[i] >= c->cfg.view_min_through && 2 * c->through[i] >= c->seen[i] && c->inside[i] == 0;
+}
+
+/* The group cell of view point i (of over). */
+static bool group_key(const pb_carve_t *c, size_t i, uint64_t *key)
+{
+    return pb_loc::voxel_key_of(c->xyz[3 * i], c->xyz[3 * i + 1], c->xyz[3 * i + 2], 1.0 / c->cfg.group_cell_m, key);
+}
+
+void pb_carve_seeds(const pb_carve_t *c, std::vector<uint64_t> *keys)
+{
+    uint64_t key;
+    for (size_t i = 0; i < c->over.size(); i++)
+        if (seen_through(c, i) && group_key(c, i, &key)) keys->push_back(key);
+}
+
+/* The seeds' columns (x-y cells), bucketed by squares of the reach: the x-y distance from a
+ * point to the nearest seed column's centre is looked up in the 3 x 3 buckets around it. */
+namespace {
+struct SeedColumns {
+    double cell_m, reach;
+    std::unordered_map<uint64_t, std::vector<std::array<double, 2>>> buckets;
+
+    SeedColumns(const std::vector<uint64_t> &seeds, double cell, double reach_m) : cell_m(cell), reach(reach_m)
+    {
+        std::vector<uint64_t> cols;   /* the seeds' columns as voxel keys at z = 0, each once */
+        for (uint64_t k : seeds) {
+            int64_t v[3];
+            uint64_t col;
+            pb_loc::voxel_unkey(k, &v[0], &v[1], &v[2]);
+            if (pb_loc::voxel_key(v[0], v[1], 0, &col)) cols.push_back(col);
+        }
+        std::sort(cols.begin(), cols.end());
+        cols.erase(std::unique(cols.begin(), cols.end()), cols.end());
+        for (uint64_t col : cols) {
+            int64_t v[3];
+            pb_loc::voxel_unkey(col, &v[0], &v[1], &v[2]);
+            const double x = ((double)v[0] + 0.5) * cell_m, y = ((double)v[1] + 0.5) * cell_m;
+            uint64_t b;
+            if (pb_loc::voxel_key(pb_floor_i64(x / reach), pb_floor_i64(y / reach), 0, &b)) buckets[b].push_back({x, y});
+        }
+    }
+    /* Any seed column in the buckets that a box [lo, hi] (x-y) grown by the reach touches. */
+    bool any_near(const double lo[2], const double hi[2]) const
+    {
+        for (int64_t bx = pb_floor_i64(lo[0] / reach) - 1; bx <= pb_floor_i64(hi[0] / reach) + 1; bx++)
+            for (int64_t by = pb_floor_i64(lo[1] / reach) - 1; by <= pb_floor_i64(hi[1] / reach) + 1; by++) {
+                uint64_t b;
+                if (pb_loc::voxel_key(bx, by, 0, &b) && buckets.count(b)) return true;
+            }
+        return false;
+    }
+    /* The x-y distance from cell key's centre to the nearest seed column's, INFINITY beyond the reach. */
+    double distance(uint64_t key) const
+    {
+        int64_t v[3];
+        pb_loc::voxel_unkey(key, &v[0], &v[1], &v[2]);
+        const double x = ((double)v[0] + 0.5) * cell_m, y = ((double)v[1] + 0.5) * cell_m;
+        const int64_t bx = pb_floor_i64(x / reach), by = pb_floor_i64(y / reach);
+        double best = INFINITY;
+        for (int64_t dx = -1; dx <= 1; dx++)
+            for (int64_t dy = -1; dy <= 1; dy++) {
+                uint64_t b;
+                if (!pb_loc::voxel_key(bx + dx, by + dy, 0, &b)) continue;
+                auto it = buckets.find(b);
+                if (it == buckets.end()) continue;
+                for (const auto &c : it->second) best = std::min(best, std::hypot(c[0] - x, c[1] - y));
+            }
+        return best <= reach ? best : INFINITY;
+    }
+};
+}  // namespace
+
+/* Steps 1-3 of pb_carve_keep: the cells' verdicts on the points. */
+static size_t keep_by_cells(const pb_carve_t *c, const std::vector<uint64_t> *gone_keys, std::vector<uint8_t> *keep);
+
+void pb_carve_group_cells(const pb_carve_t *c, const std::vector<uint64_t> *gone_keys, const std::vector<uint64_t> &seeds,
+                          std::vector<pb_carve_group_cell_t> *cells)
+{
+    const pb_carve_config_t &cfg = c->cfg;
+    if (seeds.empty() || c->counts.empty()) return;
+    const SeedColumns near(seeds, cfg.group_cell_m, cfg.group_reach_m);
+    const double lo[2] = {(double)c->lo[0] * cfg.cell_m, (double)c->lo[1] * cfg.cell_m},
+                 hi[2] = {(double)(c->hi[0] + 1) * cfg.cell_m, (double)(c->hi[1] + 1) * cfg.cell_m};
+    if (!near.any_near(lo, hi)) return;   /* no seed within reach of this part */
+    std::vector<uint8_t> keep;
+    keep_by_cells(c, gone_keys, &keep);
+    pb_loc::VoxelHash index(1024);   /* group cell -> its entry in cells (from first), or kFar */
+    constexpr int32_t kFar = -2;
+    const size_t first = cells->size();
+    for (size_t i = 0; i < c->over.size(); i++) {
+        uint64_t key;
+        if (!keep[c->over[i]] || !group_key(c, i, &key)) continue;
+        int32_t k = index.find(key);
+        if (k == -1) {
+            const double d = near.distance(key);
+            bool fresh;
+            k = index.insert(key, std::isfinite(d) ? (int32_t)(cells->size() - first) : kFar, &fresh);
+            if (k != kFar)
+                cells->push_back(pb_carve_group_cell_t{key, 0, 0, {INFINITY, INFINITY}, {-INFINITY, -INFINITY}, INFINITY,
+                                                       -INFINITY, (uint8_t)(d > cfg.group_reach_m - 2 * cfg.group_cell_m)});
+        }
+        if (k == kFar) continue;
+        pb_carve_group_cell_t &g = (*cells)[first + (size_t)k];
+        g.n++;
+        g.through += seen_through(c, i);
+        for (int a = 0; a < 2; a++) {
+            g.lo[a] = std::min(g.lo[a], c->xyz[3 * i + a]);
+            g.hi[a] = std::max(g.hi[a], c->xyz[3 * i + a]);
+        }
+        g.hmin = std::min(g.hmin, c->height[i]);
+        g.hmax = std::max(g.hmax, c->height[i]);
+    }
+}
+
+void pb_carve_groups(std::vector<pb_carve_group_cell_t> *cells, const pb_carve_config_t *cfg_in, std::vector<uint64_t> *gone)
+{
+    pb_carve_config_t cfg;
+    if (cfg_in) cfg = *cfg_in;
+    // one entry per cell (a cell's points may have come from two parts)
+    std::sort(cells->begin(), cells->end(), [](const pb_carve_group_cell_t &x, const pb_carve_group_cell_t &y) { return x.key < y.key; });
+    size_t n = 0;
+    for (size_t i = 0; i < cells->size(); i++) {
+        pb_carve_group_cell_t &g = (*cells)[i];
+        if (n && (*cells)[n - 1].key == g.key) {
+            pb_carve_group_cell_t &h = (*cells)[n - 1];
+            h.n += g.n;
+            h.through += g.through;
+            for (int a = 0; a < 2; a++) { h.lo[a] = std::min(h.lo[a], g.lo[a]); h.hi[a] = std::max(h.hi[a], g.hi[a]); }
+            h.hmin = std::min(h.hmin, g.hmin);
+            h.hmax = std::max(h.hmax, g.hmax);
+            h.edge |= g.edge;
+        } else {
+            (*cells)[n++] = g;
+        }
+    }
+    cells->resize(n);
+    // groups: touching cells joined (union-find)
+    std::vector<uint32_t> up(n);
+    for (size_t k = 0; k < n; k++) up[k] = (uint32_t)k;
+    auto root = [&](uint32_t k) {
+        while (up[k] != k) k = up[k] = up[up[k]];
+        return k;
+    };
+    auto find = [&](uint64_t key) {
+        auto it = std::lower_bound(cells->begin(), cells->end(), key,
+                                   [](const pb_carve_group_cell_t &g, uint64_t k) { return g.key < k; });
+        return it != cells->end() && it->key == key ? (int64_t)(it - cells->begin()) : (int64_t)-1;
+    };
+    for (size_t k = 0; k < n; k++) {
+        int64_t v[3];
+        pb_loc::voxel_unkey((*cells)[k].key, &v[0], &v[1], &v[2]);
+        for (int dx = -1; dx <= 1; dx++)
+            for (int dy = -1; dy <= 1; dy++)
+                for (int dz = -1; dz <= 1; dz++) {
+                    uint64_t nk;
+                    int64_t j;
+                    if (!pb_loc::voxel_key(v[0] + dx, v[1] + dy, v[2] + dz, &nk) || (j = find(nk)) < 0) continue;
+                    uint32_t a = root((uint32_t)k), b = root((uint32_t)j);
+                    if (a != b) up[std::max(a, b)] = std::min(a, b);
+                }
+    }
+    // each group whole: the road users among them
+    std::vector<pb_carve_group_cell_t> group(n, pb_carve_group_cell_t{0, 0, 0, {INFINITY, INFINITY}, {-INFINITY, -INFINITY},
+                                                                      INFINITY, -INFINITY, 0});
+    for (size_t k = 0; k < n; k++) {
+        const pb_carve_group_cell_t &c = (*cells)[k];
+        pb_carve_group_cell_t &g = group[root((uint32_t)k)];
+        g.n += c.n;
+        g.through += c.through;
+        for (int a = 0; a < 2; a++) { g.lo[a] = std::min(g.lo[a], c.lo[a]); g.hi[a] = std::max(g.hi[a], c.hi[a]); }
+        g.hmin = std::min(g.hmin, c.hmin);
+        g.hmax = std::max(g.hmax, c.hmax);
+        g.edge |= c.edge;
+    }
+    auto road_user = [&](const pb_carve_group_cell_t &g) {
+        return !g.edge && g.n >= (uint32_t)cfg.group_min_points && (double)g.through >= cfg.group_share * (double)g.n &&
+               g.hmin <= cfg.group_foot_m && g.hmax <= cfg.group_max_height_m &&
+               std::max(g.hi[0] - g.lo[0], g.hi[1] - g.lo[1]) >= cfg.group_min_width_m;
+    };
+    for (size_t k = 0; k < n; k++)
+        if (road_user(group[root((uint32_t)k)])) gone->push_back((*cells)[k].key);   /* in key order */
+}
+
 /* A cell whose hits tell of road users passing by: visits no longer than limit_s, few enough of them. */
 static bool passing(const pb_carve_config_t &cfg, const Count &n, double limit_s)
 {
@@ -297,7 +627,7 @@ void pb_carve_gone(const pb_carve_t *c, std::vector<uint64_t> *keys)
         if (gone[k]) keys->push_back(key[k]);
 }
 
-size_t pb_carve_keep(const pb_carve_t *c, const std::vector<uint64_t> *gone_keys, std::vector<uint8_t> *keep)
+static size_t keep_by_cells(const pb_carve_t *c, const std::vector<uint64_t> *gone_keys, std::vector<uint8_t> *keep)
 {
     const pb_carve_config_t &cfg = c->cfg;
     const size_t ncells = c->counts.size();
@@ -344,17 +674,59 @@ size_t pb_carve_keep(const pb_carve_t *c, const std::vector<uint64_t> *gone_keys
     return carved;
 }
 
+size_t pb_carve_keep(const pb_carve_t *c, const std::vector<uint64_t> *gone_keys, const std::vector<uint64_t> *group_keys,
+                     std::vector<uint8_t> *keep, size_t *grouped)
+{
+    // 1-3. the cells' verdicts
+    const size_t carved = keep_by_cells(c, gone_keys, keep);
+    // 4. what is left over the ground, in groups with a road user's shape that views saw through
+    std::vector<uint64_t> own;
+    if (!group_keys) {
+        std::vector<uint64_t> seeds;
+        std::vector<pb_carve_group_cell_t> cells;
+        pb_carve_seeds(c, &seeds);
+        std::sort(seeds.begin(), seeds.end());
+        pb_carve_group_cells(c, gone_keys, seeds, &cells);
+        pb_carve_groups(&cells, &c->cfg, &own);
+        group_keys = &own;
+    }
+    size_t in_groups = 0;
+    for (size_t i = 0; i < c->over.size() && !group_keys->empty(); i++) {
+        uint64_t key;
+        uint8_t &k = (*keep)[c->over[i]];
+        if (k && group_key(c, i, &key) && std::binary_search(group_keys->begin(), group_keys->end(), key)) {
+            k = 0;
+            in_groups++;
+        }
+    }
+    if (grouped) *grouped = in_groups;
+    return carved + in_groups;
+}
+
 void pb_carve_set_drive(pb_carve_t *c, int drive) { c->drive = (uint8_t)std::min(std::max(drive, 0), 255); }
 
+/* The cells' counts, then the view points' counts (through, seen, hit, since_hit, inside). */
 void pb_carve_save(const pb_carve_t *c, std::vector<uint8_t> *out)
 {
-    out->resize(c->counts.size() * sizeof(Count));
-    if (!out->empty()) std::memcpy(out->data(), c->counts.data(), out->size());
+    const size_t cells = c->counts.size() * sizeof(Count), n = c->through.size();
+    out->resize(cells + 5 * n);
+    if (cells) std::memcpy(out->data(), c->counts.data(), cells);
+    size_t at = cells;
+    for (const auto *v : {&c->through, &c->seen, &c->hit, &c->since_hit, &c->inside}) {
+        if (n) std::memcpy(out->data() + at, v->data(), n);
+        at += n;
+    }
 }
 
 int pb_carve_load(pb_carve_t *c, const uint8_t *data, size_t len)
 {
-    if (len != c->counts.size() * sizeof(Count)) return -1;
-    if (len) std::memcpy(c->counts.data(), data, len);
+    const size_t cells = c->counts.size() * sizeof(Count), n = c->through.size();
+    if (len != cells + 5 * n) return -1;
+    if (cells) std::memcpy(c->counts.data(), data, cells);
+    size_t at = cells;
+    for (auto *v : {&c->through, &c->seen, &c->hit, &c->since_hit, &c->inside}) {
+        if (n) std::memcpy(v->data(), data + at, n);
+        at += n;
+    }
     return 0;
 }

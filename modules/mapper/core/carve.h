@@ -38,6 +38,25 @@
  * through at least `min_passes_empty` times in one drive and never hit in it was empty that
  * day, and what the other drives saw there (a car parked, then gone) is carved.
  *
+ * What the sampled rays cross too seldom (a car seen for a moment at the drive's start or end,
+ * a bus whose cells they missed) is judged again by views, after Removert (Kim and Kim, IROS
+ * 2020): about once a second a whole sweep becomes a range image seen from the LiDAR at its
+ * middle (pb_carve_view_create). A map point within max_range_m is seen through by a view
+ * when every return in the 3 x 3 bins around its direction (5 of them at least) lies farther
+ * than the point by view_margin_m or view_margin_share of its range, seen when its own bin
+ * returned at or beyond it, and hit when that return lies at it (pb_carve_look). On real LiDAR one point seen through says
+ * little: silhouette edges, thin poles hit by one sweep and missed by the next, foliage and
+ * poses decimetres off all let a beam pass a point that stays (on MulRan's keyframes a
+ * per-point rule took bands of roadside structure). So the verdict is on objects: the kept
+ * points higher than group_ground_m over the ground, joined where their group_cell_m cells
+ * touch (26 neighbours), make groups; a group goes when at least group_share of its points
+ * were seen through by view_min_through views or more, by half the views that saw them, and
+ * never between two of its hits (a railing, a hedge: seen through and hit in turn), and it has the shape of a road user: group_min_points or more, standing on the ground (its
+ * lowest point within group_foot_m of it), at most group_max_height_m tall and at least
+ * group_min_width_m long or wide (a pole or a post, seen by one sweep and missed by the
+ * next, is narrower) and lies within group_reach_m of its points seen through (a bus is 12-18
+ * m long). Static structure seen through in part is joined to what holds it and stays.
+ *
  * Pure: no I/O, no clock. Ownership: pb_carve_create copies what it needs; the caller
  * frees the result with pb_carve_destroy (NULL is a no-op). */
 #ifndef PB_MAPPER_CARVE_H
@@ -63,6 +82,17 @@ typedef struct {
     int max_visits = 2;        /* a cell hit on more visits than this holds something that stays */
     int carved_beside = 5;     /* a cell hit on short visits, if at all, goes when this many of its 26 neighbours went */
     int min_passes_empty = 24; /* several drives: passes in one drive that never hit the cell */
+    double view_margin_m = 0.4;      /* views: a return this much farther than a point ... */
+    double view_margin_share = 0.02; /* ... or this share of its range, whichever is more */
+    int view_min_through = 2;        /* a point seen through by this many views (and half those that saw it) */
+    double group_cell_m = 0.5;       /* groups: points in touching cells of this edge are one object */
+    double group_ground_m = 0.3;     /* only points higher than this over the ground join groups */
+    double group_foot_m = 0.7;       /* a road user stands on the ground: its lowest point within this */
+    double group_max_height_m = 4.5; /* and no taller than this over it */
+    double group_min_width_m = 1.2;  /* at least this long or wide (x or y extent) */
+    int group_min_points = 10;
+    double group_share = 0.5;        /* the share of a group's points seen through that takes it */
+    double group_reach_m = 15;       /* a road user lies within this of its points seen through (x-y) */
 } pb_carve_config_t;
 
 typedef struct pb_carve pb_carve_t;
@@ -81,17 +111,49 @@ void pb_carve_ray(pb_carve_t *c, int64_t utime, const double origin[3], const do
  * stays, and it needs min_passes for every drive that hit it. */
 void pb_carve_set_drive(pb_carve_t *c, int drive);
 
-/* Per map point (as given to create): 1 keep, 0 carved. Returns the number carved.
- * gone_keys NULL: the neighbours' verdicts from this map's own cells; else a sorted list of
- * the keys of every part's cells that step 1 carves (pb_carve_gone), so that a part's cell
- * on its border sees its neighbours in the next part. */
-size_t pb_carve_keep(const pb_carve_t *c, const std::vector<uint64_t> *gone_keys, std::vector<uint8_t> *keep);
+/* A view: n returns (x y z, 3 doubles each, in the map frame) of one sweep and their beams
+ * (ring: NULL or 255 when not known), seen from origin with the LiDAR's axes R (map <- lidar,
+ * row-major). NULL when no return lies 0.5 m or more from origin. The caller destroys it. */
+typedef struct pb_carve_view pb_carve_view_t;
+pb_carve_view_t *pb_carve_view_create(const double *xyz, const uint8_t *ring, size_t n, const double origin[3],
+                                      const double R[9]);
+void pb_carve_view_destroy(pb_carve_view_t *v);
+/* The map points within max_range_m of the view's origin count it: seen, seen through. */
+void pb_carve_look(pb_carve_t *c, const pb_carve_view_t *v);
+
+/* Per map point (as given to create): 1 keep, 0 carved. Returns the number carved (grouped:
+ * of those, the points that went as groups seen through). gone_keys NULL: the neighbours'
+ * verdicts from this map's own cells; else a sorted list of the keys of every part's cells
+ * that step 1 carves (pb_carve_gone), so that a part's cell on its border sees its neighbours
+ * in the next part. group_keys NULL: the groups of this map's own points; else the sorted
+ * group cells (group_cell_m) of every part's groups that go (pb_carve_groups). */
+size_t pb_carve_keep(const pb_carve_t *c, const std::vector<uint64_t> *gone_keys, const std::vector<uint64_t> *group_keys,
+                     std::vector<uint8_t> *keep, size_t *grouped = nullptr);
 /* Appends to keys the cell keys (the voxel keys of cell_m cells) that step 1 carves here. */
 void pb_carve_gone(const pb_carve_t *c, std::vector<uint64_t> *keys);
 
+/* The groups over parts: every part's seeds (the group cells of its points over the ground
+ * seen through, appended to keys), then with all of them sorted every part's cells within
+ * group_reach_m of a seed (appended to cells), then all those cells joined into groups: the
+ * sorted keys of the cells whose groups go (appended to gone). A group reaching farther than
+ * group_reach_m from every seed is no road user and stays, so the few cells gathered decide
+ * as the whole map's would. */
+typedef struct {
+    uint64_t key;              /* the group cell */
+    uint32_t n, through;       /* its points over the ground kept by the cells, those seen through */
+    float lo[2], hi[2];        /* their x-y extent */
+    float hmin, hmax;          /* their heights over the ground */
+    uint8_t edge;              /* within 2 cells of group_reach_m from the nearest seed */
+} pb_carve_group_cell_t;
+void pb_carve_seeds(const pb_carve_t *c, std::vector<uint64_t> *keys);
+void pb_carve_group_cells(const pb_carve_t *c, const std::vector<uint64_t> *gone_keys, const std::vector<uint64_t> &seeds,
+                          std::vector<pb_carve_group_cell_t> *cells);
+void pb_carve_groups(std::vector<pb_carve_group_cell_t> *cells, const pb_carve_config_t *cfg, std::vector<uint64_t> *gone);
+
 /* A map in parts (the mapper's tiles, each its own pb_carve_t): every part given the rays
- * that may cross it carves as one pb_carve_t of the whole map would, provided no cell
- * spans two parts and every part's pb_carve_keep is given all parts' pb_carve_gone; a ray that misses a part's cells costs little there. To page a part
+ * and views that may reach it carves as one pb_carve_t of the whole map would, provided no cell
+ * spans two parts and every part's pb_carve_keep is given all parts' pb_carve_gone and
+ * pb_carve_groups; a ray that misses a part's cells costs little there. To page a part
  * out and back: its counts so far (out replaced), and given to a part made again from the
  * same points and ground. load returns 0, or -1 when the bytes are not of such a part. */
 void pb_carve_save(const pb_carve_t *c, std::vector<uint8_t> *out);
