@@ -92,9 +92,11 @@ int pb_picture_write(pb_picture_t *pic, const pb_picture_layers_t *L, const char
         cv.rgb[3 * i] = cv.rgb[3 * i + 1] = cv.rgb[3 * i + 2] = g;
     }
     static const uint8_t orange[3] = {245, 140, 20}, blue[3] = {20, 80, 220}, green[3] = {0, 170, 60},
-                         red[3] = {215, 25, 30}, magenta[3] = {200, 0, 200};
+                         red[3] = {215, 25, 30}, magenta[3] = {200, 0, 200}, violet[3] = {100, 0, 170};
     for (size_t i = 0; i + 2 < L->removed.size(); i += 3)
         cv.dot(Eigen::Vector3d(L->removed[i], L->removed[i + 1], L->removed[i + 2]), 0, magenta);
+    for (size_t i = 0; i + 2 < L->objects.size(); i += 3)
+        cv.dot(Eigen::Vector3d(L->objects[i], L->objects[i + 1], L->objects[i + 2]), 1, violet);
     for (const auto &f : L->fixes) cv.dot(f, 1, red);
     cv.path(L->before, 1, orange);
     cv.path(L->after, 1, blue);

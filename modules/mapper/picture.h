@@ -1,7 +1,8 @@
 /* picture: the mapper's report as a top-down PNG (libpng): the map's points (grey, darker
  * where denser), the trajectory before loop closure (orange) and after (blue), the loops
  * (green, from the earlier pass's keyframe to the later one), the GNSS fixes (red dots),
- * and the points carved out of the map as moving objects (magenta: to inspect what went).
+ * and the points carved out of the map as moving objects (magenta: to inspect what went;
+ * those that went as objects the views saw through in violet, drawn larger).
  * North is up when the map is geo-referenced (east-north-up); one pixel is `m_per_px`.
  * Shell-side: it writes the file. */
 #ifndef PB_MAPPER_PICTURE_H
@@ -16,6 +17,7 @@ typedef struct {
     std::vector<std::pair<Eigen::Vector3d, Eigen::Vector3d>> loops;
     std::vector<Eigen::Vector3d> fixes;           /* GNSS fixes in the map frame (may be empty) */
     std::vector<float> removed;                   /* carved points, x y z interleaved, map frame */
+    std::vector<float> objects;                   /* of those, the ones carved as objects seen through */
 } pb_picture_layers_t;
 
 /* The picture is drawn as the map is written, a part at a time: begin (the extent comes

@@ -242,7 +242,7 @@ int checkpoint_read(Run *R, pb_err_t *err)
 
 /* ---- Restart inside the later steps (mapper.h). */
 static const char kPosesMagic[8] = {'P', 'B', 'M', 'A', 'P', 'P', 'S', '1'};
-static const char kCarvedMagic[8] = {'P', 'B', 'M', 'A', 'P', 'C', 'V', '2'};
+static const char kCarvedMagic[8] = {'P', 'B', 'M', 'A', 'P', 'C', 'V', '3'};
 
 /* What a stage checkpoint must match: the mapper's build, the options the later steps depend
  * on, every drive's log (as the odometry's checkpoints) and the poses given. */
@@ -344,6 +344,7 @@ int stage_write_carved(Run *R, pb_err_t *err)
     w.put_array(kept.data(), kept.size());
     w.put_string(R->ground_why);
     w.put_array(R->layers.removed.data(), R->layers.removed.size());
+    w.put_array(R->layers.objects.data(), R->layers.objects.size());
     w.put(R->peak_mb[2]); w.put(R->peak_mb[3]);
     return stage_write(R, "carved.bin", &buf, err);
 }
@@ -463,8 +464,9 @@ int stage_read(Run *R, int *done, pb_err_t *)
         R->kept_sums.push_back({kept[i + 2], kept[i + 3]});
     }
     const std::string ground_why = r.get_string();
-    std::vector<float> removed;
+    std::vector<float> removed, objects;
     r.get_array(&removed);
+    r.get_array(&objects);
     const double peak2 = r.get<double>(), peak3 = r.get<double>();
     if (why.empty() && (!r.ok || r.p != r.end || kept.size() % 4 != 0)) why = "damaged (truncated)";
     struct stat st;
@@ -489,6 +491,7 @@ int stage_read(Run *R, int *done, pb_err_t *)
     R->carve_tiles = std::set<int64_t>(tiles.begin(), tiles.end());
     R->ground_why = ground_why;
     R->layers.removed = removed;
+    R->layers.objects = objects;
     R->peak_mb[2] = peak2;
     R->peak_mb[3] = peak3;
     R->resumed_after = "carve";

@@ -270,7 +270,7 @@ struct CarveTiles {
         const std::vector<int64_t> keys(R->carve_tiles.begin(), R->carve_tiles.end());
         struct Half {
             std::vector<TilePoint> pts;
-            std::vector<uint8_t> bytes, keep;
+            std::vector<uint8_t> bytes, keep, keep_cells;
             std::vector<uint64_t> gone, seeds;
             std::vector<pb_carve_group_cell_t> cells;
             pb_err_t err;
@@ -326,13 +326,14 @@ struct CarveTiles {
             if (H.rc != 0) return *err = H.err, -1;
         std::vector<pb_carve_group_cell_t> cells = gather(&Half::cells);
         std::vector<uint64_t> group_gone;
+        const std::vector<uint64_t> no_groups;
         pb_carve_groups(&cells, &cfg, &group_gone);
         // 2. each tile's kept points to its 'k' file, what it carved kept for the picture
         struct Verdict {
             size_t carved = 0, kept = 0, grouped = 0;
             uint32_t first = UINT32_MAX;
             std::pair<uint64_t, uint64_t> sum;
-            std::vector<float> removed;
+            std::vector<float> removed, objects;
         };
         std::vector<Verdict> verdicts(keys.size());
         pb_split2(keys.size(), [&](size_t a, size_t b) {
@@ -346,11 +347,14 @@ struct CarveTiles {
                 if (!made && tile_read(tile_path(R, 'p', k), &H.pts, &H.err) != 0) { H.rc = -1; break; }
                 Verdict &V = verdicts[i];
                 V.carved = pb_carve_keep(c, &gone, &group_gone, &H.keep, &V.grouped);
+                if (V.grouped) pb_carve_keep(c, &gone, &no_groups, &H.keep_cells);   /* which went as objects */
                 if (made) pb_carve_destroy(c);
                 kept.clear();
                 for (size_t j = 0; j < H.pts.size(); j++) {
                     if (H.keep[j]) kept.push_back(H.pts[j]);
                     else V.removed.insert(V.removed.end(), {H.pts[j].p[0], H.pts[j].p[1], H.pts[j].p[2]});
+                    if (V.grouped && !H.keep[j] && H.keep_cells[j])
+                        V.objects.insert(V.objects.end(), {H.pts[j].p[0], H.pts[j].p[1], H.pts[j].p[2]});
                 }
                 std::sort(kept.begin(), kept.end(), [](const TilePoint &x, const TilePoint &y) { return x.seq < y.seq; });
                 V.kept = kept.size();
@@ -370,6 +374,7 @@ struct CarveTiles {
             R->carved += V.carved;
             R->carved_groups += V.grouped;
             R->layers.removed.insert(R->layers.removed.end(), V.removed.begin(), V.removed.end());
+            R->layers.objects.insert(R->layers.objects.end(), V.objects.begin(), V.objects.end());
             R->map_points += V.kept;
             R->kept_tiles.push_back({keys[i], V.first});
             R->kept_sums.push_back(V.sum);
