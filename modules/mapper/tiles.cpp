@@ -269,8 +269,8 @@ struct CarveTiles {
     {
         const std::vector<int64_t> keys(R->carve_tiles.begin(), R->carve_tiles.end());
         struct Half {
-            std::vector<TilePoint> pts;
-            std::vector<uint8_t> bytes, keep, keep_cells;
+            std::vector<TilePoint> pts, kept;
+            std::vector<uint8_t> bytes, keep, objects;
             std::vector<uint64_t> gone, seeds;
             std::vector<pb_carve_group_cell_t> cells;
             pb_err_t err;
@@ -292,41 +292,35 @@ struct CarveTiles {
             all.insert(all.end(), (half[1].*field).begin(), (half[1].*field).end());
             return all;
         };
-        // 1. the cells each tile carves on its own counts, and the points over the ground views saw through
-        pb_split2(keys.size(), [&](size_t a, size_t b) {
-            Half &H = half[a == 0 ? 0 : 1];
-            for (size_t i = a; i < b && H.rc == 0; i++) {
-                bool made;
-                pb_carve_t *c = carving(keys[i], H, &made);
-                if (!c) break;
-                pb_carve_gone(c, &H.gone);
-                pb_carve_seeds(c, &H.seeds);
-                if (made) pb_carve_destroy(c);
-            }
-        }, 2);
-        for (const Half &H : half)
-            if (H.rc != 0) return *err = H.err, -1;
-        std::vector<uint64_t> gone = gather(&Half::gone), seeds = gather(&Half::seeds);
-        std::sort(gone.begin(), gone.end());
-        std::sort(seeds.begin(), seeds.end());
-        seeds.erase(std::unique(seeds.begin(), seeds.end()), seeds.end());
-        // 1b. the kept points over the ground near those, by group cell; then the groups that go
-        if (!seeds.empty())
+        /* step(c, H, i, made) on every tile's carving (made: read from its files, its points in
+         * H.pts), half the tiles on each thread */
+        auto each_tile = [&](auto step) {
             pb_split2(keys.size(), [&](size_t a, size_t b) {
                 Half &H = half[a == 0 ? 0 : 1];
                 for (size_t i = a; i < b && H.rc == 0; i++) {
                     bool made;
                     pb_carve_t *c = carving(keys[i], H, &made);
                     if (!c) break;
-                    pb_carve_group_cells(c, &gone, seeds, &H.cells);
+                    step(c, H, i, made);
                     if (made) pb_carve_destroy(c);
                 }
             }, 2);
-        for (const Half &H : half)
-            if (H.rc != 0) return *err = H.err, -1;
+            return half[0].rc != 0 ? (*err = half[0].err, -1) : half[1].rc != 0 ? (*err = half[1].err, -1) : 0;
+        };
+        // 1. the cells each tile carves on its own counts, and the points over the ground views saw through
+        if (each_tile([](pb_carve_t *c, Half &H, size_t, bool) { pb_carve_gone(c, &H.gone); pb_carve_seeds(c, &H.seeds); }) != 0)
+            return -1;
+        std::vector<uint64_t> gone = gather(&Half::gone), seeds = gather(&Half::seeds);
+        std::sort(gone.begin(), gone.end());
+        // 1b. the kept points over the ground near those, by group cell; then the groups that go
+        pb_carve_near_t *near = pb_carve_near_create(seeds, &cfg);
+        const int rc = seeds.empty() ? 0 : each_tile([&](pb_carve_t *c, Half &H, size_t, bool) {
+            pb_carve_group_cells(c, &gone, near, &H.cells);
+        });
+        pb_carve_near_destroy(near);
+        if (rc != 0) return -1;
         std::vector<pb_carve_group_cell_t> cells = gather(&Half::cells);
         std::vector<uint64_t> group_gone;
-        const std::vector<uint64_t> no_groups;
         pb_carve_groups(&cells, &cfg, &group_gone);
         // 2. each tile's kept points to its 'k' file, what it carved kept for the picture
         struct Verdict {
@@ -336,39 +330,31 @@ struct CarveTiles {
             std::vector<float> removed, objects;
         };
         std::vector<Verdict> verdicts(keys.size());
-        pb_split2(keys.size(), [&](size_t a, size_t b) {
-            Half &H = half[a == 0 ? 0 : 1];
-            std::vector<TilePoint> kept;
-            for (size_t i = a; i < b && H.rc == 0; i++) {
-                const int64_t k = keys[i];
-                bool made;
-                pb_carve_t *c = carving(k, H, &made);
-                if (!c) break;
-                if (!made && tile_read(tile_path(R, 'p', k), &H.pts, &H.err) != 0) { H.rc = -1; break; }
-                Verdict &V = verdicts[i];
-                V.carved = pb_carve_keep(c, &gone, &group_gone, &H.keep, &V.grouped);
-                if (V.grouped) pb_carve_keep(c, &gone, &no_groups, &H.keep_cells);   /* which went as objects */
-                if (made) pb_carve_destroy(c);
-                kept.clear();
-                for (size_t j = 0; j < H.pts.size(); j++) {
-                    if (H.keep[j]) kept.push_back(H.pts[j]);
-                    else V.removed.insert(V.removed.end(), {H.pts[j].p[0], H.pts[j].p[1], H.pts[j].p[2]});
-                    if (V.grouped && !H.keep[j] && H.keep_cells[j])
-                        V.objects.insert(V.objects.end(), {H.pts[j].p[0], H.pts[j].p[1], H.pts[j].p[2]});
+        const int rc2 = each_tile([&](pb_carve_t *c, Half &H, size_t i, bool made) {
+            const int64_t k = keys[i];
+            if (!made && tile_read(tile_path(R, 'p', k), &H.pts, &H.err) != 0) { H.rc = -1; return; }
+            Verdict &V = verdicts[i];
+            V.carved = pb_carve_keep(c, &gone, &group_gone, &H.keep, &H.objects);
+            H.kept.clear();
+            for (size_t j = 0; j < H.pts.size(); j++) {
+                if (H.keep[j]) H.kept.push_back(H.pts[j]);
+                else V.removed.insert(V.removed.end(), {H.pts[j].p[0], H.pts[j].p[1], H.pts[j].p[2]});
+                if (H.objects[j]) {
+                    V.grouped++;
+                    V.objects.insert(V.objects.end(), {H.pts[j].p[0], H.pts[j].p[1], H.pts[j].p[2]});
                 }
-                std::sort(kept.begin(), kept.end(), [](const TilePoint &x, const TilePoint &y) { return x.seq < y.seq; });
-                V.kept = kept.size();
-                V.first = kept.empty() ? UINT32_MAX : kept[0].seq;
-                V.sum = {kept.size() * sizeof(TilePoint), pb_fnv1a64(kept.data(), kept.size() * sizeof(TilePoint))};
-                if (tile_write(tile_path(R, 'k', k), kept.data(), kept.size(), false, &H.err) != 0) { H.rc = -1; break; }
-                std::remove(tile_path(R, 'p', k).c_str());
-                std::remove(tile_path(R, 'c', k).c_str());
             }
-        }, 2);
+            std::sort(H.kept.begin(), H.kept.end(), [](const TilePoint &x, const TilePoint &y) { return x.seq < y.seq; });
+            V.kept = H.kept.size();
+            V.first = H.kept.empty() ? UINT32_MAX : H.kept[0].seq;
+            V.sum = {H.kept.size() * sizeof(TilePoint), pb_fnv1a64(H.kept.data(), H.kept.size() * sizeof(TilePoint))};
+            if (tile_write(tile_path(R, 'k', k), H.kept.data(), H.kept.size(), false, &H.err) != 0) { H.rc = -1; return; }
+            std::remove(tile_path(R, 'p', k).c_str());
+            std::remove(tile_path(R, 'c', k).c_str());
+        });
         for (auto &h : held) pb_carve_destroy(h.second.carve);
         held.clear();
-        for (const Half &H : half)
-            if (H.rc != 0) return *err = H.err, -1;
+        if (rc2 != 0) return -1;
         for (size_t i = 0; i < keys.size(); i++) {
             const Verdict &V = verdicts[i];
             R->carved += V.carved;

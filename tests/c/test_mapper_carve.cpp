@@ -371,8 +371,9 @@ static void views_test(const pb_ground_t *ground)
     std::vector<uint64_t> seeds, group_gone;
     std::vector<pb_carve_group_cell_t> cells;
     for (pb_carve_t *p : parts) pb_carve_seeds(p, &seeds);
-    std::sort(seeds.begin(), seeds.end());
-    for (pb_carve_t *p : parts) pb_carve_group_cells(p, nullptr, seeds, &cells);
+    pb_carve_near_t *near = pb_carve_near_create(seeds, nullptr);
+    for (pb_carve_t *p : parts) pb_carve_group_cells(p, nullptr, near, &cells);
+    pb_carve_near_destroy(near);
     pb_carve_groups(&cells, nullptr, &group_gone);
     std::vector<uint8_t> by_parts(kind.size(), 1);
     size_t k = 0;
@@ -389,9 +390,11 @@ static void views_test(const pb_ground_t *ground)
     CHECK(pb_carve_load(back, bytes.data(), bytes.size()) == 0);
     CHECK(pb_carve_load(back, bytes.data(), bytes.size() - 1) == -1);
     std::vector<uint8_t> keep, keep_back;
-    size_t grouped = 0, grouped_back = 0;
-    const size_t carved = pb_carve_keep(c, nullptr, nullptr, &keep, &grouped);
-    pb_carve_keep(back, nullptr, nullptr, &keep_back, &grouped_back);
+    std::vector<uint8_t> objects, objects_back;
+    const size_t carved = pb_carve_keep(c, nullptr, nullptr, &keep, &objects);
+    pb_carve_keep(back, nullptr, nullptr, &keep_back, &objects_back);
+    const size_t grouped = (size_t)std::count(objects.begin(), objects.end(), 1),
+                 grouped_back = (size_t)std::count(objects_back.begin(), objects_back.end(), 1);
     size_t lost[5] = {0, 0, 0, 0, 0}, count[5] = {0, 0, 0, 0, 0};
     for (size_t i = 0; i < kind.size(); i++) {
         count[kind[i]]++;

@@ -364,7 +364,7 @@ void pb_carve_look(pb_carve_t *c, const pb_carve_view_t *v)
         if (std::fabs(d[0]) > reach || std::fabs(d[1]) > reach) continue;
         const float r2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
         if (r2 < 4 || r2 > reach * reach) continue;
-        // its bin: the direction in the LiDAR's frame (R^T d)
+        // its bin: the direction in the LiDAR's frame (R^T d), as pb_carve_view::bin but in float (every point, every view)
         float l[3];
         for (int a = 0; a < 3; a++) l[a] = R[a] * d[0] + R[3 + a] * d[1] + R[6 + a] * d[2];
         const int row = (int)std::floor((std::atan2(l[2], std::sqrt(l[0] * l[0] + l[1] * l[1])) - low) * per_row);
@@ -407,12 +407,11 @@ void pb_carve_seeds(const pb_carve_t *c, std::vector<uint64_t> *keys)
 
 /* The seeds' columns (x-y cells), bucketed by squares of the reach: the x-y distance from a
  * point to the nearest seed column's centre is looked up in the 3 x 3 buckets around it. */
-namespace {
-struct SeedColumns {
+struct pb_carve_near {
     double cell_m, reach;
     std::unordered_map<uint64_t, std::vector<std::array<double, 2>>> buckets;
 
-    SeedColumns(const std::vector<uint64_t> &seeds, double cell, double reach_m) : cell_m(cell), reach(reach_m)
+    pb_carve_near(const std::vector<uint64_t> &seeds, double cell, double reach_m) : cell_m(cell), reach(reach_m)
     {
         std::vector<uint64_t> cols;   /* the seeds' columns as voxel keys at z = 0, each once */
         for (uint64_t k : seeds) {
@@ -460,17 +459,25 @@ struct SeedColumns {
         return best <= reach ? best : INFINITY;
     }
 };
-}  // namespace
+
+pb_carve_near_t *pb_carve_near_create(const std::vector<uint64_t> &seeds, const pb_carve_config_t *cfg)
+{
+    pb_carve_config_t d;
+    if (!cfg) cfg = &d;
+    return new pb_carve_near(seeds, cfg->group_cell_m, cfg->group_reach_m);
+}
+
+void pb_carve_near_destroy(pb_carve_near_t *n) { delete n; }
 
 /* Steps 1-3 of pb_carve_keep: the cells' verdicts on the points. */
 static size_t keep_by_cells(const pb_carve_t *c, const std::vector<uint64_t> *gone_keys, std::vector<uint8_t> *keep);
 
-void pb_carve_group_cells(const pb_carve_t *c, const std::vector<uint64_t> *gone_keys, const std::vector<uint64_t> &seeds,
+void pb_carve_group_cells(const pb_carve_t *c, const std::vector<uint64_t> *gone_keys, const pb_carve_near_t *seeds,
                           std::vector<pb_carve_group_cell_t> *cells)
 {
     const pb_carve_config_t &cfg = c->cfg;
-    if (seeds.empty() || c->counts.empty()) return;
-    const SeedColumns near(seeds, cfg.group_cell_m, cfg.group_reach_m);
+    if (seeds->buckets.empty() || c->counts.empty()) return;
+    const pb_carve_near &near = *seeds;
     const double lo[2] = {(double)c->lo[0] * cfg.cell_m, (double)c->lo[1] * cfg.cell_m},
                  hi[2] = {(double)(c->hi[0] + 1) * cfg.cell_m, (double)(c->hi[1] + 1) * cfg.cell_m};
     if (!near.any_near(lo, hi)) return;   /* no seed within reach of this part */
@@ -504,6 +511,20 @@ void pb_carve_group_cells(const pb_carve_t *c, const std::vector<uint64_t> *gone
     }
 }
 
+/* Cell or group `from` taken into `into`: their points, extents and heights together. */
+static void absorb(pb_carve_group_cell_t &into, const pb_carve_group_cell_t &from)
+{
+    into.n += from.n;
+    into.through += from.through;
+    for (int a = 0; a < 2; a++) {
+        into.lo[a] = std::min(into.lo[a], from.lo[a]);
+        into.hi[a] = std::max(into.hi[a], from.hi[a]);
+    }
+    into.hmin = std::min(into.hmin, from.hmin);
+    into.hmax = std::max(into.hmax, from.hmax);
+    into.edge |= from.edge;
+}
+
 void pb_carve_groups(std::vector<pb_carve_group_cell_t> *cells, const pb_carve_config_t *cfg_in, std::vector<uint64_t> *gone)
 {
     pb_carve_config_t cfg;
@@ -512,18 +533,11 @@ void pb_carve_groups(std::vector<pb_carve_group_cell_t> *cells, const pb_carve_c
     std::sort(cells->begin(), cells->end(), [](const pb_carve_group_cell_t &x, const pb_carve_group_cell_t &y) { return x.key < y.key; });
     size_t n = 0;
     for (size_t i = 0; i < cells->size(); i++) {
-        pb_carve_group_cell_t &g = (*cells)[i];
-        if (n && (*cells)[n - 1].key == g.key) {
-            pb_carve_group_cell_t &h = (*cells)[n - 1];
-            h.n += g.n;
-            h.through += g.through;
-            for (int a = 0; a < 2; a++) { h.lo[a] = std::min(h.lo[a], g.lo[a]); h.hi[a] = std::max(h.hi[a], g.hi[a]); }
-            h.hmin = std::min(h.hmin, g.hmin);
-            h.hmax = std::max(h.hmax, g.hmax);
-            h.edge |= g.edge;
-        } else {
+        const pb_carve_group_cell_t &g = (*cells)[i];
+        if (n && (*cells)[n - 1].key == g.key)
+            absorb((*cells)[n - 1], g);
+        else
             (*cells)[n++] = g;
-        }
     }
     cells->resize(n);
     // groups: touching cells joined (union-find)
@@ -554,16 +568,7 @@ void pb_carve_groups(std::vector<pb_carve_group_cell_t> *cells, const pb_carve_c
     // each group whole: the road users among them
     std::vector<pb_carve_group_cell_t> group(n, pb_carve_group_cell_t{0, 0, 0, {INFINITY, INFINITY}, {-INFINITY, -INFINITY},
                                                                       INFINITY, -INFINITY, 0});
-    for (size_t k = 0; k < n; k++) {
-        const pb_carve_group_cell_t &c = (*cells)[k];
-        pb_carve_group_cell_t &g = group[root((uint32_t)k)];
-        g.n += c.n;
-        g.through += c.through;
-        for (int a = 0; a < 2; a++) { g.lo[a] = std::min(g.lo[a], c.lo[a]); g.hi[a] = std::max(g.hi[a], c.hi[a]); }
-        g.hmin = std::min(g.hmin, c.hmin);
-        g.hmax = std::max(g.hmax, c.hmax);
-        g.edge |= c.edge;
-    }
+    for (size_t k = 0; k < n; k++) absorb(group[root((uint32_t)k)], (*cells)[k]);
     auto road_user = [&](const pb_carve_group_cell_t &g) {
         return !g.edge && g.n >= (uint32_t)cfg.group_min_points && (double)g.through >= cfg.group_share * (double)g.n &&
                g.hmin <= cfg.group_foot_m && g.hmax <= cfg.group_max_height_m &&
@@ -675,7 +680,7 @@ static size_t keep_by_cells(const pb_carve_t *c, const std::vector<uint64_t> *go
 }
 
 size_t pb_carve_keep(const pb_carve_t *c, const std::vector<uint64_t> *gone_keys, const std::vector<uint64_t> *group_keys,
-                     std::vector<uint8_t> *keep, size_t *grouped)
+                     std::vector<uint8_t> *keep, std::vector<uint8_t> *objects)
 {
     // 1-3. the cells' verdicts
     const size_t carved = keep_by_cells(c, gone_keys, keep);
@@ -685,21 +690,23 @@ size_t pb_carve_keep(const pb_carve_t *c, const std::vector<uint64_t> *gone_keys
         std::vector<uint64_t> seeds;
         std::vector<pb_carve_group_cell_t> cells;
         pb_carve_seeds(c, &seeds);
-        std::sort(seeds.begin(), seeds.end());
-        pb_carve_group_cells(c, gone_keys, seeds, &cells);
+        pb_carve_near_t *near = pb_carve_near_create(seeds, &c->cfg);
+        pb_carve_group_cells(c, gone_keys, near, &cells);
+        pb_carve_near_destroy(near);
         pb_carve_groups(&cells, &c->cfg, &own);
         group_keys = &own;
     }
+    if (objects) objects->assign(keep->size(), 0);
     size_t in_groups = 0;
     for (size_t i = 0; i < c->over.size() && !group_keys->empty(); i++) {
         uint64_t key;
         uint8_t &k = (*keep)[c->over[i]];
         if (k && group_key(c, i, &key) && std::binary_search(group_keys->begin(), group_keys->end(), key)) {
             k = 0;
+            if (objects) (*objects)[c->over[i]] = 1;
             in_groups++;
         }
     }
-    if (grouped) *grouped = in_groups;
     return carved + in_groups;
 }
 

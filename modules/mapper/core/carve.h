@@ -121,20 +121,21 @@ void pb_carve_view_destroy(pb_carve_view_t *v);
 /* The map points within max_range_m of the view's origin count it: seen, seen through. */
 void pb_carve_look(pb_carve_t *c, const pb_carve_view_t *v);
 
-/* Per map point (as given to create): 1 keep, 0 carved. Returns the number carved (grouped:
- * of those, the points that went as groups seen through). gone_keys NULL: the neighbours'
+/* Per map point (as given to create): 1 keep, 0 carved. Returns the number carved (objects,
+ * unless NULL: 1 per point that went as a group seen through, else 0). gone_keys NULL: the neighbours'
  * verdicts from this map's own cells; else a sorted list of the keys of every part's cells
  * that step 1 carves (pb_carve_gone), so that a part's cell on its border sees its neighbours
  * in the next part. group_keys NULL: the groups of this map's own points; else the sorted
  * group cells (group_cell_m) of every part's groups that go (pb_carve_groups). */
 size_t pb_carve_keep(const pb_carve_t *c, const std::vector<uint64_t> *gone_keys, const std::vector<uint64_t> *group_keys,
-                     std::vector<uint8_t> *keep, size_t *grouped = nullptr);
+                     std::vector<uint8_t> *keep, std::vector<uint8_t> *objects = nullptr);
 /* Appends to keys the cell keys (the voxel keys of cell_m cells) that step 1 carves here. */
 void pb_carve_gone(const pb_carve_t *c, std::vector<uint64_t> *keys);
 
 /* The groups over parts: every part's seeds (the group cells of its points over the ground
- * seen through, appended to keys), then with all of them sorted every part's cells within
- * group_reach_m of a seed (appended to cells), then all those cells joined into groups: the
+ * seen through, appended to keys), then with all of them indexed once (pb_carve_near_create;
+ * the caller destroys it) every part's cells within group_reach_m of a seed (appended to
+ * cells), then all those cells joined into groups: the
  * sorted keys of the cells whose groups go (appended to gone). A group reaching farther than
  * group_reach_m from every seed is no road user and stays, so the few cells gathered decide
  * as the whole map's would. */
@@ -145,8 +146,11 @@ typedef struct {
     float hmin, hmax;          /* their heights over the ground */
     uint8_t edge;              /* within 2 cells of group_reach_m from the nearest seed */
 } pb_carve_group_cell_t;
+typedef struct pb_carve_near pb_carve_near_t;
 void pb_carve_seeds(const pb_carve_t *c, std::vector<uint64_t> *keys);
-void pb_carve_group_cells(const pb_carve_t *c, const std::vector<uint64_t> *gone_keys, const std::vector<uint64_t> &seeds,
+pb_carve_near_t *pb_carve_near_create(const std::vector<uint64_t> &seeds, const pb_carve_config_t *cfg);
+void pb_carve_near_destroy(pb_carve_near_t *n);
+void pb_carve_group_cells(const pb_carve_t *c, const std::vector<uint64_t> *gone_keys, const pb_carve_near_t *seeds,
                           std::vector<pb_carve_group_cell_t> *cells);
 void pb_carve_groups(std::vector<pb_carve_group_cell_t> *cells, const pb_carve_config_t *cfg, std::vector<uint64_t> *gone);
 
