@@ -183,11 +183,18 @@ def test_surface_distance_finds_the_points_on_road_users(tmp, vehicle):
     pts = np.concatenate(pts)
     (tmp / "crossers.f32").write_bytes(pts.astype("<f4").tobytes())
 
-    def score(extra):
+    def score(extra, labels=None):
         p = ts.subprocess.run([str(ts.BIN), "--site", str(SITE), *map(str, args), *extra, "--surface-distance",
-                               str(tmp / "crossers.f32")], capture_output=True, text=True, check=True)
+                               str(tmp / "crossers.f32"), *(["--surface-labels", str(labels)] if labels else [])],
+                              capture_output=True, text=True, check=True)
         return json.loads(p.stdout)
-    known, unknown = score(["--with", "crossing,pedestrians"]), score([])
+    known, unknown = score(["--with", "crossing,pedestrians"], tmp / "labels.u8"), score([])
+    # the labels say the same per point: 0 static, 1 off it, 2 on a moving object, 3 own body
+    labels = np.frombuffer((tmp / "labels.u8").read_bytes(), np.uint8)
+    assert len(labels) == len(pts)
+    assert np.count_nonzero(labels == 2) == known["on_moving"]
+    assert abs(np.count_nonzero(labels == 0) / len(pts) - known["within_0.05"]) <= 5e-5   # printed to 4 places
+    assert np.count_nonzero(labels == 3) == known["on_own_body"] and labels.max() <= 3
     off_static = round(len(pts) * (1 - known["within_0.05"]))
     # measured (27 Nov): 53,047 returns (all on pedestrians in these 20 s), 51,917 of them farther
     # than 5 cm from the static world, 51,915 of those on moving objects; without the crossers, 0
@@ -195,6 +202,20 @@ def test_surface_distance_finds_the_points_on_road_users(tmp, vehicle):
     assert known["on_moving"] >= 0.98 * off_static, known
     assert set(known["on_moving_by_class"]) <= {"pedestrian", "vehicle"}, known
     assert unknown["on_moving"] <= 0.02 * len(pts), unknown
+
+
+def test_surface_labels_bad_use(tmp):
+    """--surface-labels alone is refused; a labels file that cannot be written is an error naming
+    it, after the figures are printed."""
+    p = ts.subprocess.run([str(ts.BIN), "--site", str(SITE), "--surface-labels", str(tmp / "l.u8")],
+                          capture_output=True, text=True)
+    assert p.returncode == 2 and "--surface-labels needs --surface-distance" in p.stderr
+    pts = tmp / "three.f32"
+    pts.write_bytes(np.array([[0, 0, 0], [1, 2, 3], [5, 5, 0.5]], "<f4").tobytes())
+    bad = tmp / "no_such_dir" / "l.u8"
+    p = ts.subprocess.run([str(ts.BIN), "--site", str(SITE), "--duration", "5", "--surface-distance", str(pts),
+                           "--surface-labels", str(bad)], capture_output=True, text=True)
+    assert p.returncode == 1 and str(bad) in p.stderr and "cannot write the labels" in p.stderr, p.stderr
 
 
 def low_mount_vehicle(tmp):

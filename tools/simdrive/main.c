@@ -120,6 +120,9 @@ static void usage(FILE *f)
         "                        static world; on_own_body: the same with the car's own body\n"
         "                        box (with roof returns on). beyond_0.5_*: the points farther\n"
         "                        than 0.5 m sorted into on_moving, on_own_body and other\n"
+        "  --surface-labels FILE with --surface-distance: write one byte per point, in the\n"
+        "                        points' order: 0 within 0.05 m of the static world, 1 farther,\n"
+        "                        2 on a moving object, 3 on the car's own body\n"
         "  --help                this text\n",
         PB_SOURCE_DIR, PB_SOURCE_DIR);
 }
@@ -181,7 +184,7 @@ int main(int argc, char **argv)
     int mapping = 0, quiet = 0, no_lidar = 0, head = 0, prof = PB_PROFILE_NORMAL;
     dwells_t dwells = { .n = 0 };
     const char *scenario = NULL;
-    const char *terrain_out = NULL, *without_arg = "", *with = "", *surface_points = NULL;
+    const char *terrain_out = NULL, *without_arg = "", *with = "", *surface_points = NULL, *surface_labels = NULL;
     double driver_spread = 0, reverse_m = 0, foliage_depth = 0, lidar_from = 0;
     const pb_opt_t opts[] = {
         PB_OPT_STRING("out", &out_dir), PB_OPT_LONG("seed", &seed, 0, LONG_MAX),
@@ -192,11 +195,13 @@ int main(int argc, char **argv)
         PB_OPT_STRING("with", &with), PB_OPT_FLAG("no-lidar", &no_lidar, 1), PB_OPT_FLAG("quiet", &quiet, 1),
         PB_OPT_STRING("scenario", &scenario), PB_OPT_FLAG("head", &head, 1), PB_OPT_CALL("dwell", add_dwell, &dwells),
         PB_OPT_DOUBLE("reverse", &reverse_m, 1, 500), PB_OPT_STRING("surface-distance", &surface_points),
+        PB_OPT_STRING("surface-labels", &surface_labels),
         PB_OPT_DOUBLE("foliage-depth", &foliage_depth, 0, 20), PB_OPT_DOUBLE("lidar-from", &lidar_from, 0, 24 * 3600),
         PB_OPT_END,
     };
     int parsed = pb_opt_parse("simdrive", opts, usage, 0, argc, argv);
     if (parsed >= 0) return parsed;
+    if (surface_labels && !surface_points) { fprintf(stderr, "simdrive: --surface-labels needs --surface-distance\n"); return 2; }
     if (!out_dir && !terrain_out && !surface_points) { fprintf(stderr, "simdrive: --out DIR is required (see --help)\n"); return 2; }
     char without[256];
     snprintf(without, sizeof without, "%s", without_arg);
@@ -271,7 +276,7 @@ int main(int argc, char **argv)
     body_model_init(&body);
     if (surface_points) {   /* the drive planned as above: its road users are the drive's */
         score_drive_t sd = { &world, &route, &body, &veh, duration, (uint64_t)seed, !mapping };
-        int rc = score_surface_distance(&sd, surface_points, &err);
+        int rc = score_surface_distance(&sd, surface_points, surface_labels, &err);
         if (rc) fprintf(stderr, "simdrive: %s\n", err.msg);
         sim_occ_destroy(occ);
         body_model_free(&body);

@@ -175,7 +175,7 @@ static float *read_points(const char *path, size_t *n, pb_err_t *err)
     return xyz;
 }
 
-int score_surface_distance(const score_drive_t *drv, const char *path, pb_err_t *err)
+int score_surface_distance(const score_drive_t *drv, const char *path, const char *labels_path, pb_err_t *err)
 {
     size_t n;
     float *xyz = read_points(path, &n, err);
@@ -205,8 +205,9 @@ int score_surface_distance(const score_drive_t *drv, const char *path, pb_err_t 
     C.d_mover = malloc(n * sizeof *C.d_mover);
     C.d_body = malloc(n * sizeof *C.d_body);
     C.mover_cls = calloc(n, 1);
-    if (!C.d_mover || !C.d_body || !C.mover_cls) {
-        free(xyz); free(d); free(sorted); free(C.items); free(C.d_mover); free(C.d_body); free(C.mover_cls);
+    uint8_t *label = calloc(n, 1);
+    if (!C.d_mover || !C.d_body || !C.mover_cls || !label) {
+        free(xyz); free(d); free(sorted); free(C.items); free(C.d_mover); free(C.d_body); free(C.mover_cls); free(label);
         return pb_err_set(err, "%s: %zu points: out of memory", path, n);
     }
     for (size_t i = 0; i < n; i++) C.d_mover[i] = C.d_body[i] = INFINITY;
@@ -223,6 +224,15 @@ int score_surface_distance(const score_drive_t *drv, const char *path, pb_err_t 
         far_moving += on_mover && d[i] > 0.5;
         far_body += on_body && d[i] > 0.5;
         if (on_mover && C.mover_cls[i] < WORLD_MAX_CLASSES) by_cls[C.mover_cls[i]]++;
+        label[i] = on_mover ? SCORE_LABEL_MOVING : on_body ? SCORE_LABEL_OWN_BODY
+                 : d[i] > SCORE_STATIC_M ? SCORE_LABEL_OFF : SCORE_LABEL_STATIC;
+    }
+    int rc = 0;
+    if (labels_path) {
+        FILE *f = fopen(labels_path, "wb");
+        int ok = f && fwrite(label, 1, n, f) == n;
+        if (f && fclose(f)) ok = 0;
+        if (!ok) rc = pb_err_set(err, "%s: cannot write the labels: %s", labels_path, strerror(errno));
     }
     memcpy(sorted, d, n * sizeof *d);
     qsort(sorted, n, sizeof *sorted, cmp_double);
@@ -239,6 +249,6 @@ int score_surface_distance(const score_drive_t *drv, const char *path, pb_err_t 
     printf("}, \"on_own_body\": %zu, \"beyond_0.5_points\": %zu, \"beyond_0.5_on_moving\": %zu, "
            "\"beyond_0.5_on_own_body\": %zu, \"beyond_0.5_other\": %zu}\n",
            body, far, far_moving, far_body, far - far_moving - far_body);
-    free(xyz); free(d); free(sorted); free(C.items); free(C.d_mover); free(C.d_body); free(C.mover_cls);
-    return 0;
+    free(xyz); free(d); free(sorted); free(C.items); free(C.d_mover); free(C.d_body); free(C.mover_cls); free(label);
+    return rc;
 }

@@ -15,7 +15,8 @@
  * The road users are a pure function of (world, seed, the car's trajectory), so the
  * score must be given the drive's own options (seed, duration, speed profile, --with,
  * driver spread, dwells, reverse) to know the drive's road users.
- * Ownership: plain function; reads FILE, prints one JSON line on stdout. */
+ * Ownership: plain function; reads FILE, prints one JSON line on stdout, and, when
+ * labels_path is given, writes there one byte per point (SCORE_LABEL_*), in FILE's order. */
 #ifndef SIM_SCORE_H
 #define SIM_SCORE_H
 
@@ -30,6 +31,13 @@
 #define SCORE_MARGIN_M 0.2     /* the beam's footprint, noise and the map's pose error */
 #define SCORE_STEP_M 0.1       /* a box's motion between two placements (< the margin) */
 
+enum {                         /* --surface-labels: one byte per point */
+    SCORE_LABEL_STATIC = 0,    /* within SCORE_STATIC_M of the static world */
+    SCORE_LABEL_OFF = 1,       /* farther, on no road user and not the own body */
+    SCORE_LABEL_MOVING = 2,    /* on a moving object (the rule above) */
+    SCORE_LABEL_OWN_BODY = 3   /* on the car's own body */
+};
+
 typedef struct {
     const world_t *world;          /* grid built for the day scored */
     const pb_route_t *route;
@@ -40,8 +48,10 @@ typedef struct {
     int traffic;                   /* 0: the mapping day (no road users) */
 } score_drive_t;
 
-/* Scores the points of `path` (float32 x y z, the site's frame) against the drive.
- * 0, or -1 with err set (file unreadable, size not a multiple of 12, out of memory). */
-int score_surface_distance(const score_drive_t *drv, const char *path, pb_err_t *err);
+/* Scores the points of `path` (float32 x y z, the site's frame) against the drive;
+ * labels_path: NULL, or a file to write the points' labels to.
+ * 0, or -1 with err set (file unreadable or not writable, size not a multiple of 12, out
+ * of memory). */
+int score_surface_distance(const score_drive_t *drv, const char *path, const char *labels_path, pb_err_t *err);
 
 #endif

@@ -496,7 +496,8 @@ void pb_carve_group_cells(const pb_carve_t *c, const std::vector<uint64_t> *gone
             k = index.insert(key, std::isfinite(d) ? (int32_t)(cells->size() - first) : kFar, &fresh);
             if (k != kFar)
                 cells->push_back(pb_carve_group_cell_t{key, 0, 0, {INFINITY, INFINITY}, {-INFINITY, -INFINITY}, INFINITY,
-                                                       -INFINITY, (uint8_t)(d > cfg.group_reach_m - 2 * cfg.group_cell_m)});
+                                                       -INFINITY, {0, 0, 0, 0, 0},
+                                                       (uint8_t)(d > cfg.group_reach_m - 2 * cfg.group_cell_m)});
         }
         if (k == kFar) continue;
         pb_carve_group_cell_t &g = (*cells)[first + (size_t)k];
@@ -508,7 +509,20 @@ void pb_carve_group_cells(const pb_carve_t *c, const std::vector<uint64_t> *gone
         }
         g.hmin = std::min(g.hmin, c->height[i]);
         g.hmax = std::max(g.hmax, c->height[i]);
+        const double x = c->xyz[3 * i], y = c->xyz[3 * i + 1];
+        const double m[5] = {x, y, x * x, x * y, y * y};
+        for (int a = 0; a < 5; a++) g.sum[a] += m[a];
     }
+}
+
+/* The spread of a group's points across its length (x-y): the root of the smaller eigenvalue
+ * of their covariance. */
+static double depth(const pb_carve_group_cell_t &g)
+{
+    const double n = (double)g.n, mx = g.sum[0] / n, my = g.sum[1] / n;
+    const double cxx = g.sum[2] / n - mx * mx, cxy = g.sum[3] / n - mx * my, cyy = g.sum[4] / n - my * my;
+    const double half = 0.5 * (cxx + cyy), r = std::sqrt(0.25 * (cxx - cyy) * (cxx - cyy) + cxy * cxy);
+    return std::sqrt(std::max(half - r, 0.0));
 }
 
 /* Cell or group `from` taken into `into`: their points, extents and heights together. */
@@ -522,6 +536,7 @@ static void absorb(pb_carve_group_cell_t &into, const pb_carve_group_cell_t &fro
     }
     into.hmin = std::min(into.hmin, from.hmin);
     into.hmax = std::max(into.hmax, from.hmax);
+    for (int a = 0; a < 5; a++) into.sum[a] += from.sum[a];
     into.edge |= from.edge;
 }
 
@@ -540,42 +555,54 @@ void pb_carve_groups(std::vector<pb_carve_group_cell_t> *cells, const pb_carve_c
             (*cells)[n++] = g;
     }
     cells->resize(n);
-    // groups: touching cells joined (union-find)
-    std::vector<uint32_t> up(n);
-    for (size_t k = 0; k < n; k++) up[k] = (uint32_t)k;
-    auto root = [&](uint32_t k) {
-        while (up[k] != k) k = up[k] = up[up[k]];
-        return k;
+    auto through = [](const pb_carve_group_cell_t &g) { return 2 * g.through >= g.n; };
+    auto road_user = [&](const pb_carve_group_cell_t &g) {
+        return !g.edge && g.n >= (uint32_t)cfg.group_min_points && (double)g.through >= cfg.group_share * (double)g.n &&
+               g.hmin <= cfg.group_foot_m && g.hmax <= cfg.group_max_height_m &&
+               std::max(g.hi[0] - g.lo[0], g.hi[1] - g.lo[1]) >= cfg.group_min_width_m;
     };
     auto find = [&](uint64_t key) {
         auto it = std::lower_bound(cells->begin(), cells->end(), key,
                                    [](const pb_carve_group_cell_t &g, uint64_t k) { return g.key < k; });
         return it != cells->end() && it->key == key ? (int64_t)(it - cells->begin()) : (int64_t)-1;
     };
-    for (size_t k = 0; k < n; k++) {
-        int64_t v[3];
-        pb_loc::voxel_unkey((*cells)[k].key, &v[0], &v[1], &v[2]);
-        for (int dx = -1; dx <= 1; dx++)
-            for (int dy = -1; dy <= 1; dy++)
-                for (int dz = -1; dz <= 1; dz++) {
-                    uint64_t nk;
-                    int64_t j;
-                    if (!pb_loc::voxel_key(v[0] + dx, v[1] + dy, v[2] + dz, &nk) || (j = find(nk)) < 0) continue;
-                    uint32_t a = root((uint32_t)k), b = root((uint32_t)j);
-                    if (a != b) up[std::max(a, b)] = std::min(a, b);
-                }
+    std::vector<uint8_t> go(n, 0);
+    std::vector<uint32_t> up(n);
+    std::vector<pb_carve_group_cell_t> group(n);
+    // twice: every cell, then only the cells at least half seen through (apart from what they touch)
+    for (int through_only = 0; through_only < 2; through_only++) {
+        // groups: touching cells joined (union-find)
+        for (size_t k = 0; k < n; k++) up[k] = (uint32_t)k;
+        auto root = [&](uint32_t k) {
+            while (up[k] != k) k = up[k] = up[up[k]];
+            return k;
+        };
+        for (size_t k = 0; k < n; k++) {
+            if (through_only && !through((*cells)[k])) continue;
+            int64_t v[3];
+            pb_loc::voxel_unkey((*cells)[k].key, &v[0], &v[1], &v[2]);
+            for (int dx = -1; dx <= 1; dx++)
+                for (int dy = -1; dy <= 1; dy++)
+                    for (int dz = -1; dz <= 1; dz++) {
+                        uint64_t nk;
+                        int64_t j;
+                        if (!pb_loc::voxel_key(v[0] + dx, v[1] + dy, v[2] + dz, &nk) || (j = find(nk)) < 0) continue;
+                        if (through_only && !through((*cells)[(size_t)j])) continue;
+                        uint32_t a = root((uint32_t)k), b = root((uint32_t)j);
+                        if (a != b) up[std::max(a, b)] = std::min(a, b);
+                    }
+        }
+        // each group whole: the road users among them (seen through on their own: deep ones)
+        std::fill(group.begin(), group.end(), pb_carve_group_cell_t{0, 0, 0, {INFINITY, INFINITY}, {-INFINITY, -INFINITY},
+                                                                     INFINITY, -INFINITY, {0, 0, 0, 0, 0}, 0});
+        for (size_t k = 0; k < n; k++) absorb(group[root((uint32_t)k)], (*cells)[k]);
+        for (size_t k = 0; k < n; k++) {
+            const pb_carve_group_cell_t &g = group[root((uint32_t)k)];
+            if (road_user(g) && (!through_only || (through((*cells)[k]) && depth(g) >= cfg.group_min_depth_m))) go[k] = 1;
+        }
     }
-    // each group whole: the road users among them
-    std::vector<pb_carve_group_cell_t> group(n, pb_carve_group_cell_t{0, 0, 0, {INFINITY, INFINITY}, {-INFINITY, -INFINITY},
-                                                                      INFINITY, -INFINITY, 0});
-    for (size_t k = 0; k < n; k++) absorb(group[root((uint32_t)k)], (*cells)[k]);
-    auto road_user = [&](const pb_carve_group_cell_t &g) {
-        return !g.edge && g.n >= (uint32_t)cfg.group_min_points && (double)g.through >= cfg.group_share * (double)g.n &&
-               g.hmin <= cfg.group_foot_m && g.hmax <= cfg.group_max_height_m &&
-               std::max(g.hi[0] - g.lo[0], g.hi[1] - g.lo[1]) >= cfg.group_min_width_m;
-    };
     for (size_t k = 0; k < n; k++)
-        if (road_user(group[root((uint32_t)k)])) gone->push_back((*cells)[k].key);   /* in key order */
+        if (go[k]) gone->push_back((*cells)[k].key);   /* in key order */
 }
 
 /* A cell whose hits tell of road users passing by: visits no longer than limit_s, few enough of them. */

@@ -55,7 +55,12 @@
  * lowest point within group_foot_m of it), at most group_max_height_m tall and at least
  * group_min_width_m long or wide (a pole or a post, seen by one sweep and missed by the
  * next, is narrower) and lies within group_reach_m of its points seen through (a bus is 12-18
- * m long). Static structure seen through in part is joined to what holds it and stays.
+ * m long). Static structure seen through in part is joined to what holds it and stays. So
+ * would a bus that passed a parked car or a tree within a cell of it: the cells that are
+ * at least half seen through are also joined on their own, and such a group of them goes
+ * when it has a road user's shape and a footprint at least group_min_depth_m deep across its
+ * length (the spread of its points; a vehicle's side with its roof or bonnet is, the part of
+ * a rail or fence seen through is a line).
  *
  * Pure: no I/O, no clock. Ownership: pb_carve_create copies what it needs; the caller
  * frees the result with pb_carve_destroy (NULL is a no-op). */
@@ -93,6 +98,7 @@ typedef struct {
     int group_min_points = 10;
     double group_share = 0.5;        /* the share of a group's points seen through that takes it */
     double group_reach_m = 15;       /* a road user lies within this of its points seen through (x-y) */
+    double group_min_depth_m = 0.3;  /* seen through whole but touching what stays: its footprint this deep (a rail is not) */
 } pb_carve_config_t;
 
 typedef struct pb_carve pb_carve_t;
@@ -144,6 +150,7 @@ typedef struct {
     uint32_t n, through;       /* its points over the ground kept by the cells, those seen through */
     float lo[2], hi[2];        /* their x-y extent */
     float hmin, hmax;          /* their heights over the ground */
+    double sum[5];             /* their x, y, xx, xy, yy summed: the footprint's spread */
     uint8_t edge;              /* within 2 cells of group_reach_m from the nearest seed */
 } pb_carve_group_cell_t;
 typedef struct pb_carve_near pb_carve_near_t;
