@@ -469,6 +469,13 @@ pb_carve_near_t *pb_carve_near_create(const std::vector<uint64_t> &seeds, const 
 
 void pb_carve_near_destroy(pb_carve_near_t *n) { delete n; }
 
+/* A group cell (or group) holding no point yet. */
+static pb_carve_group_cell_t empty_cell(uint64_t key, bool edge)
+{
+    return pb_carve_group_cell_t{key, 0, 0, {INFINITY, INFINITY}, {-INFINITY, -INFINITY}, INFINITY, -INFINITY, {0, 0, 0, 0, 0},
+                                 (uint8_t)edge};
+}
+
 /* Steps 1-3 of pb_carve_keep: the cells' verdicts on the points. */
 static size_t keep_by_cells(const pb_carve_t *c, const std::vector<uint64_t> *gone_keys, std::vector<uint8_t> *keep);
 
@@ -494,10 +501,7 @@ void pb_carve_group_cells(const pb_carve_t *c, const std::vector<uint64_t> *gone
             const double d = near.distance(key);
             bool fresh;
             k = index.insert(key, std::isfinite(d) ? (int32_t)(cells->size() - first) : kFar, &fresh);
-            if (k != kFar)
-                cells->push_back(pb_carve_group_cell_t{key, 0, 0, {INFINITY, INFINITY}, {-INFINITY, -INFINITY}, INFINITY,
-                                                       -INFINITY, {0, 0, 0, 0, 0},
-                                                       (uint8_t)(d > cfg.group_reach_m - 2 * cfg.group_cell_m)});
+            if (k != kFar) cells->push_back(empty_cell(key, d > cfg.group_reach_m - 2 * cfg.group_cell_m));
         }
         if (k == kFar) continue;
         pb_carve_group_cell_t &g = (*cells)[first + (size_t)k];
@@ -593,8 +597,7 @@ void pb_carve_groups(std::vector<pb_carve_group_cell_t> *cells, const pb_carve_c
                     }
         }
         // each group whole: the road users among them (seen through on their own: deep ones)
-        std::fill(group.begin(), group.end(), pb_carve_group_cell_t{0, 0, 0, {INFINITY, INFINITY}, {-INFINITY, -INFINITY},
-                                                                     INFINITY, -INFINITY, {0, 0, 0, 0, 0}, 0});
+        std::fill(group.begin(), group.end(), empty_cell(0, false));
         for (size_t k = 0; k < n; k++) absorb(group[root((uint32_t)k)], (*cells)[k]);
         for (size_t k = 0; k < n; k++) {
             const pb_carve_group_cell_t &g = group[root((uint32_t)k)];
