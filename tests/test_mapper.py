@@ -13,6 +13,7 @@ import lcm
 import numpy as np
 import pytest
 from PIL import Image
+from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation, Slerp
 
 import sys
@@ -135,6 +136,12 @@ def test_map_lies_on_the_true_surfaces(drive, tmp_path):
     png = np.asarray(Image.open(drive["out"] / "report.png").convert("RGB"))
     violet = int(np.all(png == (100, 0, 170), axis=2).sum())
     assert rep["carving_views"] >= 7 and rep["map_points_carved_seen_through"] > 1670, rep
+    # the map holds the returns within the carving's 60 m only: no point farther than that
+    # (and the LiDAR's lever, 1.9 m, and the sweep's motion) from the path; the rest counted
+    t, P, _ = read_tum(drive["out"] / "trajectory.tum")
+    far, _ = cKDTree(P).query(pts)
+    assert rep["map_range_m"] == 60 and far.max() < 60 + 1.9 + 1.5, (far.max(), rep["map_range_m"])
+    assert rep["map_returns_beyond_range"] > 0, rep
     assert violet > 574, violet
 
 

@@ -80,6 +80,7 @@ struct Run {
     pb_picture_layers_t layers;
     pb_pose_track_t *track = nullptr;
     long placed = 0, unplaced = 0;
+    long beyond_range = 0;   /* returns left out of the map: farther than the carving reaches (pass 2) */
     /* the map in tiles (pass 2 -> map.pcd): their folder, their edge (--tile-m) */
     std::string tiles_dir;
     double tile_m = 32;

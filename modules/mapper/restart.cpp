@@ -242,7 +242,7 @@ int checkpoint_read(Run *R, pb_err_t *err)
 
 /* ---- Restart inside the later steps (mapper.h). */
 static const char kPosesMagic[8] = {'P', 'B', 'M', 'A', 'P', 'P', 'S', '1'};
-static const char kCarvedMagic[8] = {'P', 'B', 'M', 'A', 'P', 'C', 'V', '3'};
+static const char kCarvedMagic[8] = {'P', 'B', 'M', 'A', 'P', 'C', 'V', '4'};
 
 /* What a stage checkpoint must match: the mapper's build, the options the later steps depend
  * on, every drive's log (as the odometry's checkpoints) and the poses given. */
@@ -332,7 +332,8 @@ int stage_write_carved(Run *R, pb_err_t *err)
     w.put_string(stage_id(R));
     w.put(R->poses_sum);
     for (long v : {R->placed, R->unplaced, R->tiles_held_max, R->carve_tiles_held_max, R->tiles_paged_out,
-                   R->carve_tiles_paged_out, R->tiles_paged_in, R->carve_tiles_paged_in}) w.put((int64_t)v);
+                   R->carve_tiles_paged_out, R->tiles_paged_in, R->carve_tiles_paged_in, R->beyond_range})
+        w.put((int64_t)v);
     w.put(R->voxels_held_max); w.put((uint64_t)R->voxels); w.put((uint64_t)R->map_points); w.put((uint64_t)R->carved);
     w.put((uint64_t)R->carved_groups); w.put((int64_t)R->views);
     std::vector<int64_t> tiles(R->carve_tiles.begin(), R->carve_tiles.end());
@@ -448,7 +449,7 @@ int stage_read(Run *R, int *done, pb_err_t *)
     why = stage_open(R, "carved.bin", kCarvedMagic, &buf, &r, &sum);
     if (why == "none") return 0;
     if (why.empty() && r.get<uint64_t>() != R->poses_sum) why = "made after another poses.bin";
-    std::vector<int64_t> counts(8), tiles;
+    std::vector<int64_t> counts(9), tiles;
     for (int64_t &v : counts) v = r.get<int64_t>();
     const int64_t voxels_held_max = r.get<int64_t>();
     const uint64_t voxels = r.get<uint64_t>(), map_points = r.get<uint64_t>(), carved = r.get<uint64_t>();
@@ -479,9 +480,9 @@ int stage_read(Run *R, int *done, pb_err_t *)
         std::fprintf(stderr, "mapper: %s: %s; the map and the carving run again\n", R->path("carved.bin").c_str(), why.c_str());
         return 0;
     }
-    long *dst[8] = {&R->placed, &R->unplaced, &R->tiles_held_max, &R->carve_tiles_held_max, &R->tiles_paged_out,
-                    &R->carve_tiles_paged_out, &R->tiles_paged_in, &R->carve_tiles_paged_in};
-    for (int i = 0; i < 8; i++) *dst[i] = (long)counts[(size_t)i];
+    long *dst[9] = {&R->placed, &R->unplaced, &R->tiles_held_max, &R->carve_tiles_held_max, &R->tiles_paged_out,
+                    &R->carve_tiles_paged_out, &R->tiles_paged_in, &R->carve_tiles_paged_in, &R->beyond_range};
+    for (int i = 0; i < 9; i++) *dst[i] = (long)counts[(size_t)i];
     R->voxels_held_max = voxels_held_max;
     R->voxels = (size_t)voxels;
     R->map_points = (size_t)map_points;

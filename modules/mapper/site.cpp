@@ -6,6 +6,7 @@
 #include <map>
 #include <malloc.h>
 #include "mapper.h"
+#include "carve.h"
 #include "map_source.h"
 #include <cjson/cJSON.h>
 
@@ -298,6 +299,8 @@ int write_report(const Run &R, const double cpu_ms[4], double wall_s, pb_err_t *
     cJSON_AddStringToObject(j, "picture", "report.png");
     cJSON_AddNumberToObject(j, "picture_m_per_px", R.m_per_px);
     cJSON_AddNumberToObject(j, "map_points", (double)R.map_points);
+    cJSON_AddNumberToObject(j, "map_range_m", pb_carve_config_t{}.max_range_m);
+    cJSON_AddNumberToObject(j, "map_returns_beyond_range", (double)R.beyond_range);
     cJSON_AddNumberToObject(j, "map_points_carved", (double)R.carved);
     cJSON_AddNumberToObject(j, "map_points_carved_seen_through", (double)R.carved_groups);
     cJSON_AddNumberToObject(j, "carving_views", (double)R.views);

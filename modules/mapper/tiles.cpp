@@ -38,7 +38,7 @@ static bool sweep_reach(const Run *R, const pb_pose_track_t *track, const pb_poi
 }
 
 /* The points of a sweep within range_m of the LiDAR, copied into the arrays of *out (which
- * point into *buf). The map holds only what the carving can judge: a return farther than its
+ * point into *buf); returns how many were farther. The map holds only what the carving can judge: a return farther than its
  * rays and views reach (max_range_m) could be a car that left, and nothing would say so; it is
  * also the least accurate (a tenth of a degree of the pose is 0.1 m at 60 m). */
 struct PointsBuf {
@@ -46,7 +46,7 @@ struct PointsBuf {
     std::vector<int32_t> offset_us;
     std::vector<uint8_t> ring;
 };
-static void points_within(const pb_points_t &in, double range_m, PointsBuf *buf, pb_points_t *out)
+static long points_within(const pb_points_t &in, double range_m, PointsBuf *buf, pb_points_t *out)
 {
     for (auto *v : {&buf->x, &buf->y, &buf->z, &buf->intensity}) v->clear();
     buf->offset_us.clear();
@@ -64,6 +64,7 @@ static void points_within(const pb_points_t &in, double range_m, PointsBuf *buf,
     *out = pb_points_t{(int)buf->x.size(), (int)buf->x.size(), buf->x.data(), buf->y.data(), buf->z.data(),
                        in.intensity ? buf->intensity.data() : nullptr, in.offset_us ? buf->offset_us.data() : nullptr,
                        in.ring ? buf->ring.data() : nullptr};
+    return in.n - out->n;
 }
 
 /* Tile k of the map's grid moved out into *vox (empty when not held). */
@@ -159,7 +160,7 @@ int pass_map(Run *R, pb_err_t *err)
     int rc = for_each_drive_sweep(R, "mapper: map", 1,
         [&](Run *D, int64_t utime, const std::vector<float> &, const pb_points_t &all, const pb_event_t &, pb_err_t *e) {
             sweep++;
-            points_within(all, range_m, &buf, &pts);
+            R->beyond_range += points_within(all, range_m, &buf, &pts);
             // the tiles it can reach held
             int64_t lo[2], hi[2];
             if (sweep_reach(R, D->track, pts, utime, -1, grid, lo, hi))
