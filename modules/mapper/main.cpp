@@ -21,8 +21,10 @@ static void usage(FILE *f)
         "Builds a prior map from a recorded drive by LiDAR odometry: every sweep is\n"
         "registered to a rolling local map of the sweeps before it (the localizer's\n"
         "registration), predicted by dead reckoning on VEHICLE_SPEED and the IMU's gyro when\n"
-        "the log has them (else the last step's motion), then every point is placed with the\n"
-        "pose at its own time.\n"
+        "the log has them (else the last step's motion), then every return within 60 m of the\n"
+        "LiDAR is placed with the pose at its own time (farther ones are left out and counted:\n"
+        "what moved is carved out by rays and views that reach 60 m, so nothing farther could be\n"
+        "checked).\n"
         
         "Where the drive passes a place again, the sweep is matched to the earlier pass's map\n"
         "and the poses are solved again with these loops (Ceres pose graph).\n"

@@ -354,15 +354,17 @@ int write_report(const Run &R, const double cpu_ms[4], double wall_s, pb_err_t *
                      implausible.size(), accel_checked, implausible.front(),
                      R.poses_path ? "they are likely wrong" : "it is likely lost");
     if (!R.quiet && R.poses_path)
-        std::fprintf(stderr, "mapper: %zu poses of %s over %.1f m in %.1f s of drive; %zu map points (%zu carved: moved); "
-                     "%.1f s wall\n", R.traj.size(), R.poses_path, path_m, span_s, R.map_points, R.carved, wall_s);
+        std::fprintf(stderr, "mapper: %zu poses of %s over %.1f m in %.1f s of drive; %zu map points (%zu carved: moved; "
+                     "%ld returns beyond %.0f m left out); %.1f s wall\n", R.traj.size(), R.poses_path, path_m, span_s,
+                     R.map_points, R.carved, R.beyond_range, pb_carve_config_t{}.max_range_m, wall_s);
     else if (!R.quiet)
         std::fprintf(stderr,
                      "mapper: %zu sweeps over %.1f m in %.1f s of drive (tracked %ld, searched %ld, weak %ld, "
                      "predicted %ld); %d loop(s) of %d tried, largest correction %.2f m; odometry %.2f ms CPU per sweep "
-                     "(mean, every thread), %zu map points (%zu carved: moved); %.1f s wall\n",
+                     "(mean, every thread), %zu map points (%zu carved: moved; %ld returns beyond %.0f m left out); %.1f s wall\n",
                      R.traj.size(), path_m, span_s, by_status[PB_ODOM_TRACKED], by_status[PB_ODOM_SEARCHED],
                      by_status[PB_ODOM_WEAK], by_status[PB_ODOM_PREDICTED], R.loops.verified, R.loops.candidates,
-                     R.loops.max_change_m, (cpu_ms[1] - cpu_ms[0]) / (double)R.traj.size(), R.map_points, R.carved, wall_s);
+                     R.loops.max_change_m, (cpu_ms[1] - cpu_ms[0]) / (double)R.traj.size(), R.map_points, R.carved,
+                     R.beyond_range, pb_carve_config_t{}.max_range_m, wall_s);
     return 0;
 }
