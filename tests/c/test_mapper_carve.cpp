@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "mapper/core/carve.h"
+#include "voxel_hash.h"
 #include "pb_check.h"
 
 /* The verdicts on four single-point cells against the expected ones (1 keep, 0 carved); c is
@@ -448,6 +449,55 @@ static void views_test(const pb_ground_t *ground)
     pb_carve_destroy(c);
 }
 
+/* A group cell of n points over the ground at x, y (0.5 m cells), kept of them by the cells'
+ * carving and through of those seen through; carved: the entry of the points the cells took. */
+static pb_carve_group_cell_t group_cell(double x, double y, double z, uint32_t n, uint32_t through, bool carved)
+{
+    uint64_t key = 0;
+    pb_loc::voxel_key((int64_t)std::floor(x / 0.5), (int64_t)std::floor(y / 0.5), (int64_t)std::floor(z / 0.5), &key);
+    pb_carve_group_cell_t g{key, n, carved ? 0u : n, carved ? 0u : through, {(float)x, (float)y}, {(float)x + 0.4f, (float)y + 0.4f},
+                            (float)z, (float)z + 0.4f, {0, 0, 0, 0, 0}, 0, (uint8_t)carved};
+    for (uint32_t i = 0; i < n; i++) {   /* the points spread over the cell's footprint */
+        const double px = x + 0.4 * (i % 5) / 4, py = y + 0.4 * (i / 5 % 5) / 4;
+        const double m[5] = {px, py, px * px, px * py, py * py};
+        for (int a = 0; a < 5; a++) g.sum[a] += m[a];
+    }
+    return g;
+}
+
+/* What the cells' own carving took of a car joins its groups: a car that drove past a wall,
+ * the rays took its body (carved entries along x 10-14, y 2-3.5) but for three points at its
+ * rear (seen through by the views); the wall beside it (x 9-15, y 4, not seen through) stays.
+ * Judged on the kept points alone the three are no road user (3 points, 0.4 m) and stay. */
+static void groups_with_carved_test()
+{
+    std::vector<pb_carve_group_cell_t> cells;
+    for (double x = 10; x < 14; x += 0.5)
+        for (double y = 2; y < 3.5; y += 0.5)
+            for (double z = 0; z < 1.5; z += 0.5) cells.push_back(group_cell(x, y, z, 4, 0, true));
+    cells.push_back(group_cell(14, 2.5, 0.5, 3, 3, false));   /* the rear, seen through */
+    for (double x = 9; x < 15; x += 0.5)
+        for (double z = 0; z < 2; z += 0.5) cells.push_back(group_cell(x, 4, z, 6, 0, false));   /* the wall */
+    const uint64_t rear = group_cell(14, 2.5, 0.5, 3, 3, false).key;
+    std::vector<uint64_t> wall;
+    for (double x = 9; x < 15; x += 0.5)
+        for (double z = 0; z < 2; z += 0.5) wall.push_back(group_cell(x, 4, z, 6, 0, false).key);
+    std::vector<pb_carve_group_cell_t> kept_only;
+    for (const pb_carve_group_cell_t &g : cells)
+        if (!g.carved) kept_only.push_back(g);
+    std::vector<uint64_t> gone, gone_kept_only;
+    pb_carve_groups(&cells, nullptr, &gone);
+    pb_carve_groups(&kept_only, nullptr, &gone_kept_only);
+    std::printf("groups with the cells' carving: rear %s, wall cells gone %zu; on the kept points alone: rear %s\n",
+                std::binary_search(gone.begin(), gone.end(), rear) ? "gone" : "kept",
+                (size_t)std::count_if(wall.begin(), wall.end(), [&](uint64_t k) { return std::binary_search(gone.begin(), gone.end(), k); }),
+                std::binary_search(gone_kept_only.begin(), gone_kept_only.end(), rear) ? "gone" : "kept");
+    CHECK(std::is_sorted(gone.begin(), gone.end()));
+    CHECK(std::binary_search(gone.begin(), gone.end(), rear));
+    CHECK(!std::binary_search(gone_kept_only.begin(), gone_kept_only.end(), rear));
+    for (uint64_t k : wall) CHECK(!std::binary_search(gone.begin(), gone.end(), k));
+}
+
 int main()
 {
     /* the map: a wall at y = 10 (x 0..60, z 0..4), a box at x 28..32, y 4..6, z 0..1.5, the
@@ -524,6 +574,7 @@ int main()
     visits_test();
     drives_test();
     views_test(ground);
+    groups_with_carved_test();
     pb_ground_destroy(ground);
     return pb_check_report("test_mapper_carve");
 }

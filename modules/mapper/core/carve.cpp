@@ -470,10 +470,10 @@ pb_carve_near_t *pb_carve_near_create(const std::vector<uint64_t> &seeds, const 
 void pb_carve_near_destroy(pb_carve_near_t *n) { delete n; }
 
 /* A group cell (or group) holding no point yet. */
-static pb_carve_group_cell_t empty_cell(uint64_t key, bool edge)
+static pb_carve_group_cell_t empty_cell(uint64_t key, bool edge, bool carved = false)
 {
-    return pb_carve_group_cell_t{key, 0, 0, {INFINITY, INFINITY}, {-INFINITY, -INFINITY}, INFINITY, -INFINITY, {0, 0, 0, 0, 0},
-                                 (uint8_t)edge};
+    return pb_carve_group_cell_t{key, 0, 0, 0, {INFINITY, INFINITY}, {-INFINITY, -INFINITY}, INFINITY, -INFINITY, {0, 0, 0, 0, 0},
+                                 (uint8_t)edge, (uint8_t)carved};
 }
 
 /* Steps 1-3 of pb_carve_keep: the cells' verdicts on the points. */
@@ -490,23 +490,29 @@ void pb_carve_group_cells(const pb_carve_t *c, const std::vector<uint64_t> *gone
     if (!near.any_near(lo, hi)) return;   /* no seed within reach of this part */
     std::vector<uint8_t> keep;
     keep_by_cells(c, gone_keys, &keep);
-    pb_loc::VoxelHash index(1024);   /* group cell -> its entry in cells (from first), or kFar */
+    /* group cell -> its entry in cells (from first), or kFar: one for the kept points, one for
+     * those the cells carved */
+    pb_loc::VoxelHash index[2] = {pb_loc::VoxelHash(1024), pb_loc::VoxelHash(1024)};
     constexpr int32_t kFar = -2;
     const size_t first = cells->size();
     for (size_t i = 0; i < c->over.size(); i++) {
         uint64_t key;
-        if (!keep[c->over[i]] || !group_key(c, i, &key)) continue;
-        int32_t k = index.find(key);
+        if (!group_key(c, i, &key)) continue;
+        const bool kept = keep[c->over[i]];
+        int32_t k = index[!kept].find(key);
         if (k == -1) {
             const double d = near.distance(key);
             bool fresh;
-            k = index.insert(key, std::isfinite(d) ? (int32_t)(cells->size() - first) : kFar, &fresh);
-            if (k != kFar) cells->push_back(empty_cell(key, d > cfg.group_reach_m - 2 * cfg.group_cell_m));
+            k = index[!kept].insert(key, std::isfinite(d) ? (int32_t)(cells->size() - first) : kFar, &fresh);
+            if (k != kFar) cells->push_back(empty_cell(key, d > cfg.group_reach_m - 2 * cfg.group_cell_m, !kept));
         }
         if (k == kFar) continue;
         pb_carve_group_cell_t &g = (*cells)[first + (size_t)k];
         g.n++;
-        g.through += seen_through(c, i);
+        if (kept) {
+            g.kept++;
+            g.through += seen_through(c, i);
+        }
         for (int a = 0; a < 2; a++) {
             g.lo[a] = std::min(g.lo[a], c->xyz[3 * i + a]);
             g.hi[a] = std::max(g.hi[a], c->xyz[3 * i + a]);
@@ -533,6 +539,7 @@ static double depth(const pb_carve_group_cell_t &g)
 static void absorb(pb_carve_group_cell_t &into, const pb_carve_group_cell_t &from)
 {
     into.n += from.n;
+    into.kept += from.kept;
     into.through += from.through;
     for (int a = 0; a < 2; a++) {
         into.lo[a] = std::min(into.lo[a], from.lo[a]);
@@ -544,11 +551,10 @@ static void absorb(pb_carve_group_cell_t &into, const pb_carve_group_cell_t &fro
     into.edge |= from.edge;
 }
 
-void pb_carve_groups(std::vector<pb_carve_group_cell_t> *cells, const pb_carve_config_t *cfg_in, std::vector<uint64_t> *gone)
+/* The groups of these cells that go (their keys appended to gone, in key order). */
+static void judge_groups(std::vector<pb_carve_group_cell_t> *cells, const pb_carve_config_t &cfg, std::vector<uint64_t> *gone)
 {
-    pb_carve_config_t cfg;
-    if (cfg_in) cfg = *cfg_in;
-    // one entry per cell (a cell's points may have come from two parts)
+    // one entry per cell (a cell's points may have come from two parts, or been kept and carved)
     std::sort(cells->begin(), cells->end(), [](const pb_carve_group_cell_t &x, const pb_carve_group_cell_t &y) { return x.key < y.key; });
     size_t n = 0;
     for (size_t i = 0; i < cells->size(); i++) {
@@ -559,9 +565,9 @@ void pb_carve_groups(std::vector<pb_carve_group_cell_t> *cells, const pb_carve_c
             (*cells)[n++] = g;
     }
     cells->resize(n);
-    auto through = [](const pb_carve_group_cell_t &g) { return 2 * g.through >= g.n; };
+    auto through = [](const pb_carve_group_cell_t &g) { return 2 * g.through >= g.kept; };
     auto road_user = [&](const pb_carve_group_cell_t &g) {
-        return !g.edge && g.n >= (uint32_t)cfg.group_min_points && (double)g.through >= cfg.group_share * (double)g.n &&
+        return !g.edge && g.n >= (uint32_t)cfg.group_min_points && (double)g.through >= cfg.group_share * (double)g.kept &&
                g.hmin <= cfg.group_foot_m && g.hmax <= cfg.group_max_height_m &&
                std::max(g.hi[0] - g.lo[0], g.hi[1] - g.lo[1]) >= cfg.group_min_width_m;
     };
@@ -606,6 +612,21 @@ void pb_carve_groups(std::vector<pb_carve_group_cell_t> *cells, const pb_carve_c
     }
     for (size_t k = 0; k < n; k++)
         if (go[k]) gone->push_back((*cells)[k].key);   /* in key order */
+}
+
+void pb_carve_groups(std::vector<pb_carve_group_cell_t> *cells, const pb_carve_config_t *cfg_in, std::vector<uint64_t> *gone)
+{
+    pb_carve_config_t cfg;
+    if (cfg_in) cfg = *cfg_in;
+    // the groups of the kept points, then of them with the points the cells carved (a car's
+    // rest beside what the rays took of it): what either takes goes
+    std::vector<pb_carve_group_cell_t> kept;
+    for (const pb_carve_group_cell_t &g : *cells)
+        if (!g.carved) kept.push_back(g);
+    judge_groups(&kept, cfg, gone);
+    judge_groups(cells, cfg, gone);
+    std::sort(gone->begin(), gone->end());
+    gone->erase(std::unique(gone->begin(), gone->end()), gone->end());
 }
 
 /* A cell whose hits tell of road users passing by: visits no longer than limit_s, few enough of them. */

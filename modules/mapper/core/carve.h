@@ -60,7 +60,9 @@
  * at least half seen through are also joined on their own, and such a group of them goes
  * when it has a road user's shape and a footprint at least group_min_depth_m deep across its
  * length (the spread of its points; a vehicle's side with its roof or bonnet is, the part of
- * a rail or fence seen through is a line).
+ * a rail or fence seen through is a line). And the groups are judged again with the points
+ * the cells carved among them (they count for the size and shape, not the share): what the
+ * rays took of a car joins the few points of it they left, which go when seen through.
  *
  * Pure: no I/O, no clock. Ownership: pb_carve_create copies what it needs; the caller
  * frees the result with pb_carve_destroy (NULL is a no-op). */
@@ -141,17 +143,19 @@ void pb_carve_gone(const pb_carve_t *c, std::vector<uint64_t> *keys);
 /* The groups over parts: every part's seeds (the group cells of its points over the ground
  * seen through, appended to keys), then with all of them indexed once (pb_carve_near_create;
  * the caller destroys it) every part's cells within group_reach_m of a seed (appended to
- * cells), then all those cells joined into groups: the
+ * cells: per cell an entry of the points the cells kept, one of those they carved), then all
+ * those cells joined into groups, once without the carved entries and once with them: the
  * sorted keys of the cells whose groups go (appended to gone). A group reaching farther than
  * group_reach_m from every seed is no road user and stays, so the few cells gathered decide
  * as the whole map's would. */
 typedef struct {
     uint64_t key;              /* the group cell */
-    uint32_t n, through;       /* its points over the ground kept by the cells, those seen through */
+    uint32_t n, kept, through; /* its points over the ground, those the cells kept, those of them seen through */
     float lo[2], hi[2];        /* their x-y extent */
     float hmin, hmax;          /* their heights over the ground */
     double sum[5];             /* their x, y, xx, xy, yy summed: the footprint's spread */
     uint8_t edge;              /* within 2 cells of group_reach_m from the nearest seed */
+    uint8_t carved;            /* 1: the entry of the cell's points the cells carved (kept 0) */
 } pb_carve_group_cell_t;
 typedef struct pb_carve_near pb_carve_near_t;
 void pb_carve_seeds(const pb_carve_t *c, std::vector<uint64_t> *keys);
