@@ -171,6 +171,8 @@ inline uint64_t mix(uint64_t k)
 struct pb_map_builder {
     double voxel = 0, inv = 0;
     int64_t points_in = 0;
+    float max_range2 = 0;        // points farther than its root left out (0: none) ...
+    int64_t points_beyond = 0;   // ... and counted
     // voxel mode: open-addressing table of indices (+1, 0 = empty) into voxels
     VoxelStore voxels;
     std::vector<uint32_t> slots;
@@ -459,6 +461,10 @@ static int add_points(pb_map_builder_t *b, const pb_points_t *pts, TransformOf t
             /* a point at the sensor's own origin is no return (Velodyne organized clouds
              * write (0, 0, 0)): a trail of them along the drive is not part of the world */
             if (pts->x[i] == 0 && pts->y[i] == 0 && pts->z[i] == 0) continue;
+            if (b->max_range2 > 0 && pts->x[i] * pts->x[i] + pts->y[i] * pts->y[i] + pts->z[i] * pts->z[i] > b->max_range2) {
+                b->points_beyond++;
+                continue;
+            }
             const Rt &T = transform_of(i);
             Eigen::Vector3d p = T.R * Eigen::Vector3d(pts->x[i], pts->y[i], pts->z[i]) + T.t;
             if (batch.push(p, pts->intensity ? pts->intensity[i] : 0.f) != 0) return batch.fail(err);
@@ -516,6 +522,8 @@ extern "C" int pb_map_builder_add_timed(pb_map_builder_t *b, const pb_points_t *
 }
 
 extern "C" int64_t pb_map_builder_points_in(const pb_map_builder_t *b) { return b->points_in; }
+extern "C" void pb_map_builder_set_max_range(pb_map_builder_t *b, double max_m) { b->max_range2 = max_m > 0 ? (float)(max_m * max_m) : 0; }
+extern "C" int64_t pb_map_builder_points_beyond(const pb_map_builder_t *b) { return b->points_beyond; }
 extern "C" int64_t pb_map_builder_size(const pb_map_builder_t *b) { return b->size(); }
 
 extern "C" int pb_map_builder_bounds(const pb_map_builder_t *b, double mn[3], double mx[3])

@@ -69,6 +69,10 @@ int pb_map_builder_add_timed(pb_map_builder_t *b, const pb_points_t *pts, int64_
                              pb_err_t *err);
 
 int64_t pb_map_builder_points_in(const pb_map_builder_t *b);   /* points added */
+/* Points farther than max_m from the sensor (their frame's origin) left out of the map from
+ * now on, and counted (pb_map_builder_points_beyond); max_m <= 0: none left out (the default). */
+void pb_map_builder_set_max_range(pb_map_builder_t *b, double max_m);
+int64_t pb_map_builder_points_beyond(const pb_map_builder_t *b);
 int64_t pb_map_builder_size(const pb_map_builder_t *b);        /* points in the map */
 /* Extent of the map's points; returns 0, or -1 if empty. */
 int pb_map_builder_bounds(const pb_map_builder_t *b, double min[3], double max[3]);

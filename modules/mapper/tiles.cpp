@@ -13,8 +13,8 @@
 #include "ground_build.h"
 #include "pb_split.h"
 
-/* The tiles of grid within reach of a sweep's points (range_m from the LiDAR, or its
- * farthest point's range when range_m < 0), into [lo, hi] (x, y): around the base's
+/* The tiles of grid within reach of a sweep's points (the farthest point's range, of those
+ * within range_m of the LiDAR), into [lo, hi] (x, y): around the base's
  * positions at its first and last point's times, with the LiDAR's lever and 2 m (the path's
  * bend within a sweep). false when the track does not cover the sweep (pass 2 skips it). */
 static bool sweep_reach(const Run *R, const pb_pose_track_t *track, const pb_points_t &pts, int64_t utime, double range_m,
@@ -22,49 +22,21 @@ static bool sweep_reach(const Run *R, const pb_pose_track_t *track, const pb_poi
 {
     int32_t omin = pts.offset_us && pts.n > 0 ? pts.offset_us[0] : 0, omax = omin;   /* as pb_map_builder_add_timed */
     double r2 = 0;
+    const float range2 = (float)(range_m * range_m);   /* as pb_map_builder_set_max_range */
     for (int i = 0; i < pts.n; i++) {
         if (pts.offset_us) { omin = std::min(omin, pts.offset_us[i]); omax = std::max(omax, pts.offset_us[i]); }
-        if (range_m < 0) r2 = std::max(r2, (double)pts.x[i] * pts.x[i] + (double)pts.y[i] * pts.y[i] + (double)pts.z[i] * pts.z[i]);
+        if (pts.x[i] * pts.x[i] + pts.y[i] * pts.y[i] + pts.z[i] * pts.z[i] <= range2)
+            r2 = std::max(r2, (double)pts.x[i] * pts.x[i] + (double)pts.y[i] * pts.y[i] + (double)pts.z[i] * pts.z[i]);
     }
     pb_transform_t a, b;
     if (!pb_pose_track_at(track, utime + omin, &a) || !pb_pose_track_at(track, utime + omax, &b)) return false;
     const double *l = R->veh.base_from_lidar.t;
-    const double reach = (range_m < 0 ? std::sqrt(r2) : range_m) + std::sqrt(l[0] * l[0] + l[1] * l[1] + l[2] * l[2]) + 2;
+    const double reach = std::sqrt(r2) + std::sqrt(l[0] * l[0] + l[1] * l[1] + l[2] * l[2]) + 2;
     for (int k = 0; k < 2; k++) {
         lo[k] = grid.of(std::min(a.t[k], b.t[k]) - reach);
         hi[k] = grid.of(std::max(a.t[k], b.t[k]) + reach);
     }
     return true;
-}
-
-/* The points of a sweep within range_m of the LiDAR, copied into the arrays of *out (which
- * point into *buf); returns how many were farther. The map holds only what the carving can judge: a return farther than its
- * rays and views reach (max_range_m) could be a car that left, and nothing would say so; it is
- * also the least accurate (a tenth of a degree of the pose is 0.1 m at 60 m). */
-struct PointsBuf {
-    std::vector<float> x, y, z, intensity;
-    std::vector<int32_t> offset_us;
-    std::vector<uint8_t> ring;
-};
-static long points_within(const pb_points_t &in, double range_m, PointsBuf *buf, pb_points_t *out)
-{
-    for (auto *v : {&buf->x, &buf->y, &buf->z, &buf->intensity}) v->clear();
-    buf->offset_us.clear();
-    buf->ring.clear();
-    const float r2 = (float)(range_m * range_m);
-    for (int i = 0; i < in.n; i++) {
-        if (in.x[i] * in.x[i] + in.y[i] * in.y[i] + in.z[i] * in.z[i] > r2) continue;
-        buf->x.push_back(in.x[i]);
-        buf->y.push_back(in.y[i]);
-        buf->z.push_back(in.z[i]);
-        buf->intensity.push_back(in.intensity ? in.intensity[i] : 0.0f);
-        buf->offset_us.push_back(in.offset_us ? in.offset_us[i] : 0);
-        buf->ring.push_back(in.ring ? in.ring[i] : 255);
-    }
-    *out = pb_points_t{(int)buf->x.size(), (int)buf->x.size(), buf->x.data(), buf->y.data(), buf->z.data(),
-                       in.intensity ? buf->intensity.data() : nullptr, in.offset_us ? buf->offset_us.data() : nullptr,
-                       in.ring ? buf->ring.data() : nullptr};
-    return in.n - out->n;
 }
 
 /* Tile k of the map's grid moved out into *vox (empty when not held). */
@@ -112,7 +84,7 @@ static int to_carving_tiles(Run *R, pb_map_builder_t *map, std::vector<int64_t> 
 }
 
 /* Pass 2: the map, every return within the carving's reach with the pose at its time
- * (points_within), in tiles: those the sweep can
+ * (pb_map_builder_set_max_range), in tiles: those the sweep can
  * reach are held (paged back in when they were out), those no sweep of the last 20 reached
  * are paged out; of every drive placed, one after the other. Then the finished voxels are
  * sorted into the carving's tiles. The poses are at the sweeps' middles: the track is
@@ -141,6 +113,11 @@ int pass_map(Run *R, pb_err_t *err)
     const TileGrid grid{1.0 / R->voxel, std::max<int64_t>(1, std::lround(R->tile_m / R->voxel))};
     pb_map_builder_t *map = pb_map_builder_create_tiled(R->voxel, (int)grid.per, err);
     if (!map) return -1;
+    /* The map holds only what the carving can judge: a return farther than its rays and views
+     * reach (max_range_m) could be a car that left, and nothing would say so; it is also the
+     * least accurate (a tenth of a degree of the pose is 0.1 m at 60 m). */
+    const double range_m = pb_carve_config_t{}.max_range_m;
+    pb_map_builder_set_max_range(map, range_m);
     std::unordered_map<int64_t, long> held;   /* tile -> the sweep that last reached it */
     std::unordered_set<int64_t> out;           /* tiles paged out */
     std::vector<pb_map_voxel_t> vox;
@@ -154,16 +131,12 @@ int pass_map(Run *R, pb_err_t *err)
         return tile_write(tile_path(R, 'v', k), vox.data(), vox.size(), false, e);
     };
     long sweep = 0;
-    const double range_m = pb_carve_config_t{}.max_range_m;
-    PointsBuf buf;
-    pb_points_t pts;
     int rc = for_each_drive_sweep(R, "mapper: map", 1,
-        [&](Run *D, int64_t utime, const std::vector<float> &, const pb_points_t &all, const pb_event_t &, pb_err_t *e) {
+        [&](Run *D, int64_t utime, const std::vector<float> &, const pb_points_t &pts, const pb_event_t &, pb_err_t *e) {
             sweep++;
-            R->beyond_range += points_within(all, range_m, &buf, &pts);
             // the tiles it can reach held
             int64_t lo[2], hi[2];
-            if (sweep_reach(R, D->track, pts, utime, -1, grid, lo, hi))
+            if (sweep_reach(R, D->track, pts, utime, range_m, grid, lo, hi))
                 for (int64_t tx = lo[0]; tx <= hi[0]; tx++)
                     for (int64_t ty = lo[1]; ty <= hi[1]; ty++) {
                         const int64_t k = tile_key(tx, ty);
@@ -199,6 +172,7 @@ int pass_map(Run *R, pb_err_t *err)
             }
             return 0;
         }, err);
+    R->beyond_range = pb_map_builder_points_beyond(map);
     // every tile's finished points into the carving's tiles
     std::vector<int64_t> all(out.begin(), out.end());
     for (const auto &h : held) all.push_back(h.first);

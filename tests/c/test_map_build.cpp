@@ -98,5 +98,22 @@ int main()
     CHECK_CONTAINS(err.msg, "put back while held");
     pb_map_builder_destroy(whole);
     pb_map_builder_destroy(tiled);
+    /* a range limit: the points farther than it from the sensor are left out and counted (the
+     * frame's origin is the sensor's, wherever the scan is placed) */
+    {
+        float px[4] = {3, 0, 59.9f, 70}, py[4] = {4, 0, 0, 0}, pz[4] = {0, 0, 0, 1}, pi[4] = {1, 1, 1, 1};
+        pb_points_t four = {};
+        four.n = 4; four.x = px; four.y = py; four.z = pz; four.intensity = pi;
+        pb_transform_t far = {{1000, 0, 0}, {1, 0, 0, 0}};
+        pb_map_builder_t *b = pb_map_builder_create(0, &err);
+        pb_map_builder_set_max_range(b, 60);
+        CHECK_OK(pb_map_builder_add(b, &four, &far, &err), err.msg);
+        /* (0, 0, 0) is no return, (70, 0, 1) beyond 60 m */
+        CHECK(pb_map_builder_size(b) == 2 && pb_map_builder_points_beyond(b) == 1);
+        pb_map_builder_set_max_range(b, 0);
+        CHECK_OK(pb_map_builder_add(b, &four, &far, &err), err.msg);
+        CHECK(pb_map_builder_size(b) == 5 && pb_map_builder_points_beyond(b) == 1);
+        pb_map_builder_destroy(b);
+    }
     return pb_check_report("test_map_build");
 }
