@@ -426,7 +426,8 @@ int pass_carve(Run *R, const pb_ground_t *ground, pb_err_t *err)
         if (returns.empty() || !pb_pose_track_at(D->track, utime + (olo + (int64_t)ohi) / 2, &t)) return;
         const Eigen::Isometry3d M = pb_reg_from_transform(&t) * bl;
         Eigen::Matrix<double, 3, 3, Eigen::RowMajor> Rm = M.rotation();
-        pb_carve_view_t *v = pb_carve_view_create(returns.data(), beam.data(), beam.size(), M.translation().data(), Rm.data());
+        pb_carve_view_t *v = pb_carve_view_create(returns.data(), beam.data(), beam.size(), M.translation().data(), Rm.data(),
+                                                  tiles.ground);
         std::vector<pb_carve_t *> parts;
         for (pb_carve_t *c : tiles_in_reach)
             if (c) parts.push_back(c);

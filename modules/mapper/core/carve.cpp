@@ -54,10 +54,11 @@ inline uint8_t eighth_bit(const double p[3], const double lo[3], double half_m)
 
 struct pb_carve {
     pb_carve_config_t cfg;
-    /* the views' points: those more than group_ground_m over the ground (only they join
-     * groups), and per such point its x y z, its height, and (saturating) the views that saw
-     * through it, that saw it, that hit it (its bin's return at it), that saw through it after
-     * its last hit so far, and between two hits */
+    /* the views' points: those more than low_point_m over the ground (those more than
+     * group_ground_m join groups, the others are judged alone), and per such point its x y z,
+     * its height, and (saturating) the views that saw through it, that saw it, that hit it
+     * (its bin's return at it), that saw through it after its last hit so far, and between
+     * two hits */
     std::vector<uint32_t> over;
     std::vector<float> xyz, height;
     std::vector<uint8_t> through, seen, hit, since_hit, inside;
@@ -88,7 +89,7 @@ pb_carve_t *pb_carve_create(const float *xyz, size_t n, size_t stride, const pb_
     for (size_t i = 0; i < n; i++) {
         const float *p = xyz + i * stride;
         double g;
-        if (ground && pb_ground_height(ground, p[0], p[1], &g) == 0 && p[2] - g > c->cfg.group_ground_m) {
+        if (ground && pb_ground_height(ground, p[0], p[1], &g) == 0 && p[2] - g > c->cfg.low_point_m) {
             c->over.push_back((uint32_t)i);
             c->xyz.insert(c->xyz.end(), p, p + 3);
             c->height.push_back((float)(p[2] - g));
@@ -263,13 +264,14 @@ void pb_carve_ray(pb_carve_t *c, int64_t utime, const double o[3], const double 
  * to the sweep: a row per beam gap when the returns name their beams (else square bins),
  * and about as many bins as returns, so that a sweep thinned to a keyframe (MulRan's: 14,000
  * returns) is binned as coarsely as its returns are spread. Per bin the nearest return
- * (INFINITY: none), and the nearest in the 3 x 3 bins around it when 5 or more of them
- * returned (else 0: too little seen there to see through). */
+ * (INFINITY: none) and its height over the ground (NAN: no ground there), and the nearest in
+ * the 3 x 3 bins around it when 5 or more of them returned (else 0: too little seen there to
+ * see through). */
 struct pb_carve_view {
     double o[3], R[9];
     double low = 0, row = 1;   /* elevation of row 0's lower edge, a row's height (rad) */
     int rows = 0, cols = 0;
-    std::vector<float> near, around;
+    std::vector<float> near, around, height;
 
     /* p's direction from the origin in the LiDAR's frame: elevation, azimuth; and its range. */
     void look_at(const double p[3], double *el, double *az, double *r) const
@@ -296,7 +298,7 @@ struct pb_carve_view {
 };
 
 pb_carve_view_t *pb_carve_view_create(const double *xyz, const uint8_t *ring, size_t n, const double origin[3],
-                                      const double R[9])
+                                      const double R[9], const pb_ground_t *ground)
 {
     if (n == 0) return nullptr;
     pb_carve_view_t *v = new pb_carve_view();
@@ -323,13 +325,23 @@ pb_carve_view_t *pb_carve_view_create(const double *xyz, const uint8_t *ring, si
     v->cols = std::max(8, std::min(8192, (int)std::lround((double)n / v->rows)));
     const int W = v->cols, H = v->rows;
     v->near.assign((size_t)W * H, INFINITY);
+    std::vector<int32_t> nearest((size_t)W * H, -1);
     for (size_t i = 0; i < n; i++) {
         int row, col;
         double r;
         if (v->bin(xyz + 3 * i, &row, &col, &r) && r > 0.5) {
-            float &b = v->near[(size_t)row * W + col];
-            b = std::min(b, (float)r);
+            const size_t b = (size_t)row * W + col;
+            if ((float)r < v->near[b]) {
+                v->near[b] = (float)r;
+                nearest[b] = (int32_t)i;
+            }
         }
+    }
+    v->height.assign((size_t)W * H, NAN);
+    for (size_t b = 0; b < nearest.size(); b++) {
+        double g;
+        const double *p = xyz + 3 * (size_t)std::max(nearest[b], 0);
+        if (nearest[b] >= 0 && ground && pb_ground_height(ground, p[0], p[1], &g) == 0) v->height[b] = (float)(p[2] - g);
     }
     v->around.assign((size_t)W * H, 0.0f);
     for (int row = 0; row < H; row++)
@@ -350,6 +362,27 @@ pb_carve_view_t *pb_carve_view_create(const double *xyz, const uint8_t *ring, si
 }
 
 void pb_carve_view_destroy(pb_carve_view_t *v) { delete v; }
+
+/* View point i is too low to join groups (judged alone). */
+static bool is_low(const pb_carve_t *c, size_t i) { return c->height[i] <= c->cfg.group_ground_m; }
+
+/* A point just over the ground (lower than group_ground_m) seen through: the returns of its
+ * row's bins (its own and one either side) all farther than `beyond` and come down on the
+ * ground behind it, lower over the ground than its height by low_drop_m. The 3 x 3 bins
+ * of a higher point would hold the road in front of it (the row below); and a beam over a
+ * kerb or a raised patch ends on the surface at the point's height, which is no sign that
+ * the point was gone. */
+static bool low_through(const pb_carve_t *c, const pb_carve_view_t *v, int row, int col, float beyond, float height)
+{
+    int known = 0;
+    for (int dc = -1; dc <= 1; dc++) {
+        const size_t b = (size_t)row * v->cols + (col + dc + v->cols) % v->cols;   /* azimuth wraps */
+        if (!std::isfinite(v->near[b])) continue;
+        if (!(v->near[b] > beyond && v->height[b] < height - (float)c->cfg.low_drop_m)) return false;
+        known++;
+    }
+    return known >= 2;
+}
 
 void pb_carve_look(pb_carve_t *c, const pb_carve_view_t *v)
 {
@@ -372,7 +405,8 @@ void pb_carve_look(pb_carve_t *c, const pb_carve_view_t *v)
         const int col = std::min(v->cols - 1, (int)((std::atan2(l[1], l[0]) + (float)M_PI) * per_col));
         const size_t b = (size_t)row * v->cols + col;
         const float r = std::sqrt(r2), margin = std::max((float)c->cfg.view_margin_m, (float)c->cfg.view_margin_share * r);
-        const bool through = v->around[b] > r + margin, hit = !through && std::fabs(v->near[b] - r) <= margin;
+        const bool through = is_low(c, i) ? low_through(c, v, row, col, r + margin, c->height[i]) : v->around[b] > r + margin,
+                   hit = !through && std::fabs(v->near[b] - r) <= margin;
         if (through) {
             add(c->through[i], 1);
             if (c->hit[i]) add(c->since_hit[i], 1);
@@ -392,10 +426,19 @@ static bool seen_through(const pb_carve_t *c, size_t i)
     return c->through[i] >= c->cfg.view_min_through && 2 * c->through[i] >= c->seen[i] && c->inside[i] == 0;
 }
 
-/* The group cell of view point i (of over). */
+/* View point i just over the ground, judged alone (no group): seen through by low_min_through
+ * views or more, by three quarters of those that saw it, and hit by one at most. */
+static bool low_gone(const pb_carve_t *c, size_t i)
+{
+    return is_low(c, i) && c->through[i] >= c->cfg.low_min_through &&
+           4 * c->through[i] >= 3 * c->seen[i] && c->hit[i] <= 1;
+}
+
+/* The group cell of view point i (of over); false for a point too low to join groups. */
 static bool group_key(const pb_carve_t *c, size_t i, uint64_t *key)
 {
-    return pb_loc::voxel_key_of(c->xyz[3 * i], c->xyz[3 * i + 1], c->xyz[3 * i + 2], 1.0 / c->cfg.group_cell_m, key);
+    return !is_low(c, i) &&
+           pb_loc::voxel_key_of(c->xyz[3 * i], c->xyz[3 * i + 1], c->xyz[3 * i + 2], 1.0 / c->cfg.group_cell_m, key);
 }
 
 void pb_carve_seeds(const pb_carve_t *c, std::vector<uint64_t> *keys)
@@ -748,17 +791,42 @@ size_t pb_carve_keep(const pb_carve_t *c, const std::vector<uint64_t> *gone_keys
         group_keys = &own;
     }
     if (objects) objects->assign(keep->size(), 0);
-    size_t in_groups = 0;
+    size_t by_views = 0;
+    auto take = [&](size_t i) {
+        (*keep)[c->over[i]] = 0;
+        if (objects) (*objects)[c->over[i]] = 1;
+        by_views++;
+    };
     for (size_t i = 0; i < c->over.size() && !group_keys->empty(); i++) {
         uint64_t key;
-        uint8_t &k = (*keep)[c->over[i]];
-        if (k && group_key(c, i, &key) && std::binary_search(group_keys->begin(), group_keys->end(), key)) {
-            k = 0;
-            if (objects) (*objects)[c->over[i]] = 1;
-            in_groups++;
+        if ((*keep)[c->over[i]] && group_key(c, i, &key) && std::binary_search(group_keys->begin(), group_keys->end(), key))
+            take(i);
+    }
+    // 5. the points just over the ground that views saw through alone (a car's sill), unless
+    //    something kept stands higher in their cell's column: they are its foot (a post's, a bush's)
+    std::vector<size_t> low;
+    std::unordered_map<uint64_t, float> column_top;   /* a low point's column -> the highest kept point in it */
+    auto column = [&](size_t i, uint64_t *key) {
+        return pb_loc::voxel_key_of(c->xyz[3 * i], c->xyz[3 * i + 1], 0.0, c->inv, key);
+    };
+    for (size_t i = 0; i < c->over.size(); i++) {
+        uint64_t key;
+        if ((*keep)[c->over[i]] && low_gone(c, i) && column(i, &key)) {
+            low.push_back(i);
+            column_top.emplace(key, -INFINITY);
         }
     }
-    return carved + in_groups;
+    for (size_t i = 0; i < c->over.size() && !low.empty(); i++) {
+        uint64_t key;
+        if (!(*keep)[c->over[i]] || low_gone(c, i) || c->height[i] > c->cfg.group_max_height_m || !column(i, &key)) continue;
+        auto it = column_top.find(key);
+        if (it != column_top.end()) it->second = std::max(it->second, c->height[i]);
+    }
+    for (size_t i : low) {
+        uint64_t key;
+        if (column(i, &key) && column_top[key] < c->height[i]) take(i);
+    }
+    return carved + by_views;
 }
 
 void pb_carve_set_drive(pb_carve_t *c, int drive) { c->drive = (uint8_t)std::min(std::max(drive, 0), 255); }

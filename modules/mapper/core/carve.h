@@ -63,6 +63,14 @@
  * a rail or fence seen through is a line). And the groups are judged again with the points
  * the cells carved among them (they count for the size and shape, not the share): what the
  * rays took of a car joins the few points of it they left, which go when seen through.
+ * The points just over the ground (higher than low_point_m, not group_ground_m: a car's sill,
+ * whose body the cells took) join no group: the road beside them would join everything. One
+ * goes alone when seen through by low_min_through views or more, by three quarters of those
+ * that saw it, and hit by one at most, and nothing kept stands higher in its cell_m column
+ * (else it is the foot of what stays: a post, a bush). For such a point a view's 3 x 3 bins
+ * would hold the road in front of it, so it is seen through when its row's three bins returned
+ * beyond it and lower over the ground by low_drop_m: the beams came down behind it (a beam
+ * over a kerb or a raised pavement ends on it, as high as the point).
  *
  * Pure: no I/O, no clock. Ownership: pb_carve_create copies what it needs; the caller
  * frees the result with pb_carve_destroy (NULL is a no-op). */
@@ -101,6 +109,9 @@ typedef struct {
     double group_share = 0.5;        /* the share of a group's points seen through that takes it */
     double group_reach_m = 15;       /* a road user lies within this of its points seen through (x-y) */
     double group_min_depth_m = 0.3;  /* seen through whole but touching what stays: its footprint this deep (a rail is not) */
+    double low_point_m = 0.15;       /* points higher than this over the ground, but not group_ground_m, are judged alone */
+    double low_drop_m = 0.1;         /* seen through when the beams around end beyond, this much lower over the ground */
+    int low_min_through = 4;         /* by this many views (and three quarters of those that saw it; hit once at most) */
 } pb_carve_config_t;
 
 typedef struct pb_carve pb_carve_t;
@@ -121,10 +132,12 @@ void pb_carve_set_drive(pb_carve_t *c, int drive);
 
 /* A view: n returns (x y z, 3 doubles each, in the map frame) of one sweep and their beams
  * (ring: NULL or 255 when not known), seen from origin with the LiDAR's axes R (map <- lidar,
- * row-major). NULL when no return lies 0.5 m or more from origin. The caller destroys it. */
+ * row-major), and the ground model the returns' heights are taken over (NULL: none; then no
+ * point just over the ground is seen through). NULL when no return lies 0.5 m or more from
+ * origin. The caller destroys it; it keeps no pointer to ground. */
 typedef struct pb_carve_view pb_carve_view_t;
 pb_carve_view_t *pb_carve_view_create(const double *xyz, const uint8_t *ring, size_t n, const double origin[3],
-                                      const double R[9]);
+                                      const double R[9], const pb_ground_t *ground);
 void pb_carve_view_destroy(pb_carve_view_t *v);
 /* The map points within max_range_m of the view's origin count it: seen, seen through. */
 void pb_carve_look(pb_carve_t *c, const pb_carve_view_t *v);
@@ -166,8 +179,9 @@ void pb_carve_group_cells(const pb_carve_t *c, const std::vector<uint64_t> *gone
 void pb_carve_groups(std::vector<pb_carve_group_cell_t> *cells, const pb_carve_config_t *cfg, std::vector<uint64_t> *gone);
 
 /* A map in parts (the mapper's tiles, each its own pb_carve_t): every part given the rays
- * and views that may reach it carves as one pb_carve_t of the whole map would, provided no cell
- * spans two parts and every part's pb_carve_keep is given all parts' pb_carve_gone and
+ * and views that may reach it carves as one pb_carve_t of the whole map would, provided no
+ * cell's column spans two parts (the parts are squares of whole cells in x-y, as the mapper's
+ * tiles: a low point's column is judged whole) and every part's pb_carve_keep is given all parts' pb_carve_gone and
  * pb_carve_groups; a ray that misses a part's cells costs little there. To page a part
  * out and back: its counts so far (out replaced), and given to a part made again from the
  * same points and ground. load returns 0, or -1 when the bytes are not of such a part. */
