@@ -182,9 +182,9 @@ void pb_carve_groups(std::vector<pb_carve_group_cell_t> *cells, const pb_carve_c
  * and views that may reach it carves as one pb_carve_t of the whole map would, provided no
  * cell's column spans two parts (the parts are squares of whole cells in x-y, as the mapper's
  * tiles: a low point's column is judged whole) and every part's pb_carve_keep is given all
- * parts' pb_carve_gone and pb_carve_groups; a ray that misses a part's cells costs little there. To page a part
- * out and back: its counts so far (out replaced), and given to a part made again from the
- * same points and ground. load returns 0, or -1 when the bytes are not of such a part. */
+ * parts' pb_carve_gone and pb_carve_groups; a ray that misses a part's cells costs little
+ * there. To page a part out and back: its counts so far (out replaced), and given to a part
+ * made again from the same points and ground. load returns 0, or -1 when the bytes are not of such a part. */
 void pb_carve_save(const pb_carve_t *c, std::vector<uint8_t> *out);
 int pb_carve_load(pb_carve_t *c, const uint8_t *data, size_t len);
 
