@@ -375,19 +375,13 @@ void actors_schedule(actors_t *A, const pb_route_t *r, const trajectory_t *ego, 
 int actors_movers(const actors_t *A, const world_t *w, double t, mover_t *out, int max)
 {
     int n = 0;
-    if ((A->on & ACT_LEAD) && n < max) {
+    if ((A->on & ACT_LEAD) && n + 5 <= max) {
         traj_state_t st;
         traj_eval(&A->lead, t, &st);
         double c = cos(st.yaw), s = sin(st.yaw), off = A->lead_size[0] / 2 - A->lead_rear_overhang;
-        mover_t *m = &out[n++];
-        m->cx = st.x + c * off; m->cy = st.y + s * off;
-        m->c = c; m->s = s;
-        m->hx = A->lead_size[0] / 2; m->hy = A->lead_size[1] / 2;
-        double hg = terrain_height(&w->terrain, m->cx, m->cy);
-        m->z0 = hg + A->lead_z0; m->z1 = m->z0 + A->lead_size[2];
-        m->cls = A->lead_cls;
+        n += world_vehicle(w, st.x + c * off, st.y + s * off, c, s, A->lead_size, A->lead_z0, A->lead_cls, 0, out + n);
     }
-    for (int i = 0; i < A->ncross && n < max; i++) {
+    for (int i = 0; i < A->ncross && n + 5 <= max; i++) {
         const crosser_t *c = &A->cross[i];
         if (!(A->on & (c->pedestrian ? ACT_PEDESTRIANS : ACT_CROSSING))) continue;
         /* the last pass begun; before the first, a pedestrian waits at the start */
@@ -405,12 +399,17 @@ int actors_movers(const actors_t *A, const world_t *w, double t, mover_t *out, i
         path_at(c, d, &x, &y, &yaw);
         double cy = cos(yaw), sy = sin(yaw);
         if (cy < 0 || (cy == 0 && sy < 0)) { cy = -cy; sy = -sy; }   /* a box is the same turned round */
+        /* absent: buried far below the ground at the same place (the slot stays, so a
+         * sweep's start and end lists pair up) */
+        if (!c->pedestrian) {
+            n += world_vehicle(w, x, y, cy, sy, c->size, c->z0, c->cls, !present, out + n);
+            continue;
+        }
         mover_t *m = &out[n++];
         m->cx = x; m->cy = y; m->c = cy; m->s = sy;
         m->hx = c->size[0] / 2; m->hy = c->size[1] / 2;
+        m->gx = m->gy = 0;
         double hg = terrain_height(&w->terrain, x, y);
-        /* absent: buried far below the ground at the same place (the slot stays, so a
-         * sweep's start and end lists pair up) */
         m->z0 = hg + c->z0 - (present ? 0 : 1000); m->z1 = m->z0 + c->size[2];
         m->cls = c->cls;
     }

@@ -57,7 +57,7 @@ static void *worker(void *arg)
     pb_quat_to_matrix(v->base_from_lidar.q, Rl);
     const double n = m->origin_m, sigma = v->lidar_range_noise, maxr = v->lidar_max_range;
     const uint64_t seed = ls->seed, scan = (uint64_t)j->seq;
-    mover_t mov[WORLD_MAX_TRAFFIC];
+    mover_t mov[WORLD_MAX_MOVERS];
     uint32_t *mail = ls->mail[j->tid];
     /* blocks of 32 columns, alternating between threads, balance near and far views */
     for (int c0 = 32 * j->tid; c0 < LIDAR_COLS; c0 += 32 * LIDAR_THREADS)
@@ -139,10 +139,10 @@ void lidar_simulate(lidar_sim_t *ls, int32_t seq, double t0, int64_t utime, port
     for (int k = 0; k < 16; k++) msg->lidar_from_beam[k] = (k % 5 == 0) ? 1.0 : 0.0;
     msg->npoints = 0;
 
-    mover_t mov0[WORLD_MAX_TRAFFIC], mov1[WORLD_MAX_TRAFFIC];
+    mover_t mov0[WORLD_MAX_MOVERS], mov1[WORLD_MAX_MOVERS];
     int nmov = 0;
     if (ls->traffic) {
-        mover_t a[WORLD_MAX_TRAFFIC], b[WORLD_MAX_TRAFFIC];
+        mover_t a[WORLD_MAX_MOVERS], b[WORLD_MAX_MOVERS];
         int na = world_movers(ls->world, ls->route, t0, ls->seed, a);
         world_movers(ls->world, ls->route, t0 + LIDAR_PERIOD_US * 1e-6, ls->seed, b);
         traj_state_t st;

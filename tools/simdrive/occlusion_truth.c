@@ -112,7 +112,7 @@ void sim_occ_truth(sim_occ_t *so, const body_state_t *b, int64_t utime, pb_log_o
     /* the agents and the traffic at this instant, the eye in map */
     dir_tick(so->dir, utime);
     int n = dir_agents(so->dir, so->agents);
-    mover_t mov[WORLD_MAX_TRAFFIC];
+    mover_t mov[WORLD_MAX_MOVERS];
     int nmov = world_movers(so->world, so->route, st->t, so->seed, mov);
     double h[3], eye[3];
     head_at(so, st->t, h);

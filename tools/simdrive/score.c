@@ -80,6 +80,7 @@ static void visit_mover(const cand_t *C, uint32_t i, const void *ctx)
     const float *q = C->xyz + 3 * (size_t)i;
     double dx = q[0] - m->cx, dy = q[1] - m->cy;
     double p[3] = { m->c * dx + m->s * dy, -m->s * dx + m->c * dy, q[2] };
+    p[2] -= m->gx * p[0] + m->gy * p[1];   /* its heights follow the road's slope */
     double lo[3] = { -m->hx, -m->hy, m->z0 }, hi[3] = { m->hx, m->hy, m->z1 };
     float d = (float)aabb_distance(p, lo, hi);
     if (d < C->d_mover[i]) { C->d_mover[i] = d; C->mover_cls[i] = m->cls; }
@@ -105,7 +106,7 @@ static void sweep_movers(const score_drive_t *drv, const cand_t *C)
     const double period = LIDAR_PERIOD_US * 1e-6;
     for (int64_t k = 0; (double)k * period < drv->duration; k++) {
         double t0 = (double)k * period;
-        mover_t a[WORLD_MAX_TRAFFIC], b[WORLD_MAX_TRAFFIC];
+        mover_t a[WORLD_MAX_MOVERS], b[WORLD_MAX_MOVERS];
         int n = world_movers(drv->world, drv->route, t0, drv->seed, a);
         world_movers(drv->world, drv->route, t0 + period, drv->seed, b);
         for (int i = 0; i < n; i++) {

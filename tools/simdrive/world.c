@@ -277,8 +277,36 @@ void world_build_grid(world_t *w, int day, double cell)
     }
 }
 
+int world_vehicle(const world_t *w, double cx, double cy, double c, double s, const double size[3], double z0,
+                  uint8_t cls, int bury, mover_t *out)
+{
+    const terrain_t *T = &w->terrain;
+    const double hx = size[0] / 2, hy = size[1] / 2, down = bury ? 1000 : 0;
+    mover_t *b = &out[0];
+    b->cx = cx; b->cy = cy; b->c = c; b->s = s; b->hx = hx; b->hy = hy; b->cls = cls;
+    /* the road's slope under it, end to end and side to side */
+    b->gx = (terrain_height(T, cx + c * hx, cy + s * hx) - terrain_height(T, cx - c * hx, cy - s * hx)) / (2 * hx);
+    b->gy = (terrain_height(T, cx - s * hy, cy + c * hy) - terrain_height(T, cx + s * hy, cy - c * hy)) / (2 * hy);
+    b->z0 = terrain_height(T, cx, cy) + z0 - down;
+    b->z1 = b->z0 + size[2];
+    /* wheels: a car's 0.66 m, a bus's or a truck's (longer than 6 m) 1.0 m, 0.25 m wide, the
+     * axles a fifth of the length in from the ends, just inside the body's sides */
+    const double dia = size[0] > 6 ? 1.0 : 0.66, width = 0.25, inset = 0.2 * size[0];
+    for (int k = 0; k < 4; k++) {
+        const double u = (k & 1 ? 1 : -1) * (hx - inset), v = (k & 2 ? 1 : -1) * (hy - width / 2 - 0.02);
+        mover_t *m = &out[1 + k];
+        *m = *b;
+        m->cx = cx + c * u - s * v; m->cy = cy + s * u + c * v;
+        m->hx = dia / 2; m->hy = width / 2;
+        m->z0 = terrain_height(T, m->cx, m->cy) - down;
+        m->z1 = m->z0 + dia;
+    }
+    return 5;
+}
+
 int world_movers(const world_t *w, const pb_route_t *route, double t, uint64_t seed, mover_t *out)
 {
+    int n = 0;
     for (int i = 0; i < w->ntraffic; i++) {
         const traffic_t *tr = &w->traffic[i];
         /* seed shifts each vehicle by up to +-50 m; they drive against the route direction */
@@ -286,22 +314,18 @@ int world_movers(const world_t *w, const pb_route_t *route, double t, uint64_t s
         pb_route_point_t rp;
         pb_route_eval(route, tr->phase_s + shift - tr->speed * t, &rp);
         double c = cos(rp.yaw), s = sin(rp.yaw);
-        mover_t *m = &out[i];
-        m->cx = rp.x - s * tr->lane_offset;
-        m->cy = rp.y + c * tr->lane_offset;
-        m->c = -c; m->s = -s;
-        m->hx = tr->size[0] / 2; m->hy = tr->size[1] / 2;
-        double hg = terrain_height(&w->terrain, m->cx, m->cy);
-        m->z0 = hg + tr->z0; m->z1 = hg + tr->z0 + tr->size[2];
-        m->cls = tr->cls;
+        n += world_vehicle(w, rp.x - s * tr->lane_offset, rp.y + c * tr->lane_offset, -c, -s, tr->size, tr->z0, tr->cls, 0,
+                           out + n);
     }
-    return w->ntraffic + (w->actors ? actors_movers(w->actors, w, t, out + w->ntraffic, WORLD_MAX_TRAFFIC - w->ntraffic) : 0);
+    return n + (w->actors ? actors_movers(w->actors, w, t, out + n, WORLD_MAX_MOVERS - n) : 0);
 }
 
 /* ---------------------------------------------------------------- intersections */
 
+/* A box turned by (c, s) whose heights rise by gx, gy per metre along its own x, y (0 for
+ * the static world's boxes): the ray's height is taken relative to that slope. */
 static inline double ray_box(double cx, double cy, double c, double s, double hx, double hy, double z0, double z1,
-                             const double o[3], const double d[3])
+                             double gx, double gy, const double o[3], const double d[3])
 {
     double px = (o[0] - cx) * c + (o[1] - cy) * s, py = -(o[0] - cx) * s + (o[1] - cy) * c;
     double dx = d[0] * c + d[1] * s, dy = -d[0] * s + d[1] * c;
@@ -317,12 +341,13 @@ static inline double ray_box(double cx, double cy, double c, double s, double hx
         if (a > tn) tn = a;
         if (b < tf) tf = b;
     } else if (fabs(py) > hy) return INFINITY;
-    if (fabs(d[2]) > 1e-12) {
-        double a = (z0 - o[2]) / d[2], b = (z1 - o[2]) / d[2];
+    double oz = o[2] - gx * px - gy * py, dz = d[2] - gx * dx - gy * dy;
+    if (fabs(dz) > 1e-12) {
+        double a = (z0 - oz) / dz, b = (z1 - oz) / dz;
         if (a > b) { double t = a; a = b; b = t; }
         if (a > tn) tn = a;
         if (b < tf) tf = b;
-    } else if (o[2] < z0 || o[2] > z1) return INFINITY;
+    } else if (oz < z0 || oz > z1) return INFINITY;
     return (tn <= tf && tn > EPS) ? tn : INFINITY;
 }
 
@@ -384,7 +409,7 @@ static inline double ray_canopy(const prim_t *p, const double o[3], const double
 static inline double ray_prim(const prim_t *p, const double o[3], const double d[3])
 {
     switch (p->kind) {
-    case PRIM_BOX: return ray_box(p->cx, p->cy, p->c, p->s, p->hx, p->hy, p->z0, p->z1, o, d);
+    case PRIM_BOX: return ray_box(p->cx, p->cy, p->c, p->s, p->hx, p->hy, p->z0, p->z1, 0, 0, o, d);
     case PRIM_CYLINDER: return ray_cylinder(p, o, d);
     default: return ray_sphere(p, o, d);
     }
@@ -416,7 +441,7 @@ int world_raycast(const world_t *w, const double o[3], const double d[3], double
     if (tg < best) { best = tg; ground = 1; }
     for (int i = 0; i < nmovers; i++) {
         const mover_t *m = &movers[i];
-        double t = ray_box(m->cx, m->cy, m->c, m->s, m->hx, m->hy, m->z0, m->z1, o, d);
+        double t = ray_box(m->cx, m->cy, m->c, m->s, m->hx, m->hy, m->z0, m->z1, m->gx, m->gy, o, d);
         if (t < best) { best = t; cls = m->cls; ground = 0; }
     }
     /* 2-D DDA over the grid, from the origin (always inside the grid on this site;

@@ -12,6 +12,7 @@
 
 #define WORLD_MAX_CLASSES 32
 #define WORLD_MAX_TRAFFIC 64
+#define WORLD_MAX_MOVERS (5 * WORLD_MAX_TRAFFIC)   /* a road user's body and its four wheels */
 
 enum { PRIM_BOX, PRIM_CYLINDER, PRIM_SPHERE };
 enum { DAY_BOTH, DAY_MAP, DAY_DRIVE };
@@ -34,8 +35,9 @@ typedef struct {
     double size[3], z0, speed, phase_s, lane_offset;
 } traffic_t;
 
-typedef struct {                /* a mover placed at one instant */
-    double cx, cy, c, s, hx, hy, z0, z1;
+typedef struct {                /* a mover placed at one instant: a box turned by (c, s) */
+    double cx, cy, c, s, hx, hy, z0, z1;   /* z0, z1: its bottom and top at its centre */
+    double gx, gy;              /* the road's slope under it along its own x and y: its heights follow it */
     uint8_t cls;
 } mover_t;
 
@@ -83,9 +85,17 @@ int world_group_off(world_t *w, const char *name, pb_err_t *err);
 void world_build_grid(world_t *w, int day, double cell_m);
 void world_free(world_t *w);
 
-/* Places traffic at time t (s since start, seed-dependent phase), then the actors
- * switched on (actors.h; the same count and order at every t). Returns the count. */
+/* Places traffic at time t (s since start, seed-dependent phase), each vehicle a body and
+ * four wheels (world_vehicle), then the actors switched on (actors.h; the same count and
+ * order at every t). out holds WORLD_MAX_MOVERS. Returns the count. */
 int world_movers(const world_t *w, const pb_route_t *route, double t, uint64_t seed, mover_t *out);
+/* A vehicle at (cx, cy) heading (c, s), size length, width, height, its body z0 over the road:
+ * the body follows the road's slope under it (the clearance holds from end to end, as on its
+ * wheels), and four wheels stand on the road (what a LiDAR sees of a vehicle at road level is
+ * its tyres). bury: every part 1000 m down (a slot kept while it is gone). Writes 5 movers to
+ * out (room for them is the caller's); returns 5. */
+int world_vehicle(const world_t *w, double cx, double cy, double c, double s, const double size[3], double z0,
+                  uint8_t cls, int bury, mover_t *out);
 
 typedef struct { double t; int cls; } hit_t;
 
