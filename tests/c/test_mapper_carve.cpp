@@ -323,6 +323,27 @@ static double cast_scene(const double o[3], const double u[3], const std::vector
     return best;
 }
 
+/* A sweep of the scene from o (the LiDAR's axes the map's): rows rows of 900 columns, the
+ * lowest at -20 degrees and row_deg apart, each return named by its row; a view of it, its
+ * returns' heights over ground (NULL: none). The caller destroys it. */
+static pb_carve_view_t *view_of_scene(const double o[3], const std::vector<Box> &boxes, int rows, double row_deg,
+                                      const pb_ground_t *ground)
+{
+    static const double R[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
+    std::vector<double> ret;
+    std::vector<uint8_t> ring;
+    for (int e = 0; e < rows; e++)
+        for (int a = 0; a < 900; a++) {
+            const double el = (-20.0 + row_deg * e) * M_PI / 180, az = (a * 0.4 - 180) * M_PI / 180;
+            const double u[3] = {std::cos(el) * std::cos(az), std::cos(el) * std::sin(az), std::sin(el)};
+            const double t = cast_scene(o, u, boxes);
+            if (!(t < 80)) continue;
+            ret.insert(ret.end(), {o[0] + u[0] * t, o[1] + u[1] * t, o[2] + u[2] * t});
+            ring.push_back((uint8_t)e);
+        }
+    return pb_carve_view_create(ret.data(), ring.data(), ring.size(), o, R, ground);
+}
+
 static void views_test(const pb_ground_t *ground)
 {
     const Box car{{20, 4, 0.3}, {24, 5.8, 1.5}}, post{{30, 4, 0}, {30.08, 4.08, 3}}, railing{{40, 4, 0.3}, {50, 4.05, 1.2}},
@@ -361,25 +382,13 @@ static void views_test(const pb_ground_t *ground)
         for (size_t i : t.second) part_xyz.back().insert(part_xyz.back().end(), &pts[3 * i], &pts[3 * i + 3]);
         parts.push_back(pb_carve_create(part_xyz.back().data(), t.second.size(), 3, ground, nullptr));
     }
-    const double R[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
     for (int v = 0; v < 6; v++) {
         const double o[3] = {10.0 + 5 * v, 0, 1.8};
         std::vector<Box> boxes;
         if (v < 2) boxes.insert(boxes.end(), {car, car2, post, fence_middle});
         if (v % 2 == 0) boxes.push_back(railing);
         boxes.insert(boxes.end(), {parked, fence_ends[0], fence_ends[1]});
-        std::vector<double> ret;
-        std::vector<uint8_t> ring;
-        for (int e = 0; e < 36; e++)
-            for (int a = 0; a < 900; a++) {
-                const double el = (-20.0 + e) * M_PI / 180, az = (a * 0.4 - 180) * M_PI / 180;
-                const double u[3] = {std::cos(el) * std::cos(az), std::cos(el) * std::sin(az), std::sin(el)};
-                const double t = cast_scene(o, u, boxes);
-                if (!(t < 80)) continue;
-                ret.insert(ret.end(), {o[0] + u[0] * t, o[1] + u[1] * t, o[2] + u[2] * t});
-                ring.push_back((uint8_t)e);
-            }
-        pb_carve_view_t *view = pb_carve_view_create(ret.data(), ring.data(), ring.size(), o, R, ground);
+        pb_carve_view_t *view = view_of_scene(o, boxes, 36, 1.0, ground);
         CHECK(view != nullptr);
         pb_carve_look(c, view);
         for (pb_carve_t *p : parts) pb_carve_look(p, view);
@@ -518,24 +527,12 @@ static void low_points_test(const pb_ground_t *ground)
     for (double x = 0; x <= 60; x += 0.2)
         for (double y = 8.2; y < 12; y += 0.2) add(x, y, 0.2, 5);
     pb_carve_t *c = pb_carve_create(pts.data(), pts.size() / 3, 3, ground, nullptr);
-    const double R[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
     for (int v = 0; v < 8; v++) {
         const double o[3] = {10.0 + 5 * v, 0, 1.8};
         std::vector<Box> boxes{kerb, pavement};
         if (v == 2 || v == 3) boxes.push_back(seen_twice);   /* 5-13 m away */
         if (v == 6) boxes.push_back(seen_once);
-        std::vector<double> ret;
-        std::vector<uint8_t> ring;
-        for (int e = 0; e < 72; e++)   /* rows half a degree apart, as a 64-beam LiDAR's */
-            for (int a = 0; a < 900; a++) {
-                const double el = (-20.0 + 0.5 * e) * M_PI / 180, az = (a * 0.4 - 180) * M_PI / 180;
-                const double u[3] = {std::cos(el) * std::cos(az), std::cos(el) * std::sin(az), std::sin(el)};
-                const double t = cast_scene(o, u, boxes);
-                if (!(t < 80)) continue;
-                ret.insert(ret.end(), {o[0] + u[0] * t, o[1] + u[1] * t, o[2] + u[2] * t});
-                ring.push_back((uint8_t)e);
-            }
-        pb_carve_view_t *view = pb_carve_view_create(ret.data(), ring.data(), ring.size(), o, R, ground);
+        pb_carve_view_t *view = view_of_scene(o, boxes, 72, 0.5, ground);   /* rows as a 64-beam LiDAR's */
         pb_carve_look(c, view);
         pb_carve_view_destroy(view);
     }
@@ -557,16 +554,8 @@ static void low_points_test(const pb_ground_t *ground)
     /* without a ground model for the views, nothing low is seen through */
     c = pb_carve_create(pts.data(), pts.size() / 3, 3, ground, nullptr);
     for (int v = 0; v < 8; v++) {
-        const double o[3] = {10.0 + 5 * v, 0, 1.8}, R0[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
-        std::vector<double> ret;
-        for (int a = 0; a < 900; a++)
-            for (int e = 0; e < 72; e++) {
-                const double el = (-20.0 + 0.5 * e) * M_PI / 180, az = (a * 0.4 - 180) * M_PI / 180;
-                const double u[3] = {std::cos(el) * std::cos(az), std::cos(el) * std::sin(az), std::sin(el)};
-                const double t = cast_scene(o, u, {kerb, pavement});
-                if (t < 80) ret.insert(ret.end(), {o[0] + u[0] * t, o[1] + u[1] * t, o[2] + u[2] * t});
-            }
-        pb_carve_view_t *view = pb_carve_view_create(ret.data(), nullptr, ret.size() / 3, o, R0, nullptr);
+        const double o[3] = {10.0 + 5 * v, 0, 1.8};
+        pb_carve_view_t *view = view_of_scene(o, {kerb, pavement}, 72, 0.5, nullptr);
         pb_carve_look(c, view);
         pb_carve_view_destroy(view);
     }

@@ -338,10 +338,11 @@ pb_carve_view_t *pb_carve_view_create(const double *xyz, const uint8_t *ring, si
         }
     }
     v->height.assign((size_t)W * H, NAN);
-    for (size_t b = 0; b < nearest.size(); b++) {
+    for (size_t b = 0; ground && b < nearest.size(); b++) {
         double g;
-        const double *p = xyz + 3 * (size_t)std::max(nearest[b], 0);
-        if (nearest[b] >= 0 && ground && pb_ground_height(ground, p[0], p[1], &g) == 0) v->height[b] = (float)(p[2] - g);
+        if (nearest[b] < 0) continue;
+        const double *p = xyz + 3 * (size_t)nearest[b];
+        if (pb_ground_height(ground, p[0], p[1], &g) == 0) v->height[b] = (float)(p[2] - g);
     }
     v->around.assign((size_t)W * H, 0.0f);
     for (int row = 0; row < H; row++)
