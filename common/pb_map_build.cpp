@@ -168,6 +168,17 @@ inline uint64_t mix(uint64_t k)
 
 } // namespace
 
+// Voxel key of a point (inv: 1 / the voxel's edge); false if outside the key range. f* =
+// voxel min corner indices.
+static bool voxel_key_of(double inv, double x, double y, double z, uint64_t *key, double f[3])
+{
+    f[0] = std::floor(x * inv); f[1] = std::floor(y * inv); f[2] = std::floor(z * inv);
+    if (!(std::fabs(f[0]) < KEY_HALF && std::fabs(f[1]) < KEY_HALF && std::fabs(f[2]) < KEY_HALF)) return false;
+    *key = uint64_t(int64_t(f[0]) + KEY_HALF) << 42 | uint64_t(int64_t(f[1]) + KEY_HALF) << 21 |
+           uint64_t(int64_t(f[2]) + KEY_HALF);
+    return true;
+}
+
 struct pb_map_builder {
     double voxel = 0, inv = 0;
     int64_t points_in = 0;
@@ -220,15 +231,7 @@ struct pb_map_builder {
         }
     }
 
-    // Voxel key of a point; false if outside the key range. f* = voxel min corner indices.
-    bool key_of(double x, double y, double z, uint64_t *key, double f[3]) const
-    {
-        f[0] = std::floor(x * inv); f[1] = std::floor(y * inv); f[2] = std::floor(z * inv);
-        if (!(std::fabs(f[0]) < KEY_HALF && std::fabs(f[1]) < KEY_HALF && std::fabs(f[2]) < KEY_HALF)) return false;
-        *key = uint64_t(int64_t(f[0]) + KEY_HALF) << 42 | uint64_t(int64_t(f[1]) + KEY_HALF) << 21 |
-               uint64_t(int64_t(f[2]) + KEY_HALF);
-        return true;
-    }
+    bool key_of(double x, double y, double z, uint64_t *key, double f[3]) const { return voxel_key_of(inv, x, y, z, key, f); }
 
     // Adds one point to its voxel (voxel > 0).
     void insert(uint64_t key, const double f[3], double x, double y, double z, float intensity)
@@ -451,25 +454,35 @@ extern "C" void pb_map_voxel_point(const pb_map_builder_t *b, const pb_map_voxel
     b->voxel_point(*v, out);
 }
 
+// Every point of the scan moved by transform_of(i) into map: fn(i, p); no-return markers
+// skipped, points beyond the max range counted in *beyond and skipped.
+template <typename TransformOf, typename Fn>
+static void place_each(const pb_map_builder_t *b, const pb_points_t *pts, TransformOf transform_of, int64_t *beyond, Fn fn)
+{
+    for (int i = 0; i < pts->n; i++) {
+        /* a point at the sensor's own origin is no return (Velodyne organized clouds
+         * write (0, 0, 0)): a trail of them along the drive is not part of the world */
+        if (pts->x[i] == 0 && pts->y[i] == 0 && pts->z[i] == 0) continue;
+        if (b->max_range2 > 0 && pts->x[i] * pts->x[i] + pts->y[i] * pts->y[i] + pts->z[i] * pts->z[i] > b->max_range2) {
+            (*beyond)++;
+            continue;
+        }
+        const Rt &T = transform_of(i);
+        if (fn(i, Eigen::Vector3d(T.R * Eigen::Vector3d(pts->x[i], pts->y[i], pts->z[i]) + T.t)) != 0) return;
+    }
+}
+
 // Moves every point by transform_of(i) into map and adds it. Returns 0 or -1.
 template <typename TransformOf>
 static int add_points(pb_map_builder_t *b, const pb_points_t *pts, TransformOf transform_of, pb_err_t *err)
 {
     Batch batch(b);
     try {
-        for (int i = 0; i < pts->n; i++) {
-            /* a point at the sensor's own origin is no return (Velodyne organized clouds
-             * write (0, 0, 0)): a trail of them along the drive is not part of the world */
-            if (pts->x[i] == 0 && pts->y[i] == 0 && pts->z[i] == 0) continue;
-            if (b->max_range2 > 0 && pts->x[i] * pts->x[i] + pts->y[i] * pts->y[i] + pts->z[i] * pts->z[i] > b->max_range2) {
-                b->points_beyond++;
-                continue;
-            }
-            const Rt &T = transform_of(i);
-            Eigen::Vector3d p = T.R * Eigen::Vector3d(pts->x[i], pts->y[i], pts->z[i]) + T.t;
-            if (batch.push(p, pts->intensity ? pts->intensity[i] : 0.f) != 0) return batch.fail(err);
-        }
-        if (batch.flush() != 0) return batch.fail(err);
+        int bad = 0;
+        place_each(b, pts, transform_of, &b->points_beyond, [&](int i, const Eigen::Vector3d &p) {
+            return bad = batch.push(p, pts->intensity ? pts->intensity[i] : 0.f);
+        });
+        if (bad != 0 || batch.flush() != 0) return batch.fail(err);
     } catch (const std::bad_alloc &) {
         return pb_err_set(err, "out of memory after %lld map points", (long long)b->size());
     }
@@ -484,11 +497,36 @@ extern "C" int pb_map_builder_add(pb_map_builder_t *b, const pb_points_t *pts,
     return add_points(b, pts, [&](int) -> const Rt & { return T; }, err);
 }
 
-extern "C" int pb_map_builder_add_timed(pb_map_builder_t *b, const pb_points_t *pts, int64_t scan_utime,
-                                        const pb_pose_track_t *track, const pb_transform_t *base_from_lidar,
-                                        pb_err_t *err)
+// The transform of point i of a scan at scan_utime: track(scan_utime + offset_us[i]) *
+// base_from_lidar, computed again only when the offset changes (a column's points share it).
+struct TimedTransform {
+    const pb_pose_track_t *track;
+    const pb_points_t *pts;
+    int64_t scan_utime;
+    const Rt *bl;
+    int32_t cached = 0;
+    bool have = false;
+    Rt T{Eigen::Matrix3d::Identity(), Eigen::Vector3d::Zero()};
+    Eigen::Vector3d t = Eigen::Vector3d::Zero();
+    Eigen::Quaterniond q = Eigen::Quaterniond::Identity();
+    TimedTransform(const pb_pose_track_t *track_, const pb_points_t *pts_, int64_t utime, const Rt *bl_)
+        : track(track_), pts(pts_), scan_utime(utime), bl(bl_) {}
+    const Rt &operator()(int i)
+    {
+        int32_t off = pts->offset_us ? pts->offset_us[i] : 0;
+        if (!have || off != cached) {
+            track->at(scan_utime + off, t, q);
+            T = compose(q, t, bl);
+            cached = off;
+            have = true;
+        }
+        return T;
+    }
+};
+
+// Whether the track brackets every point's time (the track is sorted: both ends suffice).
+static bool brackets(const pb_pose_track_t *track, const pb_points_t *pts, int64_t scan_utime)
 {
-    if (pts->n == 0) return 1;
     int32_t omin = 0, omax = 0;
     if (pts->offset_us) {
         omin = omax = pts->offset_us[0];
@@ -499,26 +537,51 @@ extern "C" int pb_map_builder_add_timed(pb_map_builder_t *b, const pb_points_t *
     }
     Eigen::Vector3d t;
     Eigen::Quaterniond q;
-    // The track is sorted, so bracketing both ends brackets every point.
-    if (!track->at(scan_utime + omin, t, q) || !track->at(scan_utime + omax, t, q)) return 0;
+    return track->at(scan_utime + omin, t, q) && track->at(scan_utime + omax, t, q);
+}
 
+extern "C" int pb_map_builder_add_timed(pb_map_builder_t *b, const pb_points_t *pts, int64_t scan_utime,
+                                        const pb_pose_track_t *track, const pb_transform_t *base_from_lidar,
+                                        pb_err_t *err)
+{
+    if (pts->n == 0) return 1;
+    if (!brackets(track, pts, scan_utime)) return 0;
     Rt bl;
     if (base_from_lidar) bl = from_transform(base_from_lidar);
-    // Points of one column share an offset: reuse the transform while it repeats.
-    int32_t cached = 0;
-    bool have = false;
-    Rt T;
-    auto transform_of = [&](int i) -> const Rt & {
-        int32_t off = pts->offset_us ? pts->offset_us[i] : 0;
-        if (!have || off != cached) {
-            track->at(scan_utime + off, t, q);
-            T = compose(q, t, base_from_lidar ? &bl : nullptr);
-            cached = off;
-            have = true;
-        }
-        return T;
-    };
-    return add_points(b, pts, transform_of, err) == 0 ? 1 : -1;
+    return add_points(b, pts, TimedTransform{track, pts, scan_utime, base_from_lidar ? &bl : nullptr}, err) == 0 ? 1 : -1;
+}
+
+extern "C" int pb_map_builder_place_timed(const pb_map_builder_t *b, const pb_points_t *pts, int64_t scan_utime,
+                                          const pb_pose_track_t *track, const pb_transform_t *base_from_lidar,
+                                          double *xyz, int32_t *index)
+{
+    if (pts->n == 0) return 0;
+    if (!brackets(track, pts, scan_utime)) return -1;
+    Rt bl;
+    if (base_from_lidar) bl = from_transform(base_from_lidar);
+    int n = 0;
+    int64_t beyond = 0;
+    place_each(b, pts, TimedTransform{track, pts, scan_utime, base_from_lidar ? &bl : nullptr}, &beyond,
+               [&](int i, const Eigen::Vector3d &p) {
+                   xyz[3 * n] = p.x(); xyz[3 * n + 1] = p.y(); xyz[3 * n + 2] = p.z();
+                   if (index) index[n] = i;
+                   n++;
+                   return 0;
+               });
+    return n;
+}
+
+extern "C" int pb_map_voxel_key(double voxel_m, double x, double y, double z, uint64_t *key)
+{
+    double f[3];
+    return voxel_m > 0 && voxel_key_of(1.0 / voxel_m, x, y, z, key, f) ? 0 : -1;
+}
+
+extern "C" void pb_map_voxel_corner(double voxel_m, uint64_t key, double corner[3])
+{
+    corner[0] = double(int64_t(key >> 42) - KEY_HALF) * voxel_m;
+    corner[1] = double(int64_t((key >> 21) & 0x1fffff) - KEY_HALF) * voxel_m;
+    corner[2] = double(int64_t(key & 0x1fffff) - KEY_HALF) * voxel_m;
 }
 
 extern "C" int64_t pb_map_builder_points_in(const pb_map_builder_t *b) { return b->points_in; }

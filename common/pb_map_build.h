@@ -68,6 +68,18 @@ int pb_map_builder_add_timed(pb_map_builder_t *b, const pb_points_t *pts, int64_
                              const pb_pose_track_t *track, const pb_transform_t *base_from_lidar,
                              pb_err_t *err);
 
+/* The points of one scan placed as pb_map_builder_add_timed places them (each with its own
+ * time's pose; no-return markers and points beyond the max range left out): their x y z in
+ * map into xyz (room for 3 * pts->n), their index in pts into index (NULL: not wanted).
+ * Returns how many, or -1 when the track does not bracket the scan (add_timed skips it). */
+int pb_map_builder_place_timed(const pb_map_builder_t *b, const pb_points_t *pts, int64_t scan_utime,
+                               const pb_pose_track_t *track, const pb_transform_t *base_from_lidar,
+                               double *xyz, int32_t *index);
+/* The key of the voxel of edge voxel_m that holds (x, y, z), as a builder keys it (its
+ * pb_map_voxel_t.key); 0, or -1 outside the key range. Its lowest corner: pb_map_voxel_corner. */
+int pb_map_voxel_key(double voxel_m, double x, double y, double z, uint64_t *key);
+void pb_map_voxel_corner(double voxel_m, uint64_t key, double corner[3]);
+
 int64_t pb_map_builder_points_in(const pb_map_builder_t *b);   /* points added */
 /* Points farther than max_m from the sensor (their frame's origin) left out of the map from
  * now on, and counted (pb_map_builder_points_beyond); max_m <= 0: none left out (the default). */

@@ -3,7 +3,8 @@
  *   sweeps.cpp      the log read sweep by sweep (read ahead on a second thread)
  *   restart.cpp     checkpoints of the odometry pass, the files they are written through
  *   trajectory.cpp  steps 1-3: odometry (or --poses), loop closure, GNSS anchoring
- *   tiles.cpp       steps 4-5: the map in tiles, the ground model, the carving
+ *   tiles.cpp       steps 4-5: the map in tiles, the ground model, the carving, the road under
+ *                   what moved
  *   site.cpp        step 6: map.pcd, the trajectories, map.tiles, site.yaml, report.json
  * A Run is owned by main(); the steps fill it in turn. Functions return 0 or -1 with err set. */
 #ifndef PB_MAPPER_H
@@ -95,6 +96,8 @@ struct Run {
     std::string ground_why;                  /* empty: ground.yaml written */
     size_t carved = 0;
     size_t carved_groups = 0;                /* of those, in groups that views saw through */
+    uint64_t under_returns = 0, under_voxels = 0;   /* pass 4: returns at the road under a body taken out, their voxels */
+    size_t under_moved = 0, under_gone = 0;   /* kept voxels it moved (those that went included), those that went */
     long views = 0;                          /* sweeps taken as views by the carving */
     double m_per_px = 0;
     double peak_mb[5] = {};                  /* peak resident memory of each step (kPeakStep) */
@@ -159,12 +162,13 @@ struct TileGrid {
 };
 
 /* A point of the finished map in a tile file: the voxel's seq (the order it was made in),
- * x y z intensity. */
+ * x y z intensity, and the returns it is the mean of. */
 struct TilePoint {
     uint32_t seq;
     float p[4];
+    uint32_t n;
 };
-static_assert(sizeof(TilePoint) == 5 * sizeof(float), "TilePoint: x y z at a stride of 5 floats");
+static_assert(sizeof(TilePoint) == 6 * sizeof(float), "TilePoint: x y z at a stride of 6 floats");
 
 inline std::string tile_path(const Run *R, char kind, int64_t key)
 {
@@ -233,6 +237,8 @@ int keyframe_points(FILE *f, const std::string &path, uint64_t at, std::vector<f
  * one that does not match (or whose tiles are not as written) is refused, said on stderr
  * and in R->stage_refused, and those steps run again. */
 int stage_read(Run *R, int *done, pb_err_t *err);
+/* Their first 8 bytes (a new layout gets a new one, so that an old file is refused). */
+extern const char kPosesMagic[8], kCarvedMagic[8];
 /* What a stage checkpoint must match: the build, the options the later steps depend on,
  * every drive's log (checkpoint_ids) and the poses given. */
 std::string stage_id(const Run *R);

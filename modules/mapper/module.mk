@@ -10,6 +10,7 @@ $(eval $(call cxx_test,test_mapper_loops,tests/c/test_mapper_loops.cpp modules/m
 $(OBJ)/tests/c/test_mapper_loops.o: CPPFLAGS += -I$(TOP)/modules/localizer/core
 $(eval $(call cxx_test,test_mapper_anchor,tests/c/test_mapper_anchor.cpp modules/mapper/core/anchor.cpp modules/mapper/core/pose_graph.cpp,-lceres -lglog))
 $(eval $(call cxx_test,test_mapper_carve,tests/c/test_mapper_carve.cpp modules/mapper/core/carve.cpp))
+$(eval $(call cxx_test,test_mapper_under,tests/c/test_mapper_under.cpp modules/mapper/core/under.cpp))
 $(OBJ)/tests/c/test_mapper_carve.o: CPPFLAGS += -I$(TOP)/modules/localizer/core
 
 # ---- bench-mapper (modules/mapper/bench): ours against KISS-ICP on the same scans

@@ -10,6 +10,7 @@
 #include "mapper.h"
 #include "pb_bytes.h"
 #include "carve.h"
+#include "under.h"
 #include "ground_build.h"
 #include "pb_split.h"
 
@@ -68,6 +69,7 @@ static int to_carving_tiles(Run *R, pb_map_builder_t *map, std::vector<int64_t> 
         for (const pb_map_voxel_t &v : vox) {
             TilePoint tp;
             tp.seq = v.seq;
+            tp.n = v.n;
             pb_map_voxel_point(map, &v, tp.p);
             parts[tile_key(cgrid.of(tp.p[0]), cgrid.of(tp.p[1]))].push_back(tp);
             gb_bounds(tp.p, 1, 4, R->ground_lo, R->ground_hi);
@@ -378,6 +380,55 @@ struct CarveTiles {
     }
 };
 
+/* Pass 4: the road under what moved (core/under.h): every sweep of every placed drive read
+ * again, its returns placed as pass 2 placed them (pb_map_builder_place_timed), those at the
+ * road under a body the carving took counted; then each kept tile's points without them (a
+ * voxel left with none goes, to the picture's carved layer). */
+static int pass_under(Run *R, const pb_ground_t *ground, pb_err_t *err)
+{
+    pb_under_t *u = pb_under_create(R->layers.removed.data(), R->layers.removed.size() / 3, 3, R->voxel, ground, nullptr);
+    pb_map_builder_t *placer = pb_map_builder_create(R->voxel, err);
+    if (!placer) return pb_under_destroy(u), -1;
+    pb_map_builder_set_max_range(placer, pb_carve_config_t{}.max_range_m);   /* as pass 2 */
+    std::vector<double> xyz;
+    std::vector<int32_t> index;
+    std::vector<float> intensity;
+    int rc = for_each_drive_sweep(R, "mapper: under", 1,
+        [&](Run *D, int64_t utime, const std::vector<float> &, const pb_points_t &pts, const pb_event_t &, pb_err_t *) {
+            xyz.resize(3 * (size_t)pts.n);
+            index.resize((size_t)pts.n);
+            const int n = pb_map_builder_place_timed(placer, &pts, utime, D->track, &R->veh.base_from_lidar, xyz.data(),
+                                                     index.data());
+            intensity.resize(std::max(n, 0));
+            for (int k = 0; k < n; k++) intensity[(size_t)k] = pts.intensity ? pts.intensity[index[(size_t)k]] : 0.0f;
+            if (n > 0) pb_under_sweep(u, xyz.data(), intensity.data(), (size_t)n);
+            return 0;
+        }, err);
+    pb_map_builder_destroy(placer);
+    std::vector<TilePoint> pts, kept;
+    for (size_t t = 0; rc == 0 && t < R->kept_tiles.size(); t++) {
+        const std::string path = tile_path(R, 'k', R->kept_tiles[t].first);
+        if (tile_read(path, &pts, err) != 0) { rc = -1; break; }
+        kept.clear();
+        bool changed = false;
+        for (TilePoint tp : pts) {
+            const uint32_t left = pb_under_adjust(u, tp.p, tp.n);
+            if (left != tp.n) { changed = true; R->under_moved++; }
+            if (left > 0) { tp.n = left; kept.push_back(tp); continue; }
+            R->under_gone++;
+            R->layers.removed.insert(R->layers.removed.end(), {tp.p[0], tp.p[1], tp.p[2]});
+        }
+        if (!changed) continue;
+        R->map_points -= pts.size() - kept.size();
+        R->kept_tiles[t].second = kept.empty() ? UINT32_MAX : kept[0].seq;
+        R->kept_sums[t] = {kept.size() * sizeof(TilePoint), pb_fnv1a64(kept.data(), kept.size() * sizeof(TilePoint))};
+        if (tile_write(path, kept.data(), kept.size(), false, err) != 0) rc = -1;
+    }
+    pb_under_counts(u, &R->under_returns, &R->under_voxels);
+    pb_under_destroy(u);
+    return rc;
+}
+
 /* Pass 3: what moved is carved out of the map (core/carve.h), on a sample of the rays
  * (every 2nd sweep, every 13th point: 13 is prime to the beam count, so every beam takes
  * its turn) of every drive placed, each an hour after the last in the carving's time (two
@@ -513,5 +564,5 @@ int pass_carve(Run *R, const pb_ground_t *ground, pb_err_t *err)
             return sampled % 5 == 0 ? tiles.page_out(sampled - 10, e) : 0;
         }, err);
     if (rc != 0) return -1;
-    return tiles.finish(err);
+    return tiles.finish(err) == 0 ? pass_under(R, ground, err) : -1;
 }

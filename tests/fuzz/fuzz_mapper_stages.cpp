@@ -62,9 +62,9 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         if (stage_write_poses(&R, &err) != 0) abort();
         std::vector<uint8_t> sum;
         ByteWriter{&sum}.put(R.poses_sum);
-        put(R, "carved.bin", "PBMAPCV1", sum, data + 1, size - 1);
+        put(R, "carved.bin", kCarvedMagic, sum, data + 1, size - 1);
     } else {
-        put(R, "poses.bin", "PBMAPPS1", {}, data + 1, size - 1);
+        put(R, "poses.bin", kPosesMagic, {}, data + 1, size - 1);
     }
     Run S;
     S.out_dir = R.out_dir;

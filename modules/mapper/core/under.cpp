@@ -1,0 +1,128 @@
+/* under: see under.h. */
+#include "under.h"
+
+#include <cmath>
+#include <unordered_map>
+#include <unordered_set>
+#include <vector>
+
+#include "pb_map_build.h"
+
+namespace {
+struct Taken {
+    double s[4];   /* the returns' offsets from the voxel's lowest corner (x y z), intensities */
+    uint32_t n;
+};
+}  // namespace
+
+struct pb_under {
+    pb_under_config_t cfg;
+    double voxel_m, inv_col;
+    int reach;                            /* columns a body marks on each side of its own */
+    const pb_ground_t *ground;
+    std::unordered_set<uint64_t> body;    /* carved voxels that are bodies */
+    std::unordered_set<uint64_t> watch;   /* where a body stood: its columns and their 8 neighbours */
+    std::unordered_map<uint64_t, Taken> taken;
+    uint64_t returns_taken = 0;
+    /* one sweep's: the returns in watched columns, the columns a body marked */
+    std::vector<size_t> near;
+    std::unordered_set<uint64_t> marked;
+
+    int64_t col(double v) const { return (int64_t)std::floor(v * inv_col); }
+    static uint64_t column_key(int64_t cx, int64_t cy) { return (uint64_t)cx << 32 | (uint32_t)cy; }
+    /* the height of (x, y, z) over the ground; false where the model has none */
+    bool height(double x, double y, double z, double *h) const
+    {
+        double g;
+        if (!ground || pb_ground_height(ground, x, y, &g) != 0) return false;
+        *h = z - g;
+        return true;
+    }
+};
+
+pb_under_t *pb_under_create(const float *carved, size_t n, size_t stride, double voxel_m, const pb_ground_t *ground,
+                            const pb_under_config_t *cfg)
+{
+    pb_under_t *u = new pb_under();
+    if (cfg) u->cfg = *cfg;
+    u->voxel_m = voxel_m;
+    u->inv_col = 1.0 / u->cfg.column_m;
+    u->reach = (int)std::lround(u->cfg.reach_m / u->cfg.column_m);
+    u->ground = ground;
+    for (size_t i = 0; i < n; i++) {
+        const float *p = carved + i * stride;
+        double h;
+        uint64_t key;
+        if (!u->height(p[0], p[1], p[2], &h) || h < u->cfg.body_min_m || h > u->cfg.body_max_m ||
+            pb_map_voxel_key(voxel_m, p[0], p[1], p[2], &key) != 0)
+            continue;
+        u->body.insert(key);
+        const int64_t cx = u->col(p[0]), cy = u->col(p[1]);
+        for (int dx = -1; dx <= 1; dx++)
+            for (int dy = -1; dy <= 1; dy++) u->watch.insert(pb_under::column_key(cx + dx, cy + dy));
+    }
+    return u;
+}
+
+void pb_under_destroy(pb_under_t *u) { delete u; }
+
+void pb_under_sweep(pb_under_t *u, const double *xyz, const float *intensity, size_t n)
+{
+    if (u->body.empty()) return;
+    // 1. the returns where a body stood at some time; the columns where one fell in a body now
+    u->near.clear();
+    u->marked.clear();
+    for (size_t i = 0; i < n; i++) {
+        const double *p = xyz + 3 * i;
+        const uint64_t c = pb_under::column_key(u->col(p[0]), u->col(p[1]));
+        if (!u->watch.count(c)) continue;
+        u->near.push_back(i);
+        uint64_t key;
+        if (pb_map_voxel_key(u->voxel_m, p[0], p[1], p[2], &key) == 0 && u->body.count(key)) u->marked.insert(c);
+    }
+    if (u->marked.empty()) return;
+    // 2. of those, the low ones within reach of a marked column taken out of their voxels
+    for (size_t i : u->near) {
+        const double *p = xyz + 3 * i;
+        const int64_t cx = u->col(p[0]), cy = u->col(p[1]);
+        bool under = false;
+        for (int dx = -u->reach; dx <= u->reach && !under; dx++)
+            for (int dy = -u->reach; dy <= u->reach && !under; dy++) under = u->marked.count(pb_under::column_key(cx + dx, cy + dy)) > 0;
+        double h;
+        uint64_t key;
+        if (!under || !u->height(p[0], p[1], p[2], &h) || h > u->cfg.road_max_m ||
+            pb_map_voxel_key(u->voxel_m, p[0], p[1], p[2], &key) != 0 || u->body.count(key))
+            continue;
+        double corner[3];
+        pb_map_voxel_corner(u->voxel_m, key, corner);
+        Taken &t = u->taken.emplace(key, Taken{{0, 0, 0, 0}, 0}).first->second;
+        for (int a = 0; a < 3; a++) t.s[a] += p[a] - corner[a];
+        t.s[3] += intensity ? intensity[i] : 0.0f;
+        t.n++;
+        u->returns_taken++;
+    }
+}
+
+uint32_t pb_under_adjust(const pb_under_t *u, float p[4], uint32_t n)
+{
+    uint64_t key;
+    if (pb_map_voxel_key(u->voxel_m, p[0], p[1], p[2], &key) != 0) return n;
+    auto it = u->taken.find(key);
+    if (it == u->taken.end()) return n;
+    double h;
+    if (!u->height(p[0], p[1], p[2], &h) || h <= u->cfg.lifted_m) return n;   /* on the ground: the road */
+    const Taken &t = it->second;
+    if (t.n >= n) return 0;
+    double corner[3];
+    pb_map_voxel_corner(u->voxel_m, key, corner);
+    const uint32_t left = n - t.n;
+    for (int a = 0; a < 3; a++) p[a] = (float)(corner[a] + (((double)p[a] - corner[a]) * n - t.s[a]) / left);
+    p[3] = (float)(((double)p[3] * n - t.s[3]) / left);
+    return left;
+}
+
+void pb_under_counts(const pb_under_t *u, uint64_t *returns, uint64_t *voxels)
+{
+    *returns = u->returns_taken;
+    *voxels = u->taken.size();
+}

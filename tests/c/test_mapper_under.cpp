@@ -1,0 +1,246 @@
+/* The road under what moved (modules/mapper/core/under.h): a tyre stood on the road for two
+ * sweeps of twelve. The map's voxels are made by the real map builder; the road voxels its
+ * bottom returns fell in must come out as the builder makes them from the road's returns
+ * alone, a voxel only the tyre's bottom filled goes, and nothing else moves: the road away
+ * from the tyre, a post's foot beside it higher than road_max_m, the road under a carved
+ * voxel higher than body_max_m, and everything when there is no ground model.
+ * pb_map_builder_place_timed places a scan's points as pb_map_builder_add_timed does. */
+#include <cmath>
+#include <cstdio>
+#include <map>
+#include <vector>
+
+#include "mapper/core/under.h"
+#include "pb_check.h"
+#include "pb_map_build.h"
+
+static const double kVoxel = 0.15;
+
+struct Scene {
+    std::vector<std::vector<double>> sweeps;   /* x y z per return */
+    std::vector<double> road, tyre_low, alone, under_road;   /* returns: see scene() */
+};
+
+/* A point cloud's voxels as the builder makes them: key -> (x y z i, n). */
+static std::map<uint64_t, std::pair<std::vector<float>, uint32_t>> voxels_of(const std::vector<double> &xyz)
+{
+    pb_map_builder_t *b = pb_map_builder_create_tiled(kVoxel, 64, nullptr);
+    pb_points_t pts = {};
+    std::vector<float> x, y, z, in;
+    for (size_t i = 0; i < xyz.size(); i += 3) {
+        x.push_back((float)xyz[i]); y.push_back((float)xyz[i + 1]); z.push_back((float)xyz[i + 2]); in.push_back(0);
+    }
+    pts.n = (int)x.size(); pts.x = x.data(); pts.y = y.data(); pts.z = z.data(); pts.intensity = in.data();
+    pb_transform_t id = {{0, 0, 0}, {1, 0, 0, 0}};
+    pb_map_builder_add(b, &pts, &id, nullptr);
+    std::map<uint64_t, std::pair<std::vector<float>, uint32_t>> out;
+    std::vector<int32_t> tiles(2 * (size_t)pb_map_builder_tiles(b, nullptr, 0));
+    pb_map_builder_tiles(b, tiles.data(), (int)tiles.size() / 2);
+    for (size_t t = 0; t < tiles.size(); t += 2) {
+        std::vector<pb_map_voxel_t> v((size_t)pb_map_builder_tile_size(b, tiles[t], tiles[t + 1]));
+        pb_map_builder_tile_take(b, tiles[t], tiles[t + 1], v.data());
+        for (const pb_map_voxel_t &vx : v) {
+            std::vector<float> p(4);
+            pb_map_voxel_point(b, &vx, p.data());
+            out[vx.key] = {p, vx.n};
+        }
+    }
+    pb_map_builder_destroy(b);
+    return out;
+}
+
+static void add(std::vector<double> *v, double x, double y, double z) { v->insert(v->end(), {x, y, z}); }
+
+/* Twelve sweeps of the road (x -1 .. 2, y -1 .. 2, a return per voxel per sweep, 5 mm over the
+ * ground; never two patches under a car: x 0.45 .. 0.6 and 0.6 .. 0.75, y 1.05 .. 1.2); sweeps
+ * 5 and 6 also see a tyre's face at x 0.5, y 0.4 .. 1.0, z 0 .. 0.66 (its bottom 12 cm in the
+ * road's voxels; the road behind it hidden), under the car the first patch's tyre bottom (6 cm
+ * over the ground) and the second patch's road, and a bus's side at 2.5 m over x 1.8, y -0.9.
+ * A post's foot at 0.35 m beside the tyre (x 0.62, y 0.2), every sweep. scene.road: the
+ * returns of the voxels the tyre lifted as they should be: where the tyre stood (its columns,
+ * 0.25 m, and their neighbours: x 0.25 .. 1.0, y 0 .. 1.25) the road's returns of sweeps 5
+ * and 6 are taken out with the tyre's. */
+static Scene scene()
+{
+    Scene s;
+    for (int k = 0; k < 12; k++) {
+        std::vector<double> w;
+        const bool tyre = k == 5 || k == 6;
+        for (int i = 0; i <= 20; i++)
+            for (int j = 0; j <= 20; j++) {
+                /* off the voxels' and columns' edges */
+                const double x = -0.97 + 0.15 * i + 0.001 * k, y = -0.958 + 0.15 * j;
+                if (tyre && x > 0.5 && x < 0.8 && y > 0.4 && y < 1.0) continue;   /* behind the tyre */
+                if (x >= 0.45 && x < 0.75 && y >= 1.05 && y < 1.2) continue;      /* under the car */
+                add(&w, x, y, 0.005);
+                if (!(tyre && x >= 0.25 && x < 1.0 && y >= 0 && y < 1.25)) add(&s.road, x, y, 0.005);
+            }
+        add(&w, 0.62, 0.2, 0.35);
+        if (tyre)
+            for (double y = 0.41; y < 1.0; y += 0.03)
+                for (double z = 0.0; z < 0.66; z += 0.03) {
+                    add(&w, 0.5, y, z + 0.001 * k);
+                    if (z + 0.001 * k <= 0.3) add(&s.tyre_low, 0.5, y, z + 0.001 * k);
+                }
+        if (tyre) {
+            for (double y = 1.07; y < 1.18; y += 0.02) {
+                add(&w, 0.52, y, 0.06);
+                add(&s.alone, 0.52, y, 0.06);
+                add(&w, 0.67, y, 0.005);
+                add(&s.under_road, 0.67, y, 0.005);
+            }
+            for (double x = 1.8; x < 2.0; x += 0.05) add(&w, x, -0.9, 2.5);
+        }
+        s.sweeps.push_back(w);
+    }
+    return s;
+}
+
+int main()
+{
+    pb_ground_t *ground = pb_ground_create(-5, -5, 0.5, 21, 21);
+    for (int i = 0; i < 21; i++)
+        for (int j = 0; j < 21; j++) pb_ground_set(ground, i, j, 0.0);
+    const Scene s = scene();
+    std::vector<double> all;
+    for (const auto &w : s.sweeps) all.insert(all.end(), w.begin(), w.end());
+    auto map = voxels_of(all);
+    /* the carving took the tyre's voxels over 0.15 m and the bus's side */
+    std::vector<float> carved;
+    for (const auto &v : map)
+        if (v.second.first[2] > 0.15 && !(std::fabs(v.second.first[0] - 0.62f) < 0.1 && std::fabs(v.second.first[1] - 0.2f) < 0.1))
+            carved.insert(carved.end(), v.second.first.begin(), v.second.first.begin() + 3);
+    CHECK(carved.size() / 3 > 20);
+    auto run = [&](const pb_ground_t *g) {
+        pb_under_t *u = pb_under_create(carved.data(), carved.size() / 3, 3, kVoxel, g, nullptr);
+        for (const auto &w : s.sweeps) pb_under_sweep(u, w.data(), nullptr, w.size() / 3);
+        return u;
+    };
+    pb_under_t *u = run(ground);
+    /* what each kept voxel should be: the builder's voxels of the road alone (and the post) */
+    std::vector<double> road = s.road;
+    for (int k = 0; k < 12; k++) add(&road, 0.62, 0.2, 0.35);
+    auto want = voxels_of(road);
+    auto mixed = voxels_of(s.tyre_low), alone = voxels_of(s.alone), under_road = voxels_of(s.under_road);
+    size_t moved = 0, gone = 0, same = 0, right = 0, wrong = 0;
+    for (const auto &v : map) {
+        if (v.second.first[2] > 0.15 && !(std::fabs(v.second.first[0] - 0.62f) < 0.1)) continue;   /* carved */
+        float p[4] = {v.second.first[0], v.second.first[1], v.second.first[2], v.second.first[3]};
+        const uint32_t left = pb_under_adjust(u, p, v.second.second);
+        if (left == 0) {
+            gone++;
+            if (!alone.count(v.first) || want.count(v.first)) wrong++;
+            continue;
+        }
+        if (left == v.second.second) same++;
+        else moved++;
+        /* a voxel left must be the road's (and the post's) returns alone where it was lifted,
+         * else as it was */
+        const bool lifted = v.second.first[2] > 0.03f;
+        auto w = want.find(v.first);
+        const std::vector<float> &q = lifted && w != want.end() ? w->second.first : v.second.first;
+        const uint32_t nq = lifted && w != want.end() ? w->second.second : v.second.second;
+        const bool ok = (!lifted || w != want.end()) && left == nq && std::fabs(p[0] - q[0]) < 1e-5 &&
+                        std::fabs(p[1] - q[1]) < 1e-5 && std::fabs(p[2] - q[2]) < 1e-5;
+        (ok ? right : wrong)++;
+    }
+    std::printf("voxels: %zu moved, %zu gone, %zu unchanged; %zu as the road alone, %zu wrong\n", moved, gone, same, right, wrong);
+    /* every road voxel the tyre's bottom reached moved back onto the road */
+    size_t mixed_road = 0;
+    for (const auto &m : mixed)
+        if (want.count(m.first) && m.second.first[2] < 0.15f) mixed_road++;
+    CHECK(mixed_road >= 4);
+    /* the road under the car, on the ground: as it was */
+    CHECK(under_road.size() == 1);
+    for (const auto &v : under_road) {
+        float p[4] = {v.second.first[0], v.second.first[1], v.second.first[2], v.second.first[3]};
+        CHECK(pb_under_adjust(u, p, v.second.second) == v.second.second && p[2] == v.second.first[2]);
+    }
+    CHECK(moved >= mixed_road);
+    CHECK(gone == alone.size() && gone == 1);
+    CHECK(wrong == 0);
+    CHECK(right == moved + same);
+    /* the post's foot and the road under the bus's side (2.5 m: higher than body_max_m) kept */
+    float post[4];
+    for (const auto &v : map)
+        if (std::fabs(v.second.first[0] - 0.62f) < 0.1f && std::fabs(v.second.first[1] - 0.2f) < 0.1f && v.second.first[2] > 0.3f) {
+            std::copy(v.second.first.begin(), v.second.first.end(), post);
+            CHECK(pb_under_adjust(u, post, v.second.second) == v.second.second);
+        }
+    float bus_road[4] = {1.85f, -0.9f, 0.01f, 0};
+    CHECK(pb_under_adjust(u, bus_road, 12) == 12);
+    uint64_t returns, voxels;
+    pb_under_counts(u, &returns, &voxels);
+    CHECK(returns > 0 && voxels >= moved + gone);
+    pb_under_destroy(u);
+    /* a body over body_max_m marks nothing: the bus's side alone taken as carved */
+    {
+        std::vector<float> bus;
+        for (double x = 1.8; x < 2.0; x += 0.05) bus.insert(bus.end(), {(float)x, -0.9f, 2.5f});
+        pb_under_t *b = pb_under_create(bus.data(), bus.size() / 3, 3, kVoxel, ground, nullptr);
+        for (const auto &w : s.sweeps) pb_under_sweep(b, w.data(), nullptr, w.size() / 3);
+        pb_under_counts(b, &returns, &voxels);
+        CHECK(returns == 0);
+        pb_under_destroy(b);
+    }
+    /* no ground model: nothing is taken out */
+    pb_under_t *none = run(nullptr);
+    pb_under_counts(none, &returns, &voxels);
+    CHECK(returns == 0 && voxels == 0);
+    pb_under_destroy(none);
+
+    /* place_timed places a scan's points as add_timed adds them: the same voxels */
+    {
+        pb_pose_track_t *track = pb_pose_track_create();
+        pb_transform_t a = {{10.3, -4.2, 1.7}, {1, 0, 0, 0}}, b2 = a;
+        b2.t[0] += 1.3;
+        pb_quat_from_rpy(0.01, -0.02, 0.1, b2.q);
+        pb_pose_track_add(track, 1000, &a);
+        pb_pose_track_add(track, 101000, &b2);
+        std::vector<float> x, y, z, in;
+        std::vector<int32_t> off;
+        for (int i = 0; i < 2000; i++) {
+            const double ang = 0.0031 * i;
+            x.push_back((float)(7 * std::cos(ang))); y.push_back((float)(7 * std::sin(ang))); z.push_back((float)(0.001 * i - 1));
+            in.push_back((float)i);
+            off.push_back(i / 20 * 1000);
+        }
+        x[5] = y[5] = z[5] = 0;   /* a no-return marker */
+        x[6] = 90;                /* beyond the range */
+        pb_points_t pts = {};
+        pts.n = 2000; pts.x = x.data(); pts.y = y.data(); pts.z = z.data(); pts.intensity = in.data(); pts.offset_us = off.data();
+        pb_map_builder_t *timed = pb_map_builder_create(kVoxel, nullptr), *placed = pb_map_builder_create(kVoxel, nullptr);
+        pb_map_builder_set_max_range(timed, 60);
+        pb_map_builder_set_max_range(placed, 60);
+        CHECK(pb_map_builder_add_timed(timed, &pts, 1000, track, &a, nullptr) == 1);
+        std::vector<double> xyz(3 * 2000);
+        std::vector<int32_t> index(2000);
+        const int n = pb_map_builder_place_timed(placed, &pts, 1000, track, &a, xyz.data(), index.data());
+        CHECK(n == 1998 && index[5] == 7);
+        /* the placed points' voxels and counts are the timed builder's */
+        std::map<uint64_t, uint32_t> from_placed, from_timed;
+        for (int k = 0; k < n; k++) {
+            uint64_t key;
+            if (pb_map_voxel_key(kVoxel, xyz[3 * k], xyz[3 * k + 1], xyz[3 * k + 2], &key) == 0) from_placed[key]++;
+        }
+        pb_map_builder_t *tiled = pb_map_builder_create_tiled(kVoxel, 64, nullptr);
+        pb_map_builder_set_max_range(tiled, 60);
+        CHECK(pb_map_builder_add_timed(tiled, &pts, 1000, track, &a, nullptr) == 1);
+        std::vector<int32_t> tiles(2 * (size_t)pb_map_builder_tiles(tiled, nullptr, 0));
+        pb_map_builder_tiles(tiled, tiles.data(), (int)tiles.size() / 2);
+        for (size_t t = 0; t < tiles.size(); t += 2) {
+            std::vector<pb_map_voxel_t> v((size_t)pb_map_builder_tile_size(tiled, tiles[t], tiles[t + 1]));
+            pb_map_builder_tile_take(tiled, tiles[t], tiles[t + 1], v.data());
+            for (const pb_map_voxel_t &vx : v) from_timed[vx.key] = vx.n;
+        }
+        pb_map_builder_destroy(tiled);
+        CHECK(from_placed.size() > 100 && from_placed == from_timed);
+        CHECK((int64_t)from_timed.size() == pb_map_builder_size(timed));
+        CHECK(pb_map_builder_place_timed(placed, &pts, 500000, track, &a, xyz.data(), nullptr) == -1);
+        pb_map_builder_destroy(timed);
+        pb_map_builder_destroy(placed);
+        pb_pose_track_destroy(track);
+    }
+    pb_ground_destroy(ground);
+    return pb_check_report("test_mapper_under");
+}
