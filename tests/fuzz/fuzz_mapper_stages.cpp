@@ -3,7 +3,7 @@
  * checksum (a damaged file fails those first; this reaches the fields behind them). A file
  * restored must leave a Run the report can be written from; errors and refusals are
  * expected, crashes, undefined behaviour and leaks are not.
- * fuzz-sources: modules/mapper/restart.cpp modules/mapper/core/odometry.cpp modules/localizer/core/registration.cpp modules/localizer/core/regmap.cpp modules/localizer/core/deskew.cpp modules/localizer/core/window_search.cpp modules/localizer/core/map_tiles.cpp modules/localizer/core/places.cpp common/pb_err.c
+ * fuzz-sources: modules/mapper/restart.cpp modules/mapper/core/odometry.cpp modules/localizer/core/registration.cpp modules/localizer/core/regmap.cpp modules/localizer/core/deskew.cpp modules/localizer/core/window_search.cpp modules/localizer/core/map_tiles.cpp modules/localizer/core/places.cpp common/pb_err.c common/pb_pcd.c
  * fuzz-libs: -Wno-deprecated -Imodules/mapper -Imodules/localizer/core -Imodules/mapper/core -I/usr/include/pcl-1.13 -I/usr/include/eigen3 -lpcl_io -lpcl_common -lpthread */
 #include <cstdint>
 #include <cstdio>
