@@ -2,8 +2,10 @@
  * sweeps of twelve. The map's voxels are made by the real map builder; the road voxels its
  * bottom returns fell in must come out as the builder makes them from the road's returns
  * alone, a voxel only the tyre's bottom filled goes, and nothing else moves: the road away
- * from the tyre, a post's foot beside it higher than road_max_m, the road under a carved
- * voxel higher than body_max_m, and everything when there is no ground model.
+ * from the tyre, a post's foot beside it higher than road_max_m, a voxel whose point lies
+ * higher than road_max_m (a kerb's top) though its lowest returns were under a body, the
+ * road under a carved voxel higher than body_max_m, and everything when there is no ground
+ * model.
  * pb_map_builder_place_timed places a scan's points as pb_map_builder_add_timed does. */
 #include <cmath>
 #include <cstdio>
@@ -181,6 +183,27 @@ int main()
         for (const auto &w : s.sweeps) pb_under_sweep(b, w.data(), nullptr, w.size() / 3);
         pb_under_counts(b, &returns, &voxels);
         CHECK(returns == 0);
+        pb_under_destroy(b);
+    }
+    /* a voxel higher than the road's band (a kerb's top beside a car, 0.2-0.25 m over the
+     * ground) keeps its lowest returns; one in the band (0.09 m) loses them */
+    for (int i = 15; i <= 18; i++)
+        for (int j = 15; j <= 18; j++) pb_ground_set(ground, i, j, 0.02);   /* 2 cm higher round (3, 3) */
+    for (double top : {0.29, 0.12}) {
+        std::vector<float> car = {3.05f, 3.05f, 0.6f};
+        pb_under_t *b = pb_under_create(car.data(), 1, 3, kVoxel, ground, nullptr);
+        for (int k = 0; k < 2; k++) {
+            const double w[6] = {3.05, 3.05, 0.6, 3.1, 3.1, top == 0.29 ? 0.16 : 0.03};   /* 0.14 / 0.01 over it */
+            pb_under_sweep(b, w, nullptr, 2);
+        }
+        /* the voxel: 10 returns at `top`, 2 low ones (taken) */
+        const float z = top == 0.29 ? (float)((10 * 0.29 + 2 * 0.16) / 12) : (float)((10 * 0.12 + 2 * 0.03) / 12);
+        float p[4] = {3.1f, 3.1f, z, 0};
+        const uint32_t left = pb_under_adjust(b, p, 12);
+        uint64_t taken, voxels;
+        pb_under_counts(b, &taken, &voxels);
+        CHECK(taken == 2);
+        CHECK(top == 0.29 ? left == 12 && p[2] == z : left == 10 && std::fabs(p[2] - 0.12f) < 1e-5);
         pb_under_destroy(b);
     }
     /* no ground model: nothing is taken out */

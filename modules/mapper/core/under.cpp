@@ -110,7 +110,9 @@ uint32_t pb_under_adjust(const pb_under_t *u, float p[4], uint32_t n)
     auto it = u->taken.find(key);
     if (it == u->taken.end()) return n;
     double h;
-    if (!u->height(p[0], p[1], p[2], &h) || h <= u->cfg.lifted_m) return n;   /* on the ground: the road */
+    /* on the ground: the road itself; higher than the road's band: what stands there (a kerb's
+     * or a bush's base beside a car), which the taking of its lowest returns would lift */
+    if (!u->height(p[0], p[1], p[2], &h) || h <= u->cfg.lifted_m || h > u->cfg.road_max_m) return n;
     const Taken &t = it->second;
     if (t.n >= n) return 0;
     double corner[3];

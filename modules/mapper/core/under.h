@@ -16,9 +16,12 @@
  * body's column, not only where a body stood, 92 and 752. Most of those taken lay 4-6 cm
  * over the ground model: voxels that only the bodies' bottoms filled. A
  * voxel keeps the rest of its returns (the road seen before and after), and goes when it had
- * no other. Only voxels lifted over the ground (lifted_m) are judged: one that lies on it is
- * the road, seen beside or under the body (on the simulated drives the voxels that went
- * without this were the road, 4-12 mm over it at the median, where the tyres' lay 7-9 cm).
+ * no other. Only voxels lifted over the ground (lifted_m) and within the road's band
+ * (road_max_m) are judged: one that lies on the ground is the road, seen beside or under the
+ * body (on the simulated drives the voxels that went without this were the road, 4-12 mm
+ * over it at the median, where the tyres' lay 7-9 cm); one higher is what stands there (on
+ * MulRan, 162 voxels of a kerb's or a bush's base beside a car, whose centroid the taking of
+ * their lowest returns lifted).
  *
  * Pure: no I/O, no clock. The voxels are the map builder's (pb_map_voxel_key). Ownership:
  * pb_under_create copies the points and keeps a pointer to the ground model, which must
@@ -53,8 +56,8 @@ void pb_under_destroy(pb_under_t *u);
 void pb_under_sweep(pb_under_t *u, const double *xyz, const float *intensity, size_t n);
 
 /* A voxel's map point p (x y z intensity) of n returns: p without the returns taken out of
- * its voxel, when it lies higher than lifted_m over the ground. Returns the returns left (0:
- * the voxel goes; n: p unchanged). */
+ * its voxel, when it lies higher than lifted_m over the ground and no higher than road_max_m.
+ * Returns the returns left (0: the voxel goes; n: p unchanged). */
 uint32_t pb_under_adjust(const pb_under_t *u, float p[4], uint32_t n);
 
 /* Returns taken out so far, and the voxels they came from. */
