@@ -5,7 +5,8 @@
  * from the tyre, a post's foot beside it higher than road_max_m, a voxel whose point lies
  * higher than road_max_m (a kerb's top) though its lowest returns were under a body, the
  * road under a carved voxel higher than body_max_m, and everything when there is no ground
- * model.
+ * model. A low return whose beam just above, in the same column of the sweep, ended on a
+ * nearer body goes without a body return near it (and stays when the columns are not known).
  * pb_map_builder_place_timed places a scan's points as pb_map_builder_add_timed does. */
 #include <cmath>
 #include <cstdio>
@@ -204,6 +205,41 @@ int main()
         pb_under_counts(b, &taken, &voxels);
         CHECK(taken == 2);
         CHECK(top == 0.29 ? left == 12 && p[2] == z : left == 10 && std::fabs(p[2] - 0.12f) < 1e-5);
+        pb_under_destroy(b);
+    }
+    /* a beam under a nearer car's body: the low return (a far wheel's inner face, 6 cm over the
+     * ground at x 4) has no body return within 0.5 m in x-y, but the beam just above it in the
+     * same column of the sweep ended on the nearer car's body (x 2.5, 1 m up): taken. The
+     * same with the body return in another column, or the columns not known: kept. The LiDAR
+     * at (0, 0, 1.9); the far wheel was carved at another time (where a body stood). */
+    for (int kind = 0; kind < 3; kind++) {
+        std::vector<float> bodies = {2.5f, 0.0f, 1.0f, 4.0f, 0.0f, 0.4f};
+        pb_under_t *b = pb_under_create(bodies.data(), 2, 3, kVoxel, ground, nullptr);
+        const double w[6] = {4.0, 0.02, 0.06, 2.5, 0.02, 1.0};
+        const float sensor[6] = {4.0f, 0.02f, 0.06f - 1.9f, 2.5f, 0.02f, 1.0f - 1.9f};
+        const int32_t column[2] = {7, kind == 1 ? 8 : 7};
+        pb_under_sweep(b, w, nullptr, 2, sensor, kind == 2 ? nullptr : column);
+        float p[4] = {4.0f, 0.02f, 0.035f, 0};   /* with a road return at 0.01 of another sweep */
+        const uint32_t left = pb_under_adjust(b, p, 2);
+        CHECK_CASE(kind == 0 ? "beam above on a body: taken" : kind == 1 ? "other column: kept" : "no columns: kept",
+                   kind == 0 ? left == 1 && std::fabs(p[2] - 0.01f) < 1e-5 : left == 2);
+        pb_under_destroy(b);
+    }
+    /* ... and kept when the sweep's "column" holds 300 returns (a keyframe without per-point
+     * times: one time for all) */
+    {
+        std::vector<float> bodies = {2.5f, 0.0f, 1.0f, 4.0f, 0.0f, 0.4f};
+        pb_under_t *b = pb_under_create(bodies.data(), 2, 3, kVoxel, ground, nullptr);
+        std::vector<double> w = {4.0, 0.02, 0.06, 2.5, 0.02, 1.0};
+        std::vector<float> sensor = {4.0f, 0.02f, 0.06f - 1.9f, 2.5f, 0.02f, 1.0f - 1.9f};
+        for (int k = 0; k < 298; k++) {   /* more of the body, higher up */
+            w.insert(w.end(), {2.5, 0.02 + 0.0005 * k, 1.2});
+            sensor.insert(sensor.end(), {2.5f, 0.02f + 0.0005f * k, 1.2f - 1.9f});
+        }
+        std::vector<int32_t> column(300, 0);
+        pb_under_sweep(b, w.data(), nullptr, 300, sensor.data(), column.data());
+        float p[4] = {4.0f, 0.02f, 0.035f, 0};
+        CHECK(pb_under_adjust(b, p, 2) == 2);
         pb_under_destroy(b);
     }
     /* no ground model: nothing is taken out */

@@ -1,6 +1,7 @@
 /* under: see under.h. */
 #include "under.h"
 
+#include <algorithm>
 #include <cmath>
 #include <unordered_map>
 #include <unordered_set>
@@ -27,6 +28,9 @@ struct pb_under {
     /* one sweep's: the returns in watched columns, the columns a body marked */
     std::vector<size_t> near;
     std::unordered_set<uint64_t> marked;
+    struct Beam { int32_t column; float elevation, range; size_t k; };   /* a near return's beam */
+    std::vector<Beam> beams;
+    std::vector<uint8_t> done;   /* per near return: judged by step 2 */
 
     int64_t col(double v) const { return (int64_t)std::floor(v * inv_col); }
     static uint64_t column_key(int64_t cx, int64_t cy) { return (uint64_t)cx << 32 | (uint32_t)cy; }
@@ -66,7 +70,7 @@ pb_under_t *pb_under_create(const float *carved, size_t n, size_t stride, double
 
 void pb_under_destroy(pb_under_t *u) { delete u; }
 
-void pb_under_sweep(pb_under_t *u, const double *xyz, const float *intensity, size_t n)
+void pb_under_sweep(pb_under_t *u, const double *xyz, const float *intensity, size_t n, const float *sensor, const int32_t *column)
 {
     if (u->body.empty()) return;
     // 1. the returns where a body stood at some time; the columns where one fell in a body now
@@ -82,17 +86,15 @@ void pb_under_sweep(pb_under_t *u, const double *xyz, const float *intensity, si
     }
     if (u->marked.empty()) return;
     // 2. of those, the low ones within reach of a marked column taken out of their voxels
-    for (size_t i : u->near) {
+    std::vector<uint8_t> &done = u->done;
+    done.assign(u->near.size(), 0);
+    auto take = [&](size_t i) {
         const double *p = xyz + 3 * i;
-        const int64_t cx = u->col(p[0]), cy = u->col(p[1]);
-        bool under = false;
-        for (int dx = -u->reach; dx <= u->reach && !under; dx++)
-            for (int dy = -u->reach; dy <= u->reach && !under; dy++) under = u->marked.count(pb_under::column_key(cx + dx, cy + dy)) > 0;
         double h;
         uint64_t key;
-        if (!under || !u->height(p[0], p[1], p[2], &h) || h > u->cfg.road_max_m ||
+        if (!u->height(p[0], p[1], p[2], &h) || h > u->cfg.road_max_m ||
             pb_map_voxel_key(u->voxel_m, p[0], p[1], p[2], &key) != 0 || u->body.count(key))
-            continue;
+            return;
         double corner[3];
         pb_map_voxel_corner(u->voxel_m, key, corner);
         Taken &t = u->taken.emplace(key, Taken{{0, 0, 0, 0}, 0}).first->second;
@@ -100,6 +102,41 @@ void pb_under_sweep(pb_under_t *u, const double *xyz, const float *intensity, si
         t.s[3] += intensity ? intensity[i] : 0.0f;
         t.n++;
         u->returns_taken++;
+    };
+    for (size_t k = 0; k < u->near.size(); k++) {
+        const double *p = xyz + 3 * u->near[k];
+        const int64_t cx = u->col(p[0]), cy = u->col(p[1]);
+        bool under = false;
+        for (int dx = -u->reach; dx <= u->reach && !under; dx++)
+            for (int dy = -u->reach; dy <= u->reach && !under; dy++) under = u->marked.count(pb_under::column_key(cx + dx, cy + dy)) > 0;
+        if (under) { take(u->near[k]); done[k] = 1; }
+    }
+    // 3. the sweep's columns known: a low return whose beam above ended in a body, nearer or
+    // a little farther (a wheel's bottom; what a beam under a nearer car's body met)
+    if (!sensor || !column) return;
+    /* a column is one firing, of a few hundred beams at most: a sweep whose returns follow
+     * each other with one time in larger runs (a keyframe without per-point times) has none */
+    for (size_t i = 1, run = 1; i < n; i++) {
+        run = column[i] == column[i - 1] ? run + 1 : 1;
+        if (run > 256) return;
+    }
+    using Beam = pb_under::Beam;
+    std::vector<Beam> &beams = u->beams;
+    beams.clear();
+    for (size_t k = 0; k < u->near.size(); k++) {
+        const float *q = sensor + 3 * u->near[k];
+        const float rxy = std::hypot(q[0], q[1]);
+        beams.push_back({column[u->near[k]], std::atan2(q[2], rxy), std::sqrt(rxy * rxy + q[2] * q[2]), k});
+    }
+    std::sort(beams.begin(), beams.end(), [](const Beam &a, const Beam &b) {
+        return a.column != b.column ? a.column < b.column : a.elevation != b.elevation ? a.elevation < b.elevation : a.k < b.k;
+    });
+    for (size_t b = 0; b + 1 < beams.size(); b++) {
+        const Beam &low = beams[b], &above = beams[b + 1];
+        if (done[low.k] || above.column != low.column || above.range > low.range + u->cfg.above_beyond_m) continue;
+        const double *q = xyz + 3 * u->near[above.k];
+        uint64_t key;
+        if (pb_map_voxel_key(u->voxel_m, q[0], q[1], q[2], &key) == 0 && u->body.count(key)) take(u->near[low.k]);
     }
 }
 

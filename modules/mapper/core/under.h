@@ -2,26 +2,31 @@
  * voxels, and a voxel of the road holds the road's returns of the whole drive and, mixed in
  * with them, the returns of the lowest few centimetres of every tyre that stood on it: the
  * tyres lift its centroid by 5-10 cm, and no verdict on the whole voxel can take them out
- * without the road. So the drive is read again, after the carving: in each sweep, a column
- * (column_m square in x-y) where a return fell in a voxel the carving took (a body, not the
- * road: body_min_m to body_max_m over the ground model) held that body at that moment, and
- * the sweep's returns no higher than road_max_m over the ground, within reach_m of it, where
- * a body stood at some time of the drive (a body's column or one beside it) were the body's
- * bottom or what passed under it: they are taken out of their voxels. Within reach_m, not the
- * column alone: a beam that passes under a car's body ends on the inner face of the far
- * wheel, under a roof whose few returns of the sweep lie farther off. Measured on the
- * simulated loop with true poses (points left on moving objects, and points within 5 cm of
- * the static world taken, of 678 and 7.24 M before): within one column 237 and 261, within
- * 0.5 m 94 and 348, within 1 m 72 and 394; and judging every return within 0.5 m of a
- * body's column, not only where a body stood, 92 and 752. Most of those taken lay 4-6 cm
- * over the ground model: voxels that only the bodies' bottoms filled. A
- * voxel keeps the rest of its returns (the road seen before and after), and goes when it had
- * no other. Only voxels lifted over the ground (lifted_m) and within the road's band
- * (road_max_m) are judged: one that lies on the ground is the road, seen beside or under the
- * body (on the simulated drives the voxels that went without this were the road, 4-12 mm
- * over it at the median, where the tyres' lay 7-9 cm); one higher is what stands there (on
- * MulRan, 162 voxels of a kerb's or a bush's base beside a car, whose centroid the taking of
- * their lowest returns lifted).
+ * without the road. So the drive is read again, after the carving, and in each sweep a
+ * return no higher than road_max_m over the ground is taken out of its voxel as the bottom
+ * of a body, or what passed under one, when
+ *  - it lies within reach_m of a column (column_m square in x-y) where a return of the sweep
+ *    fell in a voxel the carving took (a body, not the road: body_min_m to body_max_m over
+ *    the ground model), and where a body stood at some time of the drive (a body's column
+ *    or one beside it); or
+ *  - the sweep's columns are known and the beam just above it, in the same column of the
+ *    sweep, ended in such a voxel no farther than above_beyond_m beyond it: a wheel's bottom
+ *    at a range where one beam hits the wheel and the next its body, and what a beam that
+ *    passed under a nearer car's body met (the far wheel's inner face), with no body return
+ *    near it.
+ * Measured on the simulated loop with true poses (points left on moving objects, and points
+ * within 5 cm of the static world taken, of 678 and 7.24 M before): within one column 237
+ * and 261, within 0.5 m 94 and 348, within 1 m 72 and 394; judging every return within
+ * 0.5 m of a body's column, not only where a body stood, 92 and 752; within 0.5 m and the
+ * beam above, 58 and 369 (two beams above: 55 and 374). Most of those taken lay 4-6 cm over
+ * the ground model: voxels that only the bodies' bottoms filled. A voxel keeps the rest of
+ * its returns (the road seen before and after), and goes when it had no other. Only voxels
+ * lifted over the ground (lifted_m) and within the road's band (road_max_m) are judged: one
+ * that lies on the ground is the road, seen beside or under the body (on the simulated
+ * drives the voxels that went without this were the road, 4-12 mm over it at the median,
+ * where the tyres' lay 7-9 cm); one higher is what stands there (on MulRan, 162 voxels of a
+ * kerb's or a bush's base beside a car, whose centroid the taking of their lowest returns
+ * lifted).
  *
  * Pure: no I/O, no clock. The voxels are the map builder's (pb_map_voxel_key). Ownership:
  * pb_under_create copies the points and keeps a pointer to the ground model, which must
@@ -41,6 +46,7 @@ typedef struct {
     double body_max_m = 2.0;  /* ... up to this (a carved voxel higher up says nothing of the road) */
     double road_max_m = 0.15; /* returns no higher than this over the ground under a body are taken out ... */
     double lifted_m = 0.03;   /* ... of voxels lifted this much over the ground (one lower is the road itself) */
+    double above_beyond_m = 0.5; /* a low return goes when its beam above ended in a body at most this beyond it */
 } pb_under_config_t;
 
 typedef struct pb_under pb_under_t;
@@ -52,8 +58,12 @@ pb_under_t *pb_under_create(const float *carved, size_t n, size_t stride, double
 void pb_under_destroy(pb_under_t *u);
 
 /* One sweep's n returns (x y z doubles in the map frame, placed as the map placed them;
- * intensity NULL: 0). */
-void pb_under_sweep(pb_under_t *u, const double *xyz, const float *intensity, size_t n);
+ * intensity NULL: 0), and when the sweep says so, each return in the sensor's frame (x y z
+ * floats) and its column of the sweep (the returns of one firing, which share their time;
+ * NULL: not known; a sweep with more than 256 returns one after the other in one column has
+ * none). */
+void pb_under_sweep(pb_under_t *u, const double *xyz, const float *intensity, size_t n, const float *sensor = nullptr,
+                    const int32_t *column = nullptr);
 
 /* A voxel's map point p (x y z intensity) of n returns: p without the returns taken out of
  * its voxel, when it lies higher than lifted_m over the ground and no higher than road_max_m.
