@@ -2,7 +2,7 @@
  * (modules/mapper/core/odometry: pb_odom_restore) from arbitrary bytes; a state that
  * restores is saved again and must restore to the same bytes, and takes a sweep.
  * Errors are expected; crashes, undefined behaviour and leaks are not.
- * fuzz-sources: modules/mapper/core/odometry.cpp modules/localizer/core/registration.cpp modules/localizer/core/regmap.cpp modules/localizer/core/deskew.cpp modules/localizer/core/window_search.cpp modules/localizer/core/map_tiles.cpp modules/localizer/core/places.cpp common/pb_err.c
+ * fuzz-sources: modules/mapper/core/odometry.cpp modules/localizer/core/registration.cpp modules/localizer/core/regmap.cpp modules/localizer/core/deskew.cpp modules/localizer/core/window_search.cpp modules/localizer/core/map_tiles.cpp modules/localizer/core/places.cpp common/pb_err.c common/pb_pcd.c
  * fuzz-libs: -Wno-deprecated -Imodules/localizer/core -Imodules/mapper/core -I/usr/include/pcl-1.13 -I/usr/include/eigen3 -lpcl_io -lpcl_common -lpthread */
 #include <cstdint>
 #include <cstdlib>
