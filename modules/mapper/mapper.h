@@ -96,7 +96,7 @@ struct Run {
     std::string ground_why;                  /* empty: ground.yaml written */
     size_t carved = 0;
     size_t carved_groups = 0;                /* of those, in groups that views saw through */
-    uint64_t under_returns = 0, under_voxels = 0;   /* pass 4: returns at the road under a body taken out, their voxels */
+    uint64_t under_returns = 0;              /* pass 4: returns at the road under a body taken out */
     size_t under_moved = 0, under_gone = 0;   /* kept voxels it moved (those that went included), those that went */
     long views = 0;                          /* sweeps taken as views by the carving */
     double m_per_px = 0;

@@ -242,7 +242,7 @@ int checkpoint_read(Run *R, pb_err_t *err)
 
 /* ---- Restart inside the later steps (mapper.h). */
 const char kPosesMagic[8] = {'P', 'B', 'M', 'A', 'P', 'P', 'S', '1'};
-const char kCarvedMagic[8] = {'P', 'B', 'M', 'A', 'P', 'C', 'V', '5'};
+const char kCarvedMagic[8] = {'P', 'B', 'M', 'A', 'P', 'C', 'V', '6'};
 
 /* What a stage checkpoint must match: the mapper's build, the options the later steps depend
  * on, every drive's log (as the odometry's checkpoints) and the poses given. */
@@ -336,7 +336,7 @@ int stage_write_carved(Run *R, pb_err_t *err)
         w.put((int64_t)v);
     w.put(R->voxels_held_max); w.put((uint64_t)R->voxels); w.put((uint64_t)R->map_points); w.put((uint64_t)R->carved);
     w.put((uint64_t)R->carved_groups); w.put((int64_t)R->views);
-    for (uint64_t v : {R->under_returns, R->under_voxels, (uint64_t)R->under_moved, (uint64_t)R->under_gone}) w.put(v);
+    for (uint64_t v : {R->under_returns, (uint64_t)R->under_moved, (uint64_t)R->under_gone}) w.put(v);
     std::vector<int64_t> tiles(R->carve_tiles.begin(), R->carve_tiles.end());
     w.put_array(tiles.data(), tiles.size());
     std::vector<uint64_t> kept;   /* per kept tile: key, seq of its first point, bytes, checksum */
@@ -456,7 +456,7 @@ int stage_read(Run *R, int *done, pb_err_t *)
     const uint64_t voxels = r.get<uint64_t>(), map_points = r.get<uint64_t>(), carved = r.get<uint64_t>();
     const uint64_t carved_groups = r.get<uint64_t>();
     const int64_t views = r.get<int64_t>();
-    uint64_t under[4];
+    uint64_t under[3];
     for (uint64_t &v : under) v = r.get<uint64_t>();
     r.get_array(&tiles);
     std::vector<uint64_t> kept;
@@ -493,9 +493,8 @@ int stage_read(Run *R, int *done, pb_err_t *)
     R->carved_groups = (size_t)carved_groups;
     R->views = (long)views;
     R->under_returns = under[0];
-    R->under_voxels = under[1];
-    R->under_moved = (size_t)under[2];
-    R->under_gone = (size_t)under[3];
+    R->under_moved = (size_t)under[1];
+    R->under_gone = (size_t)under[2];
     R->carve_tiles = std::set<int64_t>(tiles.begin(), tiles.end());
     R->ground_why = ground_why;
     R->layers.removed = removed;

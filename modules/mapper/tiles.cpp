@@ -392,24 +392,13 @@ static int pass_under(Run *R, const pb_ground_t *ground, pb_err_t *err)
     pb_map_builder_set_max_range(placer, pb_carve_config_t{}.max_range_m);   /* as pass 2 */
     std::vector<double> xyz;
     std::vector<int32_t> index;
-    std::vector<float> intensity, sensor;
-    std::vector<int32_t> column;
     int rc = for_each_drive_sweep(R, "mapper: under", 1,
         [&](Run *D, int64_t utime, const std::vector<float> &, const pb_points_t &pts, const pb_event_t &, pb_err_t *) {
             xyz.resize(3 * (size_t)pts.n);
             index.resize((size_t)pts.n);
             const int n = pb_map_builder_place_timed(placer, &pts, utime, D->track, &R->veh.base_from_lidar, xyz.data(),
                                                      index.data());
-            intensity.resize(std::max(n, 0));
-            sensor.resize(3 * (size_t)std::max(n, 0));
-            column.resize(std::max(n, 0));
-            for (int k = 0; k < n; k++) {
-                const int32_t i = index[(size_t)k];
-                intensity[(size_t)k] = pts.intensity ? pts.intensity[i] : 0.0f;
-                sensor[3 * (size_t)k] = pts.x[i]; sensor[3 * (size_t)k + 1] = pts.y[i]; sensor[3 * (size_t)k + 2] = pts.z[i];
-                column[(size_t)k] = pts.offset_us ? pts.offset_us[i] : 0;
-            }
-            if (n > 0) pb_under_sweep(u, xyz.data(), intensity.data(), (size_t)n, sensor.data(), pts.offset_us ? column.data() : nullptr);
+            if (n > 0) pb_under_sweep(u, xyz.data(), (size_t)n, &pts, index.data());
             return 0;
         }, err);
     pb_map_builder_destroy(placer);
@@ -432,7 +421,8 @@ static int pass_under(Run *R, const pb_ground_t *ground, pb_err_t *err)
         R->kept_sums[t] = {kept.size() * sizeof(TilePoint), pb_fnv1a64(kept.data(), kept.size() * sizeof(TilePoint))};
         if (tile_write(path, kept.data(), kept.size(), false, err) != 0) rc = -1;
     }
-    pb_under_counts(u, &R->under_returns, &R->under_voxels);
+    uint64_t voxels;
+    pb_under_counts(u, &R->under_returns, &voxels);
     pb_under_destroy(u);
     return rc;
 }

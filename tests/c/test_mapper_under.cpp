@@ -116,7 +116,7 @@ int main()
     CHECK(carved.size() / 3 > 20);
     auto run = [&](const pb_ground_t *g) {
         pb_under_t *u = pb_under_create(carved.data(), carved.size() / 3, 3, kVoxel, g, nullptr);
-        for (const auto &w : s.sweeps) pb_under_sweep(u, w.data(), nullptr, w.size() / 3);
+        for (const auto &w : s.sweeps) pb_under_sweep(u, w.data(), w.size() / 3);
         return u;
     };
     pb_under_t *u = run(ground);
@@ -181,7 +181,7 @@ int main()
         std::vector<float> bus;
         for (double x = 1.8; x < 2.0; x += 0.05) bus.insert(bus.end(), {(float)x, -0.9f, 2.5f});
         pb_under_t *b = pb_under_create(bus.data(), bus.size() / 3, 3, kVoxel, ground, nullptr);
-        for (const auto &w : s.sweeps) pb_under_sweep(b, w.data(), nullptr, w.size() / 3);
+        for (const auto &w : s.sweeps) pb_under_sweep(b, w.data(), w.size() / 3);
         pb_under_counts(b, &returns, &voxels);
         CHECK(returns == 0);
         pb_under_destroy(b);
@@ -195,7 +195,7 @@ int main()
         pb_under_t *b = pb_under_create(car.data(), 1, 3, kVoxel, ground, nullptr);
         for (int k = 0; k < 2; k++) {
             const double w[6] = {3.05, 3.05, 0.6, 3.1, 3.1, top == 0.29 ? 0.16 : 0.03};   /* 0.14 / 0.01 over it */
-            pb_under_sweep(b, w, nullptr, 2);
+            pb_under_sweep(b, w, 2);
         }
         /* the voxel: 10 returns at `top`, 2 low ones (taken) */
         const float z = top == 0.29 ? (float)((10 * 0.29 + 2 * 0.16) / 12) : (float)((10 * 0.12 + 2 * 0.03) / 12);
@@ -216,9 +216,11 @@ int main()
         std::vector<float> bodies = {2.5f, 0.0f, 1.0f, 4.0f, 0.0f, 0.4f};
         pb_under_t *b = pb_under_create(bodies.data(), 2, 3, kVoxel, ground, nullptr);
         const double w[6] = {4.0, 0.02, 0.06, 2.5, 0.02, 1.0};
-        const float sensor[6] = {4.0f, 0.02f, 0.06f - 1.9f, 2.5f, 0.02f, 1.0f - 1.9f};
-        const int32_t column[2] = {7, kind == 1 ? 8 : 7};
-        pb_under_sweep(b, w, nullptr, 2, sensor, kind == 2 ? nullptr : column);
+        float sx[2] = {4.0f, 2.5f}, sy[2] = {0.02f, 0.02f}, sz[2] = {0.06f - 1.9f, 1.0f - 1.9f};
+        int32_t column[2] = {7, kind == 1 ? 8 : 7};
+        pb_points_t sweep = {};
+        sweep.n = 2; sweep.x = sx; sweep.y = sy; sweep.z = sz; sweep.offset_us = kind == 2 ? nullptr : column;
+        pb_under_sweep(b, w, 2, &sweep);
         float p[4] = {4.0f, 0.02f, 0.035f, 0};   /* with a road return at 0.01 of another sweep */
         const uint32_t left = pb_under_adjust(b, p, 2);
         CHECK_CASE(kind == 0 ? "beam above on a body: taken" : kind == 1 ? "other column: kept" : "no columns: kept",
@@ -231,13 +233,15 @@ int main()
         std::vector<float> bodies = {2.5f, 0.0f, 1.0f, 4.0f, 0.0f, 0.4f};
         pb_under_t *b = pb_under_create(bodies.data(), 2, 3, kVoxel, ground, nullptr);
         std::vector<double> w = {4.0, 0.02, 0.06, 2.5, 0.02, 1.0};
-        std::vector<float> sensor = {4.0f, 0.02f, 0.06f - 1.9f, 2.5f, 0.02f, 1.0f - 1.9f};
+        std::vector<float> sx = {4.0f, 2.5f}, sy = {0.02f, 0.02f}, sz = {0.06f - 1.9f, 1.0f - 1.9f};
         for (int k = 0; k < 298; k++) {   /* more of the body, higher up */
             w.insert(w.end(), {2.5, 0.02 + 0.0005 * k, 1.2});
-            sensor.insert(sensor.end(), {2.5f, 0.02f + 0.0005f * k, 1.2f - 1.9f});
+            sx.push_back(2.5f); sy.push_back(0.02f + 0.0005f * k); sz.push_back(1.2f - 1.9f);
         }
         std::vector<int32_t> column(300, 0);
-        pb_under_sweep(b, w.data(), nullptr, 300, sensor.data(), column.data());
+        pb_points_t sweep = {};
+        sweep.n = 300; sweep.x = sx.data(); sweep.y = sy.data(); sweep.z = sz.data(); sweep.offset_us = column.data();
+        pb_under_sweep(b, w.data(), 300, &sweep);
         float p[4] = {4.0f, 0.02f, 0.035f, 0};
         CHECK(pb_under_adjust(b, p, 2) == 2);
         pb_under_destroy(b);

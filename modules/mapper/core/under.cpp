@@ -70,8 +70,9 @@ pb_under_t *pb_under_create(const float *carved, size_t n, size_t stride, double
 
 void pb_under_destroy(pb_under_t *u) { delete u; }
 
-void pb_under_sweep(pb_under_t *u, const double *xyz, const float *intensity, size_t n, const float *sensor, const int32_t *column)
+void pb_under_sweep(pb_under_t *u, const double *xyz, size_t n, const pb_points_t *pts, const int32_t *index)
 {
+    auto of = [&](size_t i) { return index ? (size_t)index[i] : i; };   /* return i's index in pts */
     if (u->body.empty()) return;
     // 1. the returns where a body stood at some time; the columns where one fell in a body now
     u->near.clear();
@@ -99,7 +100,7 @@ void pb_under_sweep(pb_under_t *u, const double *xyz, const float *intensity, si
         pb_map_voxel_corner(u->voxel_m, key, corner);
         Taken &t = u->taken.emplace(key, Taken{{0, 0, 0, 0}, 0}).first->second;
         for (int a = 0; a < 3; a++) t.s[a] += p[a] - corner[a];
-        t.s[3] += intensity ? intensity[i] : 0.0f;
+        t.s[3] += pts && pts->intensity ? pts->intensity[of(i)] : 0.0f;
         t.n++;
         u->returns_taken++;
     };
@@ -113,10 +114,9 @@ void pb_under_sweep(pb_under_t *u, const double *xyz, const float *intensity, si
     }
     // 3. the sweep's columns known: a low return whose beam above ended in a body, nearer or
     // a little farther (a wheel's bottom; what a beam under a nearer car's body met)
-    if (!sensor || !column) return;
-    /* a column is one firing, of a few hundred beams at most: a sweep whose returns follow
-     * each other with one time in larger runs (a keyframe without per-point times) has none */
-    for (size_t i = 1, run = 1; i < n; i++) {
+    if (!pts || !pts->offset_us) return;
+    const int32_t *column = pts->offset_us;
+    for (int i = 1, run = 1; i < pts->n; i++) {
         run = column[i] == column[i - 1] ? run + 1 : 1;
         if (run > 256) return;
     }
@@ -124,9 +124,9 @@ void pb_under_sweep(pb_under_t *u, const double *xyz, const float *intensity, si
     std::vector<Beam> &beams = u->beams;
     beams.clear();
     for (size_t k = 0; k < u->near.size(); k++) {
-        const float *q = sensor + 3 * u->near[k];
-        const float rxy = std::hypot(q[0], q[1]);
-        beams.push_back({column[u->near[k]], std::atan2(q[2], rxy), std::sqrt(rxy * rxy + q[2] * q[2]), k});
+        const size_t i = of(u->near[k]);
+        const float rxy = std::hypot(pts->x[i], pts->y[i]);
+        beams.push_back({column[i], std::atan2(pts->z[i], rxy), std::sqrt(rxy * rxy + pts->z[i] * pts->z[i]), k});
     }
     std::sort(beams.begin(), beams.end(), [](const Beam &a, const Beam &b) {
         return a.column != b.column ? a.column < b.column : a.elevation != b.elevation ? a.elevation < b.elevation : a.k < b.k;

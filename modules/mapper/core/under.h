@@ -37,6 +37,7 @@
 #include <stddef.h>
 #include <stdint.h>
 #include "pb_ground.h"
+#include "pb_scan.h"
 
 /* The defaults stand beside each field (a value-initialised struct holds them). */
 typedef struct {
@@ -57,13 +58,13 @@ pb_under_t *pb_under_create(const float *carved, size_t n, size_t stride, double
                             const pb_under_config_t *cfg);
 void pb_under_destroy(pb_under_t *u);
 
-/* One sweep's n returns (x y z doubles in the map frame, placed as the map placed them;
- * intensity NULL: 0), and when the sweep says so, each return in the sensor's frame (x y z
- * floats) and its column of the sweep (the returns of one firing, which share their time;
- * NULL: not known; a sweep with more than 256 returns one after the other in one column has
- * none). */
-void pb_under_sweep(pb_under_t *u, const double *xyz, const float *intensity, size_t n, const float *sensor = nullptr,
-                    const int32_t *column = nullptr);
+/* One sweep's n returns placed in the map frame (x y z doubles, as the map placed them:
+ * pb_map_builder_place_timed), return i being pts' return index[i] (index NULL: the i-th).
+ * From pts (NULL: none of these) its intensity, its position in the sensor's frame and its
+ * column (offset_us: the returns of one firing share their time; a sweep with more than 256
+ * of them one after the other at one time has no columns). */
+void pb_under_sweep(pb_under_t *u, const double *xyz, size_t n, const pb_points_t *pts = nullptr,
+                    const int32_t *index = nullptr);
 
 /* A voxel's map point p (x y z intensity) of n returns: p without the returns taken out of
  * its voxel, when it lies higher than lifted_m over the ground and no higher than road_max_m.
