@@ -24,9 +24,9 @@ static void usage(FILE *f)
         "the log has them (else the last step's motion), then every return within 60 m of the\n"
         "LiDAR is placed with the pose at its own time (farther ones are left out and counted:\n"
         "what moved is carved out by rays and views that reach 60 m, so nothing farther could be\n"
-        "checked). Then the drive is read once more: the returns at the road under what was\n"
-        "carved, while it was there (a tyre's lowest centimetres), are taken out of the road's\n"
-        "voxels.\n"
+        "checked). Then the drive is read twice more: when each carved voxel was hit (what was\n"
+        "hit within 1 s moved through), and the returns at the road under what moved, while it\n"
+        "was there (a tyre's lowest 0.3 m), are taken out of the road's voxels.\n"
         
         "Where the drive passes a place again, the sweep is matched to the earlier pass's map\n"
         "and the poses are solved again with these loops (Ceres pose graph).\n"

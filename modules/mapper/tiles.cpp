@@ -392,15 +392,18 @@ static int pass_under(Run *R, const pb_ground_t *ground, pb_err_t *err)
     pb_map_builder_set_max_range(placer, pb_carve_config_t{}.max_range_m);   /* as pass 2 */
     std::vector<double> xyz;
     std::vector<int32_t> index;
-    int rc = for_each_drive_sweep(R, "mapper: under", 1,
-        [&](Run *D, int64_t utime, const std::vector<float> &, const pb_points_t &pts, const pb_event_t &, pb_err_t *) {
-            xyz.resize(3 * (size_t)pts.n);
-            index.resize((size_t)pts.n);
-            const int n = pb_map_builder_place_timed(placer, &pts, utime, D->track, &R->veh.base_from_lidar, xyz.data(),
-                                                     index.data());
-            if (n > 0) pb_under_sweep(u, xyz.data(), (size_t)n, &pts, index.data());
-            return 0;
-        }, err);
+    int rc = 0;
+    for (int read = 0; rc == 0 && read < 2; read++)   /* when the carved voxels were hit; then the road under them */
+        rc = for_each_drive_sweep(R, read == 0 ? "mapper: under (1/2)" : "mapper: under (2/2)", 1,
+            [&](Run *D, int64_t utime, const std::vector<float> &, const pb_points_t &pts, const pb_event_t &, pb_err_t *) {
+                xyz.resize(3 * (size_t)pts.n);
+                index.resize((size_t)pts.n);
+                const int n = pb_map_builder_place_timed(placer, &pts, utime, D->track, &R->veh.base_from_lidar,
+                                                         xyz.data(), index.data());
+                if (n > 0 && read == 0) pb_under_seen(u, xyz.data(), (size_t)n, utime);
+                if (n > 0 && read == 1) pb_under_sweep(u, xyz.data(), (size_t)n, &pts, index.data());
+                return 0;
+            }, err);
     pb_map_builder_destroy(placer);
     std::vector<TilePoint> pts, kept;
     for (size_t t = 0; rc == 0 && t < R->kept_tiles.size(); t++) {

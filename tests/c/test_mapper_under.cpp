@@ -7,6 +7,8 @@
  * road under a carved voxel higher than body_max_m, and everything when there is no ground
  * model. A low return whose beam just above, in the same column of the sweep, ended on a
  * nearer body goes without a body return near it (and stays when the columns are not known).
+ * A carved voxel hit over more than body_span_s is no body; a tyre's return higher than the
+ * road's band but within return_max_m goes from a lifted road voxel.
  * pb_map_builder_place_timed places a scan's points as pb_map_builder_add_timed does. */
 #include <cmath>
 #include <cstdio>
@@ -53,6 +55,13 @@ static std::map<uint64_t, std::pair<std::vector<float>, uint32_t>> voxels_of(con
 }
 
 static void add(std::vector<double> *v, double x, double y, double z) { v->insert(v->end(), {x, y, z}); }
+
+/* The two reads of a drive whose sweeps come 0.1 s apart (from dt_us: another rate). */
+static void read_drive(pb_under_t *u, const std::vector<std::vector<double>> &sweeps, int64_t dt_us = 100000)
+{
+    for (size_t k = 0; k < sweeps.size(); k++) pb_under_seen(u, sweeps[k].data(), sweeps[k].size() / 3, (int64_t)k * dt_us);
+    for (const auto &w : sweeps) pb_under_sweep(u, w.data(), w.size() / 3);
+}
 
 /* Twelve sweeps of the road (x -1 .. 2, y -1 .. 2, a return per voxel per sweep, 5 mm over the
  * ground; never two patches under a car: x 0.45 .. 0.6 and 0.6 .. 0.75, y 1.05 .. 1.2); sweeps
@@ -116,7 +125,7 @@ int main()
     CHECK(carved.size() / 3 > 20);
     auto run = [&](const pb_ground_t *g) {
         pb_under_t *u = pb_under_create(carved.data(), carved.size() / 3, 3, kVoxel, g, nullptr);
-        for (const auto &w : s.sweeps) pb_under_sweep(u, w.data(), w.size() / 3);
+        read_drive(u, s.sweeps);
         return u;
     };
     pb_under_t *u = run(ground);
@@ -181,7 +190,7 @@ int main()
         std::vector<float> bus;
         for (double x = 1.8; x < 2.0; x += 0.05) bus.insert(bus.end(), {(float)x, -0.9f, 2.5f});
         pb_under_t *b = pb_under_create(bus.data(), bus.size() / 3, 3, kVoxel, ground, nullptr);
-        for (const auto &w : s.sweeps) pb_under_sweep(b, w.data(), w.size() / 3);
+        read_drive(b, s.sweeps);
         pb_under_counts(b, &returns, &voxels);
         CHECK(returns == 0);
         pb_under_destroy(b);
@@ -193,10 +202,8 @@ int main()
     for (double top : {0.29, 0.12}) {
         std::vector<float> car = {3.05f, 3.05f, 0.6f};
         pb_under_t *b = pb_under_create(car.data(), 1, 3, kVoxel, ground, nullptr);
-        for (int k = 0; k < 2; k++) {
-            const double w[6] = {3.05, 3.05, 0.6, 3.1, 3.1, top == 0.29 ? 0.16 : 0.03};   /* 0.14 / 0.01 over it */
-            pb_under_sweep(b, w, 2);
-        }
+        const std::vector<double> w = {3.05, 3.05, 0.6, 3.1, 3.1, top == 0.29 ? 0.16 : 0.03};   /* 0.14 / 0.01 over it */
+        read_drive(b, {w, w});
         /* the voxel: 10 returns at `top`, 2 low ones (taken) */
         const float z = top == 0.29 ? (float)((10 * 0.29 + 2 * 0.16) / 12) : (float)((10 * 0.12 + 2 * 0.03) / 12);
         float p[4] = {3.1f, 3.1f, z, 0};
@@ -214,12 +221,15 @@ int main()
      * at (0, 0, 1.9); the far wheel was carved at another time (where a body stood). */
     for (int kind = 0; kind < 3; kind++) {
         std::vector<float> bodies = {2.5f, 0.0f, 1.0f, 4.0f, 0.0f, 0.4f};
+        const double bodies_at_far[3] = {4.0, 0.0, 0.4};
         pb_under_t *b = pb_under_create(bodies.data(), 2, 3, kVoxel, ground, nullptr);
         const double w[6] = {4.0, 0.02, 0.06, 2.5, 0.02, 1.0};
         float sx[2] = {4.0f, 2.5f}, sy[2] = {0.02f, 0.02f}, sz[2] = {0.06f - 1.9f, 1.0f - 1.9f};
         int32_t column[2] = {7, kind == 1 ? 8 : 7};
         pb_points_t sweep = {};
         sweep.n = 2; sweep.x = sx; sweep.y = sy; sweep.z = sz; sweep.offset_us = kind == 2 ? nullptr : column;
+        pb_under_seen(b, w, 2, 0);
+        pb_under_seen(b, bodies_at_far, 1, 500000);   /* the far wheel, carved, hit at another time */
         pb_under_sweep(b, w, 2, &sweep);
         float p[4] = {4.0f, 0.02f, 0.035f, 0};   /* with a road return at 0.01 of another sweep */
         const uint32_t left = pb_under_adjust(b, p, 2);
@@ -241,9 +251,45 @@ int main()
         std::vector<int32_t> column(300, 0);
         pb_points_t sweep = {};
         sweep.n = 300; sweep.x = sx.data(); sweep.y = sy.data(); sweep.z = sz.data(); sweep.offset_us = column.data();
+        pb_under_seen(b, w.data(), 300, 0);
         pb_under_sweep(b, w.data(), 300, &sweep);
         float p[4] = {4.0f, 0.02f, 0.035f, 0};
         CHECK(pb_under_adjust(b, p, 2) == 2);
+        pb_under_destroy(b);
+    }
+    /* a carved voxel is a body only when its returns all came within body_span_s (1 s): the
+     * same carved voxel (0.6 m up) over a road voxel lifted by two low returns of sweeps 5 and 6,
+     * hit in sweeps 5 and 6 only (0.1 s apart) / in all twelve (1.1 s: something that stands
+     * there, which the carving took) / in 5 and 6 of a drive at one sweep in 1.5 s */
+    for (int kind = 0; kind < 3; kind++) {
+        std::vector<float> car = {-3.95f, -3.95f, 0.6f};
+        pb_under_t *b = pb_under_create(car.data(), 1, 3, kVoxel, ground, nullptr);
+        std::vector<std::vector<double>> sweeps(12);
+        for (int k = 0; k < 12; k++) {
+            if (kind == 1 || k == 5 || k == 6) sweeps[k].insert(sweeps[k].end(), {-3.95, -3.95, 0.6});
+            if (k == 5 || k == 6) sweeps[k].insert(sweeps[k].end(), {-3.97, -3.97, 0.12});
+        }
+        read_drive(b, sweeps, kind == 2 ? 1500000 : 100000);
+        float p[4] = {-3.97f, -3.97f, (float)((6 * 0.01 + 2 * 0.12) / 8), 0};   /* with 6 road returns at 0.01 */
+        CHECK_CASE(kind == 0 ? "hit within 0.1 s: a body" : kind == 1 ? "hit over 1.1 s: no body" : "hit 1.5 s apart: no body",
+                   kind == 0 ? pb_under_adjust(b, p, 8) == 6 && std::fabs(p[2] - 0.01f) < 1e-5 : pb_under_adjust(b, p, 8) == 8);
+        pb_under_destroy(b);
+    }
+    /* a lifted road voxel (the ground model 2 cm low round (3, 3)) with a tyre's returns 0.16 m
+     * over the ground (higher than the voxel's band, within return_max_m): taken; a return of
+     * the same voxel 0.31 m over another ground (higher than return_max_m): kept */
+    for (double over : {0.16, 0.31}) {
+        for (int i = 15; i <= 18; i++)
+            for (int j = 15; j <= 18; j++) pb_ground_set(ground, i, j, over == 0.16 ? -0.02 : -0.17);
+        std::vector<float> car = {3.05f, 3.05f, 0.6f};
+        pb_under_t *b = pb_under_create(car.data(), 1, 3, kVoxel, ground, nullptr);
+        const std::vector<double> w = {3.05, 3.05, 0.6, 3.1, 3.1, 0.14};
+        read_drive(b, {w, w});
+        const float z = (float)((10 * 0.01 + 2 * 0.14) / 12);   /* 10 road returns at 0.01 */
+        float p[4] = {3.1f, 3.1f, z, 0};
+        const uint32_t left = pb_under_adjust(b, p, 12);
+        CHECK_CASE(over == 0.16 ? "a tyre's return 0.16 m up in a lifted road voxel: taken" : "0.31 m up: kept",
+                   over == 0.16 ? left == 10 && std::fabs(p[2] - 0.01f) < 1e-5 : left == 12 && p[2] == z);
         pb_under_destroy(b);
     }
     /* no ground model: nothing is taken out */

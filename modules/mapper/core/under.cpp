@@ -21,6 +21,9 @@ struct pb_under {
     double voxel_m, inv_col;
     int reach;                            /* columns a body marks on each side of its own */
     const pb_ground_t *ground;
+    /* carved voxels in the body band, and the first and last time a sweep hit them (first read) */
+    std::unordered_map<uint64_t, std::pair<int64_t, int64_t>> seen;
+    bool settled = false;                 /* body and watch made from seen (at the second read's start) */
     std::unordered_set<uint64_t> body;    /* carved voxels that are bodies */
     std::unordered_set<uint64_t> watch;   /* where a body stood: its columns and their 8 neighbours */
     std::unordered_map<uint64_t, Taken> taken;
@@ -60,12 +63,41 @@ pb_under_t *pb_under_create(const float *carved, size_t n, size_t stride, double
         if (!u->height(p[0], p[1], p[2], &h) || h < u->cfg.body_min_m || h > u->cfg.body_max_m ||
             pb_map_voxel_key(voxel_m, p[0], p[1], p[2], &key) != 0)
             continue;
-        u->body.insert(key);
-        const int64_t cx = u->col(p[0]), cy = u->col(p[1]);
+        u->seen.emplace(key, std::make_pair(INT64_MAX, INT64_MIN));
+    }
+    return u;
+}
+
+void pb_under_seen(pb_under_t *u, const double *xyz, size_t n, int64_t utime)
+{
+    for (size_t i = 0; i < n; i++) {
+        const double *p = xyz + 3 * i;
+        uint64_t key;
+        if (pb_map_voxel_key(u->voxel_m, p[0], p[1], p[2], &key) != 0) continue;
+        auto it = u->seen.find(key);
+        if (it == u->seen.end()) continue;
+        it->second.first = std::min(it->second.first, utime);
+        it->second.second = std::max(it->second.second, utime);
+    }
+}
+
+/* The bodies: carved voxels whose returns all came within body_span_s (a voxel hit over a
+ * longer time is something that stands there and that the carving took, such as foliage it
+ * saw through), and where they stood. A carved voxel no sweep hit is none. */
+static void settle(pb_under_t *u)
+{
+    u->settled = true;
+    const int64_t span_us = (int64_t)std::llround(u->cfg.body_span_s * 1e6);
+    for (const auto &kv : u->seen) {
+        if (kv.second.first > kv.second.second || kv.second.second - kv.second.first > span_us) continue;
+        u->body.insert(kv.first);
+        double c[3];
+        pb_map_voxel_corner(u->voxel_m, kv.first, c);
+        const int64_t cx = u->col(c[0] + u->voxel_m / 2), cy = u->col(c[1] + u->voxel_m / 2);
         for (int dx = -1; dx <= 1; dx++)
             for (int dy = -1; dy <= 1; dy++) u->watch.insert(pb_under::column_key(cx + dx, cy + dy));
     }
-    return u;
+    u->seen.clear();
 }
 
 void pb_under_destroy(pb_under_t *u) { delete u; }
@@ -73,6 +105,7 @@ void pb_under_destroy(pb_under_t *u) { delete u; }
 void pb_under_sweep(pb_under_t *u, const double *xyz, size_t n, const pb_points_t *pts, const int32_t *index)
 {
     auto of = [&](size_t i) { return index ? (size_t)index[i] : i; };   /* return i's index in pts */
+    if (!u->settled) settle(u);
     if (u->body.empty()) return;
     // 1. the returns where a body stood at some time; the columns where one fell in a body now
     u->near.clear();
@@ -93,7 +126,7 @@ void pb_under_sweep(pb_under_t *u, const double *xyz, size_t n, const pb_points_
         const double *p = xyz + 3 * i;
         double h;
         uint64_t key;
-        if (!u->height(p[0], p[1], p[2], &h) || h > u->cfg.road_max_m ||
+        if (!u->height(p[0], p[1], p[2], &h) || h > u->cfg.return_max_m ||
             pb_map_voxel_key(u->voxel_m, p[0], p[1], p[2], &key) != 0 || u->body.count(key))
             return;
         double corner[3];
