@@ -10,6 +10,15 @@
 #include "pb_map_build.h"
 
 namespace {
+/* A one-hash bit filter in front of a hash set: nearly every return of a sweep lies in no
+ * carved voxel and no watched column, and a bit says so for less than a lookup costs. */
+struct KeyBits {
+    std::vector<uint64_t> bits = std::vector<uint64_t>(1u << 14);   /* 2^20 bits, 128 KB */
+    static uint32_t slot(uint64_t key) { return (uint32_t)((key * 0x9E3779B97F4A7C15ull) >> 44); }
+    void add(uint64_t key) { bits[slot(key) >> 6] |= 1ull << (slot(key) & 63); }
+    bool may_hold(uint64_t key) const { return bits[slot(key) >> 6] >> (slot(key) & 63) & 1; }
+};
+
 struct Taken {
     double s[4];   /* the returns' offsets from the voxel's lowest corner (x y z), intensities */
     uint32_t n;
@@ -23,6 +32,7 @@ struct pb_under {
     const pb_ground_t *ground;
     /* carved voxels in the body band, and the first and last time a sweep hit them (first read) */
     std::unordered_map<uint64_t, std::pair<int64_t, int64_t>> seen;
+    KeyBits seen_bits, watch_bits;        /* filters in front of seen and watch */
     bool settled = false;                 /* body and watch made from seen (at the second read's start) */
     std::unordered_set<uint64_t> body;    /* carved voxels that are bodies */
     std::unordered_set<uint64_t> watch;   /* where a body stood: its columns and their 8 neighbours */
@@ -64,6 +74,7 @@ pb_under_t *pb_under_create(const float *carved, size_t n, size_t stride, double
             pb_map_voxel_key(voxel_m, p[0], p[1], p[2], &key) != 0)
             continue;
         u->seen.emplace(key, std::make_pair(INT64_MAX, INT64_MIN));
+        u->seen_bits.add(key);
     }
     return u;
 }
@@ -73,7 +84,7 @@ void pb_under_seen(pb_under_t *u, const double *xyz, size_t n, int64_t utime)
     for (size_t i = 0; i < n; i++) {
         const double *p = xyz + 3 * i;
         uint64_t key;
-        if (pb_map_voxel_key(u->voxel_m, p[0], p[1], p[2], &key) != 0) continue;
+        if (pb_map_voxel_key(u->voxel_m, p[0], p[1], p[2], &key) != 0 || !u->seen_bits.may_hold(key)) continue;
         auto it = u->seen.find(key);
         if (it == u->seen.end()) continue;
         it->second.first = std::min(it->second.first, utime);
@@ -95,7 +106,10 @@ static void settle(pb_under_t *u)
         pb_map_voxel_corner(u->voxel_m, kv.first, c);
         const int64_t cx = u->col(c[0] + u->voxel_m / 2), cy = u->col(c[1] + u->voxel_m / 2);
         for (int dx = -1; dx <= 1; dx++)
-            for (int dy = -1; dy <= 1; dy++) u->watch.insert(pb_under::column_key(cx + dx, cy + dy));
+            for (int dy = -1; dy <= 1; dy++) {
+                u->watch.insert(pb_under::column_key(cx + dx, cy + dy));
+                u->watch_bits.add(pb_under::column_key(cx + dx, cy + dy));
+            }
     }
     u->seen.clear();
 }
@@ -113,7 +127,7 @@ void pb_under_sweep(pb_under_t *u, const double *xyz, size_t n, const pb_points_
     for (size_t i = 0; i < n; i++) {
         const double *p = xyz + 3 * i;
         const uint64_t c = pb_under::column_key(u->col(p[0]), u->col(p[1]));
-        if (!u->watch.count(c)) continue;
+        if (!u->watch_bits.may_hold(c) || !u->watch.count(c)) continue;
         u->near.push_back(i);
         uint64_t key;
         if (pb_map_voxel_key(u->voxel_m, p[0], p[1], p[2], &key) == 0 && u->body.count(key)) u->marked.insert(c);
