@@ -393,14 +393,21 @@ static int pass_under(Run *R, const pb_ground_t *ground, pb_err_t *err)
     std::vector<double> xyz;
     std::vector<int32_t> index;
     int rc = 0;
+    const Run *now = nullptr;
+    int64_t offset = 0, last = INT64_MIN;   /* as the carving: each drive an hour after the last */
     for (int read = 0; rc == 0 && read < 2; read++)   /* when the carved voxels were hit; then the road under them */
         rc = for_each_drive_sweep(R, read == 0 ? "mapper: under (1/2)" : "mapper: under (2/2)", 1,
             [&](Run *D, int64_t utime, const std::vector<float> &, const pb_points_t &pts, const pb_event_t &, pb_err_t *) {
+                if (read == 0 && D != now) {
+                    now = D;
+                    if (last != INT64_MIN) offset = last + 3600 * (int64_t)1000000 - D->traj.front().utime;
+                    last = D->traj.back().utime + offset;
+                }
                 xyz.resize(3 * (size_t)pts.n);
                 index.resize((size_t)pts.n);
                 const int n = pb_map_builder_place_timed(placer, &pts, utime, D->track, &R->veh.base_from_lidar,
                                                          xyz.data(), index.data());
-                if (n > 0 && read == 0) pb_under_seen(u, xyz.data(), (size_t)n, utime);
+                if (n > 0 && read == 0) pb_under_seen(u, xyz.data(), (size_t)n, utime + offset);
                 if (n > 0 && read == 1) pb_under_sweep(u, xyz.data(), (size_t)n, &pts, index.data());
                 return 0;
             }, err);

@@ -25,16 +25,15 @@
  * the static world); and returns up to 0.3 m taken, not 0.15 (a tyre's lower half, which had
  * stayed in the voxel and held its centroid 0.15-0.19 m up), 30 and 7,242,711. Taking whole
  * voxels 0.15-0.3 m up when every return was taken too: 20 and 7,242,463, and on MulRan 907
- * more voxels, along kerbs and hedges (no time tells there: each keyframe stands alone). Most
- * of those taken lay 4-6 cm
- * over the ground model: voxels that only the bodies' bottoms filled. A voxel keeps the rest
- * of its returns (the road seen before and after), and goes when it had no other. Only voxels
- * lifted over the ground (lifted_m) and within the road's band (road_max_m) are judged: one
- * that lies on the ground is the road, seen beside or under the body (on the simulated
- * drives the voxels that went without this were the road, 4-12 mm over it at the median,
- * where the tyres' lay 7-9 cm); one higher is what stands there (on MulRan, 162 voxels of a
- * kerb's or a bush's base beside a car, whose centroid the taking of their lowest returns
- * lifted).
+ * more voxels, along kerbs and hedges (no time tells there: each keyframe stands alone).
+ * Most of those taken lay 4-6 cm over the ground model: voxels that only the bodies' bottoms
+ * filled. A voxel keeps the rest of its returns (the road seen before and after), and goes
+ * when it had no other. Only voxels lifted over the ground (lifted_m) and within the road's
+ * band (road_max_m) are judged: one that lies on the ground is the road, seen beside or under
+ * the body (on the simulated drives the voxels that went without this were the road, 4-12 mm
+ * over it at the median, where the tyres' lay 7-9 cm); one higher is what stands there (on
+ * MulRan, 162 voxels of a kerb's or a bush's base beside a car, whose centroid the taking of
+ * their lowest returns lifted).
  *
  * Pure: no I/O, no clock. The voxels are the map builder's (pb_map_voxel_key). Ownership:
  * pb_under_create copies the points and keeps a pointer to the ground model, which must
@@ -69,8 +68,9 @@ pb_under_t *pb_under_create(const float *carved, size_t n, size_t stride, double
 void pb_under_destroy(pb_under_t *u);
 
 /* The first read: one sweep's n returns placed in the map frame (x y z doubles, as the map
- * placed them: pb_map_builder_place_timed) and the sweep's time. Every sweep of the drive
- * goes through this before the first pb_under_sweep. */
+ * placed them: pb_map_builder_place_timed) and the sweep's time (several drives: on one clock
+ * on which they do not overlap). Every sweep goes through this before the first
+ * pb_under_sweep. */
 void pb_under_seen(pb_under_t *u, const double *xyz, size_t n, int64_t utime);
 
 /* The second read: one sweep's n returns placed as for pb_under_seen, return i being pts'
