@@ -380,6 +380,21 @@ struct CarveTiles {
     }
 };
 
+/* Several drives on one clock, each an hour after the last: so the carving's rays and the
+ * road under what moved never take two drives whose logs' clocks overlap for one time. */
+struct DriveClock {
+    const Run *now = nullptr;
+    int64_t offset = 0, last = INT64_MIN;   /* drive's time + offset: the one clock */
+    bool next(const Run *D)                  /* true when D starts a drive */
+    {
+        if (D == now) return false;
+        now = D;
+        if (last != INT64_MIN) offset = last + 3600 * (int64_t)1000000 - D->traj.front().utime;
+        last = D->traj.back().utime + offset;
+        return true;
+    }
+};
+
 /* Pass 4: the road under what moved (core/under.h): every sweep of every placed drive read
  * again, its returns placed as pass 2 placed them (pb_map_builder_place_timed), those at the
  * road under a body the carving took counted; then each kept tile's points without them (a
@@ -393,21 +408,16 @@ static int pass_under(Run *R, const pb_ground_t *ground, pb_err_t *err)
     std::vector<double> xyz;
     std::vector<int32_t> index;
     int rc = 0;
-    const Run *now = nullptr;
-    int64_t offset = 0, last = INT64_MIN;   /* as the carving: each drive an hour after the last */
+    DriveClock clock;
     for (int read = 0; rc == 0 && read < 2; read++)   /* when the carved voxels were hit; then the road under them */
         rc = for_each_drive_sweep(R, read == 0 ? "mapper: under (1/2)" : "mapper: under (2/2)", 1,
             [&](Run *D, int64_t utime, const std::vector<float> &, const pb_points_t &pts, const pb_event_t &, pb_err_t *) {
-                if (read == 0 && D != now) {
-                    now = D;
-                    if (last != INT64_MIN) offset = last + 3600 * (int64_t)1000000 - D->traj.front().utime;
-                    last = D->traj.back().utime + offset;
-                }
+                if (read == 0) clock.next(D);
                 xyz.resize(3 * (size_t)pts.n);
                 index.resize((size_t)pts.n);
                 const int n = pb_map_builder_place_timed(placer, &pts, utime, D->track, &R->veh.base_from_lidar,
                                                          xyz.data(), index.data());
-                if (n > 0 && read == 0) pb_under_seen(u, xyz.data(), (size_t)n, utime + offset);
+                if (n > 0 && read == 0) pb_under_seen(u, xyz.data(), (size_t)n, utime + clock.offset);
                 if (n > 0 && read == 1) pb_under_sweep(u, xyz.data(), (size_t)n, &pts, index.data());
                 return 0;
             }, err);
@@ -494,16 +504,10 @@ int pass_carve(Run *R, const pb_ground_t *ground, pb_err_t *err)
         if (v) R->views++;
         pb_carve_view_destroy(v);
     };
-    const Run *now = nullptr;
-    int64_t offset = 0, last = INT64_MIN;   /* drive's time + offset: the carving's */
+    DriveClock clock;   /* the carving's time */
     int rc = for_each_drive_sweep(R, "mapper: carve", 2,
         [&](Run *D, int64_t utime, const std::vector<float> &, const pb_points_t &pts, const pb_event_t &, pb_err_t *e) {
-            if (D != now) {   /* the next drive: an hour after the last in the carving's time */
-                now = D;
-                drive++;
-                if (last != INT64_MIN) offset = last + 3600 * (int64_t)1000000 - D->traj.front().utime;
-                last = D->traj.back().utime + offset;
-            }
+            if (clock.next(D)) drive++;
             sampled++;
             // the sampled rays, and the extent of their origins
             rays.clear();
@@ -523,7 +527,7 @@ int pass_carve(Run *R, const pb_ground_t *ground, pb_err_t *err)
                     }
                 }
                 if (!have) continue;
-                rays.push_back({utime + cached + offset, T.translation(), T * Eigen::Vector3d(pts.x[i], pts.y[i], pts.z[i])});
+                rays.push_back({utime + cached + clock.offset, T.translation(), T * Eigen::Vector3d(pts.x[i], pts.y[i], pts.z[i])});
             }
             if (rays.empty()) return 0;
             // the tiles its rays can reach held
