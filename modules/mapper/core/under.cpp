@@ -11,7 +11,10 @@
 
 namespace {
 /* A one-hash bit filter in front of a hash set: nearly every return of a sweep lies in no
- * carved voxel and no watched column, and a bit says so for less than a lookup costs. */
+ * carved voxel and no watched column, and a bit says so for less than a lookup costs. The
+ * 128 KB stay in cache; the localizer's open-addressing VoxelHash alone, tried in place of
+ * filter and sets, missed it: the first read 0.2 -> 0.4 s and the second 0.3 -> 0.5 s on the
+ * hills, the same map. */
 struct KeyBits {
     std::vector<uint64_t> bits = std::vector<uint64_t>(1u << 14);   /* 2^20 bits, 128 KB */
     static uint32_t slot(uint64_t key) { return (uint32_t)((key * 0x9E3779B97F4A7C15ull) >> 44); }
