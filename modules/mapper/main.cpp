@@ -26,7 +26,8 @@ static void usage(FILE *f)
         "what moved is carved out by rays and views that reach 60 m, so nothing farther could be\n"
         "checked). Then the drive is read twice more: when each carved voxel was hit (what was\n"
         "hit within 1 s moved through), and the returns at the road under what moved, while it\n"
-        "was there (a tyre's lowest 0.3 m), are taken out of the road's voxels.\n"
+        "was there (a tyre's lowest 0.3 m), are taken out of the road's voxels; a voxel left\n"
+        "standing alone over the road where something moved goes too.\n"
         
         "Where the drive passes a place again, the sweep is matched to the earlier pass's map\n"
         "and the poses are solved again with these loops (Ceres pose graph).\n"

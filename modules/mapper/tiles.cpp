@@ -422,7 +422,16 @@ static int pass_under(Run *R, const pb_ground_t *ground, pb_err_t *err)
                 return 0;
             }, err);
     pb_map_builder_destroy(placer);
+    // each kept tile without the returns taken out; the points where a body stood noted
     std::vector<TilePoint> pts, kept;
+    std::vector<float> near;                          /* x y z of points a bump test may need ... */
+    std::vector<std::pair<uint32_t, uint32_t>> where; /* ... and their tile and place in it */
+    auto rewrite = [&](size_t t, const std::string &path) {
+        R->map_points -= pts.size() - kept.size();
+        R->kept_tiles[t].second = kept.empty() ? UINT32_MAX : kept[0].seq;
+        R->kept_sums[t] = {kept.size() * sizeof(TilePoint), pb_fnv1a64(kept.data(), kept.size() * sizeof(TilePoint))};
+        return tile_write(path, kept.data(), kept.size(), false, err);
+    };
     for (size_t t = 0; rc == 0 && t < R->kept_tiles.size(); t++) {
         const std::string path = tile_path(R, 'k', R->kept_tiles[t].first);
         if (tile_read(path, &pts, err) != 0) { rc = -1; break; }
@@ -431,16 +440,44 @@ static int pass_under(Run *R, const pb_ground_t *ground, pb_err_t *err)
         for (TilePoint tp : pts) {
             const uint32_t left = pb_under_adjust(u, tp.p, tp.n);
             if (left != tp.n) { changed = true; R->under_moved++; }
-            if (left > 0) { tp.n = left; kept.push_back(tp); continue; }
-            R->under_gone++;
-            R->layers.removed.insert(R->layers.removed.end(), {tp.p[0], tp.p[1], tp.p[2]});
+            if (left == 0) {
+                R->under_gone++;
+                R->layers.removed.insert(R->layers.removed.end(), {tp.p[0], tp.p[1], tp.p[2]});
+                continue;
+            }
+            tp.n = left;
+            if (pb_under_near(u, tp.p)) {
+                near.insert(near.end(), {tp.p[0], tp.p[1], tp.p[2]});
+                where.push_back({(uint32_t)t, (uint32_t)kept.size()});
+            }
+            kept.push_back(tp);
         }
-        if (!changed) continue;
-        R->map_points -= pts.size() - kept.size();
-        R->kept_tiles[t].second = kept.empty() ? UINT32_MAX : kept[0].seq;
-        R->kept_sums[t] = {kept.size() * sizeof(TilePoint), pb_fnv1a64(kept.data(), kept.size() * sizeof(TilePoint))};
-        if (tile_write(path, kept.data(), kept.size(), false, err) != 0) rc = -1;
+        if (changed && rewrite(t, path) != 0) rc = -1;
     }
+    // the bumps: what a tyre left of a voxel, with the road all round it (core/under.h)
+    std::vector<uint8_t> gone(where.size());
+    if (rc == 0 && pb_under_bumps(u, near.data(), where.size(), 3, gone.data()) > 0)
+        for (size_t i = 0; rc == 0 && i < where.size();) {
+            const size_t t = where[i].first;
+            const std::string path = tile_path(R, 'k', R->kept_tiles[t].first);
+            size_t end = i;
+            while (end < where.size() && where[end].first == t) end++;
+            if (std::find(gone.begin() + i, gone.begin() + end, 1) != gone.begin() + end) {
+                if (tile_read(path, &pts, err) != 0) { rc = -1; break; }
+                kept.clear();
+                for (size_t k = 0, g = i; k < pts.size(); k++) {
+                    if (g < end && where[g].second < k) g++;
+                    if (g < end && where[g].second == k && gone[g]) {
+                        R->under_moved++, R->under_gone++;
+                        R->layers.removed.insert(R->layers.removed.end(), {pts[k].p[0], pts[k].p[1], pts[k].p[2]});
+                        continue;
+                    }
+                    kept.push_back(pts[k]);
+                }
+                if (rewrite(t, path) != 0) rc = -1;
+            }
+            i = end;
+        }
     uint64_t voxels;
     pb_under_counts(u, &R->under_returns, &voxels);
     pb_under_destroy(u);

@@ -8,7 +8,9 @@
  * model. A low return whose beam just above, in the same column of the sweep, ended on a
  * nearer body goes without a body return near it (and stays when the columns are not known).
  * A carved voxel hit over more than body_span_s is no body; a tyre's return higher than the
- * road's band but within return_max_m goes from a lifted road voxel.
+ * road's band but within return_max_m goes from a lifted road voxel. A voxel lifted over all
+ * the road round it where a body stood goes, alone or in a patch of two (pb_under_bumps); a kerb's, a post's, one over
+ * road seen sparsely, one away from the body's columns, and a ditch's edge stay.
  * pb_map_builder_place_timed places a scan's points as pb_map_builder_add_timed does. */
 #include <cmath>
 #include <cstdio>
@@ -290,6 +292,50 @@ int main()
         const uint32_t left = pb_under_adjust(b, p, 12);
         CHECK_CASE(over == 0.16 ? "a tyre's return 0.16 m up in a lifted road voxel: taken" : "0.31 m up: kept",
                    over == 0.16 ? left == 10 && std::fabs(p[2] - 0.01f) < 1e-5 : left == 12 && p[2] == z);
+        pb_under_destroy(b);
+    }
+    /* bumps (pb_under_bumps): the road round (-3, 3) a voxel a point (0.15 m), 5 mm over the
+     * ground, and one voxel lifted at (-3, 3) where a body stood (a carved voxel 0.6 m over it,
+     * hit within 0.1 s); it goes when it stands bump_m over all the road round it, and not:
+     * 4 cm over the road round it (7 cm over the ground), 0.35 m up (higher than return_max_m), with the road as a kerb's row at its
+     * height, with a post's point over it, where the road round it is seen in every other voxel
+     * only (less than bump_fill), 1 m from where the body stood, or where the road round it
+     * lies 10 cm under the ground model and it on it (a ditch's edge); two lifted voxels side
+     * by side (a tyre's patch, no wider than bump_reach_m) go together; a row of five (0.6 m)
+     * where bodies stood over all of it, and a kerb's row, are wider */
+    for (int kind = 0; kind < 10; kind++) {
+        static const char *what[10] = {"a bump 8 cm up: gone", "4 cm over the road: kept", "0.35 m up: kept", "a kerb's row: kept",
+                                      "a post over it: kept", "the road seen sparsely: kept",
+                                      "1 m from the body: kept", "a ditch's edge: kept",
+                                      "a patch of two voxels: gone", "a row of five (0.6 m): kept"};
+        const double bx = kind == 6 ? -2.0 : -3.0, by = 3.0;
+        /* the row of five: bodies stood over all of it */
+        std::vector<float> car = {-2.99f, 3.01f, 0.6f, -3.29f, 3.01f, 0.6f, -2.69f, 3.01f, 0.6f};
+        const size_t cars = kind == 9 ? 3 : 1;
+        pb_under_t *b = pb_under_create(car.data(), cars, 3, kVoxel, ground, nullptr);
+        const std::vector<double> w(car.begin(), car.begin() + 3 * cars);
+        read_drive(b, {w, w});
+        std::vector<float> pts;
+        size_t bump = 0;
+        for (int i = 0; i <= 16; i++)
+            for (int j = 0; j <= 16; j++) {
+                const double x = bx - 1.2 + 0.15 * i + 0.01, y = by - 1.2 + 0.15 * j + 0.01;
+                const bool here = i == 8 && j == 8;
+                if (kind == 5 && !here && (i + j) % 2) continue;
+                double z = kind == 7 ? -0.1 : kind == 1 ? 0.03 : 0.005;
+                if (here) z = kind == 1 ? 0.07 : kind == 2 ? 0.35 : kind == 7 ? 0.04 : 0.08;
+                if ((kind == 3 && i == 8) || (kind == 8 && i == 9 && j == 8) || (kind == 9 && i >= 6 && i <= 10 && j == 8))
+                    z = 0.08;
+                if (here) bump = pts.size() / 3;
+                pts.insert(pts.end(), {(float)x, (float)y, (float)z});
+                if (kind == 4 && here) pts.insert(pts.end(), {(float)x, (float)y, 0.5f});
+            }
+        bool near = true;
+        for (size_t i = 0; i < pts.size(); i += 3)
+            if (std::hypot(pts[i] - pts[3 * bump], pts[i + 1] - pts[3 * bump + 1]) <= 0.5 && kind != 6) near = near && pb_under_near(b, &pts[i]);
+        std::vector<uint8_t> gone(pts.size() / 3);
+        const size_t n = pb_under_bumps(b, pts.data(), pts.size() / 3, 3, gone.data());
+        CHECK_CASE(what[kind], near && (kind == 0 ? n == 1 && gone[bump] == 1 : kind == 8 ? n == 2 && gone[bump] == 1 : n == 0));
         pb_under_destroy(b);
     }
     /* no ground model: nothing is taken out */

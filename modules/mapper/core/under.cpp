@@ -35,10 +35,11 @@ struct pb_under {
     const pb_ground_t *ground;
     /* carved voxels in the body band, and the first and last time a sweep hit them (first read) */
     std::unordered_map<uint64_t, std::pair<int64_t, int64_t>> seen;
-    KeyBits seen_bits, watch_bits;        /* filters in front of seen and watch */
+    KeyBits seen_bits, watch_bits, around_bits;   /* filters in front of seen, watch and around */
     bool settled = false;                 /* body and watch made from seen (at the second read's start) */
     std::unordered_set<uint64_t> body;    /* carved voxels that are bodies */
     std::unordered_set<uint64_t> watch;   /* where a body stood: its columns and their 8 neighbours */
+    std::unordered_set<uint64_t> around;  /* the columns within bump_reach_m of a watched one */
     std::unordered_map<uint64_t, Taken> taken;
     uint64_t returns_taken = 0;
     /* one sweep's: the returns in watched columns, the columns a body marked */
@@ -115,6 +116,13 @@ static void settle(pb_under_t *u)
             }
     }
     u->seen.clear();
+    const int r = 1 + (int)std::ceil(u->cfg.bump_reach_m * u->inv_col);
+    for (uint64_t c : u->watch)
+        for (int dx = -r; dx <= r; dx++)
+            for (int dy = -r; dy <= r; dy++) {
+                const uint64_t k = pb_under::column_key((int32_t)(c >> 32) + dx, (int32_t)(uint32_t)c + dy);
+                if (u->around.insert(k).second) u->around_bits.add(k);
+            }
 }
 
 void pb_under_destroy(pb_under_t *u) { delete u; }
@@ -208,6 +216,82 @@ uint32_t pb_under_adjust(const pb_under_t *u, float p[4], uint32_t n)
     for (int a = 0; a < 3; a++) p[a] = (float)(corner[a] + (((double)p[a] - corner[a]) * n - t.s[a]) / left);
     p[3] = (float)(((double)p[3] * n - t.s[3]) / left);
     return left;
+}
+
+int pb_under_near(const pb_under_t *u, const float p[3])
+{
+    const uint64_t c = pb_under::column_key(u->col(p[0]), u->col(p[1]));
+    return u->around_bits.may_hold(c) && u->around.count(c);
+}
+
+size_t pb_under_bumps(const pb_under_t *u, const float *xyz, size_t n, size_t stride, uint8_t *gone)
+{
+    // 1. the points' heights over the ground, and the points sorted by bump_reach_m cells
+    const double reach = u->cfg.bump_reach_m, join = 2 * u->voxel_m;
+    std::vector<double> h(n, NAN);
+    std::vector<std::pair<uint64_t, uint32_t>> by_cell(n);
+    auto cell_of = [&](double v) { return (int64_t)std::floor(v / reach); };
+    for (size_t i = 0; i < n; i++) {
+        const float *p = xyz + i * stride;
+        u->height(p[0], p[1], p[2], &h[i]);
+        by_cell[i] = {pb_under::column_key(cell_of(p[0]), cell_of(p[1])), (uint32_t)i};
+    }
+    std::sort(by_cell.begin(), by_cell.end());
+    auto within = [&](size_t i, double r, const auto &f) {   /* f(j) for every other point within r (x-y) */
+        const float *p = xyz + i * stride;
+        const int64_t cx = cell_of(p[0]), cy = cell_of(p[1]);
+        for (int dx = -1; dx <= 1; dx++)
+            for (int dy = -1; dy <= 1; dy++) {
+                const uint64_t k = pb_under::column_key(cx + dx, cy + dy);
+                for (auto it = std::lower_bound(by_cell.begin(), by_cell.end(), std::make_pair(k, (uint32_t)0));
+                     it != by_cell.end() && it->first == k; ++it) {
+                    const float *q = xyz + (size_t)it->second * stride;
+                    if (it->second != i && (q[0] - p[0]) * (q[0] - p[0]) + (q[1] - p[1]) * (q[1] - p[1]) <= r * r) f(it->second);
+                }
+            }
+    };
+    // 2. the points where a body stood, in the band; those within two voxels joined in patches
+    std::vector<uint32_t> patch(n, UINT32_MAX);   /* a candidate's link toward its patch's root */
+    auto root = [&](uint32_t i) {
+        while (patch[i] != i) i = patch[i] = patch[patch[i]];
+        return i;
+    };
+    std::vector<uint32_t> cand;
+    for (size_t i = 0; i < n; i++) {
+        const float *p = xyz + i * stride;
+        if (h[i] >= u->cfg.bump_m && h[i] <= u->cfg.return_max_m && u->watch.count(pb_under::column_key(u->col(p[0]), u->col(p[1]))))
+            patch[i] = (uint32_t)i, cand.push_back((uint32_t)i);
+    }
+    for (uint32_t i : cand)
+        within(i, join, [&](uint32_t j) {
+            if (patch[j] != UINT32_MAX) patch[root(j)] = root(i);
+        });
+    // 3. a patch no wider than bump_reach_m goes when each of its points stands bump_m over
+    // every other point within reach, and those fill bump_fill of the voxel columns there
+    struct Patch { float lo[2] = {INFINITY, INFINITY}, hi[2] = {-INFINITY, -INFINITY}; bool bump = true; };
+    std::unordered_map<uint32_t, Patch> patches;
+    const double columns = M_PI * reach * reach / (u->voxel_m * u->voxel_m);
+    for (uint32_t i : cand) {
+        Patch &P = patches[root(i)];
+        const float *p = xyz + (size_t)i * stride;
+        for (int a = 0; a < 2; a++) P.lo[a] = std::min(P.lo[a], p[a]), P.hi[a] = std::max(P.hi[a], p[a]);
+        if (!P.bump) continue;
+        int neighbours = 0;
+        within(i, reach, [&](uint32_t j) {
+            neighbours++;
+            /* a neighbour of the patch, or one standing bump_m lower (one without a height is not) */
+            if (!(patch[j] != UINT32_MAX && root(j) == root(i)) && !(h[j] <= h[i] - u->cfg.bump_m)) P.bump = false;
+        });
+        if (neighbours < u->cfg.bump_fill * columns) P.bump = false;
+    }
+    size_t bumps = 0;
+    for (size_t i = 0; i < n; i++) {
+        gone[i] = 0;
+        if (patch[i] == UINT32_MAX) continue;
+        const Patch &P = patches[root((uint32_t)i)];
+        if (P.bump && std::max(P.hi[0] - P.lo[0], P.hi[1] - P.lo[1]) <= reach) gone[i] = 1, bumps++;
+    }
+    return bumps;
 }
 
 void pb_under_counts(const pb_under_t *u, uint64_t *returns, uint64_t *voxels)
