@@ -491,15 +491,17 @@ struct pb_carve_near {
         pb_loc::voxel_unkey(key, &v[0], &v[1], &v[2]);
         const double x = ((double)v[0] + 0.5) * cell_m, y = ((double)v[1] + 0.5) * cell_m;
         const int64_t bx = pb_floor_i64(x / reach), by = pb_floor_i64(y / reach);
-        double best = INFINITY;
+        double best2 = INFINITY;   /* squared: std::hypot per column was a quarter of MulRan's mapper */
         for (int64_t dx = -1; dx <= 1; dx++)
             for (int64_t dy = -1; dy <= 1; dy++) {
                 uint64_t b;
                 if (!pb_loc::voxel_key(bx + dx, by + dy, 0, &b)) continue;
                 auto it = buckets.find(b);
                 if (it == buckets.end()) continue;
-                for (const auto &c : it->second) best = std::min(best, std::hypot(c[0] - x, c[1] - y));
+                for (const auto &c : it->second)
+                    best2 = std::min(best2, (c[0] - x) * (c[0] - x) + (c[1] - y) * (c[1] - y));
             }
+        const double best = std::sqrt(best2);
         return best <= reach ? best : INFINITY;
     }
 };
