@@ -464,10 +464,11 @@ static int pass_under(Run *R, const pb_ground_t *ground, pb_err_t *err)
             while (end < where.size() && where[end].first == t) end++;
             if (std::find(gone.begin() + i, gone.begin() + end, 1) != gone.begin() + end) {
                 if (tile_read(path, &pts, err) != 0) { rc = -1; break; }
+                std::vector<uint8_t> drop(pts.size());
+                for (size_t g = i; g < end; g++) drop[where[g].second] = gone[g];
                 kept.clear();
-                for (size_t k = 0, g = i; k < pts.size(); k++) {
-                    if (g < end && where[g].second < k) g++;
-                    if (g < end && where[g].second == k && gone[g]) {
+                for (size_t k = 0; k < pts.size(); k++) {
+                    if (drop[k]) {
                         R->under_moved++, R->under_gone++;
                         R->layers.removed.insert(R->layers.removed.end(), {pts[k].p[0], pts[k].p[1], pts[k].p[2]});
                         continue;

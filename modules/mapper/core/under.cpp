@@ -51,6 +51,7 @@ struct pb_under {
 
     int64_t col(double v) const { return (int64_t)std::floor(v * inv_col); }
     static uint64_t column_key(int64_t cx, int64_t cy) { return (uint64_t)cx << 32 | (uint32_t)cy; }
+    uint64_t column(double x, double y) const { return column_key(col(x), col(y)); }   /* (x, y)'s column */
     /* the height of (x, y, z) over the ground; false where the model has none */
     bool height(double x, double y, double z, double *h) const
     {
@@ -137,7 +138,7 @@ void pb_under_sweep(pb_under_t *u, const double *xyz, size_t n, const pb_points_
     u->marked.clear();
     for (size_t i = 0; i < n; i++) {
         const double *p = xyz + 3 * i;
-        const uint64_t c = pb_under::column_key(u->col(p[0]), u->col(p[1]));
+        const uint64_t c = u->column(p[0], p[1]);
         if (!u->watch_bits.may_hold(c) || !u->watch.count(c)) continue;
         u->near.push_back(i);
         uint64_t key;
@@ -220,7 +221,7 @@ uint32_t pb_under_adjust(const pb_under_t *u, float p[4], uint32_t n)
 
 int pb_under_near(const pb_under_t *u, const float p[3])
 {
-    const uint64_t c = pb_under::column_key(u->col(p[0]), u->col(p[1]));
+    const uint64_t c = u->column(p[0], p[1]);
     return u->around_bits.may_hold(c) && u->around.count(c);
 }
 
@@ -259,7 +260,7 @@ size_t pb_under_bumps(const pb_under_t *u, const float *xyz, size_t n, size_t st
     std::vector<uint32_t> cand;
     for (size_t i = 0; i < n; i++) {
         const float *p = xyz + i * stride;
-        if (h[i] >= u->cfg.bump_m && h[i] <= u->cfg.return_max_m && u->watch.count(pb_under::column_key(u->col(p[0]), u->col(p[1]))))
+        if (h[i] >= u->cfg.bump_m && h[i] <= u->cfg.return_max_m && u->watch.count(u->column(p[0], p[1])))
             patch[i] = (uint32_t)i, cand.push_back((uint32_t)i);
     }
     for (uint32_t i : cand)
