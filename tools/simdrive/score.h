@@ -6,7 +6,10 @@
  *                       SCORE_MARGIN_M of a road user's box (opposite-lane traffic, and
  *                       the lead car, crossing cars and pedestrians when switched on) as
  *                       the LiDAR saw it at some sweep of the drive, and nearer to that
- *                       box than to the static world. The boxes are placed as lidar.c
+ *                       box than to the static world, and not under the ground (road
+ *                       users stand on it: a road point placed a few centimetres low
+ *                       lies as near to a wheel's box bottom as to the road). The
+ *                       boxes are placed as lidar.c
  *                       places them (at each sweep's start and end, interpolated), at
  *                       steps of at most SCORE_STEP_M of the box's motion.
  *   on the own body     (roof returns switched on) the same rule with the car's own body
