@@ -175,6 +175,12 @@ int pass_odometry(Run *R, pb_err_t *err)
             ms.speed.clear();
             ms.rate.clear();
             if (ok != 0) return -1;
+            for (size_t c = 0; c < r.n_corrected; c++)   /* the start's sweeps aligned again */
+                for (size_t i = R->traj.size(); i-- > 0;)
+                    if (R->traj[i].utime == r.corrected[c].utime) {
+                        R->traj[i].pose = R->traj[i].odometry = r.corrected[c].pose;
+                        break;
+                    }
             std::vector<pb_keyframe_t> &kf = R->kf;
             if (kf.empty() || (r.pose.translation() - kf.back().pose.translation()).norm() >= kKeyframeSpacingM) {
                 kf.push_back({r.utime, r.pose, {}});

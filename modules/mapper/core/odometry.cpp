@@ -53,6 +53,11 @@ struct pb_odom {
     /* the car's own motion samples: from the newest one at or before the last sweep's middle on */
     std::vector<pb_odom_speed_t> speed;
     std::vector<pb_odom_rate_t> rate;
+    /* the drive's start (start_place_m): its sweeps held, deskewed in base, until aligned again */
+    struct Held { int64_t utime; Eigen::Isometry3d pose; std::vector<float> pts; };
+    bool start_open = true;
+    std::vector<Held> held;
+    std::vector<pb_odom_correction_t> corrected;
 };
 
 /* Sweeps after its start that a new registration map is swapped in (waiting for it if it is
@@ -292,6 +297,42 @@ static int rebuild(pb_odom_t *o, const Vec3 &at, bool now, pb_err_t *err)
     return 0;
 }
 
+/* The drive's start: a sweep within start_place_m of the first pose is held; the first one
+ * start_realign_m away is the view the held ones are aligned to again (a map of it alone:
+ * its beams fall elsewhere on the same surfaces, so their pattern pulls no attitude along). */
+static int start_hold(pb_odom_t *o, const pb_odom_result_t &r, const std::vector<float> &pts, pb_err_t *err)
+{
+    const double d = r.pose.translation().norm();   /* the first pose is the origin */
+    if (d < o->cfg.start_place_m) {
+        if ((int)o->held.size() >= o->cfg.start_hold_max) o->held.erase(o->held.begin());
+        if (o->cfg.start_hold_max > 0) o->held.push_back({r.utime, r.pose, pts});
+        return 0;
+    }
+    if (d < o->cfg.start_realign_m) return 0;
+    o->start_open = false;
+    if (o->held.empty()) return 0;
+    std::vector<float> view(pts.size());
+    for (size_t i = 0; i < pts.size(); i += 3) {
+        const Vec3 p = r.pose * Vec3(pts[i], pts[i + 1], pts[i + 2]);
+        for (int k = 0; k < 3; k++) view[i + k] = (float)p[k];
+    }
+    pb_regmap_t *m = pb_regmap_from_points(view.data(), view.size() / 3, nullptr, err);
+    if (!m) return -1;
+    for (const pb_odom::Held &h : o->held) {
+        pb_reg_result_t a;
+        const int rc = pb_reg_align(m, h.pts.data(), h.pts.size() / 3, h.pose, &o->reg, &a, err);
+        if (rc < 0) {
+            pb_regmap_destroy(m);
+            return -1;
+        }
+        if (rc != PB_REG_FEW_POINTS) o->corrected.push_back({h.utime, a.pose});
+    }
+    pb_regmap_destroy(m);
+    o->held.clear();
+    o->held.shrink_to_fit();
+    return 0;
+}
+
 int pb_odom_add(pb_odom_t *o, int64_t utime, const float *xyz, const int32_t *offset_us, size_t n,
                 const pb_odom_motion_t *motion, pb_odom_result_t *out, pb_err_t *err)
 {
@@ -382,7 +423,13 @@ int pb_odom_add(pb_odom_t *o, int64_t utime, const float *xyz, const int32_t *of
         o->motion_known = true;
     }
 
-    // 5. the sweep into the local map (on another thread unless the registration map is
+    // 5. the start's sweeps held, and aligned again once the car is far enough from them
+    o->corrected.clear();
+    if (o->start_open && o->sweeps > 0 && start_hold(o, r, pts, err) != 0) return -1;
+    r.corrected = o->corrected.data();
+    r.n_corrected = o->corrected.size();
+
+    // 6. the sweep into the local map (on another thread unless the registration map is
     //    rebuilt from it now); the registration map rebuilt every few metres
     settle(o);
     o->last_sweep.swap(pts);
@@ -412,7 +459,7 @@ int pb_odom_add(pb_odom_t *o, int64_t utime, const float *xyz, const int32_t *of
 const std::vector<float> &pb_odom_last_sweep(const pb_odom_t *o) { return o->last_sweep; }
 
 /* ---- checkpoint: the state written field by field (no padding), read back with bounds */
-static const char kStateMagic[8] = {'P', 'B', 'O', 'D', 'O', 'M', '0', '1'};
+static const char kStateMagic[8] = {'P', 'B', 'O', 'D', 'O', 'M', '0', '2'};
 
 static void put_vec3(ByteWriter &w, const Vec3 &v) { for (int k = 0; k < 3; k++) w.put(v[k]); }
 static Vec3 get_vec3(ByteReader &r)
@@ -428,7 +475,9 @@ void pb_odom_save(const pb_odom_t *o, std::vector<uint8_t> *out)
     out->clear();
     out->reserve(256 + 28 * o->cells.size() + 12 * o->index.size() +
                  4 * (o->regmap_src.size() + o->next_src.size()) + 16 * o->speed.size() +
-                 32 * o->rate.size());   /* exactly: no doubling */
+                 32 * o->rate.size() + 1 + 8 + o->held.size() * (8 + 96 + 8) +
+                 [&] { size_t b = 0; for (const pb_odom::Held &h : o->held) b += 4 * h.pts.size(); return b; }());
+                 /* exactly: no doubling */
     ByteWriter w{out};
     for (char c : kStateMagic) w.put(c);
     w.put(o->sweeps); w.put(o->last_utime);
@@ -450,6 +499,14 @@ void pb_odom_save(const pb_odom_t *o, std::vector<uint8_t> *out)
     for (const pb_odom_speed_t &x : o->speed) { w.put(x.utime); w.put(x.speed_mps); }
     w.put((uint64_t)o->rate.size());
     for (const pb_odom_rate_t &x : o->rate) { w.put(x.utime); w.put(x.rate[0]); w.put(x.rate[1]); w.put(x.rate[2]); }
+    w.put((uint8_t)o->start_open);
+    w.put((uint64_t)o->held.size());
+    for (const pb_odom::Held &h : o->held) {
+        w.put(h.utime);
+        for (int r = 0; r < 3; r++)
+            for (int c = 0; c < 4; c++) w.put(h.pose.matrix()(r, c));
+        w.put_array(h.pts.data(), h.pts.size());
+    }
 }
 
 /* What a saved state must hold (a checksum passed, but the bytes may still be another
@@ -480,6 +537,16 @@ static bool state_sane(const pb_odom_t *o)
         if (!Eigen::Map<const Vec3>(o->rate[i].rate).allFinite() || !utime_ok(o->rate[i].utime) ||
             (i && o->rate[i].utime < o->rate[i - 1].utime))
             return false;
+    if ((int)o->held.size() > std::max(o->cfg.start_hold_max, 0) || (!o->start_open && !o->held.empty())) return false;
+    for (size_t i = 0; i < o->held.size(); i++) {
+        const pb_odom::Held &h = o->held[i];
+        const Eigen::Matrix3d &Q = h.pose.linear();
+        if (!h.pose.matrix().allFinite() || !(((Q.transpose() * Q) - Eigen::Matrix3d::Identity()).norm() < 1e-6) ||
+            !utime_ok(h.utime) || h.utime > o->last_utime || (i && h.utime <= o->held[i - 1].utime) || h.pts.size() % 3)
+            return false;
+        for (float x : h.pts)
+            if (!std::isfinite(x)) return false;
+    }
     return true;
 }
 
@@ -529,7 +596,18 @@ pb_odom_t *pb_odom_restore(const uint8_t *data, size_t n, const pb_odom_config_t
         x.utime = r.get<int64_t>(); x.rate[0] = r.get<double>(); x.rate[1] = r.get<double>(); x.rate[2] = r.get<double>();
         o->rate.push_back(x);
     }
-    if (!r.ok || r.p != r.end) {
+    o->start_open = r.get<uint8_t>() != 0;
+    const uint64_t nheld = r.get<uint64_t>();
+    for (uint64_t i = 0; i < nheld && r.ok && i <= n / 112; i++) {
+        pb_odom::Held h;
+        h.pose = Eigen::Isometry3d::Identity();
+        h.utime = r.get<int64_t>();
+        for (int a = 0; a < 3; a++)
+            for (int c = 0; c < 4; c++) h.pose.matrix()(a, c) = r.get<double>();
+        r.get_array(&h.pts);
+        o->held.push_back(std::move(h));
+    }
+    if (!r.ok || r.p != r.end || o->held.size() != nheld) {
         pb_odom_destroy(o);
         return pb_err_set(err, "odometry state: truncated or damaged"), nullptr;
     }

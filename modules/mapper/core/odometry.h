@@ -60,6 +60,14 @@ typedef struct {
                                       * dead reckoning bridges it */
     double max_sample_age_s = 0.2;   /* a speed or rate sample older than this at the sweep's middle is
                                       * stale (CAN or IMU stopped): constant velocity instead */
+    double start_place_m = 1.0;      /* the sweeps before the car first gets this far from where the drive
+                                      * starts were aligned to a map of the standing car's own view (a sweep
+                                      * aligned to one from nearly the same place finds about half the
+                                      * attitude change between them: the body pitching on its springs as
+                                      * the car sets off), so ... */
+    double start_realign_m = 3.0;    /* ... they are aligned again, once the car is this far from the start,
+                                      * to the view from there (pb_odom_result_t.corrected) ... */
+    int start_hold_max = 32;         /* ... the last this many of them (3.2 s at 10 Hz) */
 } pb_odom_config_t;
 
 /* What the car measures of its own motion: signed forward speed of base (VEHICLE_SPEED,
@@ -102,7 +110,16 @@ typedef struct {
     Eigen::Vector3d w_base;       /* ... and rad/s, both in base */
     double inlier_fraction;       /* of the match (registration.h); NaN for FIRST/PREDICTED */
     int rebuilt;                  /* 1 if a new registration map was started or swapped in after this sweep */
+    /* Earlier sweeps' poses aligned again with this one (start_realign_m): n_corrected of them, valid
+     * until the next pb_odom_add; they replace those given for the same utime before. */
+    const struct pb_odom_correction *corrected;
+    size_t n_corrected;
 } pb_odom_result_t;
+
+typedef struct pb_odom_correction {
+    int64_t utime;                /* pb_odom_result_t.utime of the sweep ... */
+    Eigen::Isometry3d pose;       /* ... and its pose aligned again */
+} pb_odom_correction_t;
 
 typedef struct pb_odom pb_odom_t;
 
@@ -124,7 +141,7 @@ const std::vector<float> &pb_odom_last_sweep(const pb_odom_t *o);
 
 /* The odometry's whole state as bytes, for a checkpoint (out is replaced): the local map's
  * cells and index, the motion, the points the registration map (and the one being built)
- * come from. An odometry restored from them gives the same poses for the next sweeps as
+ * come from, the start's sweeps held. An odometry restored from them gives the same poses for the next sweeps as
  * the saved one would have, byte for byte. */
 void pb_odom_save(const pb_odom_t *o, std::vector<uint8_t> *out);
 
