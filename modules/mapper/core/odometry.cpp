@@ -490,7 +490,14 @@ void pb_odom_save(const pb_odom_t *o, std::vector<uint8_t> *out)
     /* the index as it is: keys of cells added since the last rebuild come from their first
      * point, the others from their centroid, and two centroids may share a key */
     w.put((uint64_t)o->index.size());
-    o->index.for_each([&](uint64_t key, int32_t value) { w.put(key); w.put(value); });
+    /* in key order: the table's own order depends on its size and on the order the keys came
+     * in (a key probed past the table's end lands at its start), and a state restored must save
+     * to the same bytes */
+    std::vector<std::pair<uint64_t, int32_t>> keyed;
+    keyed.reserve(o->index.size());
+    o->index.for_each([&](uint64_t key, int32_t value) { keyed.push_back({key, value}); });
+    std::sort(keyed.begin(), keyed.end());
+    for (const auto &kv : keyed) { w.put(kv.first); w.put(kv.second); }
     w.put_array(o->regmap_src.data(), o->regmap_src.size());
     w.put((uint8_t)o->next.valid());
     w.put(o->next_sweep); put_vec3(w, o->next_from);

@@ -117,7 +117,8 @@ static void settle(pb_under_t *u)
             }
     }
     u->seen.clear();
-    const int r = 1 + (int)std::ceil(u->cfg.bump_reach_m * u->inv_col);
+    /* a bump may lie up to bump_reach_m from a watched column, and its test looks as far again */
+    const int r = 1 + (int)std::ceil(2 * u->cfg.bump_reach_m * u->inv_col);
     for (uint64_t c : u->watch)
         for (int dx = -r; dx <= r; dx++)
             for (int dy = -r; dy <= r; dy++) {
@@ -251,7 +252,19 @@ size_t pb_under_bumps(const pb_under_t *u, const float *xyz, size_t n, size_t st
                 }
             }
     };
-    // 2. the points where a body stood, in the band; those within two voxels joined in patches
+    // 2. the points within bump_reach_m of where a body stood (a wheel stands at its body's
+    //    corner, and the body's voxels carved are those the map held), in the band; those
+    //    within two voxels joined in patches
+    const int rc = (int)std::ceil(reach * u->inv_col);
+    auto near_watch = [&](double x, double y) {
+        const uint64_t c = u->column(x, y);
+        for (int dx = -rc; dx <= rc; dx++)
+            for (int dy = -rc; dy <= rc; dy++) {
+                const uint64_t k = pb_under::column_key((int32_t)(c >> 32) + dx, (int32_t)(uint32_t)c + dy);
+                if (u->watch_bits.may_hold(k) && u->watch.count(k)) return true;
+            }
+        return false;
+    };
     std::vector<uint32_t> patch(n, UINT32_MAX);   /* a candidate's link toward its patch's root */
     auto root = [&](uint32_t i) {
         while (patch[i] != i) i = patch[i] = patch[patch[i]];
@@ -260,7 +273,7 @@ size_t pb_under_bumps(const pb_under_t *u, const float *xyz, size_t n, size_t st
     std::vector<uint32_t> cand;
     for (size_t i = 0; i < n; i++) {
         const float *p = xyz + i * stride;
-        if (h[i] >= u->cfg.bump_m && h[i] <= u->cfg.return_max_m && u->watch.count(u->column(p[0], p[1])))
+        if (h[i] >= u->cfg.bump_m && h[i] <= u->cfg.return_max_m && near_watch(p[0], p[1]))
             patch[i] = (uint32_t)i, cand.push_back((uint32_t)i);
     }
     for (uint32_t i : cand)

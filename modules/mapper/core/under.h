@@ -91,15 +91,18 @@ uint32_t pb_under_adjust(const pb_under_t *u, float p[4], uint32_t n);
 
 /* After pb_under_adjust, the bumps: what a tyre left of a voxel that no body return of its
  * sweeps came near (the tests above need one). A bump is a patch of map points no wider than
- * bump_reach_m (points within two voxels of each other joined), each of them in a column where
- * a body stood, bump_m to return_max_m over the ground, and bump_m or more over every map
+ * bump_reach_m (points within two voxels of each other joined), each of them within bump_reach_m
+ * of a column where a body stood (a wheel stands at its body's corner, and only the body's
+ * voxels the map held were carved), bump_m to return_max_m over the ground, and bump_m or more over every map
  * point not of the patch within bump_reach_m of it (x-y); its neighbours there fill bump_fill of the voxel columns there: the
  * road seen all round it, and nothing over it. A kerb's row is wider; a post or a bush's foot
  * has itself above; a ditch's edge is not over the ground. Measured on the simulated drives
  * (points on moving objects, true poses): loop 30 -> 8, hills 8 -> 3, no static point; each
- * left is beside another lifted voxel farther than two voxels. On MulRan 13 of 1.28 M points.
- * pb_under_near says which map points a bump test may need (those within bump_reach_m of a
- * column where a body stood); pb_under_bumps takes them (x y z floats, stride floats apart),
+ * left is beside another lifted voxel farther than two voxels. On MulRan 13 of 1.28 M points. Within bump_reach_m of
+ * where a body stood rather than in its columns (5 Dec): one more on each of the loop and the
+ * hills, with the mapper's poses and with the true ones, nothing static, MulRan's map the same.
+ * pb_under_near says which map points a bump test may need (those within twice bump_reach_m
+ * of a column where a body stood); pb_under_bumps takes them (x y z floats, stride floats apart),
  * sets gone[i] = 1 for each point of a bump and returns their number. */
 int pb_under_near(const pb_under_t *u, const float p[3]);
 size_t pb_under_bumps(const pb_under_t *u, const float *xyz, size_t n, size_t stride, uint8_t *gone);
