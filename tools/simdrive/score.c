@@ -217,12 +217,10 @@ int score_surface_distance(const score_drive_t *drv, const char *path, const cha
     if (drv->traffic && roof) sweep_body(drv, &C);
     // 3. the rule of score.h, and the points farther than 0.5 m sorted by it
     size_t moving = 0, body = 0, far_moving = 0, far_body = 0, by_cls[WORLD_MAX_CLASSES] = { 0 };
-    const terrain_t *T = &drv->world->terrain;
     for (size_t i = 0; i < n; i++) {
         /* under the ground: what stands on it has nothing there (a wheel's box bottom can lie
          * as near as the road itself to a road point placed low, and win the tie) */
-        int above = xyz[3 * i + 2] >= (T->enabled ? terrain_height(T, xyz[3 * i], xyz[3 * i + 1]) : 0.0);
-        int off = above && d[i] > SCORE_STATIC_M;
+        int off = d[i] > SCORE_STATIC_M && xyz[3 * i + 2] >= world_ground_z(drv->world, xyz[3 * i], xyz[3 * i + 1]);
         int on_mover = off && C.d_mover[i] <= SCORE_MARGIN_M && C.d_mover[i] < d[i];
         int on_body = !on_mover && off && C.d_body[i] <= SCORE_MARGIN_M && C.d_body[i] < d[i];
         moving += on_mover;

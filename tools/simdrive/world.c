@@ -521,9 +521,14 @@ static double cylinder_distance(const prim_t *p, const double x[3])
     return -fmax(radial, axial);
 }
 
+double world_ground_z(const world_t *w, double x, double y)
+{
+    return w->terrain.enabled ? terrain_height(&w->terrain, x, y) : 0.0;
+}
+
 double world_distance(const world_t *w, const double p[3], double cap)
 {
-    double best = fmin(cap, fabs(p[2] - (w->terrain.enabled ? terrain_height(&w->terrain, p[0], p[1]) : 0.0)));
+    double best = fmin(cap, fabs(p[2] - world_ground_z(w, p[0], p[1])));
     int ix = (int)floor((p[0] - w->gx0) / w->cell), iy = (int)floor((p[1] - w->gy0) / w->cell);
     for (int cy = iy - 1; cy <= iy + 1; cy++)
         for (int cx = ix - 1; cx <= ix + 1; cx++) {

@@ -107,6 +107,9 @@ typedef struct { double t; int cls; } hit_t;
 int world_raycast(const world_t *w, const double o[3], const double d[3], double tmax,
                   const mover_t *movers, int nmovers, uint32_t *mail, uint32_t stamp, uint64_t ray_key, hit_t *hit);
 
+/* The ground's height under (x, y): the terrain's, or 0 on a flat site. */
+double world_ground_z(const world_t *w, double x, double y);
+
 /* Distance from p to the nearest static surface of the grid's day: the ground (vertical
  * distance to the terrain) and the primitives within a grid cell of p; at most cap. For
  * scoring a map against the world (simdrive --surface-distance). */

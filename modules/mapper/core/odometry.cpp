@@ -473,11 +473,11 @@ void pb_odom_save(const pb_odom_t *o, std::vector<uint8_t> *out)
 {
     settle(o);   /* the cells with the last sweep's points */
     out->clear();
+    size_t held_bytes = 1 + 8;
+    for (const pb_odom::Held &h : o->held) held_bytes += 8 + 96 + 8 + 4 * h.pts.size();
     out->reserve(256 + 28 * o->cells.size() + 12 * o->index.size() +
                  4 * (o->regmap_src.size() + o->next_src.size()) + 16 * o->speed.size() +
-                 32 * o->rate.size() + 1 + 8 + o->held.size() * (8 + 96 + 8) +
-                 [&] { size_t b = 0; for (const pb_odom::Held &h : o->held) b += 4 * h.pts.size(); return b; }());
-                 /* exactly: no doubling */
+                 32 * o->rate.size() + held_bytes);   /* exactly: no doubling */
     ByteWriter w{out};
     for (char c : kStateMagic) w.put(c);
     w.put(o->sweeps); w.put(o->last_utime);
@@ -519,12 +519,16 @@ void pb_odom_save(const pb_odom_t *o, std::vector<uint8_t> *out)
 /* What a saved state must hold (a checksum passed, but the bytes may still be another
  * program's): a rigid pose, finite motions, cells with 1 to kCellFull points, finite
  * points, samples in time order. */
+static bool rigid(const Eigen::Isometry3d &T)
+{
+    const Eigen::Matrix3d &R = T.linear();
+    return T.matrix().allFinite() && ((R.transpose() * R) - Eigen::Matrix3d::Identity()).norm() < 1e-6 &&
+           std::fabs(R.determinant() - 1) < 1e-6;
+}
+
 static bool state_sane(const pb_odom_t *o)
 {
-    const Eigen::Matrix3d &R = o->last_pose.linear();
-    if (!o->last_pose.matrix().allFinite() || !(((R.transpose() * R) - Eigen::Matrix3d::Identity()).norm() < 1e-6) ||
-        !(std::fabs(R.determinant() - 1) < 1e-6))
-        return false;
+    if (!rigid(o->last_pose)) return false;
     if (!o->v.allFinite() || !o->w.allFinite() || !o->built_at.allFinite() || !o->next_from.allFinite() || o->sweeps < 0 ||
         !utime_ok(o->last_utime) || o->built_sweep < 0 || o->built_sweep > o->sweeps || o->next_sweep < 0 ||
         o->next_sweep > o->sweeps + kSwapAfter)
@@ -547,9 +551,7 @@ static bool state_sane(const pb_odom_t *o)
     if ((int)o->held.size() > std::max(o->cfg.start_hold_max, 0) || (!o->start_open && !o->held.empty())) return false;
     for (size_t i = 0; i < o->held.size(); i++) {
         const pb_odom::Held &h = o->held[i];
-        const Eigen::Matrix3d &Q = h.pose.linear();
-        if (!h.pose.matrix().allFinite() || !(((Q.transpose() * Q) - Eigen::Matrix3d::Identity()).norm() < 1e-6) ||
-            !utime_ok(h.utime) || h.utime > o->last_utime || (i && h.utime <= o->held[i - 1].utime) || h.pts.size() % 3)
+        if (!rigid(h.pose) || !utime_ok(h.utime) || h.utime > o->last_utime || (i && h.utime <= o->held[i - 1].utime) || h.pts.size() % 3)
             return false;
         for (float x : h.pts)
             if (!std::isfinite(x)) return false;

@@ -39,7 +39,7 @@ struct pb_under {
     bool settled = false;                 /* body and watch made from seen (at the second read's start) */
     std::unordered_set<uint64_t> body;    /* carved voxels that are bodies */
     std::unordered_set<uint64_t> watch;   /* where a body stood: its columns and their 8 neighbours */
-    std::unordered_set<uint64_t> around;  /* the columns within bump_reach_m of a watched one */
+    std::unordered_set<uint64_t> around;  /* the columns within twice bump_reach_m of a watched one */
     std::unordered_map<uint64_t, Taken> taken;
     uint64_t returns_taken = 0;
     /* one sweep's: the returns in watched columns, the columns a body marked */
@@ -51,6 +51,7 @@ struct pb_under {
 
     int64_t col(double v) const { return (int64_t)std::floor(v * inv_col); }
     static uint64_t column_key(int64_t cx, int64_t cy) { return (uint64_t)cx << 32 | (uint32_t)cy; }
+    static uint64_t column_moved(uint64_t c, int dx, int dy) { return column_key((int32_t)(c >> 32) + dx, (int32_t)(uint32_t)c + dy); }
     uint64_t column(double x, double y) const { return column_key(col(x), col(y)); }   /* (x, y)'s column */
     /* the height of (x, y, z) over the ground; false where the model has none */
     bool height(double x, double y, double z, double *h) const
@@ -122,7 +123,7 @@ static void settle(pb_under_t *u)
     for (uint64_t c : u->watch)
         for (int dx = -r; dx <= r; dx++)
             for (int dy = -r; dy <= r; dy++) {
-                const uint64_t k = pb_under::column_key((int32_t)(c >> 32) + dx, (int32_t)(uint32_t)c + dy);
+                const uint64_t k = pb_under::column_moved(c, dx, dy);
                 if (u->around.insert(k).second) u->around_bits.add(k);
             }
 }
@@ -260,7 +261,7 @@ size_t pb_under_bumps(const pb_under_t *u, const float *xyz, size_t n, size_t st
         const uint64_t c = u->column(x, y);
         for (int dx = -rc; dx <= rc; dx++)
             for (int dy = -rc; dy <= rc; dy++) {
-                const uint64_t k = pb_under::column_key((int32_t)(c >> 32) + dx, (int32_t)(uint32_t)c + dy);
+                const uint64_t k = pb_under::column_moved(c, dx, dy);
                 if (u->watch_bits.may_hold(k) && u->watch.count(k)) return true;
             }
         return false;
