@@ -438,8 +438,11 @@ def test_supervisorctl_failed_recovery_rotation_and_recorder_stop(tmp_path):
         assert "RUNNING" in out
         # restart: a new pid; stop: STOPPED, and stays stopped.
         old = bus.cmd("summary").pid
-        ctl(port, "restart", "summary")
-        assert bus.cmd("summary").pid != old and bus.cmd("summary").state == CS.STATE_RUNNING
+        out = ctl(port, "restart", "summary").stdout
+        assert "RUNNING" in out
+        # supervisorctl waited for its own SUPERVISOR saying RUNNING; this test's listener may be a message behind.
+        bus.wait(lambda: (c := bus.cmd("summary")) and c.pid != old and c.state == CS.STATE_RUNNING, 3,
+                 "summary RUNNING with a new pid")
         # Stopping the recorder stops the real lcm-logger (the wrapper's child) too, and the file ends cleanly.
         rec = bus.cmd("recorder").pid
         members = subprocess.run(["pgrep", "-g", str(rec)], capture_output=True, text=True).stdout.split()
