@@ -44,6 +44,8 @@ static void usage(FILE *f)
         "GNSS_FIX in the log, the map is moved onto the fixes (east-north-up at the first 3-D\n"
         "fix) and SITE_DIR/site.yaml holds that geo-reference; a trajectory that stays farther\n"
         "from the fixes than their reported accuracy (a drift) is bent onto them (one drive);\n"
+        "a receiver clock more than 0.3 s off the LiDAR's is measured from when the fixes\n"
+        "arrive, said on stderr and in report.json, and taken out of the fix times;\n"
         "without GNSS, the map stays in the first sweep's frame and no site.yaml is written.\n"
         "Several drives of the same course (--log repeated): each gets its own odometry, then\n"
         "each later drive is placed in the first drive's frame by matching its places to the\n"

@@ -241,7 +241,7 @@ int checkpoint_read(Run *R, pb_err_t *err)
 }
 
 /* ---- Restart inside the later steps (mapper.h). */
-const char kPosesMagic[8] = {'P', 'B', 'M', 'A', 'P', 'P', 'S', '1'};
+const char kPosesMagic[8] = {'P', 'B', 'M', 'A', 'P', 'P', 'S', '2'};   /* 2: each drive's GNSS clock offset */
 const char kCarvedMagic[8] = {'P', 'B', 'M', 'A', 'P', 'C', 'V', '6'};
 
 /* What a stage checkpoint must match: the mapper's build, the options the later steps depend
@@ -300,6 +300,7 @@ int stage_write_poses(Run *R, pb_err_t *err)
         const pb_drive_report_t &p = D->placement;
         w.put((uint8_t)p.placed); put_str(w, p.why); w.put(p.tried); w.put(p.matched); w.put(p.links);
         put_pose(w, p.placement);
+        w.put(D->gnss_clock_offset_us); w.put(D->gnss_clock_lags);
     }
     const pb_loops_report_t &l = R->loops;
     for (int v : {l.candidates, l.verified, l.rejected, l.dropped, l.place_candidates, l.place_loops, l.iterations}) w.put(v);
@@ -374,6 +375,7 @@ int stage_read(Run *R, int *done, pb_err_t *)
     std::vector<std::string> whys;
     std::vector<std::vector<std::pair<Eigen::Isometry3d, Eigen::Isometry3d>>> poses(R->drives.size());
     std::vector<pb_drive_report_t> placement(R->drives.size());
+    std::vector<std::pair<int64_t, int>> clock(R->drives.size());   /* GNSS clock offset, lags */
     pb_loops_report_t loops{};
     std::vector<std::pair<SweepKey, SweepKey>> loop_times;
     pb_anchor_result_t anchor{};
@@ -389,6 +391,7 @@ int stage_read(Run *R, int *done, pb_err_t *)
         whys.push_back(r.get_string());
         p.tried = r.get<int>(); p.matched = r.get<int>(); p.links = r.get<int>();
         p.placement = get_pose(r);
+        clock[d] = {r.get<int64_t>(), r.get<int>()};
     }
     if (why.empty()) {
         for (int *v : {&loops.candidates, &loops.verified, &loops.rejected, &loops.dropped, &loops.place_candidates,
@@ -432,6 +435,8 @@ int stage_read(Run *R, int *done, pb_err_t *)
         for (size_t i = 0; i < D->traj.size(); i++) { D->traj[i].pose = poses[d][i].first; D->traj[i].odometry = poses[d][i].second; }
         D->placement = placement[d];
         D->placement.why = why_at[d];
+        D->gnss_clock_offset_us = clock[d].first;
+        D->gnss_clock_lags = clock[d].second;
     }
     R->loops = loops;
     R->loop_times = loop_times;

@@ -258,6 +258,9 @@ int write_report(const Run &R, const double cpu_ms[4], double wall_s, pb_err_t *
     cJSON_AddStringToObject(j, "ground_model_why_not", R.ground_why.c_str());
     cJSON_AddBoolToObject(j, "geo_referenced", R.anchor.anchored);
     cJSON_AddStringToObject(j, "geo_reference_why_not", R.anchor.anchored ? "" : R.anchor.why);
+    /* the receiver's clock against the LiDAR's, taken out of the fix times (the first drive's) */
+    cJSON_AddNumberToObject(j, "gnss_clock_offset_s", R.gnss_clock_offset_us * 1e-6);
+    cJSON_AddNumberToObject(j, "gnss_clock_lags", R.gnss_clock_lags);
     cJSON_AddNumberToObject(j, "gnss_fixes_used", R.anchor.used);
     cJSON_AddNumberToObject(j, "gnss_fixes_gated", R.anchor.gated);
     cJSON_AddNumberToObject(j, "gnss_fixes_rejected", R.anchor.rejected);
@@ -332,6 +335,7 @@ int write_report(const Run &R, const double cpu_ms[4], double wall_s, pb_err_t *
         cJSON_AddNumberToObject(o, "place_matches_tried", D->placement.tried);
         cJSON_AddNumberToObject(o, "place_matches_verified", D->placement.matched);
         cJSON_AddNumberToObject(o, "loops_to_other_drives", D->placement.links);
+        cJSON_AddNumberToObject(o, "gnss_clock_offset_s", D->gnss_clock_offset_us * 1e-6);
         const std::string n = D->drive ? "." + std::to_string(D->drive + 1) : "";
         cJSON_AddStringToObject(o, "trajectory", D->placement.placed ? ("trajectory" + n + ".tum").c_str() : "");
         cJSON_AddNumberToObject(o, "resumed_from_scan", (double)D->resumed_from);

@@ -6,6 +6,7 @@
 #include "pose_graph.h"
 #include "portobello_gnss_fix_t.h"
 #include "portobello_imu_t.h"
+#include "portobello_lidar_scan_t.h"
 #include "portobello_vehicle_speed_t.h"
 
 /* Every sweep's pose moved by its keyframes' corrections (new * old^-1), interpolated in
@@ -32,6 +33,35 @@ static int read_fixes(const char *log_path, std::vector<portobello_gnss_fix_t> *
         return 0;
     };
     return pb_log_read_track(log_path, nullptr, nullptr, "GNSS_FIX", on_fix, out, err);
+}
+
+/* For each GNSS_FIX of the log, its time minus the end of the newest sweep on scan_ch that
+ * came before it (pb_anchor_clock_offset). One more read of the log, only for logs with fixes. */
+static int read_fix_lags(const char *log_path, const char *scan_ch, std::vector<int64_t> *lags, pb_err_t *err)
+{
+    pb_log_t *log = pb_log_open_read(log_path, err);
+    if (!log) return -1;
+    pb_event_t ev;
+    int rc;
+    int64_t newest_end = INT64_MIN;
+    while ((rc = pb_log_next(log, &ev, err)) == 1) {
+        if (std::strcmp(ev.channel, scan_ch) == 0) {
+            portobello_lidar_scan_t s;
+            if (portobello_lidar_scan_t_decode(ev.data, 0, ev.datalen, &s) < 0) continue;   /* the odometry said so */
+            int64_t last = 0;   /* the sweep's last return, after its time */
+            for (int c = 0; c < s.cols; c++) last = std::max<int64_t>(last, s.col_offset_us[c]);
+            for (int i = 0; i < s.npoints; i++) last = std::max<int64_t>(last, s.point_offset_us[i]);
+            newest_end = std::max(newest_end, s.utime + last);
+            portobello_lidar_scan_t_decode_cleanup(&s);
+        } else if (std::strcmp(ev.channel, "GNSS_FIX") == 0 && newest_end != INT64_MIN) {
+            portobello_gnss_fix_t f;
+            if (portobello_gnss_fix_t_decode(ev.data, 0, ev.datalen, &f) < 0) continue;   /* not a fix: not used */
+            lags->push_back(f.utime - newest_end);
+            portobello_gnss_fix_t_decode_cleanup(&f);
+        }
+    }
+    pb_log_close(log, nullptr);
+    return rc < 0 ? -1 : 0;   /* err names the log and the byte */
 }
 
 static bool is_3d(const portobello_gnss_fix_t &f)
@@ -271,8 +301,18 @@ int anchor(Run *R, pb_err_t *err)
     for (Run *D : R->drives)
         if (D->placement.placed) placed.push_back(D);
     std::vector<std::vector<portobello_gnss_fix_t>> fixes(placed.size());
-    for (size_t d = 0; d < placed.size(); d++)
-        if (read_fixes(placed[d]->log_path, &fixes[d], err) != 0) return -1;
+    for (size_t d = 0; d < placed.size(); d++) {
+        Run *D = placed[d];
+        if (read_fixes(D->log_path, &fixes[d], err) != 0) return -1;
+        std::vector<int64_t> lags;
+        if (!fixes[d].empty() && read_fix_lags(D->log_path, D->scan_ch, &lags, err) != 0) return -1;
+        D->gnss_clock_lags = (int)lags.size();
+        D->gnss_clock_offset_us = pb_anchor_clock_offset(lags);
+        for (auto &f : fixes[d]) f.utime -= D->gnss_clock_offset_us;
+        if (D->gnss_clock_offset_us && !R->quiet)
+            std::fprintf(stderr, "mapper: %s: the GNSS receiver's clock is %+.2f s off the LiDAR's (median of %zu fixes); "
+                         "fix times corrected by that\n", D->log_path, D->gnss_clock_offset_us * 1e-6, lags.size());
+    }
     R->anchor = pb_anchor_result_t{};
     R->anchor.why = "no GNSS_FIX in the log";
     const portobello_gnss_fix_t *origin = nullptr;
