@@ -50,7 +50,9 @@ static void usage(FILE *f)
             "on its body, what lies between the participant's eye and it: OCCLUSION per sweep\n"
             "(per sample: 0 visible, 1 hidden, 2 unknown; the distance to the occluder; the\n"
             "visible fraction). The eye is HEAD_POSE (head in base) when it is fresh and\n"
-            "tracking, else the vehicle file's seat (said in STATUS). Without a usable pose\n"
+            "tracking, else the vehicle file's seat (said in STATUS); a headset whose clock is\n"
+            "more than 0.3 s off the car's is measured (its times against the newest POSE or\n"
+            "sweep they arrive with), said in STATUS and taken out. Without a usable pose\n"
             "(lost, initializing, missing) every sample is unknown.\n"
             "Inputs: LIDAR_SCAN, POSE (or --pose-channel), HEAD_POSE, AGENTS.\n"
             "  --replay IN.lcm      run on a log as fast as the CPU allows (with --out)\n"
@@ -134,7 +136,7 @@ static void on_head(const pb_msg_t *m, void *user)
     pb_status_take(a->status, m, portobello_head_pose_t_decode, portobello_head_pose_t_decode_cleanup,
                    [a](const portobello_head_pose_t &s) {
                        if (!s.tracking) pb_status_count(a->status, "head_not_tracking", 1);
-                       occlusion_head(a->occ, s.utime, s.position, s.tracking);
+                       occlusion_head(a->occ, s.utime, s.position, s.tracking, &a->ev);
                    });
 }
 

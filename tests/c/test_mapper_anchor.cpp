@@ -74,21 +74,6 @@ static void test_refusals()
     CHECK_CONTAINS(err.msg, "no GNSS fix");
 }
 
-/* The receiver's clock: lags within 0.3 s of 0 are no offset; beyond, their median, and one
- * stray lag (a fix held up in a buffer) does not move it. */
-static void test_clock_offset()
-{
-    CHECK(pb_anchor_clock_offset({}) == 0);
-    CHECK(pb_anchor_clock_offset({ 20000, 80000, -90000, 250000, 60000 }) == 0);
-    std::vector<int64_t> off;
-    for (int i = 0; i < 99; i++) off.push_back(18000000 + (i % 10) * 10000);   /* GPS time against UTC */
-    off.push_back(-5000000);
-    CHECK(pb_anchor_clock_offset(off) == 18040000);
-    CHECK(pb_anchor_clock_offset({ -2100000, -2050000, -1990000 }) == -2050000);
-    CHECK(pb_anchor_clock_offset({ 350000, 360000, 340000 }) == 350000);
-    CHECK(pb_anchor_clock_offset({ 350000, 360000, 340000 }, 400000) == 0);
-}
-
 /* A 3 km winding drive at 12 m/s, sweeps at 10 Hz (truth: enu <- base), and its odometry
  * drifting by turn_deg_per_m of yaw and scale_err (the map frame = the first pose). Fixes at
  * 10 Hz of the antenna (1.5 m above base) with a first-order Gauss-Markov error (1.5 m an
@@ -245,7 +230,6 @@ int main()
 {
     test_fit_with_outliers();
     test_refusals();
-    test_clock_offset();
     test_hold_bends_drift_onto_the_fixes();
     test_hold_keeps_two_drives_joined();
     return pb_check_report("test_mapper_anchor");

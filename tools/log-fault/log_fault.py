@@ -22,6 +22,8 @@ and benchmarks. Times (--at, --for) are seconds after the first event of the log
                 the car moving); --keep CH,CH,... keeps only those channels
   gnss-clock    add --seconds to every GNSS_FIX utime (a receiver whose clock is off the
                 host's; the event times stay)
+  head-clock    add --seconds to every HEAD_POSE utime (a headset whose clock is off the
+                car's; the event times stay)
   time-step     from `at` on, subtract --seconds from every message utime and event time
                 (the sensors' clock stepped back, e.g. an NTP or GNSS time sync)
 The log stays ordered by event timestamp except for `reorder` and `time-step`. Prints
@@ -123,7 +125,7 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
     ap.add_argument("fault", choices=["lidar-gap", "jump", "imu-gap", "drop-channel", "nan-points", "empty-scans",
-                                      "duplicate", "reorder", "garbage", "gnss-jump", "cut", "gnss-clock",
+                                      "duplicate", "reorder", "garbage", "gnss-jump", "cut", "gnss-clock", "head-clock",
                                       "time-step"])
     ap.add_argument("--in", dest="inp", required=True, help="input log")
     ap.add_argument("--out", required=True, help="output log")
@@ -133,7 +135,7 @@ def main():
     ap.add_argument("--count", type=int, default=3, help="sweeps for nan-points / empty-scans / garbage")
     ap.add_argument("--channel", default="GNSS_FIX", help="channel for drop-channel")
     ap.add_argument("--keep", default="", help="cut: channels to keep, comma-separated (default all)")
-    ap.add_argument("--seconds", type=float, default=2.0, help="gnss-clock / time-step: seconds (default 2)")
+    ap.add_argument("--seconds", type=float, default=2.0, help="gnss-clock / head-clock / time-step: seconds (default 2)")
     a = ap.parse_args()
 
     ev = read_events(a.inp)
@@ -211,6 +213,11 @@ def main():
             f.utime += int(round(a.seconds * 1e6))
         out, n = edit_fixes(ev, lambda e: True, later)
         note = f"{n} GNSS_FIX utimes moved by {a.seconds:+.3f} s"
+    elif a.fault == "head-clock":
+        shift = int(round(a.seconds * 1e6))
+        out = [(e[0], e[1], shift_utime(e[2], shift)) if e[1] == "HEAD_POSE" else e for e in ev]
+        n = sum(e[1] == "HEAD_POSE" for e in ev)
+        note = f"{n} HEAD_POSE utimes moved by {a.seconds:+.3f} s"
     elif a.fault == "time-step":
         shift = int(round(a.seconds * 1e6))
         n = 0

@@ -32,30 +32,19 @@ double candidate_gnss_residual(const localizer_t *L, const Eigen::Isometry3d &po
     return std::hypot(L->fix_map.x() - a.x(), L->fix_map.y() - a.y());
 }
 
-/* The GNSS receiver's clock against the other sensors': a fix is stamped at most a few
- * hundred ms after the newest IMU/CAN/LiDAR time it arrives with. A median over the last
- * fixes further off than cfg.gnss_clock_tol_us is an offset: reported once (and again
- * when it changes) and returned, to be subtracted from every fix time. */
+/* The GNSS receiver's clock against the other sensors' (pb_clock_offset.h): its offset is
+ * reported once (and again when it changes) and returned, to be subtracted from every fix
+ * time. */
 int64_t gnss_clock_offset(localizer_t *L, int64_t fix_utime, outputs_t *out)
 {
-    if (L->newest_t == 0) return L->gnss_offset;
-    L->gnss_lag.push_back(fix_utime - L->newest_t);
-    while (L->gnss_lag.size() > 5) L->gnss_lag.pop_front();
-    if (L->gnss_lag.size() < 3) return L->gnss_offset;
-    std::vector<int64_t> v(L->gnss_lag.begin(), L->gnss_lag.end());
-    std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
-    int64_t med = v[v.size() / 2];
-    if (std::llabs(med) <= L->cfg.gnss_clock_tol_us) med = 0;
-    L->gnss_offset = med;
-    if (std::llabs(med - L->gnss_offset_reported) > L->cfg.gnss_clock_tol_us) {
-        if (med != 0)
+    if (pb_clock_offset_add(&L->gnss_clock, fix_utime, L->newest_t)) {
+        if (L->gnss_clock.offset != 0)
             event(out, "gnss_clock_offset", "GNSS_FIX: the receiver's clock is %+.2f s off the other sensors; "
-                  "fix times corrected by that", med * 1e-6);
+                  "fix times corrected by that", L->gnss_clock.offset * 1e-6);
         else
             event(out, "gnss_clock_offset", "GNSS_FIX: the receiver's clock agrees with the other sensors again");
-        L->gnss_offset_reported = med;
     }
-    return L->gnss_offset;
+    return L->gnss_clock.offset;
 }
 
 /* Structure test (see localizer.h): share of the points above the local ground that lie

@@ -44,6 +44,7 @@ localizer_t *localizer_create(const localizer_config_t &cfg, const extrinsics_t 
     L->cfg = cfg;
     L->ex = ex;
     L->map = map;
+    pb_clock_offset_init(&L->gnss_clock, cfg.gnss_clock_tol_us);
     L->has_geo = geo != nullptr;
     if (geo) L->geo = *geo;
     filter_create(&L->kf, cfg.filter, ex.base_from_imu);
@@ -102,6 +103,7 @@ static void restart(localizer_t *L, bool keep_pose, outputs_t *out, const char *
     L->pager = pager;
     L->pager_user = pager_user;
     L->cfg = cfg; L->ex = ex; L->map = map; L->has_geo = has_geo; L->geo = geo;
+    pb_clock_offset_init(&L->gnss_clock, cfg.gnss_clock_tol_us);
     filter_create(&L->kf, cfg.filter, ex.base_from_imu);
     L->pred = L->kf;
     L->status = status;
@@ -124,7 +126,7 @@ static void rebase_clock(localizer_t *L, int64_t step, outputs_t *out, const cha
     back(L->last_pose_out_t); back(L->last_pred_out_t); back(L->pend_utime); back(L->pend_t_ref);
     back(L->cand_t); back(L->hint_t); back(L->last_match_t); back(L->prev_pose_t); back(L->last_structure_t);
     L->gnss_res.clear();
-    L->gnss_lag.clear();
+    pb_clock_offset_forget(&L->gnss_clock);
     L->has_fix = false;
     if (L->status == ST_TRACKING) set_status(L, ST_DEGRADED, out, why);
 }

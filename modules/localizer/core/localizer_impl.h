@@ -8,6 +8,7 @@
 #include <deque>
 
 #include "localizer.h"
+#include "pb_clock_offset.h"
 #include "places.h"
 
 namespace pb_loc {
@@ -80,8 +81,7 @@ struct localizer {
     gnss_in_t fix;
     Vec3 fix_map = Vec3::Zero();
     int64_t fix_raw_utime = 0;             /* the fix's own time, before the clock offset */
-    std::deque<int64_t> gnss_lag;          /* fix time minus the sensors' newest time, last few */
-    int64_t gnss_offset = 0, gnss_offset_reported = 0;
+    pb_clock_offset_t gnss_clock;          /* the receiver's clock against the sensors' (fix time - newest_t) */
     std::deque<gnss_res_t> gnss_res;
 
     /* the direction of travel an unsigned CAN speed lacks (Toyota without the gear) */

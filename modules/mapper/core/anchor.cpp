@@ -2,7 +2,6 @@
 #include "anchor.h"
 
 #include <algorithm>
-#include <cstdlib>
 #include <cmath>
 #include <ceres/ceres.h>
 
@@ -276,12 +275,4 @@ int pb_anchor_hold(std::vector<pb_anchor_drive_t> *drives, const std::vector<pb_
     r->step_scale = scale;
     r->resid_p90_m = p90;
     return 0;
-}
-
-int64_t pb_anchor_clock_offset(std::vector<int64_t> lags, int64_t tol_us)
-{
-    if (lags.empty()) return 0;
-    std::nth_element(lags.begin(), lags.begin() + (long)(lags.size() / 2), lags.end());
-    const int64_t med = lags[lags.size() / 2];
-    return std::llabs(med) <= tol_us ? 0 : med;
 }

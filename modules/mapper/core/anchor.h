@@ -122,15 +122,4 @@ int pb_anchor_hold(std::vector<pb_anchor_drive_t> *drives, const std::vector<pb_
                    const pb_anchor_result_t &fit, const Eigen::Vector3d &antenna, const pb_anchor_hold_config_t *cfg,
                    pb_anchor_hold_result_t *result, pb_err_t *err);
 
-/* The receiver's clock against the LiDAR's, from lags: for each fix, its time minus the end
- * of the newest sweep that came before it in the log (the localizer's live rule, health.cpp).
- * A receiver stamps a fix a little after the sweep it arrives with, so a median lag within
- * tol_us of 0 is no offset (0 returned); beyond it, the median is the receiver's clock
- * offset (a receiver on GPS time against sensors on UTC: 18 s), to be taken out of every fix
- * time before the fixes are matched to the trajectory. Without it they are matched to where
- * the car was seconds later, and the map is moved and bent along its path by speed x
- * offset. The median is up to a sweep's period off the offset (the lag of a fix without one
- * lies between 0 and a period, less the receiver's latency). 0 for no lags. */
-int64_t pb_anchor_clock_offset(std::vector<int64_t> lags, int64_t tol_us = 300000);
-
 #endif

@@ -1,5 +1,6 @@
 /* occlusion: sweeps, poses, head and agents to per-sample visibility (see occlusion.h). */
 #include "occlusion.h"
+#include "pb_clock_offset.h"
 
 #include <algorithm>
 #include <cmath>
@@ -12,6 +13,7 @@ const int64_t POSE_KEEP_US = 2000000;       /* pose history kept */
 const int64_t EXTRAPOLATE_US = 150000;      /* a pose may be carried this far past the newest */
 const int64_t GAP_US = 500000;              /* poses further apart than this do not interpolate */
 const int64_t HEAD_FRESH_US = 500000;       /* HEAD_POSE older than this: the seat */
+const int64_t HEAD_CLOCK_TOL_US = 300000;   /* a headset's clock further off the car's is an offset */
 const int64_t WAIT_US = 300000;             /* a sweep waits this long (message time) for its pose */
 const int64_t AGENTS_MAX_DT_US = 1000000;   /* agents extrapolated at most this far */
 const double JUMP_M = 3.0;                  /* a pose this far off the previous one's motion: the map is reset */
@@ -31,9 +33,11 @@ struct occlusion_t {
     occ_map_t *map;
     std::deque<occ_pose_in_t> poses;
     std::deque<sweep_t> sweeps;
-    int64_t head_utime = INT64_MIN;
+    int64_t head_utime = INT64_MIN;   /* on the car's clock (the headset's offset taken out) */
     double head[3] = { 0, 0, 0 };
     bool head_tracking = false;
+    pb_clock_offset_t head_clock;     /* the headset's clock against the car's sensors' */
+    int64_t newest_t = 0;             /* newest POSE time or sweep end: the car's clock */
     int64_t agents_utime = INT64_MIN;
     std::vector<occ_agent_in_t> agents;
     int last_eye = -1;
@@ -57,6 +61,7 @@ occlusion_t *occlusion_create(const occ_config_t *cfg, const occlusion_vehicle_t
     o->cfg.ego_half_width = veh->width / 2;
     o->cfg.ego_height = veh->height;
     o->map = occ_map_create(&o->cfg);
+    pb_clock_offset_init(&o->head_clock, HEAD_CLOCK_TOL_US);
     return o;
 }
 
@@ -209,8 +214,14 @@ static void process(occlusion_t *o, sweep_t &s, std::vector<occ_output_t> *out, 
     if (src != o->last_eye) {
         static const char *why[] = { "eye from HEAD_POSE", "no fresh tracking HEAD_POSE: eye from the vehicle file's seat",
                                      "no HEAD_POSE and no seat in the vehicle file: eye at the LiDAR" };
+        std::string msg = why[src];
+        if (src == OCC_EYE_HEAD && o->head_clock.offset) {   /* STATUS keeps the last message: say both */
+            char note[96];
+            snprintf(note, sizeof note, " (its clock %+.2f s off the car's, corrected)", o->head_clock.offset * 1e-6);
+            msg += note;
+        }
         ev->push_back({ src == OCC_EYE_HEAD ? "eye_head" : src == OCC_EYE_SEAT ? "eye_seat_fallback" : "eye_lidar_fallback",
-                        why[src] });
+                        msg });
         o->last_eye = src;
     }
     r.eye_source = src;
@@ -267,14 +278,24 @@ void occlusion_pose(occlusion_t *o, const occ_pose_in_t *p, std::vector<occ_outp
         }
     }
     o->poses.push_back(q);
+    o->newest_t = std::max(o->newest_t, q.utime);
     while (o->poses.size() > 2 && o->poses.back().utime - o->poses.front().utime > POSE_KEEP_US) o->poses.pop_front();
     drain(o, false, out, ev);
 }
 
-void occlusion_head(occlusion_t *o, int64_t utime, const double pos[3], bool tracking)
+void occlusion_head(occlusion_t *o, int64_t utime, const double pos[3], bool tracking, std::vector<occ_event_t> *ev)
 {
     bool finite = std::isfinite(pos[0]) && std::isfinite(pos[1]) && std::isfinite(pos[2]);
-    o->head_utime = utime;
+    if (pb_clock_offset_add(&o->head_clock, utime, o->newest_t) && ev) {
+        char msg[160];
+        if (o->head_clock.offset)
+            snprintf(msg, sizeof msg, "HEAD_POSE: the headset's clock is %+.2f s off the car's; its times corrected by that",
+                     o->head_clock.offset * 1e-6);
+        else
+            snprintf(msg, sizeof msg, "HEAD_POSE: the headset's clock agrees with the car's again");
+        ev->push_back({ "head_clock_offset", msg });
+    }
+    o->head_utime = utime - o->head_clock.offset;
     o->head_tracking = tracking && finite;
     if (finite) memcpy(o->head, pos, sizeof o->head);
 }
@@ -295,6 +316,7 @@ void occlusion_scan(occlusion_t *o, int64_t utime, const pb_points_t *pts, doubl
     int32_t last = 0;
     for (int i = 0; i < pts->n; i++) last = std::max(last, pts->offset_us[i]);
     s.end = utime + last;
+    o->newest_t = std::max(o->newest_t, s.end);
     memset(&s.pts, 0, sizeof s.pts);
     /* copy: the caller's buffer is reused */
     s.pts.n = s.pts.cap = pts->n;

@@ -77,7 +77,11 @@ occlusion_t *occlusion_create(const occ_config_t *cfg, const occlusion_vehicle_t
 void occlusion_destroy(occlusion_t *o);
 
 void occlusion_pose(occlusion_t *o, const occ_pose_in_t *p, std::vector<occ_output_t> *out, std::vector<occ_event_t> *ev);
-void occlusion_head(occlusion_t *o, int64_t utime, const double pos[3], bool tracking);
+/* HEAD_POSE. A headset whose clock is off the car's (its times against the newest POSE or
+ * sweep end they arrive with, pb_clock_offset.h) has the offset taken out of its times, and ev
+ * (may be NULL) gets "head_clock_offset" when it is found, changes or goes. */
+void occlusion_head(occlusion_t *o, int64_t utime, const double pos[3], bool tracking,
+                    std::vector<occ_event_t> *ev = nullptr);
 void occlusion_agents(occlusion_t *o, int64_t utime, const std::vector<occ_agent_in_t> &agents);
 /* A sweep (points in `lidar`, offsets after utime) and its sensor's beam gaps (rad;
  * pb_scan_beam_gaps; 0 when the scan does not say: the config's). Processed once a pose
