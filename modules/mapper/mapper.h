@@ -123,7 +123,7 @@ struct Run {
     int drive = 0;                           /* 0, 1, ... in the order of --log */
     std::vector<Run *> drives;               /* in the first: every drive's Run, itself first */
     pb_drive_report_t placement = {true, "", 0, 0, 0, Eigen::Isometry3d::Identity()};
-    int64_t gnss_clock_offset_us = 0;        /* taken out of this drive's fix times (pb_anchor_clock_offset) */
+    int64_t gnss_clock_offset_us = 0;        /* taken out of this drive's fix times (pb_clock_offset_median) */
     int gnss_clock_lags = 0;                 /* fixes it was measured on */
     std::string path(const char *name) const { return std::string(out_dir) + "/" + name; }
     std::string label(const char *what) const   /* a progress bar's */
