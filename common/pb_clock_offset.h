@@ -20,6 +20,11 @@
 extern "C" {
 #endif
 
+/* A device's clock this near the sensors' is no offset: a message's latency plus a sensor
+ * period; 0.3 s at 15 m/s is 4.5 m along the path, within what GNSS errs, and a head a few
+ * centimetres. The localizer, the mapper and the occlusion module use this. */
+#define PB_CLOCK_OFFSET_TOL_US 300000
+
 /* The rule on n lags (sorted in place): their median, or 0 when it lies within tol_us of 0
  * or n == 0. */
 int64_t pb_clock_offset_median(int64_t *lags, size_t n, int64_t tol_us);

@@ -36,12 +36,6 @@ static int read_fixes(const char *log_path, std::vector<portobello_gnss_fix_t> *
     return pb_log_read_track(log_path, nullptr, nullptr, "GNSS_FIX", on_fix, out, err);
 }
 
-/* The receiver's clock (pb_clock_offset.h) is matched against the sweeps' over the whole
- * drive: a fix would be taken for where the car was seconds later, and the map moved and bent
- * along its path by speed x offset. Within this of 0 it is no offset (the localizer's
- * gnss_clock_tol_us): 0.3 s at 15 m/s is 4.5 m along the path, within what the fixes err. */
-static const int64_t kGnssClockTolUs = 300000;
-
 /* For each GNSS_FIX of the log, its time minus the end of the newest sweep on scan_ch that
  * came before it. One more read of the log, only for logs with fixes. */
 static int read_fix_lags(const char *log_path, const char *scan_ch, std::vector<int64_t> *lags, pb_err_t *err)
@@ -314,7 +308,10 @@ int anchor(Run *R, pb_err_t *err)
         std::vector<int64_t> lags;
         if (!fixes[d].empty() && read_fix_lags(D->log_path, D->scan_ch, &lags, err) != 0) return -1;
         D->gnss_clock_lags = (int)lags.size();
-        D->gnss_clock_offset_us = pb_clock_offset_median(lags.data(), lags.size(), kGnssClockTolUs);
+        /* the receiver's clock against the sweeps' over the whole drive (pb_clock_offset.h): as
+         * stamped, a fix would be taken for where the car was seconds later, and the map moved
+         * and bent along its path by speed x offset */
+        D->gnss_clock_offset_us = pb_clock_offset_median(lags.data(), lags.size(), PB_CLOCK_OFFSET_TOL_US);
         for (auto &f : fixes[d]) f.utime -= D->gnss_clock_offset_us;
         if (D->gnss_clock_offset_us && !R->quiet)
             std::fprintf(stderr, "mapper: %s: the GNSS receiver's clock is %+.2f s off the LiDAR's (median of %zu fixes); "

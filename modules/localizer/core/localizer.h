@@ -40,6 +40,7 @@
 #include <vector>
 
 #include "filter.h"
+#include "pb_clock_offset.h"
 #include "pb_geo.h"
 #include "pb_scan.h"
 #include "registration.h"
@@ -64,7 +65,7 @@ struct localizer_config_t {
     int64_t time_jump_us = 1000000;        /* inputs this much older than the newest: the clock stepped back ... */
     int time_jump_inputs = 3;              /* ... when this many in a row say so (one stray message does not) */
     int64_t reinit_gap_us = 60000000;      /* no input for this long (a log gap): start afresh */
-    int64_t gnss_clock_tol_us = 300000;    /* GNSS time off the other sensors by more: an offset, compensated */
+    int64_t gnss_clock_tol_us = PB_CLOCK_OFFSET_TOL_US;   /* GNSS time off the other sensors by more: an offset, compensated */
     int64_t gap_pose_period_us = 100000;   /* POSE period while the LiDAR is missing */
     int64_t speed_timeout_us = 500000;     /* VEHICLE_SPEED older than this is not used */
     double reverse_detect_mps = 0.5;       /* matches moving backwards faster: an unsigned CAN speed is negated */

@@ -13,7 +13,6 @@ const int64_t POSE_KEEP_US = 2000000;       /* pose history kept */
 const int64_t EXTRAPOLATE_US = 150000;      /* a pose may be carried this far past the newest */
 const int64_t GAP_US = 500000;              /* poses further apart than this do not interpolate */
 const int64_t HEAD_FRESH_US = 500000;       /* HEAD_POSE older than this: the seat */
-const int64_t HEAD_CLOCK_TOL_US = 300000;   /* a headset's clock further off the car's is an offset */
 const int64_t WAIT_US = 300000;             /* a sweep waits this long (message time) for its pose */
 const int64_t AGENTS_MAX_DT_US = 1000000;   /* agents extrapolated at most this far */
 const double JUMP_M = 3.0;                  /* a pose this far off the previous one's motion: the map is reset */
@@ -61,7 +60,7 @@ occlusion_t *occlusion_create(const occ_config_t *cfg, const occlusion_vehicle_t
     o->cfg.ego_half_width = veh->width / 2;
     o->cfg.ego_height = veh->height;
     o->map = occ_map_create(&o->cfg);
-    pb_clock_offset_init(&o->head_clock, HEAD_CLOCK_TOL_US);
+    pb_clock_offset_init(&o->head_clock, PB_CLOCK_OFFSET_TOL_US);
     return o;
 }
 
