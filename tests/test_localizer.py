@@ -915,7 +915,7 @@ def test_real_mulran_tracking_against_refined_reference(mulran_reference, tmp_pa
     miss (keyframes 7-21, 89, 91: 0.22-0.57 m) within 3 keyframes of one the reference itself
     judges implausible (reference.py: over 5 m/s^2 between keyframes, at 10, 18-23, 76-81, 88,
     93), where small_gicp GICP and PCL NDT from the same starts disagree with it too
-    (docs/localizer.md, "Finished minima"). Judged against the reference where it is
+    (docs/history/localizer.md, "Finished minima"). Judged against the reference where it is
     plausible (61 keyframes): 100%, median 0.025 m, p99 0.095 m; and a miss anywhere else
     fails."""
     common = ["--scans", MULRAN / "Scans", "--poses", mulran_reference["poses"], "--times", MULRAN / "times.txt",

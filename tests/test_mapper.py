@@ -447,7 +447,7 @@ def test_map_in_tiles_is_the_same_map(drive, tmp_path):
     assert small["map_points"] == one["map_points"] and small["map_points_carved"] == one["map_points_carved"]
     # paged out (measured, 27 Nov: pass 2 198 tiles, the carving 229, their counts read back
     # for the verdicts); none back in during the passes: the 8 s drive goes one way (the loop
-    # and its laps page both ways, docs/mapper.md; test_map_build and test_mapper_carve put
+    # and its laps page both ways, docs/history/mapper.md; test_map_build and test_mapper_carve put
     # tiles back)
     assert small["map_tiles_paged_out"] > 50 and small["carve_tiles_paged_out"] > 50, small
     # the carving holds the tiles within its rays' 60 m (+1 m) of the origins of the last 10

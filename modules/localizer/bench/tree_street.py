@@ -12,7 +12,7 @@ mapping lap at the true poses (as make builds the default map), a 40 s drive (se
 localizer over the whole drive from the true start (LiDAR alone and with IMU + CAN), and
 the starts of bench-localizer-drive on it (bench_starts.py: a prior 3 m / 15 degrees off,
 LiDAR alone and fused, moving; no prior). Real MulRan keyframes, for scale: tracking 97.6 %
-within 0.2 m, starts 70 % from a prior and 50 % with none (docs/localizer-registration.md).
+within 0.2 m, starts 70 % from a prior and 50 % with none (docs/history/localizer-registration.md).
 """
 import argparse
 import math
