@@ -219,6 +219,24 @@ def test_no_returns_from_the_cars_own_body(tmp_path):
     assert s["on_own_body"] == 0, s
 
 
+def test_trajectory_scale_is_told_apart_from_ate():
+    """bench-mapper's Sim(3) figures (modules/mapper/bench/trajmetrics.py): a loop drawn 0.1 %
+    too large closes as well as the true one, so only a similarity alignment tells its scale;
+    a rigid one leaves the error at the loop's far side."""
+    sys.path.insert(0, str(ROOT / "modules" / "mapper" / "bench"))
+    import trajmetrics as tm
+    a = np.linspace(0, 2 * np.pi, 400)
+    gt = np.tile(np.eye(4), (len(a), 1, 1))
+    gt[:, 0, 3], gt[:, 1, 3] = 300 * np.cos(a), 100 * np.sin(a)   # 600 x 200 m, as the default loop
+    est = gt.copy()
+    c, s = np.cos(0.2), np.sin(0.2)
+    est[:, :3, 3] = 1.001 * gt[:, :3, 3] @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]).T + [5, -3, 1]
+    scale, sim3_max = tm.ate_sim3(est, gt)
+    assert abs(scale - 1 / 1.001) < 1e-9 and sim3_max < 1e-9, (scale, sim3_max)
+    rmse, amax, _ = tm.ate(est, gt)
+    assert 0.29 < amax < 0.31 and 0.2 < rmse < 0.25, (rmse, amax)   # 0.1 % of the 300 m half-length: 0.30 m
+
+
 def geo_error(site, gt):
     """A geo-referenced site's trajectory against the truth (the default site's frame, taken
     through both sites' geo-references): horizontal errors (m) and yaw errors (deg) per sweep."""

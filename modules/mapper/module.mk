@@ -14,7 +14,8 @@ $(eval $(call cxx_test,test_mapper_under,tests/c/test_mapper_under.cpp modules/m
 $(OBJ)/tests/c/test_mapper_carve.o: CPPFLAGS += -I$(TOP)/modules/localizer/core
 
 # ---- bench-mapper (modules/mapper/bench): ours against KISS-ICP on the same scans
-# The default site's full loop (the bench-localizer-drive cache, else simulated) and, when
+# The default site's full loop (the bench-localizer-drive cache, else simulated), the same
+# loop on a street of porous trees (the site without its buildings), the hills and, when
 # ../shared/data has it, MulRan Riverside02 (read, never copied): KISS-ICP (PyPI kiss-icp,
 # default config, one thread) and build/bin/mapper on the sweeps of the same log (KISS-ICP
 # reads them as scan-export writes them); then the localizer on three other drives with the

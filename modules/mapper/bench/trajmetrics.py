@@ -59,16 +59,24 @@ def poses_at(times, poses, query, tol=2e-6):
     return inside, out
 
 
-def umeyama_se3(src, dst):
-    """R, t minimising sum |R src_i + t - dst_i|^2 (rigid, no scale); src, dst: (n, 3)."""
+def umeyama(src, dst, with_scale=False):
+    """R, t, c minimising sum |c R src_i + t - dst_i|^2 (c = 1 unless with_scale; Umeyama 1991);
+    src, dst: (n, 3)."""
     ms, md = src.mean(0), dst.mean(0)
     C = (dst - md).T @ (src - ms) / len(src)
-    U, _, Vt = np.linalg.svd(C)
+    U, D, Vt = np.linalg.svd(C)
     S = np.eye(3)
     if np.linalg.det(U) * np.linalg.det(Vt) < 0:
         S[2, 2] = -1
     R = U @ S @ Vt
-    return R, md - R @ ms
+    c = float(np.trace(np.diag(D) @ S) / np.mean(np.sum((src - ms) ** 2, axis=1))) if with_scale else 1.0
+    return R, md - c * R @ ms, c
+
+
+def umeyama_se3(src, dst):
+    """R, t minimising sum |R src_i + t - dst_i|^2 (rigid, no scale); src, dst: (n, 3)."""
+    R, t, _ = umeyama(src, dst)
+    return R, t
 
 
 def ate(est, gt):
@@ -78,6 +86,14 @@ def ate(est, gt):
     R, t = umeyama_se3(p, g)
     e = np.linalg.norm(p @ R.T + t - g, axis=1)
     return float(np.sqrt(np.mean(e ** 2))), float(np.max(e)), e
+
+
+def ate_sim3(est, gt):
+    """The scale of the similarity alignment of est's positions onto gt's and the largest
+    position error after it: (scale, max m)."""
+    p, g = est[:, :3, 3], gt[:, :3, 3]
+    R, t, c = umeyama(p, g, with_scale=True)
+    return c, float(np.max(np.linalg.norm(c * p @ R.T + t - g, axis=1)))
 
 
 def rot_angle(R):
