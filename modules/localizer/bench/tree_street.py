@@ -29,15 +29,21 @@ import locbench as lb  # noqa: E402
 VEHICLE = lb.ROOT / "vehicles" / "prius2017.yaml"
 
 
-def street_map(site, map_pcd, depth, work):
-    """SITE: the default site's files without its buildings; MAP_PCD: its map from a mapping
-    lap with this foliage at the true poses, as make builds the default map (also
-    tests/test_localizer.py's tree street)."""
+def street_site_files(site):
+    """SITE: the default site's files (site.yaml, route.yaml, world.yaml) without its
+    buildings: trunks, canopies, poles, parked cars and traffic stay (bench-mapper's trees
+    drive uses it too)."""
     site.mkdir(parents=True, exist_ok=True)
     for name in ("site.yaml", "route.yaml"):
         shutil.copy(lb.ROOT / "maps" / "default" / name, site / name)
     with open(lb.ROOT / "maps" / "default" / "world.yaml") as src, open(site / "world.yaml", "w") as dst:
         dst.writelines(line for line in src if "class: building" not in line)
+
+
+def street_map(site, map_pcd, depth, work):
+    """SITE: street_site_files; MAP_PCD: its map from a mapping lap with this foliage at the
+    true poses, as make builds the default map (also tests/test_localizer.py's tree street)."""
+    street_site_files(site)
     lb.sh([lb.BIN / "simdrive", "--mapping", "--quiet", "--site", site, "--foliage-depth", depth, "--out", work])
     lb.sh([lb.BIN / "build-map", "--log", work / "drive.lcm", "--pose-channel", "GROUND_TRUTH",
            "--vehicle", VEHICLE, "--voxel", "0.15", "--quiet", "--out", map_pcd])

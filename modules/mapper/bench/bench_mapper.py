@@ -133,20 +133,16 @@ TREES_FOLIAGE_M = "0.7"   # as bench-localizer-trees' porous street
 
 
 def trees_drive():
-    """The loop of SIM_ARGS on the default site without its buildings, canopies porous to the
-    LiDAR: the site folder (files only: the mapper makes the map) and the drive, simulated again
-    when older than the default site's files. Returns (log, simdrive options for its world)."""
-    d = OUT / "trees"
-    site = d / "site"
-    src = [ROOT / "maps" / "default" / f for f in ("site.yaml", "route.yaml", "world.yaml")]
-    if not newer(site / "world.yaml", *src):
-        site.mkdir(parents=True, exist_ok=True)
-        for f in src[:2]:
-            shutil.copy(f, site / f.name)
-        with open(src[2]) as a, open(site / "world.yaml", "w") as b:
-            b.writelines(line for line in a if "class: building" not in line)
-    args = ["--site", str(site), "--foliage-depth", TREES_FOLIAGE_M, *SIM_ARGS]
-    return simulated("trees", args, [site / "world.yaml"]), args
+    """The loop of SIM_ARGS on bench-localizer-trees' street (the default site without its
+    buildings; files only: the mapper makes the map), canopies porous to the LiDAR, simulated
+    again when older than the default site's files. Returns (log, site, simdrive options)."""
+    sys.path.insert(0, str(ROOT / "modules" / "localizer" / "bench"))
+    import tree_street
+    site = OUT / "trees" / "site"
+    if not newer(site / "world.yaml", *(ROOT / "maps" / "default" / f for f in ("site.yaml", "route.yaml", "world.yaml"))):
+        tree_street.street_site_files(site)
+    args = ["--foliage-depth", TREES_FOLIAGE_M, *SIM_ARGS]
+    return simulated("trees", ["--site", str(site), *args], [site / "world.yaml"]), site, args
 
 
 HILLS_CACHED = ROOT / "build" / "bench-terrain-loc" / "loc-hills-aggressive-1" / "drive.lcm"
@@ -854,10 +850,10 @@ def main():
         log("[sim] GNSS holding a drifted trajectory ...")
         gnss_hold(log_path, result)
     if "trees" in drives:
-        log_path, targs = trees_drive()
+        log_path, site, targs = trees_drive()
         bench_drive("trees", log_path, ROOT / "vehicles" / "prius2017.yaml", SIM_SENSOR_RANGE_M, "GROUND_TRUTH", None,
-                    args, result, world=(pathlib.Path(targs[1]), targs[2:]))
-        result["drives"]["trees"]["source"] = f"simdrive {' '.join(targs)}"
+                    args, result, world=(site, targs))
+        result["drives"]["trees"]["source"] = f"simdrive --site {site} {' '.join(targs)}"
         result["drives"]["trees"]["notes"] = [
             "the map against the world: a canopy's points lie inside it (where the beams stopped), not on "
             "its surface, and count as off it: 'within 5 cm' and 'other farther than 0.5 m' are no measure of "
