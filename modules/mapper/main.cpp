@@ -10,6 +10,7 @@
 #include "mapper.h"
 #include "pb_clock.h"
 #include "pb_opt.h"
+#include "portobello_lidar_scan_t.h"
 
 static void usage(FILE *f)
 {
@@ -157,12 +158,23 @@ int main(int argc, char **argv)
     }
     if (rc == 0 && mkdir(R.out_dir, 0777) != 0 && errno != EEXIST)
         rc = pb_err_set(&err, "%s: cannot create: %s", R.out_dir, std::strerror(errno));
-    // the sweeps counted, for the progress bars (every drive's first: a bad log fails early)
+    // the sweeps counted, for the progress bars (every drive's first: a bad log fails early),
+    // and the first one's columns, which set the odometry's cell
     for (Run *D : R.drives) {
         if (rc == 0)
             rc = pb_log_read_track(D->log_path, nullptr, nullptr, R.scan_ch,
-                                   [](const pb_event_t *, void *u, pb_err_t *) { (*(long *)u)++; return 0; }, &D->total, &err);
+                                   [](const pb_event_t *ev, void *u, pb_err_t *) {
+                                       Run *d = (Run *)u;
+                                       portobello_lidar_scan_t s;
+                                       /* (one that does not decode is the odometry pass's error to name) */
+                                       if (d->total++ == 0 && portobello_lidar_scan_t_decode(ev->data, 0, ev->datalen, &s) >= 0) {
+                                           if (s.npixels > 0) d->sweep_cols = s.cols;
+                                           portobello_lidar_scan_t_decode_cleanup(&s);
+                                       }
+                                       return 0;
+                                   }, D, &err);
         if (rc == 0 && D->total == 0) rc = pb_err_set(&err, "%s: no %s in the log", D->log_path, R.scan_ch);
+        D->odom_cfg.cell_m = pb_odom_cell_m(D->sweep_cols);
     }
     for (Run *D : R.drives) {
         // a checkpoint of an interrupted run of this log resumed

@@ -71,6 +71,8 @@ struct Run {
     int checkpoint_every;   /* sweeps between checkpoints of the odometry pass */
     pb_vehicle_t veh;
     long total = 0, empty = 0, out_of_order = 0;
+    int sweep_cols = 0;         /* the first sweep's columns (a range image's width; 0: not one) */
+    pb_odom_config_t odom_cfg;  /* the odometry's, its cell from sweep_cols */
     std::vector<SweepPose> traj;
     std::vector<pb_keyframe_t> kf;
     pb_loops_report_t loops = {};

@@ -228,6 +228,8 @@ int write_report(const Run &R, const double cpu_ms[4], double wall_s, pb_err_t *
     cJSON_AddStringToObject(j, "poses_given", R.poses_path ? R.poses_path : "");
     cJSON_AddNumberToObject(j, "scans", (double)R.traj.size());
     cJSON_AddNumberToObject(j, "scans_in_log", (double)R.total);
+    cJSON_AddNumberToObject(j, "sweep_columns", R.sweep_cols);
+    cJSON_AddNumberToObject(j, "odometry_cell_m", R.odom_cfg.cell_m);
     cJSON_AddNumberToObject(j, "empty_scans", (double)R.empty);
     cJSON_AddNumberToObject(j, "out_of_order_scans", (double)R.out_of_order);
     for (int k = 0; k < 5; k++) cJSON_AddNumberToObject(j, (std::string("scans_") + kStatusName[k]).c_str(), (double)by_status[k]);

@@ -182,7 +182,7 @@ int pass_odometry(Run *R, pb_err_t *err)
     R->kf_file = std::fopen(kf_path.c_str(), R->resumed_from ? "ab" : "wb");
     if (!R->kf_file) return pb_err_set(err, "%s: cannot write: %s", kf_path.c_str(), std::strerror(errno)), -1;
     if (R->odometry_done) return 0;
-    pb_odom_t *odom = R->odom ? R->odom : pb_odom_create(nullptr, nullptr);
+    pb_odom_t *odom = R->odom ? R->odom : pb_odom_create(&R->odom_cfg, nullptr);
     R->odom = nullptr;
     pb_reg_config_t kf_reduce;
     pb_reg_config_default(&kf_reduce);

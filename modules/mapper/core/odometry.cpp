@@ -73,6 +73,12 @@ static const double kSwapAfterM = 4.0;
  * that keeps being hit (the road under the car) costs nothing more. */
 static const int kCellFull = 20;
 
+double pb_odom_cell_m(int cols)
+{
+    const double cell = pb_odom_config_t().cell_m;
+    return cols > 0 ? std::max(cell, 2 * 20.0 * 2 * M_PI / cols) : cell;
+}
+
 pb_odom_t *pb_odom_create(const pb_odom_config_t *cfg, const pb_reg_config_t *reg)
 {
     pb_odom_t *o = new pb_odom();

@@ -37,7 +37,8 @@
 
 /* The defaults stand beside each field (a value-initialised struct holds them). */
 typedef struct {
-    double cell_m = 0.25;            /* local map: one centroid per cell of this edge */
+    double cell_m = 0.25;            /* local map: one centroid per cell of this edge (the mapper takes
+                                      * pb_odom_cell_m of its sensor's columns) */
     double local_radius_m = 100;     /* the registration map holds the cells within this of the car */
     double rebuild_m = 10;           /* rebuild the registration map after the car moved this far ... */
     int rebuild_sweeps = 30;         /* ... or after this many sweeps (the LiDAR sees far ahead: the
@@ -122,6 +123,14 @@ typedef struct pb_odom_correction {
 } pb_odom_correction_t;
 
 typedef struct pb_odom pb_odom_t;
+
+/* The local map's cell for a sensor of `cols` columns a turn (a range image's width; 0 when
+ * the sweeps do not say): the default cell_m, or two columns' gap 20 m out when that is
+ * wider. A cell narrower than that holds too few returns of a sparse sensor to make a plane
+ * of foliage: on a street of porous trees a 512-column sweep lost the odometry with 0.25 m
+ * cells and held with 0.5 m (docs/history/mapper.md, "512 columns on the street of porous
+ * trees"); 1024 columns and more keep 0.25 m. */
+double pb_odom_cell_m(int cols);
 
 /* cfg NULL = defaults; reg NULL = registration defaults. */
 pb_odom_t *pb_odom_create(const pb_odom_config_t *cfg, const pb_reg_config_t *reg);
