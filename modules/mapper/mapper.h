@@ -46,6 +46,8 @@ struct SweepPose {
     int status, motion;          /* PB_ODOM_* and PB_ODOM_MOTION_* */
     double inlier_fraction, cpu_ms;
     int keyframe;                /* index of the last keyframe at or before it */
+    double measured_mps;         /* the car's own forward speed the sweep was predicted with (VEHICLE_SPEED),
+                                  * NaN when not measured */
 };
 
 /* Keyframes for loop closure every this much path; their points kept at this voxel (about

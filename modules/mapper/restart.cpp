@@ -10,7 +10,7 @@
  * appended at each checkpoint (the checkpoint says how many of its bytes are valid).
  * checkpoint.bin is written to .tmp, synced and renamed: an interruption leaves the last
  * whole one. A run that ends well removes both. */
-static const char kCheckpointMagic[8] = {'P', 'B', 'M', 'A', 'P', 'C', 'K', '1'};
+static const char kCheckpointMagic[8] = {'P', 'B', 'M', 'A', 'P', 'C', 'K', '2'};
 
 static void put_pose(ByteWriter &w, const Eigen::Isometry3d &T)
 {
@@ -168,6 +168,7 @@ int checkpoint_write(Run *R, const pb_odom_t *odom, pb_err_t *err)
         w.put(sp.utime);
         put_pose(w, sp.odometry);
         w.put(sp.status); w.put(sp.motion); w.put(sp.inlier_fraction); w.put(sp.cpu_ms); w.put(sp.keyframe);
+        w.put(sp.measured_mps);
     }
     w.put((uint64_t)R->kf.size()); w.put(R->kf_bytes);
     std::vector<uint8_t> state, sum;   /* the state (tens of MB) written as it is, not copied */
@@ -210,6 +211,7 @@ int checkpoint_read(Run *R, pb_err_t *err)
         sp.status = r.get<int>(); sp.motion = r.get<int>(); sp.inlier_fraction = r.get<double>();
         sp.cpu_ms = r.get<double>();
         sp.keyframe = r.get<int>();
+        sp.measured_mps = r.get<double>();
         R->traj.push_back(sp);
     }
     const uint64_t nkf = r.get<uint64_t>();

@@ -206,6 +206,41 @@ static std::vector<double> implausible_steps(const std::vector<SweepPose> &traj,
     return bad;
 }
 
+/* Where the car measured its own speed (VEHICLE_SPEED, the sweeps' predictions), whether the
+ * odometry went as fast: over steps of at least half a second, the odometry's speed along the
+ * ground against the mean measured speed of the sweeps in the step, by magnitude (a wheel speed
+ * may be unsigned). A step is off when they differ by more than 1 m/s and a fifth of the
+ * measured speed (wheel speeds err by a few percent). An odometry held where the car stood
+ * while it drove (sparse rings among porous trees: docs/mapper.md, "Not yet") passes the
+ * acceleration test above; the car's speed tells. *checked the steps compared, *max_mps the
+ * largest difference; returns the steps off. */
+static int speed_disagreements(const std::vector<SweepPose> &traj, int *checked, double *max_mps)
+{
+    const int64_t kGapUs = 500000;
+    *checked = 0;
+    *max_mps = 0;
+    int off = 0;
+    size_t a = 0;
+    for (size_t b = 1; b < traj.size(); b++) {
+        if (traj[b].utime - traj[a].utime < kGapUs) continue;
+        double sum = 0;
+        int n = 0;
+        for (size_t k = a + 1; k <= b; k++)
+            if (std::isfinite(traj[k].measured_mps)) { sum += std::fabs(traj[k].measured_mps); n++; }
+        if (n == (int)(b - a)) {   /* every sweep of the step measured */
+            const double measured = sum / n;
+            const double odo = (traj[b].odometry.translation() - traj[a].odometry.translation()).head<2>().norm() /
+                               ((traj[b].utime - traj[a].utime) * 1e-6);
+            const double d = std::fabs(odo - measured);
+            (*checked)++;
+            *max_mps = std::max(*max_mps, d);
+            off += d > 1.0 && d > 0.2 * measured;
+        }
+        a = b;
+    }
+    return off;
+}
+
 /* report.json (cJSON: names and messages escaped) and the summary line. */
 int write_report(const Run &R, const double cpu_ms[4], double wall_s, pb_err_t *err)
 {
@@ -248,6 +283,12 @@ int write_report(const Run &R, const double cpu_ms[4], double wall_s, pb_err_t *
     cJSON_AddNumberToObject(j, "odometry_accel_max_mps2", accel_max);
     cJSON *bad = cJSON_AddArrayToObject(j, "odometry_implausible_at_s");
     for (double t : implausible) cJSON_AddItemToArray(bad, cJSON_CreateNumber(t));
+    int speed_checked = 0;
+    double speed_max = 0;
+    const int speed_off = speed_disagreements(R.traj, &speed_checked, &speed_max);
+    cJSON_AddNumberToObject(j, "odometry_speed_checked", speed_checked);
+    cJSON_AddNumberToObject(j, "odometry_speed_off", speed_off);
+    cJSON_AddNumberToObject(j, "odometry_speed_diff_max_mps", speed_max);
     cJSON_AddNumberToObject(j, "loop_candidates", R.loops.candidates);
     cJSON_AddNumberToObject(j, "loop_candidates_by_place", R.loops.place_candidates);
     cJSON_AddNumberToObject(j, "loops", R.loops.verified);
@@ -362,6 +403,10 @@ int write_report(const Run &R, const double cpu_ms[4], double wall_s, pb_err_t *
                      "(report.json: odometry_implausible_at_s)\n", R.poses_path ? "poses given" : "odometry's poses",
                      implausible.size(), accel_checked, implausible.front(),
                      R.poses_path ? "they are likely wrong" : "it is likely lost");
+    if (!R.quiet && 10 * speed_off > speed_checked)
+        std::fprintf(stderr, "mapper: warning: the odometry's speed differs from the car's own (VEHICLE_SPEED) by more "
+                     "than 1 m/s and a fifth at %d of %d half-second steps (up to %.1f m/s): it is likely lost, and "
+                     "the map with it (report.json: odometry_speed_off)\n", speed_off, speed_checked, speed_max);
     if (!R.quiet && R.poses_path)
         std::fprintf(stderr, "mapper: %zu poses of %s over %.1f m in %.1f s of drive; %zu map points (%zu carved: moved; "
                      "%ld returns beyond %.0f m left out); %.1f s wall\n", R.traj.size(), R.poses_path, path_m, span_s,

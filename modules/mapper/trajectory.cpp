@@ -166,7 +166,7 @@ int read_poses(Run *R, pb_err_t *err)
         Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
         T.linear() = q.normalized().toRotationMatrix();
         T.translation() = Eigen::Vector3d(v[1], v[2], v[3]);
-        R->traj.push_back({utime, T, T, kGiven, kGiven, NAN, 0, -1});
+        R->traj.push_back({utime, T, T, kGiven, kGiven, NAN, 0, -1, NAN});
     }
     std::fclose(f);
     if (rc == 0 && R->traj.size() < 2)
@@ -219,7 +219,8 @@ int pass_odometry(Run *R, pb_err_t *err)
                 pb_reg_downsample(sw.data(), sw.size() / 3, &kf_reduce, &kf.back().xyz);
             }
             R->traj.push_back({r.utime, r.pose, r.pose, r.status, r.motion, r.inlier_fraction,
-                               pb_clock_thread_cpu_ms() - c0, (int)kf.size() - 1});
+                               pb_clock_thread_cpu_ms() - c0, (int)kf.size() - 1,
+                               r.motion == PB_ODOM_MOTION_MEASURED ? r.v_base.x() : NAN});
             return R->traj.size() % (size_t)R->checkpoint_every ? 0 : checkpoint_write(R, odom, e);
         }, &R->empty, err, [&](const pb_event_t &ev, pb_err_t *e) { return ms.add(ev, e); });
     pb_odom_destroy(odom);
