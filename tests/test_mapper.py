@@ -21,6 +21,7 @@ from conftest import BIN, ROOT, run
 
 sys.path.insert(0, str(ROOT / "modules" / "localizer" / "bench"))
 import locbench as lb  # noqa: E402
+import tree_street  # noqa: E402
 
 
 def cut_log(src, dst, start_s, channels=None):
@@ -725,22 +726,26 @@ def test_sweeps_a_second_apart(hills_drives, tmp_path):
         assert filecmp.cmp(tmp_path / "resumed" / f, tmp_path / "out" / f, shallow=False), f
 
 
-def every_other_column(src, dst):
-    """LIDAR_SCAN with every 2nd column of its range image, at the columns' own times (a
-    sensor's 512-column mode), and GROUND_TRUTH; nothing else."""
+def thinned(src, dst, every_ring=1, every_column=1, keep=("GROUND_TRUTH",)):
+    """LIDAR_SCAN with every n-th ring (and its beam angles) and every m-th column (at its own
+    time) of its range image, as a sparser sensor sees (16 rings, a 512-column mode), and the
+    channels in keep; nothing else."""
     from portobello import lidar_scan_t
     w = lcm.EventLog(str(dst), "w", overwrite=True)
     for ev in lcm.EventLog(str(src), "r"):
         if ev.channel == "LIDAR_SCAN":
             s = lidar_scan_t.decode(ev.data)
             assert s.npixels == s.rows * s.cols and s.nsignal == 0
-            s.range_mm = np.asarray(s.range_mm).reshape(s.rows, s.cols)[:, ::2].ravel().tolist()
-            s.reflectivity = np.frombuffer(bytes(s.reflectivity), np.uint8).reshape(s.rows, s.cols)[:, ::2].tobytes()
-            s.col_offset_us = list(s.col_offset_us)[::2]
-            s.cols //= 2
+            img = (slice(None, None, every_ring), slice(None, None, every_column))
+            s.range_mm = np.asarray(s.range_mm).reshape(s.rows, s.cols)[img].ravel().tolist()
+            s.reflectivity = np.frombuffer(bytes(s.reflectivity), np.uint8).reshape(s.rows, s.cols)[img].tobytes()
+            s.beam_altitude_rad = list(s.beam_altitude_rad)[::every_ring]
+            s.beam_azimuth_rad = list(s.beam_azimuth_rad)[::every_ring]
+            s.col_offset_us = list(s.col_offset_us)[::every_column]
+            s.rows, s.cols = len(s.beam_altitude_rad), len(s.col_offset_us)
             s.npixels = s.rows * s.cols
             w.write_event(ev.timestamp, ev.channel, s.encode())
-        elif ev.channel == "GROUND_TRUTH":
+        elif ev.channel in keep:
             w.write_event(ev.timestamp, ev.channel, ev.data)
     w.close()
     return dst
@@ -753,13 +758,11 @@ def test_512_columns_on_a_street_of_porous_trees(tmp_path):
     crown per cell, too few for planes, and the odometry was lost in the first seconds (ATE
     max 27.5 m; 43-103 m on six of eight 40 s drives); the cell now spans two columns' gap
     20 m out (docs/history/mapper.md, "512 columns on the street of porous trees")."""
-    sys.path.insert(0, str(ROOT / "modules" / "localizer" / "bench"))
-    import tree_street
     site = tmp_path / "site"
     tree_street.street_site_files(site)
     run([BIN / "simdrive", "--out", tmp_path / "drive", "--site", site, "--foliage-depth", 0.7, "--seed", 8,
          "--speed-profile", "normal", "--duration", 20, "--quiet"])
-    log = every_other_column(tmp_path / "drive" / "drive.lcm", tmp_path / "half.lcm")
+    log = thinned(tmp_path / "drive" / "drive.lcm", tmp_path / "half.lcm", every_column=2)
     run([BIN / "pose-to-tum", "--log", log, "--out", tmp_path / "gt.tum", "--channel", "GROUND_TRUTH"])
     run([BIN / "mapper", "--log", log, "--out", tmp_path / "out"])
     rep = json.loads((tmp_path / "out" / "report.json").read_text())
@@ -776,43 +779,19 @@ def test_512_columns_on_a_street_of_porous_trees(tmp_path):
         assert filecmp.cmp(tmp_path / "resumed" / f, tmp_path / "out" / f, shallow=False), f
 
 
-def every_fourth_ring(src, dst, keep=("GROUND_TRUTH", "IMU", "VEHICLE_SPEED")):
-    """LIDAR_SCAN with every 4th ring of its range image and the rings' angles (16 of 64, a
-    16-beam sensor), and the channels in keep."""
-    from portobello import lidar_scan_t
-    w = lcm.EventLog(str(dst), "w", overwrite=True)
-    for ev in lcm.EventLog(str(src), "r"):
-        if ev.channel == "LIDAR_SCAN":
-            s = lidar_scan_t.decode(ev.data)
-            assert s.npixels == s.rows * s.cols and s.nsignal == 0
-            s.range_mm = np.asarray(s.range_mm).reshape(s.rows, s.cols)[::4].ravel().tolist()
-            s.reflectivity = np.frombuffer(bytes(s.reflectivity), np.uint8).reshape(s.rows, s.cols)[::4].tobytes()
-            s.beam_altitude_rad = list(s.beam_altitude_rad)[::4]
-            s.beam_azimuth_rad = list(s.beam_azimuth_rad)[::4]
-            s.rows = len(s.beam_altitude_rad)
-            s.npixels = s.rows * s.cols
-            w.write_event(ev.timestamp, ev.channel, s.encode())
-        elif ev.channel in keep:
-            w.write_event(ev.timestamp, ev.channel, ev.data)
-    w.close()
-    return dst
-
-
 def test_a_lost_odometry_disagrees_with_the_cars_speed(tmp_path):
     """16 rings on the street of porous trees, with the car's IMU and VEHICLE_SPEED: the
     odometry is held where the car stood while it drives (docs/mapper.md, "Not yet"), with no
     jump for the acceleration test to see. Its speed against VEHICLE_SPEED tells: the report
     counts the half-second steps that differ and the mapper warns. The whole sweep of the same
     drive agrees with the car's speed everywhere."""
-    sys.path.insert(0, str(ROOT / "modules" / "localizer" / "bench"))
-    import tree_street
     site = tmp_path / "site"
     tree_street.street_site_files(site)
     log = lb.make_drive(tmp_path / "drive", 5, "normal", 20, extra=["--foliage-depth", 0.7], site=site)
     reports = {}
-    for name, path in (("16 rings", every_fourth_ring(log, tmp_path / "r16.lcm")),
-                       ("64 rings", cut_log(log, tmp_path / "r64.lcm", 0, {"LIDAR_SCAN", "GROUND_TRUTH", "IMU",
-                                                                              "VEHICLE_SPEED"}))):
+    motion = ("GROUND_TRUTH", "IMU", "VEHICLE_SPEED")
+    for name, path in (("16 rings", thinned(log, tmp_path / "r16.lcm", every_ring=4, keep=motion)),
+                       ("64 rings", cut_log(log, tmp_path / "r64.lcm", 0, {"LIDAR_SCAN", *motion}))):
         p = run([BIN / "mapper", "--log", path, "--out", tmp_path / name])
         reports[name] = (json.loads((tmp_path / name / "report.json").read_text()), p.stderr)
     rep, err = reports["16 rings"]
