@@ -190,6 +190,7 @@ struct pb_map_builder {
     uint64_t mask = 0;
     int64_t last = -1;          // voxel of the previous point
     uint32_t made_here = 0, *made = &made_here;   // voxels made: the next one's seq (a tile counts in its builder's)
+    uint32_t stamp_here = 0, *stamp = &stamp_here;   // the points' stamp (a tile's is its builder's)
     size_t first_table = size_t(1) << 16;
     static constexpr int BATCH = 64;
     // keep-all mode
@@ -202,7 +203,8 @@ struct pb_map_builder {
 
     pb_map_builder() = default;
     explicit pb_map_builder(const pb_map_builder &parent)
-        : voxel(parent.voxel), inv(parent.inv), voxels(12), made(parent.made), first_table(size_t(1) << 10) {}
+        : voxel(parent.voxel), inv(parent.inv), voxels(12), made(parent.made), stamp(parent.stamp),
+          first_table(size_t(1) << 10) {}
     pb_map_builder &operator=(const pb_map_builder &) = delete;
 
     static int64_t floor_div(int64_t a, int64_t b) { return a >= 0 ? a / b : -((-a + b - 1) / b); }
@@ -237,10 +239,14 @@ struct pb_map_builder {
     void insert(uint64_t key, const double f[3], double x, double y, double z, float intensity)
     {
         float ox = float(x - f[0] * voxel), oy = float(y - f[1] * voxel), oz = float(z - f[2] * voxel);
+        auto add = [&](Voxel &v) {
+            v.sx += ox; v.sy += oy; v.sz += oz; v.si += intensity; v.n++;
+            v.first = std::min(v.first, *stamp);
+            v.last = std::max(v.last, *stamp);
+        };
         // Neighbouring points of a sweep often share a voxel: skip the hash then.
         if (last >= 0 && voxels[size_t(last)].key == key) {
-            Voxel &v = voxels[size_t(last)];
-            v.sx += ox; v.sy += oy; v.sz += oz; v.si += intensity; v.n++;
+            add(voxels[size_t(last)]);
             return;
         }
         if ((voxels.size() + 1) * 10 > slots.size() * 7) grow();     // load <= 0.7
@@ -250,12 +256,12 @@ struct pb_map_builder {
             if (!s) {
                 slots[h] = uint32_t(voxels.size() + 1);
                 last = int64_t(voxels.size());
-                voxels.push_back({key, ox, oy, oz, intensity, 1, (*made)++});
+                voxels.push_back({key, ox, oy, oz, intensity, 1, (*made)++, *stamp, *stamp});
                 return;
             }
             Voxel &v = voxels[s - 1];
             if (v.key == key) {
-                v.sx += ox; v.sy += oy; v.sz += oz; v.si += intensity; v.n++;
+                add(v);
                 last = int64_t(s - 1);
                 return;
             }
@@ -585,6 +591,7 @@ extern "C" void pb_map_voxel_corner(double voxel_m, uint64_t key, double corner[
 }
 
 extern "C" int64_t pb_map_builder_points_in(const pb_map_builder_t *b) { return b->points_in; }
+extern "C" void pb_map_builder_stamp(pb_map_builder_t *b, uint32_t stamp) { *b->stamp = stamp; }
 extern "C" void pb_map_builder_set_max_range(pb_map_builder_t *b, double max_m) { b->max_range2 = max_m > 0 ? (float)(max_m * max_m) : 0; }
 extern "C" int64_t pb_map_builder_points_beyond(const pb_map_builder_t *b) { return b->points_beyond; }
 extern "C" int64_t pb_map_builder_size(const pb_map_builder_t *b) { return b->size(); }

@@ -81,6 +81,10 @@ int pb_map_voxel_key(double voxel_m, double x, double y, double z, uint64_t *key
 void pb_map_voxel_corner(double voxel_m, uint64_t key, double corner[3]);
 
 int64_t pb_map_builder_points_in(const pb_map_builder_t *b);   /* points added */
+/* The stamp the points added from now on leave in their voxels (pb_map_voxel_t.first, .last;
+ * 0 until set): the mapper stamps each sweep's number, to know when a voxel was hit without
+ * reading the drive again. */
+void pb_map_builder_stamp(pb_map_builder_t *b, uint32_t stamp);
 /* Points farther than max_m from the sensor (their frame's origin) left out of the map from
  * now on, and counted (pb_map_builder_points_beyond); max_m <= 0: none left out (the default). */
 void pb_map_builder_set_max_range(pb_map_builder_t *b, double max_m);
@@ -99,6 +103,7 @@ typedef struct {
     uint64_t key;
     float sx, sy, sz, si;   /* sums of the points' offsets from the voxel's min corner, of intensities */
     uint32_t n, seq;        /* points; the order the voxel was made in (0, 1, ...) */
+    uint32_t first, last;   /* the least and the greatest stamp of its points (pb_map_builder_stamp) */
 } pb_map_voxel_t;
 
 pb_map_builder_t *pb_map_builder_create_tiled(double voxel_m, int tile_voxels, pb_err_t *err);

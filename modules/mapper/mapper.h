@@ -90,6 +90,8 @@ struct Run {
     std::string tiles_dir;
     double tile_m = 32;
     size_t voxels = 0;                       /* made by pass 2 (seq 0 .. voxels - 1) */
+    std::vector<int64_t> sweep_times;        /* pass 2's sweep number -> its time on the drives' one clock */
+    std::vector<uint32_t> carved_hits;       /* per point carved (layers.removed, as the carving left it): first, last sweep */
     double ground_lo[2], ground_hi[2];       /* the map's extent, for the ground model */
     std::set<int64_t> carve_tiles;           /* the carving's tiles that hold points */
     std::vector<std::pair<int64_t, uint32_t>> kept_tiles;   /* after it: tile, seq of its next point to write */
@@ -168,13 +170,15 @@ struct TileGrid {
 };
 
 /* A point of the finished map in a tile file: the voxel's seq (the order it was made in),
- * x y z intensity, and the returns it is the mean of. */
+ * x y z intensity, the returns it is the mean of, and the first and last sweep that hit it
+ * (pass 2's numbers: Run::sweep_times). */
 struct TilePoint {
     uint32_t seq;
     float p[4];
     uint32_t n;
+    uint32_t first, last;
 };
-static_assert(sizeof(TilePoint) == 6 * sizeof(float), "TilePoint: x y z at a stride of 6 floats");
+static_assert(sizeof(TilePoint) == 8 * sizeof(float), "TilePoint: x y z at a stride of 8 floats");
 
 inline std::string tile_path(const Run *R, char kind, int64_t key)
 {

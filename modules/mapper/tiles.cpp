@@ -70,6 +70,8 @@ static int to_carving_tiles(Run *R, pb_map_builder_t *map, std::vector<int64_t> 
             TilePoint tp;
             tp.seq = v.seq;
             tp.n = v.n;
+            tp.first = v.first;
+            tp.last = v.last;
             pb_map_voxel_point(map, &v, tp.p);
             parts[tile_key(cgrid.of(tp.p[0]), cgrid.of(tp.p[1]))].push_back(tp);
             gb_bounds(tp.p, 1, 4, R->ground_lo, R->ground_hi);
@@ -85,11 +87,27 @@ static int to_carving_tiles(Run *R, pb_map_builder_t *map, std::vector<int64_t> 
     return 0;
 }
 
+/* Several drives on one clock, each an hour after the last: so the carving's rays and the
+ * road under what moved never take two drives whose logs' clocks overlap for one time. */
+struct DriveClock {
+    const Run *now = nullptr;
+    int64_t offset = 0, last = INT64_MIN;   /* drive's time + offset: the one clock */
+    bool next(const Run *D)                  /* true when D starts a drive */
+    {
+        if (D == now) return false;
+        now = D;
+        if (last != INT64_MIN) offset = last + 3600 * (int64_t)1000000 - D->traj.front().utime;
+        last = D->traj.back().utime + offset;
+        return true;
+    }
+};
+
 /* Pass 2: the map, every return within the carving's reach with the pose at its time
  * (pb_map_builder_set_max_range), in tiles: those the sweep can
  * reach are held (paged back in when they were out), those no sweep of the last 20 reached
  * are paged out; of every drive placed, one after the other. Then the finished voxels are
- * sorted into the carving's tiles. The poses are at the sweeps' middles: the track is
+ * sorted into the carving's tiles. Each voxel keeps the first and last sweep that hit it
+ * (pb_map_builder_stamp; R->sweep_times: when, for pass 4). The poses are at the sweeps' middles: the track is
  * carried on by the first and last steps' motion to cover the first sweep's first half and
  * the last one's second half. */
 int pass_map(Run *R, pb_err_t *err)
@@ -133,9 +151,14 @@ int pass_map(Run *R, pb_err_t *err)
         return tile_write(tile_path(R, 'v', k), vox.data(), vox.size(), false, e);
     };
     long sweep = 0;
+    DriveClock clock;   /* pass 4's time */
+    R->sweep_times.clear();
     int rc = for_each_drive_sweep(R, "mapper: map", 1,
         [&](Run *D, int64_t utime, const std::vector<float> &, const pb_points_t &pts, const pb_event_t &, pb_err_t *e) {
             sweep++;
+            clock.next(D);
+            pb_map_builder_stamp(map, (uint32_t)R->sweep_times.size());
+            R->sweep_times.push_back(utime + clock.offset);
             // the tiles it can reach held
             int64_t lo[2], hi[2];
             if (sweep_reach(R, D->track, pts, utime, range_m, grid, lo, hi))
@@ -339,6 +362,7 @@ struct CarveTiles {
             uint32_t first = UINT32_MAX;
             std::pair<uint64_t, uint64_t> sum;
             std::vector<float> removed, objects;
+            std::vector<uint32_t> hits;   /* per removed point: first, last sweep */
         };
         std::vector<Verdict> verdicts(keys.size());
         const int rc2 = each_tile([&](pb_carve_t *c, Half &H, size_t i, bool made) {
@@ -349,7 +373,10 @@ struct CarveTiles {
             H.kept.clear();
             for (size_t j = 0; j < H.pts.size(); j++) {
                 if (H.keep[j]) H.kept.push_back(H.pts[j]);
-                else V.removed.insert(V.removed.end(), {H.pts[j].p[0], H.pts[j].p[1], H.pts[j].p[2]});
+                else {
+                    V.removed.insert(V.removed.end(), {H.pts[j].p[0], H.pts[j].p[1], H.pts[j].p[2]});
+                    V.hits.insert(V.hits.end(), {H.pts[j].first, H.pts[j].last});
+                }
                 if (H.objects[j]) {
                     V.grouped++;
                     V.objects.insert(V.objects.end(), {H.pts[j].p[0], H.pts[j].p[1], H.pts[j].p[2]});
@@ -371,6 +398,7 @@ struct CarveTiles {
             R->carved += V.carved;
             R->carved_groups += V.grouped;
             R->layers.removed.insert(R->layers.removed.end(), V.removed.begin(), V.removed.end());
+            R->carved_hits.insert(R->carved_hits.end(), V.hits.begin(), V.hits.end());
             R->layers.objects.insert(R->layers.objects.end(), V.objects.begin(), V.objects.end());
             R->map_points += V.kept;
             R->kept_tiles.push_back({keys[i], V.first});
@@ -380,47 +408,31 @@ struct CarveTiles {
     }
 };
 
-/* Several drives on one clock, each an hour after the last: so the carving's rays and the
- * road under what moved never take two drives whose logs' clocks overlap for one time. */
-struct DriveClock {
-    const Run *now = nullptr;
-    int64_t offset = 0, last = INT64_MIN;   /* drive's time + offset: the one clock */
-    bool next(const Run *D)                  /* true when D starts a drive */
-    {
-        if (D == now) return false;
-        now = D;
-        if (last != INT64_MIN) offset = last + 3600 * (int64_t)1000000 - D->traj.front().utime;
-        last = D->traj.back().utime + offset;
-        return true;
-    }
-};
-
-/* Pass 4: the road under what moved (core/under.h): every sweep of every placed drive read
- * again, its returns placed as pass 2 placed them (pb_map_builder_place_timed), those at the
- * road under a body the carving took counted; then each kept tile's points without them (a
- * voxel left with none goes, to the picture's carved layer). */
+/* Pass 4: the road under what moved (core/under.h): when each carved voxel was hit is pass
+ * 2's (its first and last sweep); every sweep of every placed drive read again, its returns
+ * placed as pass 2 placed them (pb_map_builder_place_timed), those at the road under a body
+ * the carving took counted; then each kept tile's points without them (a voxel left with
+ * none goes, to the picture's carved layer). */
 static int pass_under(Run *R, const pb_ground_t *ground, pb_err_t *err)
 {
-    pb_under_t *u = pb_under_create(R->layers.removed.data(), R->layers.removed.size() / 3, 3, R->voxel, ground, nullptr);
+    const size_t ncarved = R->layers.removed.size() / 3;
+    std::vector<int64_t> hit(2 * ncarved);
+    for (size_t i = 0; i < hit.size(); i++) hit[i] = R->sweep_times.at(R->carved_hits.at(i));
+    pb_under_t *u = pb_under_create(R->layers.removed.data(), ncarved, 3, hit.data(), R->voxel, ground, nullptr);
     pb_map_builder_t *placer = pb_map_builder_create(R->voxel, err);
     if (!placer) return pb_under_destroy(u), -1;
     pb_map_builder_set_max_range(placer, pb_carve_config_t{}.max_range_m);   /* as pass 2 */
     std::vector<double> xyz;
     std::vector<int32_t> index;
-    int rc = 0;
-    DriveClock clock;
-    for (int read = 0; rc == 0 && read < 2; read++)   /* when the carved voxels were hit; then the road under them */
-        rc = for_each_drive_sweep(R, read == 0 ? "mapper: under (1/2)" : "mapper: under (2/2)", 1,
-            [&](Run *D, int64_t utime, const std::vector<float> &, const pb_points_t &pts, const pb_event_t &, pb_err_t *) {
-                if (read == 0) clock.next(D);
-                xyz.resize(3 * (size_t)pts.n);
-                index.resize((size_t)pts.n);
-                const int n = pb_map_builder_place_timed(placer, &pts, utime, D->track, &R->veh.base_from_lidar,
-                                                         xyz.data(), index.data());
-                if (n > 0 && read == 0) pb_under_seen(u, xyz.data(), (size_t)n, utime + clock.offset);
-                if (n > 0 && read == 1) pb_under_sweep(u, xyz.data(), (size_t)n, &pts, index.data());
-                return 0;
-            }, err);
+    int rc = for_each_drive_sweep(R, "mapper: under", 1,
+        [&](Run *D, int64_t utime, const std::vector<float> &, const pb_points_t &pts, const pb_event_t &, pb_err_t *) {
+            xyz.resize(3 * (size_t)pts.n);
+            index.resize((size_t)pts.n);
+            const int n = pb_map_builder_place_timed(placer, &pts, utime, D->track, &R->veh.base_from_lidar,
+                                                     xyz.data(), index.data());
+            if (n > 0) pb_under_sweep(u, xyz.data(), (size_t)n, &pts, index.data());
+            return 0;
+        }, err);
     pb_map_builder_destroy(placer);
     // each kept tile without the returns taken out; the points where a body stood noted
     std::vector<TilePoint> pts, kept;

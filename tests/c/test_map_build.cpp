@@ -2,7 +2,8 @@
  * scans, each 2,000 points within 30 m of a sensor that drives out along x and back, added
  * to a builder of the whole map and to a tiled one whose tiles farther than 40 m from the
  * sensor are taken out and put back when it comes near again. The tiled builder's voxels,
- * in the order they were made (seq), must be the whole builder's, sums and all. */
+ * in the order they were made (seq), must be the whole builder's, sums and all; each voxel's
+ * stamps the first and last scan that hit it (scan s stamped s), through the paging too. */
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -24,11 +25,16 @@ int main()
     auto uni = [&] { rng = rng * 1664525u + 1013904223u; return (rng >> 8) / 16777216.0; };
     std::vector<float> x(2000), y(2000), z(2000), in(2000);
     int taken = 0, put = 0, bad = 0;
+    std::map<uint64_t, std::pair<uint32_t, uint32_t>> hit;   /* voxel -> first and last scan, counted here */
     for (int s = 0; s < 200; s++) {
         const double cx = s < 100 ? 2.0 * s : 2.0 * (199 - s);   /* out 200 m and back */
         for (int i = 0; i < 2000; i++) {
             double a = 2 * M_PI * uni(), r = 30 * std::sqrt(uni());
             x[i] = (float)(r * std::cos(a)); y[i] = (float)(r * std::sin(a)); z[i] = (float)(3 * uni()); in[i] = (float)uni();
+            uint64_t key;
+            CHECK(pb_map_voxel_key(voxel, cx + x[i], y[i], z[i], &key) == 0);
+            auto h = hit.emplace(key, std::make_pair((uint32_t)s, (uint32_t)s)).first;
+            h->second.second = (uint32_t)s;
         }
         pb_points_t pts = {};
         pts.n = 2000; pts.x = x.data(); pts.y = y.data(); pts.z = z.data(); pts.intensity = in.data();
@@ -44,6 +50,8 @@ int main()
                 ++it;
             }
         }
+        pb_map_builder_stamp(whole, (uint32_t)s);
+        pb_map_builder_stamp(tiled, (uint32_t)s);
         CHECK_OK(pb_map_builder_add(whole, &pts, &T, &err), err.msg);
         CHECK_OK(pb_map_builder_add(tiled, &pts, &T, &err), err.msg);
         std::vector<int32_t> xy(2 * (size_t)pb_map_builder_tiles(tiled, nullptr, 0));
@@ -82,15 +90,21 @@ int main()
     CHECK(f && std::fread(pcd.data(), sizeof(float), pcd.size(), f) == pcd.size());
     if (f) std::fclose(f);
     std::remove(path);
+    size_t stamped = 0;
     for (size_t i = 0; i < all.size() && i < (size_t)n; i++) {
         float p[4];
         pb_map_voxel_point(tiled, &all[i], p);
         same += all[i].seq == i && std::memcmp(p, &pcd[4 * i], sizeof p) == 0;
+        auto h = hit.find(all[i].key);
+        stamped += h != hit.end() && all[i].first == h->second.first && all[i].last == h->second.second;
     }
     std::printf("%lld voxels; tiles taken out %d times, put back %d times; %zu of %zu the same, in the same order\n",
                 (long long)n, taken, put, same, all.size());
     CHECK(taken > 20 && put > 10 && bad == 0);
     CHECK((int64_t)all.size() == n && (int64_t)same == n);
+    std::printf("%zu of %zu voxels stamped with their first and last scan\n", stamped, all.size());
+    CHECK(stamped == all.size() && hit.size() == all.size());
+    CHECK(std::any_of(all.begin(), all.end(), [](const pb_map_voxel_t &v) { return v.last - v.first > 100; }));   /* passed on the way back */
     /* a voxel held already is refused */
     pb_map_voxel_t v = all[0];
     CHECK(pb_map_builder_put(tiled, &v, 1, &err) == 0);

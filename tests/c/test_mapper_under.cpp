@@ -12,7 +12,9 @@
  * the road round it where a body stood goes, alone or in a patch of two (pb_under_bumps); a kerb's, a post's, one over
  * road seen sparsely, one away from the body's columns, and a ditch's edge stay.
  * pb_map_builder_place_timed places a scan's points as pb_map_builder_add_timed does. */
+#include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <cstdio>
 #include <map>
 #include <vector>
@@ -58,11 +60,38 @@ static std::map<uint64_t, std::pair<std::vector<float>, uint32_t>> voxels_of(con
 
 static void add(std::vector<double> *v, double x, double y, double z) { v->insert(v->end(), {x, y, z}); }
 
-/* The two reads of a drive whose sweeps come 0.1 s apart (from dt_us: another rate). */
-static void read_drive(pb_under_t *u, const std::vector<std::vector<double>> &sweeps, int64_t dt_us = 100000)
+/* When each carved point's voxel was hit (first, last), as the map records it: the times of
+ * the sweeps (time, x y z per return) with a return in it; INT64_MAX, INT64_MIN for none. */
+static std::vector<int64_t> hits_of(const std::vector<float> &carved,
+                                    const std::vector<std::pair<int64_t, std::vector<double>>> &timed)
 {
-    for (size_t k = 0; k < sweeps.size(); k++) pb_under_seen(u, sweeps[k].data(), sweeps[k].size() / 3, (int64_t)k * dt_us);
+    std::vector<int64_t> hit;
+    for (size_t i = 0; i < carved.size(); i += 3) {
+        uint64_t key, k;
+        CHECK(pb_map_voxel_key(kVoxel, carved[i], carved[i + 1], carved[i + 2], &key) == 0);
+        int64_t first = INT64_MAX, last = INT64_MIN;
+        for (const auto &t : timed)
+            for (size_t j = 0; j < t.second.size(); j += 3)
+                if (pb_map_voxel_key(kVoxel, t.second[j], t.second[j + 1], t.second[j + 2], &k) == 0 && k == key) {
+                    first = std::min(first, t.first);
+                    last = std::max(last, t.first);
+                }
+        hit.insert(hit.end(), {first, last});
+    }
+    return hit;
+}
+
+/* The carving's points over the ground, told when the map's sweeps hit them, then the read of
+ * a drive whose sweeps come 0.1 s apart (from dt_us: another rate). */
+static pb_under_t *read_drive(const std::vector<float> &carved, const pb_ground_t *ground,
+                              const std::vector<std::vector<double>> &sweeps, int64_t dt_us = 100000)
+{
+    std::vector<std::pair<int64_t, std::vector<double>>> timed;
+    for (size_t k = 0; k < sweeps.size(); k++) timed.push_back({(int64_t)k * dt_us, sweeps[k]});
+    const std::vector<int64_t> hit = hits_of(carved, timed);
+    pb_under_t *u = pb_under_create(carved.data(), carved.size() / 3, 3, hit.data(), kVoxel, ground, nullptr);
     for (const auto &w : sweeps) pb_under_sweep(u, w.data(), w.size() / 3);
+    return u;
 }
 
 /* Twelve sweeps of the road (x -1 .. 2, y -1 .. 2, a return per voxel per sweep, 5 mm over the
@@ -125,11 +154,7 @@ int main()
         if (v.second.first[2] > 0.15 && !(std::fabs(v.second.first[0] - 0.62f) < 0.1 && std::fabs(v.second.first[1] - 0.2f) < 0.1))
             carved.insert(carved.end(), v.second.first.begin(), v.second.first.begin() + 3);
     CHECK(carved.size() / 3 > 20);
-    auto run = [&](const pb_ground_t *g) {
-        pb_under_t *u = pb_under_create(carved.data(), carved.size() / 3, 3, kVoxel, g, nullptr);
-        read_drive(u, s.sweeps);
-        return u;
-    };
+    auto run = [&](const pb_ground_t *g) { return read_drive(carved, g, s.sweeps); };
     pb_under_t *u = run(ground);
     /* what each kept voxel should be: the builder's voxels of the road alone (and the post) */
     std::vector<double> road = s.road;
@@ -191,8 +216,7 @@ int main()
     {
         std::vector<float> bus;
         for (double x = 1.8; x < 2.0; x += 0.05) bus.insert(bus.end(), {(float)x, -0.9f, 2.5f});
-        pb_under_t *b = pb_under_create(bus.data(), bus.size() / 3, 3, kVoxel, ground, nullptr);
-        read_drive(b, s.sweeps);
+        pb_under_t *b = read_drive(bus, ground, s.sweeps);
         pb_under_counts(b, &returns, &voxels);
         CHECK(returns == 0);
         pb_under_destroy(b);
@@ -203,9 +227,8 @@ int main()
         for (int j = 15; j <= 18; j++) pb_ground_set(ground, i, j, 0.02);   /* 2 cm higher round (3, 3) */
     for (double top : {0.29, 0.12}) {
         std::vector<float> car = {3.05f, 3.05f, 0.6f};
-        pb_under_t *b = pb_under_create(car.data(), 1, 3, kVoxel, ground, nullptr);
         const std::vector<double> w = {3.05, 3.05, 0.6, 3.1, 3.1, top == 0.29 ? 0.16 : 0.03};   /* 0.14 / 0.01 over it */
-        read_drive(b, {w, w});
+        pb_under_t *b = read_drive(car, ground, {w, w});
         /* the voxel: 10 returns at `top`, 2 low ones (taken) */
         const float z = top == 0.29 ? (float)((10 * 0.29 + 2 * 0.16) / 12) : (float)((10 * 0.12 + 2 * 0.03) / 12);
         float p[4] = {3.1f, 3.1f, z, 0};
@@ -223,16 +246,15 @@ int main()
      * at (0, 0, 1.9); the far wheel was carved at another time (where a body stood). */
     for (int kind = 0; kind < 3; kind++) {
         std::vector<float> bodies = {2.5f, 0.0f, 1.0f, 4.0f, 0.0f, 0.4f};
-        const double bodies_at_far[3] = {4.0, 0.0, 0.4};
-        pb_under_t *b = pb_under_create(bodies.data(), 2, 3, kVoxel, ground, nullptr);
-        const double w[6] = {4.0, 0.02, 0.06, 2.5, 0.02, 1.0};
+        const std::vector<double> w = {4.0, 0.02, 0.06, 2.5, 0.02, 1.0};
+        /* the far wheel, carved, hit at another time */
+        const std::vector<int64_t> hit = hits_of(bodies, {{0, w}, {500000, {4.0, 0.0, 0.4}}});
+        pb_under_t *b = pb_under_create(bodies.data(), 2, 3, hit.data(), kVoxel, ground, nullptr);
         float sx[2] = {4.0f, 2.5f}, sy[2] = {0.02f, 0.02f}, sz[2] = {0.06f - 1.9f, 1.0f - 1.9f};
         int32_t column[2] = {7, kind == 1 ? 8 : 7};
         pb_points_t sweep = {};
         sweep.n = 2; sweep.x = sx; sweep.y = sy; sweep.z = sz; sweep.offset_us = kind == 2 ? nullptr : column;
-        pb_under_seen(b, w, 2, 0);
-        pb_under_seen(b, bodies_at_far, 1, 500000);   /* the far wheel, carved, hit at another time */
-        pb_under_sweep(b, w, 2, &sweep);
+        pb_under_sweep(b, w.data(), 2, &sweep);
         float p[4] = {4.0f, 0.02f, 0.035f, 0};   /* with a road return at 0.01 of another sweep */
         const uint32_t left = pb_under_adjust(b, p, 2);
         CHECK_CASE(kind == 0 ? "beam above on a body: taken" : kind == 1 ? "other column: kept" : "no columns: kept",
@@ -243,7 +265,6 @@ int main()
      * times: one time for all) */
     {
         std::vector<float> bodies = {2.5f, 0.0f, 1.0f, 4.0f, 0.0f, 0.4f};
-        pb_under_t *b = pb_under_create(bodies.data(), 2, 3, kVoxel, ground, nullptr);
         std::vector<double> w = {4.0, 0.02, 0.06, 2.5, 0.02, 1.0};
         std::vector<float> sx = {4.0f, 2.5f}, sy = {0.02f, 0.02f}, sz = {0.06f - 1.9f, 1.0f - 1.9f};
         for (int k = 0; k < 298; k++) {   /* more of the body, higher up */
@@ -253,7 +274,8 @@ int main()
         std::vector<int32_t> column(300, 0);
         pb_points_t sweep = {};
         sweep.n = 300; sweep.x = sx.data(); sweep.y = sy.data(); sweep.z = sz.data(); sweep.offset_us = column.data();
-        pb_under_seen(b, w.data(), 300, 0);
+        const std::vector<int64_t> hit = hits_of(bodies, {{0, w}});
+        pb_under_t *b = pb_under_create(bodies.data(), 2, 3, hit.data(), kVoxel, ground, nullptr);
         pb_under_sweep(b, w.data(), 300, &sweep);
         float p[4] = {4.0f, 0.02f, 0.035f, 0};
         CHECK(pb_under_adjust(b, p, 2) == 2);
@@ -265,13 +287,12 @@ int main()
      * there, which the carving took) / in 5 and 6 of a drive at one sweep in 1.5 s */
     for (int kind = 0; kind < 3; kind++) {
         std::vector<float> car = {-3.95f, -3.95f, 0.6f};
-        pb_under_t *b = pb_under_create(car.data(), 1, 3, kVoxel, ground, nullptr);
         std::vector<std::vector<double>> sweeps(12);
         for (int k = 0; k < 12; k++) {
             if (kind == 1 || k == 5 || k == 6) sweeps[k].insert(sweeps[k].end(), {-3.95, -3.95, 0.6});
             if (k == 5 || k == 6) sweeps[k].insert(sweeps[k].end(), {-3.97, -3.97, 0.12});
         }
-        read_drive(b, sweeps, kind == 2 ? 1500000 : 100000);
+        pb_under_t *b = read_drive(car, ground, sweeps, kind == 2 ? 1500000 : 100000);
         float p[4] = {-3.97f, -3.97f, (float)((6 * 0.01 + 2 * 0.12) / 8), 0};   /* with 6 road returns at 0.01 */
         CHECK_CASE(kind == 0 ? "hit within 0.1 s: a body" : kind == 1 ? "hit over 1.1 s: no body" : "hit 1.5 s apart: no body",
                    kind == 0 ? pb_under_adjust(b, p, 8) == 6 && std::fabs(p[2] - 0.01f) < 1e-5 : pb_under_adjust(b, p, 8) == 8);
@@ -284,9 +305,8 @@ int main()
         for (int i = 15; i <= 18; i++)
             for (int j = 15; j <= 18; j++) pb_ground_set(ground, i, j, over == 0.16 ? -0.02 : -0.17);
         std::vector<float> car = {3.05f, 3.05f, 0.6f};
-        pb_under_t *b = pb_under_create(car.data(), 1, 3, kVoxel, ground, nullptr);
         const std::vector<double> w = {3.05, 3.05, 0.6, 3.1, 3.1, 0.14};
-        read_drive(b, {w, w});
+        pb_under_t *b = read_drive(car, ground, {w, w});
         const float z = (float)((10 * 0.01 + 2 * 0.14) / 12);   /* 10 road returns at 0.01 */
         float p[4] = {3.1f, 3.1f, z, 0};
         const uint32_t left = pb_under_adjust(b, p, 12);
@@ -314,9 +334,9 @@ int main()
         /* the row of five: bodies stood over all of it */
         std::vector<float> car = {-2.99f, 3.01f, 0.6f, -3.29f, 3.01f, 0.6f, -2.69f, 3.01f, 0.6f};
         const size_t cars = kind == 9 ? 3 : 1;
-        pb_under_t *b = pb_under_create(car.data(), cars, 3, kVoxel, ground, nullptr);
         const std::vector<double> w(car.begin(), car.begin() + 3 * cars);
-        read_drive(b, {w, w});
+        car.resize(3 * cars);
+        pb_under_t *b = read_drive(car, ground, {w, w});
         std::vector<float> pts;
         size_t bump = 0;
         for (int i = 0; i <= 16; i++)

@@ -11,10 +11,9 @@
 
 namespace {
 /* A one-hash bit filter in front of a hash set: nearly every return of a sweep lies in no
- * carved voxel and no watched column, and a bit says so for less than a lookup costs. The
- * 128 KB stay in cache; the localizer's open-addressing VoxelHash alone, tried in place of
- * filter and sets, missed it: the first read 0.2 -> 0.4 s and the second 0.3 -> 0.5 s on the
- * hills, the same map. */
+ * watched column, and a bit says so for less than a lookup costs. The 128 KB stay in cache;
+ * the localizer's open-addressing VoxelHash alone, tried in place of filter and sets, missed
+ * it: a read of the hills 0.3 -> 0.5 s, the same map. */
 struct KeyBits {
     std::vector<uint64_t> bits = std::vector<uint64_t>(1u << 14);   /* 2^20 bits, 128 KB */
     static uint32_t slot(uint64_t key) { return (uint32_t)((key * 0x9E3779B97F4A7C15ull) >> 44); }
@@ -33,10 +32,10 @@ struct pb_under {
     double voxel_m, inv_col;
     int reach;                            /* columns a body marks on each side of its own */
     const pb_ground_t *ground;
-    /* carved voxels in the body band, and the first and last time a sweep hit them (first read) */
+    /* carved voxels in the body band, and the first and last time a sweep hit them */
     std::unordered_map<uint64_t, std::pair<int64_t, int64_t>> seen;
-    KeyBits seen_bits, watch_bits, around_bits;   /* filters in front of seen, watch and around */
-    bool settled = false;                 /* body and watch made from seen (at the second read's start) */
+    KeyBits watch_bits, around_bits;      /* filters in front of watch and around */
+    bool settled = false;                 /* body and watch made from seen (at the first sweep) */
     std::unordered_set<uint64_t> body;    /* carved voxels that are bodies */
     std::unordered_set<uint64_t> watch;   /* where a body stood: its columns and their 8 neighbours */
     std::unordered_set<uint64_t> around;  /* the columns within twice bump_reach_m of a watched one */
@@ -63,8 +62,8 @@ struct pb_under {
     }
 };
 
-pb_under_t *pb_under_create(const float *carved, size_t n, size_t stride, double voxel_m, const pb_ground_t *ground,
-                            const pb_under_config_t *cfg)
+pb_under_t *pb_under_create(const float *carved, size_t n, size_t stride, const int64_t *hit, double voxel_m,
+                            const pb_ground_t *ground, const pb_under_config_t *cfg)
 {
     pb_under_t *u = new pb_under();
     if (cfg) u->cfg = *cfg;
@@ -79,23 +78,12 @@ pb_under_t *pb_under_create(const float *carved, size_t n, size_t stride, double
         if (!u->height(p[0], p[1], p[2], &h) || h < u->cfg.body_min_m || h > u->cfg.body_max_m ||
             pb_map_voxel_key(voxel_m, p[0], p[1], p[2], &key) != 0)
             continue;
-        u->seen.emplace(key, std::make_pair(INT64_MAX, INT64_MIN));
-        u->seen_bits.add(key);
+        auto &span = u->seen.emplace(key, std::make_pair(INT64_MAX, INT64_MIN)).first->second;
+        if (!hit) continue;
+        span.first = std::min(span.first, hit[2 * i]);
+        span.second = std::max(span.second, hit[2 * i + 1]);
     }
     return u;
-}
-
-void pb_under_seen(pb_under_t *u, const double *xyz, size_t n, int64_t utime)
-{
-    for (size_t i = 0; i < n; i++) {
-        const double *p = xyz + 3 * i;
-        uint64_t key;
-        if (pb_map_voxel_key(u->voxel_m, p[0], p[1], p[2], &key) != 0 || !u->seen_bits.may_hold(key)) continue;
-        auto it = u->seen.find(key);
-        if (it == u->seen.end()) continue;
-        it->second.first = std::min(it->second.first, utime);
-        it->second.second = std::max(it->second.second, utime);
-    }
 }
 
 /* The bodies: carved voxels whose returns all came within body_span_s (a voxel hit over a

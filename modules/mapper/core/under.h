@@ -2,12 +2,13 @@
  * voxels, and a voxel of the road holds the road's returns of the whole drive and, mixed in
  * with them, the returns of the lowest few centimetres of every tyre that stood on it: the
  * tyres lift its centroid by 5-10 cm, and no verdict on the whole voxel can take them out
- * without the road. So the drive is read twice more after the carving. The first read learns
- * when each carved voxel was hit: a body is a carved voxel body_min_m to body_max_m over the
- * ground whose returns all came within body_span_s (what moved through; one hit over a longer
- * time is something that stands there and that the carving took, such as foliage it saw
- * through). In the second, a return of a sweep no higher than return_max_m over the ground is
- * taken out of its voxel as the bottom of a body, or what passed under one, when
+ * without the road. So the drive is read once more after the carving. When each carved voxel
+ * was hit the map knows (the first and last sweep whose returns fell in it): a body is a
+ * carved voxel body_min_m to body_max_m over the ground whose returns all came within
+ * body_span_s (what moved through; one hit over a longer time is something that stands there
+ * and that the carving took, such as foliage it saw through). In the read, a return of a
+ * sweep no higher than return_max_m over the ground is taken out of its voxel as the bottom of
+ * a body, or what passed under one, when
  *  - it lies within reach_m of a column (column_m square in x-y) where a return of the sweep
  *    fell in a body, and where a body stood at some time of the drive (a body's column or one
  *    beside it); or
@@ -64,23 +65,19 @@ typedef struct {
 
 typedef struct pb_under pb_under_t;
 
-/* The carved map points (x y z floats, stride floats apart) of a map of voxel_m voxels, over
- * the ground model (NULL: nothing is taken out). */
-pb_under_t *pb_under_create(const float *carved, size_t n, size_t stride, double voxel_m, const pb_ground_t *ground,
-                            const pb_under_config_t *cfg);
+/* The carved map points (x y z floats, stride floats apart) of a map of voxel_m voxels, with
+ * hit[2 i], hit[2 i + 1] the first and last time a sweep's return fell in point i's voxel (NULL:
+ * never; several drives: on one clock on which they do not overlap), over the ground model
+ * (NULL: nothing is taken out). */
+pb_under_t *pb_under_create(const float *carved, size_t n, size_t stride, const int64_t *hit, double voxel_m,
+                            const pb_ground_t *ground, const pb_under_config_t *cfg);
 void pb_under_destroy(pb_under_t *u);
 
-/* The first read: one sweep's n returns placed in the map frame (x y z doubles, as the map
- * placed them: pb_map_builder_place_timed) and the sweep's time (several drives: on one clock
- * on which they do not overlap). Every sweep goes through this before the first
- * pb_under_sweep. */
-void pb_under_seen(pb_under_t *u, const double *xyz, size_t n, int64_t utime);
-
-/* The second read: one sweep's n returns placed as for pb_under_seen, return i being pts'
- * return index[i] (index NULL: the i-th). From pts (NULL: none of these) its intensity, its
- * position in the sensor's frame and its column (offset_us: the returns of one firing share
- * their time; a sweep with more than 256 of them one after the other at one time has no
- * columns). */
+/* One sweep's n returns placed in the map frame (x y z doubles, as the map placed them:
+ * pb_map_builder_place_timed), return i being pts' return index[i] (index NULL: the i-th). From
+ * pts (NULL: none of these) its intensity, its position in the sensor's frame and its column
+ * (offset_us: the returns of one firing share their time; a sweep with more than 256 of them
+ * one after the other at one time has no columns). */
 void pb_under_sweep(pb_under_t *u, const double *xyz, size_t n, const pb_points_t *pts = nullptr,
                     const int32_t *index = nullptr);
 
