@@ -422,17 +422,38 @@ static int pass_under(Run *R, const pb_ground_t *ground, pb_err_t *err)
     pb_map_builder_t *placer = pb_map_builder_create(R->voxel, err);
     if (!placer) return pb_under_destroy(u), -1;
     pb_map_builder_set_max_range(placer, pb_carve_config_t{}.max_range_m);   /* as pass 2 */
-    std::vector<double> xyz;
-    std::vector<int32_t> index;
+    /* Two stages: a sweep placed on another thread while the one before goes through
+     * pb_under_sweep here (in the sweeps' order); each stage has its own copy of the sweep. */
+    struct Placed {
+        std::vector<float> x, y, z, intensity;
+        std::vector<int32_t> offset_us, index;
+        std::vector<uint8_t> ring;
+        std::vector<double> xyz;
+        pb_points_t pts = {};
+        int n = 0;
+    } stage[2];
+    std::future<void> placing;
+    long sweeps = 0;
+    auto under_sweep = [&](Placed &P) { if (P.n > 0) pb_under_sweep(u, P.xyz.data(), (size_t)P.n, &P.pts, P.index.data()); };
     int rc = for_each_drive_sweep(R, "mapper: under", 1,
         [&](Run *D, int64_t utime, const std::vector<float> &, const pb_points_t &pts, const pb_event_t &, pb_err_t *) {
-            xyz.resize(3 * (size_t)pts.n);
-            index.resize((size_t)pts.n);
-            const int n = pb_map_builder_place_timed(placer, &pts, utime, D->track, &R->veh.base_from_lidar,
-                                                     xyz.data(), index.data());
-            if (n > 0) pb_under_sweep(u, xyz.data(), (size_t)n, &pts, index.data());
+            Placed &P = stage[sweeps % 2];
+            const size_t n = (size_t)pts.n;
+            auto copy = [n](auto *from, auto *to) { if (from) to->assign(from, from + n); return from ? to->data() : nullptr; };
+            P.pts = {pts.n, pts.n, copy(pts.x, &P.x), copy(pts.y, &P.y), copy(pts.z, &P.z), copy(pts.intensity, &P.intensity),
+                     copy(pts.offset_us, &P.offset_us), copy(pts.ring, &P.ring)};
+            P.xyz.resize(3 * n);
+            P.index.resize(n);
+            if (placing.valid()) placing.get();
+            placing = std::async(std::launch::async, [&P, D, utime, placer, R] {
+                P.n = pb_map_builder_place_timed(placer, &P.pts, utime, D->track, &R->veh.base_from_lidar, P.xyz.data(),
+                                                 P.index.data());
+            });
+            if (sweeps++ > 0) under_sweep(stage[sweeps % 2]);   /* the sweep before */
             return 0;
         }, err);
+    if (placing.valid()) placing.get();
+    if (rc == 0 && sweeps > 0) under_sweep(stage[(sweeps - 1) % 2]);
     pb_map_builder_destroy(placer);
     // each kept tile without the returns taken out; the points where a body stood noted
     std::vector<TilePoint> pts, kept;
@@ -518,10 +539,10 @@ int pass_carve(Run *R, const pb_ground_t *ground, pb_err_t *err)
     int64_t last_view = 0;
     std::vector<double> returns;   /* the sweep's returns in the map frame, and their beams */
     std::vector<uint8_t> beam;
-    /* The sweep as a view (every return at its own time, seen from the LiDAR at the sweep's
-     * middle) counted by every tile held in reach, half the tiles on another thread; none when
-     * the trajectory does not reach the sweep's middle. */
-    auto look = [&](Run *D, int64_t utime, const pb_points_t &pts, const std::vector<pb_carve_t *> &tiles_in_reach) {
+    /* The sweep as a view: every return at its own time, seen from the LiDAR at the sweep's
+     * middle; NULL when the trajectory does not reach the sweep's middle. It reads only the
+     * sweep, the track and the ground: made on another thread while the rays are cast. */
+    auto make_view = [&](Run *D, int64_t utime, const pb_points_t &pts) -> pb_carve_view_t * {
         returns.clear();
         beam.clear();
         int32_t cached = INT32_MIN, olo = INT32_MAX, ohi = INT32_MIN;
@@ -542,16 +563,20 @@ int pass_carve(Run *R, const pb_ground_t *ground, pb_err_t *err)
             beam.push_back(pts.ring ? pts.ring[i] : 255);
         }
         pb_transform_t t;
-        if (returns.empty() || !pb_pose_track_at(D->track, utime + (olo + (int64_t)ohi) / 2, &t)) return;
+        if (returns.empty() || !pb_pose_track_at(D->track, utime + (olo + (int64_t)ohi) / 2, &t)) return nullptr;
         const Eigen::Isometry3d M = pb_reg_from_transform(&t) * bl;
         Eigen::Matrix<double, 3, 3, Eigen::RowMajor> Rm = M.rotation();
-        pb_carve_view_t *v = pb_carve_view_create(returns.data(), beam.data(), beam.size(), M.translation().data(), Rm.data(),
-                                                  tiles.ground);
+        return pb_carve_view_create(returns.data(), beam.data(), beam.size(), M.translation().data(), Rm.data(),
+                                    tiles.ground);
+    };
+    /* The view counted by every tile held in reach, half the tiles on another thread. */
+    auto look = [&](pb_carve_view_t *v, const std::vector<pb_carve_t *> &tiles_in_reach) {
+        if (!v) return;
         std::vector<pb_carve_t *> parts;
         for (pb_carve_t *c : tiles_in_reach)
             if (c) parts.push_back(c);
         pb_split2(parts.size(), [&](size_t a, size_t b) { for (size_t i = a; i < b; i++) pb_carve_look(parts[i], v); }, 2);
-        if (v) R->views++;
+        R->views++;
         pb_carve_view_destroy(v);
     };
     DriveClock clock;   /* the carving's time */
@@ -613,15 +638,18 @@ int pass_carve(Run *R, const pb_ground_t *ground, pb_err_t *err)
                                 pb_carve_ray(c, r.utime, r.o.data(), r.e.data());
                 }
             };
-            std::future<void> other = std::async(std::launch::async, cast, 1);
-            cast(0);
-            other.get();
             // about once a second of the drive, the whole sweep as a view of the tiles in reach
+            // (made while the rays are cast, counted after them)
+            std::future<pb_carve_view_t *> view;
             if (view_drive != drive || utime - last_view >= (int64_t)1000000) {
                 view_drive = drive;
                 last_view = utime;
-                look(D, utime, pts, under);
+                view = std::async(std::launch::async, make_view, D, utime, std::cref(pts));
             }
+            std::future<void> other = std::async(std::launch::async, cast, 1);
+            cast(0);
+            other.get();
+            if (view.valid()) look(view.get(), under);
             // the tiles no sampled sweep of the last 10 reached paged out
             return sampled % 5 == 0 ? tiles.page_out(sampled - 10, e) : 0;
         }, err);
