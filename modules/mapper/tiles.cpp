@@ -107,9 +107,9 @@ struct DriveClock {
  * reach are held (paged back in when they were out), those no sweep of the last 20 reached
  * are paged out; of every drive placed, one after the other. Then the finished voxels are
  * sorted into the carving's tiles. Each voxel keeps the first and last sweep that hit it
- * (pb_map_builder_stamp; R->sweep_times: when, for pass 4). The poses are at the sweeps' middles: the track is
- * carried on by the first and last steps' motion to cover the first sweep's first half and
- * the last one's second half. */
+ * (pb_map_builder_stamp; R->sweep_times says when, for pass 4). The poses are at the
+ * sweeps' middles: the track is carried on by the first and last steps' motion to cover the
+ * first sweep's first half and the last one's second half. */
 int pass_map(Run *R, pb_err_t *err)
 {
     for (Run *D : R->drives) {
