@@ -178,19 +178,26 @@ int write_site(Run *R, pb_err_t *err)
     return 0;
 }
 
-/* Where the odometry (or the poses given) implies a horizontal acceleration no car makes (over
- * 5 m/s^2, the bound the MulRan reference is judged by), from its positions at least half a
- * second apart (closer ones' noise would pass for acceleration): the times (s after the first
- * pose) of the middle poses that break it; *checked the accelerations computed, *max_mps2 the
- * largest. An odometry lost by jumps shows many of these, a right one none or a few; one that
- * slides smoothly along a featureless road shows none. */
-static std::vector<double> implausible_steps(const std::vector<SweepPose> &traj, int *checked, double *max_mps2)
+/* The poses the trajectory is judged at: the first, then each one at least half a second
+ * after the one before (closer ones' noise would pass for acceleration or speed). */
+static std::vector<const SweepPose *> half_second_marks(const std::vector<SweepPose> &traj)
 {
     const int64_t kGapUs = 500000;
-    const double kLimitMps2 = 5.0;
     std::vector<const SweepPose *> at;
     for (const SweepPose &s : traj)
         if (at.empty() || s.utime - at.back()->utime >= kGapUs) at.push_back(&s);
+    return at;
+}
+
+/* Where the odometry (or the poses given) implies a horizontal acceleration no car makes (over
+ * 5 m/s^2, the bound the MulRan reference is judged by), between half-second marks: the times
+ * (s after the first pose) of the middle poses that break it; *checked the accelerations
+ * computed, *max_mps2 the largest. An odometry lost by jumps shows many of these, a right one
+ * none or a few; one that slides smoothly along a featureless road shows none. */
+static std::vector<double> implausible_steps(const std::vector<SweepPose> &traj, int *checked, double *max_mps2)
+{
+    const double kLimitMps2 = 5.0;
+    const std::vector<const SweepPose *> at = half_second_marks(traj);
     std::vector<double> bad;
     *checked = 0;
     *max_mps2 = 0;
@@ -207,36 +214,32 @@ static std::vector<double> implausible_steps(const std::vector<SweepPose> &traj,
 }
 
 /* Where the car measured its own speed (VEHICLE_SPEED, the sweeps' predictions), whether the
- * odometry went as fast: over steps of at least half a second, the odometry's speed along the
- * ground against the mean measured speed of the sweeps in the step, by magnitude (a wheel speed
- * may be unsigned). A step is off when they differ by more than 1 m/s and a fifth of the
- * measured speed (wheel speeds err by a few percent). An odometry held where the car stood
- * while it drove (sparse rings among porous trees: docs/mapper.md, "Not yet") passes the
- * acceleration test above; the car's speed tells. *checked the steps compared, *max_mps the
- * largest difference; returns the steps off. */
+ * odometry went as fast: between half-second marks, the odometry's speed along the ground
+ * against the mean measured speed of the sweeps after the first mark up to the second, by
+ * magnitude (a wheel speed may be unsigned). A step is off when they differ by more than 1 m/s
+ * and a fifth of the measured speed (wheel speeds err by a few percent). An odometry held where
+ * the car stood while it drove (sparse rings among porous trees: docs/mapper.md, "Not yet")
+ * passes the acceleration test above; the car's speed tells. *checked the steps compared,
+ * *max_mps the largest difference; returns the steps off. */
 static int speed_disagreements(const std::vector<SweepPose> &traj, int *checked, double *max_mps)
 {
-    const int64_t kGapUs = 500000;
+    const std::vector<const SweepPose *> at = half_second_marks(traj);
     *checked = 0;
     *max_mps = 0;
     int off = 0;
-    size_t a = 0;
-    for (size_t b = 1; b < traj.size(); b++) {
-        if (traj[b].utime - traj[a].utime < kGapUs) continue;
+    for (size_t i = 1; i < at.size(); i++) {
         double sum = 0;
         int n = 0;
-        for (size_t k = a + 1; k <= b; k++)
-            if (std::isfinite(traj[k].measured_mps)) { sum += std::fabs(traj[k].measured_mps); n++; }
-        if (n == (int)(b - a)) {   /* every sweep of the step measured */
-            const double measured = sum / n;
-            const double odo = (traj[b].odometry.translation() - traj[a].odometry.translation()).head<2>().norm() /
-                               ((traj[b].utime - traj[a].utime) * 1e-6);
-            const double d = std::fabs(odo - measured);
-            (*checked)++;
-            *max_mps = std::max(*max_mps, d);
-            off += d > 1.0 && d > 0.2 * measured;
-        }
-        a = b;
+        for (const SweepPose *k = at[i - 1] + 1; k <= at[i]; k++)
+            if (std::isfinite(k->measured_mps)) { sum += std::fabs(k->measured_mps); n++; }
+        if (n != at[i] - at[i - 1]) continue;   /* every sweep of the step measured */
+        const double measured = sum / n;
+        const double odo = (at[i]->odometry.translation() - at[i - 1]->odometry.translation()).head<2>().norm() /
+                           ((at[i]->utime - at[i - 1]->utime) * 1e-6);
+        const double d = std::fabs(odo - measured);
+        (*checked)++;
+        *max_mps = std::max(*max_mps, d);
+        off += d > 1.0 && d > 0.2 * measured;
     }
     return off;
 }
