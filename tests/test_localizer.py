@@ -800,9 +800,9 @@ def test_global_search_takes_no_wrong_place_on_a_street_of_trees(porous_street, 
     k = first_tracking(poses)
     assert k is not None and (poses[k, 0] - poses[0, 0]) <= 5.0e6, "tracking within 5 s"
     _, et, _ = lb.errors_vs_truth(poses[k:][poses[k:, 5] != 0], gt)
-    # measured: seed 7 tracking at 0.7 s, worst error 0.146 m (before: 198 m, then LOST);
-    # seed 6 tracking at 0.5 s, worst 0.015 m (the same cut of bench-localizer-trees' drive 6;
-    # before: 283 m, tracked there)
+    # measured (6 Dec 2026): seed 7 tracking at 0.4 s, worst error 0.092 m (before: 198 m, then
+    # LOST); seed 6 tracking at 0.2 s, worst 0.014 m (the same cut of bench-localizer-trees'
+    # drive 6; before: 283 m, tracked there)
     assert et.max() < 0.2, et.max()
     assert 3 not in poses[k:, 5]
 
@@ -813,7 +813,8 @@ def test_moving_lidar_only_start_settles_on_a_street_of_trees(porous_street, tmp
     from two matches of unskewed sweeps and was 2-3 m/s off; deskewed with it, the next
     matches ran tenths of a metre along the road (measured, worst tracking error without
     smoothing the deskewing speed after a start: 0.409 m at 24.5 s, 0.211 m at 27.0 s;
-    with it: 0.135 and 0.074 m)."""
+    with it: 0.135 and 0.074 m; 6 Dec 2026, the prediction also the match's prior: 0.139 and
+    0.066 m)."""
     t = porous_street
     log, out = tmp_path / "cut.lcm", tmp_path / "o.lcm"
     cut(t, log, at, 6, "LIDAR_SCAN,GROUND_TRUTH")
@@ -841,8 +842,8 @@ def test_moving_lidar_only_start_verifies_deskewed_sweeps(porous_street_seed5, t
     speed is not known yet), and the speed from them was 6 m/s off; verified by them and a
     third deskewed with that speed, the track began 0.13 and 0.27 m behind the car (measured
     before sweeps had to be deskewed with a speed their match confirms; 0.44 and 0.32 m on
-    the bench's 40 s drive). Measured since: tracking after 0.8 and 0.7 s, the first tracking
-    POSE 0.027 and 0.021 m off, the worst 0.068 and 0.067 m."""
+    the bench's 40 s drive). Measured since (6 Dec 2026): tracking after 0.3 s, the first
+    tracking POSE 0.026 m off, the worst 0.071 m, from both priors."""
     t = porous_street_seed5
     log, out = tmp_path / "cut.lcm", tmp_path / "o.lcm"
     cut(t, log, 7.5, 6, "LIDAR_SCAN,GROUND_TRUTH")
@@ -865,8 +866,8 @@ def test_prior_for_a_moving_car_is_searched_where_the_car_may_be_by_now(porous_s
     axis as far as it may have moved. Before, the disc stayed where the prior was given, and
     no POSE of the 4.5 s of sweeps was tracking (on bench-localizer-trees' own site: tracking
     3.8 s after the first sweep, the tries there fitting 3-9% of the structure). Measured
-    since: tracking 0.4 s after the first sweep, its first tracking POSE 0.058 m off, the
-    worst 0.070 m."""
+    since (6 Dec 2026): tracking 0.4 s after the first sweep, its first tracking POSE 0.046 m
+    off, the worst 0.075 m."""
     t = porous_street_seed5
     log, prior, late = tmp_path / "cut.lcm", tmp_path / "prior.lcm", tmp_path / "late.lcm"
     out = tmp_path / "o.lcm"

@@ -82,8 +82,14 @@ struct Params {
 struct Accum {
     Eigen::Matrix<double, 6, 6> H;
     Eigen::Matrix<double, 6, 1> g;
-    double cost, wsum;
+    double cost, wsum, ss;   /* ss: squared residuals of the matched points */
     int matched, inliers;
+};
+
+/* The guess as a prior (pb_reg_align_prior): the pose it is about and its information. */
+struct Prior {
+    Eigen::Isometry3d at;
+    Eigen::Matrix<double, 6, 6> info;
 };
 
 /* Points whose nearest target (of any kind, at any distance) is upright, and
@@ -195,7 +201,7 @@ void linearise(const Level &lv, const float *pts, size_t n, const Eigen::Isometr
     if (cache) cache->prepare(lv, n);
     if (up) up->points = up->inliers = 0;
     acc->g.setZero();
-    acc->cost = acc->wsum = 0;
+    acc->cost = acc->wsum = acc->ss = 0;
     acc->matched = acc->inliers = 0;
     const Eigen::Matrix3d R = T.linear();
     const Eigen::Vector3d t = T.translation();
@@ -239,6 +245,7 @@ void linearise(const Level &lv, const float *pts, size_t n, const Eigen::Isometr
         double e2 = r1 * r1 + r2 * r2;
         if (e2 > gate2) continue;
         acc->matched++;
+        acc->ss += e2;
         if (e2 < inlier * inlier) acc->inliers++;
         if (abs_residuals) abs_residuals->push_back((float)std::sqrt(e2));
         double w = k2 / (k2 + e2);
@@ -289,7 +296,7 @@ struct Basin {
  * basin->at (taken as where it would end). */
 int gauss_newton(const Level &lv, const float *pts, size_t n, const Params &pa, Eigen::Isometry3d *T,
                  bool *converged, double abort_far_m = 0, bool *aborted = nullptr, NearCache *cache = nullptr,
-                 const Basin *basin = nullptr)
+                 const Basin *basin = nullptr, const Prior *prior = nullptr)
 {
     NearCache local;
     if (!cache) cache = &local;
@@ -306,11 +313,23 @@ int gauss_newton(const Level &lv, const float *pts, size_t n, const Params &pa, 
         linearise(lv, pts, n, *T, gate, kernel, pa.inlier, pa.rough_targets, &acc, nullptr, nullptr, cache);
         if (acc.matched < 30) break;
         Eigen::Matrix<double, 6, 6> H = acc.H;
+        Eigen::Matrix<double, 6, 1> g = acc.g;
+        if (prior) {
+            /* the points weigh 1 / sigma^2 (their mean square residual), the prior its
+             * information: both on the points' scale */
+            double sigma2 = std::max(acc.ss / std::max(acc.matched - 6, 1), 1e-6);
+            Eigen::Matrix<double, 6, 1> e;
+            e.head<3>() = T->translation() - prior->at.translation();
+            Eigen::AngleAxisd d(T->linear() * prior->at.linear().transpose());
+            e.tail<3>() = d.angle() * d.axis();
+            H += sigma2 * prior->info;
+            g += sigma2 * (prior->info * e);
+        }
         /* light damping keeps unobservable directions (e.g. along a straight
          * corridor) at the guess instead of drifting */
         double lam = 1e-6 * H.trace() / 6.0 + 1e-9;
         H.diagonal().array() += lam;
-        Eigen::Matrix<double, 6, 1> dx = H.ldlt().solve(-acc.g);
+        Eigen::Matrix<double, 6, 1> dx = H.ldlt().solve(-g);
         if (!dx.allFinite()) break;
         T->translation() += dx.head<3>();
         T->linear() = exp_so3(dx.tail<3>()) * T->linear();
@@ -491,7 +510,7 @@ bool second_wins(const Level &lv, const float *pts, size_t m, const Params &pa, 
  * stops there and sets *same (res then holds no result). */
 int align_points(const pb_regmap_t *map, const std::vector<float> &pts, const Eigen::Isometry3d &guess,
                  const pb_reg_config_t *cfg, pb_reg_result_t *res, const Basin *known = nullptr,
-                 bool *same = nullptr)
+                 bool *same = nullptr, const Prior *pr = nullptr)
 {
     size_t m = pts.size() / 3;
     Params pa = params_of(cfg);
@@ -502,7 +521,7 @@ int align_points(const pb_regmap_t *map, const std::vector<float> &pts, const Ei
     bool can_coarse = cfg->coarse_iterations > 0 && !map->coarse.cells.empty();
     NearCache cache;
     res->iterations = gauss_newton(map->fine, pts.data(), m, pa, &T, &converged, can_coarse ? pa.min_corr : 0,
-                                   &aborted, &cache, can_coarse ? nullptr : known);
+                                   &aborted, &cache, can_coarse ? nullptr : known, pr);
     if (same && (*same = !can_coarse && known && aborted)) return res->status;
     /* 3. if that did not settle, or had to move far (a poor guess), retry
      *    coarse-to-fine: a few steps on the coarse level (every 4th point, planes
@@ -521,7 +540,7 @@ int align_points(const pb_regmap_t *map, const std::vector<float> &pts, const Ei
         bool conv2 = false;
         res->iterations += gauss_newton(map->coarse, sub.data(), sub.size() / 3, pc, &T2, &conv2);
         NearCache cache2;
-        res->iterations += gauss_newton(map->fine, pts.data(), m, pa, &T2, &conv2, 0, nullptr, &cache2);
+        res->iterations += gauss_newton(map->fine, pts.data(), m, pa, &T2, &conv2, 0, nullptr, &cache2, nullptr, pr);
         /* an aborted run stopped on its way: finish it, so that two minima are compared,
          * not a minimum and a pose still centimetres short of its own. Without a prior
          * the guess has no claim on its own minimum: the run is followed on every 4th
@@ -532,10 +551,10 @@ int align_points(const pb_regmap_t *map, const std::vector<float> &pts, const Ei
         const Basin b2 = { T2, pa.min_corr, M_PI / 180 };
         if (aborted && !prior)
             res->iterations += gauss_newton(map->fine, sub.data(), sub.size() / 3, pa, &T, &settled, 0, &in_basin,
-                                            nullptr, &b2);
+                                            nullptr, &b2, pr);
         if (aborted && !in_basin)
             res->iterations += gauss_newton(map->fine, pts.data(), m, pa, &T, &converged, 0, &in_basin, &cache,
-                                            prior ? nullptr : &b2);
+                                            prior ? nullptr : &b2, pr);
         bool use_t2 = in_basin || second_wins(map->fine, pts.data(), m, pa, cfg->prior_sigma_m, guess, T,
                                               d1, T2, &cache, &cache2);
         if (use_t2) {
@@ -571,6 +590,22 @@ int pb_reg_align(const pb_regmap_t *map, const float *xyz, size_t n, const Eigen
     std::vector<float> pts;
     pb_reg_downsample(xyz, n, cfg, &pts);
     return align_points(map, pts, guess, cfg, res);
+}
+
+int pb_reg_align_prior(const pb_regmap_t *map, const float *xyz, size_t n, const Eigen::Isometry3d &guess,
+                       const Eigen::Matrix<double, 6, 6> &prior_cov, const pb_reg_config_t *cfg, pb_reg_result_t *res,
+                       pb_err_t *err)
+{
+    pb_reg_config_t def;
+    if (!cfg) cfg = (pb_reg_config_default(&def), &def);
+    if (!start_result(map, xyz, n, guess, res, err)) return res->status;
+    Eigen::LLT<Eigen::Matrix<double, 6, 6>> llt(prior_cov);
+    Prior pr = { guess, llt.solve(Eigen::Matrix<double, 6, 6>::Identity()) };
+    if (llt.info() != Eigen::Success || !pr.info.allFinite())
+        return pb_err_set(err, "registration: the prior's covariance is not positive definite"), res->status;
+    std::vector<float> pts;
+    pb_reg_downsample(xyz, n, cfg, &pts);
+    return align_points(map, pts, guess, cfg, res, nullptr, nullptr, &pr);
 }
 
 int pb_reg_align_global(const pb_regmap_t *map, const float *xyz, size_t n, const Eigen::Isometry3d &seed,

@@ -120,6 +120,18 @@ int pb_reg_align(const pb_regmap_t *map, const float *xyz, size_t n,
                  const Eigen::Isometry3d &guess, const pb_reg_config_t *cfg,
                  pb_reg_result_t *result, pb_err_t *err);
 
+/* pb_reg_align with the guess as a prior of covariance prior_cov (6x6, the result's
+ * error state; a tracking filter's prediction): each fine Gauss-Newton step weighs the
+ * distance from the guess by prior_cov^-1 beside the points (weighted by their mean
+ * square residual, as the result's covariance is). Directions the sweep fixes well move
+ * as they would without it; a direction it hardly fixes (along a street of porous crowns)
+ * stays near the guess instead of ending wherever the run's start leads it. The result's
+ * covariance is the points' alone. -1 (err set) also when prior_cov is not positive
+ * definite. */
+int pb_reg_align_prior(const pb_regmap_t *map, const float *xyz, size_t n, const Eigen::Isometry3d &guess,
+                       const Eigen::Matrix<double, 6, 6> &prior_cov, const pb_reg_config_t *cfg,
+                       pb_reg_result_t *result, pb_err_t *err);
+
 /* Global alignment for initialisation and relocalisation: the true pose is within
  * `radius_m` (horizontal) of seed's position and within +-yaw_range_rad (up to pi)
  * of seed's yaw (z, roll and pitch taken from seed). Every position and yaw of that
