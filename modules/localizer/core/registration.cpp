@@ -86,6 +86,13 @@ struct Accum {
     int matched, inliers;
 };
 
+/* The points' residual variance: their mean square residual over the degrees of freedom left
+ * (the scale of the result's covariance and of a prior beside the points). */
+inline double residual_variance(double ss, int matched)
+{
+    return std::max(ss / std::max(matched - 6, 1), 1e-6);
+}
+
 /* The guess as a prior (pb_reg_align_prior): the pose it is about and its information. */
 struct Prior {
     Eigen::Isometry3d at;
@@ -317,7 +324,7 @@ int gauss_newton(const Level &lv, const float *pts, size_t n, const Params &pa, 
         if (prior) {
             /* the points weigh 1 / sigma^2 (their mean square residual), the prior its
              * information: both on the points' scale */
-            double sigma2 = std::max(acc.ss / std::max(acc.matched - 6, 1), 1e-6);
+            double sigma2 = residual_variance(acc.ss, acc.matched);
             Eigen::Matrix<double, 6, 1> e;
             e.head<3>() = T->translation() - prior->at.translation();
             Eigen::AngleAxisd d(T->linear() * prior->at.linear().transpose());
@@ -390,7 +397,7 @@ void fill_result(const Level &lv, const float *pts, size_t n, const Eigen::Isome
         Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> et(H.topLeftCorner<3, 3>());
         double lo = std::max(et.eigenvalues()(0), 1e-12);
         res->condition = et.eigenvalues()(2) / lo;
-        double sigma2 = std::max(ss / std::max(acc.matched - 6, 1), 1e-6);
+        double sigma2 = residual_variance(ss, acc.matched);
         H.diagonal().array() += 1e-6 * H.trace() / 6.0 + 1e-9;
         res->covariance = sigma2 * H.inverse();
     } else {
@@ -580,32 +587,38 @@ int align_points(const pb_regmap_t *map, const std::vector<float> &pts, const Ei
 
 }  // namespace
 
-int pb_reg_align(const pb_regmap_t *map, const float *xyz, size_t n, const Eigen::Isometry3d &guess,
-                 const pb_reg_config_t *cfg, pb_reg_result_t *res, pb_err_t *err)
+/* pb_reg_align and pb_reg_align_prior (prior_cov NULL: none). */
+static int align_scan(const pb_regmap_t *map, const float *xyz, size_t n, const Eigen::Isometry3d &guess,
+                      const Eigen::Matrix<double, 6, 6> *prior_cov, const pb_reg_config_t *cfg, pb_reg_result_t *res,
+                      pb_err_t *err)
 {
     pb_reg_config_t def;
     if (!cfg) cfg = (pb_reg_config_default(&def), &def);
     if (!start_result(map, xyz, n, guess, res, err)) return res->status;
+    Prior pr;
+    if (prior_cov) {
+        Eigen::LLT<Eigen::Matrix<double, 6, 6>> llt(*prior_cov);
+        pr = { guess, llt.solve(Eigen::Matrix<double, 6, 6>::Identity()) };
+        if (llt.info() != Eigen::Success || !pr.info.allFinite())
+            return pb_err_set(err, "registration: the prior's covariance is not positive definite"), res->status;
+    }
     /* 1. downsample the scan (range filter + adaptive voxel grid) */
     std::vector<float> pts;
     pb_reg_downsample(xyz, n, cfg, &pts);
-    return align_points(map, pts, guess, cfg, res);
+    return align_points(map, pts, guess, cfg, res, nullptr, nullptr, prior_cov ? &pr : nullptr);
+}
+
+int pb_reg_align(const pb_regmap_t *map, const float *xyz, size_t n, const Eigen::Isometry3d &guess,
+                 const pb_reg_config_t *cfg, pb_reg_result_t *res, pb_err_t *err)
+{
+    return align_scan(map, xyz, n, guess, nullptr, cfg, res, err);
 }
 
 int pb_reg_align_prior(const pb_regmap_t *map, const float *xyz, size_t n, const Eigen::Isometry3d &guess,
                        const Eigen::Matrix<double, 6, 6> &prior_cov, const pb_reg_config_t *cfg, pb_reg_result_t *res,
                        pb_err_t *err)
 {
-    pb_reg_config_t def;
-    if (!cfg) cfg = (pb_reg_config_default(&def), &def);
-    if (!start_result(map, xyz, n, guess, res, err)) return res->status;
-    Eigen::LLT<Eigen::Matrix<double, 6, 6>> llt(prior_cov);
-    Prior pr = { guess, llt.solve(Eigen::Matrix<double, 6, 6>::Identity()) };
-    if (llt.info() != Eigen::Success || !pr.info.allFinite())
-        return pb_err_set(err, "registration: the prior's covariance is not positive definite"), res->status;
-    std::vector<float> pts;
-    pb_reg_downsample(xyz, n, cfg, &pts);
-    return align_points(map, pts, guess, cfg, res, nullptr, nullptr, &pr);
+    return align_scan(map, xyz, n, guess, &prior_cov, cfg, res, err);
 }
 
 int pb_reg_align_global(const pb_regmap_t *map, const float *xyz, size_t n, const Eigen::Isometry3d &seed,
