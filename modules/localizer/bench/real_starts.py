@@ -39,8 +39,9 @@ def reference_plausible(gt, flagged_s, gap_s=1.0):
     """False when the cut's span (its first to last reference pose, widened by a keyframe
     gap) holds a keyframe that reference.py flags: its poses imply a horizontal
     acceleration no car makes (over 5 m/s^2), so the reference or the keyframe times are
-    wrong there. Judged on every keyframe, not on the cut's odd ones alone: a reversal
-    between two odd keyframes (MulRan at 31.8-34.1 s) leaves the odd ones looking smooth."""
+    wrong there, or lies before the scans first fix a step (its speed never measured).
+    Judged on every keyframe, not on the cut's odd ones alone: a reversal between two odd
+    keyframes (MulRan at 31.8-34.1 s) leaves the odd ones looking smooth."""
     t0, t1 = gt[0, 0] * 1e-6 - gap_s, gt[-1, 0] * 1e-6 + gap_s
     return not any(t0 <= t <= t1 for t in flagged_s)
 
@@ -91,7 +92,7 @@ def plot_starts(path, title, gt, cuts, plausible, earliest, sweeps, prior_runs, 
     flagged = [bs.gt_at(gt, t * 1e6) for t in flagged_s if gt[0, 0] <= t * 1e6 <= gt[-1, 0]]
     if flagged:
         ax.scatter([f[1] for f in flagged], [f[2] for f in flagged], marker="x", color="k", s=40, zorder=2,
-                   label="keyframe the reference flags (over 5 m/s\u00b2)")
+                   label="keyframe the reference flags (over 5 m/s\u00b2, or speed not yet fixed)")
     late = f"later: its sweep {sweeps} comes after 5 s"
     kinds = {"tracking within 5 s": "tab:green", late: "tab:blue",
              "later than 5 s, or never": "tab:orange", "tracking far from the reference": "tab:red"}
@@ -205,7 +206,8 @@ def main():
                  f"{rows[4]['converged_pct']:.1f} % there when sweep {sweeps} comes within 5 s")
         plot_starts(a.plot, title, gt, cuts, plausible, earliest, sweeps, prior_runs, runs, [times[k] for k in flagged])
         print(f"real_starts: picture {a.plot}")
-    print(f"reference implausible (reference.py: over 5 m/s^2 at keyframes {flagged}) on {plausible.count(False)} of {len(cuts)} cuts: "
+    print(f"reference implausible (reference.py flags keyframes {flagged}: over 5 m/s^2, or before the scans "
+          f"fix a step) on {plausible.count(False)} of {len(cuts)} cuts: "
           + ", ".join(f"{c.stem}" for c, k in zip(cuts, plausible) if not k))
     print("targets: >= 99% of perturbed starts within 0.2 m; tracking median <= 0.05 m, p99 <= 0.15 m, "
           "yaw p99 <= 0.5 deg; no prior: tracking within 5 s on >= 95%; no LOST")
