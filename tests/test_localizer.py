@@ -1066,9 +1066,9 @@ def test_registration_bench_compares_accuracy_where_the_reference_is_plausible(t
     assert bench_gicp.accuracy_on({"n": 4}, [True] * 4, 0.2) is None
 
 
-def mulran_even_cut(mulran_reference, tmp_path, at, plausible=True, split="even"):
-    """The even MulRan keyframes in the site of the odd ones (bench-localizer-real's second
-    trial; split="odd": its first), cut 8 s from AT s into the log, where the reference is
+def mulran_cut(mulran_reference, tmp_path, at, plausible=True, split="even"):
+    """The `split` MulRan keyframes (even: bench-localizer-real's second trial; odd: its
+    first) in the site of the others, cut 8 s from AT s into the log, where the reference is
     plausible (or is not): (site, GROUND_TRUTH, cut log)."""
     times = (MULRAN / "times.txt").read_text().splitlines()
     site, log = keyframe_site.split(MULRAN / "Scans", mulran_reference["poses"], MULRAN / "times.txt",
@@ -1115,7 +1115,7 @@ def test_real_mulran_start_in_a_turn_between_sparse_keyframes(mulran_reference, 
     no prior tracked within the cut. Now the weak sweep neither verifies nor drops the
     candidate, and the prediction follows the turn (measured: three priors 2-3 m / 10-15
     degrees off tracking at the fourth keyframe, worst 0.02 m)."""
-    site, gt, c = mulran_even_cut(mulran_reference, tmp_path, 50.5)
+    site, gt, c = mulran_cut(mulran_reference, tmp_path, 50.5)
     assert len(lb.read_channel_times(c, "LIDAR_SCAN")) == 4
     for out, r in mulran_prior_starts(site, gt, c, tmp_path):
         assert r["max_m"] < 0.06, r["max_m"]   # measured 0.02 m
@@ -1133,7 +1133,7 @@ def test_real_mulran_start_refuses_a_place_as_good_far_along_the_road(mulran_ref
     velocity first no place there fits as well any more (they track at 1.8 s, worst 0.07 m,
     without the rule), so the test moved to where it still engages: measured, the three
     priors track 6.8 s after the cut, worst 0.03 m."""
-    site, gt, c = mulran_even_cut(mulran_reference, tmp_path, 64.5, plausible=False, split="odd")
+    site, gt, c = mulran_cut(mulran_reference, tmp_path, 64.5, plausible=False, split="odd")
     for out, r in mulran_prior_starts(site, gt, c, tmp_path):
         assert r["max_m"] < 0.12, r["max_m"]   # measured 0.04 m
         assert counters(last_status_msg(out)).get("match_ambiguous", 0) >= 1   # the rule engaged
@@ -1150,7 +1150,7 @@ def test_real_mulran_verifying_sweep_after_a_long_gap_takes_the_best_fit(mulran_
     whose prediction is unsure by a metre or more is searched around it (28 Nov 2026), no
     prior and three priors 2-3 m / 10-15 degrees off track with every POSE within 0.2 m
     (measured: worst 0.04 m); before, every one of the four was 1.58 m off at that sweep."""
-    site, gt, c = mulran_even_cut(mulran_reference, tmp_path, 53.0)
+    site, gt, c = mulran_cut(mulran_reference, tmp_path, 53.0)
     starts = [[]] + [[p] for p in mulran_priors(gt, c)]
     for k, prior in enumerate(starts):
         out = tmp_path / f"out_{k}.lcm"
@@ -1171,7 +1171,7 @@ def test_real_mulran_no_prior_start_between_places_of_the_old_grid(mulran_refere
     for at in (48.0, 55.0):
         d = tmp_path / f"cut_{at:g}"
         d.mkdir()
-        site, gt, c = mulran_even_cut(mulran_reference, d, at)
+        site, gt, c = mulran_cut(mulran_reference, d, at)
         out = d / "out.lcm"
         r = mulran_start(gt, c, out, site)
         assert r["tracking_s"] is not None and r["tracking_s"] <= 5.0, r["tracking_s"]
