@@ -53,7 +53,6 @@ struct places_config_t {
 struct place_desc_t {
     float h[PLACE_RINGS][PLACE_SECTORS];
     float ring_key[PLACE_RINGS];      /* mean height per ring over its known bins / clip */
-    float sector_key[PLACE_SECTORS];  /* mean height per sector over its known bins / clip, -1 none */
 };
 
 struct place_match_t {
