@@ -307,7 +307,8 @@ void places_destroy(places_t *p) { delete p; }
 /* Serialised form (little-endian): "PBPLACE4" (4: places every metre, 52 bytes each; 3
  * held 112 bytes a place, 2 every column
  * of the bounding box), f64 ring_m, place_step_m, min_height_m, tall_m, clip_m,
- * car_clearance_m, i32 shortlist, W, H, u32 places, f64 lo[2], u32 blocks, then per block
+ * car_clearance_m, i32 shortlist (the writer's; a query setting since 6 Dec 2026, not
+ * read), W, H, u32 places, f64 lo[2], u32 blocks, then per block
  * i32 bx, by, f32 height[16 * 16] (row by row), then per place i32 ix, iy, f32 z (the
  * ground's height), u16 ring_key[PLACE_RINGS] (in 1/65535). */
 static const char kPlacesMagic[8] = { 'P', 'B', 'P', 'L', 'A', 'C', 'E', '4' };
@@ -363,12 +364,12 @@ places_t *places_decode(const uint8_t *b, size_t n, char *msg, size_t msg_len)
     places_config_t c;
     double *cd[6] = { &c.ring_m, &c.place_step_m, &c.min_height_m, &c.tall_m, &c.clip_m, &c.car_clearance_m };
     for (int i = 0; i < 6; i++) *cd[i] = get_le<double>(b + 8 + 8 * i);
-    c.shortlist = get_le<int32_t>(b + 56);
+    int32_t written_shortlist = get_le<int32_t>(b + 56);   /* the query's own setting is used */
     int32_t W = get_le<int32_t>(b + 60), H = get_le<int32_t>(b + 64);
     uint32_t np = get_le<uint32_t>(b + 68);
     double lo[2] = { get_le<double>(b + 72), get_le<double>(b + 80) };
     uint32_t nb = get_le<uint32_t>(b + 88);
-    bool ok = c.ring_m >= 0.5 && c.ring_m <= 100 && c.shortlist >= 1 && c.shortlist <= 100000 && c.clip_m > 0 &&
+    bool ok = c.ring_m >= 0.5 && c.ring_m <= 100 && written_shortlist >= 1 && written_shortlist <= 100000 && c.clip_m > 0 &&
               c.clip_m < 1000 && std::isfinite(c.min_height_m) && std::isfinite(c.tall_m) && W > 0 && H > 0 &&
               W <= 1000000000 && H <= 1000000000 &&   /* column + ring offsets stay within int */
               std::isfinite(lo[0]) && std::isfinite(lo[1]) &&
@@ -533,22 +534,25 @@ void places_query(const places_t *p, const place_desc_t &d, int k, std::vector<p
     }
     size_t m = std::min(n, (size_t)std::max(k, p->cfg.shortlist));
     std::partial_sort(rk.begin(), rk.begin() + m, rk.end());
-    /* 2. the full descriptors under every sector shift */
-    place_desc_t pd;
-    cm_desc_t cd, cp;
+    /* 2. the full descriptors under every sector shift, each place on its own (two threads) */
+    cm_desc_t cd;
     to_cm(d, &cd);
-    for (size_t j = 0; j < m; j++) {
-        const auto &c = p->spot_col[rk[j].second];
-        describe_column(p, c[0], c[1], &pd);
-        finish(p->cfg, &pd);
-        to_cm(pd, &cp);
-        int sh;
-        place_match_t pm = { p->lo[0] + (c[0] + 0.5) * kColumn, p->lo[1] + (c[1] + 0.5) * kColumn,
-                             p->spot_z[rk[j].second], 0, 0 };
-        pm.distance = compare_shifts(p->cfg, cd, cp, &sh);
-        pm.yaw = sh * 2 * M_PI / PLACE_SECTORS;
-        out->push_back(pm);
-    }
+    out->resize(m);
+    pb_split2(m, [&](size_t j0, size_t j1) {
+        place_desc_t pd;
+        cm_desc_t cp;
+        for (size_t j = j0; j < j1; j++) {
+            const auto &c = p->spot_col[rk[j].second];
+            describe_column(p, c[0], c[1], &pd);
+            finish(p->cfg, &pd);
+            to_cm(pd, &cp);
+            int sh;
+            place_match_t &pm = (*out)[j];
+            pm = { p->lo[0] + (c[0] + 0.5) * kColumn, p->lo[1] + (c[1] + 0.5) * kColumn, p->spot_z[rk[j].second], 0, 0 };
+            pm.distance = compare_shifts(p->cfg, cd, cp, &sh);
+            pm.yaw = sh * 2 * M_PI / PLACE_SECTORS;
+        }
+    }, 256);
     std::stable_sort(out->begin(), out->end(), [](const place_match_t &a, const place_match_t &b) {
         return a.distance < b.distance;
     });

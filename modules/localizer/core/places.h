@@ -41,12 +41,14 @@ struct places_config_t {
     double tall_m = 2.5;          /* a bin this high hides the bins behind it */
     double clip_m = 5.0;          /* heights are clipped here (the sweep sees little higher nearby) */
     double car_clearance_m = 2.0; /* a place needs no structure up to this height at its spot */
-    int shortlist = 2700;         /* places compared in full after the ring key. MulRan, 83
-                                   * keyframes of each split against the other's map: the
-                                   * true place among the best 16 for 45 / 38 at a 3 m step
-                                   * and 300, 53 / 52 at 1 m and 900 (answers 2 m apart),
-                                   * 60 / 58 at 1 m and 2700 (3 m apart; odd split: 55 with
-                                   * every place compared in full) */
+    int shortlist = 5400;         /* places compared in full after the ring key (a query
+                                   * setting, not stored with the places). MulRan, 83
+                                   * keyframes of each split against the other's map, the
+                                   * true place among the best 16: 45 / 38 at a 3 m step and
+                                   * 300, 55 / 55 at 1 m and 2700, 58 / 56 at 5400 (best 8:
+                                   * 50 / 50 -> 55 / 54); every place in full gives 58 / 57
+                                   * but fewer true places first (38 / 35 against 43 / 40):
+                                   * the ring key also keeps look-alikes out */
 };
 
 /* One descriptor: height (m, 0 = free) per bin, -1 unknown (hidden). */
