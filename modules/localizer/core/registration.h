@@ -61,9 +61,9 @@ typedef struct {
                                    * poses, where a thick surface is misalignment, not foliage */
     int coarse_iterations = 16;   /* Gauss-Newton steps on the coarse level in step 3, 0 = never */
     double prior_sigma_m = 0;     /* the guess's horizontal standard deviation (a tracking filter's prediction);
-                                   * when step 3 finds a minimum distinct from the fine run's and more than
-                                   * 3 sigma from the guess, it must explain clearly more of the scan to be
-                                   * taken; 0 = no prior: more inliers wins, and a fine run stopped early
+                                   * when one of step 3's two results lies more than 3 sigma from the guess,
+                                   * the farther must explain clearly more of the scan to be taken, however
+                                   * near the two lie; 0 = no prior: more inliers wins, and a fine run stopped early
                                    * ends where it comes near the coarse-to-fine minimum (step 3) */
     double body_box[6] = {};      /* drop points inside this box of base (the car's own body: xmin, ymin, zmin,
                                    * xmax, ymax, zmax); all 0 = none */
