@@ -807,6 +807,22 @@ def test_global_search_takes_no_wrong_place_on_a_street_of_trees(porous_street, 
     assert 3 not in poses[k:, 5]
 
 
+def lidar_only_prior_start(t, tmp_path, at, offset, site=None):
+    """LiDAR alone, 6 s of drive t cut at `at` s, a prior `offset` (dx, dy, dz in m, dyaw in
+    degrees) from the truth at its first sweep: the POSE rows, the index of the first tracking
+    one (None: none), the errors of the tracking POSE from there on, and the output log."""
+    log, out = tmp_path / "cut.lcm", tmp_path / "o.lcm"
+    cut(t, log, at, 6, "LIDAR_SCAN,GROUND_TRUTH")
+    g = t["gt"][np.searchsorted(t["gt"][:, 0], lb.read_channel_times(log, "LIDAR_SCAN")[0])]
+    dx, dy, dz, dyaw = offset
+    localize(t, log, out, f"--initial-pose={g[1] + dx},{g[2] + dy},{g[3] + dz},0,0,{math.degrees(g[4]) + dyaw}",
+             site=site)
+    poses = lb.read_poses(out, "POSE")
+    k = first_tracking(poses)
+    et = None if k is None else lb.errors_vs_truth(poses[k:][poses[k:, 5] == 1], t["gt"])[1]
+    return poses, k, et, out
+
+
 @pytest.mark.parametrize("at", [24.5, 27.0])
 def test_moving_lidar_only_start_settles_on_a_street_of_trees(porous_street, tmp_path, at):
     """LiDAR alone, the car at 9 m/s, a prior 2.9 m and 3 degrees off. The first speed comes
@@ -815,15 +831,8 @@ def test_moving_lidar_only_start_settles_on_a_street_of_trees(porous_street, tmp
     smoothing the deskewing speed after a start: 0.409 m at 24.5 s, 0.211 m at 27.0 s;
     with it: 0.135 and 0.074 m; 6 Dec 2026, the prediction also the match's prior: 0.139 and
     0.066 m)."""
-    t = porous_street
-    log, out = tmp_path / "cut.lcm", tmp_path / "o.lcm"
-    cut(t, log, at, 6, "LIDAR_SCAN,GROUND_TRUTH")
-    g = t["gt"][np.searchsorted(t["gt"][:, 0], lb.read_channel_times(log, "LIDAR_SCAN")[0])]
-    localize(t, log, out, f"--initial-pose={g[1] + 2.436},{g[2] + 1.54},{g[3] - 0.26},0,0,{math.degrees(g[4]) + 3.178}")
-    poses = lb.read_poses(out, "POSE")
-    k = first_tracking(poses)
+    poses, k, et, _ = lidar_only_prior_start(porous_street, tmp_path, at, (2.436, 1.54, -0.26, 3.178))
     assert k is not None and (poses[k, 0] - poses[0, 0]) <= 1.0e6, "tracking within 1 s"
-    _, et, _ = lb.errors_vs_truth(poses[k:][poses[k:, 5] == 1], t["gt"])
     # the start judged as bench-localizer-trees judges it: every tracking POSE within 0.2 m
     assert et.max() < 0.2, et.max()
     assert 3 not in poses[k:, 5]
@@ -844,16 +853,8 @@ def test_moving_lidar_only_start_verifies_deskewed_sweeps(porous_street_seed5, t
     before sweeps had to be deskewed with a speed their match confirms; 0.44 and 0.32 m on
     the bench's 40 s drive). Measured since (6 Dec 2026): tracking after 0.3 s, the first
     tracking POSE 0.026 m off, the worst 0.071 m, from both priors."""
-    t = porous_street_seed5
-    log, out = tmp_path / "cut.lcm", tmp_path / "o.lcm"
-    cut(t, log, 7.5, 6, "LIDAR_SCAN,GROUND_TRUTH")
-    g = t["gt"][np.searchsorted(t["gt"][:, 0], lb.read_channel_times(log, "LIDAR_SCAN")[0])]
-    dx, dy, dz, dyaw = offset
-    localize(t, log, out, f"--initial-pose={g[1] + dx},{g[2] + dy},{g[3] + dz},0,0,{math.degrees(g[4]) + dyaw}")
-    poses = lb.read_poses(out, "POSE")
-    k = first_tracking(poses)
+    poses, k, et, out = lidar_only_prior_start(porous_street_seed5, tmp_path, 7.5, offset)
     assert k is not None and (poses[k, 0] - poses[0, 0]) <= 2.0e6, "tracking within 2 s"
-    _, et, _ = lb.errors_vs_truth(poses[k:][poses[k:, 5] == 1], t["gt"])
     assert et[0] < 0.08 and et.max() < 0.2, (et[0], et.max())
     assert counters(last_status_msg(out)).get("verify_deskew", 0) >= 1   # the rule engaged
     assert 3 not in poses[k:, 5]
@@ -867,16 +868,9 @@ def test_moving_lidar_only_start_keeps_the_stop_near_the_prediction_on_a_tie(por
     0.2 m for two sweeps (0.277 m). A stop beyond 3 sigma of the prediction now pays the
     margin whether or not it lies within min_corr of the other."""
     t = porous_street_seed5
-    log, out = tmp_path / "cut.lcm", tmp_path / "o.lcm"
-    cut(t, log, 3.0, 6, "LIDAR_SCAN,GROUND_TRUTH")
-    g = t["gt"][np.searchsorted(t["gt"][:, 0], lb.read_channel_times(log, "LIDAR_SCAN")[0])]
     # the whole street's map, as the bench's (the map cropped to these 14 s: 0.111 m either way)
-    localize(t, log, out, f"--initial-pose={g[1] - 0.642},{g[2] + 2.724},{g[3] + 0.206},0,0,{math.degrees(g[4]) + 8.326}",
-             site=t["site_full"])
-    poses = lb.read_poses(out, "POSE")
-    k = first_tracking(poses)
+    poses, k, et, _ = lidar_only_prior_start(t, tmp_path, 3.0, (-0.642, 2.724, 0.206, 8.326), site=t["site_full"])
     assert k is not None and (poses[k, 0] - poses[0, 0]) <= 1.0e6, "tracking within 1 s"
-    _, et, _ = lb.errors_vs_truth(poses[k:][poses[k:, 5] == 1], t["gt"])
     assert et.max() < 0.2, et.max()
     assert 3 not in poses[k:, 5]
 
