@@ -12,8 +12,9 @@ bench-localizer-drive: $(BIN)/localizer $(BIN)/simdrive $(BIN)/can $(BIN)/log-me
 	@$(VPY) modules/localizer/bench/bench_drive.py
 
 # A street of trees (the default site without buildings; solid and porous canopies): the
-# case where real data is hard and the default site is not. Tracking over a 40 s drive and
-# the starts of bench-localizer-drive; about 5 minutes. build/bench/localizer-trees.json.
+# case where real data is hard and the default site is not; and a bare street (without its
+# trees too: poles and parked cars that changed). Tracking over a 40 s drive and the starts
+# of bench-localizer-drive; about 6 minutes. build/bench/localizer-trees.json.
 BENCH_TARGETS += bench-localizer-trees
 .PHONY: bench-localizer-trees
 bench-localizer-trees: $(BIN)/localizer $(BIN)/simdrive $(BIN)/build-map $(BIN)/build-ground $(BIN)/map-tiles

@@ -26,6 +26,11 @@ and benchmarks. Times (--at, --for) are seconds after the first event of the log
                 car's; the event times stay)
   time-step     from `at` on, subtract --seconds from every message utime and event time
                 (the sensors' clock stepped back, e.g. an NTP or GNSS time sync)
+  kidnap        drop every event in [at, at+for) and move the later ones back by `for`
+                (message utimes and event times): the car's data jumps ahead along its
+                drive while every sensor stays healthy and no clock jumps, so the pose the
+                localizer holds is suddenly wrong (a kidnapped car; it stands for a pose
+                gone wrong while tracking, which only the map can tell)
 The log stays ordered by event timestamp except for `reorder` and `time-step`. Prints
 what it did.
 """
@@ -126,7 +131,7 @@ def main():
                                  formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
     ap.add_argument("fault", choices=["lidar-gap", "jump", "imu-gap", "drop-channel", "nan-points", "empty-scans",
                                       "duplicate", "reorder", "garbage", "gnss-jump", "cut", "gnss-clock", "head-clock",
-                                      "time-step"])
+                                      "time-step", "kidnap"])
     ap.add_argument("--in", dest="inp", required=True, help="input log")
     ap.add_argument("--out", required=True, help="output log")
     ap.add_argument("--at", type=float, default=10.0, help="seconds after the log's first event (default 10)")
@@ -228,6 +233,10 @@ def main():
             out.append((e[0] - shift, e[1], shift_utime(e[2], -shift)))
             n += 1
         note = f"{n} events from {t_at} on stepped back {a.seconds:.3f} s"
+    elif a.fault == "kidnap":
+        shift = t_end - t_at
+        out = [e if e[0] < t_at else (e[0] - shift, e[1], shift_utime(e[2], -shift)) for e in ev if not t_at <= e[0] < t_end]
+        note = f"dropped {len(ev) - len(out)} events in [{t_at}, {t_end}), the later ones moved back {a.dur:.3f} s"
     elif a.fault == "duplicate":
         n = 0
         for e in ev:

@@ -10,7 +10,9 @@ p50/p99 (wall ms per sweep from LIDAR_SCAN decode to POSE published, tracking sw
 POSE_PREDICTED rate. Baseline in the same run on the same logs: the LiDAR-only mode
 (--no-imu --no-speed) on every drive the fused mode ran. Then the fault scenarios (seed
 5, normal, 40 s): a 3 s LiDAR gap, a 20 m jump (a wrong INITIAL_POSE, see
-docs/localizer.md), a GNSS-only start and an --initial-pose start without GNSS.
+docs/localizer.md), a kidnap (the log skips 1.5 s ahead while tracking: a pose gone wrong,
+every sensor healthy; with GNSS, IMU + CAN, LiDAR alone), a GNSS-only start and an
+--initial-pose start without GNSS.
 Then starts like real life (bench_starts.py): mid-drive moving starts from 100 guesses
 within 3 m / 15 degrees (fused and LiDAR-only on the same cuts), GNSS 5 m off with its
 clock 2 s off, and no prior at all (global search in the full site map); and the faults
@@ -104,8 +106,21 @@ def fault_jump(d, log, extra=(), tag="jump"):
     flog, out, error = faulted(d, log, ["jump", "--at", "15", "--metres", "20"], tag, extra)
     if error:
         return {"error": error}
-    gt = lb.read_poses(d / "drive.lcm", "GROUND_TRUTH")
-    tj = lb.read_events(flog, ["INITIAL_POSE"])[0][0]
+    return lost_and_back(lb.read_poses(d / "drive.lcm", "GROUND_TRUTH"), out, lb.read_events(flog, ["INITIAL_POSE"])[0][0])
+
+
+def fault_kidnap(d, log, extra=(), tag="kidnap"):
+    """The car's data skips 1.5 s ahead at 22 s (about 15 m at the drive's 10 m/s there), every
+    sensor healthy: the pose held while tracking is suddenly wrong."""
+    flog, out, error = faulted(d, log, ["kidnap", "--at", "22", "--for", "1.5"], tag, extra)
+    if error:
+        return {"error": error}
+    return lost_and_back(lb.read_poses(flog, "GROUND_TRUTH"), out, lb.read_events(flog, ["GROUND_TRUTH"])[0][0] + 22e6)
+
+
+def lost_and_back(gt, out, tj):
+    """How a wrong pose from time tj on was handled: LOST after, tracking again after (and its
+    error then), and the worst pose published as TRACKING after tj."""
     poses = lb.read_poses(out, "POSE")
     after = poses[poses[:, 0] >= tj]
     lost = np.nonzero(after[:, 5] == 3)[0]
@@ -119,7 +134,7 @@ def fault_jump(d, log, extra=(), tag="jump"):
             r["error_at_relocalization_m"] = float(et[0])
             _, et2, _ = lb.errors_vs_truth(back[tr[0]:][back[tr[0]:, 5] == 1], gt)
             r["tracking_p99_after_m"] = float(np.percentile(et2, 99))
-    # the worst pose published with status TRACKING after the jump (a wrong pose must never be "tracking")
+    # the worst pose published with status TRACKING after the fault (a wrong pose must never be "tracking")
     trk = after[after[:, 5] == 1]
     _, et, _ = lb.errors_vs_truth(trk, gt)
     r["max_tracking_error_after_jump_m"] = float(np.max(et)) if len(et) else float("nan")
@@ -176,12 +191,16 @@ def main():
               f"{g['gap_max_interval_s']:.2f} s apart), error at the gap's end {g['end_error_m']:.3f} m, "
               f"tracking again at sweep {g['sweeps_to_tracking']} after it")
     print(f"{'':<34} (targets: POSE goes on, degraded, error <= 1 m at the end, tracking within 2 sweeps)")
-    for label, extra, tag in (("20 m jump, GNSS", (), "jump"), ("20 m jump, no GNSS", ("--no-gnss",), "jump_nognss")):
-        if extra:
-            gt = lb.read_poses(d / "drive.lcm", "GROUND_TRUTH")
-            x, y, z, yaw = gt[0, 1], gt[0, 2], gt[0, 3], gt[0, 4] * 180 / math.pi
-            extra = extra + (f"--initial-pose={x},{y},{z},0,0,{yaw}",)
-        j = fault_jump(d, log, extra, tag)
+    gt = lb.read_poses(d / "drive.lcm", "GROUND_TRUTH")
+    start = (f"--initial-pose={gt[0, 1]},{gt[0, 2]},{gt[0, 3]},0,0,{gt[0, 4] * 180 / math.pi}",)
+    report = {"drives": results, "lidar_only": base, "faults": {}}
+    for label, fault, extra, tag in (
+            ("20 m jump, GNSS", fault_jump, (), "jump"),
+            ("20 m jump, no GNSS", fault_jump, ("--no-gnss",) + start, "jump_nognss"),
+            ("kidnapped 15 m, GNSS", fault_kidnap, (), "kidnap"),
+            ("kidnapped 15 m, IMU + CAN", fault_kidnap, ("--no-gnss",) + start, "kidnap_nognss"),
+            ("kidnapped 15 m, LiDAR alone", fault_kidnap, ("--no-gnss", "--no-imu", "--no-speed") + start, "kidnap_lidar")):
+        report["faults"][tag] = j = fault(d, log, extra, tag)
         if "error" in j:
             print(f"{label:<34} localizer failed: {j['error']}")
             continue
@@ -189,8 +208,9 @@ def main():
         rel = j.get("relocalized_after_s")
         print(f"{label:<34} lost after {fmt(lost, '{:.2f}')} s, tracking again after {fmt(rel, '{:.2f}')} s "
               f"(error then {fmt(j.get('error_at_relocalization_m'))} m); worst error while reporting tracking "
-              f"after the jump {fmt(j.get('max_tracking_error_after_jump_m'))} m")
-    print(f"{'':<34} (targets: lost within 1 s, relocalized within 5 s)")
+              f"after the fault {fmt(j.get('max_tracking_error_after_jump_m'))} m")
+    print(f"{'':<34} (targets: lost within 1 s, relocalized within 5 s; kidnapped: the car's data skips 1.5 s ahead "
+          f"at 22 s while tracking, every sensor healthy)")
     import subprocess
     flog = d / "fault_gnss_jump.lcm"
     subprocess.run([sys.executable, lb.ROOT / "tools/log-fault/log_fault.py", "gnss-jump", "--in", log, "--out", flog,
@@ -206,13 +226,10 @@ def main():
         print(f"{'GNSS-only start (from rest)':<34} tracking {r.get('first_tracking_s', float('nan')):.1f} s after the first "
               f"sweep (slowest start-up sweep {init_ms:.0f} ms wall, the yaw search); then median {fmt(r.get('t_median'))} m, "
               f"p99 {fmt(r.get('t_p99'))} m   (target: tracking within 3 s)")
-    gt = lb.read_poses(d / "drive.lcm", "GROUND_TRUTH")
-    x, y, z, yaw = gt[0, 1], gt[0, 2], gt[0, 3], gt[0, 4] * 180 / math.pi
-    r = run_case("initial-pose start", d, log, ["--no-gnss", f"--initial-pose={x},{y},{z},0,0,{yaw}"], tag="ip")
+    r = run_case("initial-pose start", d, log, ["--no-gnss", *start], tag="ip")
     if r:
         print(f"{'--initial-pose start, no GNSS':<34} tracking {r.get('first_tracking_s', float('nan')):.1f} s after the "
               f"first sweep; median {fmt(r.get('t_median'))} m, p99 {fmt(r.get('t_p99'))} m")
-    report = {"drives": results, "lidar_only": base, "faults": {}}
     report["faults"]["lidar_outage_30s"] = fault_outage(d, log)
     o = report["faults"]["lidar_outage_30s"]
     print(f"{'LiDAR outage 30 s (limit 10 s), IMU+CAN':<34} LOST {fmt(o.get('lost_after_last_scan_s'), '{:.2f}')} s after the "

@@ -2,17 +2,20 @@
 """A street of trees, the case where real LiDAR data is hard and the default site is not:
 for bench-localizer-trees.
 
-usage: tree_street.py [--out DIR] [--json OUT.json] [--depths 0,0.7] [--guesses 40] [--global 10]
+usage: tree_street.py [--out DIR] [--json OUT.json] [--streets solid,porous,bare] [--guesses 40] [--global 10]
 
 The default site without its buildings (trunks, canopies, poles, and parked cars that
 differ between the mapping day and the drive day), once with solid canopies and once with
 porous ones (simdrive --foliage-depth: a beam into a canopy stops at a random depth inside
-it or goes through, anew at every sweep, as real foliage does). For each: the map from the
-mapping lap at the true poses (as make builds the default map), a 40 s drive (seed 5), the
-localizer over the whole drive from the true start (LiDAR alone and with IMU + CAN), and
-the starts of bench-localizer-drive on it (bench_starts.py: a prior 3 m / 15 degrees off,
-LiDAR alone and fused, moving; no prior). Real MulRan keyframes, for scale: tracking 97.6 %
-within 0.2 m, starts 70 % from a prior and 50 % with none (docs/history/localizer-registration.md).
+it or goes through, anew at every sweep, as real foliage does); and a bare street, without
+its trees too (poles, parked cars that changed, traffic: much of what stands above the road
+is not in the map, and where the car stops little stands at all). For each: the map from
+the mapping lap at the true poses (as make builds the default map), a 40 s drive (seed 5),
+the localizer over the whole drive from the true start (LiDAR alone and with IMU + CAN),
+and the starts of bench-localizer-drive on it (bench_starts.py: a prior 3 m / 15 degrees
+off, LiDAR alone and fused, moving; no prior). Real MulRan keyframes, for scale: tracking
+97.6 % within 0.2 m, starts 70 % from a prior and 50 % with none
+(docs/history/localizer-registration.md).
 """
 import argparse
 import math
@@ -27,38 +30,41 @@ import bench_starts as bs  # noqa: E402
 import locbench as lb  # noqa: E402
 
 VEHICLE = lb.ROOT / "vehicles" / "prius2017.yaml"
+TREES = ("building",)                        # the street of trees: the site without these classes
+BARE = ("building", "trunk", "foliage")      # the bare street
+STREETS = {"solid": (0.0, TREES), "porous": (0.7, TREES), "bare": (0.0, BARE)}   # foliage depth, classes left out
 
 
-def street_site_files(site):
-    """SITE: the default site's files (site.yaml, route.yaml, world.yaml) without its
-    buildings: trunks, canopies, poles, parked cars and traffic stay (bench-mapper's trees
-    drive uses it too)."""
+def street_site_files(site, drop=TREES):
+    """SITE: the default site's files (site.yaml, route.yaml, world.yaml) without the objects
+    of the classes in drop; by default its buildings: trunks, canopies, poles, parked cars
+    and traffic stay (bench-mapper's trees drive uses it too)."""
     site.mkdir(parents=True, exist_ok=True)
     for name in ("site.yaml", "route.yaml"):
         shutil.copy(lb.ROOT / "maps" / "default" / name, site / name)
     with open(lb.ROOT / "maps" / "default" / "world.yaml") as src, open(site / "world.yaml", "w") as dst:
-        dst.writelines(line for line in src if "class: building" not in line)
+        dst.writelines(line for line in src if not any(f"class: {c}" in line for c in drop))
 
 
-def street_map(site, map_pcd, depth, work):
+def street_map(site, map_pcd, depth, work, drop=TREES):
     """SITE: street_site_files; MAP_PCD: its map from a mapping lap with this foliage at the
-    true poses, as make builds the default map (also tests/test_localizer.py's tree street)."""
-    street_site_files(site)
+    true poses, as make builds the default map (also tests/test_localizer.py's streets)."""
+    street_site_files(site, drop)
     lb.sh([lb.BIN / "simdrive", "--mapping", "--quiet", "--site", site, "--foliage-depth", depth, "--out", work])
     lb.sh([lb.BIN / "build-map", "--log", work / "drive.lcm", "--pose-channel", "GROUND_TRUTH",
            "--vehicle", VEHICLE, "--voxel", "0.15", "--quiet", "--out", map_pcd])
     shutil.rmtree(work)
 
 
-def make_site(out, depth):
-    """The street of trees as a site folder: map, ground model and tiles."""
+def make_site(out, depth, drop=TREES):
+    """The street as a site folder: map, ground model and tiles."""
     site = out / "site"
     tiles, tool = site / "map.tiles", lb.BIN / "map-tiles"
     if tiles.exists():
         if tiles.stat().st_mtime < tool.stat().st_mtime:    # a tile format this build may not read
             lb.sh([tool, "--map", site / "map.pcd", "--out", tiles, "--quiet"])
         return site
-    street_map(site, site / "map.pcd", depth, out / "mapping")
+    street_map(site, site / "map.pcd", depth, out / "mapping", drop)
     lb.sh([lb.BIN / "build-ground", "--map", site / "map.pcd", "--out", site / "ground.yaml", "--quiet"])
     lb.sh([tool, "--map", site / "map.pcd", "--out", tiles, "--quiet"])
     return site
@@ -95,16 +101,20 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", default=str(lb.ROOT / "build" / "bench" / "localizer-trees"))
     ap.add_argument("--json", default=str(lb.ROOT / "build" / "bench" / "localizer-trees.json"))
-    ap.add_argument("--depths", default="0,0.7", help="foliage depths (m) to run; 0 = solid canopies")
+    ap.add_argument("--streets", default="solid,porous,bare", help="streets to run (%(default)s)")
     ap.add_argument("--guesses", type=int, default=40)
     ap.add_argument("--global", dest="n_global", type=int, default=10)
     a = ap.parse_args()
     result = []
-    for depth in (float(v) for v in a.depths.split(",")):
-        name = "solid" if depth == 0 else f"porous {depth:g} m"
-        out = pathlib.Path(a.out) / ("solid" if depth == 0 else f"porous{depth:g}")
-        print(f"== street of trees, canopies {name}: site, map and drive in {out}", flush=True)
-        site = make_site(out, depth)
+    for street in a.streets.split(","):
+        if street not in STREETS:
+            sys.exit(f"tree_street.py: --streets: unknown street {street!r} (one of {', '.join(STREETS)})")
+        depth, drop = STREETS[street]
+        name = {"solid": "street of trees, solid canopies", "porous": f"street of trees, porous canopies {depth:g} m",
+                "bare": "bare street (no buildings, no trees)"}[street]
+        out = pathlib.Path(a.out) / ("porous0.7" if street == "porous" else street)
+        print(f"== {name}: site, map and drive in {out}", flush=True)
+        site = make_site(out, depth, drop)
         drive = out / "drive5"
         # with VEHICLE_SPEED decoded from its CAN frames, as on the car
         log = lb.make_drive(drive, 5, "normal", 40, extra=["--foliage-depth", depth], site=site)
@@ -112,8 +122,8 @@ def main():
         tracking = track_whole_drive(drive, log, site, gt)
         starts = bs.run_starts([(drive, log)], site, n_guesses=a.guesses, n_frames=10, n_gnss=0,
                                n_global=a.n_global, seconds=6.0, jobs=2)
-        result.append({"canopies": name, "foliage_depth_m": depth, "tracking": tracking,
-                       "starts": [s for s in starts if s["starts"] > 0]})
+        result.append({"street": street, "canopies": name, "foliage_depth_m": depth, "left_out": list(drop),
+                       "tracking": tracking, "starts": [s for s in starts if s["starts"] > 0]})
     bs.write_json(pathlib.Path(a.json), result)
     print(f"written {a.json}")
 

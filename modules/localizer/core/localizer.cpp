@@ -703,7 +703,10 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
             event(out, "match_inconsistent", "%s", whybuf);
         } else {
             double si = structure_inliers(L, res.pose);
-            bool fits = structure_fits(L, res.pose, si, out);
+            /* a place from the global search is verified only by sweeps whose structure can
+             * be judged: the ground alone fits anywhere */
+            bool unjudged = L->candidate && L->cand_global && !std::isfinite(si);
+            bool fits = !unjudged && structure_fits(L, res.pose, si, out);
             /* a place from the global search is verified by sweeps that fit where its
              * motion puts them: searched for around there, a street whose trees repeat
              * fits at a wrong place too (seen 192 m off on the porous street). Only
@@ -719,7 +722,10 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
                 event(out, "match_researched", "match off the map's structure: found again around the prediction");
             }
             d.structure_inliers = si;
-            if (!fits) {
+            if (unjudged && !fits) {
+                why = "too little structure above the ground to verify a place found without a prior";
+                event(out, "match_structure_unjudged", "%s", why);
+            } else if (!fits) {
                 snprintf(whybuf, sizeof whybuf, "only %.0f%% of the structure above the ground fits the map (need %.0f%%)",
                          100 * si, 100 * L->cfg.min_structure_inliers);
                 why = whybuf;

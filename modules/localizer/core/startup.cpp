@@ -224,6 +224,14 @@ bool global_search(localizer_t *L, double searching_s, pb_reg_result_t *res, out
               "this sweep; still searching", seeds.size());
         return false;
     }
+    /* the ground fits almost anywhere: a sweep with too little above it to judge the structure
+     * (the car in an open place) cannot tell places apart (a street without buildings or
+     * trees: the car stopped, a place 540 m off was taken on the ground alone) */
+    if (!std::isfinite(structure_inliers(L, res->pose))) {
+        event(out, "global_no_structure", "global search: too little structure above the ground to tell places "
+              "apart; still searching");
+        return false;
+    }
     /* a road whose sides repeat (rows of trees, fences) fits the sweep along itself too,
      * and the place descriptor may not have proposed the true spot: probe the place's own
      * axis as rivals (MulRan: a place 24 m along the road from the truth was taken) */
