@@ -32,7 +32,10 @@ import locbench as lb  # noqa: E402
 VEHICLE = lb.ROOT / "vehicles" / "prius2017.yaml"
 TREES = ("building",)                        # the street of trees: the site without these classes
 BARE = ("building", "trunk", "foliage")      # the bare street
-STREETS = {"solid": (0.0, TREES), "porous": (0.7, TREES), "bare": (0.0, BARE)}   # foliage depth, classes left out
+# name: (foliage depth m, classes left out, title, folder under --out)
+STREETS = {"solid": (0.0, TREES, "street of trees, solid canopies", "solid"),
+           "porous": (0.7, TREES, "street of trees, porous canopies 0.7 m", "porous0.7"),
+           "bare": (0.0, BARE, "bare street (no buildings, no trees)", "bare")}
 
 
 def street_site_files(site, drop=TREES):
@@ -109,10 +112,8 @@ def main():
     for street in a.streets.split(","):
         if street not in STREETS:
             sys.exit(f"tree_street.py: --streets: unknown street {street!r} (one of {', '.join(STREETS)})")
-        depth, drop = STREETS[street]
-        name = {"solid": "street of trees, solid canopies", "porous": f"street of trees, porous canopies {depth:g} m",
-                "bare": "bare street (no buildings, no trees)"}[street]
-        out = pathlib.Path(a.out) / ("porous0.7" if street == "porous" else street)
+        depth, drop, name, folder = STREETS[street]
+        out = pathlib.Path(a.out) / folder
         print(f"== {name}: site, map and drive in {out}", flush=True)
         site = make_site(out, depth, drop)
         drive = out / "drive5"
