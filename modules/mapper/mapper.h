@@ -75,6 +75,7 @@ struct Run {
     long total = 0, empty = 0, out_of_order = 0;
     int sweep_cols = 0;         /* the first sweep's columns (a range image's width; 0: not one) */
     pb_odom_config_t odom_cfg;  /* the odometry's, its cell from sweep_cols */
+    pb_reg_config_t reg;        /* its registration's and the loops': seen from the vehicle's LiDAR */
     std::vector<SweepPose> traj;
     std::vector<pb_keyframe_t> kf;
     pb_loops_report_t loops = {};

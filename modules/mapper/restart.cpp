@@ -223,7 +223,7 @@ int checkpoint_read(Run *R, pb_err_t *err)
     if (why.empty() && !read_keyframes(kf_path, nkf, R->kf_bytes, false, &R->kf))
         why = "keyframes.bin does not hold the keyframes the checkpoint says";
     pb_err_t e;
-    if (why.empty() && !done && !(R->odom = pb_odom_restore(state.data(), state.size(), &R->odom_cfg, nullptr, &e))) why = e.msg;
+    if (why.empty() && !done && !(R->odom = pb_odom_restore(state.data(), state.size(), &R->odom_cfg, &R->reg, &e))) why = e.msg;
     if (!why.empty()) {
         R->checkpoint_refused = why;
         R->traj.clear(); R->kf.clear();

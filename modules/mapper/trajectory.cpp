@@ -182,7 +182,7 @@ int pass_odometry(Run *R, pb_err_t *err)
     R->kf_file = std::fopen(kf_path.c_str(), R->resumed_from ? "ab" : "wb");
     if (!R->kf_file) return pb_err_set(err, "%s: cannot write: %s", kf_path.c_str(), std::strerror(errno)), -1;
     if (R->odometry_done) return 0;
-    pb_odom_t *odom = R->odom ? R->odom : pb_odom_create(&R->odom_cfg, nullptr);
+    pb_odom_t *odom = R->odom ? R->odom : pb_odom_create(&R->odom_cfg, &R->reg);
     R->odom = nullptr;
     pb_reg_config_t kf_reduce;
     pb_reg_config_default(&kf_reduce);
@@ -268,7 +268,9 @@ int close_loops(Run *R, pb_err_t *err)
         &files};
     std::vector<Eigen::Isometry3d> solved;
     if (kf.size() >= 2) {
-        if (pb_loops_close(kf, nullptr, &solved, &R->loops, err, &points) != 0) return -1;
+        pb_loops_config_t lcfg;
+        lcfg.reg = R->reg;
+        if (pb_loops_close(kf, &lcfg, &solved, &R->loops, err, &points) != 0) return -1;
         size_t at = 0;
         for (Run *D : R->drives) {
             const size_t nk = D->kf.size();

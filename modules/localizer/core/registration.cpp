@@ -77,6 +77,8 @@ struct Params {
     int max_iterations;
     double max_corr, min_corr, kernel, eps_m, eps_rad, inlier;
     bool rough_targets;
+    double line_along_view;
+    Eigen::Vector3d view;   /* the LiDAR's origin in base: where a point was seen from */
 };
 
 struct Accum {
@@ -202,9 +204,11 @@ inline void add_rough(const Rough &r, const Eigen::Vector3d &q, const Eigen::Vec
  * cell residual is within gate, with Geman-McClure weights of scale kernel.
  * cache: the points' targets from an earlier pass over the same points (NULL: none). */
 void linearise(const Level &lv, const float *pts, size_t n, const Eigen::Isometry3d &T, double gate,
-               double kernel, double inlier, bool rough_targets, Accum *acc,
+               double kernel, const Params &pa, Accum *acc,
                std::vector<float> *abs_residuals, Upright *up = nullptr, NearCache *cache = nullptr)
 {
+    const double inlier = pa.inlier;
+    const bool rough_targets = pa.rough_targets;
     if (cache) cache->prepare(lv, n);
     if (up) up->points = up->inliers = 0;
     acc->g.setZero();
@@ -212,6 +216,7 @@ void linearise(const Level &lv, const float *pts, size_t n, const Eigen::Isometr
     acc->matched = acc->inliers = 0;
     const Eigen::Matrix3d R = T.linear();
     const Eigen::Vector3d t = T.translation();
+    const Eigen::Vector3d view = R * pa.view;
     const double k2 = kernel * kernel, gate2 = gate * gate;
     double h[6][6] = {};
     for (size_t i = 0; i < n; i++) {
@@ -251,6 +256,26 @@ void linearise(const Level &lv, const float *pts, size_t n, const Eigen::Isometr
         }
         double e2 = r1 * r1 + r2 * r2;
         if (e2 > gate2) continue;
+        const bool two = c->kind == CELL_LINE;   /* a line: two residuals, across it */
+        if (two && pa.line_along_view != 1.0) {
+            /* A pole's or trunk's returns lie on the arc that faces the sensor, and the
+             * line target passes through the centroid of the arcs the map saw: along the
+             * view the offset is partly the arcs', not the pose's (a map seen from behind
+             * shortens a path: a Sim(3) scale of 1.0006 on a street of poles). Across the
+             * view it is unbiased: the line's residuals turn to across and along the view,
+             * the one along weighs less, and the one across alone judges the point (its
+             * robust weight, inlier or not): an arc's offset is no outlier. */
+            const Eigen::Vector3d axis = u1.cross(u2), across = axis.cross(s - view);
+            const double len = across.norm();
+            if (len > 1e-9) {
+                const Eigen::Vector3d d(q(0) - c->mean[0], q(1) - c->mean[1], q(2) - c->mean[2]);
+                u1 = across / len;
+                u2 = pa.line_along_view * axis.cross(u1);
+                r1 = u1.dot(d);
+                r2 = u2.dot(d);
+                e2 = r1 * r1;
+            }
+        }
         acc->matched++;
         acc->ss += e2;
         if (e2 < inlier * inlier) acc->inliers++;
@@ -265,7 +290,7 @@ void linearise(const Level &lv, const float *pts, size_t n, const Eigen::Isometr
         j.tail<3>() = s.cross(u1);
         rank_update(h, j, w);
         acc->g.noalias() += (w * r1) * j;
-        if (c->kind == CELL_LINE) {
+        if (two) {
             j.head<3>() = u2;
             j.tail<3>() = s.cross(u2);
             rank_update(h, j, w);
@@ -317,7 +342,7 @@ int gauss_newton(const Level &lv, const float *pts, size_t n, const Params &pa, 
         it++;
         /* the kernel widens with the gate so that far-off starts still pull */
         double kernel = std::max(pa.kernel, gate / 3.0);
-        linearise(lv, pts, n, *T, gate, kernel, pa.inlier, pa.rough_targets, &acc, nullptr, nullptr, cache);
+        linearise(lv, pts, n, *T, gate, kernel, pa, &acc, nullptr, nullptr, cache);
         if (acc.matched < 30) break;
         Eigen::Matrix<double, 6, 6> H = acc.H;
         Eigen::Matrix<double, 6, 1> g = acc.g;
@@ -372,7 +397,7 @@ void fill_result(const Level &lv, const float *pts, size_t n, const Eigen::Isome
     absr.reserve(n);
     Accum acc;
     Upright up;
-    linearise(lv, pts, n, T, pa.min_corr, pa.kernel, pa.inlier, pa.rough_targets, &acc, &absr, &up, cache);
+    linearise(lv, pts, n, T, pa.min_corr, pa.kernel, pa, &acc, &absr, &up, cache);
     res->points_used = (int)n;
     res->points_matched = acc.matched;
     res->overlap = n ? (double)acc.matched / (double)n : 0;
@@ -418,6 +443,8 @@ Params params_of(const pb_reg_config_t *cfg)
     pa.eps_rad = cfg->step_eps_rad;
     pa.inlier = cfg->inlier_m;
     pa.rough_targets = cfg->rough_targets != 0;
+    pa.line_along_view = cfg->line_along_view;
+    pa.view = Eigen::Vector3d(cfg->view_xyz[0], cfg->view_xyz[1], cfg->view_xyz[2]);
     return pa;
 }
 
@@ -503,8 +530,8 @@ bool second_wins(const Level &lv, const float *pts, size_t m, const Params &pa, 
                  NearCache *cache, NearCache *cache2)
 {
     Accum a1, a2;
-    linearise(lv, pts, m, T, pa.min_corr, pa.kernel, pa.inlier, pa.rough_targets, &a1, nullptr, nullptr, cache);
-    linearise(lv, pts, m, T2, pa.min_corr, pa.kernel, pa.inlier, pa.rough_targets, &a2, nullptr, nullptr, cache2);
+    linearise(lv, pts, m, T, pa.min_corr, pa.kernel, pa, &a1, nullptr, nullptr, cache);
+    linearise(lv, pts, m, T2, pa.min_corr, pa.kernel, pa, &a2, nullptr, nullptr, cache2);
     double d2 = (guess.inverse() * T2).translation().norm();
     bool far_unlikely = prior_sigma_m > 0 && std::max(d1, d2) > 3 * prior_sigma_m;
     double margin = far_unlikely ? 3.0 * std::sqrt((double)(d2 < d1 ? a2 : a1).inliers) : 0.0;

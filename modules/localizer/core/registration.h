@@ -70,6 +70,16 @@ typedef struct {
     double same_minimum_m = 0.02; /* pb_reg_align_global: a candidate whose refinement comes within this ... */
     double same_minimum_rad = 1.7453292519943296e-3;   /* ... and this (0.1 degree) of the best minimum so
                                    * far stops there, as that minimum again; 0 = each refined to its end */
+    double line_along_view = 1.0; /* the weight of the part of a point's distance to a line (a pole, a
+                                   * trunk) that lies along its view from view_xyz; across the view it
+                                   * weighs 1. A sweep sees the arc of a pole that faces it: along the
+                                   * view the distance is partly the arcs' offset, not the pose's. 1 for
+                                   * a site's map, seen from all along the road (the offsets mostly
+                                   * cancel, and that part is much of what fixes the pose along a street
+                                   * of trunks); the mapper's local map saw each pole from the sweeps
+                                   * behind only: 0.3 there (docs/history/mapper.md, "Poles seen from
+                                   * one side") */
+    double view_xyz[3] = {};      /* the LiDAR's origin in base (the vehicle file's sensors.lidar.xyz) */
 } pb_reg_config_t;
 
 void pb_reg_config_default(pb_reg_config_t *cfg);

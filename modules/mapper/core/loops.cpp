@@ -142,8 +142,7 @@ static std::vector<float> submap(Points &P, const std::vector<pb_keyframe_t> &kf
 static bool match(const std::vector<float> &sub, const std::vector<float> &pts, const Eigen::Isometry3d &seed,
                   double radius_m, const pb_loops_config_t &cfg, Eigen::Isometry3d *pose)
 {
-    pb_reg_config_t rcfg;
-    pb_reg_config_default(&rcfg);
+    pb_reg_config_t rcfg = cfg.reg;
     pb_err_t e;
     pb_regmap_t *m = pb_regmap_from_points(sub.data(), sub.size() / 3, nullptr, &e);
     if (!m) return false;

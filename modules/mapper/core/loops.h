@@ -65,6 +65,7 @@
 #include <vector>
 #include <Eigen/Geometry>
 #include "pb_err.h"
+#include "registration.h"
 
 /* The defaults stand beside each field (a value-initialised struct holds them). */
 typedef struct {
@@ -92,6 +93,7 @@ typedef struct {
     double loop_sigma_m = 0.05;      /* loop edge */
     double loop_sigma_deg = 0.1;
     double loop_reject_m = 0.3;      /* a loop edge this far off the solved poses is dropped */
+    pb_reg_config_t reg;             /* a match's registration (its view_xyz: the vehicle's LiDAR) */
 } pb_loops_config_t;
 
 typedef struct {
