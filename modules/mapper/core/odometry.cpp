@@ -399,7 +399,17 @@ int pb_odom_add(pb_odom_t *o, int64_t utime, const float *xyz, const int32_t *of
         pb_reg_config_t tcfg = o->reg;
         tcfg.prior_sigma_m = !predicted ? 0 : sparse ? o->cfg.sparse_prior_sigma_mps * dt : o->cfg.prior_sigma_m;
         pb_reg_result_t m;
-        int rc = predicted ? pb_reg_align(o->regmap, pts.data(), n, pred, &tcfg, &m, err) : PB_REG_FEW_POINTS;
+        //    (measured motion over one sweep is a prior of the match: where the sweep hardly
+        //    fixes a direction, the dead reckoning does)
+        int rc = PB_REG_FEW_POINTS;
+        if (measured && !sparse) {
+            const double sm = o->cfg.measured_sigma_m, sr = o->cfg.measured_sigma_deg * M_PI / 180;
+            Eigen::Matrix<double, 6, 1> var;
+            var << sm * sm, sm * sm, sm * sm, sr * sr, sr * sr, sr * sr;
+            rc = pb_reg_align_prior(o->regmap, pts.data(), n, pred, var.asDiagonal().toDenseMatrix(), &tcfg, &m, err);
+        } else if (predicted) {
+            rc = pb_reg_align(o->regmap, pts.data(), n, pred, &tcfg, &m, err);
+        }
         if (rc < 0) return -1;
         r.status = PB_ODOM_TRACKED;
         if (rc == PB_REG_FEW_POINTS) {

@@ -50,6 +50,11 @@ typedef struct {
     double search_radius_m = 10;     /* that search: within this of the prediction ... */
     double search_yaw_deg = 30;      /* ... and this of its yaw */
     double prior_sigma_m = 0.5;      /* spread of the constant-velocity prediction (registration.h) */
+    double measured_sigma_m = 0.2;   /* with speed and rate measured, the dead reckoning over a sweep is the
+                                      * match's prior, of this spread ... */
+    double measured_sigma_deg = 0.5; /* ... and this: a street of porous crowns hardly fixes its length, and
+                                      * a match there stalled 0.8 m in a sweep at 10 m/s against CAN's
+                                      * speed (docs/history/mapper.md, "The measured motion as a prior") */
     double sparse_gap_s = 0.3;       /* sweeps further apart than this are sparse (a dataset's keyframes,
                                       * a LiDAR that drops sweeps): the registration map is rebuilt with
                                       * each at once, not on another thread a few sweeps later (it would
