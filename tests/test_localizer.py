@@ -819,6 +819,34 @@ def test_global_search_takes_no_place_on_the_ground_alone(bare_street, tmp_path,
     assert c.get("global_no_structure", 0) + c.get("match_structure_unjudged", 0) >= 1, c   # the case arose
 
 
+@pytest.mark.parametrize("fused", [False, True])
+def test_parked_cars_that_changed_on_a_bare_street_do_not_make_a_right_pose_lost(bare_street, tmp_path, fused):
+    """The bare street's corner 5-7 s in, where the drive day's parked cars are most of what
+    stands: at the right pose the structure fits 10-27 %, 1-2 m away 6-19 % (no sharp peak),
+    and ten such sweeps in a row made a car tracked to 5 cm LOST. No place within 20 m fits
+    better: the scene changed, not the pose, which is held (DEGRADED). From the true start;
+    test_kidnapped_car_is_reported_lost_and_relocalized keeps a wrong pose from being held."""
+    t = bare_street
+    g = t["gt"][0]
+    out = tmp_path / "o.lcm"
+    extra = () if fused else ("--no-imu", "--no-speed")
+    localize(t, t["log"], out, "--no-gnss", *extra, "--initial-pose=%f,%f,%f,0,0,%f" % (*g[1:4], math.degrees(g[4])),
+             site=t["site"])
+    poses = lb.read_poses(out, "POSE")
+    k = first_tracking(poses)
+    assert k is not None and k <= 2, poses[:5, 5]
+    # without the hold: LOST on 12-13 POSE of this corner (docs/history/localizer.md)
+    assert not np.any(poses[k:, 5] == 3), np.nonzero(poses[k:, 5] == 3)
+    c = counters(last_status_msg(out))
+    assert c.get("match_structure_held", 0) >= 1, c       # the case arose
+    _, et, ey = lb.errors_vs_truth(poses[k:], t["gt"])
+    # measured (7 Dec), whole drive from the first tracking POSE: LiDAR alone p99 0.129 m, yaw
+    # p99 0.87 degrees (the ten rejected sweeps before the hold, dead-reckoned through the
+    # corner's turn: up to 1.28 degrees, DEGRADED); IMU + CAN p99 0.102 m, yaw p99 0.066 degrees
+    bt, by = (0.3, 0.2) if fused else (0.39, 2.6)
+    assert np.percentile(et, 99) < bt and np.percentile(ey, 99) < by, (np.percentile(et, 99), np.percentile(ey, 99))
+
+
 @pytest.fixture(scope="module")
 def porous_map(tmp_path_factory):
     """The street of trees with porous canopies (a beam stops at a random depth inside a

@@ -125,6 +125,7 @@ static void rebase_clock(localizer_t *L, int64_t step, outputs_t *out, const cha
     back(L->newest_t); back(L->last_imu_t); back(L->last_speed_t); back(L->last_scan_t);
     back(L->last_pose_out_t); back(L->last_pred_out_t); back(L->pend_utime); back(L->pend_t_ref);
     back(L->cand_t); back(L->hint_t); back(L->last_match_t); back(L->prev_pose_t); back(L->last_structure_t);
+    back(L->verified_t); back(L->held_t);
     L->gnss_res.clear();
     pb_clock_offset_forget(&L->gnss_clock);
     L->has_fix = false;
@@ -452,6 +453,44 @@ static void deskew_points(localizer_t *L, int64_t utime, const pb_points_t *pts,
 
 /* Start-up or relocalisation on this sweep: returns true with kf reset at a candidate. */
 
+/* A run of sweeps whose matches agree with the motion but fit too little of the map's
+ * structure: a wrong pose, or a scene that changed since the map (parked cars that came or
+ * went where little else stands: the right pose fits 10-27 %, its neighbours 6-19 %). A
+ * wrong pose has a place near it that fits better (a pose slid along the road, a kidnap);
+ * a changed scene does not. Searched when the run would make the pose LOST, and again every
+ * hold_recheck_us while it lasts; never held longer than lidar_lost_us after the last
+ * verified sweep. True: the pose is held (its matches update the filter). */
+static bool scene_changed(localizer_t *L, const Eigen::Isometry3d &pose, double si, int64_t t, outputs_t *out)
+{
+    if (L->verified_t == 0 || t - L->verified_t > L->cfg.lidar_lost_us) return false;
+    if (L->held_t != 0 && t - L->held_t < L->cfg.hold_recheck_us) {
+        event(out, "match_structure_held");
+        return true;
+    }
+    if (L->held_t == 0 && (L->reject_count + 1 < L->cfg.rejects_to_lost || L->structure_run + 1 < L->cfg.rejects_to_lost))
+        return false;
+    pb_reg_result_t r;
+    double fit;
+    const double radius = L->cfg.hold_search_m;
+    bool found = search_seeds(L, { pose }, radius, L->cfg.hold_search_yaw_deg * M_PI / 180, false, &r, &fit, nullptr);
+    double away = found ? (r.pose.translation() - pose.translation()).head<2>().norm() : 0;
+    if (found && (fit >= L->cfg.min_structure_inliers ||
+                  (fit >= L->cfg.structure_peak_floor && fit >= L->cfg.structure_peak_ratio * si))) {
+        event(out, "match_structure_elsewhere", "%.0f%% of the structure fits %.1f m from the pose, %.0f%% at it: the pose "
+              "is wrong", 100 * fit, away, 100 * si);
+        L->held_t = 0;
+        return false;
+    }
+    L->held_t = t;
+    char why[300];
+    snprintf(why, sizeof why, "only %.0f%% of the structure above the ground fits the map, and no place within %.0f m fits "
+             "better (best %.0f%%): the scene changed since the map, the pose is held", 100 * si, radius,
+             100 * std::max(fit, 0.0));
+    event(out, "match_structure_held", "%s", why);
+    if (L->status == ST_TRACKING) set_status(L, ST_DEGRADED, out, why);
+    return true;
+}
+
 static void update_lidar_only_motion(localizer_t *L, int64_t t)
 {
     /* the forward speed between successive accepted matches: the direction of travel that
@@ -652,7 +691,8 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
             rc = pb_reg_align(L->map, L->xyz.data(), L->xyz.size() / 3, guess, &reg, &res, &err);
     }
     bool accept = false;
-    double structure_miss = NAN;   /* the structure fit of a match that failed only that test */
+    double structure_miss = NAN;   /* the structure fit of a match that failed only that test ... */
+    Mat6 miss_cov = Mat6::Identity();   /* ... and that match's covariance */
     const char *why = nullptr;
     char whybuf[1200];
     if (rc < 0) {
@@ -730,6 +770,7 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
                          100 * si, 100 * L->cfg.min_structure_inliers);
                 why = whybuf;
                 structure_miss = si;
+                miss_cov = cov;
                 event(out, "match_structure_mismatch", "%s", whybuf);
             } else {
                 accept = true;
@@ -756,9 +797,21 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
     }
     L->kf = prior;
     while (!L->buf.empty() && L->buf.front().t <= t_ref) L->buf.pop_front();
-    if (accept) {
+    /* a tracked pose whose matches fit too little of the structure: held when no place
+     * near fits better (the scene changed, not the pose) */
+    bool held = std::isfinite(structure_miss) && !L->candidate &&
+                (L->status == ST_TRACKING || L->status == ST_DEGRADED) && scene_changed(L, res.pose, structure_miss, t_ref, out);
+    if (held) {
+        filter_update_pose(&L->kf, res.pose, miss_cov);
         update_lidar_only_motion(L, t_ref);
         L->reject_count = 0;
+        L->structure_run = 0;
+    } else if (accept) {
+        update_lidar_only_motion(L, t_ref);
+        L->reject_count = 0;
+        L->held_t = 0;
+        L->verified_t = t_ref;
+        L->structure_run = 0;
         if (L->candidate) {
             double dv = (filter_body_velocity(&L->kf) - swept).norm();
             double skew = dv * (t_ref - utime) * 1e-6 / 2;
@@ -774,6 +827,7 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
         }
     } else {
         ++L->reject_count;
+        L->structure_run = std::isfinite(structure_miss) ? L->structure_run + 1 : 0;
         if (L->candidate && structure_miss >= L->cfg.structure_peak_floor &&
             L->cand_holds < L->cfg.verify_scans - 1) {
             ++L->cand_holds;

@@ -114,7 +114,14 @@ struct localizer_config_t {
     double gate_min_m = 0.5;               /* ... but never reject a step smaller than this */
     double pose_sigma_floor_m = 0.01;      /* floor on the match covariance (sd, m) */
     double pose_sigma_floor_rad = 0.001;   /* (sd, rad) */
-    int rejects_to_lost = 10;              /* consecutive rejected sweeps -> LOST */
+    int rejects_to_lost = 10;              /* consecutive rejected sweeps -> LOST ... */
+    /* ... unless every one failed only the structure test and no place within hold_search_m
+     * and hold_search_yaw_deg fits better: the scene changed since the map (parked cars
+     * where little else stands), so the pose is held, DEGRADED, and searched around again
+     * every hold_recheck_us; at most lidar_lost_us after the last accepted sweep */
+    double hold_search_m = 20;
+    double hold_search_yaw_deg = 20;
+    int64_t hold_recheck_us = 1000000;
     int verify_scans = 3;                  /* consecutive accepted sweeps to leave INITIALIZING/LOST */
     /* ... each deskewed with a speed that its own match confirms: one whose speed was off
      * by dv moves its points by dv * sweep / 2 on average (up to dv * sweep), and its match

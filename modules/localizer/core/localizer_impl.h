@@ -62,6 +62,9 @@ struct localizer {
     int64_t cand_t = 0;
     int verify_count = 0, reject_count = 0;
     int cand_holds = 0;              /* structure misses the candidate was kept through */
+    int structure_run = 0;           /* consecutive rejected sweeps that failed only the structure test */
+    int64_t verified_t = 0;          /* sweep time of the last accepted match */
+    int64_t held_t = 0;              /* of the last search that found no better place (scene_changed), 0 = none */
     bool lidar_gap_reported = false;
 
     places_t *places = nullptr;     /* place descriptors of the map (given, or built at the first global search) */
