@@ -451,8 +451,6 @@ static void deskew_points(localizer_t *L, int64_t utime, const pb_points_t *pts,
 }
 
 
-/* Start-up or relocalisation on this sweep: returns true with kf reset at a candidate. */
-
 /* A run of sweeps whose matches agree with the motion but fit too little of the map's
  * structure: a wrong pose, or a scene that changed since the map (parked cars that came or
  * went where little else stands: the right pose fits 10-27 %, its neighbours 6-19 %). A
@@ -479,6 +477,7 @@ static bool scene_changed(localizer_t *L, const Eigen::Isometry3d &pose, double 
         event(out, "match_structure_elsewhere", "%.0f%% of the structure fits %.1f m from the pose, %.0f%% at it: the pose "
               "is wrong", 100 * fit, away, 100 * si);
         L->held_t = 0;
+        L->reject_count = std::max(L->reject_count, L->cfg.rejects_to_lost - 1);   /* LOST with this sweep */
         return false;
     }
     L->held_t = t;
@@ -490,6 +489,8 @@ static bool scene_changed(localizer_t *L, const Eigen::Isometry3d &pose, double 
     if (L->status == ST_TRACKING) set_status(L, ST_DEGRADED, out, why);
     return true;
 }
+
+/* Start-up or relocalisation on this sweep: returns true with kf reset at a candidate. */
 
 static void update_lidar_only_motion(localizer_t *L, int64_t t)
 {
