@@ -559,15 +559,16 @@ extern "C" int pb_map_builder_add_timed(pb_map_builder_t *b, const pb_points_t *
 
 extern "C" int pb_map_builder_place_timed(const pb_map_builder_t *b, const pb_points_t *pts, int64_t scan_utime,
                                           const pb_pose_track_t *track, const pb_transform_t *base_from_lidar,
-                                          double *xyz, int32_t *index)
+                                          double *xyz, int32_t *index, int64_t *beyond)
 {
+    int64_t far = 0;
+    if (beyond) *beyond = 0;
     if (pts->n == 0) return 0;
     if (!brackets(track, pts, scan_utime)) return -1;
     Rt bl;
     if (base_from_lidar) bl = from_transform(base_from_lidar);
     int n = 0;
-    int64_t beyond = 0;
-    place_each(b, pts, TimedTransform{track, pts, scan_utime, base_from_lidar ? &bl : nullptr}, &beyond,
+    place_each(b, pts, TimedTransform{track, pts, scan_utime, base_from_lidar ? &bl : nullptr}, beyond ? beyond : &far,
                [&](int i, const Eigen::Vector3d &p) {
                    xyz[3 * n] = p.x(); xyz[3 * n + 1] = p.y(); xyz[3 * n + 2] = p.z();
                    if (index) index[n] = i;
@@ -575,6 +576,25 @@ extern "C" int pb_map_builder_place_timed(const pb_map_builder_t *b, const pb_po
                    return 0;
                });
     return n;
+}
+
+extern "C" int pb_map_builder_add_placed(pb_map_builder_t *b, const pb_points_t *pts, const double *xyz,
+                                         const int32_t *index, int n, int64_t beyond, pb_err_t *err)
+{
+    /* as add_points: the same points in the same order, so the same voxels, sums and seq */
+    Batch batch(b);
+    try {
+        for (int k = 0; k < n; k++)
+            if (batch.push(Eigen::Vector3d(xyz[3 * k], xyz[3 * k + 1], xyz[3 * k + 2]),
+                           pts->intensity ? pts->intensity[index[k]] : 0.f) != 0)
+                return batch.fail(err);
+        if (batch.flush() != 0) return batch.fail(err);
+    } catch (const std::bad_alloc &) {
+        return pb_err_set(err, "out of memory after %lld map points", (long long)b->size());
+    }
+    b->points_beyond += beyond;
+    b->points_in += pts->n;
+    return 0;
 }
 
 extern "C" int pb_map_voxel_key(double voxel_m, double x, double y, double z, uint64_t *key)

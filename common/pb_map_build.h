@@ -70,11 +70,19 @@ int pb_map_builder_add_timed(pb_map_builder_t *b, const pb_points_t *pts, int64_
 
 /* The points of one scan placed as pb_map_builder_add_timed places them (each with its own
  * time's pose; no-return markers and points beyond the max range left out): their x y z in
- * map into xyz (room for 3 * pts->n), their index in pts into index (NULL: not wanted).
- * Returns how many, or -1 when the track does not bracket the scan (add_timed skips it). */
+ * map into xyz (room for 3 * pts->n), their index in pts into index (NULL: not wanted), the
+ * points beyond the max range into *beyond (NULL: not wanted). Returns how many, or -1 when
+ * the track does not bracket the scan (add_timed skips it). */
 int pb_map_builder_place_timed(const pb_map_builder_t *b, const pb_points_t *pts, int64_t scan_utime,
                                const pb_pose_track_t *track, const pb_transform_t *base_from_lidar,
-                               double *xyz, int32_t *index);
+                               double *xyz, int32_t *index, int64_t *beyond);
+
+/* pb_map_builder_add_timed's second half: adds the n points pb_map_builder_place_timed placed
+ * from pts (xyz, index, beyond as it gave them; index must be given), so that the next scan can
+ * be placed on another thread while one is added. The same map as add_timed, byte for byte.
+ * Returns 0, or -1 if a point falls outside the voxel key range. */
+int pb_map_builder_add_placed(pb_map_builder_t *b, const pb_points_t *pts, const double *xyz, const int32_t *index,
+                              int n, int64_t beyond, pb_err_t *err);
 /* The key of the voxel of edge voxel_m that holds (x, y, z), as a builder keys it (its
  * pb_map_voxel_t.key); 0, or -1 outside the key range. Its lowest corner: pb_map_voxel_corner. */
 int pb_map_voxel_key(double voxel_m, double x, double y, double z, uint64_t *key);

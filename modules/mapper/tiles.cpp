@@ -153,13 +153,67 @@ int pass_map(Run *R, pb_err_t *err)
     long sweep = 0;
     DriveClock clock;   /* pass 4's time */
     R->sweep_times.clear();
+    /* Two stages: a sweep placed on another thread (its own copy of the sweep) while the one
+     * before is added here; each sweep's tiles held, its points added, then the paging, in
+     * the sweeps' order as with one stage (the same map, byte for byte). */
+    pb_map_builder_t *placer = pb_map_builder_create(R->voxel, err);
+    if (!placer) return pb_map_builder_destroy(map), -1;
+    pb_map_builder_set_max_range(placer, range_m);
+    struct Placed {
+        std::vector<float> x, y, z, intensity;
+        std::vector<int32_t> offset_us, index;
+        std::vector<double> xyz;
+        pb_points_t pts = {};
+        int n = 0;
+        int64_t beyond = 0;
+        uint32_t stamp = 0;
+    } stage[2];
+    std::future<void> placing;
+    auto add = [&](long s, const Placed &P, pb_err_t *e) {   /* sweep s (1, 2, ...) into the map */
+        pb_map_builder_stamp(map, P.stamp);
+        if (P.n >= 0 && pb_map_builder_add_placed(map, &P.pts, P.xyz.data(), P.index.data(), P.n, P.beyond, e) != 0)
+            return -1;
+        (P.n >= 0 ? R->placed : R->unplaced)++;
+        // a point beyond the reach would have started a paged-out tile afresh
+        xy.resize(2 * (size_t)pb_map_builder_tiles(map, nullptr, 0));
+        pb_map_builder_tiles(map, xy.data(), (int)(xy.size() / 2));
+        for (size_t i = 0; i < xy.size(); i += 2)
+            if (!held.count(tile_key(xy[i], xy[i + 1])))
+                return pb_err_set(e, "internal: a point fell in map tile (%d, %d), beyond the sweep's reach", xy[i],
+                                  xy[i + 1]), -1;
+        R->tiles_held_max = std::max(R->tiles_held_max, (long)(xy.size() / 2));   /* those with points */
+        R->voxels_held_max = std::max(R->voxels_held_max, (int64_t)pb_map_builder_size(map));
+        // the tiles no sweep of the last 20 reached paged out
+        if (s % 10 == 0) {
+            std::vector<int64_t> old;
+            for (const auto &h : held)
+                if (h.second < s - 20) old.push_back(h.first);
+            std::sort(old.begin(), old.end());
+            for (int64_t k : old)
+                if (page_out(k, e) != 0) return -1;
+        }
+        return 0;
+    };
     int rc = for_each_drive_sweep(R, "mapper: map", 1,
         [&](Run *D, int64_t utime, const std::vector<float> &, const pb_points_t &pts, const pb_event_t &, pb_err_t *e) {
             sweep++;
             clock.next(D);
-            pb_map_builder_stamp(map, (uint32_t)R->sweep_times.size());
+            Placed &P = stage[sweep % 2];
+            P.stamp = (uint32_t)R->sweep_times.size();
             R->sweep_times.push_back(utime + clock.offset);
-            // the tiles it can reach held
+            const size_t n = (size_t)pts.n;
+            auto copy = [n](auto *from, auto *to) { if (from) to->assign(from, from + n); return from ? to->data() : nullptr; };
+            P.pts = {pts.n, pts.n, copy(pts.x, &P.x), copy(pts.y, &P.y), copy(pts.z, &P.z), copy(pts.intensity, &P.intensity),
+                     copy(pts.offset_us, &P.offset_us), nullptr};
+            P.xyz.resize(3 * n);
+            P.index.resize(n);
+            if (placing.valid()) placing.get();
+            placing = std::async(std::launch::async, [&P, D, utime, placer, R] {
+                P.n = pb_map_builder_place_timed(placer, &P.pts, utime, D->track, &R->veh.base_from_lidar, P.xyz.data(),
+                                                 P.index.data(), &P.beyond);
+            });
+            if (sweep > 1 && add(sweep - 1, stage[(sweep - 1) % 2], e) != 0) return -1;   /* the sweep before */
+            // the tiles this sweep can reach held
             int64_t lo[2], hi[2];
             if (sweep_reach(R, D->track, pts, utime, range_m, grid, lo, hi))
                 for (int64_t tx = lo[0]; tx <= hi[0]; tx++)
@@ -174,29 +228,11 @@ int pass_map(Run *R, pb_err_t *err)
                         out.erase(k);
                         R->tiles_paged_in++;
                     }
-            int r = pb_map_builder_add_timed(map, &pts, utime, D->track, &R->veh.base_from_lidar, e);
-            if (r < 0) return -1;
-            (r ? R->placed : R->unplaced)++;
-            // a point beyond the reach would have started a paged-out tile afresh
-            xy.resize(2 * (size_t)pb_map_builder_tiles(map, nullptr, 0));
-            pb_map_builder_tiles(map, xy.data(), (int)(xy.size() / 2));
-            for (size_t i = 0; i < xy.size(); i += 2)
-                if (!held.count(tile_key(xy[i], xy[i + 1])))
-                    return pb_err_set(e, "internal: a point fell in map tile (%d, %d), beyond the sweep's reach", xy[i],
-                                      xy[i + 1]), -1;
-            R->tiles_held_max = std::max(R->tiles_held_max, (long)(xy.size() / 2));   /* those with points */
-            R->voxels_held_max = std::max(R->voxels_held_max, (int64_t)pb_map_builder_size(map));
-            // the tiles no sweep of the last 20 reached paged out
-            if (sweep % 10 == 0) {
-                std::vector<int64_t> old;
-                for (const auto &h : held)
-                    if (h.second < sweep - 20) old.push_back(h.first);
-                std::sort(old.begin(), old.end());
-                for (int64_t k : old)
-                    if (page_out(k, e) != 0) return -1;
-            }
             return 0;
         }, err);
+    if (placing.valid()) placing.get();
+    if (rc == 0 && sweep > 0) rc = add(sweep, stage[sweep % 2], err);
+    pb_map_builder_destroy(placer);
     R->beyond_range = pb_map_builder_points_beyond(map);
     // every tile's finished points into the carving's tiles
     std::vector<int64_t> all(out.begin(), out.end());
@@ -447,7 +483,7 @@ static int pass_under(Run *R, const pb_ground_t *ground, pb_err_t *err)
             if (placing.valid()) placing.get();
             placing = std::async(std::launch::async, [&P, D, utime, placer, R] {
                 P.n = pb_map_builder_place_timed(placer, &P.pts, utime, D->track, &R->veh.base_from_lidar, P.xyz.data(),
-                                                 P.index.data());
+                                                 P.index.data(), nullptr);
             });
             if (sweeps++ > 0) under_sweep(stage[sweeps % 2]);   /* the sweep before */
             return 0;

@@ -16,6 +16,7 @@
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
+#include <cstring>
 #include <map>
 #include <vector>
 
@@ -392,7 +393,7 @@ int main()
         CHECK(pb_map_builder_add_timed(timed, &pts, 1000, track, &a, nullptr) == 1);
         std::vector<double> xyz(3 * 2000);
         std::vector<int32_t> index(2000);
-        const int n = pb_map_builder_place_timed(placed, &pts, 1000, track, &a, xyz.data(), index.data());
+        const int n = pb_map_builder_place_timed(placed, &pts, 1000, track, &a, xyz.data(), index.data(), nullptr);
         CHECK(n == 1998 && index[5] == 7);
         /* the placed points' voxels and counts are the timed builder's */
         std::map<uint64_t, uint32_t> from_placed, from_timed;
@@ -413,7 +414,46 @@ int main()
         pb_map_builder_destroy(tiled);
         CHECK(from_placed.size() > 100 && from_placed == from_timed);
         CHECK((int64_t)from_timed.size() == pb_map_builder_size(timed));
-        CHECK(pb_map_builder_place_timed(placed, &pts, 500000, track, &a, xyz.data(), nullptr) == -1);
+        /* add_placed after place_timed builds add_timed's map, byte for byte, counts and all */
+        {
+            pb_map_builder_t *one = pb_map_builder_create_tiled(kVoxel, 64, nullptr), *two = pb_map_builder_create_tiled(kVoxel, 64, nullptr);
+            pb_map_builder_set_max_range(one, 60);
+            pb_map_builder_set_max_range(two, 60);
+            int64_t beyond = -1;
+            for (int s = 0; s < 2; s++) {   /* twice: the second scan's points fall in voxels made by the first */
+                pb_map_builder_stamp(one, (uint32_t)s);
+                pb_map_builder_stamp(two, (uint32_t)s);
+                CHECK(pb_map_builder_add_timed(one, &pts, 1000 + s, track, &a, nullptr) == 1);
+                const int m = pb_map_builder_place_timed(two, &pts, 1000 + s, track, &a, xyz.data(), index.data(), &beyond);
+                CHECK(m == 1998 && beyond == 1);
+                CHECK(pb_map_builder_add_placed(two, &pts, xyz.data(), index.data(), m, beyond, nullptr) == 0);
+            }
+            CHECK(pb_map_builder_points_in(one) == pb_map_builder_points_in(two) && pb_map_builder_points_in(two) == 4000);
+            CHECK(pb_map_builder_points_beyond(one) == 2 && pb_map_builder_points_beyond(two) == 2);
+            std::vector<int32_t> t1(2 * (size_t)pb_map_builder_tiles(one, nullptr, 0)), t2(2 * (size_t)pb_map_builder_tiles(two, nullptr, 0));
+            pb_map_builder_tiles(one, t1.data(), (int)t1.size() / 2);
+            pb_map_builder_tiles(two, t2.data(), (int)t2.size() / 2);
+            std::map<std::pair<int32_t, int32_t>, std::vector<pb_map_voxel_t>> v1, v2;
+            for (int k = 0; k < 2; k++) {
+                pb_map_builder_t *b = k ? two : one;
+                const std::vector<int32_t> &t = k ? t2 : t1;
+                for (size_t i = 0; i < t.size(); i += 2) {
+                    std::vector<pb_map_voxel_t> &v = (k ? v2 : v1)[{t[i], t[i + 1]}];
+                    v.resize((size_t)pb_map_builder_tile_size(b, t[i], t[i + 1]));
+                    pb_map_builder_tile_take(b, t[i], t[i + 1], v.data());
+                }
+            }
+            bool same = v1.size() == v2.size() && v1.size() > 1;
+            for (const auto &kv : v1) {
+                const auto it = v2.find(kv.first);
+                same = same && it != v2.end() && it->second.size() == kv.second.size() &&
+                       std::memcmp(it->second.data(), kv.second.data(), kv.second.size() * sizeof(pb_map_voxel_t)) == 0;
+            }
+            CHECK(same);
+            pb_map_builder_destroy(one);
+            pb_map_builder_destroy(two);
+        }
+        CHECK(pb_map_builder_place_timed(placed, &pts, 500000, track, &a, xyz.data(), nullptr, nullptr) == -1);
         pb_map_builder_destroy(timed);
         pb_map_builder_destroy(placed);
         pb_pose_track_destroy(track);

@@ -18,6 +18,7 @@ struct KeyBits {
     std::vector<uint64_t> bits = std::vector<uint64_t>(1u << 14);   /* 2^20 bits, 128 KB */
     static uint32_t slot(uint64_t key) { return (uint32_t)((key * 0x9E3779B97F4A7C15ull) >> 44); }
     void add(uint64_t key) { bits[slot(key) >> 6] |= 1ull << (slot(key) & 63); }
+    void clear(uint64_t key) { bits[slot(key) >> 6] &= ~(1ull << (slot(key) & 63)); }
     bool may_hold(uint64_t key) const { return bits[slot(key) >> 6] >> (slot(key) & 63) & 1; }
 };
 
@@ -34,7 +35,7 @@ struct pb_under {
     const pb_ground_t *ground;
     /* carved voxels in the body band, and the first and last time a sweep hit them */
     std::unordered_map<uint64_t, std::pair<int64_t, int64_t>> seen;
-    KeyBits watch_bits, around_bits;      /* filters in front of watch and around */
+    KeyBits watch_bits, around_bits, body_bits, taken_bits;   /* filters in front of watch, around, body and taken */
     bool settled = false;                 /* body and watch made from seen (at the first sweep) */
     std::unordered_set<uint64_t> body;    /* carved voxels that are bodies */
     std::unordered_set<uint64_t> watch;   /* where a body stood: its columns and their 8 neighbours */
@@ -44,6 +45,8 @@ struct pb_under {
     /* one sweep's: the returns in watched columns, the columns a body marked */
     std::vector<size_t> near;
     std::unordered_set<uint64_t> marked;
+    std::unordered_set<uint64_t> under;   /* the columns within reach of a marked one ... */
+    KeyBits under_bits;                   /* ... and their filter (cleared key by key) */
     struct Beam { int32_t column; float elevation, range; size_t k; };   /* a near return's beam */
     std::vector<Beam> beams;
     std::vector<uint8_t> done;   /* per near return: judged by step 2 */
@@ -96,6 +99,7 @@ static void settle(pb_under_t *u)
     for (const auto &kv : u->seen) {
         if (kv.second.first > kv.second.second || kv.second.second - kv.second.first > span_us) continue;
         u->body.insert(kv.first);
+        u->body_bits.add(kv.first);
         double c[3];
         pb_map_voxel_corner(u->voxel_m, kv.first, c);
         const int64_t cx = u->col(c[0] + u->voxel_m / 2), cy = u->col(c[1] + u->voxel_m / 2);
@@ -132,9 +136,19 @@ void pb_under_sweep(pb_under_t *u, const double *xyz, size_t n, const pb_points_
         if (!u->watch_bits.may_hold(c) || !u->watch.count(c)) continue;
         u->near.push_back(i);
         uint64_t key;
-        if (pb_map_voxel_key(u->voxel_m, p[0], p[1], p[2], &key) == 0 && u->body.count(key)) u->marked.insert(c);
+        if (pb_map_voxel_key(u->voxel_m, p[0], p[1], p[2], &key) == 0 && u->body_bits.may_hold(key) && u->body.count(key))
+            u->marked.insert(c);
     }
     if (u->marked.empty()) return;
+    /* the columns within reach of a marked one: one look-up a return, not one per column in reach */
+    for (uint64_t c : u->under) u->under_bits.clear(c);
+    u->under.clear();
+    for (uint64_t c : u->marked)
+        for (int dx = -u->reach; dx <= u->reach; dx++)
+            for (int dy = -u->reach; dy <= u->reach; dy++) {
+                const uint64_t k = pb_under::column_moved(c, dx, dy);
+                if (u->under.insert(k).second) u->under_bits.add(k);
+            }
     // 2. of those, the low ones within reach of a marked column taken out of their voxels
     std::vector<uint8_t> &done = u->done;
     done.assign(u->near.size(), 0);
@@ -143,11 +157,12 @@ void pb_under_sweep(pb_under_t *u, const double *xyz, size_t n, const pb_points_
         double h;
         uint64_t key;
         if (!u->height(p[0], p[1], p[2], &h) || h > u->cfg.return_max_m ||
-            pb_map_voxel_key(u->voxel_m, p[0], p[1], p[2], &key) != 0 || u->body.count(key))
+            pb_map_voxel_key(u->voxel_m, p[0], p[1], p[2], &key) != 0 || (u->body_bits.may_hold(key) && u->body.count(key)))
             return;
         double corner[3];
         pb_map_voxel_corner(u->voxel_m, key, corner);
         Taken &t = u->taken.emplace(key, Taken{{0, 0, 0, 0}, 0}).first->second;
+        u->taken_bits.add(key);
         for (int a = 0; a < 3; a++) t.s[a] += p[a] - corner[a];
         t.s[3] += pts && pts->intensity ? pts->intensity[of(i)] : 0.0f;
         t.n++;
@@ -155,11 +170,8 @@ void pb_under_sweep(pb_under_t *u, const double *xyz, size_t n, const pb_points_
     };
     for (size_t k = 0; k < u->near.size(); k++) {
         const double *p = xyz + 3 * u->near[k];
-        const int64_t cx = u->col(p[0]), cy = u->col(p[1]);
-        bool under = false;
-        for (int dx = -u->reach; dx <= u->reach && !under; dx++)
-            for (int dy = -u->reach; dy <= u->reach && !under; dy++) under = u->marked.count(pb_under::column_key(cx + dx, cy + dy)) > 0;
-        if (under) { take(u->near[k]); done[k] = 1; }
+        const uint64_t c = u->column(p[0], p[1]);
+        if (u->under_bits.may_hold(c) && u->under.count(c)) { take(u->near[k]); done[k] = 1; }
     }
     // 3. the sweep's columns known: a low return whose beam above ended in a body, nearer or
     // a little farther (a wheel's bottom; what a beam under a nearer car's body met)
@@ -185,14 +197,15 @@ void pb_under_sweep(pb_under_t *u, const double *xyz, size_t n, const pb_points_
         if (done[low.k] || above.column != low.column || above.range > low.range + u->cfg.above_beyond_m) continue;
         const double *q = xyz + 3 * u->near[above.k];
         uint64_t key;
-        if (pb_map_voxel_key(u->voxel_m, q[0], q[1], q[2], &key) == 0 && u->body.count(key)) take(u->near[low.k]);
+        if (pb_map_voxel_key(u->voxel_m, q[0], q[1], q[2], &key) == 0 && u->body_bits.may_hold(key) && u->body.count(key))
+            take(u->near[low.k]);
     }
 }
 
 uint32_t pb_under_adjust(const pb_under_t *u, float p[4], uint32_t n)
 {
     uint64_t key;
-    if (pb_map_voxel_key(u->voxel_m, p[0], p[1], p[2], &key) != 0) return n;
+    if (pb_map_voxel_key(u->voxel_m, p[0], p[1], p[2], &key) != 0 || !u->taken_bits.may_hold(key)) return n;
     auto it = u->taken.find(key);
     if (it == u->taken.end()) return n;
     double h;
