@@ -89,6 +89,33 @@ static int to_carving_tiles(Run *R, pb_map_builder_t *map, std::vector<int64_t> 
 
 /* Several drives on one clock, each an hour after the last: so the carving's rays and the
  * road under what moved never take two drives whose logs' clocks overlap for one time. */
+/* A sweep copied for a stage on another thread (the reader's buffer is the next sweep's once
+ * the callback returns), and where pb_map_builder_place_timed placed its returns. */
+struct PlacedSweep {
+    std::vector<float> x, y, z, intensity;
+    std::vector<int32_t> offset_us, index;
+    std::vector<uint8_t> ring;
+    std::vector<double> xyz;
+    pb_points_t pts = {};
+    int n = 0;            /* returns placed (-1: the track does not bracket the sweep) */
+    int64_t beyond = 0;   /* returns beyond the builder's range */
+    uint32_t stamp = 0;   /* the map's stamp of the sweep */
+
+    void take(const pb_points_t &from)
+    {
+        const size_t m = (size_t)from.n;
+        auto copy = [m](auto *a, auto *to) { if (a) to->assign(a, a + m); return a ? to->data() : nullptr; };
+        pts = {from.n, from.n, copy(from.x, &x), copy(from.y, &y), copy(from.z, &z), copy(from.intensity, &intensity),
+               copy(from.offset_us, &offset_us), copy(from.ring, &ring)};
+        xyz.resize(3 * m);
+        index.resize(m);
+    }
+    void place(const pb_map_builder_t *placer, int64_t utime, const pb_pose_track_t *track, const pb_transform_t *bl)
+    {
+        n = pb_map_builder_place_timed(placer, &pts, utime, track, bl, xyz.data(), index.data(), &beyond);
+    }
+};
+
 struct DriveClock {
     const Run *now = nullptr;
     int64_t offset = 0, last = INT64_MIN;   /* drive's time + offset: the one clock */
@@ -159,17 +186,9 @@ int pass_map(Run *R, pb_err_t *err)
     pb_map_builder_t *placer = pb_map_builder_create(R->voxel, err);
     if (!placer) return pb_map_builder_destroy(map), -1;
     pb_map_builder_set_max_range(placer, range_m);
-    struct Placed {
-        std::vector<float> x, y, z, intensity;
-        std::vector<int32_t> offset_us, index;
-        std::vector<double> xyz;
-        pb_points_t pts = {};
-        int n = 0;
-        int64_t beyond = 0;
-        uint32_t stamp = 0;
-    } stage[2];
+    PlacedSweep stage[2];
     std::future<void> placing;
-    auto add = [&](long s, const Placed &P, pb_err_t *e) {   /* sweep s (1, 2, ...) into the map */
+    auto add = [&](long s, const PlacedSweep &P, pb_err_t *e) {   /* sweep s (1, 2, ...) into the map */
         pb_map_builder_stamp(map, P.stamp);
         if (P.n >= 0 && pb_map_builder_add_placed(map, &P.pts, P.xyz.data(), P.index.data(), P.n, P.beyond, e) != 0)
             return -1;
@@ -198,20 +217,12 @@ int pass_map(Run *R, pb_err_t *err)
         [&](Run *D, int64_t utime, const std::vector<float> &, const pb_points_t &pts, const pb_event_t &, pb_err_t *e) {
             sweep++;
             clock.next(D);
-            Placed &P = stage[sweep % 2];
+            PlacedSweep &P = stage[sweep % 2];
             P.stamp = (uint32_t)R->sweep_times.size();
             R->sweep_times.push_back(utime + clock.offset);
-            const size_t n = (size_t)pts.n;
-            auto copy = [n](auto *from, auto *to) { if (from) to->assign(from, from + n); return from ? to->data() : nullptr; };
-            P.pts = {pts.n, pts.n, copy(pts.x, &P.x), copy(pts.y, &P.y), copy(pts.z, &P.z), copy(pts.intensity, &P.intensity),
-                     copy(pts.offset_us, &P.offset_us), nullptr};
-            P.xyz.resize(3 * n);
-            P.index.resize(n);
+            P.take(pts);
             if (placing.valid()) placing.get();
-            placing = std::async(std::launch::async, [&P, D, utime, placer, R] {
-                P.n = pb_map_builder_place_timed(placer, &P.pts, utime, D->track, &R->veh.base_from_lidar, P.xyz.data(),
-                                                 P.index.data(), &P.beyond);
-            });
+            placing = std::async(std::launch::async, [&P, D, utime, placer, R] { P.place(placer, utime, D->track, &R->veh.base_from_lidar); });
             if (sweep > 1 && add(sweep - 1, stage[(sweep - 1) % 2], e) != 0) return -1;   /* the sweep before */
             // the tiles this sweep can reach held
             int64_t lo[2], hi[2];
@@ -460,31 +471,16 @@ static int pass_under(Run *R, const pb_ground_t *ground, pb_err_t *err)
     pb_map_builder_set_max_range(placer, pb_carve_config_t{}.max_range_m);   /* as pass 2 */
     /* Two stages: a sweep placed on another thread while the one before goes through
      * pb_under_sweep here (in the sweeps' order); each stage has its own copy of the sweep. */
-    struct Placed {
-        std::vector<float> x, y, z, intensity;
-        std::vector<int32_t> offset_us, index;
-        std::vector<uint8_t> ring;
-        std::vector<double> xyz;
-        pb_points_t pts = {};
-        int n = 0;
-    } stage[2];
+    PlacedSweep stage[2];
     std::future<void> placing;
     long sweeps = 0;
-    auto under_sweep = [&](Placed &P) { if (P.n > 0) pb_under_sweep(u, P.xyz.data(), (size_t)P.n, &P.pts, P.index.data()); };
+    auto under_sweep = [&](PlacedSweep &P) { if (P.n > 0) pb_under_sweep(u, P.xyz.data(), (size_t)P.n, &P.pts, P.index.data()); };
     int rc = for_each_drive_sweep(R, "mapper: under", 1,
         [&](Run *D, int64_t utime, const std::vector<float> &, const pb_points_t &pts, const pb_event_t &, pb_err_t *) {
-            Placed &P = stage[sweeps % 2];
-            const size_t n = (size_t)pts.n;
-            auto copy = [n](auto *from, auto *to) { if (from) to->assign(from, from + n); return from ? to->data() : nullptr; };
-            P.pts = {pts.n, pts.n, copy(pts.x, &P.x), copy(pts.y, &P.y), copy(pts.z, &P.z), copy(pts.intensity, &P.intensity),
-                     copy(pts.offset_us, &P.offset_us), copy(pts.ring, &P.ring)};
-            P.xyz.resize(3 * n);
-            P.index.resize(n);
+            PlacedSweep &P = stage[sweeps % 2];
+            P.take(pts);
             if (placing.valid()) placing.get();
-            placing = std::async(std::launch::async, [&P, D, utime, placer, R] {
-                P.n = pb_map_builder_place_timed(placer, &P.pts, utime, D->track, &R->veh.base_from_lidar, P.xyz.data(),
-                                                 P.index.data(), nullptr);
-            });
+            placing = std::async(std::launch::async, [&P, D, utime, placer, R] { P.place(placer, utime, D->track, &R->veh.base_from_lidar); });
             if (sweeps++ > 0) under_sweep(stage[sweeps % 2]);   /* the sweep before */
             return 0;
         }, err);
