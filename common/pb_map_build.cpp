@@ -2,12 +2,14 @@
 #include "pb_map_build.h"
 
 #include <algorithm>
+#include <atomic>
 #include <cerrno>
 #include <cstdio>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
 #include <memory>
+#include <mutex>
 #include <new>
 #include <unordered_map>
 #include <vector>
@@ -63,14 +65,20 @@ Rt from_transform(const pb_transform_t *x)
 // ---------------------------------------------------------------- pose track
 struct pb_pose_track {
     mutable std::vector<TimedPose> poses;
-    mutable bool sorted = true;
+    /* sorted on the first read after an add out of order; readers on several threads at once
+     * (the mapper places a sweep on one while it looks up the next sweep's reach on another)
+     * must not both sort */
+    mutable std::atomic<bool> sorted{true};
+    mutable std::mutex sorting;
 
     void sort() const
     {
-        if (sorted) return;
+        if (sorted.load(std::memory_order_acquire)) return;
+        std::lock_guard<std::mutex> lock(sorting);
+        if (sorted.load(std::memory_order_relaxed)) return;
         std::stable_sort(poses.begin(), poses.end(),
                          [](const TimedPose &a, const TimedPose &b) { return a.utime < b.utime; });
-        sorted = true;
+        sorted.store(true, std::memory_order_release);
     }
 
     // Interpolated pose at utime; false outside the track.
@@ -104,7 +112,7 @@ extern "C" void pb_pose_track_destroy(pb_pose_track_t *t) { delete t; }
 
 extern "C" void pb_pose_track_add(pb_pose_track_t *t, int64_t utime, const pb_transform_t *pose)
 {
-    if (!t->poses.empty() && utime < t->poses.back().utime) t->sorted = false;
+    if (!t->poses.empty() && utime < t->poses.back().utime) t->sorted.store(false, std::memory_order_relaxed);
     t->poses.push_back({utime, Eigen::Vector3d(pose->t[0], pose->t[1], pose->t[2]), to_eigen_q(pose->q)});
 }
 

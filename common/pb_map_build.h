@@ -33,7 +33,8 @@ typedef struct pb_pose_track pb_pose_track_t;
 pb_pose_track_t *pb_pose_track_create(void);
 void pb_pose_track_destroy(pb_pose_track_t *t);
 
-/* Adds a pose valid at utime (any order; kept sorted, stable for equal times). */
+/* Adds a pose valid at utime (any order; kept sorted, stable for equal times). A track being
+ * added to must not be read; a track no longer added to may be read by several threads at once. */
 void pb_pose_track_add(pb_pose_track_t *t, int64_t utime, const pb_transform_t *pose);
 int pb_pose_track_count(const pb_pose_track_t *t);
 /* First and last pose time; returns 0, or -1 if the track is empty. */

@@ -9,6 +9,7 @@
 #include <cstdio>
 #include <cstring>
 #include <map>
+#include <thread>
 #include <vector>
 
 #include "pb_check.h"
@@ -128,6 +129,37 @@ int main()
         CHECK_OK(pb_map_builder_add(b, &four, &far, &err), err.msg);
         CHECK(pb_map_builder_size(b) == 5 && pb_map_builder_points_beyond(b) == 1);
         pb_map_builder_destroy(b);
+    }
+    {
+        /* a track added to out of order, then read by two threads at once from its first read
+         * (the mapper's map pass places a sweep on one thread while it looks up the next
+         * sweep's reach on another): each reader gets the sorted track's poses. The track
+         * sorted itself inside the read, on both threads at once, before it was made safe:
+         * this failed in most of its rounds then. */
+        const int kPoses = 20000, kRounds = 40;
+        int wrong = 0;
+        for (int round = 0; round < kRounds; round++) {
+            pb_pose_track_t *t = pb_pose_track_create();
+            for (int i = 1; i < kPoses; i++) {
+                pb_transform_t p = {{(double)i, 0, 0}, {1, 0, 0, 0}};
+                pb_pose_track_add(t, (int64_t)i * 1000, &p);
+            }
+            pb_transform_t first = {{0, 0, 0}, {1, 0, 0, 0}};
+            pb_pose_track_add(t, 0, &first);   /* out of order: the track sorts on its first read */
+            int bad[2] = {0, 0};
+            auto read = [&](int who) {
+                for (int i = 0; i < kPoses - 1; i += 7) {
+                    pb_transform_t out;
+                    if (!pb_pose_track_at(t, (int64_t)i * 1000 + 500, &out) || std::fabs(out.t[0] - (i + 0.5)) > 1e-9) bad[who]++;
+                }
+            };
+            std::thread other(read, 1);
+            read(0);
+            other.join();
+            wrong += bad[0] + bad[1];
+            pb_pose_track_destroy(t);
+        }
+        CHECK(wrong == 0);
     }
     return pb_check_report("test_map_build");
 }
