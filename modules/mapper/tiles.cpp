@@ -87,8 +87,6 @@ static int to_carving_tiles(Run *R, pb_map_builder_t *map, std::vector<int64_t> 
     return 0;
 }
 
-/* Several drives on one clock, each an hour after the last: so the carving's rays and the
- * road under what moved never take two drives whose logs' clocks overlap for one time. */
 /* A sweep copied for a stage on another thread (the reader's buffer is the next sweep's once
  * the callback returns), and where pb_map_builder_place_timed placed its returns. */
 struct PlacedSweep {
@@ -116,6 +114,8 @@ struct PlacedSweep {
     }
 };
 
+/* Several drives on one clock, each an hour after the last: so the carving's rays and the
+ * road under what moved never take two drives whose logs' clocks overlap for one time. */
 struct DriveClock {
     const Run *now = nullptr;
     int64_t offset = 0, last = INT64_MIN;   /* drive's time + offset: the one clock */
