@@ -490,8 +490,6 @@ static bool scene_changed(localizer_t *L, const Eigen::Isometry3d &pose, double 
     return true;
 }
 
-/* Start-up or relocalisation on this sweep: returns true with kf reset at a candidate. */
-
 static void update_lidar_only_motion(localizer_t *L, int64_t t)
 {
     /* the forward speed between successive accepted matches: the direction of travel that
