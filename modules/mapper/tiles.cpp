@@ -491,6 +491,8 @@ static int pass_under(Run *R, const pb_ground_t *ground, pb_err_t *err)
     std::vector<TilePoint> pts, kept;
     std::vector<float> near;                          /* x y z of points a bump test may need ... */
     std::vector<std::pair<uint32_t, uint32_t>> where; /* ... and their tile and place in it */
+    std::vector<std::pair<uint32_t, uint32_t>> looks; /* the one-look voxels' tile and place, by number */
+    auto at = [&](uint32_t sweep) { return R->sweep_times.at(sweep); };
     auto rewrite = [&](size_t t, const std::string &path) {
         R->map_points -= pts.size() - kept.size();
         R->kept_tiles[t].second = kept.empty() ? UINT32_MAX : kept[0].seq;
@@ -511,6 +513,7 @@ static int pass_under(Run *R, const pb_ground_t *ground, pb_err_t *err)
                 continue;
             }
             tp.n = left;
+            if (pb_under_look(u, tp.p, at(tp.first), at(tp.last)) >= 0) looks.push_back({(uint32_t)t, (uint32_t)kept.size()});
             if (pb_under_near(u, tp.p)) {
                 near.insert(near.end(), {tp.p[0], tp.p[1], tp.p[2]});
                 where.push_back({(uint32_t)t, (uint32_t)kept.size()});
@@ -519,31 +522,38 @@ static int pass_under(Run *R, const pb_ground_t *ground, pb_err_t *err)
         }
         if (changed && rewrite(t, path) != 0) rc = -1;
     }
-    // the bumps: what a tyre left of a voxel, with the road all round it (core/under.h)
+    // the bumps: what a tyre left of a voxel, with the road all round it; the one-look voxels,
+    // when every tile has said which voxels beside them were seen for long (core/under.h)
     std::vector<uint8_t> gone(where.size());
+    std::vector<std::pair<uint32_t, uint32_t>> drops;   /* tile, place */
     if (rc == 0 && pb_under_bumps(u, near.data(), where.size(), 3, gone.data()) > 0)
-        for (size_t i = 0; rc == 0 && i < where.size();) {
-            const size_t t = where[i].first;
-            const std::string path = tile_path(R, 'k', R->kept_tiles[t].first);
-            size_t end = i;
-            while (end < where.size() && where[end].first == t) end++;
-            if (std::find(gone.begin() + i, gone.begin() + end, 1) != gone.begin() + end) {
-                if (tile_read(path, &pts, err) != 0) { rc = -1; break; }
-                std::vector<uint8_t> drop(pts.size());
-                for (size_t g = i; g < end; g++) drop[where[g].second] = gone[g];
-                kept.clear();
-                for (size_t k = 0; k < pts.size(); k++) {
-                    if (drop[k]) {
-                        R->under_moved++, R->under_gone++;
-                        R->layers.removed.insert(R->layers.removed.end(), {pts[k].p[0], pts[k].p[1], pts[k].p[2]});
-                        continue;
-                    }
-                    kept.push_back(pts[k]);
-                }
-                if (rewrite(t, path) != 0) rc = -1;
+        for (size_t i = 0; i < where.size(); i++)
+            if (gone[i]) drops.push_back(where[i]);
+    for (size_t t = 0; rc == 0 && !looks.empty() && t < R->kept_tiles.size(); t++) {
+        if (tile_read(tile_path(R, 'k', R->kept_tiles[t].first), &pts, err) != 0) { rc = -1; break; }
+        for (const TilePoint &tp : pts) pb_under_look_support(u, tp.p, tp.n, at(tp.first), at(tp.last));
+    }
+    for (size_t i = 0; i < looks.size(); i++)
+        if (pb_under_look_gone(u, (int)i)) drops.push_back(looks[i]);
+    std::sort(drops.begin(), drops.end());
+    drops.erase(std::unique(drops.begin(), drops.end()), drops.end());
+    for (size_t i = 0; rc == 0 && i < drops.size();) {
+        const size_t t = drops[i].first;
+        const std::string path = tile_path(R, 'k', R->kept_tiles[t].first);
+        if (tile_read(path, &pts, err) != 0) { rc = -1; break; }
+        std::vector<uint8_t> drop(pts.size());
+        for (; i < drops.size() && drops[i].first == t; i++) drop[drops[i].second] = 1;
+        kept.clear();
+        for (size_t k = 0; k < pts.size(); k++) {
+            if (drop[k]) {
+                R->under_moved++, R->under_gone++;
+                R->layers.removed.insert(R->layers.removed.end(), {pts[k].p[0], pts[k].p[1], pts[k].p[2]});
+                continue;
             }
-            i = end;
+            kept.push_back(pts[k]);
         }
+        if (rewrite(t, path) != 0) rc = -1;
+    }
     uint64_t voxels;
     pb_under_counts(u, &R->under_returns, &voxels);
     pb_under_destroy(u);

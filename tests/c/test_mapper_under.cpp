@@ -10,7 +10,8 @@
  * A carved voxel hit over more than body_span_s is no body; a tyre's return higher than the
  * road's band but within return_max_m goes from a lifted road voxel. A voxel lifted over all
  * the road round it where a body stood goes, alone or in a patch of two (pb_under_bumps); a kerb's, a post's, one over
- * road seen sparsely, one away from the body's columns, and a ditch's edge stay.
+ * road seen sparsely, one away from the body's columns, and a ditch's edge stay. A voxel of
+ * the road band hit in one sweep goes beside road seen for seconds (pb_under_look).
  * pb_map_builder_place_timed places a scan's points as pb_map_builder_add_timed does. */
 #include <algorithm>
 #include <cmath>
@@ -457,6 +458,40 @@ int main()
         pb_map_builder_destroy(timed);
         pb_map_builder_destroy(placed);
         pb_pose_track_destroy(track);
+    }
+    /* one look (pb_under_look): a voxel of the road band hit in one sweep goes beside a voxel
+     * seen look_returns times over look_span_s; not beside one seen as often over a shorter
+     * time or as long with fewer returns, not when hit in two sweeps, not above the band or
+     * on the ground, and not with no ground model */
+    {
+        pb_under_t *l = pb_under_create(nullptr, 0, 3, nullptr, kVoxel, ground, nullptr);
+        const pb_under_config_t c;
+        const int64_t s0 = 1000000000;
+        const float low[3] = {2.07f, 2.07f, 0.08f}, brief[3] = {3.07f, 2.07f, 0.08f},
+                    sparse[3] = {4.07f, 2.07f, 0.08f}, twice[3] = {5.07f, 2.07f, 0.08f}, high[3] = {6.07f, 2.07f, 0.2f},
+                    road[3] = {7.07f, 2.07f, 0.02f};
+        CHECK(c.road_max_m < 0.2 && c.lifted_m > 0.02 && c.lifted_m < 0.08);
+        const int a = pb_under_look(l, low, s0, s0), b = pb_under_look(l, brief, s0, s0), d = pb_under_look(l, sparse, s0, s0);
+        CHECK(a == 0 && b == 1 && d == 2);
+        CHECK(pb_under_look(l, twice, s0, s0 + 100000) == -1);
+        CHECK(pb_under_look(l, high, s0, s0) == -1);
+        CHECK(pb_under_look(l, road, s0, s0) == -1);
+        const int64_t span = (int64_t)(c.look_span_s * 1e6);
+        /* the road beside each: a voxel below and to the side */
+        const float below_a[3] = {2.07f + (float)kVoxel, 2.07f, 0.0f}, below_b[3] = {3.07f, 2.07f - (float)kVoxel, 0.0f},
+                    below_d[3] = {4.07f, 2.07f, -0.01f};
+        pb_under_look_support(l, below_a, (uint32_t)c.look_returns, s0, s0 + span);
+        pb_under_look_support(l, below_b, 100, s0, s0 + span - 1);
+        pb_under_look_support(l, below_d, (uint32_t)c.look_returns - 1, s0, s0 + 10 * span);
+        /* a voxel two apart is not beside it */
+        const float far_b[3] = {3.07f + 2 * (float)kVoxel, 2.07f, 0.0f};
+        pb_under_look_support(l, far_b, 100, s0, s0 + 10 * span);
+        CHECK(pb_under_look_gone(l, a) && !pb_under_look_gone(l, b) && !pb_under_look_gone(l, d));
+        CHECK(!pb_under_look_gone(l, -1) && !pb_under_look_gone(l, 3));
+        pb_under_destroy(l);
+        pb_under_t *none = pb_under_create(nullptr, 0, 3, nullptr, kVoxel, nullptr, nullptr);
+        CHECK(pb_under_look(none, low, s0, s0) == -1);
+        pb_under_destroy(none);
     }
     pb_ground_destroy(ground);
     return pb_check_report("test_mapper_under");

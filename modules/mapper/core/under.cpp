@@ -50,6 +50,9 @@ struct pb_under {
     struct Beam { int32_t column; float elevation, range; size_t k; };   /* a near return's beam */
     std::vector<Beam> beams;
     std::vector<uint8_t> done;   /* per near return: judged by step 2 */
+    /* the one-look voxels (pb_under_look): the voxels beside each -> the looks they support */
+    std::unordered_multimap<uint64_t, int> look_beside;
+    std::vector<uint8_t> look_supported;
 
     int64_t col(double v) const { return (int64_t)std::floor(v * inv_col); }
     static uint64_t column_key(int64_t cx, int64_t cy) { return (uint64_t)cx << 32 | (uint32_t)cy; }
@@ -314,4 +317,42 @@ void pb_under_counts(const pb_under_t *u, uint64_t *returns, uint64_t *voxels)
 {
     *returns = u->returns_taken;
     *voxels = u->taken.size();
+}
+
+int pb_under_look(pb_under_t *u, const float p[3], int64_t first, int64_t last)
+{
+    double h;
+    uint64_t key;
+    if (first != last || !u->height(p[0], p[1], p[2], &h) || h <= u->cfg.lifted_m || h > u->cfg.road_max_m ||
+        pb_map_voxel_key(u->voxel_m, p[0], p[1], p[2], &key) != 0)
+        return -1;
+    const int i = (int)u->look_supported.size();
+    u->look_supported.push_back(0);
+    const double c = u->voxel_m / 2;   /* the voxels beside: keyed as points at their middles */
+    double corner[3];
+    pb_map_voxel_corner(u->voxel_m, key, corner);
+    for (int dx = -1; dx <= 1; dx++)
+        for (int dy = -1; dy <= 1; dy++)
+            for (int dz = -1; dz <= 0; dz++) {
+                uint64_t k;
+                if ((dx || dy || dz) && pb_map_voxel_key(u->voxel_m, corner[0] + c + dx * u->voxel_m, corner[1] + c + dy * u->voxel_m,
+                                                         corner[2] + c + dz * u->voxel_m, &k) == 0)
+                    u->look_beside.emplace(k, i);
+            }
+    return i;
+}
+
+void pb_under_look_support(pb_under_t *u, const float p[3], uint32_t n, int64_t first, int64_t last)
+{
+    uint64_t key;
+    if (u->look_beside.empty() || n < (uint32_t)u->cfg.look_returns ||
+        (double)(last - first) < u->cfg.look_span_s * 1e6 || pb_map_voxel_key(u->voxel_m, p[0], p[1], p[2], &key) != 0)
+        return;
+    auto range = u->look_beside.equal_range(key);
+    for (auto it = range.first; it != range.second; ++it) u->look_supported[(size_t)it->second] = 1;
+}
+
+int pb_under_look_gone(const pb_under_t *u, int i)
+{
+    return i >= 0 && (size_t)i < u->look_supported.size() && u->look_supported[(size_t)i];
 }
