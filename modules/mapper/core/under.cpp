@@ -52,9 +52,8 @@ struct pb_under {
     std::vector<Beam> beams;
     std::vector<uint8_t> done;   /* per near return: judged by step 2 */
     /* the one-look voxels (pb_under_look): (a voxel beside one, its number), sorted on the
-     * first support (17 pairs, 272 bytes a look: 2 MB for the loop's 8,357 one-sweep voxels, 33 MB
-     * an hour)
-     * and a filter in front of it */
+     * first support, and a filter in front of it (17 pairs, 272 bytes a look: 2 MB for the
+     * loop's 8,357, about 33 MB for an hour's drive) */
     std::vector<std::pair<uint64_t, int>> look_beside;
     bool look_sorted = true;
     KeyBits look_bits;
