@@ -9,6 +9,7 @@ Tests marked `live` run processes in real time (a live LCM bus, a page talking t
 worker), then these alone, so their timing does not depend on other work. A new test
 that runs anything live must carry the mark.
 """
+import json
 import os
 import pathlib
 import signal
@@ -45,6 +46,23 @@ def pytest_collection_modifyitems(config, items):
 def tmp(request, tmp_path_factory):
     """A scratch folder shared by one test module's fixtures (named after the module)."""
     return tmp_path_factory.mktemp(request.module.__name__.removeprefix("test_"))
+
+
+MULRAN = SHARED_DATA / "lidar_seq_mulran_riverside02_part1"
+
+
+@pytest.fixture(scope="session")
+def mulran_reference(tmp_path_factory):
+    """The MulRan keyframes' refined reference (reference.py, one thread: the same file every
+    build) and its report (the keyframes it judges implausible); made once a session."""
+    if not MULRAN.exists():
+        pytest.skip(f"{MULRAN} is absent (real data lives in ../shared/data)")
+    d = tmp_path_factory.mktemp("mulran")
+    run([sys.executable, ROOT / "modules/localizer/bench/reference.py", "--scans", MULRAN / "Scans",
+         "--poses", MULRAN / "optimized_poses.txt", "--times", MULRAN / "times.txt", "--threads", "1",
+         "--out", d / "refined_poses.txt", "--report", d / "report.json"], timeout=900)
+    report = json.loads((d / "report.json").read_text())
+    return {"poses": d / "refined_poses.txt", "report": report, "implausible": report["implausible_keyframes_refined"]}
 
 
 @pytest.fixture(scope="module")

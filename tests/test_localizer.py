@@ -19,7 +19,7 @@ import time
 import numpy as np
 import pytest
 
-from conftest import BIN, ROOT, SHARED_DATA, read_log, run
+from conftest import BIN, MULRAN, ROOT, read_log, run
 
 sys.path.insert(0, str(ROOT / "modules" / "localizer" / "bench"))
 import bench_starts as bs  # noqa: E402
@@ -993,23 +993,6 @@ def test_prior_for_a_moving_car_is_searched_where_the_car_may_be_by_now(porous_s
 
 
 # ---------------------------------------------------------------- real data (make test-real)
-
-MULRAN = SHARED_DATA / "lidar_seq_mulran_riverside02_part1"
-
-
-@pytest.fixture(scope="module")
-def mulran_reference(tmp_path_factory):
-    """The MulRan keyframes' refined reference (reference.py, one thread: the same file every
-    build) and its report (the keyframes it judges implausible)."""
-    if not MULRAN.exists():
-        pytest.skip(f"{MULRAN} is absent (real data lives in ../shared/data)")
-    d = tmp_path_factory.mktemp("mulran")
-    run([sys.executable, ROOT / "modules/localizer/bench/reference.py", "--scans", MULRAN / "Scans",
-         "--poses", MULRAN / "optimized_poses.txt", "--times", MULRAN / "times.txt", "--threads", "1",
-         "--out", d / "refined_poses.txt", "--report", d / "report.json"], timeout=900)
-    report = json.loads((d / "report.json").read_text())
-    return {"poses": d / "refined_poses.txt", "report": report, "implausible": report["implausible_keyframes_refined"]}
-
 
 @pytest.mark.real
 def test_real_mulran_reference_follows_the_scans_not_the_slam(mulran_reference):

@@ -212,6 +212,8 @@ int checkpoint_read(Run *R, pb_err_t *err)
         sp.cpu_ms = r.get<double>();
         sp.keyframe = r.get<int>();
         sp.measured_mps = r.get<double>();
+        if (sp.status < kGiven || sp.status > PB_ODOM_PREVIOUS || sp.motion < kGiven || sp.motion > PB_ODOM_MOTION_MEASURED)
+            why = "damaged (a sweep's status out of range)";   /* the report counts by them */
         R->traj.push_back(sp);
     }
     const uint64_t nkf = r.get<uint64_t>();

@@ -53,7 +53,7 @@ static int write_tum(const char *path, const std::vector<SweepPose> &traj, bool 
 
 static const char *kPeakStep[] = {"odometry", "loops", "map", "carve", "site"};
 
-static const char *kStatusName[] = {"first", "tracked", "searched", "weak", "predicted"};
+static const char *kStatusName[] = {"first", "tracked", "searched", "weak", "predicted", "from_previous"};
 
 static double pct(std::vector<double> v, double p)
 {
@@ -247,7 +247,7 @@ static int speed_disagreements(const std::vector<SweepPose> &traj, int *checked,
 /* report.json (cJSON: names and messages escaped) and the summary line. */
 int write_report(const Run &R, const double cpu_ms[4], double wall_s, pb_err_t *err)
 {
-    long by_status[5] = {}, by_motion[3] = {}, sparse = 0;
+    long by_status[6] = {}, by_motion[3] = {}, sparse = 0;
     const int64_t sparse_gap_us = (int64_t)(pb_odom_config_t{}.sparse_gap_s * 1e6);
     double path_m = 0;
     std::vector<double> ms, inl;
@@ -270,7 +270,8 @@ int write_report(const Run &R, const double cpu_ms[4], double wall_s, pb_err_t *
     cJSON_AddNumberToObject(j, "odometry_cell_m", R.odom_cfg.cell_m);
     cJSON_AddNumberToObject(j, "empty_scans", (double)R.empty);
     cJSON_AddNumberToObject(j, "out_of_order_scans", (double)R.out_of_order);
-    for (int k = 0; k < 5; k++) cJSON_AddNumberToObject(j, (std::string("scans_") + kStatusName[k]).c_str(), (double)by_status[k]);
+    /* (from_previous: sparse sweeps placed by the sweep before alone, odometry.h) */
+    for (int k = 0; k < 6; k++) cJSON_AddNumberToObject(j, (std::string("scans_") + kStatusName[k]).c_str(), (double)by_status[k]);
     /* what each sweep's prediction came from: dead reckoning on VEHICLE_SPEED and IMU, the
      * last step's motion (LiDAR alone), or nothing (the first sweep, after a gap) */
     cJSON_AddNumberToObject(j, "scans_motion_measured", (double)by_motion[PB_ODOM_MOTION_MEASURED]);

@@ -58,6 +58,7 @@ struct pb_odom {
     bool start_open = true;
     std::vector<Held> held;
     std::vector<pb_odom_correction_t> corrected;
+    std::vector<double> sparse_fits;   /* the last sparse sweeps' inlier shares (check_sparse), oldest first */
 };
 
 /* Sweeps after its start that a new registration map is swapped in (waiting for it if it is
@@ -339,6 +340,46 @@ static int start_hold(pb_odom_t *o, const pb_odom_result_t &r, const std::vector
     return 0;
 }
 
+static const size_t kSparseFits = 10;
+
+/* A sparse sweep's match r, checked (sparse_fit_drop): when it explains far less than the
+ * sweeps before it, the local map may hold sweeps placed wrong (which fit a wrong step best,
+ * and each sweep placed by them makes it worse); the sweep before alone, matched from the
+ * prediction, cannot pull back that way. r takes that match when the two disagree. */
+static int check_sparse(pb_odom_t *o, const std::vector<float> &pts, const Eigen::Isometry3d &pred,
+                        pb_odom_result_t *r, pb_err_t *err)
+{
+    if (!std::isfinite(r->inlier_fraction) || o->last_sweep.empty()) return 0;
+    std::vector<double> recent = o->sparse_fits;
+    o->sparse_fits.push_back(r->inlier_fraction);
+    if (o->sparse_fits.size() > kSparseFits) o->sparse_fits.erase(o->sparse_fits.begin());
+    if (recent.size() < kSparseFits / 2) return 0;
+    std::nth_element(recent.begin(), recent.begin() + recent.size() / 2, recent.end());
+    if (!(r->inlier_fraction < o->cfg.sparse_fit_drop * recent[recent.size() / 2])) return 0;
+    std::vector<float> before(o->last_sweep.size());
+    for (size_t i = 0; i + 2 < before.size(); i += 3) {
+        const Vec3 q = o->last_pose * Vec3(o->last_sweep[i], o->last_sweep[i + 1], o->last_sweep[i + 2]);
+        for (int a = 0; a < 3; a++) before[i + a] = (float)q[a];
+    }
+    pb_err_t e;
+    pb_regmap_t *m = pb_regmap_from_points(before.data(), before.size() / 3, nullptr, &e);
+    if (!m) return 0;   /* the sweep before holds no surface to match: r stands */
+    pb_reg_config_t cfg = o->reg;
+    cfg.prior_sigma_m = 0;
+    pb_reg_result_t f;
+    const int rc = pb_reg_align(m, pts.data(), pts.size() / 3, pred, &cfg, &f, err);
+    pb_regmap_destroy(m);
+    if (rc < 0) return -1;
+    if (rc == PB_REG_FEW_POINTS) return 0;
+    const Eigen::Isometry3d d = r->pose.inverse() * f.pose;
+    if (d.translation().norm() <= o->cfg.sparse_apart_m &&
+        Eigen::AngleAxisd(d.linear()).angle() <= o->cfg.sparse_apart_deg * M_PI / 180)
+        return 0;
+    r->pose = f.pose;
+    r->status = PB_ODOM_PREVIOUS;
+    return 0;
+}
+
 int pb_odom_add(pb_odom_t *o, int64_t utime, const float *xyz, const int32_t *offset_us, size_t n,
                 const pb_odom_motion_t *motion, pb_odom_result_t *out, pb_err_t *err)
 {
@@ -431,6 +472,9 @@ int pb_odom_add(pb_odom_t *o, int64_t utime, const float *xyz, const int32_t *of
             r.inlier_fraction = m.inlier_fraction;
             if (!(m.inlier_fraction >= o->cfg.weak_inlier_fraction)) r.status = PB_ODOM_WEAK;
         }
+        //    (a sparse sweep the local map fits far worse than those before: checked against
+        //    the sweep before alone)
+        if (sparse && r.status != PB_ODOM_PREDICTED && check_sparse(o, pts, pred, &r, err) != 0) return -1;
         // 4. the step gives the motion for the next sweep
         Eigen::Isometry3d step = o->last_pose.inverse() * r.pose;
         Eigen::AngleAxisd aa(step.linear());
@@ -475,7 +519,7 @@ int pb_odom_add(pb_odom_t *o, int64_t utime, const float *xyz, const int32_t *of
 const std::vector<float> &pb_odom_last_sweep(const pb_odom_t *o) { return o->last_sweep; }
 
 /* ---- checkpoint: the state written field by field (no padding), read back with bounds */
-static const char kStateMagic[8] = {'P', 'B', 'O', 'D', 'O', 'M', '0', '2'};
+static const char kStateMagic[8] = {'P', 'B', 'O', 'D', 'O', 'M', '0', '3'};
 
 static void put_vec3(ByteWriter &w, const Vec3 &v) { for (int k = 0; k < 3; k++) w.put(v[k]); }
 static Vec3 get_vec3(ByteReader &r)
@@ -493,7 +537,7 @@ void pb_odom_save(const pb_odom_t *o, std::vector<uint8_t> *out)
     for (const pb_odom::Held &h : o->held) held_bytes += 8 + 96 + 8 + 4 * h.pts.size();
     out->reserve(256 + 28 * o->cells.size() + 12 * o->index.size() +
                  4 * (o->regmap_src.size() + o->next_src.size()) + 16 * o->speed.size() +
-                 32 * o->rate.size() + held_bytes);   /* exactly: no doubling */
+                 32 * o->rate.size() + held_bytes + 8 + 8 * o->sparse_fits.size() + 8 + 4 * o->last_sweep.size());   /* exactly: no doubling */
     ByteWriter w{out};
     for (char c : kStateMagic) w.put(c);
     w.put(o->sweeps); w.put(o->last_utime);
@@ -530,6 +574,8 @@ void pb_odom_save(const pb_odom_t *o, std::vector<uint8_t> *out)
             for (int c = 0; c < 4; c++) w.put(h.pose.matrix()(r, c));
         w.put_array(h.pts.data(), h.pts.size());
     }
+    w.put_array(o->sparse_fits.data(), o->sparse_fits.size());
+    w.put_array(o->last_sweep.data(), o->last_sweep.size());
 }
 
 /* What a saved state must hold (a checksum passed, but the bytes may still be another
@@ -551,7 +597,10 @@ static bool state_sane(const pb_odom_t *o)
         return false;
     for (const Cell &c : o->cells)
         if (c.n < 1 || c.n > kCellFull || !std::isfinite(c.sum[0] + c.sum[1] + c.sum[2])) return false;
-    for (const std::vector<float> *v : {&o->regmap_src, &o->next_src}) {
+    if (o->sparse_fits.size() > kSparseFits) return false;
+    for (double f : o->sparse_fits)
+        if (!(f >= 0 && f <= 1)) return false;
+    for (const std::vector<float> *v : {&o->regmap_src, &o->next_src, &o->last_sweep}) {
         if (v->size() % 3) return false;
         for (float x : *v)
             if (!std::isfinite(x)) return false;
@@ -632,6 +681,8 @@ pb_odom_t *pb_odom_restore(const uint8_t *data, size_t n, const pb_odom_config_t
         r.get_array(&h.pts);
         o->held.push_back(std::move(h));
     }
+    r.get_array(&o->sparse_fits);
+    r.get_array(&o->last_sweep);
     if (!r.ok || r.p != r.end || o->held.size() != nheld) {
         pb_odom_destroy(o);
         return pb_err_set(err, "odometry state: truncated or damaged"), nullptr;

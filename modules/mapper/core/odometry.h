@@ -62,6 +62,13 @@ typedef struct {
     double sparse_prior_sigma_mps = 10; /* ... the prediction's spread is this times the gap (the last
                                       * step's speed, from sweeps 0.5 s apart, holds for the next one
                                       * only roughly; held at 0.5 m it kept a wrong speed for good) */
+    double sparse_fit_drop = 0.6;    /* a sparse sweep whose match explains less than this share of the
+                                      * median of the last 10 sparse sweeps' is matched again to the sweep
+                                      * before alone, from the prediction, and ... */
+    double sparse_apart_m = 1.0;     /* ... placed there when the two lie this far apart ... */
+    double sparse_apart_deg = 1.0;   /* ... or turned this much (PB_ODOM_PREVIOUS): a local map of sweeps
+                                      * placed wrong fits a wrong step best and stalls the odometry for
+                                      * good (docs/mapper.md, "Sparse sweeps") */
     double max_gap_s = 1.0;          /* a longer gap between sweeps forgets the motion (searched again);
                                       * dead reckoning bridges it */
     double max_sample_age_s = 0.2;   /* a speed or rate sample older than this at the sweep's middle is
@@ -97,7 +104,9 @@ enum {
     PB_ODOM_SEARCHED = 2,   /* registered after a search around the prediction */
     PB_ODOM_WEAK = 3,       /* the match explained less than weak_inlier_fraction:
                              * kept (it is the best estimate there is), counted in the report */
-    PB_ODOM_PREDICTED = 4   /* no match at all (too few points): the prediction */
+    PB_ODOM_PREDICTED = 4,  /* no match at all (too few points): the prediction */
+    PB_ODOM_PREVIOUS = 5    /* a sparse sweep the local map fitted far worse than the sweeps before:
+                             * placed by a match to the sweep before alone (sparse_fit_drop) */
 };
 
 /* What the prediction of a sweep came from (pb_odom_result_t.motion). */
