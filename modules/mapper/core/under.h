@@ -62,7 +62,7 @@ typedef struct {
     double bump_reach_m = 0.5;   /* ... every map point within this (x-y), no wider than this, ... */
     double bump_fill = 0.75;     /* ... with map points in this share of the voxel columns round it, goes */
     int look_returns = 10;       /* a voxel of the road band hit in one sweep only, beside one of this many returns ... */
-    double look_span_s = 5.0;    /* ... over this long or longer, goes (pb_under_one_look) */
+    double look_span_s = 5.0;    /* ... over this long or longer, goes (pb_under_look) */
 } pb_under_config_t;
 
 typedef struct pb_under pb_under_t;
