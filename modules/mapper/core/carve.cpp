@@ -6,6 +6,7 @@
 #include <cstring>
 #include <array>
 #include <unordered_map>
+#include <unordered_set>
 
 #include "voxel_hash.h"
 
@@ -805,23 +806,35 @@ size_t pb_carve_keep(const pb_carve_t *c, const std::vector<uint64_t> *gone_keys
         if ((*keep)[c->over[i]] && group_key(c, i, &key) && std::binary_search(group_keys->begin(), group_keys->end(), key))
             take(i);
     }
-    // 5. the points just over the ground that views saw through alone (a car's sill), unless
-    //    something kept stands higher in their cell's column: they are its foot (a post's, a bush's)
+    // 5. the points just over the ground that views saw through alone (a car's sill), or as
+    //    often as a body under a body that went (its wheels), unless something kept stands
+    //    higher in their cell's column: they are its foot (a post's, a bush's)
     std::vector<size_t> low;
     std::unordered_map<uint64_t, float> column_top;   /* a low point's column -> the highest kept point in it */
     auto column = [&](size_t i, uint64_t *key) {
         return pb_loc::voxel_key_of(c->xyz[3 * i], c->xyz[3 * i + 1], 0.0, c->inv, key);
     };
+    std::unordered_set<uint64_t> body_gone;   /* columns where a road user's body went (over group_ground_m) */
     for (size_t i = 0; i < c->over.size(); i++) {
         uint64_t key;
-        if ((*keep)[c->over[i]] && low_gone(c, i) && column(i, &key)) {
+        if (!(*keep)[c->over[i]] && !is_low(c, i) && c->height[i] <= c->cfg.group_max_height_m && column(i, &key))
+            body_gone.insert(key);
+    }
+    auto foot_gone = [&](size_t i, uint64_t key) {
+        return is_low(c, i) && c->through[i] >= c->cfg.view_min_through && 4 * c->through[i] >= 3 * c->seen[i] &&
+               c->hit[i] <= 1 && body_gone.count(key);
+    };
+    for (size_t i = 0; i < c->over.size(); i++) {
+        uint64_t key;
+        if ((*keep)[c->over[i]] && column(i, &key) && (low_gone(c, i) || foot_gone(i, key))) {
             low.push_back(i);
             column_top.emplace(key, -INFINITY);
         }
     }
     for (size_t i = 0; i < c->over.size() && !low.empty(); i++) {
         uint64_t key;
-        if (!(*keep)[c->over[i]] || low_gone(c, i) || c->height[i] > c->cfg.group_max_height_m || !column(i, &key)) continue;
+        if (!(*keep)[c->over[i]] || c->height[i] > c->cfg.group_max_height_m || !column(i, &key) ||
+            low_gone(c, i) || foot_gone(i, key)) continue;
         auto it = column_top.find(key);
         if (it != column_top.end()) it->second = std::max(it->second, c->height[i]);
     }

@@ -67,7 +67,9 @@
  * whose body the cells took) join no group: the road beside them would join everything. One
  * goes alone when seen through by low_min_through views or more, by three quarters of those
  * that saw it, and hit by one at most, and nothing kept stands higher in its cell_m column
- * (else it is the foot of what stays: a post, a bush). For such a point a view's 3 x 3 bins
+ * (else it is the foot of what stays: a post, a bush). Under a body that went (a point of its
+ * column over group_ground_m carved), view_min_through views are enough: it is that body's
+ * foot, a wheel (a car that passed in a drive's last seconds leaves few views after it). For such a point a view's 3 x 3 bins
  * would hold the road in front of it, so it is seen through when its row's three bins returned
  * beyond it and lower over the ground by low_drop_m: the beams came down behind it (a beam
  * over a kerb or a raised pavement ends on it, as high as the point).
