@@ -583,15 +583,18 @@ static void wheels_test(const pb_ground_t *ground)
     for (const Box &w : wheels)
         for (double x = w.lo[0]; x <= w.hi[0] + 1e-9; x += 0.1) add(x, 4, 0.25, 2);
     for (double x = sill.lo[0]; x <= sill.hi[0] + 1e-9; x += 0.1) add(x, 4, 0.25, 3);
+    auto look_four = [&](pb_carve_t *c) {   /* the car and the sill there for the first view only */
+        for (int v = 0; v < 4; v++) {
+            const double o[3] = {30.0 + 4 * v, 0, 1.8};
+            std::vector<Box> boxes;
+            if (v == 0) boxes = {body, wheels[0], wheels[1], sill};
+            pb_carve_view_t *view = view_of_scene(o, boxes, 72, 0.5, ground);
+            pb_carve_look(c, view);
+            pb_carve_view_destroy(view);
+        }
+    };
     pb_carve_t *c = pb_carve_create(pts.data(), pts.size() / 3, 3, ground, nullptr);
-    for (int v = 0; v < 4; v++) {   /* the car and the sill there for the first view only */
-        const double o[3] = {30.0 + 4 * v, 0, 1.8};
-        std::vector<Box> boxes;
-        if (v == 0) boxes = {body, wheels[0], wheels[1], sill};
-        pb_carve_view_t *view = view_of_scene(o, boxes, 72, 0.5, ground);
-        pb_carve_look(c, view);
-        pb_carve_view_destroy(view);
-    }
+    look_four(c);
     std::vector<uint8_t> keep;
     pb_carve_keep(c, nullptr, nullptr, &keep);
     size_t lost[4] = {0}, count[4] = {0};
@@ -611,14 +614,7 @@ static void wheels_test(const pb_ground_t *ground)
     for (size_t i = 0; i < kind.size(); i++)
         if (kind[i] != 1) no_body.insert(no_body.end(), &pts[3 * i], &pts[3 * i + 3]);
     c = pb_carve_create(no_body.data(), no_body.size() / 3, 3, ground, nullptr);
-    for (int v = 0; v < 4; v++) {
-        const double o[3] = {30.0 + 4 * v, 0, 1.8};
-        std::vector<Box> boxes;
-        if (v == 0) boxes = {body, wheels[0], wheels[1], sill};
-        pb_carve_view_t *view = view_of_scene(o, boxes, 72, 0.5, ground);
-        pb_carve_look(c, view);
-        pb_carve_view_destroy(view);
-    }
+    look_four(c);
     CHECK(pb_carve_keep(c, nullptr, nullptr, &keep) == 0);
     pb_carve_destroy(c);
 }
