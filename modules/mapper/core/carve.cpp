@@ -428,12 +428,11 @@ static bool seen_through(const pb_carve_t *c, size_t i)
     return c->through[i] >= c->cfg.view_min_through && 2 * c->through[i] >= c->seen[i] && c->inside[i] == 0;
 }
 
-/* View point i just over the ground, judged alone (no group): seen through by low_min_through
+/* View point i just over the ground, judged alone (no group): seen through by min_through
  * views or more, by three quarters of those that saw it, and hit by one at most. */
-static bool low_gone(const pb_carve_t *c, size_t i)
+static bool low_gone(const pb_carve_t *c, size_t i, int min_through)
 {
-    return is_low(c, i) && c->through[i] >= c->cfg.low_min_through &&
-           4 * c->through[i] >= 3 * c->seen[i] && c->hit[i] <= 1;
+    return is_low(c, i) && c->through[i] >= min_through && 4 * c->through[i] >= 3 * c->seen[i] && c->hit[i] <= 1;
 }
 
 /* The group cell of view point i (of over); false for a point too low to join groups. */
@@ -820,21 +819,20 @@ size_t pb_carve_keep(const pb_carve_t *c, const std::vector<uint64_t> *gone_keys
         if (!(*keep)[c->over[i]] && !is_low(c, i) && c->height[i] <= c->cfg.group_max_height_m && column(i, &key))
             body_gone.insert(key);
     }
-    auto foot_gone = [&](size_t i, uint64_t key) {
-        return is_low(c, i) && c->through[i] >= c->cfg.view_min_through && 4 * c->through[i] >= 3 * c->seen[i] &&
-               c->hit[i] <= 1 && body_gone.count(key);
+    auto gone_low = [&](size_t i, uint64_t key) {   /* a body's foot needs as few views as the body */
+        return low_gone(c, i, body_gone.count(key) ? c->cfg.view_min_through : c->cfg.low_min_through);
     };
     for (size_t i = 0; i < c->over.size(); i++) {
         uint64_t key;
-        if ((*keep)[c->over[i]] && column(i, &key) && (low_gone(c, i) || foot_gone(i, key))) {
+        if ((*keep)[c->over[i]] && column(i, &key) && gone_low(i, key)) {
             low.push_back(i);
             column_top.emplace(key, -INFINITY);
         }
     }
     for (size_t i = 0; i < c->over.size() && !low.empty(); i++) {
         uint64_t key;
-        if (!(*keep)[c->over[i]] || c->height[i] > c->cfg.group_max_height_m || !column(i, &key) ||
-            low_gone(c, i) || foot_gone(i, key)) continue;
+        if (!(*keep)[c->over[i]] || c->height[i] > c->cfg.group_max_height_m || !column(i, &key) || gone_low(i, key))
+            continue;
         auto it = column_top.find(key);
         if (it != column_top.end()) it->second = std::max(it->second, c->height[i]);
     }

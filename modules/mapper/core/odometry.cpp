@@ -304,6 +304,17 @@ static int rebuild(pb_odom_t *o, const Vec3 &at, bool now, pb_err_t *err)
     return 0;
 }
 
+/* The points xyz (x y z, interleaved) moved by T. */
+static std::vector<float> moved(const std::vector<float> &xyz, const Eigen::Isometry3d &T)
+{
+    std::vector<float> out(xyz.size());
+    for (size_t i = 0; i + 2 < xyz.size(); i += 3) {
+        const Vec3 q = T * Vec3(xyz[i], xyz[i + 1], xyz[i + 2]);
+        for (int a = 0; a < 3; a++) out[i + a] = (float)q[a];
+    }
+    return out;
+}
+
 /* The drive's start: a sweep within start_place_m of the first pose is held; the first one
  * start_realign_m away is the view the held ones are aligned to again (a map of it alone:
  * its beams fall elsewhere on the same surfaces, so their pattern pulls no attitude along). */
@@ -318,11 +329,7 @@ static int start_hold(pb_odom_t *o, const pb_odom_result_t &r, const std::vector
     if (d < o->cfg.start_realign_m) return 0;
     o->start_open = false;
     if (o->held.empty()) return 0;
-    std::vector<float> view(pts.size());
-    for (size_t i = 0; i < pts.size(); i += 3) {
-        const Vec3 p = r.pose * Vec3(pts[i], pts[i + 1], pts[i + 2]);
-        for (int k = 0; k < 3; k++) view[i + k] = (float)p[k];
-    }
+    const std::vector<float> view = moved(pts, r.pose);
     pb_regmap_t *m = pb_regmap_from_points(view.data(), view.size() / 3, nullptr, err);
     if (!m) return -1;
     for (const pb_odom::Held &h : o->held) {
@@ -356,11 +363,7 @@ static int check_sparse(pb_odom_t *o, const std::vector<float> &pts, const Eigen
     if (recent.size() < kSparseFits / 2) return 0;
     std::nth_element(recent.begin(), recent.begin() + recent.size() / 2, recent.end());
     if (!(r->inlier_fraction < o->cfg.sparse_fit_drop * recent[recent.size() / 2])) return 0;
-    std::vector<float> before(o->last_sweep.size());
-    for (size_t i = 0; i + 2 < before.size(); i += 3) {
-        const Vec3 q = o->last_pose * Vec3(o->last_sweep[i], o->last_sweep[i + 1], o->last_sweep[i + 2]);
-        for (int a = 0; a < 3; a++) before[i + a] = (float)q[a];
-    }
+    const std::vector<float> before = moved(o->last_sweep, o->last_pose);
     pb_err_t e;
     pb_regmap_t *m = pb_regmap_from_points(before.data(), before.size() / 3, nullptr, &e);
     if (!m) return 0;   /* the sweep before holds no surface to match: r stands */
