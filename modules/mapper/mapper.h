@@ -105,6 +105,7 @@ struct Run {
     size_t carved_groups = 0;                /* of those, in groups that views saw through */
     uint64_t under_returns = 0;              /* pass 4: returns at the road under a body taken out */
     size_t under_moved = 0, under_gone = 0;   /* kept voxels it moved (those that went included), those that went */
+    size_t under_sweeps = 0;                  /* sweeps it read when a body was hit (pb_under_busy) */
     long views = 0;                          /* sweeps taken as views by the carving */
     double m_per_px = 0;
     double peak_mb[5] = {};                  /* peak resident memory of each step (kPeakStep) */

@@ -356,6 +356,7 @@ int write_report(const Run &R, const double cpu_ms[4], double wall_s, pb_err_t *
     cJSON_AddNumberToObject(j, "under_moving_returns_taken", (double)R.under_returns);
     cJSON_AddNumberToObject(j, "under_moving_points_moved", (double)R.under_moved);
     cJSON_AddNumberToObject(j, "under_moving_points_gone", (double)R.under_gone);
+    cJSON_AddNumberToObject(j, "under_sweeps_read", (double)R.under_sweeps);
     cJSON_AddNumberToObject(j, "carving_views", (double)R.views);
     cJSON_AddNumberToObject(j, "map_voxel_m", R.voxel);
     /* the map in tiles: how many, the most held at once (pass 2: tiles and voxels; carving) */

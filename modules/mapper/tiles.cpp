@@ -473,10 +473,16 @@ static int pass_under(Run *R, const pb_ground_t *ground, pb_err_t *err)
      * pb_under_sweep here (in the sweeps' order); each stage has its own copy of the sweep. */
     PlacedSweep stage[2];
     std::future<void> placing;
-    long sweeps = 0;
+    size_t sweep = 0;   /* pass 2's number of the sweep */
+    long sweeps = 0;    /* those placed */
     auto under_sweep = [&](PlacedSweep &P) { if (P.n > 0) pb_under_sweep(u, P.xyz.data(), (size_t)P.n, &P.pts, P.index.data()); };
     int rc = for_each_drive_sweep(R, "mapper: under", 1,
-        [&](Run *D, int64_t utime, const std::vector<float> &, const pb_points_t &pts, const pb_event_t &, pb_err_t *) {
+        [&](Run *D, int64_t utime, const std::vector<float> &, const pb_points_t &pts, const pb_event_t &, pb_err_t *e) {
+            if (sweep >= R->sweep_times.size())
+                return pb_err_set(e, "internal: the log holds more sweeps than the map pass read (%zu)", R->sweep_times.size());
+            // a sweep when no body was hit takes nothing: not placed
+            if (!pb_under_busy(u, R->sweep_times[sweep++])) return 0;
+            R->under_sweeps++;
             PlacedSweep &P = stage[sweeps % 2];
             P.take(pts);
             if (placing.valid()) placing.get();
@@ -575,6 +581,9 @@ int pass_carve(Run *R, const pb_ground_t *ground, pb_err_t *err)
     const Eigen::Isometry3d bl = pb_reg_from_transform(&R->veh.base_from_lidar);
     struct Ray { int64_t utime; Eigen::Vector3d o, e; };
     std::vector<Ray> rays;
+    struct Reach { int64_t x0, x1, y0, y1; };   /* a ray's tiles (those of its box, in reach) */
+    std::vector<Reach> reach;
+    std::vector<std::pair<uint32_t, uint32_t>> work;   /* a tile in reach (its place in under): its rays */
     std::vector<pb_carve_t *> under;   /* the sweep's reach, row by row: the tile's carving or NULL */
     long sampled = 0;
     int drive = -1, view_drive = -1;
@@ -617,7 +626,7 @@ int pass_carve(Run *R, const pb_ground_t *ground, pb_err_t *err)
         std::vector<pb_carve_t *> parts;
         for (pb_carve_t *c : tiles_in_reach)
             if (c) parts.push_back(c);
-        pb_split2(parts.size(), [&](size_t a, size_t b) { for (size_t i = a; i < b; i++) pb_carve_look(parts[i], v); }, 2);
+        pb_take2(parts.size(), [&](size_t i) { pb_carve_look(parts[i], v); });
         R->views++;
         pb_carve_view_destroy(v);
     };
@@ -666,19 +675,30 @@ int pass_carve(Run *R, const pb_ground_t *ground, pb_err_t *err)
                 }
             R->carve_tiles_held_max = std::max(R->carve_tiles_held_max, (long)tiles.held.size());
             // each ray cast in the tiles under it (one longer than max_range_m: those within it),
-            // the tiles of one checkerboard colour on another thread (a tile's counts are its
-            // own: each sees its rays in the same order either way)
-            auto cast = [&](int colour) {
-                for (const Ray &r : rays) {
-                    const int64_t x0 = std::max(lo[0], cgrid.of(std::min(r.o.x(), r.e.x()))),
-                                  x1 = std::min(hi[0], cgrid.of(std::max(r.o.x(), r.e.x()))),
-                                  y0 = std::max(lo[1], cgrid.of(std::min(r.o.y(), r.e.y()))),
-                                  y1 = std::min(hi[1], cgrid.of(std::max(r.o.y(), r.e.y())));
-                    for (int64_t ty = y0; ty <= y1; ty++)
-                        for (int64_t tx = x0 + ((x0 + ty + colour) & 1); tx <= x1; tx += 2)
-                            if (pb_carve_t *c = under[(size_t)((ty - lo[1]) * w + (tx - lo[0]))])
-                                pb_carve_ray(c, r.utime, r.o.data(), r.e.data());
-                }
+            // tile by tile, the tiles with the most rays first taken in turn by two threads (a
+            // tile's counts are its own: each sees its rays in the same order either way)
+            reach.clear();
+            work.assign(under.size(), {0, 0});
+            for (const Ray &r : rays) {
+                const Reach b{std::max(lo[0], cgrid.of(std::min(r.o.x(), r.e.x()))), std::min(hi[0], cgrid.of(std::max(r.o.x(), r.e.x()))),
+                              std::max(lo[1], cgrid.of(std::min(r.o.y(), r.e.y()))), std::min(hi[1], cgrid.of(std::max(r.o.y(), r.e.y())))};
+                reach.push_back(b);
+                for (int64_t ty = b.y0; ty <= b.y1; ty++)
+                    for (int64_t tx = b.x0; tx <= b.x1; tx++) work[(size_t)((ty - lo[1]) * w + (tx - lo[0]))].second++;
+            }
+            for (size_t t = 0; t < work.size(); t++) work[t].first = (uint32_t)t;
+            work.erase(std::remove_if(work.begin(), work.end(), [&](const std::pair<uint32_t, uint32_t> &t) {
+                           return t.second == 0 || !under[t.first];
+                       }), work.end());
+            std::stable_sort(work.begin(), work.end(), [](const std::pair<uint32_t, uint32_t> &a, const std::pair<uint32_t, uint32_t> &b) {
+                return a.second > b.second;
+            });
+            auto cast = [&](size_t i) {
+                const int64_t tx = lo[0] + work[i].first % w, ty = lo[1] + work[i].first / w;
+                pb_carve_t *c = under[work[i].first];
+                for (size_t k = 0; k < rays.size(); k++)
+                    if (tx >= reach[k].x0 && tx <= reach[k].x1 && ty >= reach[k].y0 && ty <= reach[k].y1)
+                        pb_carve_ray(c, rays[k].utime, rays[k].o.data(), rays[k].e.data());
             };
             // about once a second of the drive, the whole sweep as a view of the tiles in reach
             // (made while the rays are cast, counted after them)
@@ -688,9 +708,7 @@ int pass_carve(Run *R, const pb_ground_t *ground, pb_err_t *err)
                 last_view = utime;
                 view = std::async(std::launch::async, make_view, D, utime, std::cref(pts));
             }
-            std::future<void> other = std::async(std::launch::async, cast, 1);
-            cast(0);
-            other.get();
+            pb_take2(work.size(), cast);
             if (view.valid()) look(view.get(), under);
             // the tiles no sampled sweep of the last 10 reached paged out
             return sampled % 5 == 0 ? tiles.page_out(sampled - 10, e) : 0;

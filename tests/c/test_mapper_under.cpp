@@ -214,6 +214,37 @@ int main()
     pb_under_counts(u, &returns, &voxels);
     CHECK(returns > 0 && voxels >= moved + gone);
     pb_under_destroy(u);
+    /* a sweep when no body was hit takes nothing (pb_under_busy): the tyre was hit in sweeps 5
+     * and 6 only, and a read of those two alone leaves every voxel as the read of all twelve */
+    {
+        std::vector<std::pair<int64_t, std::vector<double>>> timed;
+        for (size_t k = 0; k < s.sweeps.size(); k++) timed.push_back({(int64_t)k * 100000, s.sweeps[k]});
+        const std::vector<int64_t> hit = hits_of(carved, timed);
+        pb_under_t *every = read_drive(carved, ground, s.sweeps);
+        pb_under_t *busy = pb_under_create(carved.data(), carved.size() / 3, 3, hit.data(), kVoxel, ground, nullptr);
+        std::vector<int> read;
+        for (const auto &t : timed)
+            if (pb_under_busy(busy, t.first)) {
+                read.push_back((int)(t.first / 100000));
+                pb_under_sweep(busy, t.second.data(), t.second.size() / 3);
+            }
+        CHECK(read == std::vector<int>({5, 6}));
+        CHECK(pb_under_busy(busy, 550000) && !pb_under_busy(busy, 499999) && !pb_under_busy(busy, 600001));
+        size_t differ = 0, changed = 0;
+        for (const auto &v : map) {
+            float p[4], q[4];
+            std::copy(v.second.first.begin(), v.second.first.end(), p);
+            std::copy(v.second.first.begin(), v.second.first.end(), q);
+            const uint32_t a = pb_under_adjust(every, p, v.second.second), b = pb_under_adjust(busy, q, v.second.second);
+            differ += a != b || std::memcmp(p, q, sizeof p) != 0;
+            changed += a != v.second.second;
+        }
+        std::printf("busy sweeps: %zu of %zu read, %zu voxels changed by both, %zu differ\n", read.size(), s.sweeps.size(),
+                    changed, differ);
+        CHECK(changed >= 5 && differ == 0);
+        pb_under_destroy(every);
+        pb_under_destroy(busy);
+    }
     /* a body over body_max_m marks nothing: the bus's side alone taken as carved */
     {
         std::vector<float> bus;

@@ -39,6 +39,7 @@ struct pb_under {
     KeyBits watch_bits, around_bits, body_bits, taken_bits;   /* filters in front of watch, around, body and taken */
     bool settled = false;                 /* body and watch made from seen (at the first sweep) */
     std::unordered_set<uint64_t> body;    /* carved voxels that are bodies */
+    std::vector<std::pair<int64_t, int64_t>> hit_spans;   /* when bodies were hit: first, last; sorted, apart */
     std::unordered_set<uint64_t> watch;   /* where a body stood: its columns and their 8 neighbours */
     std::unordered_set<uint64_t> around;  /* the columns within twice bump_reach_m of a watched one */
     std::unordered_map<uint64_t, Taken> taken;
@@ -107,6 +108,7 @@ static void settle(pb_under_t *u)
     for (const auto &kv : u->seen) {
         if (kv.second.first > kv.second.second || kv.second.second - kv.second.first > span_us) continue;
         u->body.insert(kv.first);
+        u->hit_spans.push_back(kv.second);
         u->body_bits.add(kv.first);
         double c[3];
         pb_map_voxel_corner(u->voxel_m, kv.first, c);
@@ -118,6 +120,13 @@ static void settle(pb_under_t *u)
             }
     }
     u->seen.clear();
+    std::sort(u->hit_spans.begin(), u->hit_spans.end());
+    size_t m = 0;   /* overlapping spans merged */
+    for (const auto &h : u->hit_spans) {
+        if (m > 0 && h.first <= u->hit_spans[m - 1].second) u->hit_spans[m - 1].second = std::max(u->hit_spans[m - 1].second, h.second);
+        else u->hit_spans[m++] = h;
+    }
+    u->hit_spans.resize(m);
     /* a bump may lie up to bump_reach_m from a watched column, and its test looks as far again */
     const int r = 1 + (int)std::ceil(2 * u->cfg.bump_reach_m * u->inv_col);
     for (uint64_t c : u->watch)
@@ -129,6 +138,14 @@ static void settle(pb_under_t *u)
 }
 
 void pb_under_destroy(pb_under_t *u) { delete u; }
+
+int pb_under_busy(pb_under_t *u, int64_t t)
+{
+    if (!u->settled) settle(u);
+    /* the last span that starts at or before t */
+    auto it = std::upper_bound(u->hit_spans.begin(), u->hit_spans.end(), std::make_pair(t, INT64_MAX));
+    return it != u->hit_spans.begin() && std::prev(it)->second >= t;
+}
 
 void pb_under_sweep(pb_under_t *u, const double *xyz, size_t n, const pb_points_t *pts, const int32_t *index)
 {

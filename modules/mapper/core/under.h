@@ -83,6 +83,11 @@ void pb_under_destroy(pb_under_t *u);
 void pb_under_sweep(pb_under_t *u, const double *xyz, size_t n, const pb_points_t *pts = nullptr,
                     const int32_t *index = nullptr);
 
+/* 1 when a sweep at time t (on the clock of hit) may have a return in a body: one was hit at
+ * t, between its first and last hit; else 0. pb_under_sweep takes nothing from a sweep at
+ * any other time (a body return marks what it takes), so such a sweep need not be read. */
+int pb_under_busy(pb_under_t *u, int64_t t);
+
 /* A voxel's map point p (x y z intensity) of n returns: p without the returns taken out of
  * its voxel, when it lies higher than lifted_m over the ground and no higher than road_max_m.
  * Returns the returns left (0: the voxel goes; n: p unchanged). */
