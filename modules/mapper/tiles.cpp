@@ -581,9 +581,8 @@ int pass_carve(Run *R, const pb_ground_t *ground, pb_err_t *err)
     const Eigen::Isometry3d bl = pb_reg_from_transform(&R->veh.base_from_lidar);
     struct Ray { int64_t utime; Eigen::Vector3d o, e; };
     std::vector<Ray> rays;
-    struct Reach { int64_t x0, x1, y0, y1; };   /* a ray's tiles (those of its box, in reach) */
-    std::vector<Reach> reach;
-    std::vector<std::pair<uint32_t, uint32_t>> work;   /* a tile in reach (its place in under): its rays */
+    std::vector<std::vector<uint32_t>> rays_in;   /* per tile in reach (as under): the rays its box holds, in order */
+    std::vector<uint32_t> order;                  /* the tiles with rays, the most first */
     std::vector<pb_carve_t *> under;   /* the sweep's reach, row by row: the tile's carving or NULL */
     long sampled = 0;
     int drive = -1, view_drive = -1;
@@ -677,28 +676,26 @@ int pass_carve(Run *R, const pb_ground_t *ground, pb_err_t *err)
             // each ray cast in the tiles under it (one longer than max_range_m: those within it),
             // tile by tile, the tiles with the most rays first taken in turn by two threads (a
             // tile's counts are its own: each sees its rays in the same order either way)
-            reach.clear();
-            work.assign(under.size(), {0, 0});
-            for (const Ray &r : rays) {
-                const Reach b{std::max(lo[0], cgrid.of(std::min(r.o.x(), r.e.x()))), std::min(hi[0], cgrid.of(std::max(r.o.x(), r.e.x()))),
-                              std::max(lo[1], cgrid.of(std::min(r.o.y(), r.e.y()))), std::min(hi[1], cgrid.of(std::max(r.o.y(), r.e.y())))};
-                reach.push_back(b);
-                for (int64_t ty = b.y0; ty <= b.y1; ty++)
-                    for (int64_t tx = b.x0; tx <= b.x1; tx++) work[(size_t)((ty - lo[1]) * w + (tx - lo[0]))].second++;
+            rays_in.resize(under.size());
+            for (std::vector<uint32_t> &v : rays_in) v.clear();
+            for (size_t k = 0; k < rays.size(); k++) {
+                const Ray &r = rays[k];
+                const int64_t x0 = std::max(lo[0], cgrid.of(std::min(r.o.x(), r.e.x()))),
+                              x1 = std::min(hi[0], cgrid.of(std::max(r.o.x(), r.e.x()))),
+                              y0 = std::max(lo[1], cgrid.of(std::min(r.o.y(), r.e.y()))),
+                              y1 = std::min(hi[1], cgrid.of(std::max(r.o.y(), r.e.y())));
+                for (int64_t ty = y0; ty <= y1; ty++)
+                    for (int64_t tx = x0; tx <= x1; tx++) {
+                        const size_t t = (size_t)((ty - lo[1]) * w + (tx - lo[0]));
+                        if (under[t]) rays_in[t].push_back((uint32_t)k);
+                    }
             }
-            for (size_t t = 0; t < work.size(); t++) work[t].first = (uint32_t)t;
-            work.erase(std::remove_if(work.begin(), work.end(), [&](const std::pair<uint32_t, uint32_t> &t) {
-                           return t.second == 0 || !under[t.first];
-                       }), work.end());
-            std::stable_sort(work.begin(), work.end(), [](const std::pair<uint32_t, uint32_t> &a, const std::pair<uint32_t, uint32_t> &b) {
-                return a.second > b.second;
-            });
+            order.clear();
+            for (size_t t = 0; t < under.size(); t++)
+                if (!rays_in[t].empty()) order.push_back((uint32_t)t);
+            std::stable_sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b) { return rays_in[a].size() > rays_in[b].size(); });
             auto cast = [&](size_t i) {
-                const int64_t tx = lo[0] + work[i].first % w, ty = lo[1] + work[i].first / w;
-                pb_carve_t *c = under[work[i].first];
-                for (size_t k = 0; k < rays.size(); k++)
-                    if (tx >= reach[k].x0 && tx <= reach[k].x1 && ty >= reach[k].y0 && ty <= reach[k].y1)
-                        pb_carve_ray(c, rays[k].utime, rays[k].o.data(), rays[k].e.data());
+                for (uint32_t k : rays_in[order[i]]) pb_carve_ray(under[order[i]], rays[k].utime, rays[k].o.data(), rays[k].e.data());
             };
             // about once a second of the drive, the whole sweep as a view of the tiles in reach
             // (made while the rays are cast, counted after them)
@@ -708,7 +705,7 @@ int pass_carve(Run *R, const pb_ground_t *ground, pb_err_t *err)
                 last_view = utime;
                 view = std::async(std::launch::async, make_view, D, utime, std::cref(pts));
             }
-            pb_take2(work.size(), cast);
+            pb_take2(order.size(), cast);
             if (view.valid()) look(view.get(), under);
             // the tiles no sampled sweep of the last 10 reached paged out
             return sampled % 5 == 0 ? tiles.page_out(sampled - 10, e) : 0;
