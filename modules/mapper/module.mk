@@ -5,10 +5,12 @@ $(BIN)/mapper: $(OBJ)/modules/localizer/map_source.o $(OBJ)/tools/build-ground/g
 $(OBJ)/modules/mapper/%.o: CPPFLAGS += -I$(TOP)/modules/localizer/core -I$(TOP)/modules/mapper/core \
                                        -I$(TOP)/modules/localizer -I$(TOP)/tools/build-ground
 
-# Unit tests of the loop closure, the GNSS anchoring and the carving (run by make test through tests/test_c_units.py).
+# Unit tests of the loop closure, the odometry, the GNSS anchoring and the carving (run by make test through tests/test_c_units.py).
 $(eval $(call cxx_test,test_mapper_loops,tests/c/test_mapper_loops.cpp modules/mapper/core/loops.cpp modules/mapper/core/pose_graph.cpp $(LOCREG_CORE),-lceres -lglog))
 $(OBJ)/tests/c/test_mapper_loops.o: CPPFLAGS += -I$(TOP)/modules/localizer/core
 $(eval $(call cxx_test,test_mapper_anchor,tests/c/test_mapper_anchor.cpp modules/mapper/core/anchor.cpp modules/mapper/core/pose_graph.cpp,-lceres -lglog))
+$(eval $(call cxx_test,test_mapper_odometry,tests/c/test_mapper_odometry.cpp modules/mapper/core/odometry.cpp $(LOCREG_CORE)))
+$(OBJ)/tests/c/test_mapper_odometry.o: CPPFLAGS += -I$(TOP)/modules/localizer/core
 $(eval $(call cxx_test,test_mapper_carve,tests/c/test_mapper_carve.cpp modules/mapper/core/carve.cpp))
 $(eval $(call cxx_test,test_mapper_under,tests/c/test_mapper_under.cpp modules/mapper/core/under.cpp))
 $(OBJ)/tests/c/test_mapper_carve.o: CPPFLAGS += -I$(TOP)/modules/localizer/core

@@ -193,7 +193,7 @@ static void test_window_search(void)
     wc.yaw_range_rad = 15 * M_PI / 180;
     std::vector<pb_loc::window_candidate_t> cand;
     int points = 0;
-    int nc = pb_loc::window_search(map->columns, pts.data(), pts.size() / 3, pose(5.2, -0.9, 26),
+    int nc = pb_loc::window_search(pb_loc::columns_of(map), pts.data(), pts.size() / 3, pose(5.2, -0.9, 26),
                                    wc, &cand, &points);
     CHECK(nc >= 1 && nc <= wc.candidates);
     CHECK(points == wc.max_points);   /* the fronts give more structure points than are scored */
@@ -205,7 +205,7 @@ static void test_window_search(void)
         CHECK(yaw_err_deg(cand[0].pose, truth) < 1.0);
         CHECK(cand[0].score > points / 2);
     }
-    nc = pb_loc::window_search(map->columns, pts.data(), pts.size() / 3, pose(500, 500, 0), wc, &cand,
+    nc = pb_loc::window_search(pb_loc::columns_of(map), pts.data(), pts.size() / 3, pose(500, 500, 0), wc, &cand,
                                &points);
     CHECK(nc == 0);
     pb_regmap_destroy(map);
@@ -383,6 +383,44 @@ static void test_rebuild(void)
     pb_regmap_destroy(o1);
     pb_regmap_destroy(o2);
     pb_regmap_destroy(prev);
+}
+
+/* VoxelHash::erase keeps every other key findable: keys put in a small table (long runs,
+ * some wrapping past its end), half of them taken out in a random order, others put in
+ * again, each step checked against a std::map. */
+static void test_voxel_hash_erase(void)
+{
+    std::mt19937_64 rng(3);
+    pb_loc::VoxelHash h(64);
+    std::map<uint64_t, int32_t> ref;
+    std::vector<uint64_t> keys;
+    for (int i = 0; i < 3000; i++) {
+        const uint64_t key = rng() >> 1;
+        bool inserted;
+        h.insert(key, i, &inserted);
+        if (inserted) { ref[key] = i; keys.push_back(key); }
+    }
+    std::shuffle(keys.begin(), keys.end(), rng);
+    bool all = true;
+    for (size_t k = 0; k < keys.size(); k++) {
+        if (k % 2 == 0) {
+            all = all && h.erase(keys[k]) && !h.erase(keys[k]);
+            ref.erase(keys[k]);
+        } else if (k % 7 == 0) {
+            bool inserted;
+            h.insert(rng() >> 1, -2, &inserted);
+        }
+        if (k % 97 == 0)
+            for (uint64_t key : keys) {
+                auto it = ref.find(key);
+                all = all && h.find(key) == (it == ref.end() ? -1 : it->second);
+            }
+    }
+    CHECK(all);
+    CHECK(h.size() >= ref.size());
+    size_t n = 0;
+    h.for_each([&](uint64_t, int32_t v) { n += v >= 0; });
+    CHECK(n == ref.size());
 }
 
 static void test_regmap_errors(void)
@@ -1203,6 +1241,7 @@ int main(void)
     test_regmap_errors();
     test_build_split();
     test_rebuild();
+    test_voxel_hash_erase();
     test_load_radius();
     test_poor_guess_settles();
     test_foliage();

@@ -553,6 +553,7 @@ int pb_tiles_page(pb_tiles_t *t, double x, double y, pb_err_t *err)
     reindex(&t->map->fine, &t->rough);
     reindex(&t->map->coarse, nullptr);
     columns_build(t->map->fine, &t->map->columns);
+    t->map->columns_made = true;
     t->tiles_loaded += changed - 2 * (int)drop.size();
     t->loads += changed - (int64_t)drop.size();
     t->drops += (int64_t)drop.size();

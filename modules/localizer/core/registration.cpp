@@ -666,7 +666,7 @@ int pb_reg_align_global(const pb_regmap_t *map, const float *xyz, size_t n, cons
     wc.yaw_range_rad = std::min(std::max(yaw_range_rad, 0.0), M_PI);
     std::vector<window_candidate_t> cand;
     int scored = 0;
-    window_search(map->columns, pts.data(), pts.size() / 3, seed, wc, &cand, &scored);
+    window_search(columns_of(map), pts.data(), pts.size() / 3, seed, wc, &cand, &scored);
     /* no structure in the window (an open square): the seed is all there is */
     if (cand.empty()) cand.push_back({ seed, 0 });
     /* 3. the candidates are refined on 2/5 of the points (every 2.5th), without the

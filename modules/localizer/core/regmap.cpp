@@ -24,20 +24,27 @@ void pb_regmap_config_default(pb_regmap_config_t *cfg)
 
 namespace {
 
-/* Fits a plane (or a line) to n points given by their sums s and scatter ss
- * (relative to one corner). Returns CELL_PLANE, CELL_LINE or 0 (too few points,
- * or neither planar nor linear). */
-int fit_target(double n, const double s[3], const double ss[6], const pb_regmap_config_t *cfg,
-               Eigen::Vector3d *mu, Eigen::Vector3d *u1, Eigen::Vector3d *u2)
+/* The scatter of n points given by their sums s and scatter ss (relative to one corner),
+ * decomposed: their mean and the eigen-decomposition of their covariance. False (nothing
+ * done) for fewer than cfg->min_points. */
+bool scatter_of(double n, const double s[3], const double ss[6], const pb_regmap_config_t *cfg,
+                Eigen::Vector3d *mu, Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> *es)
 {
-    if (n < cfg->min_points) return 0;
+    if (n < cfg->min_points) return false;
     *mu = Eigen::Vector3d(s[0] / n, s[1] / n, s[2] / n);
     Eigen::Matrix3d C;
     C << ss[0] / n, ss[1] / n, ss[2] / n, ss[1] / n, ss[3] / n, ss[4] / n, ss[2] / n, ss[4] / n, ss[5] / n;
     C -= *mu * mu->transpose();
-    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
-    es.computeDirect(C);
-    Eigen::Vector3d ev = es.eigenvalues();   /* ascending */
+    es->computeDirect(C);
+    return true;
+}
+
+/* A plane (or a line) from a scatter_of: CELL_PLANE, CELL_LINE or 0 (neither planar nor
+ * linear), with the plane's normal in u1 (u2 zero) or the line's normal plane in u1, u2. */
+int fit_target(const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> &es, const pb_regmap_config_t *cfg,
+               Eigen::Vector3d *u1, Eigen::Vector3d *u2)
+{
+    const Eigen::Vector3d ev = es.eigenvalues();   /* ascending */
     *u1 = es.eigenvectors().col(0);
     *u2 = es.eigenvectors().col(1);
     if (ev(0) <= cfg->planarity_max * ev(1)) {
@@ -48,21 +55,14 @@ int fit_target(double n, const double s[3], const double ss[6], const pb_regmap_
     return 0;
 }
 
-/* A rough cell's Gaussian from n points given by their sums s and scatter ss (relative to
- * one corner, `corner` in the map): mean and C^-1/2, whose eigenvalues are floored at 5 % of
- * the largest and at (5 cm)^2 (a sheet of leaves is nearly flat, and NDT floors them alike)
- * so that no direction is infinitely stiff. */
-void fit_rough(double n, const double s[3], const double ss[6], const double corner[3],
-               const pb_regmap_config_t *cfg, Rough *r)
+/* A rough cell's Gaussian from a scatter_of whose mean mu is relative to `corner` (in the
+ * map): mean and C^-1/2, whose eigenvalues are floored at 5 % of the largest and at
+ * (5 cm)^2 (a sheet of leaves is nearly flat, and NDT floors them alike) so that no
+ * direction is infinitely stiff. */
+void fit_rough(const Eigen::Vector3d &mu, const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> &es,
+               const double corner[3], Rough *r)
 {
     *r = Rough();
-    if (n < cfg->min_points) return;
-    Eigen::Vector3d mu(s[0] / n, s[1] / n, s[2] / n);
-    Eigen::Matrix3d C;
-    C << ss[0] / n, ss[1] / n, ss[2] / n, ss[1] / n, ss[3] / n, ss[4] / n, ss[2] / n, ss[4] / n, ss[5] / n;
-    C -= mu * mu.transpose();
-    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
-    es.computeDirect(C);
     const Eigen::Vector3d ev = es.eigenvalues();   /* ascending */
     const double floor = std::max(0.05 * ev(2), 0.0025);
     Eigen::Vector3d inv_sd;
@@ -106,14 +106,21 @@ uint8_t fit_voxel(const VoxelHash &moment_index, const std::vector<Moments> &mom
                 N += m.n;
                 for (int a = 0; a < 3; a++) S[a] += s[a];
             }
-    Eigen::Vector3d mu, u1, u2;
-    int kind = fit_target(N, S, SS, cfg, &mu, &u1, &u2);
-    if (!kind) kind = fit_target(own.n, own.s, own.ss, cfg, &mu, &u1, &u2);
+    /* (one decomposition of the neighbourhood serves its plane or line and its Gaussian) */
+    Eigen::Vector3d mu, mu_own, u1, u2;
+    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es, es_own;
+    const bool hood = scatter_of(N, S, SS, cfg, &mu, &es);
+    int kind = hood ? fit_target(es, cfg, &u1, &u2) : 0;
+    if (!kind && scatter_of(own.n, own.s, own.ss, cfg, &mu_own, &es_own)) {
+        kind = fit_target(es_own, cfg, &u1, &u2);
+        if (kind) mu = mu_own;
+    }
     if (!kind) {
         if (own.n < 2) return 0;   /* a stray point */
         /* scattered (foliage): no plane or line, but where the points are and how they spread */
         const double corner[3] = {ix * voxel, iy * voxel, iz * voxel};
-        fit_rough(N, S, SS, corner, cfg, rough);
+        if (hood) fit_rough(mu, es, corner, rough);
+        else *rough = Rough();   /* too few points for a covariance: no target */
         return kRough;
     }
     cell->kind = (uint8_t)kind;
@@ -215,6 +222,7 @@ size_t pb_loc::build_level(const float *xyz, size_t n, double voxel, const pb_re
     if (pm) {
         reuse.assign(keys.size(), -1);
         std::vector<uint64_t> changed;
+        std::vector<uint8_t> still(pm->keys.size(), 0);   /* prev's voxels there still */
         /* (in batches whose look-ups are prefetched, as above) */
         for (size_t c0 = 0; c0 < keys.size(); c0 += kBatch) {
             const size_t c1 = std::min(keys.size(), c0 + kBatch);
@@ -225,17 +233,14 @@ size_t pb_loc::build_level(const float *xyz, size_t n, double voxel, const pb_re
             }
             for (size_t c = c0; c < c1; c++) {
                 const int32_t k = reuse[c];
+                if (k >= 0) still[(size_t)k] = 1;
                 if (k >= 0 && std::memcmp(&pm->moments[(size_t)k], &moments[c], sizeof(Moments)) == 0) continue;
                 reuse[c] = -1;
                 changed.push_back(keys[c]);
             }
         }
-        for (size_t k0 = 0; k0 < pm->keys.size(); k0 += kBatch) {
-            const size_t k1 = std::min(pm->keys.size(), k0 + kBatch);
-            for (size_t k = k0; k < k1; k++) moment_index.prefetch(pm->keys[k]);
-            for (size_t k = k0; k < k1; k++)
-                if (moment_index.find(pm->keys[k]) < 0) changed.push_back(pm->keys[k]);
-        }
+        for (size_t k = 0; k < pm->keys.size(); k++)
+            if (!still[k]) changed.push_back(pm->keys[k]);
         mark_near_changed(keys, changed, moment_index, &reuse);
     }
     /* 2. per voxel: gather the neighbourhood's moments (shifted to this voxel's
@@ -331,7 +336,6 @@ pb_regmap_t *build(const float *xyz, size_t n, const pb_regmap_config_t *cfg, co
         pb_both([&]() {
                     info.cells = (int64_t)build_level(xyz, n, cfg->voxel_m, cfg, &m->fine, true,
                                                       prev ? &prev->fine : nullptr, keep);
-                    columns_build(m->fine, &m->columns);
                 },
                 [&]() {
                     if (cfg->coarse_voxel_m > 0) {
@@ -356,6 +360,16 @@ pb_regmap_t *build(const float *xyz, size_t n, const pb_regmap_config_t *cfg, co
 }
 
 }  // namespace
+
+const Columns &pb_loc::columns_of(const pb_regmap *m)
+{
+    std::lock_guard<std::mutex> lock(m->columns_mutex);
+    if (!m->columns_made) {
+        columns_build(m->fine, &m->columns);
+        m->columns_made = true;
+    }
+    return m->columns;
+}
 
 pb_regmap_t *pb_regmap_from_points(const float *xyz, size_t n, const pb_regmap_config_t *cfg,
                                    pb_err_t *err)

@@ -3,6 +3,7 @@
 #ifndef PB_LOC_REGMAP_IMPL_H
 #define PB_LOC_REGMAP_IMPL_H
 
+#include <mutex>
 #include <vector>
 #include "regmap.h"
 #include "voxel_hash.h"
@@ -105,10 +106,21 @@ size_t build_level(const float *xyz, size_t n, double voxel, const pb_regmap_con
 
 }  // namespace pb_loc
 
+struct pb_regmap;
+namespace pb_loc {
+/* m's columns, made now if they are not yet (thread-safe). */
+const Columns &columns_of(const pb_regmap *m);
+}  // namespace pb_loc
+
 struct pb_regmap {
     pb_regmap_config_t cfg;
     pb_loc::Level fine, coarse;
-    pb_loc::Columns columns;   /* the fine level's structure as columns (start-up search); rebuilt with it */
+    /* the fine level's structure as columns, for pb_reg_align_global's search: made on the
+     * first search (pb_loc::columns_of), as a map that is only tracked against never needs
+     * them (the mapper's local maps, rebuilt every few metres), or by map_tiles as it pages */
+    mutable std::mutex columns_mutex;
+    mutable bool columns_made = false;
+    mutable pb_loc::Columns columns;
     pb_regmap_info_t info;
 };
 

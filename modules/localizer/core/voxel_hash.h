@@ -101,8 +101,31 @@ public:
         }
     }
 
+    /* Removes key (if there); true if it was. The entries after it in its run move back
+     * into the gap, so that every look-up still finds its key before an empty slot. */
+    bool erase(uint64_t key)
+    {
+        size_t i = slot(key);
+        for (;; i = (i + 1) & mask_) {
+            if (keys_[i] == key) break;
+            if (keys_[i] == kEmpty) return false;
+        }
+        for (size_t j = (i + 1) & mask_; keys_[j] != kEmpty; j = (j + 1) & mask_) {
+            /* the entry at j may fill the gap at i unless its own slot lies in (i, j] */
+            const size_t home = slot(keys_[j]);
+            if (((j - home) & mask_) < ((j - i) & mask_)) continue;
+            keys_[i] = keys_[j];
+            vals_[i] = vals_[j];
+            i = j;
+        }
+        keys_[i] = kEmpty;
+        vals_[i] = -1;
+        size_--;
+        return true;
+    }
+
     /* Calls fn(key, value) for every entry, in table order (deterministic for one
-     * insertion sequence). */
+     * sequence of insertions and erasures). */
     template <class F> void for_each(F fn) const
     {
         for (size_t i = 0; i < keys_.size(); i++)

@@ -17,7 +17,8 @@ using Vec3 = Eigen::Vector3d;
 namespace {
 struct Cell {
     double sum[3];
-    int n;
+    int n;          /* 0: dropped (beyond the local radius), its slot kept until the cells are compacted */
+    uint64_t key;   /* the key the index holds it under; kEmpty: none (see rebuild) */
 };
 }  // namespace
 
@@ -32,6 +33,7 @@ struct pb_odom {
     /* the local map: cell -> centroid accumulator */
     pb_loc::VoxelHash index;
     std::vector<Cell> cells;
+    size_t dropped = 0;   /* cells with n 0 */
     /* the registration map and where it was built */
     pb_regmap_t *regmap = nullptr;
     std::vector<float> regmap_src;   /* the points it was built from (for pb_odom_save) */
@@ -143,7 +145,7 @@ static void add_to_map(pb_odom_t *o, const std::vector<float> &xyz, const Eigen:
             if (key[j] != last_key) {
                 bool fresh = false;
                 k = found[j] >= 0 ? found[j] : o->index.insert(key[j], (int32_t)o->cells.size(), &fresh);
-                if (fresh) o->cells.push_back(Cell{{0, 0, 0}, 0});
+                if (fresh) o->cells.push_back(Cell{{0, 0, 0}, 0, key[j]});
                 last_key = key[j];
             }
             Cell &c = o->cells[(size_t)k];
@@ -264,25 +266,77 @@ static void start_next(pb_odom_t *o)
 static int rebuild(pb_odom_t *o, const Vec3 &at, bool now, pb_err_t *err)
 {
     const double r2 = o->cfg.local_radius_m * o->cfg.local_radius_m;
-    std::vector<Cell> kept;
-    kept.reserve(o->cells.size());
-    std::vector<float> pts;
-    pts.reserve(3 * o->cells.size());
-    for (const Cell &c : o->cells) {
-        Vec3 p(c.sum[0] / c.n, c.sum[1] / c.n, c.sum[2] / c.n);
-        if ((p.head<2>() - at.head<2>()).squaredNorm() > r2) continue;
-        kept.push_back(c);
-        pts.insert(pts.end(), {(float)p.x(), (float)p.y(), (float)p.z()});
-    }
-    /* the index again, over the kept cells in their order (deterministic) */
-    o->cells.swap(kept);
-    o->index.reset(o->cells.size());
     const double inv = 1.0 / o->cfg.cell_m;
+    /* the cells kept: their centroids, in their order, are the registration map's points.
+     * The index holds each under its centroid's key, the first in order where two share one
+     * (a cell added since the last rebuild is held under its first point's key, and a
+     * centroid rounded to floats may lie in the next key): the dropped ones are taken out of
+     * it and those not under their centroid's key put right, the others stay */
+    std::vector<float> pts;
+    pts.reserve(3 * (o->cells.size() - o->dropped));
+    std::vector<size_t> drop;
+    struct Odd { size_t i; uint64_t key; };   /* a kept cell not held under its centroid's key */
+    std::vector<Odd> odd;
     for (size_t i = 0; i < o->cells.size(); i++) {
+        const Cell &c = o->cells[i];
+        if (c.n == 0) continue;
+        Vec3 p(c.sum[0] / c.n, c.sum[1] / c.n, c.sum[2] / c.n);
+        if ((p.head<2>() - at.head<2>()).squaredNorm() > r2) {
+            drop.push_back(i);
+            continue;
+        }
+        pts.insert(pts.end(), {(float)p.x(), (float)p.y(), (float)p.z()});
         uint64_t key;
-        bool fresh;
-        if (pb_loc::voxel_key_of(pts[3 * i], pts[3 * i + 1], pts[3 * i + 2], inv, &key))
-            o->index.insert(key, (int32_t)i, &fresh);
+        const float *q = &pts[pts.size() - 3];
+        if (!pb_loc::voxel_key_of(q[0], q[1], q[2], inv, &key)) key = pb_loc::VoxelHash::kEmpty;
+        if (key != c.key || key == pb_loc::VoxelHash::kEmpty) odd.push_back({i, key});
+    }
+    const uint64_t kNone = pb_loc::VoxelHash::kEmpty;
+    if (2 * (o->dropped + drop.size()) <= o->cells.size()) {
+        for (size_t i : drop) {
+            Cell &c = o->cells[i];
+            if (c.key != kNone) o->index.erase(c.key);
+            c.n = 0;
+            c.key = kNone;
+        }
+        o->dropped += drop.size();
+        for (const Odd &d : odd)
+            if (o->cells[d.i].key != kNone) {
+                o->index.erase(o->cells[d.i].key);
+                o->cells[d.i].key = kNone;
+            }
+        /* in order: a key goes to the first kept cell whose centroid is in it */
+        for (const Odd &d : odd) {
+            if (d.key == kNone) continue;
+            const int32_t j = o->index.find(d.key);
+            if (j >= 0 && (size_t)j < d.i) continue;
+            if (j >= 0) {
+                o->index.erase(d.key);
+                o->cells[(size_t)j].key = kNone;
+            }
+            bool fresh;
+            o->index.insert(d.key, (int32_t)d.i, &fresh);
+            o->cells[d.i].key = d.key;
+        }
+    } else {
+        /* half of the cells dropped: the kept ones compacted, and the index made again over
+         * them in their order (deterministic; the same keys as above) */
+        size_t k = 0, d = 0;
+        for (size_t i = 0; i < o->cells.size(); i++) {
+            if (o->cells[i].n == 0) continue;
+            if (d < drop.size() && drop[d] == i) { d++; continue; }
+            o->cells[k++] = o->cells[i];
+        }
+        o->cells.resize(k);
+        o->dropped = 0;
+        o->index.reset(o->cells.size());
+        for (size_t i = 0; i < o->cells.size(); i++) {
+            uint64_t key;
+            bool fresh = false;
+            if (pb_loc::voxel_key_of(pts[3 * i], pts[3 * i + 1], pts[3 * i + 2], inv, &key))
+                o->index.insert(key, (int32_t)i, &fresh);
+            o->cells[i].key = fresh ? key : kNone;
+        }
     }
     o->built_at = at;
     o->built_sweep = o->sweeps;
@@ -538,7 +592,8 @@ void pb_odom_save(const pb_odom_t *o, std::vector<uint8_t> *out)
     out->clear();
     size_t held_bytes = 1 + 8;
     for (const pb_odom::Held &h : o->held) held_bytes += 8 + 96 + 8 + 4 * h.pts.size();
-    out->reserve(256 + 28 * o->cells.size() + 12 * o->index.size() +
+    const size_t live = o->cells.size() - o->dropped;
+    out->reserve(256 + 28 * live + 12 * o->index.size() +
                  4 * (o->regmap_src.size() + o->next_src.size()) + 16 * o->speed.size() +
                  32 * o->rate.size() + held_bytes + 8 + 8 * o->sparse_fits.size() + 8 + 4 * o->last_sweep.size());   /* exactly: no doubling */
     ByteWriter w{out};
@@ -548,8 +603,15 @@ void pb_odom_save(const pb_odom_t *o, std::vector<uint8_t> *out)
         for (int c = 0; c < 4; c++) w.put(o->last_pose.matrix()(r, c));
     put_vec3(w, o->v); put_vec3(w, o->w); w.put((uint8_t)o->motion_known);
     put_vec3(w, o->built_at); w.put(o->built_sweep);
-    w.put((uint64_t)o->cells.size());
-    for (const Cell &c : o->cells) { w.put(c.sum[0]); w.put(c.sum[1]); w.put(c.sum[2]); w.put(c.n); }
+    /* the cells as if compacted (the dropped left out, the index's values moved down with
+     * them): a state is the same bytes however often its cells were compacted */
+    std::vector<int32_t> at(o->cells.size(), -1);
+    int32_t k = 0;
+    for (size_t i = 0; i < o->cells.size(); i++)
+        if (o->cells[i].n > 0) at[i] = k++;
+    w.put((uint64_t)live);
+    for (const Cell &c : o->cells)
+        if (c.n > 0) { w.put(c.sum[0]); w.put(c.sum[1]); w.put(c.sum[2]); w.put(c.n); }
     /* the index as it is: keys of cells added since the last rebuild come from their first
      * point, the others from their centroid, and two centroids may share a key */
     w.put((uint64_t)o->index.size());
@@ -558,7 +620,7 @@ void pb_odom_save(const pb_odom_t *o, std::vector<uint8_t> *out)
      * to the same bytes */
     std::vector<std::pair<uint64_t, int32_t>> keyed;
     keyed.reserve(o->index.size());
-    o->index.for_each([&](uint64_t key, int32_t value) { keyed.push_back({key, value}); });
+    o->index.for_each([&](uint64_t key, int32_t value) { keyed.push_back({key, at[(size_t)value]}); });
     std::sort(keyed.begin(), keyed.end());
     for (const auto &kv : keyed) { w.put(kv.first); w.put(kv.second); }
     w.put_array(o->regmap_src.data(), o->regmap_src.size());
@@ -642,7 +704,10 @@ pb_odom_t *pb_odom_restore(const uint8_t *data, size_t n, const pb_odom_config_t
     uint64_t ncells = r.get<uint64_t>();
     if (r.ok && ncells <= n / 28) {
         o->cells.resize(ncells);
-        for (Cell &c : o->cells) { c.sum[0] = r.get<double>(); c.sum[1] = r.get<double>(); c.sum[2] = r.get<double>(); c.n = r.get<int>(); }
+        for (Cell &c : o->cells) {
+            c.sum[0] = r.get<double>(); c.sum[1] = r.get<double>(); c.sum[2] = r.get<double>(); c.n = r.get<int>();
+            c.key = pb_loc::VoxelHash::kEmpty;
+        }
     } else r.ok = false;
     uint64_t nindex = r.get<uint64_t>();
     if (r.ok && nindex <= n / 12) {
@@ -655,6 +720,7 @@ pb_odom_t *pb_odom_restore(const uint8_t *data, size_t n, const pb_odom_config_t
             bool fresh;
             o->index.insert(key, value, &fresh);
             if (!fresh) r.ok = false;   /* a key twice */
+            o->cells[(size_t)value].key = key;
         }
     } else r.ok = false;
     r.get_array(&o->regmap_src);
