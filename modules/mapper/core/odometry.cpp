@@ -289,31 +289,26 @@ static int rebuild(pb_odom_t *o, const Vec3 &at, bool now, pb_err_t *err)
         uint64_t key;
         const float *q = &pts[pts.size() - 3];
         if (!pb_loc::voxel_key_of(q[0], q[1], q[2], inv, &key)) key = pb_loc::VoxelHash::kEmpty;
-        if (key != c.key || key == pb_loc::VoxelHash::kEmpty) odd.push_back({i, key});
+        if (key != c.key) odd.push_back({i, key});
     }
     const uint64_t kNone = pb_loc::VoxelHash::kEmpty;
+    auto unkey = [o, kNone](Cell &c) {   /* c out of the index */
+        if (c.key != kNone) o->index.erase(c.key);
+        c.key = kNone;
+    };
     if (2 * (o->dropped + drop.size()) <= o->cells.size()) {
         for (size_t i : drop) {
-            Cell &c = o->cells[i];
-            if (c.key != kNone) o->index.erase(c.key);
-            c.n = 0;
-            c.key = kNone;
+            unkey(o->cells[i]);
+            o->cells[i].n = 0;
         }
         o->dropped += drop.size();
-        for (const Odd &d : odd)
-            if (o->cells[d.i].key != kNone) {
-                o->index.erase(o->cells[d.i].key);
-                o->cells[d.i].key = kNone;
-            }
+        for (const Odd &d : odd) unkey(o->cells[d.i]);
         /* in order: a key goes to the first kept cell whose centroid is in it */
         for (const Odd &d : odd) {
             if (d.key == kNone) continue;
             const int32_t j = o->index.find(d.key);
             if (j >= 0 && (size_t)j < d.i) continue;
-            if (j >= 0) {
-                o->index.erase(d.key);
-                o->cells[(size_t)j].key = kNone;
-            }
+            if (j >= 0) unkey(o->cells[(size_t)j]);
             bool fresh;
             o->index.insert(d.key, (int32_t)d.i, &fresh);
             o->cells[d.i].key = d.key;
