@@ -238,6 +238,30 @@ def test_trajectory_scale_is_told_apart_from_ate():
     assert 0.29 < amax < 0.31 and 0.2 < rmse < 0.25, (rmse, amax)   # 0.1 % of the 300 m half-length: 0.30 m
 
 
+def test_drift_is_scored_where_a_car_can_have_driven_the_reference():
+    """bench-mapper's drift where the reference is possible (trajmetrics.possible_spans): a car
+    driving along -x of its base frame (a LiDAR mounted facing backwards, as MulRan's), whose
+    reference then slides 5 m backwards and sideways for three steps (MulRan's dataset poses at
+    keyframes 66-91 do): those poses leave the spans, and a segment across them is not scored."""
+    sys.path.insert(0, str(ROOT / "modules" / "mapper" / "bench"))
+    import trajmetrics as tm
+    n = 120
+    t = 0.5 * np.arange(n)
+    ref = np.tile(np.eye(4), (n, 1, 1))
+    step = np.tile([-5.0, 0.0], (n, 1))                # 10 m/s along -x
+    step[60:63] = [4.0, 3.0]                           # steps 60-62: backwards 8 m/s, sideways 6 m/s
+    ref[1:, :2, 3] = np.cumsum(step[1:], axis=0)
+    bad = tm.impossible_steps(t, ref)
+    assert np.nonzero(bad)[0].tolist() == [60, 61, 62], np.nonzero(bad)[0]
+    span = tm.possible_spans(t, ref, flagged=[10])
+    assert span[10] == -1 and span[60] == -1 and span[0] == span[59] - 1 == 0 and span[63] == 2, span
+    est = ref.copy()
+    est[61:, :2, 3] += [-30.0, -9.0]                   # one that went on at speed there: 31 m apart after
+    full = tm.relative_drift(est, ref, lengths=[100])
+    part = tm.relative_drift(est, ref, lengths=[100], span=span)
+    assert full[0] > 5 and part[0] < 1e-9 and 0 < part[2] < full[2], (full[:3], part[:3])   # 6.3 % and 0
+
+
 def geo_error(site, gt):
     """A geo-referenced site's trajectory against the truth (the default site's frame, taken
     through both sites' geo-references): horizontal errors (m) and yaw errors (deg) per sweep."""

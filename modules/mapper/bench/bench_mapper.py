@@ -38,6 +38,11 @@ OUTDIR/report.json. Both are scored against the reference (base poses in map):
                       too): the figure compared
   RTF                 real-time factor: scan period (median spacing of the drive's sweeps) /
                       mean CPU time per frame
+  drift where possible (MulRan's references, both estimates): the same drift over the segments
+                      whose reference poses a car can have driven (trajmetrics.possible_spans:
+                      no step sliding sideways or running against the heading faster than
+                      2 m/s, no speed changing faster than 5 m/s^2, none the refined
+                      reference's report flags); also per start
 On a drive of 600 sweeps or fewer (hills, MulRan) KISS-ICP runs --runs times too, each run just
 before one of ours (so that both meet the shared host in the same state), and the CPU time per
 frame compared is each method's median run (the other drives are too long to repeat
@@ -180,13 +185,17 @@ def mulran_drive():
 
 def mulran_refined_reference(base_from_lidar, path):
     """The refined reference of bench-localizer-real (KITTI LiDAR poses, one per keyframe, at
-    the dataset's times) as base poses in map, if that run made it."""
+    the dataset's times) as base poses in map, if that run made it, with the times of the
+    keyframes its report does not believe (for the drift where it is possible)."""
     if not path.exists():
         return []
     times = np.atleast_1d(np.loadtxt(MULRAN / "times.txt"))
     P = tm.read_kitti(path)
     n = min(len(P), len(times))
-    return [("refined (bench-loc-real)", times[:n], P[:n] @ np.linalg.inv(base_from_lidar))]
+    rep = path.parent / "reference-report.json"
+    flagged = json.loads(rep.read_text())["implausible_keyframes_refined"] if rep.exists() else []
+    return [("refined (bench-loc-real)", times[:n], P[:n] @ np.linalg.inv(base_from_lidar),
+             times[[k for k in flagged if k < n]])]
 
 
 # ---------------------------------------------------------------- KISS-ICP
@@ -305,8 +314,10 @@ def run_ours(cmd, log_path, out_dir, vehicle):
 
 # ---------------------------------------------------------------- scoring
 
-def score(times, poses, ref_times, ref_poses):
-    """Metrics of a base trajectory (times, poses) against a reference."""
+def score(times, poses, ref_times, ref_poses, flagged=None):
+    """Metrics of a base trajectory (times, poses) against a reference. flagged (times of
+    reference poses not to be believed; a real reference's): also the drift over the segments
+    where the reference is a motion a car can make (trajmetrics.possible_spans)."""
     inside, ref = tm.poses_at(ref_times, ref_poses, times)
     est = poses[inside]
     if len(est) < 3:
@@ -316,10 +327,17 @@ def score(times, poses, ref_times, ref_poses):
     rmse, amax, _ = tm.ate(est, ref)
     scale, amax_sim3 = tm.ate_sim3(est, ref)
     dt, dr, nseg, lengths, per = tm.relative_drift(est, ref)
-    return {"poses": int(len(est)), "poses_outside_reference": int((~inside).sum()),
-            "path_m": tm.path_length(ref), "drift_pct": dt, "drift_deg_per_100m": dr, "drift_segments": nseg,
-            "drift_lengths_m": lengths, "drift_per_length": {str(k): v for k, v in per.items()},
-            "ate_rmse_m": rmse, "ate_max_m": amax, "sim3_scale": scale, "ate_sim3_max_m": amax_sim3}
+    out = {"poses": int(len(est)), "poses_outside_reference": int((~inside).sum()),
+           "path_m": tm.path_length(ref), "drift_pct": dt, "drift_deg_per_100m": dr, "drift_segments": nseg,
+           "drift_lengths_m": lengths, "drift_per_length": {str(k): v for k, v in per.items()},
+           "ate_rmse_m": rmse, "ate_max_m": amax, "sim3_scale": scale, "ate_sim3_max_m": amax_sim3}
+    if flagged is not None:
+        t = times[inside]
+        fl = [i for i in range(len(t)) if np.any(np.abs(np.asarray(flagged) - t[i]) < 1e-3)]
+        span = tm.possible_spans(t, ref, fl)
+        out["drift_possible_pct"], _, out["drift_possible_segments"], _, _ = tm.relative_drift(est, ref, span=span)
+        out["reference_possible_poses"] = int(np.sum(span >= 0))
+    return out
 
 
 def timing(cpu_ms, period_s):
@@ -354,9 +372,10 @@ def surface_score(ours_dir, gt_path, site, drive_args):
     return json.loads(p.stdout)
 
 
-def bench_drive(name, log_path, vehicle, sensor_range, gt_label, extra_refs, args, result, world=None):
+def bench_drive(name, log_path, vehicle, sensor_range, gt_label, extra_refs, args, result, world=None, gt_real=False):
     """Scores against the log's GROUND_TRUTH (labelled gt_label) and extra_refs(base_from_lidar),
-    a list of more (label, times, base poses)."""
+    a list of more (label, times, base poses, flagged: see score). gt_real: GROUND_TRUTH is a
+    real reference (an estimate): scored also where it is a motion a car can make."""
     d = OUT / name
     d.mkdir(parents=True, exist_ok=True)
     log(f"[{name}] exporting scans of {log_path} ...")
@@ -366,7 +385,7 @@ def bench_drive(name, log_path, vehicle, sensor_range, gt_label, extra_refs, arg
     gt_path = ex / "ground_truth.tum"
     if not gt_path.exists():
         raise RuntimeError(f"{log_path}: no GROUND_TRUTH to score against")
-    refs = [(gt_label,) + tm.read_tum(gt_path)] + (extra_refs(B) if extra_refs else [])
+    refs = [(gt_label,) + tm.read_tum(gt_path) + (() if gt_real else None,)] + (extra_refs(B) if extra_refs else [])
     drive = {"log": str(log_path), "scans": len(times), "scan_period_s": period, "base_from_lidar": B.tolist(),
              "references": [r[0] for r in refs], "methods": {}}
     result["drives"][name] = drive
@@ -388,8 +407,8 @@ def bench_drive(name, log_path, vehicle, sensor_range, gt_label, extra_refs, arg
     k = {"config": conf, "notes": notes, "threads": "registration.max_num_threads=1, OMP_NUM_THREADS=1",
          "pose_time": "end of sweep (utime + last point's time): KISS-ICP deskews to the sweep's last point",
          "wall_ms_median": float(np.median(wall_ms)), **timing(cpu_ms, period), "scores": {}}
-    for label, rt, rp in refs:
-        k["scores"][label] = score(kt, kbase, rt, rp)
+    for label, rt, rp, fl in refs:
+        k["scores"][label] = score(kt, kbase, rt, rp, fl)
     drive["methods"]["kiss_icp"] = k
 
     # ours: on the LiDAR alone (KISS-ICP's input; GNSS_FIX stays for the anchoring), and, when
@@ -494,12 +513,14 @@ def run_and_score(log_path, out_dir, vehicle, refs, period, runs=1, before=None)
     ores["rtf"] = period * 1e3 / ores["cpu_ms_mean"]
     ores["whole_mapper_rtf_wall"] = rep["drive_s"] / float(np.median(walls))
     ores["scores"] = {}
-    for label, rt, rp in refs:
-        s = score(*o["trajectory"], rt, rp)
+    for label, rt, rp, fl in refs:
+        s = score(*o["trajectory"], rt, rp, fl)
         if "odometry" in o:   # drift before loop closure
-            so = score(*o["odometry"], rt, rp)
-            s["after_loop_closure"] = {kk: s.get(kk) for kk in ("drift_pct", "drift_deg_per_100m")}
+            so = score(*o["odometry"], rt, rp, fl)
+            s["after_loop_closure"] = {kk: s.get(kk) for kk in ("drift_pct", "drift_deg_per_100m", "drift_possible_pct")}
             s["drift_pct"], s["drift_deg_per_100m"] = so.get("drift_pct"), so.get("drift_deg_per_100m")
+            if "drift_possible_pct" in so:
+                s["drift_possible_pct"] = so["drift_possible_pct"]
             s["odometry_ate_rmse_m"] = so.get("ate_rmse_m")
             s["drift_from"] = "odometry.tum (before loop closure)"
         else:
@@ -542,7 +563,7 @@ def starts_on_real_scans(log_path, vehicle, refined, result, keep_scans=False):
     implausible = set(json.loads(rep_path.read_text())["implausible_keyframes_refined"])
     ex = export(log_path, OUT / "mulran" / "export", vehicle)
     _, files, B = read_export(ex)
-    ref_label, ref_t, ref_P = mulran_refined_reference(B, refined)[0]
+    ref_label, ref_t, ref_P, ref_fl = mulran_refined_reference(B, refined)[0]
     events = list(lcm.EventLog(str(log_path), "r"))
     scan_utimes = [ev.timestamp for ev in events if ev.channel == "LIDAR_SCAN"]
     rows = []
@@ -565,11 +586,13 @@ def starts_on_real_scans(log_path, vehicle, refined, result, keep_scans=False):
         else:
             ot, oP = o["odometry"] if "odometry" in o else o["trajectory"]
             row["ours_steps_agreeing"], row["steps"] = steps_agreeing(ot, oP, ref_t, ref_P, implausible)
-            row["ours_drift_pct"] = score(ot, oP, ref_t, ref_P)["drift_pct"]
+            so = score(ot, oP, ref_t, ref_P, ref_fl)
+            row["ours_drift_pct"], row["ours_drift_possible_pct"] = so["drift_pct"], so["drift_possible_pct"]
         kt, kp, _, _, _, _ = run_kiss(ex, OS1_64_RANGE_M, first=k)
         kb = kp @ np.linalg.inv(B)
         row["kiss_steps_agreeing"], _ = steps_agreeing(kt, kb, ref_t, ref_P, implausible)
-        row["kiss_drift_pct"] = score(kt, kb, ref_t, ref_P)["drift_pct"]
+        sk = score(kt, kb, ref_t, ref_P, ref_fl)
+        row["kiss_drift_pct"], row["kiss_drift_possible_pct"] = sk["drift_pct"], sk["drift_possible_pct"]
         rows.append(row)
     if not keep_scans:
         shutil.rmtree(ex / "scans", ignore_errors=True)
@@ -590,7 +613,7 @@ def carving_on_real_scans(log_path, refined, result):
         result["drives"]["mulran"]["notes"].append("carving on real scans: no refined reference (make bench-localizer-real)")
         return
     B = np.array(result["drives"]["mulran"]["base_from_lidar"])
-    _, times, lidar_poses = refs[0]
+    _, times, lidar_poses, _ = refs[0]
     d = OUT / "mulran"
     tm.write_tum(d / "refined_base.tum", times, lidar_poses @ np.linalg.inv(B))
     out = d / "given_poses"
@@ -802,19 +825,29 @@ def print_table(result):
                   f"{100 * mw['beyond_0.5']:.2f} % farther than 0.5 m ({mw['beyond_0.5_on_moving']:,} of them on moving "
                   f"objects, {mw['beyond_0.5_on_own_body']:,} on the car's own body, {mw['beyond_0.5_other']:,} other); "
                   f"points on moving objects: {mw['on_moving']:,} ({100 * mw['on_moving_share']:.3f} %, target 0)")
+        for label in drv["references"]:
+            row = {m: drv["methods"][m]["scores"][label].get("drift_possible_pct") for m in drv["methods"]
+                   if "scores" in drv["methods"][m]}
+            if any(v is not None for v in row.values()):
+                s0 = next(drv["methods"][m]["scores"][label] for m in row)
+                print(f"{dname}: drift where {label} is a motion a car can make ({s0.get('reference_possible_poses')} of "
+                      f"{s0['poses']} poses; no sliding sideways or running backwards over 2 m/s, no 5 m/s^2, none it "
+                      f"flags): " + ", ".join(f"{m} {fmt(v, '{:.1f}')} %" for m, v in row.items()))
         for line in drv.get("notes", []):
             print(f"{dname}: {line}")
         st = drv.get("starts")
         if st:
             print(f"{dname}: from {len(st['rows'])} starts, the steps within {st['tolerance']} ({st['reference']}; "
                   f"keyframes it makes implausible left out):")
-            print(f"  {'from keyframe':>13} {'steps':>5} {'ours':>6} {'KISS-ICP':>8} {'ours drift %':>12} {'KISS drift %':>12}")
+            print(f"  {'from keyframe':>13} {'steps':>5} {'ours':>6} {'KISS-ICP':>8} {'ours drift %':>12} {'KISS drift %':>12} "
+                  f"{'(where possible: ours':>21} {'KISS-ICP)':>9}")
             for r in st["rows"]:
                 if "ours_error" in r:
                     print(f"  {r['from_keyframe']:>13} ours failed: {r['ours_error'].strip().splitlines()[-1][:80]}")
                     continue
                 print(f"  {r['from_keyframe']:>13} {r['steps']:>5} {r['ours_steps_agreeing']:>6} {r['kiss_steps_agreeing']:>8} "
-                      f"{fmt(r['ours_drift_pct'], '{:.1f}'):>12} {fmt(r['kiss_drift_pct'], '{:.1f}'):>12}")
+                      f"{fmt(r['ours_drift_pct'], '{:.1f}'):>12} {fmt(r['kiss_drift_pct'], '{:.1f}'):>12} "
+                      f"{fmt(r.get('ours_drift_possible_pct'), '{:.1f}'):>21} {fmt(r.get('kiss_drift_possible_pct'), '{:.1f}'):>9}")
             print(f"  {'all':>13} {'':>5} {100 * st['ours_share']:>5.1f}% {100 * st['kiss_share']:>7.1f}%")
 
 
@@ -889,7 +922,7 @@ def main():
             log_path = mulran_drive()
             bench_drive("mulran", log_path, ROOT / "vehicles" / "lidar_mast.yaml", OS1_64_RANGE_M,
                         "dataset poses (SLAM est.)",
-                        lambda B: mulran_refined_reference(B, pathlib.Path(args.refined)), args, result)
+                        lambda B: mulran_refined_reference(B, pathlib.Path(args.refined)), args, result, gt_real=True)
             result["drives"]["mulran"]["notes"] = [
                 "reference = the dataset's FAST-LIO2 + SC-PGO poses: a SLAM estimate, not ground truth",
                 "keyframes 0.5-5.5 s apart (median 0.5 s), deskewed and downsampled already: no per-point times; "

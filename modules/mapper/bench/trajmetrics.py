@@ -100,12 +100,13 @@ def rot_angle(R):
     return np.arccos(np.clip((np.trace(R, axis1=-2, axis2=-1) - 1) / 2, -1.0, 1.0))
 
 
-def relative_drift(est, gt, lengths=DRIFT_LENGTHS_M):
+def relative_drift(est, gt, lengths=DRIFT_LENGTHS_M, span=None):
     """KITTI odometry drift: for every first pose i and every length L (metres of ground-truth
     path, only lengths shorter than the path), j = the first pose at least L further along;
-    the error of the relative motion i -> j: translation / L and rotation / L. Returns
-    (mean translational error in %, mean rotational error in deg / 100 m, segments used,
-    lengths used, per-length means as {L: (t %, r deg/100 m, n)})."""
+    the error of the relative motion i -> j: translation / L and rotation / L. With span (an
+    int per pose, -1 = none: possible_spans), only segments whose poses all lie in one span.
+    Returns (mean translational error in %, mean rotational error in deg / 100 m, segments
+    used, lengths used, per-length means as {L: (t %, r deg/100 m, n)})."""
     g = gt[:, :3, 3]
     dist = np.concatenate(([0.0], np.cumsum(np.linalg.norm(np.diff(g, axis=0), axis=1))))
     used = [L for L in lengths if L < dist[-1]]
@@ -116,6 +117,9 @@ def relative_drift(est, gt, lengths=DRIFT_LENGTHS_M):
         j = np.searchsorted(dist, dist + L, side="left")
         ok = j < len(g)
         i, j = i[ok], j[ok]
+        if span is not None:
+            keep = (span[i] >= 0) & (span[i] == span[j])
+            i, j = i[keep], j[keep]
         if len(i) == 0:
             continue
         dg = inv(gt[i]) @ gt[j]
@@ -130,6 +134,46 @@ def relative_drift(est, gt, lengths=DRIFT_LENGTHS_M):
         return float("nan"), float("nan"), 0, used, per
     te, re = np.concatenate(t_all), np.concatenate(r_all)
     return float(np.mean(te)) * 100, float(np.degrees(np.mean(re))) * 100, int(len(te)), used, per
+
+
+def impossible_steps(times, poses, max_sideways=2.0, max_backwards=2.0, max_accel=5.0):
+    """The steps k (pose k-1 to k) of a car's base trajectory that no car makes: sliding
+    sideways faster than max_sideways m/s, running against its heading faster than
+    max_backwards m/s (forward is the way the trajectory mostly goes in the base frame: a
+    LiDAR mounted facing backwards makes it -x), or a horizontal speed changing by more than
+    max_accel m/s^2 from the step before. Returns a bool per pose (True at k: step k is)."""
+    n = len(poses)
+    bad = np.zeros(n, dtype=bool)
+    if n < 2:
+        return bad
+    d = poses[1:, :3, 3] - poses[:-1, :3, 3]
+    dt = np.maximum(np.diff(times), 1e-6)
+    body = np.einsum("kji,kj->ki", poses[:-1, :3, :3], d) / dt[:, None]    # R^T d / dt
+    fwd = 1.0 if np.median(body[:, 0]) >= 0 else -1.0
+    bad[1:] = (np.abs(body[:, 1]) > max_sideways) | (fwd * body[:, 0] < -max_backwards)
+    speed = np.hypot(d[:, 0], d[:, 1]) / dt
+    acc = np.abs(np.diff(speed)) / np.maximum(0.5 * (dt[1:] + dt[:-1]), 1e-6)
+    bad[2:] |= acc > max_accel
+    return bad
+
+
+def possible_spans(times, poses, flagged=()):
+    """Spans of a reference trajectory that a car can have driven: an int per pose, the span it
+    belongs to (-1: a pose flagged or reached by an impossible step, impossible_steps). A
+    span breaks at every such pose; flagged: indices of poses not to be believed anyway."""
+    bad = impossible_steps(times, poses)
+    bad[list(flagged)] = True
+    span = np.full(len(poses), -1, dtype=int)
+    cur, prev_ok = -1, False
+    for k in range(len(poses)):
+        if bad[k]:
+            prev_ok = False
+            continue
+        if not prev_ok:
+            cur += 1
+        span[k] = cur
+        prev_ok = True
+    return span
 
 
 def path_length(poses):
