@@ -176,6 +176,25 @@ double filter_update_pose(filter_t *f, const Eigen::Isometry3d &map_from_base, c
     return kf_update<6>(f, r, H, Rn, true);
 }
 
+double filter_update_pose_except(filter_t *f, const Eigen::Isometry3d &map_from_base, const Mat6 &cov,
+                                 const Vec3 &dir)
+{
+    Eigen::Matrix<double, 6, 1> r;
+    Eigen::Matrix<double, 6, 15> H;
+    Mat6 Rn;
+    pose_residual(f, map_from_base, cov, &r, &H, &Rn);
+    /* the residual in the two translations across dir and the three rotations */
+    Vec3 a = dir.normalized(), b = a.unitOrthogonal(), c = a.cross(b);
+    Eigen::Matrix<double, 5, 6> T = Eigen::Matrix<double, 5, 6>::Zero();
+    T.block<1, 3>(0, 0) = b.transpose();
+    T.block<1, 3>(1, 0) = c.transpose();
+    T.block<3, 3>(2, 3).setIdentity();
+    Eigen::Matrix<double, 5, 1> r5 = T * r;
+    Eigen::Matrix<double, 5, 15> H5 = T * H;
+    Eigen::Matrix<double, 5, 5> R5 = T * Rn * T.transpose();
+    return kf_update<5>(f, r5, H5, R5, true);
+}
+
 double filter_pose_innovation(const filter_t *f, const Eigen::Isometry3d &map_from_base, const Mat6 &cov,
                               Eigen::Matrix<double, 6, 1> *residual)
 {

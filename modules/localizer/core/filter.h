@@ -77,6 +77,11 @@ void filter_predict_cv(filter_t *f, int64_t utime);
 /* Fuses a measured base pose. Returns the squared Mahalanobis distance of the innovation
  * (6 dof), or -1 if the update was not applied (non-finite input). */
 double filter_update_pose(filter_t *f, const Eigen::Isometry3d &map_from_base, const Mat6 &cov);
+/* The same without the translation along dir (unit, map frame): a match whose sweep does
+ * not fix the position that way (a tunnel) says nothing there, not even "where the
+ * prediction was" (a prior the registration held it to). */
+double filter_update_pose_except(filter_t *f, const Eigen::Isometry3d &map_from_base, const Mat6 &cov,
+                                 const Vec3 &dir);
 
 /* Mahalanobis distance squared of a base-pose measurement without applying it. */
 double filter_pose_innovation(const filter_t *f, const Eigen::Isometry3d &map_from_base, const Mat6 &cov,

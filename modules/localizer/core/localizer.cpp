@@ -663,6 +663,9 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
     bool free_motion = L->candidate && L->cand_vel_unknown;
     double along_fit = -1, along_rival = -1;   /* the match's structure fit and a far place's as good (sparse sweeps) */
     double reach = free_motion ? motion_reach_m(L, (t_ref - L->cand_t) * 1e-6) : 0;
+    bool degenerate = false;   /* the match is not used along `weak` ... */
+    bool detected = false;     /* ... because this sweep does not fix it (else: one did lately) */
+    Vec3 weak = Vec3::Zero();
     int rc;
     if (reach > 1.0) {
         double step;
@@ -688,6 +691,28 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
                                     &res, &err);
         else
             rc = pb_reg_align(L->map, L->xyz.data(), L->xyz.size() / 3, guess, &reg, &res, &err);
+        /* a tunnel or a road between long walls: the match is not used along it (the motion
+         * carries the position there, and its uncertainty grows) */
+        if (rc >= 0 && rc != PB_REG_FEW_POINTS && match_degenerate(L, res, &weak)) {
+            detected = true;
+            event(out, "match_degenerate", "the sweep does not fix the position along %.0f deg (walls longer than the "
+                  "LiDAR reaches: a tunnel, a bridge, a cutting): the motion carries it there",
+                  std::atan2(weak.y(), weak.x()) * 180 / M_PI);
+            if (++L->weak_run >= L->cfg.degenerate_enter_sweeps) {
+                L->weak_dir = weak;
+                L->weak_clear = 0;
+            }
+        } else if (rc >= 0) {
+            L->weak_run = 0;
+        }
+        if (rc >= 0 && L->weak_dir.squaredNorm() > 0) {
+            degenerate = true;
+            weak = L->weak_dir;
+        }
+        if (degenerate) {
+            const double s2 = L->cfg.degenerate_sigma_m * L->cfg.degenerate_sigma_m;
+            res.covariance.topLeftCorner<3, 3>() += weak * weak.transpose() * s2;
+        }
     }
     bool accept = false;
     double structure_miss = NAN;   /* the structure fit of a match that failed only that test ... */
@@ -774,7 +799,10 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
             } else {
                 accept = true;
                 if (free_motion) restart_from_two_matches(L, &prior, res.pose, t_ref);
+                else if (degenerate) filter_update_pose_except(&prior, res.pose, cov, weak);
                 else filter_update_pose(&prior, res.pose, cov);
+                if (!detected && L->weak_dir.squaredNorm() > 0 && ++L->weak_clear >= L->cfg.degenerate_clear_sweeps)
+                    L->weak_dir.setZero();
                 if (std::isfinite(si) && si >= L->cfg.structure_trust) {
                     L->last_structure = si;
                     L->last_structure_t = t_ref;
@@ -817,9 +845,24 @@ static void process_scan(localizer_t *L, int64_t utime, int64_t t_ref, const pb_
             if (skew > L->cfg.verify_deskew_m) {
                 event(out, "verify_deskew", "sweep deskewed with a speed %.1f m/s off its match (%.2f m over the sweep); "
                       "verification waits", dv, skew);
+            } else if (degenerate || detected) {
+                /* a place along a tunnel fits as well as any other */
+                event(out, "verify_degenerate", "the sweep does not fix the position along the road; verification waits");
             } else if (++L->verify_count >= L->cfg.verify_scans) {
                 L->candidate = false;
                 set_status(L, ST_TRACKING, out, "pose verified");
+            }
+        } else if (degenerate && prediction_sigma_m(L->kf) > L->cfg.degenerate_lost_m) {
+            /* not known along the road: where the walls end, a match from here would take the
+             * exit's structure for wherever the prediction has got to; relocalised instead */
+            snprintf(whybuf, sizeof whybuf, "the LiDAR does not fix the position along the road (a tunnel, long "
+                     "walls), and the motion alone knows it to %.1f m (sd)", prediction_sigma_m(L->kf));
+            set_status(L, ST_LOST, out, whybuf);
+        } else if (degenerate && prediction_sigma_m(L->kf) > L->cfg.degenerate_degraded_m) {
+            if (L->status == ST_TRACKING) {
+                snprintf(whybuf, sizeof whybuf, "the LiDAR does not fix the position along the road (a tunnel, long "
+                         "walls): from the motion alone, sd %.1f m", prediction_sigma_m(L->kf));
+                set_status(L, ST_DEGRADED, out, whybuf);
             }
         } else if (L->status != ST_TRACKING && L->status != ST_LOST) {
             set_status(L, ST_TRACKING, out, was_gap ? "LiDAR back" : "match accepted");

@@ -114,6 +114,21 @@ struct localizer_config_t {
     double gate_min_m = 0.5;               /* ... but never reject a step smaller than this */
     double pose_sigma_floor_m = 0.01;      /* floor on the match covariance (sd, m) */
     double pose_sigma_floor_rad = 0.001;   /* (sd, rad) */
+    /* A match whose sweep does not fix a horizontal direction (match_degenerate: a tunnel,
+     * walls or parapets longer than the LiDAR reaches): tested when its translation
+     * Hessian's condition number exceeds degenerate_condition (streets here: at most about
+     * 700; a simulated tunnel: 2,500-6,000), by registrations started degenerate_probe_m
+     * either way along it. The filter is then updated without that direction (the motion
+     * carries the position there; the motion gate's variance along it grows by
+     * degenerate_sigma_m squared), and tracking on such matches is DEGRADED once the
+     * position's sd exceeds degenerate_degraded_m. */
+    double degenerate_condition = 300;
+    double degenerate_probe_m = 2.0;
+    double degenerate_sigma_m = 10.0;
+    double degenerate_degraded_m = 0.3;
+    double degenerate_lost_m = 3.0;        /* ... and LOST (relocalised where the walls end) once over this */
+    int degenerate_enter_sweeps = 3;       /* in a row, before a direction is not used (a sweep of a street of porous crowns alone) */
+    int degenerate_clear_sweeps = 5;       /* ... until this many accepted in a row fix it (a sweep in a tunnel now and then seems to) */
     int rejects_to_lost = 10;              /* consecutive rejected sweeps -> LOST ... */
     /* ... unless every one failed only the structure test and no place within hold_search_m
      * and hold_search_yaw_deg fits better: the scene changed since the map (parked cars

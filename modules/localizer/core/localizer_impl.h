@@ -63,6 +63,10 @@ struct localizer {
     int verify_count = 0, reject_count = 0;
     int cand_holds = 0;              /* structure misses the candidate was kept through */
     int structure_run = 0;           /* consecutive rejected sweeps that failed only the structure test */
+    int weak_run = 0;                /* consecutive matches that did not fix a direction (match_degenerate) */
+    Vec3 weak_dir = Vec3::Zero();    /* ... after degenerate_enter_sweeps of them: the direction not used ... */
+    int weak_clear = 0;              /* ... and the accepted matches since that fixed it: the way along a tunnel
+                                      * stays unused until degenerate_clear_sweeps of them in a row */
     int64_t verified_t = 0;          /* sweep time of the last accepted match */
     int64_t held_t = 0;              /* of the last search that found no better place (scene_changed), 0 = none */
     bool lidar_gap_reported = false;
@@ -149,6 +153,9 @@ double structure_inliers(localizer_t *L, const Eigen::Isometry3d &pose);
  * peak (structure_peak_floor, structure_peak_ratio; counted as match_structure_peak). */
 bool structure_fits(localizer_t *L, const Eigen::Isometry3d &pose, double si, outputs_t *out);
 Mat6 floored(const localizer_t *L, const Mat6 &c);
+/* The horizontal direction (unit, map) a match's sweep does not fix, if there is one (see
+ * health.cpp); uses L->xyz, the sweep as matched. */
+bool match_degenerate(localizer_t *L, const pb_reg_result_t &res, Vec3 *dir);
 
 } // namespace pb_loc
 #endif

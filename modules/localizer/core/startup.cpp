@@ -342,6 +342,8 @@ bool try_initialize(localizer_t *L, int64_t t_ref, outputs_t *out)
     while (!L->buf.empty() && L->buf.front().t <= t_ref) L->buf.pop_front();
     rebuild_pred(L);
     L->candidate = true;
+    L->weak_dir.setZero();   /* a new pose: what the sweeps before it did not fix is no longer known */
+    L->weak_run = L->weak_clear = 0;
     L->global_since = 0;
     L->lost_searches = 0;
     L->cand_vel_unknown = !s.vel_known;
