@@ -857,23 +857,6 @@ def tunnel_street(tmp_path_factory):
     return street_drive(tmp_path_factory.mktemp("tunnel"), 0, 5, 36, drop=(), tunnel=True)
 
 
-def sigmas_off(out, gt, status):
-    """(horizontal error m, the same in standard deviations of the POSE's own x-y covariance)
-    of the POSE of out with this status."""
-    from portobello import pose_t
-    t = gt[:, 0]
-    e, z = [], []
-    for ch, _, data in read_log(out, {"POSE"}):
-        q = pose_t.decode(data)
-        if q.status != status or not t[0] <= q.utime <= t[-1]:
-            continue
-        d = np.array([q.position[0] - np.interp(q.utime, t, gt[:, 1]), q.position[1] - np.interp(q.utime, t, gt[:, 2])])
-        C = np.array(q.covariance).reshape(6, 6)[:2, :2]
-        e.append(float(np.hypot(*d)))
-        z.append(float(np.sqrt(d @ np.linalg.solve(C, d))))
-    return np.array(e), np.array(z)
-
-
 @pytest.mark.parametrize("fused", [False, True])
 def test_a_tunnel_is_not_tracked_as_if_the_way_along_it_were_known(tunnel_street, tmp_path, fused):
     """In a tunnel the walls and the road fix every direction but the one along them, and the
@@ -893,8 +876,8 @@ def test_a_tunnel_is_not_tracked_as_if_the_way_along_it_were_known(tunnel_street
              site=t["site_full"])
     c = counters(last_status_msg(out))
     assert c.get("match_degenerate", 0) >= 10, c       # the case arose (measured 106-108 sweeps)
-    et, zt = sigmas_off(out, t["gt"], 1)
-    ed, zd = sigmas_off(out, t["gt"], 2)
+    et, zt = lb.sigmas_off(out, t["gt"], 1)
+    ed, zd = lb.sigmas_off(out, t["gt"], 2)
     lost = int(np.sum(lb.read_poses(out, "POSE")[:, 5] == 3))
     if fused:
         # measured: 357 POSE TRACKING, none DEGRADED, max 0.062 m (0.38 m over a longer drive before)

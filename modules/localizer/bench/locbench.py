@@ -152,6 +152,26 @@ def errors_vs_truth(poses, gt):
     return p, et, ey
 
 
+def sigmas_off(path, gt, status=1):
+    """(horizontal error m, the same in standard deviations of the POSE's own x-y covariance:
+    the Mahalanobis distance) of each POSE of path with this status, within the truth's span.
+    What a pose claims against what it is: an honest covariance has about 1 % beyond 3 sd
+    (2 degrees of freedom)."""
+    t = gt[:, 0]
+    e, z = [], []
+    for ev in lcm.EventLog(str(path), "r"):
+        if ev.channel != "POSE":
+            continue
+        q = pose_t.decode(ev.data)
+        if q.status != status or not t[0] <= q.utime <= t[-1]:
+            continue
+        d = np.array([q.position[0] - np.interp(q.utime, t, gt[:, 1]), q.position[1] - np.interp(q.utime, t, gt[:, 2])])
+        C = np.array(q.covariance).reshape(6, 6)[:2, :2]
+        e.append(float(np.hypot(*d)))
+        z.append(float(np.sqrt(d @ np.linalg.solve(C, d))) if np.all(np.isfinite(C)) and np.linalg.det(C) > 0 else np.inf)
+    return np.array(e), np.array(z)
+
+
 def read_stats(path):
     with open(path) as f:
         return list(csv.DictReader(f))

@@ -57,12 +57,12 @@ def lane_points(route_yaml):
 def tunnel_world(lines, route_yaml):
     """world.yaml's lines with the tunnel: the objects near its lane left out, walls in 4 m
     pieces along both sides outside the sidewalks (the terrain's road half width, kerb and
-    sidewalk of the default site). Returns (lines, the tunnel's start and end x)."""
+    sidewalk of the default site)."""
     import re
     P = lane_points(route_yaml)
     x0, x1 = TUNNEL["x"]
     seg = [i for i in range(len(P) - 1) if x0 <= P[i, 0] <= x1 and x0 <= P[i + 1, 0] <= x1 and P[i, 1] < 50]
-    a, b = P[seg[0]:seg[-1] + 2][:-1], P[seg[0] + 1:seg[-1] + 2]
+    a, b = P[seg[0]:seg[-1] + 1], P[seg[0] + 1:seg[-1] + 2]   # the lane's pieces through it
 
     def near(x, y):
         d = b - a
@@ -84,7 +84,7 @@ def tunnel_world(lines, route_yaml):
                          f"yaw_deg: {math.degrees(math.atan2(u[1], u[0])):.2f}, "
                          f"size: [{np.hypot(*(q - p)) + 0.05:.2f}, 0.30, {TUNNEL['wall_m']:.2f}], z0: 0.00}}\n")
     i = max(k for k, line in enumerate(out) if line.startswith("objects:"))
-    return out[:i + 1] + walls + out[i + 1:], (float(a[0, 0]), float(b[-1, 0]))
+    return out[:i + 1] + walls + out[i + 1:]
 
 
 def street_site_files(site, drop=TREES, tunnel=False):
@@ -97,7 +97,7 @@ def street_site_files(site, drop=TREES, tunnel=False):
     with open(lb.ROOT / "maps" / "default" / "world.yaml") as src:
         lines = [line for line in src if not any(f"class: {c}" in line for c in drop)]
     if tunnel:
-        lines, _ = tunnel_world(lines, site / "route.yaml")
+        lines = tunnel_world(lines, site / "route.yaml")
     with open(site / "world.yaml", "w") as dst:
         dst.writelines(lines)
 
@@ -126,26 +126,6 @@ def make_site(out, depth, drop=TREES, tunnel=False):
     return site
 
 
-def sigmas_off(out, gt):
-    """For each tracking POSE of OUT: its horizontal error in standard deviations of its own
-    covariance (the Mahalanobis distance of the x-y error): what it claims against what it
-    is. A filter whose covariance is honest has about 1 % beyond 3 (2 degrees of freedom)."""
-    import lcm
-    from portobello import pose_t
-    t = gt[:, 0]
-    z = []
-    for ev in lcm.EventLog(str(out), "r"):
-        if ev.channel != "POSE":
-            continue
-        q = pose_t.decode(ev.data)
-        if q.status != 1 or not t[0] <= q.utime <= t[-1]:
-            continue
-        e = np.array([q.position[0] - np.interp(q.utime, t, gt[:, 1]), q.position[1] - np.interp(q.utime, t, gt[:, 2])])
-        C = np.array(q.covariance).reshape(6, 6)[:2, :2]
-        z.append(float(np.sqrt(e @ np.linalg.solve(C, e))) if np.all(np.isfinite(C)) and np.linalg.det(C) > 0 else np.inf)
-    return np.array(z)
-
-
 def track_whole_drive(drive, log, site, gt):
     """The localizer over the whole drive (log: its sensors) from the true pose at its
     first sweep."""
@@ -162,7 +142,7 @@ def track_whole_drive(drive, log, site, gt):
         trk = p[p[:, 5] == 1]
         eh = bs.horizontal(trk, gt)
         _, et, ey = lb.errors_vs_truth(trk, gt)
-        z = sigmas_off(out, gt)
+        _, z = lb.sigmas_off(out, gt)
         rows.append({"case": label, "poses": len(p), "tracking": len(trk), "lost": int(np.sum(p[:, 5] == 3)),
                      "degraded": int(np.sum(p[:, 5] == 2)), "within_0.2m_pct": 100.0 * float(np.mean(et <= 0.2)),
                      "h_median_m": float(np.median(eh)), "h_p99_m": float(np.percentile(eh, 99)),
