@@ -57,9 +57,10 @@ def judge(gt, out):
     after = poses[trk[0]:]
     _, et, ey = lb.errors_vs_truth(after[after[:, 5] == 1], gt)
     et_h = horizontal(after[after[:, 5] == 1], gt)
+    _, z = lb.sigmas_off(out, gt)   # the same POSE: every tracking one within the truth's span
     return {"tracking_s": float(poses[trk[0], 0] - poses[0, 0]) * 1e-6,
             "converged": bool(len(et) and et[0] <= CONVERGED_M and np.max(et) <= CONVERGED_M),
-            "errors": et_h.tolist(), "yaw_errors": ey.tolist(),
+            "errors": et_h.tolist(), "yaw_errors": ey.tolist(), "sigmas": z.tolist(),
             "lost": int(np.sum(after[:, 5] == 3)), "max_m": float(np.max(et)) if len(et) else None}
 
 
@@ -79,6 +80,7 @@ def summary(name, runs, within_s=None):
     conv = [r for r in runs if r["converged"] and (within_s is None or r["tracking_s"] <= within_s)]
     errs = np.concatenate([np.array(r["errors"]) for r in conv]) if conv else np.array([])
     yaws = np.concatenate([np.array(r["yaw_errors"]) for r in conv]) if conv else np.array([])
+    sig = np.concatenate([np.array(r.get("sigmas", [])) for r in conv]) if conv else np.array([])
     ts = [r["tracking_s"] for r in runs if r["tracking_s"] is not None]
     return {"case": name, "starts": n, "converged": len(conv), "converged_pct": 100.0 * len(conv) / max(n, 1),
             "tracking_s_median": float(np.median(ts)) if ts else None,
@@ -86,16 +88,24 @@ def summary(name, runs, within_s=None):
             "h_median_m": float(np.median(errs)) if len(errs) else None,
             "h_p99_m": float(np.percentile(errs, 99)) if len(errs) else None,
             "yaw_p99_deg": float(np.percentile(yaws, 99)) if len(yaws) else None,
+            # what the POSE claim against what they are: an honest covariance puts about 1 %
+            # beyond 3 sd (horizontal, 2 dof)
+            "beyond_3sd_pct": 100.0 * float(np.mean(sig > 3)) if len(sig) else None,
             "lost": int(sum(r["lost"] for r in runs)),
             # tracked somewhere else: a wrong place is worse than no place
             "wrong": int(sum(1 for r in runs if r.get("max_m") is not None and r["max_m"] > WRONG_M))}
+
+
+def print_header():
+    print(f"{'case':<34} {'starts':>6} {'conv %':>7} {'trk s50':>7} {'trk max':>7} {'h med m':>7} {'h p99 m':>7} "
+          f"{'yaw99°':>7} {'>3sd %':>6} {'LOST':>5} {'wrong':>5}")
 
 
 def print_row(s):
     f = lambda v, fmt="{:.3f}": "-" if v is None else fmt.format(v)  # noqa: E731
     print(f"{s['case']:<34} {s['starts']:>6} {s['converged_pct']:>7.1f} {f(s['tracking_s_median'], '{:.1f}'):>7} "
           f"{f(s['tracking_s_max'], '{:.1f}'):>7} {f(s['h_median_m']):>7} {f(s['h_p99_m']):>7} {f(s['yaw_p99_deg']):>7} "
-          f"{s['lost']:>5} {s['wrong']:>5}")
+          f"{f(s.get('beyond_3sd_pct'), '{:.1f}'):>6} {s['lost']:>5} {s['wrong']:>5}")
 
 
 def moving_cut_points(log, gt, n, seconds, min_speed=3.0):
@@ -154,8 +164,7 @@ def run_starts(drives, site, n_guesses=100, n_frames=10, n_gnss=20, n_global=20,
             cuts.append((gt, crop, c, work))
     print(f"starts like real life ({len(cuts)} cut points, {seconds:.0f} s each, {jobs} at a time; "
           f"converged = every tracking POSE within {CONVERGED_M} m)")
-    print(f"{'case':<34} {'starts':>6} {'conv %':>7} {'trk s50':>7} {'trk max':>7} {'h med m':>7} {'h p99 m':>7} "
-          f"{'yaw99°':>7} {'LOST':>5} {'wrong':>5}")
+    print_header()
     out = []
     guesses = []
     for i in range(n_guesses):

@@ -196,6 +196,8 @@ def score_run(drive_log, out_log, stats_path=None):
         r["t_p99"] = float(np.percentile(et, 99))
         r["t_max"] = float(np.max(et))
         r["yaw_p99"] = float(np.percentile(ey, 99))
+        _, z = sigmas_off(out_log, gt)
+        r["beyond_3sd_pct"] = 100.0 * float(np.mean(z > 3)) if len(z) else float("nan")
     if len(pred) > 1:
         span = (pred[-1, 0] - pred[0, 0]) * 1e-6
         r["pred_rate_hz"] = (len(pred) - 1) / span if span > 0 else float("nan")

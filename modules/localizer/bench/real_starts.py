@@ -168,8 +168,7 @@ def main():
     plausible = [reference_plausible(lb.read_poses(c, "GROUND_TRUTH"), [times[k] for k in flagged]) for c in cuts]
     print(f"real_starts: {len(cuts)} cuts of {a.seconds:.0f} s at {', '.join(f'{t:.1f}' for t in frames)} s "
           f"(car moving), LiDAR alone, {a.jobs} at a time")
-    print(f"{'case':<34} {'starts':>6} {'conv %':>7} {'trk s50':>7} {'trk max':>7} {'h med m':>7} {'h p99 m':>7} "
-          f"{'yaw99°':>7} {'LOST':>5} {'wrong':>5}")
+    bs.print_header()
     rng = np.random.default_rng(a.seed)
     veh = ["--vehicle", a.vehicle, "--no-gnss", "--no-imu", "--no-speed", "--site", site]
     tasks = []

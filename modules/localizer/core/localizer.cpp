@@ -213,6 +213,9 @@ static pose_out_t make_pose(const localizer_t *L, const filter_t &f, int64_t t, 
     p.velocity = filter_base_velocity(&f);
     p.angular_velocity = filter_base_rate(&f);
     p.covariance = filter_base_covariance(&f);
+    const double b2 = L->cfg.pose_bias_sigma_m * L->cfg.pose_bias_sigma_m;
+    p.covariance(0, 0) += b2;
+    p.covariance(1, 1) += b2;
     p.status = L->status;
     p.source = predicted ? SRC_PREDICTED : SRC_LOCALIZER;
     p.match_score = score;
