@@ -898,7 +898,8 @@ def test_real_mulran_sparse_keyframes_from_keyframe_80_do_not_stall(mulran_refer
     turned the car 3.8 degrees wrong; at 114, 1.8 s later, it took 4.5 m of 16.1 and the odometry
     stalled (steps of 0.2-2 m where the car moved 5-9 m) for 25 keyframes: 24 of 81 steps within
     0.3 m and 1 degree of the reference. Matched again to the sweep before alone there
-    (PB_ODOM_PREVIOUS, 2 sweeps), 77 of 81."""
+    (PB_ODOM_PREVIOUS, 2 sweeps), 77 of 81. On the reference that crosses the bridge at
+    constant velocity (7 Dec 2026, night) fewer keyframes are implausible: 78 of 85."""
     run([BIN / "import-scans", "--scans", MULRAN / "Scans", "--poses", mulran_reference["poses"], "--times",
          MULRAN / "times.txt", "--vehicle", ROOT / "vehicles" / "lidar_mast.yaml", "--first", "80", "--quiet",
          "--out", tmp_path / "from80.lcm"])
@@ -921,7 +922,7 @@ def test_real_mulran_sparse_keyframes_from_keyframe_80_do_not_stall(mulran_refer
         turn = (rR[i - 1].inv() * rR[i]).inv() * (R[i - 1].inv() * R[i])
         n += 1
         ok += bool(np.linalg.norm(step - ref_step) < 0.3 and turn.magnitude() < np.radians(1))
-    assert n == 81, n
-    assert ok >= 69, f"{ok} of {n} steps agree with the reference (measured 77; 24 when the odometry stalled)"
+    assert n == 85, n
+    assert ok >= 64, f"{ok} of {n} steps agree with the reference (measured 78; 24 when the odometry stalled)"
     assert 1 <= report["scans_from_previous"] <= 6, report["scans_from_previous"]
 

@@ -20,7 +20,10 @@ Steps, each printed as it runs:
     at their solved poses, from constant velocity (the last step scaled by the time
     between scans, and +-2 m along it); the start with the most inliers within 0.3 m
     wins. The input's relative pose and starts every --sweep-step m along the motion (as
-    far as --max-speed gets) win only with --sweep-margin more inliers. A step is
+    far as --max-speed gets) win only with --sweep-margin more inliers, and only where
+    starts 2 m either way along the motion come back to them (a minimum of the scans; on
+    a bridge every start stays where it began, and a shorter step fits more points only
+    because more of the scan lies where the previous ones looked). A step is
     reported open when a start that ended 1 m or more away fits within --open-margin;
  3. check edges: scan j against scan j-2 and j-3 alone (GICP from the odometry's
     relative pose); an edge that lands more than --gate m from the odometry or has
@@ -269,6 +272,20 @@ def main():
 
         def fit(name, g):
             return (name,) + align(tgt, tree, j, g)
+
+        def basin(c):
+            """Whether starts 2 m either way along the motion come back to c (within 1 m): a
+            minimum of the scans, not a start left where it began. The share of points that
+            fit grows as the step shrinks (more of the scan lies where the previous ones
+            looked), so where the road looks the same all along (a bridge between railings)
+            a short step fits better without being fixed by anything."""
+            u = ahead / max(np.linalg.norm(ahead), 1e-6)
+            for d in (-2.0, 2.0):
+                g = c[1].copy()
+                g[:3, 3] += d * u
+                if abs((align(tgt, tree, j, g)[0][:3, 3] - c[1][:3, 3]) @ u) > 1.0:
+                    return False
+            return True
         # A car keeps its speed: the constant-velocity starts (the last step scaled by the
         # time between scans, and +-2 m along it) are the default. The input's relative pose
         # is not: Riverside02's poses move at 2-6 m/s where the scans fit best at 14 m/s
@@ -302,7 +319,7 @@ def main():
                 others.append(fit("along the motion", g))
         if others:
             other = max(others, key=lambda t: t[2])
-            if other[2] > best[2] + args.sweep_margin:
+            if other[2] > best[2] + args.sweep_margin and basin(other):
                 best = other
         # The scans leave the step open when a start that ended 1 m or more from the chosen
         # one fits about as well: there the reference rests on constant velocity.

@@ -10,6 +10,9 @@
 
 namespace pb_loc {
 
+/* how far along its axis a car of unknown speed is looked for (the seeds of motion_seeds) */
+static const double REACH_CAP_M = 40.0;
+
 /* Where to search on this sweep, and why. */
 struct start_t {
     Eigen::Isometry3d seed = Eigen::Isometry3d::Identity();
@@ -41,6 +44,13 @@ static Vec3 course_velocity(const localizer_t *L, const gnss_in_t &fx)
  * Returns false when there is none (the caller then searches the whole map). */
 static bool choose_start(localizer_t *L, int64_t t_ref, start_t *s)
 {
+    /* a prior of unknown speed older than the seeds along its axis reach (sweeps seconds
+     * apart: MulRan's keyframes on a bridge, 3 s and 36 m on from a place that could not
+     * be told from its neighbours) no longer says where the car is: searched as with none */
+    if (L->has_hint && L->hint_t != 0 && t_ref > L->hint_t) {
+        double dt = (t_ref - L->hint_t) * 1e-6;
+        if ((L->hint_body_vel.isZero() || dt >= 2.0) && L->cfg.max_speed_mps * dt > REACH_CAP_M) L->has_hint = false;
+    }
     if (L->has_hint) {
         s->seed = L->hint;
         s->vel = s->seed.linear() * L->hint_body_vel;
@@ -112,7 +122,7 @@ static bool choose_start(localizer_t *L, int64_t t_ref, start_t *s)
  * degrees), 10 degrees apart. *step: their spacing along the arcs (search each about
  * 0.75 * step around). At most ~40 seeds (a few hundred ms: live, the sweeps keep
  * coming), so a longer gap spaces them wider. */
-double motion_reach_m(const localizer_t *L, double dt_s) { return std::min(L->cfg.max_speed_mps * dt_s, 40.0); }
+double motion_reach_m(const localizer_t *L, double dt_s) { return std::min(L->cfg.max_speed_mps * dt_s, REACH_CAP_M); }
 
 std::vector<Eigen::Isometry3d> motion_seeds(const localizer_t *L, const Eigen::Isometry3d &from, double dt_s,
                                             double *step)
