@@ -1186,8 +1186,9 @@ def test_real_mulran_no_prior_start_whose_true_place_the_ring_key_left_out(mulra
     """The even MulRan keyframes in the site of the odd ones, no prior, cut 62.5 s into the log
     as bench-localizer-real cut it on 6 Dec (the cut reaches the bridge at keyframe 88, which
     the reference flagged until 7 Dec; it was good to centimetres there). With 2,700 places
-    compared in full after the ring key, the true place (the best of all in full) ranked 4,545th by the key and was never compared:
-    the start tracked the road 92 m away the other way round. With 5,400 (measured 6 Dec
+    compared in full after the ring key, the true place (the best of all in full) ranked
+    4,545th by the key and was never compared: the start tracked the road 92 m away the other
+    way round. With 5,400 (measured 6 Dec
     2026): tracking 1.8 s after the cut, worst 0.07 m; the bound is the bench's 0.2 m."""
     for r in mulran_no_prior_starts(mulran_reference, tmp_path, (62.5,), log="even"):
         assert r["tracking_s"] is not None and r["tracking_s"] <= 5.0, r["tracking_s"]
