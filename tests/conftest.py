@@ -6,8 +6,8 @@ and skip with a message when the data is absent.
 
 Tests marked `live` run processes in real time (a live LCM bus, a page talking to it):
 `make test` runs every other test first, on every core (pytest-xdist, one module per
-worker), then these alone, so their timing does not depend on other work. A new test
-that runs anything live must carry the mark.
+worker), then these, two modules at a time, so no CPU-bound work slows them. A new test
+that runs anything live must carry the mark and use ports no other test uses.
 """
 import json
 import os
@@ -30,7 +30,7 @@ sys.path.insert(0, str(BUILD / "python"))
 def pytest_configure(config):
     config.addinivalue_line("markers", "real: needs ../shared/data (run with make test-real)")
     config.addinivalue_line("markers", "live: runs in real time (a live bus, a browser page that "
-                            "talks to it): `make test` runs these alone, after the others")
+                            "talks to it): `make test` runs these after the others, two modules at a time")
 
 
 def pytest_collection_modifyitems(config, items):
