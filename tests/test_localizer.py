@@ -1249,6 +1249,32 @@ def test_registration_bench_compares_accuracy_where_the_reference_is_plausible(t
     assert bench_gicp.accuracy_on({"n": 4}, [True] * 4, 0.2) is None
 
 
+def test_bench_accuracy_verdict_compares_the_runs_both_converged():
+    """bench_gicp's "equal or better": convergence share, then the error on the runs both
+    converged. From 3 m away a baseline that fails most starts keeps them near 3 m, ours a few
+    further off: a p99 over every run compared those failures, not the accuracy."""
+    def run(errors):
+        e = np.asarray(errors, float)
+        return {"errors": errors, "converged": float(np.mean(e < 0.2)), "t_median": float(np.median(e)),
+                "t_p99": float(np.percentile(e, 99))}
+    ours = run([0.03] * 85 + [4.5] * 15)
+    base = run([0.06] * 30 + [3.5] * 70)
+    assert ours["t_p99"] > base["t_p99"] + 0.02                # every run: the failures' tail
+    p = bench_gicp.paired(ours, base, 0.2)
+    assert p["n"] == 30 and p["ours_p99"] == pytest.approx(0.03) and p["base_p99"] == pytest.approx(0.06)
+    assert bench_gicp.better_or_equal(ours, base, 0.2)
+    assert "on the 30 both converged" in bench_gicp.accuracy_text(ours, base, 0.2)
+    # a baseline that never converges has no accuracy to compare: better when ours converges
+    assert bench_gicp.better_or_equal(ours, run([3.5] * 100), 0.2)
+    assert "no run converged in both" in bench_gicp.accuracy_text(ours, run([3.5] * 100), 0.2)
+    # less accurate where both converged, converged less often, neither converged, or the
+    # runs do not pair up: not equal
+    assert not bench_gicp.better_or_equal(run([0.09] * 85 + [4.5] * 15), base, 0.2)
+    assert not bench_gicp.better_or_equal(run([0.03] * 20 + [4.5] * 80), base, 0.2)
+    assert not bench_gicp.better_or_equal(run([4.5] * 100), run([3.5] * 100), 0.2)
+    assert not bench_gicp.better_or_equal(ours, run([0.06] * 10), 0.2)
+
+
 def mulran_cut(mulran_reference, tmp_path, at, plausible=True, split="even"):
     """The `split` MulRan keyframes (even: bench-localizer-real's second trial; odd: its
     first) in the site of the others, cut 8 s from AT s into the log, where the reference is
