@@ -171,7 +171,7 @@ PYTEST = $(VPY) -m pytest -q -p no:cacheprovider -o tmp_path_retention_policy=fa
 # module per worker (pytest-xdist), then the tests marked `live` (real time on a bus, a
 # page talking to it) without the offline ones, so no CPU-bound work slows them. The live
 # ones mostly wait on real time (0.4 of a core on average), so two modules of them run at
-# once (each test has its own ports); their timing figures are the same as one at a time
+# once (each test has its own ports); their timing figures stay close to one at a time
 # (kill -9 to a new STATUS 0.10-0.28 s, stale sweeps skipped 18-21). Both phases always
 # run; make fails if either failed, or if neither selected a test (pytest's 5; one phase
 # may select none, e.g. with PYTEST_ARGS=-k).
